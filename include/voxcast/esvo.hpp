@@ -1,0 +1,134 @@
+#pragma once
+// Efficient Sparse Voxel Octree (Laine & Karras 2010, §5).
+//
+// Memory layout (all little-endian 32-bit words in one array, `EsvoOctree::words`):
+//
+//   The array is a sequence of *blocks*. Each block is
+//     [descriptor area][info section][attachments...]
+//   and starts at an 8 KiB boundary (word index multiple of kPageWords = 2048).
+//
+//   Descriptor area: 64-bit *slots* (two words). Slot indices are global
+//   (word index / 2). The first slot of every 8 KiB page (slot index multiple
+//   of kPageSlots = 1024) is a *page header*: word 0 = signed offset in words
+//   from the page header to its block's info section, word 1 = 0. Other slots
+//   hold child descriptors, far pointers or padding (all-zero).
+//
+//   Child descriptor (§5.1, Figure 2):
+//     word 0: bits 31..17 child pointer (15 bits, unsigned, in slots, relative
+//             to this descriptor's slot), bit 16 far, bits 15..8 valid mask,
+//             bits 7..0 leaf mask.  Slot i of the 8 children is bit i
+//             (i = x | y<<1 | z<<2, the low three Morton bits).
+//             valid=0: empty; valid=1,leaf=0: subdivided; valid=1,leaf=1: leaf.
+//     word 1: bits 31..8 contour pointer, bits 7..0 contour mask (§5.2; zero
+//             until contours are built).
+//   The descriptors of a node's non-leaf children are stored in consecutive
+//   slots in child-slot order; the child pointer points at the first. If the
+//   far bit is set, the child pointer instead gives the (relative) slot of a
+//   far pointer slot whose word 0 is a signed 32-bit slot offset from the
+//   referencing descriptor to its first child. Children always come after
+//   their parent (offset > 0), so the hierarchy is acyclic. A group of child
+//   descriptors never straddles a page header. The root descriptor is the
+//   first descriptor of block 0.
+//
+//   Info section (one per block, 2-word aligned):
+//     word 0: kInfoMagic, word 1: signed word offset from the info section to
+//     the block's first descriptor slot, word 2: number of slots in the block's
+//     descriptor area, word 3: attachment count A, then A pairs
+//     (type, signed word offset from the info section to the attachment).
+//
+//   Raw attribute attachment (type kAttachRawColorNormal, §5.4, Figure 7):
+//     word 0: slot count S (= the block's descriptor area size), word 1: value
+//     count V, then S lookup entries (one per slot of the descriptor area,
+//     gaps included): bits 31..8 value pointer (in values, relative to the
+//     first value), bits 7..0 attribute mask. Then V values of two words:
+//     32-bit ABGR color (R in the low byte, sRGB-encoded) and a 32-bit
+//     cube-face normal: bits 31..29 face (axis*2 + (negative?1:0)),
+//     bits 28..15 u (14 bits), bits 14..0 v (15 bits); u and v map [-1,1] on
+//     the face to [0, 2^14-1] and [0, 2^15-1].
+//   The attributes of the voxel in child slot i of descriptor d live in d's
+//   block, at lookup entry (d - block first slot), value
+//   pointer + popcount(mask & ((1<<i)-1)). Every voxel except the root has one.
+//
+// The octree occupies the cube [1,2]^3 in octree space (§6.1); scale s means a
+// cube of side 2^(s - kMaxScale); leaves of an N = 2^L grid are at scale
+// kMaxScale - L.
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "voxcast/math.hpp"
+#include "voxcast/voxelize.hpp"
+
+namespace voxcast::esvo {
+
+inline constexpr int kMaxScale = 23;          // s_max: float mantissa bits
+inline constexpr uint32_t kPageWords = 2048;  // 8 KiB pages
+inline constexpr uint32_t kPageSlots = kPageWords / 2;
+inline constexpr uint32_t kInfoMagic = 0x4F464E49;  // "INFO"
+inline constexpr uint32_t kAttachRawColorNormal = 1;
+
+uint32_t encode_color_abgr(const Color& linear);     // sRGB-encodes
+Color decode_color_abgr(uint32_t abgr);              // back to linear
+uint32_t encode_normal_cube(Vec3 unit_normal);
+Vec3 decode_normal_cube(uint32_t code);
+
+struct BuildOptions {
+  /// A block is closed once it holds this many descriptor slots or attribute
+  /// values (whichever first); the 24-bit value pointer caps it at 2^24. Small
+  /// values are useful in tests to exercise multi-block layouts and far pointers.
+  uint32_t max_block_slots = 1u << 20;
+  uint32_t max_block_values = 1u << 22;
+};
+
+/// Per-level counts for `voxcast info` (esvo §8.2). Level 0 is the root.
+struct LevelStats {
+  uint64_t voxels = 0;     // voxels at this level
+  uint64_t non_leaf = 0;   // of which subdivided (own a descriptor)
+};
+
+struct MemoryStats {
+  uint64_t descriptor_bytes = 0;   // child descriptors
+  uint64_t far_pointer_bytes = 0;
+  uint64_t page_header_bytes = 0;
+  uint64_t padding_bytes = 0;      // unused slots (alignment, reserved far slots)
+  uint64_t info_bytes = 0;         // info sections
+  uint64_t attribute_lookup_bytes = 0;
+  uint64_t attribute_value_bytes = 0;
+  uint64_t total_bytes = 0;
+};
+
+class EsvoOctree {
+ public:
+  GridTransform grid;            // world placement of the root cube
+  std::vector<uint32_t> words;   // the blocks, layout above
+  uint32_t block_count = 0;
+
+  int levels() const { return grid.levels; }
+  /// Root descriptor slot (first descriptor of block 0, i.e. slot 1).
+  uint32_t root_slot() const { return 1; }
+  const uint32_t* slot_ptr(uint32_t slot) const { return words.data() + size_t(slot) * 2; }
+
+  /// Color (linear) and unit normal of the voxel in child slot `child` of the
+  /// descriptor at `parent_slot`.
+  void attributes(uint32_t parent_slot, int child, Color* color, Vec3* normal) const;
+
+  std::vector<LevelStats> level_stats() const;
+  MemoryStats memory_stats() const;
+
+  /// Full structural check of `words` (every page header, info section,
+  /// descriptor, far pointer and lookup entry reachable from the root):
+  /// throws voxcast::Error naming the first problem. After it succeeds,
+  /// traversal and attribute lookup cannot read out of bounds or loop.
+  void validate() const;
+};
+
+/// Builds the octree from sorted unique Morton codes of `voxels` (bottom-up,
+/// esvo §7.1 / hitchhiker's guide): parent attributes are the area-weighted
+/// average of their children so that every level is a valid LOD.
+EsvoOctree build_octree(const VoxelSet& voxels, const BuildOptions& options = {});
+
+/// The set of leaf voxels as sorted Morton codes at the octree's finest level
+/// (inverse of build_octree; used by tests and tools).
+std::vector<uint64_t> decode_leaves(const EsvoOctree& octree);
+
+}  // namespace voxcast::esvo
