@@ -1,2 +1,110 @@
-// voxcast command-line interface (placeholder until the subcommands land).
-int main() { return 0; }
+// voxcast: mesh -> sparse voxel structures -> CPU ray-cast images.
+#include <oneapi/tbb/global_control.h>
+
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <new>
+#include <sstream>
+#include <vector>
+
+#include "commands.hpp"
+#include "voxcast/error.hpp"
+
+namespace voxcast::cli {
+
+Vec3 parse_vec3(const std::string& text, const char* what) {
+  std::vector<float> v;
+  std::stringstream ss(text);
+  std::string item;
+  while (std::getline(ss, item, ',')) {
+    char* end = nullptr;
+    float f = std::strtof(item.c_str(), &end);
+    if (item.empty() || end == item.c_str() || *end != 0 || !std::isfinite(f))
+      throw Error(std::string(what) + ": '" + text + "' is not x,y,z (three finite numbers)");
+    v.push_back(f);
+  }
+  if (v.size() != 3 || (!text.empty() && text.back() == ','))
+    throw Error(std::string(what) + ": '" + text + "' is not x,y,z (three finite numbers)");
+  return {v[0], v[1], v[2]};
+}
+
+void parse_size(const std::string& text, int* width, int* height) {
+  int w = 0, h = 0;
+  char x = 0;
+  char rest = 0;
+  if (std::sscanf(text.c_str(), "%d%c%d%c", &w, &x, &h, &rest) != 3 || (x != 'x' && x != 'X') ||
+      w < 1 || h < 1 || w > 16384 || h > 16384)
+    throw Error("--size: '" + text + "' is not WxH with 1 <= W, H <= 16384");
+  *width = w;
+  *height = h;
+}
+
+std::string format_bytes(double bytes) {
+  const char* units[] = {"B", "KiB", "MiB", "GiB", "TiB"};
+  int u = 0;
+  while (bytes >= 1024 && u < 4) bytes /= 1024, ++u;
+  char buf[64];
+  std::snprintf(buf, sizeof buf, u == 0 ? "%.0f %s" : "%.2f %s", bytes, units[u]);
+  return buf;
+}
+
+struct ThreadLimit::Impl {
+  tbb::global_control control;
+};
+ThreadLimit::ThreadLimit(int threads) {
+  if (threads < 0) throw Error("--threads must be >= 0");
+  if (threads > 0)
+    impl = new Impl{tbb::global_control(tbb::global_control::max_allowed_parallelism, threads)};
+}
+ThreadLimit::~ThreadLimit() { delete impl; }
+
+}  // namespace voxcast::cli
+
+int main(int argc, char** argv) {
+  using namespace voxcast::cli;
+  CLI::App app{
+      "voxcast: voxelize triangle meshes into sparse voxel octrees and ray cast them on the CPU"};
+  app.require_subcommand(1);
+  app.set_version_flag("--version", "voxcast 0.1.0");
+  app.get_formatter()->column_width(36);
+  std::vector<std::pair<CLI::App*, Runner>> commands;
+  auto add = [&](Runner (*fn)(CLI::App&)) {
+    size_t before = app.get_subcommands({}).size();
+    Runner r = fn(app);
+    commands.emplace_back(app.get_subcommands({})[before], std::move(r));
+  };
+  add(add_build);
+  add(add_render);
+  add(add_info);
+  add(add_bench);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::CallForHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::CallForVersion& e) {
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    // Usage errors: the message, then the usage of the (sub)command involved.
+    std::fprintf(stderr, "voxcast: error: %s\n", e.what());
+    CLI::App* which = &app;
+    for (auto& [sub, run] : commands)
+      if (sub->parsed()) which = sub;
+    std::fprintf(stderr, "%s", which->help().c_str());
+    return 2;
+  }
+  try {
+    for (auto& [sub, run] : commands)
+      if (sub->parsed()) return run();
+  } catch (const voxcast::Error& e) {
+    std::fprintf(stderr, "voxcast: error: %s\n", e.what());
+    return 1;
+  } catch (const std::bad_alloc&) {
+    std::fprintf(stderr, "voxcast: error: out of memory (lower --resolution)\n");
+    return 1;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "voxcast: error: %s\n", e.what());
+    return 1;
+  }
+  return 2;
+}

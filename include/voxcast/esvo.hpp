@@ -127,6 +127,10 @@ class EsvoOctree {
 /// average of their children so that every level is a valid LOD.
 EsvoOctree build_octree(const VoxelSet& voxels, const BuildOptions& options = {});
 
+/// World-space bounds of the occupied voxels, resolved down to `max_level`
+/// (coarser levels give a slightly larger box). Used for automatic cameras.
+Aabb occupied_bounds(const EsvoOctree& octree, int max_level = 7);
+
 /// The set of leaf voxels as sorted Morton codes at the octree's finest level
 /// (inverse of build_octree; used by tests and tools).
 std::vector<uint64_t> decode_leaves(const EsvoOctree& octree);

@@ -1,0 +1,38 @@
+#pragma once
+// mesh file -> voxels -> ESVO, shared by `build` and `bench`.
+#include <string>
+
+#include "voxcast/esvo.hpp"
+#include "voxcast/mesh.hpp"
+#include "voxcast/voxelize.hpp"
+
+namespace voxcast::cli {
+
+struct BuildSettings {
+  std::string mesh_path;
+  uint32_t resolution = 1024;  // ignored when voxel_size > 0
+  double voxel_size = 0;  // > 0: fit the grid to this voxel size
+  VoxelizationMode mode = VoxelizationMode::Conservative;
+  uint64_t memory_budget = 0;  // 0: 90% of available memory
+  bool verbose = false;
+};
+
+struct BuiltScene {
+  Mesh mesh;
+  MeshLoadStats mesh_stats;
+  esvo::EsvoOctree octree;
+  uint64_t leaf_voxels = 0;
+  double load_seconds = 0, voxelize_seconds = 0, octree_seconds = 0;
+};
+
+/// Rough upper estimate of the peak bytes voxelizing `mesh` into `grid` takes
+/// (surface voxel count from triangle areas and perimeters, times the bytes the
+/// voxelizer and builder hold per voxel).
+uint64_t estimate_build_bytes(const Mesh& mesh, const GridTransform& grid);
+
+BuiltScene build_scene(const BuildSettings& settings);
+
+VoxelizationMode parse_voxelization(const std::string& name);
+const char* voxelization_name(VoxelizationMode mode);
+
+}  // namespace voxcast::cli

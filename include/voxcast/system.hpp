@@ -1,0 +1,12 @@
+#pragma once
+// Facts about the machine the process runs on.
+#include <cstdint>
+
+namespace voxcast {
+
+/// Memory the kernel reports as available (MemAvailable), in bytes; 0 if unknown.
+uint64_t available_memory_bytes();
+/// Parses "512M", "8G", "1.5GiB", "123456" (bytes) into bytes; throws voxcast::Error.
+uint64_t parse_byte_size(const char* text);
+
+}  // namespace voxcast

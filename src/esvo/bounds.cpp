@@ -1,0 +1,49 @@
+// Bounds of the occupied part of an ESVO (for automatic cameras): a walk of
+// the top levels of the hierarchy, cheap even for very large octrees.
+#include <vector>
+
+#include "voxcast/esvo.hpp"
+
+namespace voxcast::esvo {
+
+Aabb occupied_bounds(const EsvoOctree& octree, int max_level) {
+  struct Item {
+    uint32_t slot;  // descriptor slot of this (non-leaf) voxel
+    uint32_t x, y, z;
+    int level;
+  };
+  Aabb box;
+  const double side = octree.grid.side();
+  auto add_voxel = [&](uint32_t x, uint32_t y, uint32_t z, int level) {
+    double size = side / double(1u << level);
+    Vec3 lo{float(octree.grid.origin.x + x * size), float(octree.grid.origin.y + y * size),
+            float(octree.grid.origin.z + z * size)};
+    box.extend(lo);
+    box.extend(lo + Vec3{float(size), float(size), float(size)});
+  };
+  std::vector<Item> stack{{octree.root_slot(), 0, 0, 0, 0}};
+  while (!stack.empty()) {
+    Item it = stack.back();
+    stack.pop_back();
+    const uint32_t* d = octree.slot_ptr(it.slot);
+    uint32_t valid = (d[0] >> 8) & 0xFF, leaf = d[0] & 0xFF;
+    uint32_t ptr = d[0] >> 17;
+    int64_t first = int64_t(it.slot) + ptr;
+    if (d[0] & 0x10000) first = int64_t(it.slot) + int32_t(octree.slot_ptr(uint32_t(first))[0]);
+    int nonleaf_rank = 0;
+    for (int c = 0; c < 8; ++c) {
+      if (!(valid & (1u << c))) continue;
+      uint32_t cx = it.x * 2 + (c & 1), cy = it.y * 2 + ((c >> 1) & 1),
+               cz = it.z * 2 + ((c >> 2) & 1);
+      bool is_leaf = leaf & (1u << c);
+      if (is_leaf || it.level + 1 >= max_level)
+        add_voxel(cx, cy, cz, it.level + 1);
+      else
+        stack.push_back({uint32_t(first + nonleaf_rank), cx, cy, cz, it.level + 1});
+      if (!is_leaf) ++nonleaf_rank;
+    }
+  }
+  return box;
+}
+
+}  // namespace voxcast::esvo
