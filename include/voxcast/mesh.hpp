@@ -31,7 +31,8 @@ struct Mesh {
   std::vector<Vec3> positions;
   std::vector<Vec3> normals;   // unit length; always present after load_mesh
   std::vector<Color> colors;   // linear vertex colors, optional
-  std::vector<Vec2> uvs;       // optional, only meaningful with a textured material
+  std::vector<Vec2> uvs;       // optional, only meaningful with a textured material;
+                               // origin at the texture's top-left, v down (glTF convention)
   std::vector<uint32_t> indices;  // 3 per triangle
   std::vector<uint32_t> triangle_material;
   std::vector<Material> materials;

@@ -1,0 +1,525 @@
+// Mesh import through Assimp: every format it reads becomes one flat, indexed,
+// validated voxcast::Mesh in world space.
+//
+// Conventions decided here (other modules rely on them):
+//  * UVs: origin at the top-left of the texture, v pointing down (glTF/D3D
+//    style), so that v maps directly onto Texture rows, which run top to
+//    bottom. Assimp's default is OpenGL style (v up; it flips glTF's v on
+//    import); aiProcess_FlipUVs turns every format into the top-left convention.
+//  * Vertex colors: glTF defines COLOR_0 as linear and is taken as is. Every
+//    other format (PLY, OBJ extensions, FBX, DAE, ...) in practice stores
+//    display-referred 8-bit colors, so they are treated as sRGB and linearized.
+//  * Material color factors (glTF baseColorFactor, OBJ Kd, ...) are linear.
+//  * Textures stay sRGB bytes; Texture::sample linearizes.
+//  * Non-finite or zero normals are recomputed (area-weighted from the faces);
+//    non-finite UVs become (0,0) and non-finite colors white: those attributes
+//    only shade, and a broken exporter should not make the geometry unusable.
+//    Non-finite positions are an error: they would corrupt the voxel grid.
+//  * Vertices no triangle uses are dropped, so bounds() and voxelization see
+//    only surface geometry.
+#include <assimp/material.h>
+#include <assimp/postprocess.h>
+#include <assimp/scene.h>
+#include <assimp/texture.h>
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <assimp/Importer.hpp>
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <iterator>
+#include <map>
+#include <sstream>
+#include <string>
+#include <string_view>
+#include <type_traits>
+
+#include "voxcast/error.hpp"
+#include "voxcast/image.hpp"
+#include "voxcast/mesh.hpp"
+
+#include <stb_image.h>
+
+namespace voxcast {
+
+namespace {
+
+namespace fs = std::filesystem;
+
+// Error messages must stay on one line and short enough for a terminal.
+std::string one_line(std::string_view s, size_t max_len = 200) {
+  std::string out;
+  bool space = false;
+  for (char c : s) {
+    if (c == '\n' || c == '\r' || c == '\t' || c == ' ') {
+      space = !out.empty();
+      continue;
+    }
+    if (space) out.push_back(' ');
+    space = false;
+    out.push_back(c);
+  }
+  if (out.size() > max_len) out = out.substr(0, max_len - 3) + "...";
+  return out;
+}
+
+// Guards against decompression bombs: 2^28 texels is already 1 GiB of RGBA.
+constexpr uint64_t kMaxTexels = uint64_t(1) << 28;
+
+// ------------------------------------------------------------ image decode
+
+// Texture files (PNG, JPEG, TGA, BMP, PSD, GIF, HDR, PNM) are decoded by
+// stb_image from Debian's libstb. The header is read first so that a
+// decompression bomb is refused before anything is allocated.
+Texture decode_image(const uint8_t* data, size_t size, const std::string& what) {
+  if (size == 0 || size > size_t(INT32_MAX))
+    throw Error(fmt::format("texture {}: empty or oversized image file", what));
+  int w = 0, h = 0, comp = 0;
+  if (!stbi_info_from_memory(data, int(size), &w, &h, &comp))
+    throw Error(fmt::format("texture {}: unreadable image ({})", what,
+                            one_line(stbi_failure_reason() ? stbi_failure_reason() : "unknown")));
+  if (w <= 0 || h <= 0 || uint64_t(w) * uint64_t(h) > kMaxTexels)
+    throw Error(fmt::format("texture {}: {}x{} texels is out of range", what, w, h));
+  stbi_uc* pixels = stbi_load_from_memory(data, int(size), &w, &h, &comp, 4);
+  if (!pixels)
+    throw Error(fmt::format("texture {}: cannot decode ({})", what,
+                            one_line(stbi_failure_reason() ? stbi_failure_reason() : "unknown")));
+  Texture tex;
+  tex.width = w;
+  tex.height = h;
+  tex.rgba.assign(pixels, pixels + size_t(w) * h * 4);
+  stbi_image_free(pixels);
+  return tex;
+}
+
+// ------------------------------------------------------------ scene walking
+
+class SceneConverter {
+ public:
+  SceneConverter(const aiScene& scene, const fs::path& path)
+      : scene_(scene), path_(path), name_(path.string()) {
+    std::string ext = path.extension().string();
+    std::transform(ext.begin(), ext.end(), ext.begin(),
+                   [](unsigned char c) { return char(std::tolower(c)); });
+    colors_are_linear_ = ext == ".gltf" || ext == ".glb";
+  }
+
+  Mesh convert(MeshLoadStats& stats) {
+    Mesh out;
+    bool any_colors = false, any_uvs = false;
+    for (unsigned m = 0; m < scene_.mNumMeshes; ++m) {
+      const aiMesh* am = scene_.mMeshes[m];
+      if (!am || !(am->mPrimitiveTypes & aiPrimitiveType_TRIANGLE)) continue;
+      any_colors |= am->HasVertexColors(0);
+      any_uvs |= am->HasTextureCoords(0);
+    }
+    for (unsigned m = 0; m < scene_.mNumMeshes; ++m) {
+      const aiMesh* am = scene_.mMeshes[m];
+      // SortByPType leaves each aiMesh with a single primitive type; points
+      // and lines have no surface to voxelize.
+      if (!am || !(am->mPrimitiveTypes & aiPrimitiveType_TRIANGLE)) continue;
+      append_mesh(*am, m, any_colors, any_uvs, out, stats);
+    }
+    if (out.indices.empty()) {
+      if (stats.input_triangles > 0)
+        throw Error(fmt::format("{}: all {} triangles are degenerate", name_, stats.input_triangles));
+      throw Error(fmt::format("{}: contains no triangles", name_));
+    }
+    compact_vertices(out);
+    return out;
+  }
+
+ private:
+  void append_mesh(const aiMesh& am, unsigned mesh_index, bool any_colors, bool any_uvs, Mesh& out,
+                   MeshLoadStats& stats) {
+    const size_t base = out.positions.size();
+    const unsigned nv = am.mNumVertices;
+    if (!am.mVertices && nv > 0)
+      throw Error(fmt::format("{}: mesh {} has no vertex positions", name_, mesh_index));
+    if (base + nv > size_t(UINT32_MAX))
+      throw Error(fmt::format("{}: more than 2^32 vertices", name_));
+
+    for (unsigned i = 0; i < nv; ++i) {
+      const aiVector3D& p = am.mVertices[i];
+      Vec3 v{p.x, p.y, p.z};
+      if (!is_finite(v))
+        throw Error(fmt::format("{}: vertex {} of mesh {} has a non-finite coordinate ({}, {}, {})",
+                                name_, i, mesh_index, p.x, p.y, p.z));
+      out.positions.push_back(v);
+    }
+
+    // Triangles first: normals are computed from the surviving ones.
+    const uint32_t material = material_for(am);
+    std::vector<uint32_t> tris;
+    tris.reserve(size_t(am.mNumFaces) * 3);
+    for (unsigned f = 0; f < am.mNumFaces; ++f) {
+      const aiFace& face = am.mFaces[f];
+      if (face.mNumIndices != 3) continue;  // stray point/line inside a mixed mesh
+      ++stats.input_triangles;
+      uint32_t a = face.mIndices[0], b = face.mIndices[1], c = face.mIndices[2];
+      if (a >= nv || b >= nv || c >= nv)
+        throw Error(fmt::format("{}: face {} of mesh {} references vertex {} but the mesh has {}",
+                                name_, f, mesh_index, std::max({a, b, c}), nv));
+      if (a == b || b == c || a == c || area2(am.mVertices[a], am.mVertices[b], am.mVertices[c]) == 0) {
+        ++stats.degenerate_dropped;
+        continue;
+      }
+      tris.insert(tris.end(), {a, b, c});
+    }
+
+    // Normals: keep the file's where they are usable, compute the rest.
+    std::vector<Vec3> normals(nv);
+    std::vector<bool> need(nv, true);
+    if (am.HasNormals()) {
+      for (unsigned i = 0; i < nv; ++i) {
+        Vec3 n{am.mNormals[i].x, am.mNormals[i].y, am.mNormals[i].z};
+        float len = length(n);
+        if (std::isfinite(len) && len > 1e-12f) {
+          normals[i] = n / len;
+          need[i] = false;
+        }
+      }
+    }
+    if (std::find(need.begin(), need.end(), true) != need.end()) {
+      stats.normals_computed = true;
+      compute_normals(am, tris, need, normals);
+    }
+    out.normals.insert(out.normals.end(), normals.begin(), normals.end());
+
+    if (any_colors) {
+      for (unsigned i = 0; i < nv; ++i) {
+        Color c{1, 1, 1, 1};
+        if (am.HasVertexColors(0)) {
+          const aiColor4D& s = am.mColors[0][i];
+          c = {convert_color(s.r), convert_color(s.g), convert_color(s.b), clamp_unit(s.a, 1.0f)};
+        }
+        out.colors.push_back(c);
+      }
+    }
+    if (any_uvs) {
+      for (unsigned i = 0; i < nv; ++i) {
+        Vec2 uv{0, 0};
+        if (am.HasTextureCoords(0)) {
+          const aiVector3D& t = am.mTextureCoords[0][i];
+          if (std::isfinite(t.x) && std::isfinite(t.y)) uv = {t.x, t.y};
+        }
+        out.uvs.push_back(uv);
+      }
+    }
+
+    for (uint32_t& i : tris) i += uint32_t(base);
+    out.indices.insert(out.indices.end(), tris.begin(), tris.end());
+    out.triangle_material.insert(out.triangle_material.end(), tris.size() / 3, material);
+  }
+
+  static double area2(const aiVector3D& a, const aiVector3D& b, const aiVector3D& c) {
+    double e1[3] = {double(b.x) - a.x, double(b.y) - a.y, double(b.z) - a.z};
+    double e2[3] = {double(c.x) - a.x, double(c.y) - a.y, double(c.z) - a.z};
+    double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                   e1[0] * e2[1] - e1[1] * e2[0]};
+    return std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+  }
+
+  // Smooth, area-weighted vertex normals: the unnormalized cross product of a
+  // face is proportional to its area, so summing it weights large faces more
+  // and keeps tiny slivers from tilting the normal.
+  static void compute_normals(const aiMesh& am, const std::vector<uint32_t>& tris,
+                              const std::vector<bool>& need, std::vector<Vec3>& normals) {
+    const unsigned nv = am.mNumVertices;
+    std::vector<double> acc(size_t(nv) * 3, 0.0);
+    std::vector<Vec3> fallback(nv, Vec3{0, 0, 0});
+    for (size_t t = 0; t < tris.size(); t += 3) {
+      const aiVector3D &a = am.mVertices[tris[t]], &b = am.mVertices[tris[t + 1]],
+                       &c = am.mVertices[tris[t + 2]];
+      double e1[3] = {double(b.x) - a.x, double(b.y) - a.y, double(b.z) - a.z};
+      double e2[3] = {double(c.x) - a.x, double(c.y) - a.y, double(c.z) - a.z};
+      double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                     e1[0] * e2[1] - e1[1] * e2[0]};
+      double len = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+      for (int k = 0; k < 3; ++k) {
+        uint32_t v = tris[t + k];
+        for (int d = 0; d < 3; ++d) acc[3 * size_t(v) + d] += n[d];
+        if (length(fallback[v]) == 0 && len > 0)
+          fallback[v] = Vec3{float(n[0] / len), float(n[1] / len), float(n[2] / len)};
+      }
+    }
+    for (unsigned i = 0; i < nv; ++i) {
+      if (!need[i]) continue;
+      const double* s = &acc[3 * size_t(i)];
+      double len = std::sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]);
+      if (len > 0 && std::isfinite(len)) {
+        normals[i] = Vec3{float(s[0] / len), float(s[1] / len), float(s[2] / len)};
+      } else if (length(fallback[i]) > 0) {
+        // Opposite faces cancelled out (e.g. a double-sided sheet): any one face is right.
+        normals[i] = fallback[i];
+      } else {
+        // Used by no surviving triangle; compact_vertices drops it. Still unit length.
+        normals[i] = Vec3{0, 0, 1};
+      }
+    }
+  }
+
+  static float clamp_unit(float v, float fallback) {
+    if (!std::isfinite(v)) return fallback;
+    return std::clamp(v, 0.0f, 1.0f);
+  }
+
+  float convert_color(float v) const {
+    float c = clamp_unit(v, 1.0f);
+    return colors_are_linear_ ? c : srgb_to_linear(c);
+  }
+
+  // Materials are created on first use, so unused materials (and their possibly
+  // missing textures) never matter. Assimp's placeholder material gets
+  // voxcast's default color, or white under vertex colors, which would
+  // otherwise be darkened by a gray nobody chose.
+  uint32_t material_for(const aiMesh& am) {
+    const unsigned mi = am.mMaterialIndex;
+    const bool has_colors = am.HasVertexColors(0);
+    const aiMaterial* mat = mi < scene_.mNumMaterials ? scene_.mMaterials[mi] : nullptr;
+    bool placeholder = mat == nullptr;
+    if (mat) {
+      aiString name;
+      if (mat->Get(AI_MATKEY_NAME, name) == AI_SUCCESS && std::string_view(name.C_Str()) == AI_DEFAULT_MATERIAL_NAME)
+        placeholder = true;
+    }
+    const uint64_t key = (uint64_t(mi) << 1) | uint64_t(placeholder && has_colors);
+    auto it = material_map_.find(key);
+    if (it != material_map_.end()) return it->second;
+
+    Material m;
+    if (placeholder) {
+      if (has_colors) m.base_color = {1, 1, 1, 1};
+    } else {
+      aiColor4D c;
+      bool found = mat->Get(AI_MATKEY_BASE_COLOR, c) == AI_SUCCESS;
+      if (!found) {
+        found = mat->Get(AI_MATKEY_COLOR_DIFFUSE, c) == AI_SUCCESS;
+        // Diffuse colors are RGB; opacity lives in a separate key.
+        float opacity = 1.0f;
+        if (found && mat->Get(AI_MATKEY_OPACITY, opacity) == AI_SUCCESS) c.a = opacity;
+        else c.a = 1.0f;
+      }
+      if (found)
+        m.base_color = {clamp_unit(c.r, 0.8f), clamp_unit(c.g, 0.8f), clamp_unit(c.b, 0.8f),
+                        clamp_unit(c.a, 1.0f)};
+      m.texture = texture_for(*mat);
+    }
+    uint32_t index = uint32_t(materials_.size());
+    materials_.push_back(m);
+    material_map_.emplace(key, index);
+    return index;
+  }
+
+  int texture_for(const aiMaterial& mat) {
+    aiString tex_path;
+    bool found = false;
+    for (aiTextureType type : {aiTextureType_BASE_COLOR, aiTextureType_DIFFUSE}) {
+      if (mat.GetTextureCount(type) > 0 && mat.GetTexture(type, 0, &tex_path) == AI_SUCCESS &&
+          tex_path.length > 0) {
+        found = true;
+        break;
+      }
+    }
+    if (!found) return -1;
+    const std::string key = tex_path.C_Str();
+    auto it = texture_map_.find(key);
+    if (it != texture_map_.end()) return it->second;
+    Texture tex = load_texture(key);
+    int index = int(textures_.size());
+    textures_.push_back(std::move(tex));
+    texture_map_.emplace(key, index);
+    return index;
+  }
+
+  Texture load_texture(const std::string& ref) {
+    const std::string what = fmt::format("'{}' of {}", one_line(ref, 120), name_);
+    // Embedded: "*N" references and, for FBX, textures matched by file name.
+    if (const aiTexture* emb = scene_.GetEmbeddedTexture(ref.c_str())) return convert_embedded(*emb, what);
+    if (!ref.empty() && ref[0] == '*')
+      throw Error(fmt::format("texture {} refers to a missing embedded texture", what));
+
+    fs::path dir = path_.parent_path();
+    std::string slashed = ref;
+    std::replace(slashed.begin(), slashed.end(), '\\', '/');  // Windows exporters
+    std::vector<fs::path> candidates = {fs::path(ref), dir / ref, dir / slashed,
+                                        dir / fs::path(slashed).filename()};
+    for (const fs::path& c : candidates) {
+      std::error_code ec;
+      if (c.empty() || !fs::is_regular_file(c, ec)) continue;
+      std::ifstream in(c, std::ios::binary);
+      std::vector<uint8_t> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+      if (!in.good() && !in.eof())
+        throw Error(fmt::format("texture {}: cannot read {}", what, c.string()));
+      return decode_image(bytes.data(), bytes.size(), what);
+    }
+    throw Error(fmt::format("texture {} not found next to the model", what));
+  }
+
+  static Texture convert_embedded(const aiTexture& t, const std::string& what) {
+    if (!t.pcData) throw Error(fmt::format("texture {}: embedded texture has no data", what));
+    if (t.mHeight == 0)  // compressed file bytes, mWidth is their size
+      return decode_image(reinterpret_cast<const uint8_t*>(t.pcData), t.mWidth, what);
+    if (uint64_t(t.mWidth) * t.mHeight > kMaxTexels)
+      throw Error(fmt::format("texture {}: embedded texture too large", what));
+    Texture tex;
+    tex.width = int(t.mWidth);
+    tex.height = int(t.mHeight);
+    tex.rgba.resize(size_t(t.mWidth) * t.mHeight * 4);
+    for (size_t i = 0, n = size_t(t.mWidth) * t.mHeight; i < n; ++i) {
+      const aiTexel& s = t.pcData[i];  // aiTexel is BGRA in memory
+      tex.rgba[4 * i] = s.r;
+      tex.rgba[4 * i + 1] = s.g;
+      tex.rgba[4 * i + 2] = s.b;
+      tex.rgba[4 * i + 3] = s.a;
+    }
+    return tex;
+  }
+
+  // Drops vertices that no kept triangle references (points/lines, removed
+  // degenerates, unused file vertices), and moves materials and textures in.
+  void compact_vertices(Mesh& m) {
+    const size_t nv = m.positions.size();
+    std::vector<uint32_t> remap(nv, UINT32_MAX);
+    uint32_t next = 0;
+    for (uint32_t& i : m.indices) {
+      if (remap[i] == UINT32_MAX) remap[i] = next++;
+      i = remap[i];
+    }
+    auto shrink = [&](auto& arr) {
+      if (arr.empty()) return;
+      std::remove_reference_t<decltype(arr)> out(next);
+      for (size_t i = 0; i < nv; ++i)
+        if (remap[i] != UINT32_MAX) out[remap[i]] = arr[i];
+      arr.swap(out);
+    };
+    shrink(m.positions);
+    shrink(m.normals);
+    shrink(m.colors);
+    shrink(m.uvs);
+    m.materials = std::move(materials_);
+    m.textures = std::move(textures_);
+  }
+
+  const aiScene& scene_;
+  fs::path path_;
+  std::string name_;
+  bool colors_are_linear_ = false;
+  std::map<uint64_t, uint32_t> material_map_;
+  std::vector<Material> materials_;
+  std::map<std::string, int> texture_map_;
+  std::vector<Texture> textures_;
+};
+
+// Assimp's OFF reader clamps out-of-range face indices to the last vertex
+// (only logging it) and trusts the header's counts, spinning for tens of
+// seconds on absurd ones. OFF is simple enough to check up front: ASCII,
+// one vertex per line, then one face per line as "n i1 ... in".
+void precheck_off(const fs::path& path, const std::string& name) {
+  std::ifstream in(path, std::ios::binary);
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  size_t pos = 0;
+  auto next_line = [&](std::string& line) {
+    while (pos < text.size()) {
+      size_t end = text.find('\n', pos);
+      if (end == std::string::npos) end = text.size();
+      line.assign(text, pos, end - pos);
+      pos = end + 1;
+      if (size_t hash = line.find('#'); hash != std::string::npos) line.resize(hash);
+      if (line.find_first_not_of(" \t\r") != std::string::npos) return true;
+    }
+    return false;
+  };
+  std::string line;
+  if (!next_line(line)) return;  // empty: Assimp reports it
+  std::istringstream head(line);
+  std::string magic;
+  head >> magic;
+  // Only the 3-D variants with one vertex per line are checked (ST/C/N only add
+  // per-vertex values); nOFF/4OFF and anything else are left to Assimp.
+  static const char* const kVariants[] = {"OFF", "COFF", "NOFF", "CNOFF", "STOFF", "STCOFF", "STNOFF", "STCNOFF"};
+  if (std::find(std::begin(kVariants), std::end(kVariants), magic) == std::end(kVariants)) return;
+  // The counts follow the magic on the same line or on the next one.
+  std::string rest;
+  std::getline(head, rest);
+  if (rest.find("BINARY") != std::string::npos) return;
+  if (rest.find_first_not_of(" \t\r") == std::string::npos) {
+    if (!next_line(line)) return;
+    rest = line;
+  }
+  std::istringstream counts(rest);
+  unsigned long long nv = 0, nf = 0;
+  if (!(counts >> nv >> nf)) throw Error(fmt::format("{}: malformed OFF header", name));
+  // Every vertex line needs at least 6 bytes ("0 0 0\n"), every face 8 ("3 0 1 2\n").
+  if (nv > text.size() / 6 || nf > text.size() / 8 || nv * 6 + nf * 8 > text.size())
+    throw Error(fmt::format("{}: OFF header claims {} vertices and {} faces, more than the {}-byte file can hold",
+                            name, nv, nf, text.size()));
+  for (unsigned long long v = 0; v < nv; ++v)
+    if (!next_line(line)) throw Error(fmt::format("{}: truncated OFF file (vertex {} of {} missing)", name, v, nv));
+  for (unsigned long long f = 0; f < nf; ++f) {
+    if (!next_line(line)) throw Error(fmt::format("{}: truncated OFF file (face {} of {} missing)", name, f, nf));
+    std::istringstream face(line);
+    unsigned long long n = 0;
+    if (!(face >> n)) throw Error(fmt::format("{}: malformed OFF face {}", name, f));
+    for (unsigned long long k = 0; k < n; ++k) {
+      long long idx = -1;
+      if (!(face >> idx)) throw Error(fmt::format("{}: OFF face {} has fewer than {} indices", name, f, n));
+      if (idx < 0 || static_cast<unsigned long long>(idx) >= nv)
+        throw Error(fmt::format("{}: OFF face {} references vertex {} but the file has {}", name, f, idx, nv));
+    }
+  }
+}
+
+}  // namespace
+
+Mesh load_mesh(const std::filesystem::path& path, MeshLoadStats* stats_out) {
+  const std::string name = path.string();
+  std::error_code ec;
+  if (!fs::exists(path, ec)) throw Error(fmt::format("{}: file not found", name));
+  if (!fs::is_regular_file(path, ec)) throw Error(fmt::format("{}: not a regular file", name));
+  if (fs::file_size(path, ec) == 0) throw Error(fmt::format("{}: file is empty", name));
+
+  {
+    std::string ext = path.extension().string();
+    std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+    if (ext == ".off") precheck_off(path, name);
+  }
+
+  Assimp::Importer importer;
+  // Points and lines are removed by SortByPType instead of reaching us.
+  importer.SetPropertyInteger(AI_CONFIG_PP_SBP_REMOVE, aiPrimitiveType_POINT | aiPrimitiveType_LINE);
+  // ValidateDataStructure runs first and rejects out-of-range indices before
+  // JoinIdenticalVertices would index with them. No GenNormals: we compute
+  // missing normals ourselves, area-weighted, and only where missing.
+  const unsigned flags = aiProcess_ValidateDataStructure | aiProcess_Triangulate |
+                         aiProcess_JoinIdenticalVertices | aiProcess_SortByPType |
+                         aiProcess_PreTransformVertices | aiProcess_FlipUVs;
+  const aiScene* scene = nullptr;
+  try {
+    scene = importer.ReadFile(path.string(), flags);
+  } catch (const std::bad_alloc&) {
+    throw Error(fmt::format("{}: out of memory while importing (corrupt element counts?)", name));
+  } catch (const std::exception& e) {
+    throw Error(fmt::format("{}: cannot import: {}", name, one_line(e.what())));
+  }
+  if (!scene) {
+    std::string err = one_line(importer.GetErrorString());
+    throw Error(fmt::format("{}: cannot import: {}", name, err.empty() ? "unknown error" : err));
+  }
+  if (scene->mNumMeshes == 0 || !scene->mMeshes)
+    throw Error(fmt::format("{}: contains no triangles", name));
+
+  MeshLoadStats stats;
+  Mesh mesh = SceneConverter(*scene, path).convert(stats);
+  try {
+    validate_mesh(mesh);
+  } catch (const Error& e) {
+    // A violation here is an importer bug or a file we misread; name the file.
+    throw Error(fmt::format("{}: {}", name, e.what()));
+  }
+  if (stats_out) *stats_out = stats;
+  return mesh;
+}
+
+}  // namespace voxcast
