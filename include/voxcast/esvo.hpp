@@ -30,6 +30,12 @@
 //   descriptors never straddles a page header. The root descriptor is the
 //   first descriptor of block 0.
 //
+//   A block's descriptor area starts at the block start (a page header) and
+//   ends right before its info section; "the block's first descriptor slot"
+//   and "block first slot" below mean that start slot (the slot of the
+//   block's first page header), so a slot's lookup entry index is simply
+//   slot - block start slot.
+//
 //   Info section (one per block, 2-word aligned):
 //     word 0: kInfoMagic, word 1: signed word offset from the info section to
 //     the block's first descriptor slot, word 2: number of slots in the block's
@@ -48,6 +54,12 @@
 //   The attributes of the voxel in child slot i of descriptor d live in d's
 //   block, at lookup entry (d - block first slot), value
 //   pointer + popcount(mask & ((1<<i)-1)). Every voxel except the root has one.
+//
+// Conventions of voxcast's builder, enforced by validate(): all leaf voxels
+// are at depth `levels` (the finest level), every descriptor has a non-empty
+// valid mask, and every descriptor is reachable exactly once. The array ends
+// padded with zeros to a whole number of pages. Voxels built without input
+// attributes get linear gray (0.5, 0.5, 0.5, 1) and the normal (0, 0, 1).
 //
 // The octree occupies the cube [1,2]^3 in octree space (§6.1); scale s means a
 // cube of side 2^(s - kMaxScale); leaves of an N = 2^L grid are at scale

@@ -52,5 +52,8 @@ void save_esvo_scene(const std::filesystem::path& path, const esvo::EsvoOctree& 
                      const SceneInfo& info);
 /// Loads and fully validates; throws voxcast::Error with a one-line reason.
 esvo::EsvoOctree load_esvo_scene(const std::filesystem::path& path, SceneInfo* info = nullptr);
+/// load_esvo_scene() without the file: interprets and fully validates the
+/// META and ESVO sections of an already parsed container (e.g. from memory).
+esvo::EsvoOctree esvo_scene_from_container(const Container& container, SceneInfo* info = nullptr);
 
 }  // namespace voxcast

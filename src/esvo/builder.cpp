@@ -1,0 +1,442 @@
+// ESVO construction (esvo §7.1; hitchhiker's guide to voxels, bottom-up octree
+// from sorted Morton codes).
+//
+// Phase 1, bottom-up (parallel with TBB): the leaves are the sorted Morton
+// codes at level L. Voxels with the same parent are adjacent and the parent's
+// code is `code >> 3`, so each coarser level is one run-length pass over the
+// finer one. Every parent gets its valid mask, the index of its first child,
+// area-weighted attributes (so that every level is a valid LOD, §7.1) and the
+// size of its subtree (descriptors and attribute values), which phase 2 uses
+// to decide ahead of time which child pointers may need a far pointer.
+//
+// Phase 2, layout (sequential, deterministic): approximately depth-first as
+// in §5.1/§7.1: when a node is visited, the descriptors of its non-leaf
+// children are placed as one consecutive group (followed by the far pointer
+// slots reserved for them), then the children are visited in slot order, so
+// child i+1's group comes after child i's whole subtree. This keeps most child
+// pointers short (15-bit relative pointer), and parents close to their
+// children in memory (§5.1 "far pointers are rare").
+//
+// Blocks (§5.3-5.4): a block is closed when the next group would take it past
+// BuildOptions::max_block_slots / max_block_values; the next block starts at
+// the next 8 KiB boundary. Each block ends with its info section and raw
+// color/normal attachment (§5.4, Figure 7), holding the attributes of the
+// children of every descriptor in the block.
+#include <algorithm>
+#include <bit>
+#include <cmath>
+#include <numeric>
+#include <stdexcept>
+#include <string>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include "esvo/layout_internal.hpp"
+#include "voxcast/error.hpp"
+#include "voxcast/esvo.hpp"
+
+namespace voxcast::esvo {
+namespace {
+
+using detail::kFarBit;
+using detail::kMaxNearPointer;
+using detail::kPointerShift;
+
+// Without input attributes every voxel gets this (documented in esvo.hpp):
+// linear mid gray, normal +z, weight 1.
+constexpr Color kDefaultColor{0.5f, 0.5f, 0.5f, 1.f};
+constexpr Vec3 kDefaultNormal{0.f, 0.f, 1.f};
+
+/// Nodes of one octree level that own a descriptor (levels 0..L-1).
+struct Level {
+  std::vector<uint64_t> code;         // Morton code at this level (freed after use)
+  std::vector<uint8_t> mask;          // valid mask
+  std::vector<uint32_t> first_child;  // index of the first child in the next level
+  std::vector<uint64_t> desc_below;   // descriptors strictly below this node
+  std::vector<uint64_t> values_below; // attribute values of those descriptors
+  std::vector<uint64_t> value;        // this node's encoded attributes (levels >= 1)
+  // Aggregated attributes (only while building the next coarser level).
+  std::vector<Color> color;
+  std::vector<Vec3> normal;
+  std::vector<float> weight;
+};
+
+uint64_t encode_value(const Color& c, Vec3 n) {
+  return uint64_t(encode_color_abgr(c)) | uint64_t(encode_normal_cube(n)) << 32;
+}
+
+constexpr size_t kChunk = size_t(1) << 15;
+
+/// One bottom-up step: groups the sorted codes of the finer level by parent.
+/// Chunks start at parent boundaries, so the output is independent of the
+/// thread count.
+void reduce_codes(const std::vector<uint64_t>& child, Level& parent) {
+  const size_t n = child.size();
+  const size_t chunks = (n + kChunk - 1) / kChunk;
+  std::vector<size_t> start(chunks + 1, n), count(chunks + 1, 0);
+  for (size_t c = 0; c < chunks; ++c) {
+    size_t s = c * kChunk;
+    while (s > 0 && s < n && (child[s] >> 3) == (child[s - 1] >> 3)) ++s;
+    start[c] = s;
+  }
+  tbb::parallel_for(size_t(0), chunks, [&](size_t c) {
+    size_t k = 0;
+    for (size_t i = start[c]; i < start[c + 1]; ++i)
+      k += (i == start[c] || (child[i] >> 3) != (child[i - 1] >> 3));
+    count[c] = k;
+  });
+  std::exclusive_scan(count.begin(), count.end(), count.begin(), size_t(0));
+  const size_t m = count[chunks];
+  parent.code.resize(m);
+  parent.mask.assign(m, 0);
+  parent.first_child.resize(m);
+  tbb::parallel_for(size_t(0), chunks, [&](size_t c) {
+    size_t out = count[c];
+    for (size_t i = start[c]; i < start[c + 1]; ++i) {
+      if (i != start[c] && (child[i] >> 3) == (child[i - 1] >> 3)) {
+        parent.mask[out - 1] |= uint8_t(1u << (child[i] & 7));
+        continue;
+      }
+      parent.code[out] = child[i] >> 3;
+      parent.mask[out] = uint8_t(1u << (child[i] & 7));
+      parent.first_child[out] = uint32_t(i);
+      ++out;
+    }
+  });
+}
+
+/// Area-weighted average of the children's attributes (§7.1: each level is a
+/// box-filtered LOD of the one below). Colors average linearly; normals are
+/// the normalized weighted sum; weights add up.
+void reduce_attributes(const std::vector<Color>& cc, const std::vector<Vec3>& cn,
+                       const std::vector<float>& cw, Level& p) {
+  const size_t m = p.mask.size();
+  p.color.resize(m);
+  p.normal.resize(m);
+  p.weight.resize(m);
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
+    for (size_t i = r.begin(); i != r.end(); ++i) {
+      const uint32_t first = p.first_child[i];
+      const int k = std::popcount(unsigned(p.mask[i]));
+      double w = 0, r4[4] = {0, 0, 0, 0}, u4[4] = {0, 0, 0, 0};
+      double nx = 0, ny = 0, nz = 0;
+      for (int j = 0; j < k; ++j) {
+        const Color& c = cc[first + j];
+        const double wj = cw[first + j];
+        w += wj;
+        r4[0] += wj * c.r, r4[1] += wj * c.g, r4[2] += wj * c.b, r4[3] += wj * c.a;
+        u4[0] += c.r, u4[1] += c.g, u4[2] += c.b, u4[3] += c.a;
+        nx += wj * cn[first + j].x, ny += wj * cn[first + j].y, nz += wj * cn[first + j].z;
+      }
+      // Zero total weight (degenerate input) falls back to the plain mean.
+      const double* s = w > 0 ? r4 : u4;
+      const double inv = w > 0 ? 1.0 / w : 1.0 / k;
+      p.color[i] = {float(s[0] * inv), float(s[1] * inv), float(s[2] * inv), float(s[3] * inv)};
+      const double len = std::sqrt(nx * nx + ny * ny + nz * nz);
+      // Opposite normals can cancel exactly; keep the first child's normal then.
+      p.normal[i] = len > 1e-12 ? Vec3{float(nx / len), float(ny / len), float(nz / len)} : cn[first];
+      p.weight[i] = float(w);
+    }
+  });
+}
+
+void encode_values(const std::vector<Color>& c, const std::vector<Vec3>& n, std::vector<uint64_t>& out) {
+  out.resize(c.size());
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, c.size(), 8192),
+                    [&](const tbb::blocked_range<size_t>& r) {
+                      for (size_t i = r.begin(); i != r.end(); ++i) out[i] = encode_value(c[i], n[i]);
+                    });
+}
+
+void check_input(const VoxelSet& v) {
+  const int L = v.grid.levels;
+  if (L < 1 || L > kMaxGridLevels)
+    throw Error("cannot build octree: grid levels " + std::to_string(L) + " outside 1.." +
+                std::to_string(kMaxGridLevels));
+  if (v.grid.resolution != (1u << L))
+    throw Error("cannot build octree: grid resolution " + std::to_string(v.grid.resolution) +
+                " is not 2^levels");
+  if (v.codes.empty()) throw Error("cannot build octree: no voxels");
+  if (v.codes.size() >= (uint64_t(1) << 32))
+    throw Error("cannot build octree: more than 2^32 voxels");
+  const size_t n = v.codes.size();
+  const bool has_attr = !v.colors.empty() || !v.normals.empty() || !v.weights.empty();
+  if (has_attr && (v.colors.size() != n || v.normals.size() != n ||
+                   (!v.weights.empty() && v.weights.size() != n)))
+    throw Error("cannot build octree: attribute arrays do not match the voxel count");
+  if (v.codes.back() >> (3 * L))
+    throw Error("cannot build octree: voxel code outside the 2^" + std::to_string(L) + " grid");
+  for (size_t i = 1; i < n; ++i)
+    if (v.codes[i] <= v.codes[i - 1])
+      throw Error("cannot build octree: voxel codes are not sorted and unique");
+}
+
+/// Upper bound on the slots the layout of a subtree with `desc` descriptors
+/// below its root can span: the descriptors, at most one far slot each, and
+/// per 8 KiB page one header plus at most 15 slots of padding in front of a
+/// group (+ far slots, <= 16 slots) that would straddle it:
+///   X <= 2d + 16 (X/1024 + 1)  =>  X <= 2d + 2d/63 + 17.
+uint64_t span_bound(uint64_t desc) { return 2 * desc + (2 * desc) / 63 + 32; }
+
+class Layout {
+ public:
+  Layout(const std::vector<Level>& levels, const std::vector<uint64_t>& leaf_values,
+         const BuildOptions& opt)
+      : lv_(levels), leaf_values_(leaf_values), opt_(opt), L_(int(levels.size())) {}
+
+  EsvoOctree run(const GridTransform& grid) {
+    uint64_t total_desc = 1 + lv_[0].desc_below[0];
+    uint64_t total_values = lv_[0].values_below[0] + std::popcount(unsigned(lv_[0].mask[0]));
+    out_.reserve(size_t(span_bound(total_desc) + total_desc + 2 * total_values + 4096));
+
+    open_block(0);
+    // The root: slot 1, the first descriptor of block 0 (slot 0 is the page header).
+    const uint32_t root = alloc(1);
+    place_descriptor(root, 0, 0);
+    stack_.push_back({0, 0, root, 0});
+    while (!stack_.empty()) {
+      const Node n = stack_.back();
+      stack_.pop_back();
+      visit(n);
+    }
+    close_block();
+    // Pad to whole pages: the array is a sequence of 8 KiB pages.
+    out_.resize((out_.size() + kPageWords - 1) / kPageWords * kPageWords, 0);
+
+    EsvoOctree octree;
+    octree.grid = grid;
+    octree.words = std::move(out_);
+    octree.block_count = block_count_;
+    return octree;
+  }
+
+ private:
+  struct Node {
+    int depth;
+    uint32_t index;     // in lv_[depth]
+    uint32_t slot;      // its descriptor
+    uint32_t far_slot;  // reserved far pointer slot, 0 = use a near pointer
+  };
+
+  uint64_t child_value(int depth, uint32_t child_index) const {
+    return depth + 1 == L_ ? leaf_values_[child_index] : lv_[depth + 1].value[child_index];
+  }
+
+  void ensure_words(uint64_t slots) {
+    if (slots >= (uint64_t(1) << 31)) throw Error("cannot build octree: more than 2^31 slots");
+    if (out_.size() < slots * 2) out_.resize(size_t(slots * 2), 0);
+  }
+
+  /// Allocates `n` (<= 16) consecutive slots that do not straddle a page header.
+  uint32_t alloc(uint32_t n) {
+    if (cursor_ % kPageSlots == 0) ++cursor_;  // page header
+    if (cursor_ % kPageSlots + n > kPageSlots) {
+      padding_ += kPageSlots - cursor_ % kPageSlots;
+      cursor_ = (cursor_ / kPageSlots + 1) * kPageSlots + 1;
+    }
+    const uint32_t s = uint32_t(cursor_);
+    cursor_ += n;
+    ensure_words(cursor_);
+    lookup_.resize(size_t(cursor_ - block_start_), 0);
+    return s;
+  }
+
+  /// Writes the masks of the descriptor of node (depth, index) at `slot` (the
+  /// child pointer follows when it is visited) and its children's attributes.
+  void place_descriptor(uint32_t slot, int depth, uint32_t index) {
+    const uint32_t valid = lv_[depth].mask[index];
+    const uint32_t leaf = depth + 1 == L_ ? valid : 0;  // all leaves sit at depth L
+    out_[size_t(slot) * 2] = valid << 8 | leaf;
+    out_[size_t(slot) * 2 + 1] = 0;  // no contour (§5.2)
+    lookup_[slot - block_start_] = uint32_t(values_.size()) << 8 | valid;
+    const uint32_t first = lv_[depth].first_child[index];
+    const int k = std::popcount(valid);
+    for (int j = 0; j < k; ++j) values_.push_back(child_value(depth, first + uint32_t(j)));
+  }
+
+  void visit(const Node& n) {
+    if (n.depth + 1 == L_) return;  // only leaf children: no child pointer
+    const Level& cl = lv_[n.depth + 1];
+    const uint32_t first = lv_[n.depth].first_child[n.index];
+    const uint32_t g = uint32_t(std::popcount(unsigned(lv_[n.depth].mask[n.index])));
+    uint64_t group_values = 0;
+    for (uint32_t i = 0; i < g; ++i) group_values += std::popcount(unsigned(cl.mask[first + i]));
+
+    // Start a new block if this group would overflow the current one. The
+    // block always takes at least one group besides the root, and a group is
+    // never split. The node itself must have a far pointer then: see below.
+    const uint64_t used = cursor_ - block_start_;
+    if (block_groups_ > 0 && (used + 2 * g + 16 > opt_.max_block_slots ||
+                              values_.size() + group_values > opt_.max_block_values)) {
+      close_block();
+      open_block((cursor_ * 2 + kPageWords - 1) / kPageWords * kPageWords / 2);
+    }
+
+    // Which children may need a far pointer? Child i's own group is placed
+    // after the rest of this group, the reserved far slots, and the subtrees
+    // of children 0..i-1. If all of that provably stays inside this block
+    // (no block break, which would insert an info section and attachment)
+    // and within 2^15-1 slots, a near pointer suffices; otherwise reserve a
+    // far slot right after the group (conservative: it is used regardless).
+    uint32_t far_mask = 0;
+    {
+      const uint64_t used_after = (cursor_ - block_start_) + 16 + 2 * g;
+      uint64_t span = 0, vals = values_.size() + group_values;
+      for (uint32_t i = 0; i < g; ++i) {
+        const uint32_t c = first + i;
+        vals += cl.values_below[c];
+        const bool no_break =
+            used_after + span + 48 <= opt_.max_block_slots && vals <= opt_.max_block_values;
+        const uint64_t distance = (g - i) + g + span + 32;
+        if (cl.desc_below[c] > 0 && !(no_break && distance <= kMaxNearPointer)) far_mask |= 1u << i;
+        span += span_bound(cl.desc_below[c]);
+      }
+    }
+    const uint32_t far_count = uint32_t(std::popcount(far_mask));
+    const uint32_t group = alloc(g + far_count);
+    ++block_groups_;
+    far_slots_ += far_count;
+
+    // This node's pointer to the group.
+    const uint64_t rel = group - n.slot;
+    if (n.far_slot) {
+      out_[size_t(n.far_slot) * 2] = uint32_t(int32_t(rel));  // < 2^31 (ensure_words)
+      out_[size_t(n.slot) * 2] |= (n.far_slot - n.slot) << kPointerShift | kFarBit;
+    } else {
+      if (rel > kMaxNearPointer)  // the far-slot bound above is broken
+        throw std::logic_error("esvo builder: near child pointer overflow");
+      out_[size_t(n.slot) * 2] |= uint32_t(rel) << kPointerShift;
+    }
+
+    uint32_t next_far = group + g;
+    Node kids[8];
+    for (uint32_t i = 0; i < g; ++i) {
+      place_descriptor(group + i, n.depth + 1, first + i);
+      kids[i] = {n.depth + 1, first + i, group + i, (far_mask >> i & 1) ? next_far++ : 0};
+    }
+    for (uint32_t i = g; i-- > 0;) stack_.push_back(kids[i]);
+  }
+
+  void open_block(uint64_t start_slot) {
+    ensure_words(start_slot);
+    block_start_ = start_slot;
+    cursor_ = start_slot;
+    lookup_.clear();
+    values_.clear();
+    block_groups_ = 0;
+  }
+
+  /// Appends the block's info section and raw attachment after its descriptor
+  /// area and fills in the page headers.
+  void close_block() {
+    const uint64_t slots = cursor_ - block_start_;
+    const uint64_t info = cursor_ * 2;
+    const uint64_t attach = info + 6;
+    const uint64_t end = attach + 2 + slots + 2 * values_.size();
+    if (end >= (uint64_t(1) << 32)) throw Error("cannot build octree: more than 2^32 words");
+    out_.resize(size_t(end), 0);
+    for (uint64_t p = block_start_; p < cursor_; p += kPageSlots) {
+      out_[size_t(p * 2)] = uint32_t(int32_t(int64_t(info) - int64_t(p * 2)));
+      out_[size_t(p * 2 + 1)] = 0;
+    }
+    uint32_t* w = out_.data() + info;
+    w[detail::kInfoMagicWord] = kInfoMagic;
+    w[detail::kInfoFirstSlotWord] = uint32_t(int32_t(int64_t(block_start_ * 2) - int64_t(info)));
+    w[detail::kInfoSlotCountWord] = uint32_t(slots);
+    w[detail::kInfoAttachCountWord] = 1;
+    w[4] = kAttachRawColorNormal;
+    w[5] = uint32_t(attach - info);
+    uint32_t* a = out_.data() + attach;
+    a[0] = uint32_t(slots);
+    a[1] = uint32_t(values_.size());
+    std::copy(lookup_.begin(), lookup_.end(), a + 2);
+    uint32_t* v = a + 2 + slots;
+    for (size_t i = 0; i < values_.size(); ++i) {
+      v[2 * i] = uint32_t(values_[i]);
+      v[2 * i + 1] = uint32_t(values_[i] >> 32);
+    }
+    ++block_count_;
+    cursor_ = (end + 1) / 2;
+  }
+
+  const std::vector<Level>& lv_;
+  const std::vector<uint64_t>& leaf_values_;
+  const BuildOptions& opt_;
+  const int L_;
+  std::vector<uint32_t> out_;
+  std::vector<Node> stack_;
+  std::vector<uint32_t> lookup_;  // current block, per slot from block_start_
+  std::vector<uint64_t> values_;  // current block
+  uint64_t cursor_ = 0, block_start_ = 0, padding_ = 0, far_slots_ = 0;
+  uint32_t block_count_ = 0, block_groups_ = 0;
+};
+
+}  // namespace
+
+EsvoOctree build_octree(const VoxelSet& voxels, const BuildOptions& options) {
+  check_input(voxels);
+  if (options.max_block_slots == 0 || options.max_block_values == 0 ||
+      options.max_block_values > (1u << 24))
+    throw Error("cannot build octree: block limits must be in 1..2^32 slots and 1..2^24 values");
+  const int L = voxels.grid.levels;
+  const size_t n = voxels.size();
+
+  // Leaf attributes (defaults when the VoxelSet has none).
+  const bool has_attr = !voxels.colors.empty();
+  std::vector<Color> dc;
+  std::vector<Vec3> dn;
+  std::vector<float> dw;
+  if (!has_attr) {
+    dc.assign(n, kDefaultColor);
+    dn.assign(n, kDefaultNormal);
+  }
+  if (voxels.weights.empty()) dw.assign(n, 1.f);
+  const std::vector<Color>& leaf_color = has_attr ? voxels.colors : dc;
+  const std::vector<Vec3>& leaf_normal = has_attr ? voxels.normals : dn;
+  const std::vector<float>& leaf_weight = voxels.weights.empty() ? dw : voxels.weights;
+  std::vector<uint64_t> leaf_values;
+  encode_values(leaf_color, leaf_normal, leaf_values);
+
+  // Phase 1: levels L-1 .. 0.
+  std::vector<Level> lv(static_cast<size_t>(L));
+  for (int d = L - 1; d >= 0; --d) {
+    Level& p = lv[size_t(d)];
+    if (d == L - 1) {
+      reduce_codes(voxels.codes, p);
+      reduce_attributes(leaf_color, leaf_normal, leaf_weight, p);
+    } else {
+      Level& c = lv[size_t(d) + 1];
+      reduce_codes(c.code, p);
+      reduce_attributes(c.color, c.normal, c.weight, p);
+      encode_values(c.color, c.normal, c.value);
+      std::vector<uint64_t>().swap(c.code);
+      std::vector<Color>().swap(c.color);
+      std::vector<Vec3>().swap(c.normal);
+      std::vector<float>().swap(c.weight);
+    }
+    // Subtree sizes for the far pointer decisions of phase 2.
+    const size_t m = p.mask.size();
+    p.desc_below.assign(m, 0);
+    p.values_below.assign(m, 0);
+    if (d < L - 1) {
+      const Level& c = lv[size_t(d) + 1];
+      tbb::parallel_for(size_t(0), m, [&](size_t i) {
+        const uint32_t first = p.first_child[i];
+        const int k = std::popcount(unsigned(p.mask[i]));
+        uint64_t desc = 0, vals = 0;
+        for (int j = 0; j < k; ++j) {
+          desc += 1 + c.desc_below[first + j];
+          vals += uint64_t(std::popcount(unsigned(c.mask[first + j]))) + c.values_below[first + j];
+        }
+        p.desc_below[i] = desc;
+        p.values_below[i] = vals;
+      });
+    }
+  }
+  if (lv[0].mask.size() != 1) throw std::logic_error("esvo builder: root level is not a single node");
+
+  return Layout(lv, leaf_values, options).run(voxels.grid);
+}
+
+}  // namespace voxcast::esvo

@@ -1,0 +1,60 @@
+#pragma once
+// Small helpers shared by the ESVO builder, validator, statistics and
+// attribute lookup (private to src/esvo). Layout: see include/voxcast/esvo.hpp.
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "voxcast/esvo.hpp"
+
+namespace voxcast::esvo::detail {
+
+// Child descriptor word 0 fields (§5.1, Figure 2).
+//   | 31..17 child pointer | 16 far | 15..8 valid mask | 7..0 leaf mask |
+inline constexpr uint32_t kPointerShift = 17;
+inline constexpr uint32_t kFarBit = 0x10000u;
+inline constexpr uint32_t kMaxNearPointer = (1u << 15) - 1;
+inline uint32_t valid_mask(uint32_t w0) { return (w0 >> 8) & 0xFFu; }
+inline uint32_t leaf_mask(uint32_t w0) { return w0 & 0xFFu; }
+inline uint32_t non_leaf_mask(uint32_t w0) { return valid_mask(w0) & ~leaf_mask(w0); }
+
+// Info section layout (word offsets from the info section).
+inline constexpr size_t kInfoMagicWord = 0, kInfoFirstSlotWord = 1, kInfoSlotCountWord = 2,
+                        kInfoAttachCountWord = 3, kInfoAttachTable = 4;
+
+/// Word index of the first attachment of `type` of the info section at word
+/// `info`. Unchecked: callers rely on validate()/the builder. Returns the
+/// first attachment if the type is absent (validate() guarantees presence).
+inline size_t find_attachment(const uint32_t* w, size_t info, uint32_t type) {
+  const uint32_t count = w[info + kInfoAttachCountWord];
+  for (uint32_t a = 0; a < count; ++a)
+    if (w[info + kInfoAttachTable + 2 * a] == type)
+      return size_t(int64_t(info) + int32_t(w[info + kInfoAttachTable + 2 * a + 1]));
+  return size_t(int64_t(info) + int32_t(w[info + kInfoAttachTable + 1]));
+}
+
+/// Slot of the first descriptor of the child group of the descriptor at
+/// `slot` (follows a far pointer if the far bit is set). Unchecked.
+inline uint32_t child_group(const uint32_t* w, uint32_t slot) {
+  const uint32_t w0 = w[size_t(slot) * 2];
+  const uint32_t p = slot + (w0 >> kPointerShift);
+  if (!(w0 & kFarBit)) return p;
+  return uint32_t(int64_t(slot) + int32_t(w[size_t(p) * 2]));
+}
+
+/// One block, as located by parse_blocks().
+struct BlockInfo {
+  uint64_t first_slot;   // block start (its first page header)
+  uint64_t slot_count;   // descriptor area size in slots (page headers included)
+  uint64_t info;         // word index of the info section
+  uint64_t info_words;   // 4 + 2 * attachment count
+  uint64_t attach;       // word index of the raw color/normal attachment
+  uint64_t value_count;  // values in that attachment
+  uint64_t end;          // one past the last word of the block
+};
+
+/// Locates and bounds-checks every block's page headers, info section and
+/// raw attachment (validate.cpp). Throws voxcast::Error on the first problem.
+std::vector<BlockInfo> parse_blocks(const EsvoOctree& octree);
+
+}  // namespace voxcast::esvo::detail

@@ -1,0 +1,160 @@
+// Structural validation of an ESVO word array (layout: include/voxcast/esvo.hpp).
+//
+// validate() is the gate between untrusted bytes (scene files) and the ray
+// caster, which follows child/far pointers and attribute lookups without any
+// checks (esvo Appendix A). It proves, in O(size):
+//   * every block's page headers, info section and raw attachment are in
+//     bounds and mutually consistent (parse_blocks);
+//   * every descriptor reachable from the root lies in a descriptor area, not
+//     on a page header, is reached exactly once (so traversal work is bounded
+//     by the array size), and its child group lies strictly after it, inside
+//     one page of one block's descriptor area;
+//   * masks are consistent with the depth (leaves exactly at depth `levels`);
+//   * every valid child has an attribute value inside its block's values.
+#include <algorithm>
+#include <bit>
+#include <cmath>
+#include <string>
+
+#include "esvo/layout_internal.hpp"
+#include "voxcast/error.hpp"
+#include "voxcast/esvo.hpp"
+
+namespace voxcast::esvo {
+namespace detail {
+namespace {
+
+[[noreturn]] void fail(const std::string& what) { throw Error("corrupt scene: " + what); }
+[[noreturn]] void fail_at(const std::string& what, uint64_t slot) {
+  fail(what + " at slot " + std::to_string(slot));
+}
+
+}  // namespace
+
+std::vector<BlockInfo> parse_blocks(const EsvoOctree& octree) {
+  const std::vector<uint32_t>& w = octree.words;
+  const uint64_t size = w.size();
+  if (size < kPageWords || size % 2 != 0) fail("descriptor array shorter than one page");
+  if (size > (uint64_t(1) << 32)) fail("descriptor array larger than 2^32 words");
+  if (octree.block_count == 0 || octree.block_count > size / kPageWords)
+    fail("block count " + std::to_string(octree.block_count) + " out of range");
+
+  std::vector<BlockInfo> blocks;
+  blocks.reserve(octree.block_count);
+  uint64_t start = 0;  // word index of the block
+  for (uint32_t b = 0; b < octree.block_count; ++b) {
+    const std::string where = " in block " + std::to_string(b);
+    if (start + kPageWords > size) fail("block" + where + " out of range");
+    BlockInfo bi{};
+    bi.first_slot = start / 2;
+    const int64_t info = int64_t(start) + int32_t(w[start]);
+    if (info <= int64_t(start) || info % 2 != 0 || uint64_t(info) + 4 > size)
+      fail("info section out of range" + where);
+    bi.info = uint64_t(info);
+    if (w[bi.info + kInfoMagicWord] != kInfoMagic) fail("bad info section magic" + where);
+    if (int64_t(bi.info) + int32_t(w[bi.info + kInfoFirstSlotWord]) != int64_t(start))
+      fail("info section does not point at its block" + where);
+    bi.slot_count = w[bi.info + kInfoSlotCountWord];
+    if (bi.slot_count * 2 != bi.info - start) fail("descriptor area size mismatch" + where);
+    const uint32_t attach_count = w[bi.info + kInfoAttachCountWord];
+    if (attach_count == 0 || attach_count > 16) fail("bad attachment count" + where);
+    bi.info_words = kInfoAttachTable + 2 * uint64_t(attach_count);
+    if (bi.info + bi.info_words > size) fail("info section out of range" + where);
+    bi.end = bi.info + bi.info_words;
+    bool found = false;
+    for (uint32_t a = 0; a < attach_count && !found; ++a) {
+      if (w[bi.info + kInfoAttachTable + 2 * a] != kAttachRawColorNormal) continue;
+      const int64_t at = int64_t(bi.info) + int32_t(w[bi.info + kInfoAttachTable + 2 * a + 1]);
+      if (at < int64_t(bi.info + bi.info_words) || uint64_t(at) + 2 > size)
+        fail("attachment out of range" + where);
+      bi.attach = uint64_t(at);
+      if (w[bi.attach] != bi.slot_count) fail("attachment slot count mismatch" + where);
+      bi.value_count = w[bi.attach + 1];
+      const uint64_t end = bi.attach + 2 + bi.slot_count + 2 * bi.value_count;
+      if (end > size) fail("attachment out of range" + where);
+      bi.end = std::max(bi.end, end);
+      found = true;
+    }
+    if (!found) fail("missing color/normal attachment" + where);
+    // Every page of the descriptor area starts with a header pointing at the info section.
+    for (uint64_t p = start; p < bi.info; p += kPageWords)
+      if (int64_t(p) + int32_t(w[p]) != int64_t(bi.info) || w[p + 1] != 0)
+        fail_at("bad page header", p / 2);
+    blocks.push_back(bi);
+    start = (bi.end + kPageWords - 1) / kPageWords * kPageWords;
+  }
+  return blocks;
+}
+
+}  // namespace detail
+
+void EsvoOctree::validate() const {
+  using namespace detail;
+  const int L = grid.levels;
+  if (L < 1 || L > kMaxGridLevels) fail("levels " + std::to_string(L) + " outside 1..20");
+  if (grid.resolution != (1u << L)) fail("resolution is not 2^levels");
+  if (!(grid.voxel_size > 0) || !std::isfinite(grid.voxel_size) || !is_finite(grid.origin))
+    fail("bad grid placement");
+  const std::vector<BlockInfo> blocks = parse_blocks(*this);
+  const uint32_t* w = words.data();
+  const uint64_t total_slots = words.size() / 2;
+
+  // The block whose descriptor area holds `slot` (not a page header), or null.
+  const auto block_of = [&](int64_t slot) -> const BlockInfo* {
+    if (slot <= 0 || uint64_t(slot) >= total_slots || slot % kPageSlots == 0) return nullptr;
+    auto it = std::upper_bound(blocks.begin(), blocks.end(), uint64_t(slot),
+                               [](uint64_t s, const BlockInfo& b) { return s < b.first_slot; });
+    if (it == blocks.begin()) return nullptr;
+    --it;
+    return uint64_t(slot) < it->first_slot + it->slot_count ? &*it : nullptr;
+  };
+
+  struct Item {
+    uint32_t slot;
+    int depth;
+  };
+  std::vector<uint8_t> visited(size_t(total_slots), 0);
+  std::vector<Item> stack{{root_slot(), 0}};
+  while (!stack.empty()) {
+    const Item it = stack.back();
+    stack.pop_back();
+    const uint32_t s = it.slot;
+    const BlockInfo* block = block_of(s);
+    if (!block) fail_at("descriptor outside a descriptor area", s);
+    if (visited[s]) fail_at("descriptor shared", s);
+    visited[s] = 1;
+
+    const uint32_t w0 = w[size_t(s) * 2];
+    const uint32_t valid = valid_mask(w0), leaf = leaf_mask(w0), nl = non_leaf_mask(w0);
+    if (leaf & ~valid) fail_at("leaf mask not within valid mask", s);
+    if (!valid) fail_at("empty descriptor", s);
+    // Children of this descriptor are at depth it.depth + 1; leaves only at L.
+    if (it.depth + 1 == L && nl) fail_at("octree deeper than its levels", s);
+    if (it.depth + 1 < L && leaf) fail_at("leaf above the finest level", s);
+
+    const uint32_t entry = w[block->attach + 2 + (s - block->first_slot)];
+    if ((entry & valid) != valid) fail_at("missing attribute", s);
+    if (uint64_t(entry >> 8) + uint64_t(std::popcount(entry & 0xFFu)) > block->value_count)
+      fail_at("attribute pointer out of range", s);
+
+    if (!nl) continue;
+    const uint32_t ptr = w0 >> kPointerShift;
+    if (ptr == 0) fail_at("child pointer does not point forward", s);
+    int64_t group = int64_t(s) + ptr;
+    if (w0 & kFarBit) {
+      if (!block_of(group)) fail_at("far pointer out of range", s);
+      const int32_t off = int32_t(w[size_t(group) * 2]);
+      if (off <= 0) fail_at("far pointer does not point forward", s);
+      group = int64_t(s) + off;
+    }
+    const BlockInfo* gb = block_of(group);
+    const int k = std::popcount(nl);
+    if (!gb || uint64_t(group) + uint64_t(k) > gb->first_slot + gb->slot_count)
+      fail_at("child pointer out of range", s);
+    if (uint64_t(group) / kPageSlots != (uint64_t(group) + uint64_t(k) - 1) / kPageSlots)
+      fail_at("child group crosses a page header", s);
+    for (int i = k - 1; i >= 0; --i) stack.push_back({uint32_t(group) + uint32_t(i), it.depth + 1});
+  }
+}
+
+}  // namespace voxcast::esvo

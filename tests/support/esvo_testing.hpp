@@ -1,0 +1,47 @@
+#pragma once
+// Helpers that build VoxelSets in code (no mesh, no voxelizer) for the ESVO
+// builder, ray caster and scene-file tests. All generators are deterministic
+// for a given seed and return codes sorted ascending and unique, with
+// attribute arrays filled (colors, unit normals, positive weights) unless
+// stated otherwise. Grid placement: origin (0,0,0), voxel_size 1/N, so the
+// root cube is the unit cube [0,1]^3 in world space.
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <vector>
+
+#include "voxcast/esvo.hpp"
+#include "voxcast/voxelize.hpp"
+
+namespace voxcast::testing {
+
+/// Unit-cube grid of 2^levels voxels per axis (origin 0, voxel_size 2^-levels).
+GridTransform unit_grid(int levels);
+
+/// Fills colors/normals/weights for the codes of `set` from a hash of each code
+/// (deterministic, seed-dependent): colors in [0,1], unit normals, weights in [0.1, 2].
+void fill_random_attributes(VoxelSet& set, uint64_t seed);
+
+/// `count` distinct random voxels (capped at 8^levels) of a 2^levels grid.
+VoxelSet make_random_voxels(int levels, size_t count, uint64_t seed);
+
+/// Voxels whose centers are within half a voxel of the sphere centered in the
+/// grid with radius 0.4 * N (a closed one-voxel-thick shell, like a voxelized
+/// surface). Normals point outward (radial); colors vary with position.
+VoxelSet make_sphere_shell(int levels);
+
+/// Every voxel of the 2^levels grid for which `occupied(x, y, z)` is true
+/// (iterates the whole N^3 grid, keep levels small).
+VoxelSet make_dense_grid(int levels, const std::function<bool(uint32_t, uint32_t, uint32_t)>& occupied);
+
+/// The full 2^levels grid (all N^3 voxels).
+VoxelSet make_full_grid(int levels);
+
+/// Top-down point query through the descriptors, written independently of the
+/// builder (follows child pointers / far pointers as in esvo.hpp): true if the
+/// leaf voxel (x,y,z) of the finest level exists. If `parent_slot`/`child` are
+/// given, they receive the descriptor slot and child index of the leaf.
+bool query_leaf(const esvo::EsvoOctree& octree, uint32_t x, uint32_t y, uint32_t z,
+                uint32_t* parent_slot = nullptr, int* child = nullptr);
+
+}  // namespace voxcast::testing
