@@ -538,14 +538,19 @@ TEST(MeshImport, QuadsAreTriangulatedAndMaterialsKept) {
   EXPECT_EQ(blue, 6u);
 }
 
-TEST(MeshImport, MissingTextureThrows) {
+TEST(MeshImport, MissingTextureFallsBackToBaseColorWithAWarning) {
   TempDir tmp;
   tmp.write("t.mtl", "newmtl m\nKd 1 1 1\nmap_Kd does_not_exist.png\n");
   fs::path p = tmp.write("t.obj", "mtllib t.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\n"
                                   "usemtl m\nf 1/1 2/2 3/3\n");
-  std::string msg = load_error(p);
-  expect_one_line_naming(msg, p);
-  EXPECT_NE(msg.find("does_not_exist.png"), std::string::npos) << msg;
+  MeshLoadStats stats;
+  Mesh m = load_mesh(p, &stats);
+  ASSERT_EQ(stats.warnings.size(), 1u);
+  EXPECT_NE(stats.warnings[0].find("does_not_exist.png"), std::string::npos) << stats.warnings[0];
+  EXPECT_EQ(stats.warnings[0].find('\n'), std::string::npos);
+  EXPECT_TRUE(m.textures.empty());
+  ASSERT_EQ(m.materials.size(), 1u);
+  EXPECT_EQ(m.materials[0].texture, -1);
 }
 
 TEST(MeshImport, ObjUvsUseTopLeftOrigin) {

@@ -46,6 +46,8 @@ BuiltScene build_scene(const BuildSettings& s) {
   StageTimer timer(s.verbose);
   out.mesh = load_mesh(s.mesh_path, &out.mesh_stats);
   out.load_seconds = timer.mark("load mesh");
+  for (const std::string& w : out.mesh_stats.warnings)
+    std::fprintf(stderr, "voxcast: warning: %s\n", w.c_str());
   if (s.verbose || out.mesh_stats.degenerate_dropped)
     std::fprintf(stderr, "mesh: %zu triangles, %zu vertices (%zu degenerate triangles dropped)\n",
                  out.mesh.triangle_count(), out.mesh.positions.size(),

@@ -51,6 +51,9 @@ struct MeshLoadStats {
   size_t input_triangles = 0;       // after triangulation
   size_t degenerate_dropped = 0;    // zero-area or repeated-index triangles
   bool normals_computed = false;    // the file had no normals
+  /// Problems that did not stop the import (e.g. a texture file that is
+  /// missing or unreadable: the material falls back to its base color).
+  std::vector<std::string> warnings;
 };
 
 /// Loads any format Assimp reads (OBJ+MTL, PLY, OFF, STL, glTF/GLB, FBX, DAE, ...),

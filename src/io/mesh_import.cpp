@@ -106,6 +106,12 @@ class SceneConverter {
   }
 
   Mesh convert(MeshLoadStats& stats) {
+    Mesh out = convert_meshes(stats);
+    stats.warnings = warnings_;
+    return out;
+  }
+
+  Mesh convert_meshes(MeshLoadStats& stats) {
     Mesh out;
     bool any_colors = false, any_uvs = false;
     for (unsigned m = 0; m < scene_.mNumMeshes; ++m) {
@@ -326,7 +332,17 @@ class SceneConverter {
     const std::string key = tex_path.C_Str();
     auto it = texture_map_.find(key);
     if (it != texture_map_.end()) return it->second;
-    Texture tex = load_texture(key);
+    // A texture that cannot be used costs the model its texture, not the
+    // whole import: real-world files often point at images that were not
+    // shipped with them. The caller gets a warning.
+    Texture tex;
+    try {
+      tex = load_texture(key);
+    } catch (const Error& e) {
+      warnings_.push_back(std::string(e.what()) + "; using the base color instead");
+      texture_map_.emplace(key, -1);
+      return -1;
+    }
     int index = int(textures_.size());
     textures_.push_back(std::move(tex));
     texture_map_.emplace(key, index);
@@ -409,6 +425,7 @@ class SceneConverter {
   std::map<uint64_t, uint32_t> material_map_;
   std::vector<Material> materials_;
   std::map<std::string, int> texture_map_;
+  std::vector<std::string> warnings_;
   std::vector<Texture> textures_;
 };
 
