@@ -55,6 +55,34 @@
 //   block, at lookup entry (d - block first slot), value
 //   pointer + popcount(mask & ((1<<i)-1)). Every voxel except the root has one.
 //
+//   Compressed attribute attachment (type kAttachCompressedColorNormal, §5.5,
+//   Figures 9-10; chosen with BuildOptions::attributes): word 0: slot count S
+//   (= the block's descriptor area size), word 1: compression block count
+//   C <= ceil(S/2), then C blocks of 6 words. No lookup table: the voxel in
+//   child slot i of descriptor d lives in
+//     compression block  (d - block first slot) >> 1,
+//     block slot         ((d - block first slot) & 1) * 8 + i,
+//   i.e. compression block k covers the descriptor *pair* of slots
+//   first + 2k, first + 2k + 1 (block first slots are page aligned, hence
+//   even, so this is also the global slot parity). Block words (bit fields in
+//   src/esvo/compress.cpp): 0 = two RGB-565 endpoints, 1 = 16 x 2-bit color
+//   indices (DXT1 palette {c0, c1, 2/3 c0 + 1/3 c1, 1/3 c0 + 2/3 c1}, no
+//   transparency, alpha decodes as 1), 2 = base normal n_b as a cube point
+//   (raw normal encoding, not normalized), 3 = axes n_u | n_v (each: 4-bit
+//   exponent + three signed 4-bit mantissas, value m * 2^(e-15)),
+//   4-5 = 16 x (2-bit c_u, 2-bit c_v) with c in {-1, -1/3, 1/3, 1}; the
+//   normal is normalize(n_b + c_u n_u + c_v n_v).
+//   Pairing rule (enforced by validate()): the two slots of a pair never hold
+//   descriptors of two different child groups ("leave gaps in the child
+//   descriptor array", §5.5), so one block only mixes siblings. The builder
+//   starts a group at an odd slot only if the slot before it is not a
+//   descriptor (page header, far pointer or padding); otherwise it leaves one
+//   padding slot. A page header (even slot, no attributes) pairs with the
+//   slot after it, which may start a group (the root, slot 1, pairs with
+//   block 0's header).
+//   Every descriptor's pair index must be < C. A block holds exactly one
+//   color/normal attachment (raw or compressed), the same type in all blocks.
+//
 // Conventions of voxcast's builder, enforced by validate(): all leaf voxels
 // are at depth `levels` (the finest level), every descriptor has a non-empty
 // valid mask, and every descriptor is reachable exactly once. The array ends
@@ -78,11 +106,23 @@ inline constexpr uint32_t kPageWords = 2048;  // 8 KiB pages
 inline constexpr uint32_t kPageSlots = kPageWords / 2;
 inline constexpr uint32_t kInfoMagic = 0x4F464E49;  // "INFO"
 inline constexpr uint32_t kAttachRawColorNormal = 1;
+inline constexpr uint32_t kAttachCompressedColorNormal = 2;
+
+/// How a scene stores its colors and normals (§5.4 raw, §5.5 compressed).
+enum class AttributeFormat : uint32_t { Raw = 0, Compressed = 1 };
 
 uint32_t encode_color_abgr(const Color& linear);     // sRGB-encodes
 Color decode_color_abgr(uint32_t abgr);              // back to linear
 uint32_t encode_normal_cube(Vec3 unit_normal);
 Vec3 decode_normal_cube(uint32_t code);
+
+/// One §5.5 compression block (6 words, layout above and in compress.cpp)
+/// from the colors (linear; alpha ignored) and normals of its 16 slots; only
+/// slots with bit i of `used` set are read and fitted.
+void encode_compressed_block(const Color* colors16, const Vec3* normals16, uint32_t used,
+                             uint32_t out[6]);
+/// Decodes slot `slot` (0..15) of a compression block; total for any bits.
+void decode_compressed_slot(const uint32_t* block, int slot, Color* color, Vec3* normal);
 
 struct BuildOptions {
   /// A block is closed once it holds this many descriptor slots or attribute
@@ -90,6 +130,9 @@ struct BuildOptions {
   /// values are useful in tests to exercise multi-block layouts and far pointers.
   uint32_t max_block_slots = 1u << 20;
   uint32_t max_block_values = 1u << 22;
+  /// Raw: 8 bytes per voxel + a lookup entry per slot (§5.4). Compressed:
+  /// 24 bytes per descriptor pair (§5.5), lossy (bounds in the tests).
+  AttributeFormat attributes = AttributeFormat::Raw;
 };
 
 /// Per-level counts for `voxcast info` (esvo §8.2). Level 0 is the root.
@@ -105,8 +148,16 @@ struct MemoryStats {
   uint64_t padding_bytes = 0;      // unused slots (alignment, reserved far slots)
   uint64_t info_bytes = 0;         // info sections
   uint64_t attribute_lookup_bytes = 0;
-  uint64_t attribute_value_bytes = 0;
+  uint64_t attribute_value_bytes = 0;  // = color_bytes + normal_bytes
   uint64_t total_bytes = 0;
+  // Attribute split: raw: 4 + 4 bytes per value; compressed: per compression
+  // block 8 bytes of colors (words 0-1) and 16 bytes of normals (words 2-5).
+  AttributeFormat attribute_format = AttributeFormat::Raw;
+  uint64_t color_bytes = 0;
+  uint64_t normal_bytes = 0;
+  /// Compressed only: empty slots whose pair partner is a descriptor (the
+  /// gaps §5.5 leaves so a block only pairs siblings). Not in padding_bytes.
+  uint64_t pair_padding_bytes = 0;
 };
 
 class EsvoOctree {
@@ -123,6 +174,10 @@ class EsvoOctree {
   /// Color (linear) and unit normal of the voxel in child slot `child` of the
   /// descriptor at `parent_slot`.
   void attributes(uint32_t parent_slot, int child, Color* color, Vec3* normal) const;
+
+  /// The attachment type of block 0 (all blocks agree after validate()).
+  /// Bounds-checked: safe on unvalidated words (reads Raw when unsure).
+  AttributeFormat attribute_format() const;
 
   std::vector<LevelStats> level_stats() const;
   MemoryStats memory_stats() const;

@@ -25,6 +25,15 @@ struct CastResult {
 CastResult cast_ray(const EsvoOctree& octree, Vec3 origin, Vec3 dir, float tmax, float size_coef,
                     float size_bias);
 
+/// cast_ray with the beam optimization and profiling counters (esvo §6.2,
+/// §8.5). `region` (octree space, may be null = the root cube): a box that is
+/// known to contain every voxel the ray can hit, typically the result of
+/// EsvoStructure::beam_start; the ray starts at its entry and stops at its
+/// exit, computed with the caster's own plane arithmetic, so the result equals
+/// cast_ray's bit for bit. `counters` (may be null) accumulates Table 6 counts.
+CastResult cast_ray(const EsvoOctree& octree, Vec3 origin, Vec3 dir, float tmax, float size_coef,
+                    float size_bias, const Aabb* region, RayCounters* counters);
+
 class EsvoStructure final : public VoxelStructure {
  public:
   explicit EsvoStructure(std::shared_ptr<const EsvoOctree> octree);
@@ -32,6 +41,11 @@ class EsvoStructure final : public VoxelStructure {
   bool trace(const Ray& ray, const LodFootprint& lod, SurfaceHit* hit) const override;
   void attributes(const SurfaceHit& hit, Color* color, Vec3* normal) const override;
   std::string name() const override { return "esvo"; }
+  bool trace_hinted(const Ray& ray, const LodFootprint& lod, const TraceHints& hints,
+                    SurfaceHit* hit) const override;
+  void beam_start(const BeamFrustum& beam, BeamStart* start, RayCounters* counters) const override;
+  void attributes_counted(const SurfaceHit& hit, Color* color, Vec3* normal,
+                          RayCounters* counters) const override;
   const EsvoOctree& octree() const { return *octree_; }
 
  private:

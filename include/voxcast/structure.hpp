@@ -16,6 +16,55 @@ struct LodFootprint {
   float size_per_t = 0.f;
 };
 
+/// Profiling counters of the ray caster (esvo §8.5, Table 6), summed over one
+/// or more rays. Only filled by the counting path (VoxelStructure::trace_hinted
+/// with TraceHints::counters set); the plain trace() never touches them.
+struct RayCounters {
+  uint64_t iterations = 0;          // main-loop iterations
+  uint64_t intersects = 0;          // voxels processed by INTERSECT (Figure 15)
+  uint64_t pushes = 0;              // PUSH executed (descend into a child)
+  uint64_t stores = 0;              // actual stack writes by PUSH
+  uint64_t advances = 0;            // ADVANCE executed
+  uint64_t pops = 0;                // POP executed (incl. the one that leaves the root)
+  uint64_t descriptor_fetches = 0;  // child descriptors read (8 bytes each)
+  uint64_t far_reads = 0;           // far pointers read (4 bytes each)
+  uint64_t attribute_bytes = 0;     // bytes read to fetch the hit's attributes
+  /// "glob bytes" of Table 6: descriptor fetches x 8 + far pointers x 4 + attributes.
+  uint64_t bytes() const { return descriptor_fetches * 8 + far_reads * 4 + attribute_bytes; }
+  RayCounters& operator+=(const RayCounters& o) {
+    iterations += o.iterations, intersects += o.intersects, pushes += o.pushes;
+    stores += o.stores, advances += o.advances, pops += o.pops;
+    descriptor_fetches += o.descriptor_fetches, far_reads += o.far_reads;
+    attribute_bytes += o.attribute_bytes;
+    return *this;
+  }
+};
+
+/// A beam of primary rays for the beam optimization (esvo §6.2): every ray it
+/// stands for starts at `eye` and has a unit direction inside the convex cone
+/// spanned by the four edge directions (consecutive entries adjacent).
+struct BeamFrustum {
+  Vec3 eye;
+  Vec3 edge[4];
+  float angular_width = 0.f;  // >= the angle between any two directions of the cone (radians)
+  LodFootprint lod;           // the footprint the beam's rays are traced with
+};
+
+/// Result of the coarse pass for one beam (esvo §6.2). The region is
+/// structure-specific (ESVO: a box in octree space) and only meaningful to the
+/// structure that produced it, for rays of the beam it was computed for.
+struct BeamStart {
+  bool valid = false;  // false: no information, rays are traced from their start
+  bool empty = false;  // no ray of the beam can hit anything
+  Aabb region;         // structure space; every voxel a ray of the beam can hit lies inside
+};
+
+/// Optional inputs/outputs of VoxelStructure::trace_hinted.
+struct TraceHints {
+  const BeamStart* beam = nullptr;  // from beam_start() for a beam containing the ray
+  RayCounters* counters = nullptr;  // accumulates the ray's counters when set
+};
+
 struct SurfaceHit {
   float t = INFINITY;      // world distance along the ray's unit direction
   Vec3 position;           // world hit position, clamped into the voxel
@@ -35,6 +84,30 @@ class VoxelStructure {
   /// Linear color and unit normal of the hit voxel.
   virtual void attributes(const SurfaceHit& hit, Color* color, Vec3* normal) const = 0;
   virtual std::string name() const = 0;
+
+  // ---- Beam optimization and profiling (esvo §6.2, §8.5). The defaults make
+  // every structure usable with them: no beam information, no counters. ----
+
+  /// trace() with hints. Must return exactly what trace() returns for the
+  /// same ray (the beam only skips work); counters, if set, are incremented.
+  virtual bool trace_hinted(const Ray& ray, const LodFootprint& lod, const TraceHints& hints,
+                            SurfaceHit* hit) const {
+    (void)hints;
+    return trace(ray, lod, hit);
+  }
+  /// Coarse pass of the beam optimization for one beam: fills `start`
+  /// (start->valid = false if unsupported). `counters`, if set, receives the
+  /// coarse pass's own work (iterations = nodes visited).
+  virtual void beam_start(const BeamFrustum& beam, BeamStart* start, RayCounters* counters) const {
+    (void)beam, (void)counters;
+    *start = BeamStart{};
+  }
+  /// attributes() that also adds the bytes it reads to `counters` (if set).
+  virtual void attributes_counted(const SurfaceHit& hit, Color* color, Vec3* normal,
+                                  RayCounters* counters) const {
+    (void)counters;
+    attributes(hit, color, normal);
+  }
 };
 
 }  // namespace voxcast

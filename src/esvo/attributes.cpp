@@ -1,5 +1,7 @@
 // Attribute encoding of the raw color/normal attachment (esvo §5.4, Figure 7)
-// and the per-hit attribute lookup EsvoOctree::attributes().
+// and the per-hit attribute lookup EsvoOctree::attributes(), which dispatches
+// on the attachment type to the raw lookup or the compressed decoder (§5.5,
+// compress.cpp).
 //
 // Value layout (two 32-bit words per voxel):
 //
@@ -18,6 +20,7 @@
 #include <bit>
 #include <cmath>
 
+#include "esvo/compress.hpp"
 #include "esvo/layout_internal.hpp"
 #include "voxcast/esvo.hpp"
 
@@ -125,20 +128,46 @@ Vec3 decode_normal_cube(uint32_t code) {
 }
 
 void EsvoOctree::attributes(uint32_t parent_slot, int child, Color* color, Vec3* normal) const {
-  // Page header -> info section -> raw attachment -> lookup entry -> value
-  // (esvo §5.4, Figure 7). Only valid after validate() or build_octree().
+  // Page header -> info section -> color/normal attachment (esvo §5.4,
+  // Figure 8). Only valid after validate() or build_octree().
   const uint32_t* w = words.data();
   const size_t page = size_t(parent_slot & ~(kPageSlots - 1)) * 2;
   const size_t info = size_t(int64_t(page) + int32_t(w[page]));
   const size_t block_first = size_t(int64_t(info) + int32_t(w[info + 1]));
-  const size_t attach = detail::find_attachment(w, info, kAttachRawColorNormal);
+  uint32_t type = 0;
+  const size_t attach = detail::find_color_attachment(w, info, &type);
+  const size_t rel = size_t(parent_slot) - block_first / 2;  // slot within the block
+  if (type == kAttachCompressedColorNormal) {
+    // §5.5: compression block rel >> 1, block slot (rel & 1) * 8 + child.
+    const uint32_t* block = w + attach + 2 + detail::kCompressedBlockWords * (rel >> 1);
+    decode_compressed_slot(block, int(rel & 1) * 8 + child, color, normal);
+    return;
+  }
+  // Raw (§5.4, Figure 7): lookup entry -> value.
   const uint32_t slot_count = w[attach];
-  const uint32_t entry = w[attach + 2 + (size_t(parent_slot) - block_first / 2)];
+  const uint32_t entry = w[attach + 2 + rel];
   const uint32_t index =
       (entry >> 8) + uint32_t(std::popcount(entry & 0xFFu & ((1u << child) - 1)));
   const uint32_t* value = w + attach + 2 + slot_count + size_t(index) * 2;
   if (color) *color = decode_color_abgr(value[0]);
   if (normal) *normal = decode_normal_cube(value[1]);
+}
+
+AttributeFormat EsvoOctree::attribute_format() const {
+  // Bounds-checked (also called on unvalidated octrees, e.g. when saving):
+  // block 0's page header -> info section -> attachment table; anything out
+  // of range reads as Raw, and validate() reports the actual problem.
+  const uint64_t size = words.size();
+  if (size < 2) return AttributeFormat::Raw;
+  const int64_t info = int32_t(words[0]);
+  if (info <= 0 || uint64_t(info) + detail::kInfoAttachTable > size) return AttributeFormat::Raw;
+  const uint64_t count = words[size_t(info) + detail::kInfoAttachCountWord];
+  for (uint64_t a = 0; a < count && uint64_t(info) + detail::kInfoAttachTable + 2 * a < size; ++a) {
+    const uint32_t type = words[size_t(uint64_t(info) + detail::kInfoAttachTable + 2 * a)];
+    if (type == kAttachCompressedColorNormal) return AttributeFormat::Compressed;
+    if (type == kAttachRawColorNormal) return AttributeFormat::Raw;
+  }
+  return AttributeFormat::Raw;
 }
 
 }  // namespace voxcast::esvo

@@ -21,7 +21,9 @@
 // BuildOptions::max_block_slots / max_block_values; the next block starts at
 // the next 8 KiB boundary. Each block ends with its info section and raw
 // color/normal attachment (§5.4, Figure 7), holding the attributes of the
-// children of every descriptor in the block.
+// children of every descriptor in the block, or with BuildOptions::attributes
+// = Compressed one §5.5 compression block per descriptor pair (compress.cpp);
+// then groups are placed so that a pair only holds siblings (alloc()).
 #include <algorithm>
 #include <bit>
 #include <cmath>
@@ -32,6 +34,7 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
+#include "esvo/compress.hpp"
 #include "esvo/layout_internal.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
@@ -177,7 +180,13 @@ void check_input(const VoxelSet& v) {
 /// per 8 KiB page one header plus at most 15 slots of padding in front of a
 /// group (+ far slots, <= 16 slots) that would straddle it:
 ///   X <= 2d + 16 (X/1024 + 1)  =>  X <= 2d + 2d/63 + 17.
-uint64_t span_bound(uint64_t desc) { return 2 * desc + (2 * desc) / 63 + 32; }
+/// With compressed attributes (§5.5) a group may also be preceded by one
+/// pairing padding slot, at most one per descriptor:
+///   X <= 3d + 16 (X/1024 + 1)  =>  X <= 3d + 3d/63 + 17.
+uint64_t span_bound(uint64_t desc, bool compressed) {
+  const uint64_t k = compressed ? 3 : 2;
+  return k * desc + (k * desc) / 63 + 32;
+}
 
 class Layout {
  public:
@@ -188,11 +197,11 @@ class Layout {
   EsvoOctree run(const GridTransform& grid) {
     uint64_t total_desc = 1 + lv_[0].desc_below[0];
     uint64_t total_values = lv_[0].values_below[0] + std::popcount(unsigned(lv_[0].mask[0]));
-    out_.reserve(size_t(span_bound(total_desc) + total_desc + 2 * total_values + 4096));
+    out_.reserve(size_t(span_bound(total_desc, compressed_) + total_desc + 2 * total_values + 4096));
 
     open_block(0);
     // The root: slot 1, the first descriptor of block 0 (slot 0 is the page header).
-    const uint32_t root = alloc(1);
+    const uint32_t root = alloc(1, 1);
     place_descriptor(root, 0, 0);
     stack_.push_back({0, 0, root, 0});
     while (!stack_.empty()) {
@@ -228,15 +237,27 @@ class Layout {
     if (out_.size() < slots * 2) out_.resize(size_t(slots * 2), 0);
   }
 
-  /// Allocates `n` (<= 16) consecutive slots that do not straddle a page header.
-  uint32_t alloc(uint32_t n) {
-    if (cursor_ % kPageSlots == 0) ++cursor_;  // page header
-    if (cursor_ % kPageSlots + n > kPageSlots) {
-      padding_ += kPageSlots - cursor_ % kPageSlots;
-      cursor_ = (cursor_ / kPageSlots + 1) * kPageSlots + 1;
+  /// Allocates `n` (<= 16) consecutive slots that do not straddle a page
+  /// header, of which the first `descs` will hold descriptors. Compressed
+  /// attributes (§5.5): a group may start at an odd slot only if the slot
+  /// before it is not a descriptor of the previous group (else one padding
+  /// slot), so a descriptor pair (2k, 2k+1) never mixes two groups.
+  uint32_t alloc(uint32_t n, uint32_t descs) {
+    for (;;) {
+      if (cursor_ % kPageSlots == 0) ++cursor_;  // page header
+      if (compressed_ && (cursor_ & 1) && cursor_ == last_desc_end_) {
+        ++cursor_;
+        continue;
+      }
+      if (cursor_ % kPageSlots + n > kPageSlots) {
+        cursor_ = (cursor_ / kPageSlots + 1) * kPageSlots + 1;
+        continue;
+      }
+      break;
     }
     const uint32_t s = uint32_t(cursor_);
     cursor_ += n;
+    last_desc_end_ = s + descs;
     ensure_words(cursor_);
     lookup_.resize(size_t(cursor_ - block_start_), 0);
     return s;
@@ -290,11 +311,11 @@ class Layout {
             used_after + span + 48 <= opt_.max_block_slots && vals <= opt_.max_block_values;
         const uint64_t distance = (g - i) + g + span + 32;
         if (cl.desc_below[c] > 0 && !(no_break && distance <= kMaxNearPointer)) far_mask |= 1u << i;
-        span += span_bound(cl.desc_below[c]);
+        span += span_bound(cl.desc_below[c], compressed_);
       }
     }
     const uint32_t far_count = uint32_t(std::popcount(far_mask));
-    const uint32_t group = alloc(g + far_count);
+    const uint32_t group = alloc(g + far_count, g);
     ++block_groups_;
     far_slots_ += far_count;
 
@@ -327,13 +348,15 @@ class Layout {
     block_groups_ = 0;
   }
 
-  /// Appends the block's info section and raw attachment after its descriptor
-  /// area and fills in the page headers.
+  /// Appends the block's info section and color/normal attachment (raw §5.4
+  /// or compressed §5.5) after its descriptor area and fills in the page headers.
   void close_block() {
     const uint64_t slots = cursor_ - block_start_;
     const uint64_t info = cursor_ * 2;
     const uint64_t attach = info + 6;
-    const uint64_t end = attach + 2 + slots + 2 * values_.size();
+    const uint64_t pairs = (slots + 1) / 2;
+    const uint64_t end = compressed_ ? attach + 2 + detail::kCompressedBlockWords * pairs
+                                     : attach + 2 + slots + 2 * values_.size();
     if (end >= (uint64_t(1) << 32)) throw Error("cannot build octree: more than 2^32 words");
     out_.resize(size_t(end), 0);
     for (uint64_t p = block_start_; p < cursor_; p += kPageSlots) {
@@ -345,16 +368,43 @@ class Layout {
     w[detail::kInfoFirstSlotWord] = uint32_t(int32_t(int64_t(block_start_ * 2) - int64_t(info)));
     w[detail::kInfoSlotCountWord] = uint32_t(slots);
     w[detail::kInfoAttachCountWord] = 1;
-    w[4] = kAttachRawColorNormal;
+    w[4] = compressed_ ? kAttachCompressedColorNormal : kAttachRawColorNormal;
     w[5] = uint32_t(attach - info);
     uint32_t* a = out_.data() + attach;
     a[0] = uint32_t(slots);
-    a[1] = uint32_t(values_.size());
-    std::copy(lookup_.begin(), lookup_.end(), a + 2);
-    uint32_t* v = a + 2 + slots;
-    for (size_t i = 0; i < values_.size(); ++i) {
-      v[2 * i] = uint32_t(values_[i]);
-      v[2 * i + 1] = uint32_t(values_[i] >> 32);
+    if (compressed_) {
+      // §5.5: compression block k = descriptor slots 2k, 2k+1 of the block;
+      // the lookup entries (value pointer | valid mask) say which values
+      // belong to which slot. Page headers, far pointers and padding have
+      // an empty mask. The encoder starts from the raw 8-bit sRGB colors and
+      // cube normals (within 0.5/255 and 7e-5 rad of the input). Independent
+      // blocks: encoded in parallel, deterministic for any thread count.
+      a[1] = uint32_t(pairs);
+      uint32_t* blocks = a + 2;
+      lookup_.resize(size_t(2 * pairs), 0);
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, size_t(pairs), 1024),
+                        [&](const tbb::blocked_range<size_t>& r) {
+                          uint64_t vals[16];
+                          for (size_t k = r.begin(); k != r.end(); ++k) {
+                            uint32_t used = 0;
+                            int n = 0;
+                            for (int half = 0; half < 2; ++half) {
+                              const uint32_t e = lookup_[2 * k + size_t(half)];
+                              const uint32_t mask = e & 0xFFu;
+                              used |= mask << (8 * half);
+                              for (int j = 0; j < std::popcount(mask); ++j) vals[n++] = values_[(e >> 8) + uint32_t(j)];
+                            }
+                            detail::encode_block_from_raw(vals, used, blocks + detail::kCompressedBlockWords * k);
+                          }
+                        });
+    } else {
+      a[1] = uint32_t(values_.size());
+      std::copy(lookup_.begin(), lookup_.end(), a + 2);
+      uint32_t* v = a + 2 + slots;
+      for (size_t i = 0; i < values_.size(); ++i) {
+        v[2 * i] = uint32_t(values_[i]);
+        v[2 * i + 1] = uint32_t(values_[i] >> 32);
+      }
     }
     ++block_count_;
     cursor_ = (end + 1) / 2;
@@ -368,7 +418,9 @@ class Layout {
   std::vector<Node> stack_;
   std::vector<uint32_t> lookup_;  // current block, per slot from block_start_
   std::vector<uint64_t> values_;  // current block
-  uint64_t cursor_ = 0, block_start_ = 0, padding_ = 0, far_slots_ = 0;
+  const bool compressed_ = opt_.attributes == AttributeFormat::Compressed;
+  uint64_t cursor_ = 0, block_start_ = 0, far_slots_ = 0;
+  uint64_t last_desc_end_ = 0;  // one past the last descriptor of the last group
   uint32_t block_count_ = 0, block_groups_ = 0;
 };
 

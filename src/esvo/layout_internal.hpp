@@ -33,6 +33,22 @@ inline size_t find_attachment(const uint32_t* w, size_t info, uint32_t type) {
   return size_t(int64_t(info) + int32_t(w[info + kInfoAttachTable + 1]));
 }
 
+/// The color/normal attachment of the info section at word `info`: the first
+/// attachment of type kAttachRawColorNormal or kAttachCompressedColorNormal
+/// (validate() guarantees exactly one). Unchecked; `type` receives its type.
+inline size_t find_color_attachment(const uint32_t* w, size_t info, uint32_t* type) {
+  const uint32_t count = w[info + kInfoAttachCountWord];
+  for (uint32_t a = 0; a < count; ++a) {
+    const uint32_t t = w[info + kInfoAttachTable + 2 * a];
+    if (t == kAttachRawColorNormal || t == kAttachCompressedColorNormal) {
+      *type = t;
+      return size_t(int64_t(info) + int32_t(w[info + kInfoAttachTable + 2 * a + 1]));
+    }
+  }
+  *type = w[info + kInfoAttachTable];
+  return size_t(int64_t(info) + int32_t(w[info + kInfoAttachTable + 1]));
+}
+
 /// Slot of the first descriptor of the child group of the descriptor at
 /// `slot` (follows a far pointer if the far bit is set). Unchecked.
 inline uint32_t child_group(const uint32_t* w, uint32_t slot) {
@@ -48,13 +64,15 @@ struct BlockInfo {
   uint64_t slot_count;   // descriptor area size in slots (page headers included)
   uint64_t info;         // word index of the info section
   uint64_t info_words;   // 4 + 2 * attachment count
-  uint64_t attach;       // word index of the raw color/normal attachment
-  uint64_t value_count;  // values in that attachment
+  uint64_t attach;       // word index of the color/normal attachment
+  uint32_t attach_type;  // kAttachRawColorNormal or kAttachCompressedColorNormal
+  uint64_t value_count;  // raw: values in that attachment; compressed: 0
+  uint64_t pair_count;   // compressed: compression blocks (descriptor pairs); raw: 0
   uint64_t end;          // one past the last word of the block
 };
 
 /// Locates and bounds-checks every block's page headers, info section and
-/// raw attachment (validate.cpp). Throws voxcast::Error on the first problem.
+/// color/normal attachment (validate.cpp). Throws voxcast::Error on the first problem.
 std::vector<BlockInfo> parse_blocks(const EsvoOctree& octree);
 
 }  // namespace voxcast::esvo::detail

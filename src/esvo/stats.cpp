@@ -69,19 +69,41 @@ MemoryStats EsvoOctree::memory_stats() const {
   MemoryStats m;
   const std::vector<detail::BlockInfo> blocks = detail::parse_blocks(*this);
   const uint32_t* w = words.data();
+  const bool compressed = blocks[0].attach_type == kAttachCompressedColorNormal;
+  m.attribute_format = compressed ? AttributeFormat::Compressed : AttributeFormat::Raw;
+  // Compressed: which slots hold descriptors (1) or far pointers (2), to find
+  // the pairing gaps (§5.5).
+  std::vector<uint8_t> used(compressed ? words.size() / 2 : 0, 0);
   uint64_t descriptors = 0, far = 0;
   walk(*this, [&](uint32_t slot, int, uint64_t) {
     ++descriptors;
     const uint32_t w0 = w[size_t(slot) * 2];
-    far += (w0 & detail::kFarBit) && detail::non_leaf_mask(w0) ? 1 : 0;
+    const bool has_far = (w0 & detail::kFarBit) && detail::non_leaf_mask(w0);
+    far += has_far ? 1 : 0;
+    if (compressed) {
+      used[slot] = 1;
+      if (has_far) used[slot + (w0 >> detail::kPointerShift)] = 2;
+    }
   });
   uint64_t pages = 0;
   for (const auto& b : blocks) {
     pages += (b.slot_count + kPageSlots - 1) / kPageSlots;
     m.info_bytes += b.info_words * 4;
-    m.attribute_lookup_bytes += (2 + b.slot_count) * 4;  // header + one entry per slot
-    m.attribute_value_bytes += b.value_count * 8;
+    if (compressed) {
+      m.attribute_lookup_bytes += 2 * 4;  // attachment header only, no lookup table
+      m.color_bytes += b.pair_count * 8;   // words 0-1 of each compression block
+      m.normal_bytes += b.pair_count * 16; // words 2-5
+      // Pairing gaps: empty slots (not a page header, descriptor or far
+      // pointer) whose pair partner is a descriptor.
+      for (uint64_t s = b.first_slot; s < b.first_slot + b.slot_count; ++s)
+        if (s % kPageSlots != 0 && !used[s] && used[s ^ 1] == 1) m.pair_padding_bytes += 8;
+    } else {
+      m.attribute_lookup_bytes += (2 + b.slot_count) * 4;  // header + one entry per slot
+      m.color_bytes += b.value_count * 4;
+      m.normal_bytes += b.value_count * 4;
+    }
   }
+  m.attribute_value_bytes = m.color_bytes + m.normal_bytes;
   m.descriptor_bytes = descriptors * 8;
   m.far_pointer_bytes = far * 8;
   m.page_header_bytes = pages * 8;
@@ -89,7 +111,8 @@ MemoryStats EsvoOctree::memory_stats() const {
   // Everything else: padding slots in front of page-straddling groups, block
   // alignment to 8 KiB and the tail of the last page.
   m.padding_bytes = m.total_bytes - m.descriptor_bytes - m.far_pointer_bytes - m.page_header_bytes -
-                    m.info_bytes - m.attribute_lookup_bytes - m.attribute_value_bytes;
+                    m.info_bytes - m.attribute_lookup_bytes - m.attribute_value_bytes -
+                    m.pair_padding_bytes;
   return m;
 }
 

@@ -10,12 +10,15 @@
 //     by the array size), and its child group lies strictly after it, inside
 //     one page of one block's descriptor area;
 //   * masks are consistent with the depth (leaves exactly at depth `levels`);
-//   * every valid child has an attribute value inside its block's values.
+//   * every valid child has an attribute value inside its block's values
+//     (raw), or every descriptor's pair has a compression block whose base
+//     normal face is valid and pairs never mix two child groups (compressed).
 #include <algorithm>
 #include <bit>
 #include <cmath>
 #include <string>
 
+#include "esvo/compress.hpp"
 #include "esvo/layout_internal.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
@@ -61,21 +64,34 @@ std::vector<BlockInfo> parse_blocks(const EsvoOctree& octree) {
     bi.info_words = kInfoAttachTable + 2 * uint64_t(attach_count);
     if (bi.info + bi.info_words > size) fail("info section out of range" + where);
     bi.end = bi.info + bi.info_words;
+    // Exactly one color/normal attachment, raw (§5.4) or compressed (§5.5),
+    // of the same type as block 0's.
     bool found = false;
-    for (uint32_t a = 0; a < attach_count && !found; ++a) {
-      if (w[bi.info + kInfoAttachTable + 2 * a] != kAttachRawColorNormal) continue;
+    for (uint32_t a = 0; a < attach_count; ++a) {
+      const uint32_t type = w[bi.info + kInfoAttachTable + 2 * a];
+      if (type != kAttachRawColorNormal && type != kAttachCompressedColorNormal) continue;
+      if (found) fail("more than one color/normal attachment" + where);
+      if (b > 0 && type != blocks[0].attach_type) fail("attachment type differs from block 0" + where);
       const int64_t at = int64_t(bi.info) + int32_t(w[bi.info + kInfoAttachTable + 2 * a + 1]);
       if (at < int64_t(bi.info + bi.info_words) || uint64_t(at) + 2 > size)
         fail("attachment out of range" + where);
       bi.attach = uint64_t(at);
+      bi.attach_type = type;
       if (w[bi.attach] != bi.slot_count) fail("attachment slot count mismatch" + where);
-      bi.value_count = w[bi.attach + 1];
-      const uint64_t end = bi.attach + 2 + bi.slot_count + 2 * bi.value_count;
+      uint64_t end = 0;
+      if (type == kAttachRawColorNormal) {
+        bi.value_count = w[bi.attach + 1];
+        end = bi.attach + 2 + bi.slot_count + 2 * bi.value_count;
+      } else {
+        bi.pair_count = w[bi.attach + 1];
+        if (bi.pair_count > (bi.slot_count + 1) / 2)
+          fail("compressed attachment has more blocks than descriptor pairs" + where);
+        end = bi.attach + 2 + kCompressedBlockWords * bi.pair_count;
+      }
       if (end > size) fail("attachment out of range" + where);
       bi.end = std::max(bi.end, end);
       found = true;
     }
-    if (!found) fail("missing color/normal attachment" + where);
     // Every page of the descriptor area starts with a header pointing at the info section.
     for (uint64_t p = start; p < bi.info; p += kPageWords)
       if (int64_t(p) + int32_t(w[p]) != int64_t(bi.info) || w[p + 1] != 0)
@@ -121,8 +137,8 @@ void EsvoOctree::validate() const {
     const uint32_t s = it.slot;
     const BlockInfo* block = block_of(s);
     if (!block) fail_at("descriptor outside a descriptor area", s);
-    if (visited[s]) fail_at("descriptor shared", s);
-    visited[s] = 1;
+    if (visited[s] & 1) fail_at("descriptor shared", s);
+    visited[s] |= 1;
 
     const uint32_t w0 = w[size_t(s) * 2];
     const uint32_t valid = valid_mask(w0), leaf = leaf_mask(w0), nl = non_leaf_mask(w0);
@@ -132,10 +148,18 @@ void EsvoOctree::validate() const {
     if (it.depth + 1 == L && nl) fail_at("octree deeper than its levels", s);
     if (it.depth + 1 < L && leaf) fail_at("leaf above the finest level", s);
 
-    const uint32_t entry = w[block->attach + 2 + (s - block->first_slot)];
-    if ((entry & valid) != valid) fail_at("missing attribute", s);
-    if (uint64_t(entry >> 8) + uint64_t(std::popcount(entry & 0xFFu)) > block->value_count)
-      fail_at("attribute pointer out of range", s);
+    if (block->attach_type == kAttachRawColorNormal) {
+      const uint32_t entry = w[block->attach + 2 + (s - block->first_slot)];
+      if ((entry & valid) != valid) fail_at("missing attribute", s);
+      if (uint64_t(entry >> 8) + uint64_t(std::popcount(entry & 0xFFu)) > block->value_count)
+        fail_at("attribute pointer out of range", s);
+    } else {
+      // §5.5: the descriptor's pair must have a compression block.
+      const uint64_t pair = (s - block->first_slot) >> 1;
+      if (pair >= block->pair_count) fail_at("missing compression block", s);
+      const uint32_t base = w[block->attach + 2 + kCompressedBlockWords * pair + 2];
+      if (base >> 29 > 5) fail_at("bad compressed base normal", s);
+    }
 
     if (!nl) continue;
     const uint32_t ptr = w0 >> kPointerShift;
@@ -154,7 +178,16 @@ void EsvoOctree::validate() const {
     if (uint64_t(group) / kPageSlots != (uint64_t(group) + uint64_t(k) - 1) / kPageSlots)
       fail_at("child group crosses a page header", s);
     for (int i = k - 1; i >= 0; --i) stack.push_back({uint32_t(group) + uint32_t(i), it.depth + 1});
+    // Mark group starts (bit 1) so the pairing rule can be checked below.
+    visited[size_t(group)] |= 2;
   }
+  visited[root_slot()] |= 2;
+
+  // §5.5 pairing rule: a compression block only holds siblings, i.e. when both
+  // slots of a pair (2k, 2k+1) are descriptors, 2k+1 continues 2k's group.
+  if (blocks[0].attach_type == kAttachCompressedColorNormal)
+    for (uint64_t s = 0; s + 1 < total_slots; s += 2)
+      if ((visited[s] & 1) && (visited[s + 1] & 2)) fail_at("compression block shared by two child groups", s);
 }
 
 }  // namespace voxcast::esvo

@@ -1,9 +1,14 @@
 // Tiled, multi-threaded primary-ray renderer over any VoxelStructure.
 #include "voxcast/render.hpp"
 
+#include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <cmath>
+#include <mutex>
+#include <vector>
 
+#include "render/beam.hpp"
 #include "render/tiling.hpp"
 #include "voxcast/error.hpp"
 
@@ -15,6 +20,8 @@ RenderResult render(const VoxelStructure& structure, const RenderOptions& option
   if (!(options.lod_pixels >= 0.f) || !std::isfinite(options.lod_pixels))
     throw Error("render: lod_pixels must be a finite number >= 0");
   if (options.tile_size <= 0) throw Error("render: tile_size must be positive");
+  if (options.beam != 0 && (options.beam < 2 || options.beam > 64))
+    throw Error("render: beam must be 0 (off) or a block size in 2..64");
   const CameraRays cam(options.camera, options.width, options.height);
 
   RenderResult result;
@@ -34,7 +41,18 @@ RenderResult render(const VoxelStructure& structure, const RenderOptions& option
   const Color bg = options.background;
   const bool want_depth = options.want_depth, want_normal = options.want_normal;
 
+  // esvo §6.3: per-pixel projected size of the hit voxel, log2 in 3.5 fixed
+  // point (the paper's alpha channel); misses keep 0 = radius 1 = no blur.
+  std::vector<uint8_t> filter_radius;
+  if (options.filter) filter_radius.assign(size_t(W) * size_t(H), 0);
+  const float pixel_angle = cam.pixel_angle();
+
   std::atomic<uint64_t> total_hits{0};
+  // Profiling (esvo §8.5) and beam optimization (§6.2) state.
+  const bool collect = options.collect_stats;
+  const int beam_k = options.beam;
+  if (collect) result.iterations = Image(W, H, 1);
+  std::mutex stats_mutex;
   // Pixels go in batches: first every ray of the batch is traced, then the
   // hits are shaded. Attribute fetches are mostly cache misses (the values
   // live far from the descriptors); issued back to back they overlap in the
@@ -46,6 +64,8 @@ RenderResult render(const VoxelStructure& structure, const RenderOptions& option
     Vec3 batch_dir[kBatch];
     int batch_x[kBatch], batch_y[kBatch];
     int batch_n = 0;
+    RayCounters tile_counters, tile_coarse;
+    uint64_t tile_beams = 0;
     auto shade_batch = [&] {
       for (int b = 0; b < batch_n; ++b) {
         const SurfaceHit& hit = batch_hit[b];
@@ -53,7 +73,10 @@ RenderResult render(const VoxelStructure& structure, const RenderOptions& option
         float* out = result.color.at(x, y);
         Color c;
         Vec3 n;
-        structure.attributes(hit, &c, &n);
+        if (collect)
+          structure.attributes_counted(hit, &c, &n, &tile_counters);
+        else
+          structure.attributes(hit, &c, &n);
         const Vec3 dir = batch_dir[b];
         // Voxel normals are averages over the surface inside the voxel and may
         // face away from the viewer; shade the side we see.
@@ -67,6 +90,13 @@ RenderResult render(const VoxelStructure& structure, const RenderOptions& option
         out[1] = c.g * k + 0.12f * spec;
         out[2] = c.b * k + 0.12f * spec;
         if (want_depth) *result.depth.at(x, y) = hit.t;
+        if (!filter_radius.empty()) {
+          // Voxel side over the pixel footprint at distance t; t ~ 0 (eye in
+          // the voxel) gives +inf or a huge size -> the largest code.
+          const float footprint = hit.t * pixel_angle;
+          filter_radius[size_t(y) * W + x] =
+              footprint > 0.f ? encode_filter_radius(hit.voxel_size / footprint) : uint8_t(255);
+        }
         if (want_normal) {
           float* o = result.normal.at(x, y);
           o[0] = n.x * 0.5f + 0.5f, o[1] = n.y * 0.5f + 0.5f, o[2] = n.z * 0.5f + 0.5f;
@@ -74,31 +104,73 @@ RenderResult render(const VoxelStructure& structure, const RenderOptions& option
       }
       batch_n = 0;
     };
-    for (int y = tile.y0; y < tile.y1; ++y) {
-      for (int x = tile.x0; x < tile.x1; ++x) {
-        const Ray ray = cam.ray(x, y);
-        if (structure.trace(ray, lod, &batch_hit[batch_n])) {
-          ++hits;
-          batch_dir[batch_n] = ray.dir;
-          batch_x[batch_n] = x;
-          batch_y[batch_n] = y;
-          if (++batch_n == kBatch) shade_batch();
-          continue;
+    // One pixel; `beam` = the coarse-pass result of its block (or null).
+    auto trace_pixel = [&](int x, int y, const BeamStart* beam) {
+      const Ray ray = cam.ray(x, y);
+      bool found;
+      if (!collect && beam == nullptr) {
+        found = structure.trace(ray, lod, &batch_hit[batch_n]);  // the plain fast path
+      } else {
+        RayCounters rc;
+        found = structure.trace_hinted(ray, lod, TraceHints{beam, collect ? &rc : nullptr},
+                                       &batch_hit[batch_n]);
+        if (collect) {
+          tile_counters += rc;
+          *result.iterations.at(x, y) = float(rc.iterations);
         }
-        float* out = result.color.at(x, y);
-        out[0] = bg.r, out[1] = bg.g, out[2] = bg.b;
-        if (want_depth) *result.depth.at(x, y) = INFINITY;
-        if (want_normal) {
-          float* n = result.normal.at(x, y);
-          n[0] = n[1] = n[2] = 0.5f;
+      }
+      if (found) {
+        ++hits;
+        batch_dir[batch_n] = ray.dir;
+        batch_x[batch_n] = x;
+        batch_y[batch_n] = y;
+        if (++batch_n == kBatch) shade_batch();
+        return;
+      }
+      float* out = result.color.at(x, y);
+      out[0] = bg.r, out[1] = bg.g, out[2] = bg.b;
+      if (want_depth) *result.depth.at(x, y) = INFINITY;
+      if (want_normal) {
+        float* n = result.normal.at(x, y);
+        n[0] = n[1] = n[2] = 0.5f;
+      }
+    };
+    if (beam_k == 0) {
+      for (int y = tile.y0; y < tile.y1; ++y)
+        for (int x = tile.x0; x < tile.x1; ++x) trace_pixel(x, y, nullptr);
+    } else {
+      // §6.2: per K x K block (clipped to the tile), a coarse pass computes a
+      // conservative start region shared by the block's rays. It runs inside
+      // the timed loop. (Contours, once they exist, must stay off in it.)
+      for (int by = tile.y0; by < tile.y1; by += beam_k) {
+        for (int bx = tile.x0; bx < tile.x1; bx += beam_k) {
+          const int bx1 = std::min(bx + beam_k, tile.x1), by1 = std::min(by + beam_k, tile.y1);
+          BeamStart start;
+          structure.beam_start(detail::block_beam(cam, bx, by, bx1, by1, lod), &start,
+                               collect ? &tile_coarse : nullptr);
+          ++tile_beams;
+          for (int y = by; y < by1; ++y)
+            for (int x = bx; x < bx1; ++x) trace_pixel(x, y, &start);
         }
       }
     }
     shade_batch();
     total_hits.fetch_add(hits, std::memory_order_relaxed);
+    if (collect) {
+      std::lock_guard<std::mutex> lock(stats_mutex);
+      result.counters += tile_counters;
+      result.coarse_counters += tile_coarse;
+      result.beams += tile_beams;
+    }
   });
   result.rays = uint64_t(W) * uint64_t(H);
   result.hits = total_hits.load();
+  if (options.filter) {  // esvo §6.3 post-process filter, timed on its own
+    const auto f0 = std::chrono::steady_clock::now();
+    result.color = post_filter(result.color, filter_radius);
+    result.filter_seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - f0).count();
+  }
   return result;
 }
 
