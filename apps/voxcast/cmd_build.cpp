@@ -15,6 +15,8 @@ namespace voxcast::cli {
 namespace {
 struct BuildArgs {
   std::string input, output, voxelization = "conservative", memory_budget;
+  std::string attributes = "raw";
+  std::string format = "esvo";
   uint32_t resolution = 1024;
   double voxel_size = std::nan("");
   int threads = 0;
@@ -24,7 +26,8 @@ struct BuildArgs {
 
 Runner add_build(CLI::App& app) {
   auto args = std::make_shared<BuildArgs>();
-  CLI::App* cmd = app.add_subcommand("build", "Voxelize a triangle mesh into an ESVO scene file");
+  CLI::App* cmd = app.add_subcommand(
+      "build", "Voxelize a triangle mesh into a scene file (ESVO octree or sparse voxel DAG)");
   cmd->add_option("MESH", args->input, "Input mesh (OBJ, PLY, OFF, STL, glTF/GLB, FBX, DAE, ...)")
       ->required();
   cmd->add_option("-o,--output", args->output, "Output scene file (.vxc)")->required();
@@ -34,6 +37,12 @@ Runner add_build(CLI::App& app) {
                   "Largest voxel size in world units (resolution rounded up to a power of two)")
       ->excludes(res);
   cmd->add_option("--voxelization", args->voxelization, "conservative | 6-separating")
+      ->capture_default_str();
+  cmd->add_option("--attributes", args->attributes,
+                  "Color/normal storage: raw (8 B/voxel) | compressed (esvo §5.5 blocks, lossy)")
+      ->capture_default_str();
+  cmd->add_option("--format", args->format,
+                  "Structure: esvo (ESVO octree) | dag (sparse voxel DAG, svdag paper section 3)")
       ->capture_default_str();
   cmd->add_option("--memory-budget", args->memory_budget,
                   "Refuse builds estimated to need more (e.g. 8G; default 90% of free memory)");
@@ -50,8 +59,14 @@ Runner add_build(CLI::App& app) {
       s.voxel_size = args->voxel_size;
     }
     s.mode = parse_voxelization(args->voxelization);
+    s.attributes = parse_attribute_format(args->attributes);
     if (!args->memory_budget.empty()) s.memory_budget = parse_byte_size(args->memory_budget.c_str());
     s.verbose = args->verbose;
+    if (args->format != "esvo" && args->format != "dag")
+      throw Error("--format: '" + args->format + "' is not esvo or dag");
+    s.dag = args->format == "dag";
+    if (s.dag && s.attributes != esvo::AttributeFormat::Raw)
+      throw Error("--attributes compressed applies to --format esvo only");
     if (std::filesystem::is_directory(args->output))
       throw Error("output '" + args->output + "' is a directory");
     StageTimer total(false);
@@ -62,6 +77,18 @@ Runner add_build(CLI::App& app) {
     info.voxelization = voxelization_name(s.mode);
     info.source_triangles = built.mesh.triangle_count();
     info.leaf_voxels = built.leaf_voxels;
+    if (s.dag) {
+      save_dag_scene(args->output, built.dag, info);
+      timer.mark("write scene");
+      const dag::DagStats st = built.dag.stats();
+      std::printf("%s: %u^3 grid (%d levels), %llu leaf voxels, DAG %s (%.3f bits/leaf voxel, "
+                  "%llu nodes vs %llu SVO nodes), %.2f s\n",
+                  args->output.c_str(), built.dag.grid.resolution, built.dag.levels(),
+                  (unsigned long long)built.leaf_voxels, format_bytes(double(st.dag_bytes)).c_str(),
+                  st.bits_per_voxel, (unsigned long long)st.dag_nodes,
+                  (unsigned long long)st.svo_nodes, total.mark("total"));
+      return 0;
+    }
     save_esvo_scene(args->output, built.octree, info);
     timer.mark("write scene");
     auto mem = built.octree.memory_stats();

@@ -24,6 +24,84 @@ std::string fourcc_name(uint32_t id) {
   }
   return s;
 }
+
+// DAG scenes: nodes per level DAG vs SVO and memory DAG vs pointer-less SVO
+// (1 B/node) vs ESVO (8 B/node), bits per voxel: the shape of svdag Table 2.
+int print_dag_info(const InfoArgs& args, const Container& container) {
+  SceneInfo info;
+  const dag::SparseVoxelDag d = dag_scene_from_container(container, &info);
+  const dag::DagStats st = d.stats();
+  const uint64_t file_bytes = std::filesystem::file_size(args.input);
+  const int L = d.levels();
+  nlohmann::json j;
+  j["file"] = args.input;
+  j["file_bytes"] = file_bytes;
+  j["format"] = "dag";
+  std::vector<std::string> sections;
+  for (uint32_t id : container.section_ids()) sections.push_back(fourcc_name(id));
+  j["sections"] = sections;
+  j["source"] = info.source;
+  j["source_triangles"] = info.source_triangles;
+  j["voxelization"] = info.voxelization;
+  j["resolution"] = d.grid.resolution;
+  j["levels"] = L;
+  j["voxel_size"] = d.grid.voxel_size;
+  j["origin"] = {d.grid.origin.x, d.grid.origin.y, d.grid.origin.z};
+  j["leaf_voxels"] = st.leaf_voxels;
+  j["attributes"] = d.has_attributes();
+  for (int l = 0; l <= L; ++l) {
+    const dag::LevelStats& ls = st.levels[size_t(l)];
+    j["per_level"].push_back({{"level", l}, {"dag_nodes", ls.dag_nodes},
+                              {"svo_nodes", ls.svo_nodes}, {"dag_bytes", ls.dag_bytes}});
+  }
+  j["nodes"] = {{"dag", st.dag_nodes}, {"svo", st.svo_nodes}};
+  j["memory"] = {{"dag", st.dag_bytes},       {"svo_1byte", st.svo_bytes},
+                 {"esvo_8byte", st.esvo_bytes}, {"voxel_index", st.index_bytes},
+                 {"attributes", st.attribute_bytes}};
+  j["bits_per_voxel"] = st.bits_per_voxel;
+  if (args.json) {
+    std::printf("%s\n", j.dump(2).c_str());
+    return 0;
+  }
+  std::printf("scene       %s (%s)\n", args.input.c_str(), format_bytes(double(file_bytes)).c_str());
+  std::printf("sections    ");
+  for (auto& s : sections) std::printf("%s ", s.c_str());
+  std::printf("\nstructure   sparse voxel DAG (svdag), 4^3 leaf masks, %s\n",
+              d.has_attributes() ? "colors + normals per voxel (Morton-rank index)"
+                                 : "geometry only (gray, face normals)");
+  std::printf("source      %s, %llu triangles, %s voxelization\n", info.source.c_str(),
+              (unsigned long long)info.source_triangles, info.voxelization.c_str());
+  std::printf("grid        %u^3 (%d levels), voxel size %.6g, origin %.6g,%.6g,%.6g\n",
+              d.grid.resolution, L, d.grid.voxel_size, d.grid.origin.x, d.grid.origin.y,
+              d.grid.origin.z);
+  std::printf("voxels      %llu leaves\n\n", (unsigned long long)st.leaf_voxels);
+  std::printf("level    DAG nodes     SVO nodes   reduction   DAG bytes\n");
+  for (int l = 0; l < L; ++l) {
+    const dag::LevelStats& ls = st.levels[size_t(l)];
+    if (l < L - 1)
+      std::printf("%5d %12llu  %12llu  %9.1fx  %10s\n", l, (unsigned long long)ls.dag_nodes,
+                  (unsigned long long)ls.svo_nodes, double(ls.svo_nodes) / double(ls.dag_nodes),
+                  format_bytes(double(ls.dag_bytes)).c_str());
+    else
+      std::printf("%5d %12s  %12llu  (in the level %d 64-bit masks)\n", l, "-",
+                  (unsigned long long)ls.svo_nodes, L - 2);
+  }
+  std::printf("total %12llu  %12llu  %9.1fx\n\n", (unsigned long long)st.dag_nodes,
+              (unsigned long long)st.svo_nodes, double(st.svo_nodes) / double(st.dag_nodes));
+  const double v = double(st.leaf_voxels);
+  std::printf("memory (geometry)          bytes  bits/voxel\n");
+  std::printf("  DAG              %14s  %10.3f\n", format_bytes(double(st.dag_bytes)).c_str(),
+              double(st.dag_bytes) * 8 / v);
+  std::printf("  SVO  (1 B/node)  %14s  %10.3f   pointer-less (Schnabel & Klein)\n",
+              format_bytes(double(st.svo_bytes)).c_str(), double(st.svo_bytes) * 8 / v);
+  std::printf("  ESVO (8 B/node)  %14s  %10.3f   descriptor + contour word\n",
+              format_bytes(double(st.esvo_bytes)).c_str(), double(st.esvo_bytes) * 8 / v);
+  if (d.has_attributes())
+    std::printf("attributes  %s colors + normals, %s voxel index (derived at load)\n",
+                format_bytes(double(st.attribute_bytes)).c_str(),
+                format_bytes(double(st.index_bytes)).c_str());
+  return 0;
+}
 }  // namespace
 
 Runner add_info(CLI::App& app) {
@@ -33,6 +111,7 @@ Runner add_info(CLI::App& app) {
   cmd->add_flag("--json", args->json, "Print the same facts as JSON");
   return [args]() {
     Container container = Container::read(args->input);
+    if (scene_format(container) == "dag") return print_dag_info(*args, container);
     SceneInfo info;
     esvo::EsvoOctree octree = load_esvo_scene(args->input, &info);
     auto levels = octree.level_stats();
@@ -80,7 +159,12 @@ Runner add_info(CLI::App& app) {
                    {"attribute_lookup", mem.attribute_lookup_bytes},
                    {"attribute_values", mem.attribute_value_bytes},
                    {"padding", mem.padding_bytes},
+                   {"pair_padding", mem.pair_padding_bytes},
+                   {"colors", mem.color_bytes},
+                   {"normals", mem.normal_bytes},
                    {"total", mem.total_bytes}};
+    const bool compressed = mem.attribute_format == esvo::AttributeFormat::Compressed;
+    j["attributes"] = compressed ? "compressed" : "raw";
     if (args->json) {
       std::printf("%s\n", j.dump(2).c_str());
       return 0;
@@ -89,7 +173,9 @@ Runner add_info(CLI::App& app) {
     std::printf("scene       %s (%s)\n", args->input.c_str(), format_bytes(double(file_bytes)).c_str());
     std::printf("sections    ");
     for (auto& s : sections) std::printf("%s ", s.c_str());
-    std::printf("\nstructure   esvo, %u block(s)\n", octree.block_count);
+    std::printf("\nstructure   esvo, %u block(s), %s attributes (%s)\n", octree.block_count,
+                compressed ? "compressed" : "raw",
+                compressed ? "esvo 5.5: 24 B per descriptor pair" : "esvo 5.4: 8 B per voxel + lookup");
     std::printf("source      %s, %llu triangles, %s voxelization\n", info.source.c_str(),
                 (unsigned long long)info.source_triangles, info.voxelization.c_str());
     std::printf("grid        %u^3 (%d levels), voxel size %.6g, origin %.6g,%.6g,%.6g\n",
@@ -113,8 +199,14 @@ Runner add_info(CLI::App& app) {
     };
     std::printf("\nmemory             bytes  B/voxel  B/leaf\n");
     row("hierarchy", hierarchy, "child descriptors, far pointers, page headers, info sections");
-    row("attributes", attributes, "lookup entries, 32-bit colors + 32-bit normals");
-    row("overhead", overhead, "padding (page alignment, unused far-pointer slots)");
+    row("attributes", attributes,
+        compressed ? "compressed blocks (DXT1 colors + 4x4-grid normals)"
+                   : "lookup entries, 32-bit colors + 32-bit normals");
+    row(" colors", double(mem.color_bytes), compressed ? "2 words per block" : "32-bit ABGR");
+    row(" normals", double(mem.normal_bytes), compressed ? "4 words per block" : "32-bit cube normals");
+    row("overhead", overhead + double(mem.pair_padding_bytes),
+        compressed ? "padding (page alignment, far slots, sibling-pair gaps)"
+                   : "padding (page alignment, unused far-pointer slots)");
     row("total", double(mem.total_bytes), "");
     return 0;
   };

@@ -19,12 +19,45 @@ struct RenderArgs {
   float lod = 1.f;
   int threads = 0;
   bool verbose = false;
+  int beam = 0;                // esvo §6.2 block size, 0 = off
+  bool stats = false;          // esvo §8.5 Table 6 counters
+  std::string heatmap;         // iteration heat map (Figure 32)
+  float heatmap_max = 64.f;    // iterations mapped to the top of the ramp
+  bool filter = false;
 };
 
 std::string lower_extension(const std::string& path) {
   std::string ext = std::filesystem::path(path).extension().string();
   for (auto& c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
   return ext;
+}
+// Table 6 style block (esvo §8.5): per-ray averages over the full-resolution
+// rays; with the beam, the coarse pass is listed and added like in the paper.
+void print_stats(const RenderResult& r, int beam) {
+  const RayCounters& f = r.counters;
+  const RayCounters& c = r.coarse_counters;
+  std::printf("profile (per ray, %llu rays%s):\n", (unsigned long long)r.rays,
+              beam ? ", coarse pass added in" : "");
+  auto row = [&](const char* name, uint64_t fine, uint64_t coarse) {
+    if (beam)
+      std::printf("  %-12s %9.2f   (rays %.2f + coarse %.2f)\n", name, r.per_ray(fine + coarse),
+                  r.per_ray(fine), r.per_ray(coarse));
+    else
+      std::printf("  %-12s %9.2f\n", name, r.per_ray(fine));
+  };
+  row("iterations", f.iterations, c.iterations);
+  row("intersect", f.intersects, c.intersects);
+  row("push", f.pushes, c.pushes);
+  row("store", f.stores, 0);
+  row("advance", f.advances, 0);
+  row("pop", f.pops, 0);
+  row("bytes", f.bytes(), c.bytes());
+  if (beam)
+    std::printf("  coarse pass: %llu beams of %dx%d, %.1f nodes visited per beam\n",
+                (unsigned long long)r.beams, beam, beam,
+                r.beams ? double(c.iterations) / double(r.beams) : 0.0);
+  std::printf("  note: counting is compiled into a separate caster; Mrays/s above is\n"
+              "        lower than without --stats/--heatmap\n");
 }
 }  // namespace
 
@@ -47,12 +80,30 @@ Runner add_render(CLI::App& app) {
   cmd->add_option("--light", args->light, "Direction the light travels, dx,dy,dz");
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)");
   cmd->add_flag("-v,--verbose", args->verbose, "Print timings per stage");
+  cmd->add_option("--beam", args->beam,
+                  "Beam optimization block size, e.g. 4 or 8 (0 = off; esvo paper section 6.2)")
+      ->capture_default_str();
+  cmd->add_flag("--stats", args->stats,
+                "Print per-ray profiling counters (esvo paper Table 6); slower");
+  cmd->add_option("--heatmap", args->heatmap, "Write the per-pixel iteration count as a .png heat map");
+  cmd->add_option("--heatmap-max", args->heatmap_max, "Iterations at the top of the heat map ramp")
+      ->capture_default_str();
+  cmd->add_flag("--filter", args->filter,
+                "Adaptive post-process blur sized by the hit voxels (esvo paper section 6.3)");
   return [args]() {
     ThreadLimit limit(args->threads);
     RenderOptions opt;
     parse_size(args->size, &opt.width, &opt.height);
     if (!std::isfinite(args->lod) || args->lod < 0) throw Error("--lod must be >= 0");
     opt.lod_pixels = args->lod;
+    if (args->beam != 0 && (args->beam < 2 || args->beam > 64))
+      throw Error("--beam must be 0 (off) or a block size in 2..64");
+    opt.beam = args->beam;
+    if (!args->heatmap.empty() && lower_extension(args->heatmap) != ".png")
+      throw Error("--heatmap must be a .png file");
+    if (!std::isfinite(args->heatmap_max) || !(args->heatmap_max > 0))
+      throw Error("--heatmap-max must be a positive number");
+    opt.collect_stats = args->stats || !args->heatmap.empty();
     for (const std::string* path : {&args->output, &args->depth, &args->normal}) {
       if (path->empty()) continue;
       std::string ext = lower_extension(*path);
@@ -67,26 +118,35 @@ Runner add_render(CLI::App& app) {
       opt.light_dir = normalize(l);
     }
     StageTimer timer(args->verbose);
-    auto octree = std::make_shared<esvo::EsvoOctree>(load_esvo_scene(args->input));
+    LoadedScene scene = load_scene(args->input);  // esvo or dag, by META "format"
     timer.mark("load scene");
-    esvo::EsvoStructure structure(octree);
+    const VoxelStructure& structure = *scene.structure;
     if (args->camera == "auto") {
-      opt.camera = Camera::frame(esvo::occupied_bounds(*octree), opt.width, opt.height);
+      opt.camera = Camera::frame(scene.occupied, opt.width, opt.height);
       std::printf("camera: %s\n", opt.camera.to_string().c_str());
     } else {
       opt.camera = Camera::parse(args->camera);
     }
     opt.want_depth = !args->depth.empty();
     opt.want_normal = !args->normal.empty();
+    opt.filter = args->filter;
     RenderResult result = render(structure, opt);
     timer.mark("ray cast");
+    if (args->verbose && opt.filter)
+      std::fprintf(stderr, "  %-22s %9.1f ms\n", "  of which filter", result.filter_seconds * 1e3);
     write_image(args->output, result.color);
     if (opt.want_depth) write_image(args->depth, result.depth);
     if (opt.want_normal) write_image(args->normal, result.normal, true);
+    if (!args->heatmap.empty()) {
+      write_image(args->heatmap, iteration_heatmap(result.iterations, args->heatmap_max));
+      std::printf("heatmap: %s, inferno ramp, black = 0, pale yellow = %g iterations\n",
+                  args->heatmap.c_str(), double(args->heatmap_max));
+    }
     timer.mark("write images");
     std::printf("%s: %dx%d, %.1f%% of pixels hit, %.2f Mrays/s\n", args->output.c_str(),
                 opt.width, opt.height, 100.0 * double(result.hits) / double(result.rays),
                 double(result.rays) / result.seconds * 1e-6);
+    if (args->stats) print_stats(result, opt.beam);
     return 0;
   };
 }

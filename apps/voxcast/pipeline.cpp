@@ -21,6 +21,16 @@ const char* voxelization_name(VoxelizationMode mode) {
   return mode == VoxelizationMode::Conservative ? "conservative" : "6-separating";
 }
 
+esvo::AttributeFormat parse_attribute_format(const std::string& name) {
+  if (name == "raw") return esvo::AttributeFormat::Raw;
+  if (name == "compressed") return esvo::AttributeFormat::Compressed;
+  throw Error("--attributes: '" + name + "' is not raw or compressed");
+}
+
+const char* attribute_format_name(esvo::AttributeFormat format) {
+  return format == esvo::AttributeFormat::Compressed ? "compressed" : "raw";
+}
+
 uint64_t estimate_build_bytes(const Mesh& mesh, const GridTransform& grid) {
   // A conservatively voxelized plane of area A (in voxel units) with unit
   // normal n covers about A * (|nx|+|ny|+|nz|) voxels, plus a band along its
@@ -79,7 +89,14 @@ BuiltScene build_scene(const BuildSettings& s) {
   out.voxelize_seconds = timer.mark("voxelize");
   out.leaf_voxels = voxels.size();
   if (voxels.size() == 0) throw Error("the mesh produced no voxels");
-  out.octree = esvo::build_octree(voxels);
+  if (s.dag) {
+    out.dag = dag::build_dag(voxels);
+    out.octree_seconds = timer.mark("DAG build");
+    return out;
+  }
+  esvo::BuildOptions build_options;
+  build_options.attributes = s.attributes;
+  out.octree = esvo::build_octree(voxels, build_options);
   out.octree_seconds = timer.mark("octree build");
   return out;
 }

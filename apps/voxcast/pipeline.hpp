@@ -2,6 +2,7 @@
 // mesh file -> voxels -> ESVO, shared by `build` and `bench`.
 #include <string>
 
+#include "voxcast/dag.hpp"
 #include "voxcast/esvo.hpp"
 #include "voxcast/mesh.hpp"
 #include "voxcast/voxelize.hpp"
@@ -14,13 +15,16 @@ struct BuildSettings {
   double voxel_size = 0;  // > 0: fit the grid to this voxel size
   VoxelizationMode mode = VoxelizationMode::Conservative;
   uint64_t memory_budget = 0;  // 0: 90% of available memory
+  esvo::AttributeFormat attributes = esvo::AttributeFormat::Raw;  // esvo §5.4 / §5.5
   bool verbose = false;
+  bool dag = false;  // build a sparse voxel DAG (BuiltScene::dag) instead of the ESVO
 };
 
 struct BuiltScene {
   Mesh mesh;
   MeshLoadStats mesh_stats;
-  esvo::EsvoOctree octree;
+  esvo::EsvoOctree octree;  // empty when BuildSettings::dag
+  dag::SparseVoxelDag dag;  // only when BuildSettings::dag
   uint64_t leaf_voxels = 0;
   double load_seconds = 0, voxelize_seconds = 0, octree_seconds = 0;
 };
@@ -34,5 +38,9 @@ BuiltScene build_scene(const BuildSettings& settings);
 
 VoxelizationMode parse_voxelization(const std::string& name);
 const char* voxelization_name(VoxelizationMode mode);
+
+/// "raw" | "compressed" (esvo §5.4 / §5.5 color/normal attachments).
+esvo::AttributeFormat parse_attribute_format(const std::string& name);
+const char* attribute_format_name(esvo::AttributeFormat format);
 
 }  // namespace voxcast::cli

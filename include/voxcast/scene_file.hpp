@@ -11,7 +11,11 @@
 #include <string>
 #include <vector>
 
+#include <memory>
+
+#include "voxcast/dag.hpp"
 #include "voxcast/esvo.hpp"
+#include "voxcast/structure.hpp"
 
 namespace voxcast {
 
@@ -55,5 +59,25 @@ esvo::EsvoOctree load_esvo_scene(const std::filesystem::path& path, SceneInfo* i
 /// load_esvo_scene() without the file: interprets and fully validates the
 /// META and ESVO sections of an already parsed container (e.g. from memory).
 esvo::EsvoOctree esvo_scene_from_container(const Container& container, SceneInfo* info = nullptr);
+
+// ---- Sparse voxel DAG scenes (sections META + 'SDAG' [+ 'DATR'], layout in
+// src/dag/scene.cpp and dag.hpp) and the format dispatch. ----
+
+/// The META "format" string ("esvo", "dag") of a parsed container.
+std::string scene_format(const Container& container);
+void save_dag_scene(const std::filesystem::path& path, const dag::SparseVoxelDag& dag,
+                    const SceneInfo& info);
+/// Loads and fully validates (SparseVoxelDag::finalize); throws voxcast::Error.
+dag::SparseVoxelDag load_dag_scene(const std::filesystem::path& path, SceneInfo* info = nullptr);
+dag::SparseVoxelDag dag_scene_from_container(const Container& container, SceneInfo* info = nullptr);
+
+/// Any scene file, loaded and validated, as the renderer's interface.
+struct LoadedScene {
+  std::string format;                         // META "format"
+  std::unique_ptr<VoxelStructure> structure;  // EsvoStructure or DagStructure
+  Aabb occupied;                              // occupied bounds for automatic cameras
+  SceneInfo info;
+};
+LoadedScene load_scene(const std::filesystem::path& path);
 
 }  // namespace voxcast

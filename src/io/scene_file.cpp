@@ -2,7 +2,9 @@
 //   'META' UTF-8 JSON: {"format": "esvo", "grid": {"origin": [x,y,z],
 //          "voxel_size": s, "resolution": N, "levels": L}, "block_count": B,
 //          "source": ..., "voxelization": ..., "source_triangles": ...,
-//          "leaf_voxels": ...}
+//          "leaf_voxels": ..., "attributes": "raw" | "compressed"}
+//   ("attributes" names the color/normal attachment, esvo §5.4/§5.5; optional
+//   for older files, and must agree with the info sections when present)
 //   'ESVO' the octree words (little-endian u32, layout in esvo.hpp).
 // Loading checks every META field's type and range and then runs
 // EsvoOctree::validate(), so a loaded octree is safe to traverse.
@@ -71,6 +73,7 @@ void save_esvo_scene(const std::filesystem::path& path, const esvo::EsvoOctree& 
       {"voxelization", info.voxelization},
       {"source_triangles", info.source_triangles},
       {"leaf_voxels", info.leaf_voxels},
+      {"attributes", octree.attribute_format() == esvo::AttributeFormat::Compressed ? "compressed" : "raw"},
   };
   // Replace invalid UTF-8 (e.g. odd file names) instead of throwing.
   const std::string text = meta.dump(2, ' ', false, nlohmann::json::error_handler_t::replace);
@@ -91,6 +94,7 @@ esvo::EsvoOctree esvo_scene_from_container(const Container& c, SceneInfo* info) 
   const std::vector<uint8_t>& meta_bytes = c.get(kMeta);
   esvo::EsvoOctree octree;
   SceneInfo si;
+  std::string meta_attributes;
   try {
     const nlohmann::json meta = nlohmann::json::parse(meta_bytes.begin(), meta_bytes.end());
     if (get_string(meta, "format") != "esvo") bad_meta("format is not 'esvo'");
@@ -115,6 +119,11 @@ esvo::EsvoOctree esvo_scene_from_container(const Container& c, SceneInfo* info) 
     si.voxelization = get_string(meta, "voxelization");
     si.source_triangles = get_uint(meta, "source_triangles", 0, UINT64_MAX);
     si.leaf_voxels = get_uint(meta, "leaf_voxels", 0, UINT64_MAX);
+    if (meta.contains("attributes")) {
+      const std::string a = get_string(meta, "attributes");
+      if (a != "raw" && a != "compressed") bad_meta("'attributes' is not 'raw' or 'compressed'");
+      meta_attributes = a;
+    }
   } catch (const nlohmann::json::exception& e) {
     // nlohmann messages are one line: "[json.exception.parse_error.101] ...".
     throw Error(std::string("corrupt scene: META section is not valid JSON: ") + e.what());
@@ -126,6 +135,9 @@ esvo::EsvoOctree esvo_scene_from_container(const Container& c, SceneInfo* info) 
   octree.words.resize(esvo_bytes.size() / 4);
   std::memcpy(octree.words.data(), esvo_bytes.data(), esvo_bytes.size());
   octree.validate();
+  if (!meta_attributes.empty() &&
+      (meta_attributes == "compressed") != (octree.attribute_format() == esvo::AttributeFormat::Compressed))
+    bad_meta("'attributes' does not match the ESVO attachments");
   if (info) *info = std::move(si);
   return octree;
 }
