@@ -22,55 +22,13 @@
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/scene_file.hpp"
+#include "io/meta_json.hpp"
 
 namespace voxcast {
 namespace {
 
-constexpr uint32_t kMeta = fourcc("META");
 constexpr uint32_t kDagSection = fourcc("SDAG");
 constexpr uint32_t kDagAttributes = fourcc("DATR");
-
-[[noreturn]] void bad_meta(const std::string& what) {
-  throw Error("corrupt scene: META section " + what);
-}
-
-const nlohmann::json& field(const nlohmann::json& j, const char* key) {
-  if (!j.is_object()) bad_meta("is not a JSON object");
-  auto it = j.find(key);
-  if (it == j.end()) bad_meta(std::string("has no '") + key + "'");
-  return *it;
-}
-
-uint64_t get_uint(const nlohmann::json& j, const char* key, uint64_t lo, uint64_t hi) {
-  const nlohmann::json& v = field(j, key);
-  if (!v.is_number_unsigned() && !(v.is_number_integer() && v.get<int64_t>() >= 0))
-    bad_meta(std::string("'") + key + "' is not a non-negative integer");
-  const uint64_t x = v.get<uint64_t>();
-  if (x < lo || x > hi) bad_meta(std::string("'") + key + "' out of range");
-  return x;
-}
-
-double get_finite(const nlohmann::json& v, const char* key) {
-  if (!v.is_number()) bad_meta(std::string("'") + key + "' is not a number");
-  const double x = v.get<double>();
-  if (!std::isfinite(x)) bad_meta(std::string("'") + key + "' is not finite");
-  return x;
-}
-
-std::string get_string(const nlohmann::json& j, const char* key) {
-  const nlohmann::json& v = field(j, key);
-  if (!v.is_string()) bad_meta(std::string("'") + key + "' is not a string");
-  return v.get<std::string>();
-}
-
-nlohmann::json parse_meta(const Container& c) {
-  const std::vector<uint8_t>& bytes = c.get(kMeta);
-  try {
-    return nlohmann::json::parse(bytes.begin(), bytes.end());
-  } catch (const nlohmann::json::exception& e) {
-    throw Error(std::string("corrupt scene: META section is not valid JSON: ") + e.what());
-  }
-}
 
 std::vector<uint32_t> to_words(const std::vector<uint8_t>& bytes) {
   std::vector<uint32_t> w(bytes.size() / 4);
@@ -81,9 +39,9 @@ std::vector<uint32_t> to_words(const std::vector<uint8_t>& bytes) {
 }  // namespace
 
 std::string scene_format(const Container& c) {
-  const nlohmann::json meta = parse_meta(c);
+  const nlohmann::json meta = meta::parse(c);
   try {
-    return get_string(meta, "format");
+    return meta::get_string(meta, "format");
   } catch (const nlohmann::json::exception& e) {
     throw Error(std::string("corrupt scene: META section: ") + e.what());
   }
@@ -91,24 +49,16 @@ std::string scene_format(const Container& c) {
 
 void save_dag_scene(const std::filesystem::path& path, const dag::SparseVoxelDag& dag,
                     const SceneInfo& info) {
-  const GridTransform& g = dag.grid;
-  nlohmann::json meta = {
+  nlohmann::json meta = meta::info_to_json(info);
+  meta.update({
       {"format", "dag"},
-      {"grid",
-       {{"origin", {g.origin.x, g.origin.y, g.origin.z}},
-        {"voxel_size", g.voxel_size},
-        {"resolution", g.resolution},
-        {"levels", g.levels}}},
+      {"grid", meta::grid_to_json(dag.grid)},
       {"attributes", dag.has_attributes()},
-      {"source", info.source},
-      {"voxelization", info.voxelization},
-      {"source_triangles", info.source_triangles},
       {"leaf_voxels", dag.leaf_voxels},
-  };
-  const std::string text = meta.dump(2, ' ', false, nlohmann::json::error_handler_t::replace);
+  });
   static_assert(std::endian::native == std::endian::little, "scene files are little-endian");
   Container c;
-  c.add(kMeta, std::vector<uint8_t>(text.begin(), text.end()));
+  c.add(meta::kSection, meta::dump(meta));
   std::vector<uint8_t> words(dag.words.size() * 4);
   if (!words.empty()) std::memcpy(words.data(), dag.words.data(), words.size());
   c.add(kDagSection, std::move(words));
@@ -128,34 +78,18 @@ dag::SparseVoxelDag load_dag_scene(const std::filesystem::path& path, SceneInfo*
 }
 
 dag::SparseVoxelDag dag_scene_from_container(const Container& c, SceneInfo* info) {
-  const nlohmann::json meta = parse_meta(c);
+  const nlohmann::json meta = meta::parse(c);
   dag::SparseVoxelDag dag;
   SceneInfo si;
   bool attributes = false;
   try {
-    if (get_string(meta, "format") != "dag") bad_meta("format is not 'dag'");
-    const nlohmann::json& grid = field(meta, "grid");
-    const int levels = int(get_uint(grid, "levels", 2, kMaxGridLevels));
-    const uint64_t resolution = get_uint(grid, "resolution", 4, uint64_t(1) << kMaxGridLevels);
-    if (resolution != (uint64_t(1) << levels)) bad_meta("resolution is not 2^levels");
-    const nlohmann::json& origin = field(grid, "origin");
-    if (!origin.is_array() || origin.size() != 3) bad_meta("'origin' is not an array of 3 numbers");
-    const double voxel_size = get_finite(field(grid, "voxel_size"), "voxel_size");
-    if (!(voxel_size > 0)) bad_meta("'voxel_size' is not positive");
-    dag.grid.levels = levels;
-    dag.grid.resolution = uint32_t(resolution);
-    dag.grid.voxel_size = voxel_size;
-    for (int i = 0; i < 3; ++i) {
-      const double o = get_finite(origin[size_t(i)], "origin");
-      if (!std::isfinite(float(o))) bad_meta("'origin' is out of float range");
-      dag.grid.origin[i] = float(o);
-    }
+    using namespace meta;
+    if (get_string(meta, "format") != "dag") bad("format is not 'dag'");
+    dag.grid = grid_from_json(meta, 2);
     const nlohmann::json& a = field(meta, "attributes");
-    if (!a.is_boolean()) bad_meta("'attributes' is not a boolean");
+    if (!a.is_boolean()) bad("'attributes' is not a boolean");
     attributes = a.get<bool>();
-    si.source = get_string(meta, "source");
-    si.voxelization = get_string(meta, "voxelization");
-    si.source_triangles = get_uint(meta, "source_triangles", 0, UINT64_MAX);
+    info_from_json(meta, &si);
     si.leaf_voxels = get_uint(meta, "leaf_voxels", 1, 0xFFFFFFFFull);
   } catch (const nlohmann::json::exception& e) {
     throw Error(std::string("corrupt scene: META section: ") + e.what());
