@@ -692,3 +692,20 @@ TEST(Mesh, ValidateMeshRejectsBrokenInvariants) {
   m.textures[0].rgba.resize(16);
   EXPECT_NO_THROW(validate_mesh(m));
 }
+
+// Found by fuzz/fuzz_mesh: Assimp's PLY reader never returns on this header.
+TEST(MeshImport, MalformedPlyHeaderIsRejectedNotHung) {
+  TempDir tmp;
+  fs::path p = tmp.write("hang.ply",
+                         "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                         "property float z\nelement face 1\npr2\n");
+  std::string msg = load_error(p);
+  expect_one_line_naming(msg, p);
+  EXPECT_NE(msg.find("PLY"), std::string::npos) << msg;
+  fs::path q = tmp.write("noend.ply", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n");
+  EXPECT_NE(load_error(q).find("end_header"), std::string::npos);
+  fs::path r = tmp.write("huge.ply",
+                         "ply\nformat binary_little_endian 1.0\nelement vertex 99999999999\n"
+                         "property float x\nend_header\n");
+  EXPECT_NE(load_error(r).find("more than"), std::string::npos);
+}

@@ -79,5 +79,7 @@ struct LoadedScene {
   SceneInfo info;
 };
 LoadedScene load_scene(const std::filesystem::path& path);
+/// The same from an already parsed container (e.g. bytes in memory).
+LoadedScene load_scene(const Container& container);
 
 }  // namespace voxcast

@@ -123,7 +123,17 @@ dag::SparseVoxelDag dag_scene_from_container(const Container& c, SceneInfo* info
 }
 
 LoadedScene load_scene(const std::filesystem::path& path) {
-  const Container c = Container::read(path);
+  try {
+    return load_scene(Container::read(path));
+  } catch (const Error& e) {
+    const std::string what = e.what();
+    if (what.rfind("unknown scene format", 0) == 0)
+      throw Error("scene '" + path.string() + "' has an " + what);
+    throw;
+  }
+}
+
+LoadedScene load_scene(const Container& c) {
   const std::string format = scene_format(c);
   LoadedScene out;
   out.format = format;
@@ -136,7 +146,7 @@ LoadedScene load_scene(const std::filesystem::path& path) {
     out.occupied = dag::occupied_bounds(*d);
     out.structure = std::make_unique<dag::DagStructure>(std::move(d));
   } else {
-    throw Error("scene '" + path.string() + "' has unknown format '" + format + "'");
+    throw Error("unknown scene format '" + format + "'");
   }
   return out;
 }

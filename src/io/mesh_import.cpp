@@ -488,6 +488,66 @@ void precheck_off(const fs::path& path, const std::string& name) {
   }
 }
 
+// Assimp's PLY reader loops forever on some malformed headers (found by
+// fuzz/fuzz_mesh: "element face 1" followed by a line that is no keyword and
+// no end_header). The header grammar is small, so it is checked up front:
+// known keywords only, known property types, element counts the file can hold,
+// and an end_header within the first 64 KiB.
+void precheck_ply(const fs::path& path, const std::string& name) {
+  std::ifstream in(path, std::ios::binary);
+  std::string head(65536, '\0');
+  in.read(head.data(), std::streamsize(head.size()));
+  head.resize(size_t(in.gcount()));
+  if (head.rfind("ply\n", 0) != 0 && head.rfind("ply\r\n", 0) != 0) return;  // not PLY
+  std::error_code ec;
+  const uint64_t file_size = fs::file_size(path, ec);
+  static const char* const kTypes[] = {"char",  "uchar",  "short", "ushort", "int",     "uint",
+                                       "float", "double", "int8",  "uint8",  "int16",   "uint16",
+                                       "int32", "uint32", "float32", "float64"};
+  auto is_type = [&](const std::string& t) {
+    return std::find(std::begin(kTypes), std::end(kTypes), t) != std::end(kTypes);
+  };
+  std::istringstream lines(head);
+  std::string line;
+  std::getline(lines, line);  // "ply"
+  int line_no = 1;
+  while (std::getline(lines, line)) {
+    ++line_no;
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    std::istringstream words(line);
+    std::string key;
+    words >> key;
+    if (key == "end_header") return;
+    if (key == "comment" || key == "obj_info") continue;
+    if (key == "format") {
+      std::string fmt_name, version;
+      if (!(words >> fmt_name >> version) ||
+          (fmt_name != "ascii" && fmt_name != "binary_little_endian" && fmt_name != "binary_big_endian"))
+        throw Error(fmt::format("{}: malformed PLY header (line {}: bad format)", name, line_no));
+    } else if (key == "element") {
+      std::string elem;
+      unsigned long long count = 0;
+      if (!(words >> elem >> count))
+        throw Error(fmt::format("{}: malformed PLY header (line {}: bad element)", name, line_no));
+      if (count > file_size)
+        throw Error(fmt::format("{}: PLY header claims {} {} elements, more than the {}-byte file can hold",
+                                name, count, elem, file_size));
+    } else if (key == "property") {
+      std::string type, a, b, prop;
+      words >> type;
+      bool ok = false;
+      if (type == "list")
+        ok = bool(words >> a >> b >> prop) && is_type(a) && is_type(b);
+      else
+        ok = is_type(type) && bool(words >> prop);
+      if (!ok) throw Error(fmt::format("{}: malformed PLY header (line {}: bad property)", name, line_no));
+    } else {
+      throw Error(fmt::format("{}: malformed PLY header (line {}: unknown keyword)", name, line_no));
+    }
+  }
+  throw Error(fmt::format("{}: malformed PLY header (no end_header)", name));
+}
+
 }  // namespace
 
 Mesh load_mesh(const std::filesystem::path& path, MeshLoadStats* stats_out) {
@@ -502,6 +562,7 @@ Mesh load_mesh(const std::filesystem::path& path, MeshLoadStats* stats_out) {
     std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
     if (ext == ".off") precheck_off(path, name);
   }
+  precheck_ply(path, name);  // by content, as Assimp detects PLY
 
   Assimp::Importer importer;
   // Points and lines are removed by SortByPType instead of reaching us.
