@@ -708,4 +708,6 @@ TEST(MeshImport, MalformedPlyHeaderIsRejectedNotHung) {
                          "ply\nformat binary_little_endian 1.0\nelement vertex 99999999999\n"
                          "property float x\nend_header\n");
   EXPECT_NE(load_error(r).find("more than"), std::string::npos);
+  fs::path t = tmp.write("magic.ply", "plyq3o\nformat ascii 1.0\nelement vertex 3\n");
+  EXPECT_NE(load_error(t).find("PLY"), std::string::npos);
 }

@@ -493,12 +493,18 @@ void precheck_off(const fs::path& path, const std::string& name) {
 // no end_header). The header grammar is small, so it is checked up front:
 // known keywords only, known property types, element counts the file can hold,
 // and an end_header within the first 64 KiB.
-void precheck_ply(const fs::path& path, const std::string& name) {
+void precheck_ply(const fs::path& path, const std::string& name, bool ply_extension) {
   std::ifstream in(path, std::ios::binary);
   std::string head(65536, '\0');
   in.read(head.data(), std::streamsize(head.size()));
   head.resize(size_t(in.gcount()));
-  if (head.rfind("ply\n", 0) != 0 && head.rfind("ply\r\n", 0) != 0) return;  // not PLY
+  // Assimp takes a file for PLY by its extension or by a leading "ply" token.
+  const bool ply_magic = head.size() >= 3 && std::tolower(static_cast<unsigned char>(head[0])) == 'p' &&
+                         std::tolower(static_cast<unsigned char>(head[1])) == 'l' &&
+                         std::tolower(static_cast<unsigned char>(head[2])) == 'y';
+  if (!ply_extension && !ply_magic) return;
+  if (head.rfind("ply\n", 0) != 0 && head.rfind("ply\r\n", 0) != 0)
+    throw Error(fmt::format("{}: malformed PLY header (the first line is not 'ply')", name));
   std::error_code ec;
   const uint64_t file_size = fs::file_size(path, ec);
   static const char* const kTypes[] = {"char",  "uchar",  "short", "ushort", "int",     "uint",
@@ -561,8 +567,8 @@ Mesh load_mesh(const std::filesystem::path& path, MeshLoadStats* stats_out) {
     std::string ext = path.extension().string();
     std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
     if (ext == ".off") precheck_off(path, name);
+    precheck_ply(path, name, ext == ".ply");
   }
-  precheck_ply(path, name);  // by content, as Assimp detects PLY
 
   Assimp::Importer importer;
   // Points and lines are removed by SortByPType instead of reaching us.
