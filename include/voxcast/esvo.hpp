@@ -20,7 +20,15 @@
 //             (i = x | y<<1 | z<<2, the low three Morton bits).
 //             valid=0: empty; valid=1,leaf=0: subdivided; valid=1,leaf=1: leaf.
 //     word 1: bits 31..8 contour pointer, bits 7..0 contour mask (§5.2; zero
-//             until contours are built).
+//             unless the octree was built with BuildOptions::contours).
+//             Bit i of the contour mask says that the voxel in child slot i
+//             has a contour; the contour pointer is an unsigned offset in
+//             WORDS from this descriptor's word 0 (as the listing's
+//             `parent[ofs + popc8(contour_mask & 0x7F)]`, Appendix A) to the
+//             first of the descriptor's consecutive contour values, one per
+//             set mask bit in slot order. They live in the contour attachment
+//             of the descriptor's own block (below); validate() checks that
+//             pointer + popcount(mask) - 1 stays inside it.
 //   The descriptors of a node's non-leaf children are stored in consecutive
 //   slots in child-slot order; the child pointer points at the first. If the
 //   far bit is set, the child pointer instead gives the (relative) slot of a
@@ -83,8 +91,17 @@
 //   Every descriptor's pair index must be < C. A block holds exactly one
 //   color/normal attachment (raw or compressed), the same type in all blocks.
 //
+//   Contour attachment (type kAttachContours, §5.2-5.3; only in octrees built
+//   with contours, then in every block, placed right after the info section
+//   so that every contour pointer fits 24 bits): word 0: contour count C,
+//   then C 32-bit contour values (Figure 4, bit layout at ContourValue).
+//   The final shape of a voxel is its cube intersected with its own contour
+//   slab and those of all its ancestors (§5.3).
+//
 // Conventions of voxcast's builder, enforced by validate(): all leaf voxels
-// are at depth `levels` (the finest level), every descriptor has a non-empty
+// are at depth `levels` (the finest level) -- except in octrees carrying a
+// contour attachment, whose variable-depth build (§7.1, §7.3:
+// BuildOptions::max_level / *_error) may stop at any depth -- every descriptor has a non-empty
 // valid mask, and every descriptor is reachable exactly once. The array ends
 // padded with zeros to a whole number of pages. Voxels built without input
 // attributes get linear gray (0.5, 0.5, 0.5, 1) and the normal (0, 0, 1).
@@ -107,6 +124,7 @@ inline constexpr uint32_t kPageSlots = kPageWords / 2;
 inline constexpr uint32_t kInfoMagic = 0x4F464E49;  // "INFO"
 inline constexpr uint32_t kAttachRawColorNormal = 1;
 inline constexpr uint32_t kAttachCompressedColorNormal = 2;
+inline constexpr uint32_t kAttachContours = 3;
 
 /// How a scene stores its colors and normals (§5.4 raw, §5.5 compressed).
 enum class AttributeFormat : uint32_t { Raw = 0, Compressed = 1 };
@@ -124,6 +142,28 @@ void encode_compressed_block(const Color* colors16, const Vec3* normals16, uint3
 /// Decodes slot `slot` (0..15) of a compression block; total for any bits.
 void decode_compressed_slot(const uint32_t* block, int slot, Color* color, Vec3* normal);
 
+/// One contour (§5.2, Figure 4): a pair of parallel planes bounding the
+/// voxel. 32-bit value, most significant bits first:
+///   bits 31..25 thickness t (7 bits, unsigned, 0..127)
+///   bits 24..18 position p  (7 bits, signed, -64..63)
+///   bits 17..12 nx, 11..6 ny, 5..0 nz (6 bits each, signed, -32..31)
+/// This is the layout the Appendix A decode implies: `(unsigned)value` puts t
+/// in the top bits, `value << 7` p, `value << 14 / 20 / 26` nx / ny / nz.
+/// Fixed point (derived from the listing's constants: after the shifts every
+/// field sits at the top of a 32-bit int, i.e. t, p at 2^25 and n at 2^26
+/// units, so `* 0.75` and `* 1.5` relative to the normal's 2^26 give):
+///   with n = (nx, ny, nz) (integer, NOT normalized), s = the voxel's side and
+///   c = its center, the slab is  { x : |n.(x - c) - 0.75 s p| <= 0.375 s t }.
+/// decode masks each field exactly (the listing leaves the lower fields in
+/// the low bits of each float conversion, an error below one unit).
+struct ContourValue {
+  int nx = 0, ny = 0, nz = 0;  // -32..31
+  int position = 0;            // -64..63, units of 0.75 s
+  unsigned thickness = 0;      // 0..127, half-thickness in units of 0.375 s
+};
+uint32_t encode_contour(const ContourValue& c);  // fields are masked to their widths
+ContourValue decode_contour(uint32_t value);
+
 struct BuildOptions {
   /// A block is closed once it holds this many descriptor slots or attribute
   /// values (whichever first); the 24-bit value pointer caps it at 2^24. Small
@@ -133,6 +173,29 @@ struct BuildOptions {
   /// Raw: 8 bytes per voxel + a lookup entry per slot (§5.4). Compressed:
   /// 24 bytes per descriptor pair (§5.5), lossy (bounds in the tests).
   AttributeFormat attributes = AttributeFormat::Raw;
+
+  // ---- Contours and variable depth (§5.2-5.3, §7.1-7.3): need the mesh
+  // overload of build_octree. Without `contours` none of these apply and the
+  // build is the full-depth one above, byte for byte. ----
+  /// Build a contour for every voxel where it tightens the shape (§7.2).
+  bool contours = false;
+  /// Deepest level of the octree (1..grid levels; 0 = grid levels). Voxels at
+  /// this depth are leaves.
+  int max_level = 0;
+  /// REFINE-GEOMETRY (§7.1): a voxel is subdivided only if some vertex of its
+  /// final shape (cube ∩ ancestor contours ∩ own contour) lies farther than
+  /// this from the surface, in voxels of the finest grid level. Also the
+  /// contour omission threshold of §7.2 (a contour is left out when the
+  /// shape without it is within the threshold; 0.25 when unset).
+  /// <= 0: unset.
+  double geometry_error = 0;
+  /// REFINE-ATTRIBUTES (§7.3): a voxel is subdivided if the decoded (8-bit
+  /// sRGB, raw) color of any voxel below it differs from its own by more
+  /// than this in any channel (0-255 units), resp. the decoded normal by more
+  /// than `normal_error` degrees. < 0: unset. Variable depth is on when any of
+  /// the three tolerances is set; unset tolerances never force a subdivision.
+  double color_error = -1;
+  double normal_error = -1;
 };
 
 /// Per-level counts for `voxcast info` (esvo §8.2). Level 0 is the root.
@@ -158,6 +221,10 @@ struct MemoryStats {
   /// Compressed only: empty slots whose pair partner is a descriptor (the
   /// gaps §5.5 leaves so a block only pairs siblings). Not in padding_bytes.
   uint64_t pair_padding_bytes = 0;
+  /// Contour attachments (§5.2): header word + 4 bytes per contour value.
+  /// (The contour pointer/mask word of each descriptor is in descriptor_bytes.)
+  uint64_t contour_bytes = 0;
+  uint64_t contour_count = 0;
 };
 
 class EsvoOctree {
@@ -178,6 +245,8 @@ class EsvoOctree {
   /// The attachment type of block 0 (all blocks agree after validate()).
   /// Bounds-checked: safe on unvalidated words (reads Raw when unsure).
   AttributeFormat attribute_format() const;
+  /// True if block 0 has a contour attachment (bounds-checked like attribute_format).
+  bool has_contours() const;
 
   std::vector<LevelStats> level_stats() const;
   MemoryStats memory_stats() const;
@@ -194,12 +263,18 @@ class EsvoOctree {
 /// average of their children so that every level is a valid LOD.
 EsvoOctree build_octree(const VoxelSet& voxels, const BuildOptions& options = {});
 
+/// The same with the source mesh (`voxels` must be its voxelization into
+/// voxels.grid), needed for BuildOptions::contours and the variable-depth
+/// build (§7.1-7.3); without `contours` it equals build_octree(voxels, options).
+EsvoOctree build_octree(const VoxelSet& voxels, const Mesh& mesh, const BuildOptions& options);
+
 /// World-space bounds of the occupied voxels, resolved down to `max_level`
 /// (coarser levels give a slightly larger box). Used for automatic cameras.
 Aabb occupied_bounds(const EsvoOctree& octree, int max_level = 7);
 
 /// The set of leaf voxels as sorted Morton codes at the octree's finest level
-/// (inverse of build_octree; used by tests and tools).
+/// (inverse of build_octree; used by tests and tools). Leaves above the
+/// finest level (variable-depth builds) are not listed.
 std::vector<uint64_t> decode_leaves(const EsvoOctree& octree);
 
 }  // namespace voxcast::esvo

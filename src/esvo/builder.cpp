@@ -24,6 +24,17 @@
 // children of every descriptor in the block, or with BuildOptions::attributes
 // = Compressed one §5.5 compression block per descriptor pair (compress.cpp);
 // then groups are placed so that a pair only holds siblings (alloc()).
+//
+// Contours and variable depth (BuildOptions::contours, the mesh overload):
+// phase 1 is the same; then contours.cpp walks the tree top-down (§7.1-7.2)
+// and returns a contour value per voxel and the voxels whose subtrees are
+// dropped (variable depth). Phase 2 then lays out only the kept tree: the
+// descriptor's leaf mask also flags the dropped voxels, word 1 gets the
+// contour mask, and each block gets a contour attachment right after its
+// info section (§5.2, Figure 1: "an info section, contour data, and ...");
+// the contour pointers (relative to the descriptor, Appendix A) are filled
+// in when the block is closed, and a block is closed early if they could
+// exceed 24 bits.
 #include <algorithm>
 #include <bit>
 #include <cmath>
@@ -35,6 +46,7 @@
 #include <tbb/parallel_for.h>
 
 #include "esvo/compress.hpp"
+#include "esvo/contours.hpp"
 #include "esvo/layout_internal.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
@@ -191,8 +203,8 @@ uint64_t span_bound(uint64_t desc, bool compressed) {
 class Layout {
  public:
   Layout(const std::vector<Level>& levels, const std::vector<uint64_t>& leaf_values,
-         const BuildOptions& opt)
-      : lv_(levels), leaf_values_(leaf_values), opt_(opt), L_(int(levels.size())) {}
+         const BuildOptions& opt, const detail::ContourPlan* plan = nullptr)
+      : lv_(levels), leaf_values_(leaf_values), opt_(opt), L_(int(levels.size())), plan_(plan) {}
 
   EsvoOctree run(const GridTransform& grid) {
     uint64_t total_desc = 1 + lv_[0].desc_below[0];
@@ -263,33 +275,64 @@ class Layout {
     return s;
   }
 
+  /// True if child `c` (index at depth + 1 < L) is a leaf of the planned
+  /// variable-depth tree (its subtree is dropped).
+  bool planned_leaf(int depth, uint32_t c) const {
+    return plan_ != nullptr && depth + 1 < L_ && plan_->leaf[size_t(depth) + 1][c] != 0;
+  }
+
   /// Writes the masks of the descriptor of node (depth, index) at `slot` (the
   /// child pointer follows when it is visited) and its children's attributes.
   void place_descriptor(uint32_t slot, int depth, uint32_t index) {
     const uint32_t valid = lv_[depth].mask[index];
-    const uint32_t leaf = depth + 1 == L_ ? valid : 0;  // all leaves sit at depth L
-    out_[size_t(slot) * 2] = valid << 8 | leaf;
+    uint32_t leaf = depth + 1 == L_ ? valid : 0;  // all leaves sit at depth L
     out_[size_t(slot) * 2 + 1] = 0;  // no contour (§5.2)
     lookup_[slot - block_start_] = uint32_t(values_.size()) << 8 | valid;
     const uint32_t first = lv_[depth].first_child[index];
     const int k = std::popcount(valid);
     for (int j = 0; j < k; ++j) values_.push_back(child_value(depth, first + uint32_t(j)));
+    if (plan_ != nullptr) {
+      // Contour mask + values (§5.2); the pointer is set in close_block().
+      uint32_t cmask = 0;
+      const size_t cstart = contours_.size();
+      for (int j = 0, i = 0; i < 8; ++i) {
+        if (!(valid >> i & 1)) continue;
+        const uint32_t c = first + uint32_t(j++);
+        if (planned_leaf(depth, c)) leaf |= 1u << i;
+        const uint32_t value = plan_->contour[size_t(depth) + 1][c];
+        if (value != 0) cmask |= 1u << i, contours_.push_back(value);
+      }
+      if (cmask != 0) {
+        out_[size_t(slot) * 2 + 1] = cmask;
+        contour_desc_.push_back({slot, uint32_t(cstart)});
+      }
+    }
+    out_[size_t(slot) * 2] = valid << 8 | leaf;
   }
 
   void visit(const Node& n) {
     if (n.depth + 1 == L_) return;  // only leaf children: no child pointer
     const Level& cl = lv_[n.depth + 1];
     const uint32_t first = lv_[n.depth].first_child[n.index];
-    const uint32_t g = uint32_t(std::popcount(unsigned(lv_[n.depth].mask[n.index])));
+    const uint32_t k = uint32_t(std::popcount(unsigned(lv_[n.depth].mask[n.index])));
+    // The non-leaf children (all of them unless the plan drops subtrees).
+    uint32_t kid[8], g = 0;
+    for (uint32_t j = 0; j < k; ++j)
+      if (!planned_leaf(n.depth, first + j)) kid[g++] = first + j;
+    if (g == 0) return;
     uint64_t group_values = 0;
-    for (uint32_t i = 0; i < g; ++i) group_values += std::popcount(unsigned(cl.mask[first + i]));
+    for (uint32_t i = 0; i < g; ++i) group_values += std::popcount(unsigned(cl.mask[kid[i]]));
 
     // Start a new block if this group would overflow the current one. The
     // block always takes at least one group besides the root, and a group is
     // never split. The node itself must have a far pointer then: see below.
     const uint64_t used = cursor_ - block_start_;
+    // With contours, also keep every contour pointer within 24 bits (it
+    // spans at most the descriptor area, the info section and the contours).
     if (block_groups_ > 0 && (used + 2 * g + 16 > opt_.max_block_slots ||
-                              values_.size() + group_values > opt_.max_block_values)) {
+                              values_.size() + group_values > opt_.max_block_values ||
+                              (plan_ != nullptr && 2 * (used + 2 * g + 16) + contours_.size() + 8 * g + 64 >
+                                                       detail::kMaxContourPointer))) {
       close_block();
       open_block((cursor_ * 2 + kPageWords - 1) / kPageWords * kPageWords / 2);
     }
@@ -305,10 +348,12 @@ class Layout {
       const uint64_t used_after = (cursor_ - block_start_) + 16 + 2 * g;
       uint64_t span = 0, vals = values_.size() + group_values;
       for (uint32_t i = 0; i < g; ++i) {
-        const uint32_t c = first + i;
+        const uint32_t c = kid[i];
         vals += cl.values_below[c];
         const bool no_break =
-            used_after + span + 48 <= opt_.max_block_slots && vals <= opt_.max_block_values;
+            used_after + span + 48 <= opt_.max_block_slots && vals <= opt_.max_block_values &&
+            (plan_ == nullptr ||
+             2 * (used_after + span + 48) + contours_.size() + vals + 64 <= detail::kMaxContourPointer);
         const uint64_t distance = (g - i) + g + span + 32;
         if (cl.desc_below[c] > 0 && !(no_break && distance <= kMaxNearPointer)) far_mask |= 1u << i;
         span += span_bound(cl.desc_below[c], compressed_);
@@ -333,8 +378,8 @@ class Layout {
     uint32_t next_far = group + g;
     Node kids[8];
     for (uint32_t i = 0; i < g; ++i) {
-      place_descriptor(group + i, n.depth + 1, first + i);
-      kids[i] = {n.depth + 1, first + i, group + i, (far_mask >> i & 1) ? next_far++ : 0};
+      place_descriptor(group + i, n.depth + 1, kid[i]);
+      kids[i] = {n.depth + 1, kid[i], group + i, (far_mask >> i & 1) ? next_far++ : 0};
     }
     for (uint32_t i = g; i-- > 0;) stack_.push_back(kids[i]);
   }
@@ -345,6 +390,8 @@ class Layout {
     cursor_ = start_slot;
     lookup_.clear();
     values_.clear();
+    contours_.clear();
+    contour_desc_.clear();
     block_groups_ = 0;
   }
 
@@ -353,7 +400,12 @@ class Layout {
   void close_block() {
     const uint64_t slots = cursor_ - block_start_;
     const uint64_t info = cursor_ * 2;
-    const uint64_t attach = info + 6;
+    // With contours: a second attachment entry, then the contour attachment
+    // (count + values, padded to an even length) before the color one.
+    const uint64_t info_words = plan_ != nullptr ? 8 : 6;
+    const uint64_t contour_at = info + info_words;
+    const uint64_t contour_words = plan_ != nullptr ? (1 + contours_.size() + 1) / 2 * 2 : 0;
+    const uint64_t attach = info + info_words + contour_words;
     const uint64_t pairs = (slots + 1) / 2;
     const uint64_t end = compressed_ ? attach + 2 + detail::kCompressedBlockWords * pairs
                                      : attach + 2 + slots + 2 * values_.size();
@@ -367,9 +419,21 @@ class Layout {
     w[detail::kInfoMagicWord] = kInfoMagic;
     w[detail::kInfoFirstSlotWord] = uint32_t(int32_t(int64_t(block_start_ * 2) - int64_t(info)));
     w[detail::kInfoSlotCountWord] = uint32_t(slots);
-    w[detail::kInfoAttachCountWord] = 1;
+    w[detail::kInfoAttachCountWord] = plan_ != nullptr ? 2 : 1;
     w[4] = compressed_ ? kAttachCompressedColorNormal : kAttachRawColorNormal;
     w[5] = uint32_t(attach - info);
+    if (plan_ != nullptr) {
+      w[6] = kAttachContours;
+      w[7] = uint32_t(contour_at - info);
+      out_[size_t(contour_at)] = uint32_t(contours_.size());
+      std::copy(contours_.begin(), contours_.end(), out_.begin() + ptrdiff_t(contour_at + 1));
+      for (const ContourRef& r : contour_desc_) {
+        const uint64_t ptr = contour_at + 1 + r.first - uint64_t(r.slot) * 2;
+        if (ptr > detail::kMaxContourPointer)  // the block break rule above is broken
+          throw std::logic_error("esvo builder: contour pointer overflow");
+        out_[size_t(r.slot) * 2 + 1] |= uint32_t(ptr) << detail::kContourPointerShift;
+      }
+    }
     uint32_t* a = out_.data() + attach;
     a[0] = uint32_t(slots);
     if (compressed_) {
@@ -414,6 +478,13 @@ class Layout {
   const std::vector<uint64_t>& leaf_values_;
   const BuildOptions& opt_;
   const int L_;
+  const detail::ContourPlan* plan_;  // null: full depth, no contours
+  struct ContourRef {
+    uint32_t slot;   // descriptor with a non-empty contour mask
+    uint32_t first;  // its first value in contours_
+  };
+  std::vector<uint32_t> contours_;        // current block's contour values
+  std::vector<ContourRef> contour_desc_;  // current block
   std::vector<uint32_t> out_;
   std::vector<Node> stack_;
   std::vector<uint32_t> lookup_;  // current block, per slot from block_start_
@@ -426,11 +497,16 @@ class Layout {
 
 }  // namespace
 
-EsvoOctree build_octree(const VoxelSet& voxels, const BuildOptions& options) {
-  check_input(voxels);
+namespace {
+
+void check_block_limits(const BuildOptions& options) {
   if (options.max_block_slots == 0 || options.max_block_values == 0 ||
       options.max_block_values > (1u << 24))
     throw Error("cannot build octree: block limits must be in 1..2^32 slots and 1..2^24 values");
+}
+
+/// Phase 1 (bottom-up levels) into `lv` and the leaf values.
+void build_levels(const VoxelSet& voxels, std::vector<Level>& lv, std::vector<uint64_t>& leaf_values) {
   const int L = voxels.grid.levels;
   const size_t n = voxels.size();
 
@@ -447,11 +523,10 @@ EsvoOctree build_octree(const VoxelSet& voxels, const BuildOptions& options) {
   const std::vector<Color>& leaf_color = has_attr ? voxels.colors : dc;
   const std::vector<Vec3>& leaf_normal = has_attr ? voxels.normals : dn;
   const std::vector<float>& leaf_weight = voxels.weights.empty() ? dw : voxels.weights;
-  std::vector<uint64_t> leaf_values;
   encode_values(leaf_color, leaf_normal, leaf_values);
 
   // Phase 1: levels L-1 .. 0.
-  std::vector<Level> lv(static_cast<size_t>(L));
+  lv.assign(static_cast<size_t>(L), Level{});
   for (int d = L - 1; d >= 0; --d) {
     Level& p = lv[size_t(d)];
     if (d == L - 1) {
@@ -487,8 +562,78 @@ EsvoOctree build_octree(const VoxelSet& voxels, const BuildOptions& options) {
     }
   }
   if (lv[0].mask.size() != 1) throw std::logic_error("esvo builder: root level is not a single node");
+}
 
+/// Subtree sizes of the planned (variable-depth) tree for phase 2's far
+/// pointer and block decisions: dropped subtrees count nothing.
+void planned_sizes(std::vector<Level>& lv, const detail::ContourPlan& plan) {
+  const int L = int(lv.size());
+  for (int d = L - 2; d >= 0; --d) {
+    Level& p = lv[size_t(d)];
+    const Level& c = lv[size_t(d) + 1];
+    const std::vector<uint8_t>& leaf = plan.leaf[size_t(d) + 1];
+    tbb::parallel_for(size_t(0), p.mask.size(), [&](size_t i) {
+      const uint32_t first = p.first_child[i];
+      const int k = std::popcount(unsigned(p.mask[i]));
+      uint64_t desc = 0, vals = 0;
+      for (int j = 0; j < k; ++j) {
+        if (leaf[first + uint32_t(j)]) continue;
+        desc += 1 + c.desc_below[first + j];
+        vals += uint64_t(std::popcount(unsigned(c.mask[first + j]))) + c.values_below[first + j];
+      }
+      p.desc_below[i] = desc;
+      p.values_below[i] = vals;
+    });
+  }
+}
+
+}  // namespace
+
+EsvoOctree build_octree(const VoxelSet& voxels, const BuildOptions& options) {
+  check_input(voxels);
+  check_block_limits(options);
+  std::vector<Level> lv;
+  std::vector<uint64_t> leaf_values;
+  build_levels(voxels, lv, leaf_values);
   return Layout(lv, leaf_values, options).run(voxels.grid);
+}
+
+EsvoOctree build_octree(const VoxelSet& voxels, const Mesh& mesh, const BuildOptions& options) {
+  const bool variable = options.max_level != 0 || options.geometry_error > 0 ||
+                        options.color_error >= 0 || options.normal_error >= 0;
+  if (!options.contours) {
+    if (variable)
+      throw Error("cannot build octree: max level and error tolerances need contours");
+    return build_octree(voxels, options);
+  }
+  check_input(voxels);
+  check_block_limits(options);
+  const int L = voxels.grid.levels;
+  if (options.max_level < 0 || options.max_level > L)
+    throw Error("cannot build octree: max level " + std::to_string(options.max_level) + " outside 1.." +
+                std::to_string(L));
+  if (!std::isfinite(options.geometry_error) || !std::isfinite(options.color_error) ||
+      !std::isfinite(options.normal_error))
+    throw Error("cannot build octree: error tolerances must be finite");
+  std::vector<Level> lv;
+  std::vector<uint64_t> leaf_values;
+  build_levels(voxels, lv, leaf_values);
+
+  detail::TreeView tree;
+  tree.levels = L;
+  tree.count.resize(size_t(L) + 1);
+  tree.value.assign(size_t(L) + 1, nullptr);
+  for (int d = 0; d < L; ++d) {
+    tree.mask.push_back(lv[size_t(d)].mask.data());
+    tree.first_child.push_back(lv[size_t(d)].first_child.data());
+    tree.count[size_t(d)] = lv[size_t(d)].mask.size();
+    if (d >= 1) tree.value[size_t(d)] = lv[size_t(d)].value.data();
+  }
+  tree.count[size_t(L)] = leaf_values.size();
+  tree.value[size_t(L)] = leaf_values.data();
+  const detail::ContourPlan plan = detail::plan_contours(tree, voxels.grid, mesh, options);
+  planned_sizes(lv, plan);
+  return Layout(lv, leaf_values, options, &plan).run(voxels.grid);
 }
 
 }  // namespace voxcast::esvo

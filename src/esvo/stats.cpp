@@ -43,7 +43,8 @@ std::vector<uint64_t> decode_leaves(const EsvoOctree& octree) {
   const uint32_t* w = octree.words.data();
   const int L = octree.levels();
   walk(octree, [&](uint32_t slot, int depth, uint64_t code) {
-    // validate() guarantees every leaf is at the finest level (depth L).
+    // Without contours validate() guarantees every leaf is at the finest
+    // level (depth L); variable-depth leaves above it are not listed.
     if (depth + 1 != L) return;
     const uint32_t leaf = detail::leaf_mask(w[size_t(slot) * 2]);
     for (int i = 0; i < 8; ++i)
@@ -89,6 +90,10 @@ MemoryStats EsvoOctree::memory_stats() const {
   for (const auto& b : blocks) {
     pages += (b.slot_count + kPageSlots - 1) / kPageSlots;
     m.info_bytes += b.info_words * 4;
+    if (b.contours != 0) {  // §5.2: count word + values
+      m.contour_bytes += (1 + b.contour_count) * 4;
+      m.contour_count += b.contour_count;
+    }
     if (compressed) {
       m.attribute_lookup_bytes += 2 * 4;  // attachment header only, no lookup table
       m.color_bytes += b.pair_count * 8;   // words 0-1 of each compression block
@@ -112,7 +117,7 @@ MemoryStats EsvoOctree::memory_stats() const {
   // alignment to 8 KiB and the tail of the last page.
   m.padding_bytes = m.total_bytes - m.descriptor_bytes - m.far_pointer_bytes - m.page_header_bytes -
                     m.info_bytes - m.attribute_lookup_bytes - m.attribute_value_bytes -
-                    m.pair_padding_bytes;
+                    m.pair_padding_bytes - m.contour_bytes;
   return m;
 }
 

@@ -15,8 +15,12 @@
 //    position dependency chain. (A branch-free SSE variant computing PUSH,
 //    ADVANCE and POP every iteration and selecting was 1.7x slower, an SSE
 //    variant with the listing's branches 15% slower, on the bunny at 2048^3.)
-//  * no contours yet: word 1 is never read. The place where the contour
-//    intersection narrows [t_min, tv_max] is marked below (§6.1 "INTERSECT").
+//  * contours (§5.2, §6.1 INTERSECT): word 1 is fetched with word 0; when the
+//    voxel's contour bit is set, [t_min, tv_max] is narrowed by the slab as
+//    in the listing, from the center t values. Fields are masked exactly
+//    and scaled as documented at esvo::ContourValue (the listing converts
+//    the unmasked shifted int). Since PUSH carries the narrowed span down and
+//    POP restores it, a voxel's shape is its cube ∩ all ancestor slabs (§5.3).
 //  * the loop is a template over kCount: the profiling counters of §8.5 /
 //    Table 6 are compiled in only for the counting instantiation, so the
 //    plain cast_ray has no extra instructions.
@@ -168,6 +172,7 @@ CastResult cast_ray_impl(const EsvoOctree& octree, Vec3 p, Vec3 d, float tmax, f
 
   uint32_t parent = octree.root_slot();
   uint32_t child_descriptor = 0;  // listing layout; 0 = not fetched
+  uint32_t contour_word = 0;      // word 1 (contour pointer | mask), fetched with it
   int idx = 0;
   float pos_x = 1.0f, pos_y = 1.0f, pos_z = 1.0f;
   int scale = s_max - 1;
@@ -183,6 +188,7 @@ CastResult cast_ray_impl(const EsvoOctree& octree, Vec3 p, Vec3 d, float tmax, f
     // "Caching the current child descriptor"): ADVANCE keeps the parent.
     if (child_descriptor == 0) {
       child_descriptor = to_listing_layout(words[size_t(parent) * 2]);
+      contour_word = words[size_t(parent) * 2 + 1];
       if constexpr (kCount) ++cnt.descriptor_fetches;
     }
 
@@ -208,9 +214,32 @@ CastResult cast_ray_impl(const EsvoOctree& octree, Vec3 p, Vec3 d, float tmax, f
       const float ty_center = std::fma(half, ty_coef, ty_corner);
       const float tz_center = std::fma(half, tz_coef, tz_corner);
 
-      // (Contours, §5.2/§6.1: when the contour bit of word 1 is set, t_min and
-      // tv_max are narrowed by the slab here, using the center t values. Our
-      // descriptors carry no contours yet.)
+      // Contour (§5.2, §6.1, Appendix A): the slab |n.(x - c) - cpos| <= cthick
+      // of the voxel (center c, side scale_exp2; n = integer normal). With
+      // x = p + t d: t = (n.(c - p) + cpos +- cthick) / n.d, and
+      // tx_center * n.x * d.x = n.x (c.x - p.x) in the unmirrored frame
+      // (tx_center is where the ray crosses the center plane, whatever the
+      // mirroring), hence the products with the UNMIRRORED d below.
+      const uint32_t contour_mask = contour_word << child_shift;
+      if ((contour_mask & 0x80u) != 0) {
+        const uint32_t value = words[size_t(parent) * 2 + (contour_word >> 8) +
+                                     uint32_t(std::popcount(contour_mask & 0x7Fu))];
+        const int32_t v = int32_t(value);
+        const float cthick = float(value >> 25) * scale_exp2 * 0.375f;
+        const float cpos = float(int32_t(uint32_t(v) << 7) >> 25) * scale_exp2 * 0.75f;
+        const float cdirx = float(int32_t(uint32_t(v) << 14) >> 26) * d.x;
+        const float cdiry = float(int32_t(uint32_t(v) << 20) >> 26) * d.y;
+        const float cdirz = float(int32_t(uint32_t(v) << 26) >> 26) * d.z;
+        float den = cdirx + cdiry + cdirz;
+        // A ray parallel to the slab: a tiny denominator keeps the span
+        // finite (everything or nothing of the ray's [0, tmax]) and NaN-free.
+        if (std::fabs(den) < 1e-30f) den = 1e-30f;
+        const float tcoef = 1.0f / den;
+        const float tavg = tx_center * cdirx + ty_center * cdiry + tz_center * cdirz + cpos;
+        const float tdiff = std::fabs(cthick * tcoef);
+        t_min = vmax(t_min, tcoef * tavg - tdiff);  // override t_min with tv_min
+        tv_max = vmin(tv_max, tcoef * tavg + tdiff);
+      }
 
       if (t_min <= tv_max) {
         // A leaf (valid, not subdivided): hit at t_min.

@@ -9,7 +9,11 @@
 //     on a page header, is reached exactly once (so traversal work is bounded
 //     by the array size), and its child group lies strictly after it, inside
 //     one page of one block's descriptor area;
-//   * masks are consistent with the depth (leaves exactly at depth `levels`);
+//   * masks are consistent with the depth (leaves exactly at depth `levels`,
+//     or at most there in octrees with contours: variable depth, §7.1);
+//   * every contour mask is within the valid mask and its contour pointer +
+//     popcount lands inside the contour attachment of the descriptor's block
+//     (§5.2; the caster reads words[2 * slot + pointer + rank] unchecked);
 //   * every valid child has an attribute value inside its block's values
 //     (raw), or every descriptor's pair has a compression block whose base
 //     normal face is valid and pairs never mix two child groups (compressed).
@@ -69,6 +73,19 @@ std::vector<BlockInfo> parse_blocks(const EsvoOctree& octree) {
     bool found = false;
     for (uint32_t a = 0; a < attach_count; ++a) {
       const uint32_t type = w[bi.info + kInfoAttachTable + 2 * a];
+      if (type == kAttachContours) {
+        // §5.2 contour values: count, then the values.
+        if (bi.contours != 0) fail("more than one contour attachment" + where);
+        const int64_t at = int64_t(bi.info) + int32_t(w[bi.info + kInfoAttachTable + 2 * a + 1]);
+        if (at < int64_t(bi.info + bi.info_words) || uint64_t(at) + 1 > size)
+          fail("contour attachment out of range" + where);
+        bi.contours = uint64_t(at);
+        bi.contour_count = w[bi.contours];
+        const uint64_t end = bi.contours + 1 + bi.contour_count;
+        if (end > size) fail("contour attachment out of range" + where);
+        bi.end = std::max(bi.end, end);
+        continue;
+      }
       if (type != kAttachRawColorNormal && type != kAttachCompressedColorNormal) continue;
       if (found) fail("more than one color/normal attachment" + where);
       if (b > 0 && type != blocks[0].attach_type) fail("attachment type differs from block 0" + where);
@@ -92,6 +109,8 @@ std::vector<BlockInfo> parse_blocks(const EsvoOctree& octree) {
       bi.end = std::max(bi.end, end);
       found = true;
     }
+    if (b > 0 && (bi.contours != 0) != (blocks[0].contours != 0))
+      fail("contour attachment in some blocks only" + where);
     // Every page of the descriptor area starts with a header pointing at the info section.
     for (uint64_t p = start; p < bi.info; p += kPageWords)
       if (int64_t(p) + int32_t(w[p]) != int64_t(bi.info) || w[p + 1] != 0)
@@ -114,6 +133,7 @@ void EsvoOctree::validate() const {
   const std::vector<BlockInfo> blocks = parse_blocks(*this);
   const uint32_t* w = words.data();
   const uint64_t total_slots = words.size() / 2;
+  const bool contours = blocks[0].contours != 0;
 
   // The block whose descriptor area holds `slot` (not a page header), or null.
   const auto block_of = [&](int64_t slot) -> const BlockInfo* {
@@ -146,7 +166,21 @@ void EsvoOctree::validate() const {
     if (!valid) fail_at("empty descriptor", s);
     // Children of this descriptor are at depth it.depth + 1; leaves only at L.
     if (it.depth + 1 == L && nl) fail_at("octree deeper than its levels", s);
-    if (it.depth + 1 < L && leaf) fail_at("leaf above the finest level", s);
+    if (it.depth + 1 < L && leaf && !contours) fail_at("leaf above the finest level", s);
+
+    // Contours (§5.2): mask within the valid mask, values inside this block's
+    // contour attachment.
+    const uint32_t w1 = w[size_t(s) * 2 + 1];
+    const uint32_t cm = contour_mask(w1);
+    if (cm & ~valid) fail_at("contour mask not within valid mask", s);
+    if (!cm && w1) fail_at("contour pointer without a contour mask", s);
+    if (cm) {
+      if (!block->contours) fail_at("contour without a contour attachment", s);
+      const uint64_t first = uint64_t(s) * 2 + contour_pointer(w1);
+      if (first < block->contours + 1 ||
+          first + uint64_t(std::popcount(cm)) > block->contours + 1 + block->contour_count)
+        fail_at("contour pointer out of range", s);
+    }
 
     if (block->attach_type == kAttachRawColorNormal) {
       const uint32_t entry = w[block->attach + 2 + (s - block->first_slot)];

@@ -4,7 +4,9 @@
 //          "source": ..., "voxelization": ..., "source_triangles": ...,
 //          "leaf_voxels": ..., "attributes": "raw" | "compressed"}
 //   ("attributes" names the color/normal attachment, esvo §5.4/§5.5; optional
-//   for older files, and must agree with the info sections when present)
+//   for older files, and must agree with the info sections when present;
+//   "contours": true is written for octrees with contour attachments (§5.2),
+//   absent otherwise, and must agree with the info sections when present)
 //   'ESVO' the octree words (little-endian u32, layout in esvo.hpp).
 // Loading checks every META field's type and range and then runs
 // EsvoOctree::validate(), so a loaded octree is safe to traverse.
@@ -35,6 +37,7 @@ void save_esvo_scene(const std::filesystem::path& path, const esvo::EsvoOctree& 
       {"leaf_voxels", info.leaf_voxels},
       {"attributes", octree.attribute_format() == esvo::AttributeFormat::Compressed ? "compressed" : "raw"},
   });
+  if (octree.has_contours()) meta["contours"] = true;
   Container c;
   c.add(meta::kSection, meta::dump(meta));
   std::vector<uint8_t> words(octree.words.size() * 4);
@@ -52,6 +55,7 @@ esvo::EsvoOctree esvo_scene_from_container(const Container& c, SceneInfo* info) 
   esvo::EsvoOctree octree;
   SceneInfo si;
   std::string meta_attributes;
+  int meta_contours = -1;  // absent
   const nlohmann::json meta = meta::parse(c);
   try {
     using namespace meta;
@@ -64,6 +68,10 @@ esvo::EsvoOctree esvo_scene_from_container(const Container& c, SceneInfo* info) 
       const std::string a = get_string(meta, "attributes");
       if (a != "raw" && a != "compressed") bad("'attributes' is not 'raw' or 'compressed'");
       meta_attributes = a;
+    }
+    if (meta.contains("contours")) {
+      if (!meta["contours"].is_boolean()) bad("'contours' is not a boolean");
+      meta_contours = meta["contours"].get<bool>() ? 1 : 0;
     }
   } catch (const nlohmann::json::exception& e) {
     // nlohmann messages are one line: "[json.exception.parse_error.101] ...".
@@ -79,6 +87,8 @@ esvo::EsvoOctree esvo_scene_from_container(const Container& c, SceneInfo* info) 
   if (!meta_attributes.empty() &&
       (meta_attributes == "compressed") != (octree.attribute_format() == esvo::AttributeFormat::Compressed))
     meta::bad("'attributes' does not match the ESVO attachments");
+  if (meta_contours >= 0 && (meta_contours == 1) != octree.has_contours())
+    meta::bad("'contours' does not match the ESVO attachments");
   if (info) *info = std::move(si);
   return octree;
 }

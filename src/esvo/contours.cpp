@@ -1,0 +1,534 @@
+// Contours (esvo §5.2-5.3) and their construction (§7.2), plus the
+// variable-depth refinement decisions of §7.1/§7.3.
+//
+// Construction is greedy and top-down, as in §7.2. For every voxel V:
+//   1. the surface inside V = the mesh triangles that overlap V's cube,
+//      clipped to it (Sutherland-Hodgman in double); the triangle index list
+//      is filtered from the parent's list, so the recursion carries one list
+//      per level of the current path (memory-bounded);
+//   2. the polyhedron P = V's cube ∩ the slabs of its nearest kMaxAncestors
+//      ancestors that have a contour (using fewer ancestors only makes P
+//      larger, which is conservative for both decisions below; the paper
+//      also keeps only "the most important ancestor contours", §7.1);
+//   3. if every vertex of P is within the contour tolerance of the surface,
+//      V gets no contour (§7.2 "omitting unnecessary contours");
+//   4. otherwise candidate directions -- the normals of V's triangles,
+//      their area-weighted mean, and the in-plane perpendiculars of mesh
+//      boundary edges ("normals of the original surface as well as
+//      perpendiculars of surface boundaries") -- are quantized to the 6-bit
+//      contour normal first, and for each one the overestimation h - h' of
+//      Figure 22 is measured with the QUANTIZED slab: h = extent of P along
+//      the direction, h' = extent of P ∩ slab. The best one becomes V's
+//      contour if it removes at least kMinGain of V's side.
+// No holes (§7.2 "as long as we ensure that the original surface is fully
+// enclosed by each contour"): the slab encloses every vertex of V's clipped
+// surface, hence its convex hull; position and thickness are rounded so that
+// the decoded slab strictly contains the measured range plus a margin of
+// 2^-21 octree units (a few float ulps of the ray caster) + 1e-6 of V's side.
+// The final shape (§5.3) of a voxel is cube ∩ every ancestor slab ∩ its own,
+// and every one of them contains the surface inside the voxel.
+//
+// Variable depth (§7.1): a voxel above max_level is subdivided when
+// REFINE-GEOMETRY holds (some vertex of its final shape is farther than
+// geometry_error from the surface; checked on the vertices only, as §7.2
+// suggests) or REFINE-ATTRIBUTES (§7.3: some voxel below it has a decoded
+// 8-bit color / normal farther than the tolerance from its own; bound by
+// the triangle inequality over the levels, computed bottom-up). Otherwise its
+// subtree is dropped and it becomes a leaf, keeping its box-filtered
+// attributes from phase 1. The attribute test uses the raw 8-bit encoding;
+// compression error (§5.5) is not part of it.
+#include "esvo/contours.hpp"
+
+#include <algorithm>
+#include <array>
+#include <bit>
+#include <cmath>
+#include <cstring>
+#include <numeric>
+#include <unordered_map>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include "esvo/layout_internal.hpp"
+#include "voxcast/error.hpp"
+
+namespace voxcast::esvo {
+
+// ---- Figure 4 bit fields (layout and fixed point: esvo.hpp, ContourValue) ----
+
+uint32_t encode_contour(const ContourValue& c) {
+  return (uint32_t(c.thickness) & 0x7Fu) << 25 | (uint32_t(c.position) & 0x7Fu) << 18 |
+         (uint32_t(c.nx) & 0x3Fu) << 12 | (uint32_t(c.ny) & 0x3Fu) << 6 | (uint32_t(c.nz) & 0x3Fu);
+}
+
+ContourValue decode_contour(uint32_t value) {
+  // The Appendix A shifts put each field at the top of an int; an arithmetic
+  // shift back down sign-extends it exactly (two's complement, C++20).
+  const int32_t v = int32_t(value);
+  ContourValue c;
+  c.thickness = value >> 25;
+  c.position = int32_t(uint32_t(v) << 7) >> 25;
+  c.nx = int32_t(uint32_t(v) << 14) >> 26;
+  c.ny = int32_t(uint32_t(v) << 20) >> 26;
+  c.nz = int32_t(uint32_t(v) << 26) >> 26;
+  return c;
+}
+
+bool EsvoOctree::has_contours() const {
+  // Bounds-checked like attribute_format(): block 0's info section table.
+  const uint64_t size = words.size();
+  if (size < 2) return false;
+  const int64_t info = int32_t(words[0]);
+  if (info <= 0 || uint64_t(info) + detail::kInfoAttachTable > size) return false;
+  const uint64_t count = words[size_t(info) + detail::kInfoAttachCountWord];
+  for (uint64_t a = 0; a < count && uint64_t(info) + detail::kInfoAttachTable + 2 * a < size; ++a)
+    if (words[size_t(uint64_t(info) + detail::kInfoAttachTable + 2 * a)] == kAttachContours) return true;
+  return false;
+}
+
+namespace detail {
+
+Slab contour_slab(uint32_t value, const double lo[3], double side) {
+  const ContourValue c = decode_contour(value);
+  Slab s;
+  s.n[0] = c.nx, s.n[1] = c.ny, s.n[2] = c.nz;
+  const double center = s.n[0] * (lo[0] + 0.5 * side) + s.n[1] * (lo[1] + 0.5 * side) +
+                        s.n[2] * (lo[2] + 0.5 * side);
+  const double mid = center + 0.75 * side * c.position, half = 0.375 * side * c.thickness;
+  s.lo = mid - half;
+  s.hi = mid + half;
+  return s;
+}
+
+namespace {
+
+struct V3 {
+  double x = 0, y = 0, z = 0;
+};
+inline V3 operator+(V3 a, V3 b) { return {a.x + b.x, a.y + b.y, a.z + b.z}; }
+inline V3 operator-(V3 a, V3 b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
+inline V3 operator*(V3 a, double s) { return {a.x * s, a.y * s, a.z * s}; }
+inline double dot(V3 a, V3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+inline V3 cross(V3 a, V3 b) { return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x}; }
+inline double len(V3 a) { return std::sqrt(dot(a, a)); }
+
+constexpr int kMaxAncestors = 6;      // ancestor slabs used for the polyhedron P
+constexpr size_t kMaxCandidates = 24;  // triangle normals tried per voxel (§7.2 "a small subset")
+constexpr double kMinGain = 0.02;      // a contour must cut >= 2% of the side off P
+constexpr double kDefaultContourTolerance = 0.25;  // finest voxels (BuildOptions::geometry_error)
+
+struct GridSlab {  // n . x in [lo, hi], x in grid units
+  V3 n;
+  double lo, hi;
+};
+
+/// Squared distance from p to triangle abc (Ericson, Real-Time Collision
+/// Detection, 5.1.5: closest point by Voronoi regions).
+double dist2_point_triangle(V3 p, V3 a, V3 b, V3 c) {
+  const V3 ab = b - a, ac = c - a, ap = p - a;
+  const double d1 = dot(ab, ap), d2 = dot(ac, ap);
+  auto d2of = [&](V3 q) { return dot(p - q, p - q); };
+  if (d1 <= 0 && d2 <= 0) return d2of(a);
+  const V3 bp = p - b;
+  const double d3 = dot(ab, bp), d4 = dot(ac, bp);
+  if (d3 >= 0 && d4 <= d3) return d2of(b);
+  const double vc = d1 * d4 - d3 * d2;
+  if (vc <= 0 && d1 >= 0 && d3 <= 0) return d2of(a + ab * (d1 / (d1 - d3)));
+  const V3 cp = p - c;
+  const double d5 = dot(ab, cp), d6 = dot(ac, cp);
+  if (d6 >= 0 && d5 <= d6) return d2of(c);
+  const double vb = d5 * d2 - d1 * d6;
+  if (vb <= 0 && d2 >= 0 && d6 <= 0) return d2of(a + ac * (d2 / (d2 - d6)));
+  const double va = d3 * d6 - d5 * d4;
+  if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0)
+    return d2of(b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6))));
+  const double denom = 1.0 / (va + vb + vc);
+  return d2of(a + ab * (vb * denom) + ac * (vc * denom));
+}
+
+/// Keeps the part of polygon `in` with n . x <= off (Sutherland-Hodgman;
+/// points on the plane are kept, so touching geometry survives).
+void clip_polygon(const std::vector<V3>& in, V3 n, double off, std::vector<V3>& out) {
+  out.clear();
+  const size_t k = in.size();
+  for (size_t i = 0; i < k; ++i) {
+    const V3 a = in[i], b = in[(i + 1) % k];
+    const double da = dot(n, a) - off, db = dot(n, b) - off;
+    if (da <= 0) out.push_back(a);
+    if ((da < 0 && db > 0) || (da > 0 && db < 0)) out.push_back(a + (b - a) * (da / (da - db)));
+  }
+}
+
+/// Convex polyhedron as a list of convex faces; only its vertices are used.
+class Polyhedron {
+ public:
+  Polyhedron(V3 lo, double s) {
+    const V3 c[8] = {lo,
+                     lo + V3{s, 0, 0},
+                     lo + V3{0, s, 0},
+                     lo + V3{s, s, 0},
+                     lo + V3{0, 0, s},
+                     lo + V3{s, 0, s},
+                     lo + V3{0, s, s},
+                     lo + V3{s, s, s}};
+    faces_ = {{c[0], c[2], c[3], c[1]}, {c[4], c[5], c[7], c[6]}, {c[0], c[1], c[5], c[4]},
+              {c[2], c[6], c[7], c[3]}, {c[0], c[4], c[6], c[2]}, {c[1], c[3], c[7], c[5]}};
+  }
+  /// Keeps n . x <= off; the cut adds a cap face.
+  void clip(V3 n, double off) {
+    std::vector<std::vector<V3>> out;
+    std::vector<V3> cap, f;
+    for (const auto& face : faces_) {
+      clip_polygon(face, n, off, f);
+      for (const V3& p : f)
+        if (std::fabs(dot(n, p) - off) <= 1e-12 * (std::fabs(off) + 1)) cap.push_back(p);
+      if (f.size() >= 3) out.push_back(f);
+    }
+    if (cap.size() >= 3) {
+      // Order the cap points by angle around their centroid in the plane.
+      V3 m{0, 0, 0};
+      for (const V3& p : cap) m = m + p;
+      m = m * (1.0 / double(cap.size()));
+      const V3 a = std::fabs(n.x) < 0.9 * len(n) ? V3{1, 0, 0} : V3{0, 1, 0};
+      const V3 u = cross(n, a), v = cross(n, u);
+      std::sort(cap.begin(), cap.end(), [&](V3 p, V3 q) {
+        return std::atan2(dot(p - m, v), dot(p - m, u)) < std::atan2(dot(q - m, v), dot(q - m, u));
+      });
+      out.push_back(cap);
+    }
+    faces_ = std::move(out);
+  }
+  void clip(const GridSlab& s) {
+    clip(s.n, s.hi);
+    clip(s.n * -1.0, -s.lo);
+  }
+  std::vector<V3> vertices() const {
+    std::vector<V3> v;
+    for (const auto& f : faces_) v.insert(v.end(), f.begin(), f.end());
+    // Drop exact duplicates (shared by adjacent faces).
+    std::sort(v.begin(), v.end(), [](V3 a, V3 b) {
+      return a.x != b.x ? a.x < b.x : a.y != b.y ? a.y < b.y : a.z < b.z;
+    });
+    v.erase(std::unique(v.begin(), v.end(), [](V3 a, V3 b) { return a.x == b.x && a.y == b.y && a.z == b.z; }),
+            v.end());
+    return v;
+  }
+
+ private:
+  std::vector<std::vector<V3>> faces_;
+};
+
+struct Candidate {
+  int n[3];
+  int pos;
+  unsigned thick;
+  double gain;  // h - h' in grid units (Figure 22)
+  GridSlab slab;
+};
+
+class Planner {
+ public:
+  Planner(const TreeView& t, const GridTransform& g, const Mesh& mesh, const BuildOptions& o)
+      : t_(t), o_(o), L_(t.levels), Lmax_(o.max_level > 0 ? std::min(o.max_level, t.levels) : t.levels) {
+    const double inv = 1.0 / g.voxel_size;
+    const size_t T = mesh.triangle_count();
+    tri_.resize(T);
+    normal_.resize(T);
+    boundary_.assign(T, 0);
+    for (size_t i = 0; i < T; ++i) {
+      for (int k = 0; k < 3; ++k) {
+        const Vec3 p = mesh.positions[mesh.indices[3 * i + size_t(k)]];
+        tri_[i][size_t(k)] = {(double(p.x) - g.origin.x) * inv, (double(p.y) - g.origin.y) * inv,
+                              (double(p.z) - g.origin.z) * inv};
+      }
+      const V3 n = cross(tri_[i][1] - tri_[i][0], tri_[i][2] - tri_[i][0]);
+      const double l = len(n);
+      normal_[i] = l > 0 ? n * (1.0 / l) : V3{0, 0, 0};
+    }
+    find_boundary_edges(mesh);
+    contour_tol_ = o.geometry_error > 0 ? o.geometry_error : kDefaultContourTolerance;
+    variable_ = o.geometry_error > 0 || o.color_error >= 0 || o.normal_error >= 0;
+    plan_.contour.resize(size_t(L_) + 1);
+    plan_.leaf.resize(size_t(L_));
+    for (int d = 1; d <= L_; ++d) plan_.contour[size_t(d)].assign(t.count[size_t(d)], 0);
+    for (int d = 1; d < L_; ++d) plan_.leaf[size_t(d)].assign(t.count[size_t(d)], 0);
+    if (o.color_error >= 0 || o.normal_error >= 0) attribute_deviation();
+  }
+
+  ContourPlan run() {
+    std::vector<uint32_t> all(tri_.size());
+    std::iota(all.begin(), all.end(), 0u);
+    node(0, 0, 0, 0, 0, all, {});
+    return std::move(plan_);
+  }
+
+ private:
+  /// Mesh boundary edges (one adjacent triangle, matched by position so split
+  /// vertices do not count as boundaries): bit k of boundary_[t] = edge k -> k+1.
+  void find_boundary_edges(const Mesh& mesh) {
+    struct Key {
+      float a[6];
+      bool operator==(const Key& o) const { return std::memcmp(a, o.a, sizeof a) == 0; }
+    };
+    struct Hash {
+      size_t operator()(const Key& k) const {
+        uint64_t h = 1469598103934665603ull;
+        for (float f : k.a) h = (h ^ std::bit_cast<uint32_t>(f)) * 1099511628211ull;
+        return size_t(h);
+      }
+    };
+    std::unordered_map<Key, uint32_t, Hash> count;
+    auto key = [&](size_t t, int k) {
+      Vec3 p = mesh.positions[mesh.indices[3 * t + size_t(k)]];
+      Vec3 q = mesh.positions[mesh.indices[3 * t + size_t((k + 1) % 3)]];
+      if (std::tie(q.x, q.y, q.z) < std::tie(p.x, p.y, p.z)) std::swap(p, q);
+      return Key{{p.x + 0.f, p.y + 0.f, p.z + 0.f, q.x + 0.f, q.y + 0.f, q.z + 0.f}};  // +0: -0 -> 0
+    };
+    const size_t T = mesh.triangle_count();
+    count.reserve(3 * T);
+    for (size_t t = 0; t < T; ++t)
+      for (int k = 0; k < 3; ++k) ++count[key(t, k)];
+    for (size_t t = 0; t < T; ++t)
+      for (int k = 0; k < 3; ++k)
+        if (count[key(t, k)] == 1) boundary_[t] |= uint8_t(1u << k);
+  }
+
+  /// §7.3 REFINE-ATTRIBUTES bound, bottom-up: dev(v) = max over children c
+  /// of dist(v, c) + dev(c) >= the distance from v's decoded attributes to
+  /// any voxel's below it (triangle inequality). Colors: max channel
+  /// difference of the 8-bit sRGB codes; normals: angle in degrees.
+  void attribute_deviation() {
+    dev_color_.resize(size_t(L_) + 1);
+    dev_normal_.resize(size_t(L_) + 1);
+    dev_color_[size_t(L_)].assign(t_.count[size_t(L_)], 0.f);
+    dev_normal_[size_t(L_)].assign(t_.count[size_t(L_)], 0.f);
+    for (int d = L_ - 1; d >= 1; --d) {
+      const size_t m = t_.count[size_t(d)];
+      dev_color_[size_t(d)].assign(m, 0.f);
+      dev_normal_[size_t(d)].assign(m, 0.f);
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 2048), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t i = r.begin(); i != r.end(); ++i) {
+          const uint64_t v = t_.value[size_t(d)][i];
+          const Vec3 nv = decode_normal_cube(uint32_t(v >> 32));
+          const uint32_t first = t_.first_child[size_t(d)][i];
+          const int k = std::popcount(unsigned(t_.mask[size_t(d)][i]));
+          float dc = 0, dn = 0;
+          for (int j = 0; j < k; ++j) {
+            const uint64_t w = t_.value[size_t(d) + 1][first + uint32_t(j)];
+            int cd = 0;
+            for (int ch = 0; ch < 3; ++ch)
+              cd = std::max(cd, std::abs(int((v >> (8 * ch)) & 0xFF) - int((w >> (8 * ch)) & 0xFF)));
+            const Vec3 nw = decode_normal_cube(uint32_t(w >> 32));
+            const float cosang = std::clamp(nv.x * nw.x + nv.y * nw.y + nv.z * nw.z, -1.f, 1.f);
+            const float ang = std::acos(cosang) * 57.29577951308232f;
+            dc = std::max(dc, float(cd) + dev_color_[size_t(d) + 1][first + uint32_t(j)]);
+            dn = std::max(dn, ang + dev_normal_[size_t(d) + 1][first + uint32_t(j)]);
+          }
+          dev_color_[size_t(d)][i] = dc;
+          dev_normal_[size_t(d)][i] = dn;
+        }
+      });
+    }
+  }
+
+  /// True if every point is within `tol` (grid units) of some triangle of `tris`.
+  bool within(const std::vector<V3>& pts, const std::vector<uint32_t>& tris, double tol) const {
+    const double tol2 = tol * tol;
+    for (const V3& p : pts) {
+      bool ok = false;
+      for (uint32_t t : tris) {
+        const auto& v = tri_[t];
+        // Cheap reject by the triangle's bounding box.
+        const double bx = std::max(std::min({v[0].x, v[1].x, v[2].x}) - p.x, p.x - std::max({v[0].x, v[1].x, v[2].x}));
+        const double by = std::max(std::min({v[0].y, v[1].y, v[2].y}) - p.y, p.y - std::max({v[0].y, v[1].y, v[2].y}));
+        const double bz = std::max(std::min({v[0].z, v[1].z, v[2].z}) - p.z, p.z - std::max({v[0].z, v[1].z, v[2].z}));
+        if (bx > tol || by > tol || bz > tol) continue;
+        if (dist2_point_triangle(p, v[0], v[1], v[2]) <= tol2) {
+          ok = true;
+          break;
+        }
+      }
+      if (!ok) return false;
+    }
+    return true;
+  }
+
+  /// Quantizes direction `dir` to a contour normal and fits the slab around
+  /// the surface points (§7.2), scoring it against P's vertices (Figure 22).
+  bool fit(V3 dir, const std::vector<V3>& pv, const std::vector<V3>& pts, V3 lo, double S, int depth,
+           Candidate* out) const {
+    const double m = std::max({std::fabs(dir.x), std::fabs(dir.y), std::fabs(dir.z)});
+    if (!(m > 0)) return false;
+    Candidate c;
+    c.n[0] = std::clamp(int(std::lround(dir.x * 31.0 / m)), -32, 31);
+    c.n[1] = std::clamp(int(std::lround(dir.y * 31.0 / m)), -32, 31);
+    c.n[2] = std::clamp(int(std::lround(dir.z * 31.0 / m)), -32, 31);
+    const V3 n{double(c.n[0]), double(c.n[1]), double(c.n[2])};
+    const double nl = len(n);
+    const V3 center = lo + V3{0.5 * S, 0.5 * S, 0.5 * S};
+    const double nc = dot(n, center);
+    double pmin = INFINITY, pmax = -INFINITY, smin = INFINITY, smax = -INFINITY;
+    for (const V3& p : pv) pmin = std::min(pmin, dot(n, p)), pmax = std::max(pmax, dot(n, p));
+    for (const V3& p : pts) smin = std::min(smin, dot(n, p)), smax = std::max(smax, dot(n, p));
+    // Voxel-relative range of n . (x - c) / S, widened by the margin.
+    const double margin = nl * (std::ldexp(1.0, depth - 21) + 1e-6);
+    const double a = (smin - nc) / S, b = (smax - nc) / S;
+    const double mid = 0.5 * (a + b) / 0.75;
+    unsigned best_t = 1000;
+    int best_p = 0;
+    for (int p : {int(std::floor(mid)), int(std::ceil(mid))}) {
+      p = std::clamp(p, -64, 63);
+      const double half = std::max(b - 0.75 * p, 0.75 * p - a) + margin;
+      const unsigned tq = unsigned(std::ceil(half / 0.375));
+      if (tq < best_t) best_t = tq, best_p = p;
+    }
+    if (best_t > 127) return false;
+    c.pos = best_p;
+    c.thick = best_t;
+    c.slab.n = n;
+    c.slab.lo = nc + S * (0.75 * c.pos - 0.375 * c.thick);
+    c.slab.hi = nc + S * (0.75 * c.pos + 0.375 * c.thick);
+    const double h = pmax - pmin;
+    const double h2 = std::max(0.0, std::min(pmax, c.slab.hi) - std::max(pmin, c.slab.lo));
+    c.gain = (h - h2) / nl;
+    *out = c;
+    return true;
+  }
+
+  /// Processes the children of node (depth, index) at cube (x, y, z) of its
+  /// level; `tris` overlap the node, `slabs` are its ancestors' contours
+  /// (nearest last), including its own.
+  void node(int depth, uint32_t index, uint32_t x, uint32_t y, uint32_t z, const std::vector<uint32_t>& tris,
+            const std::vector<GridSlab>& slabs) {
+    const uint32_t mask = t_.mask[size_t(depth)][index];
+    const uint32_t first = t_.first_child[size_t(depth)][index];
+    int rank[8], slot[8], k = 0;
+    for (int i = 0; i < 8; ++i)
+      if (mask >> i & 1) rank[k] = k, slot[k] = i, ++k;
+    auto child = [&](int j) { this->child(depth + 1, first + uint32_t(rank[j]), slot[j], x, y, z, tris, slabs); };
+    if (depth < 4) {
+      tbb::parallel_for(0, k, child);
+    } else {
+      for (int j = 0; j < k; ++j) child(j);
+    }
+  }
+
+  void child(int cd, uint32_t ci, int i, uint32_t px, uint32_t py, uint32_t pz, const std::vector<uint32_t>& tris,
+             const std::vector<GridSlab>& slabs) {
+    const uint32_t cx = 2 * px + uint32_t(i & 1), cy = 2 * py + uint32_t(i >> 1 & 1), cz = 2 * pz + uint32_t(i >> 2 & 1);
+    const double S = std::ldexp(1.0, L_ - cd);
+    const V3 lo{cx * S, cy * S, cz * S};
+    const V3 hi = lo + V3{S, S, S};
+
+    // 1. The surface inside the cube.
+    std::vector<uint32_t> ct;
+    std::vector<V3> pts, poly, tmp;
+    std::vector<V3> cand_dirs;
+    V3 mean{0, 0, 0};
+    for (uint32_t t : tris) {
+      const auto& v = tri_[t];
+      if (std::max({v[0].x, v[1].x, v[2].x}) < lo.x || std::min({v[0].x, v[1].x, v[2].x}) > hi.x ||
+          std::max({v[0].y, v[1].y, v[2].y}) < lo.y || std::min({v[0].y, v[1].y, v[2].y}) > hi.y ||
+          std::max({v[0].z, v[1].z, v[2].z}) < lo.z || std::min({v[0].z, v[1].z, v[2].z}) > hi.z)
+        continue;
+      poly.assign(v.begin(), v.end());
+      clip_polygon(poly, {1, 0, 0}, hi.x, tmp), poly.swap(tmp);
+      clip_polygon(poly, {-1, 0, 0}, -lo.x, tmp), poly.swap(tmp);
+      clip_polygon(poly, {0, 1, 0}, hi.y, tmp), poly.swap(tmp);
+      clip_polygon(poly, {0, -1, 0}, -lo.y, tmp), poly.swap(tmp);
+      clip_polygon(poly, {0, 0, 1}, hi.z, tmp), poly.swap(tmp);
+      clip_polygon(poly, {0, 0, -1}, -lo.z, tmp), poly.swap(tmp);
+      if (poly.empty()) continue;
+      ct.push_back(t);
+      pts.insert(pts.end(), poly.begin(), poly.end());
+      const V3 an = cross(v[1] - v[0], v[2] - v[0]);  // 2 x area x normal
+      mean = mean + an;
+    }
+
+    // 2. P = cube ∩ nearest ancestor slabs.
+    Polyhedron P(lo, S);
+    const size_t first_slab = slabs.size() > size_t(kMaxAncestors) ? slabs.size() - kMaxAncestors : 0;
+    for (size_t s = first_slab; s < slabs.size(); ++s) P.clip(slabs[s]);
+    std::vector<V3> pv = P.vertices();
+
+    // 3./4. The contour.
+    uint32_t value = 0;
+    GridSlab own{};
+    if (o_.contours && !ct.empty() && !pv.empty() && !within(pv, ct, contour_tol_)) {
+      // Candidates: triangle normals (evenly sampled subset), the mean
+      // normal, boundary perpendiculars.
+      const size_t step = std::max<size_t>(1, (ct.size() + kMaxCandidates - 1) / kMaxCandidates);
+      for (size_t j = 0; j < ct.size(); j += step) {
+        const uint32_t t = ct[j];
+        cand_dirs.push_back(normal_[t]);
+        if (boundary_[t])
+          for (int e = 0; e < 3; ++e)
+            if (boundary_[t] >> e & 1) {
+              const V3 ed = tri_[t][size_t((e + 1) % 3)] - tri_[t][size_t(e)];
+              cand_dirs.push_back(cross(ed, normal_[t]));
+            }
+      }
+      cand_dirs.push_back(mean);
+      Candidate best{}, c{};
+      best.gain = -1;
+      for (const V3& d : cand_dirs)
+        if (fit(d, pv, pts, lo, S, cd, &c) && c.gain > best.gain) best = c;
+      if (best.gain >= kMinGain * S) {
+        ContourValue cv;
+        cv.nx = best.n[0], cv.ny = best.n[1], cv.nz = best.n[2];
+        cv.position = best.pos;
+        cv.thickness = best.thick;
+        value = encode_contour(cv);
+        own = best.slab;
+        P.clip(own);
+        pv = P.vertices();
+      }
+    }
+    plan_.contour[size_t(cd)][ci] = value;
+    if (cd >= L_) return;  // a leaf of the full-depth tree
+
+    // Variable depth (§7.1): leaf here, or refine?
+    bool leaf = cd >= Lmax_;
+    if (!leaf && variable_ && !ct.empty()) {
+      const bool refine_geometry = o_.geometry_error > 0 && !within(pv, ct, o_.geometry_error);
+      bool refine_attributes = false;
+      if (o_.color_error >= 0 && dev_color_[size_t(cd)][ci] > o_.color_error) refine_attributes = true;
+      if (o_.normal_error >= 0 && dev_normal_[size_t(cd)][ci] > o_.normal_error) refine_attributes = true;
+      leaf = !refine_geometry && !refine_attributes;
+    }
+    if (leaf) {
+      plan_.leaf[size_t(cd)][ci] = 1;
+      return;
+    }
+    if (value != 0) {
+      std::vector<GridSlab> next(slabs);
+      next.push_back(own);
+      node(cd, ci, cx, cy, cz, ct, next);
+    } else {
+      node(cd, ci, cx, cy, cz, ct, slabs);
+    }
+  }
+
+  const TreeView& t_;
+  const BuildOptions& o_;
+  const int L_, Lmax_;
+  std::vector<std::array<V3, 3>> tri_;
+  std::vector<V3> normal_;
+  std::vector<uint8_t> boundary_;
+  std::vector<std::vector<float>> dev_color_, dev_normal_;
+  double contour_tol_ = kDefaultContourTolerance;
+  bool variable_ = false;
+  ContourPlan plan_;
+};
+
+}  // namespace
+
+ContourPlan plan_contours(const TreeView& tree, const GridTransform& grid, const Mesh& mesh,
+                          const BuildOptions& options) {
+  if (mesh.triangle_count() == 0) throw Error("cannot build contours: the mesh has no triangles");
+  return Planner(tree, grid, mesh, options).run();
+}
+
+}  // namespace detail
+}  // namespace voxcast::esvo
