@@ -1,13 +1,20 @@
 // voxcast bench MESH: the voxel ray caster against Embree on the same mesh,
 // camera, image size, tiles and threads, measured in one run.
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <memory>
 #include <thread>
+#include <vector>
+
+#include <tbb/blocked_range.h>
+#include <tbb/combinable.h>
+#include <tbb/parallel_for.h>
 
 #include "commands.hpp"
 #include "pipeline.hpp"
+#include "voxcast/effects.hpp"
 #include "voxcast/embree_reference.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_structure.hpp"
@@ -25,7 +32,51 @@ struct BenchArgs {
   int repeat = 5, threads = 0, beam = 8;
   double min_coverage = 0.3;
   bool verbose = false;
+  // --effects (svdag §4): shadow and AO occlusion rays
+  bool effects = false;
+  int ao_rays = 64;
+  float ao_radius = 0.f;
 };
+
+class EmbreeOccluder final : public Occluder {
+ public:
+  explicit EmbreeOccluder(const EmbreeScene& s) : s_(s) {}
+  bool occluded(const Ray& ray, const LodFootprint&) const override { return s_.occluded(ray); }
+
+ private:
+  const EmbreeScene& s_;
+};
+
+struct EffectRun {
+  double seconds = 1e30;  // best wall time
+  uint64_t rays = 0;
+  std::vector<float> values;  // per shading point
+};
+
+// Shadow (ao_rays == 0: one directional ray per point) or AO rays for every
+// point, in parallel chunks; best wall time of `repeat` runs.
+EffectRun run_effect_rays(const Occluder& occ, const std::vector<ShadingPoint>& points,
+                          const EffectOptions& fx, Vec3 light_dir, int repeat) {
+  EffectRun run;
+  run.values.assign(points.size(), 0.f);
+  for (int r = 0; r < repeat; ++r) {
+    tbb::combinable<EffectCounters> counters;
+    const auto t0 = std::chrono::steady_clock::now();
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 256), [&](const tbb::blocked_range<size_t>& b) {
+      EffectCounters& c = counters.local();
+      for (size_t i = b.begin(); i != b.end(); ++i) {
+        const uint32_t seed = pixel_seed(int(i), 0, fx.seed);
+        run.values[i] = fx.ao_rays > 0 ? ambient_occlusion(occ, points[i], fx, fx.ao_radius, seed, &c)
+                                       : shadow_visibility(occ, points[i], fx, light_dir, seed, &c);
+      }
+    });
+    run.seconds = std::min(run.seconds, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    EffectCounters total;
+    counters.combine_each([&](const EffectCounters& c) { total += c; });
+    run.rays = total.shadow_rays + total.ao_rays;
+  }
+  return run;
+}
 
 double coverage(const Image& depth) {
   size_t hits = 0;
@@ -60,6 +111,13 @@ Runner add_bench(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)");
   cmd->add_flag("-v,--verbose", args->verbose, "Print timings per stage");
+  cmd->add_flag("--effects", args->effects,
+                "Also measure shadow and AO rays (svdag section 4) on the ESVO, a DAG of the same "
+                "voxels and Embree rtcOccluded1");
+  cmd->add_option("--ao-rays", args->ao_rays, "AO rays per hit pixel for --effects")->capture_default_str();
+  cmd->add_option("--ao-radius", args->ao_radius,
+                  "AO ray length for --effects (0 = 5% of the mesh bounds diagonal)")
+      ->capture_default_str();
   return [args]() {
     ThreadLimit limit(args->threads);
     int width = 0, height = 0;
@@ -68,6 +126,8 @@ Runner add_bench(CLI::App& app) {
     if (args->beam != 0 && args->beam != 4 && args->beam != 8) throw Error("--beam must be 0, 4 or 8");
     if (!(args->min_coverage >= 0 && args->min_coverage <= 0.95))
       throw Error("--min-coverage must be in [0, 0.95]");
+    if (args->ao_rays < 1 || args->ao_rays > 4096) throw Error("--ao-rays must be in 1..4096");
+    if (!std::isfinite(args->ao_radius) || args->ao_radius < 0) throw Error("--ao-radius must be >= 0");
 
     BuildSettings s;
     s.mesh_path = args->input;
@@ -154,6 +214,71 @@ Runner add_bench(CLI::App& app) {
     std::printf("embree x8   %8.2f Mrays/s (rtcIntersect8)\n", m_e8);
     std::printf("ratio voxcast/embree: %.3f\n",
                 std::max(m_vox, args->beam ? m_beam : 0.0) / std::max(m_e1, m_e8));
+    if (args->effects) {
+      // Shading points: the ESVO's primary hits of this frame (finest level,
+      // voxel normals), offset once (effects.hpp); every caster gets the
+      // very same occlusion rays.
+      const CameraRays cam(camera, width, height);
+      std::vector<ShadingPoint> points;
+      for (int y = 0; y < height; ++y)
+        for (int x = 0; x < width; ++x) {
+          const Ray ray = cam.ray(x, y);
+          SurfaceHit hit;
+          if (!voxels.trace(ray, LodFootprint{}, &hit)) continue;
+          Color c;
+          Vec3 n;
+          voxels.attributes(hit, &c, &n);
+          if (dot(n, ray.dir) > 0.f) n = -n;
+          points.push_back({hit.position, n, ray.dir, hit.voxel_size});
+        }
+      BuildSettings ds = s;
+      ds.dag = true;
+      ds.verbose = false;
+      BuiltScene dag_built = build_scene(ds);  // the same mesh, grid and voxelization
+      const dag::DagStructure dag_voxels(std::make_shared<dag::SparseVoxelDag>(std::move(dag_built.dag)));
+      const StructureOccluder esvo_occ(voxels), dag_occ(dag_voxels);
+      const EmbreeOccluder embree_occ(embree);
+      EffectOptions shadow_fx;
+      shadow_fx.shadows = ShadowMode::Hard;
+      EffectOptions ao_fx;
+      ao_fx.ao_rays = args->ao_rays;
+      ao_fx.ao_radius = args->ao_radius > 0 ? args->ao_radius : 0.05f * length(built.mesh.bounds().extent());
+      const Vec3 light_dir = ro.light_dir;
+      std::printf("effects     %zu shading points (ESVO primary hits, offset 2 voxels along the normal + 1 back)\n",
+                  points.size());
+      struct Row {
+        const char* name;
+        const Occluder* occ;
+      };
+      const Row rows[] = {{"esvo", &esvo_occ}, {"dag", &dag_occ}, {"embree x1", &embree_occ}};
+      EffectRun shadow_runs[3], ao_runs[3];
+      for (int k = 0; k < 3; ++k) {
+        run_effect_rays(*rows[k].occ, points, shadow_fx, light_dir, 1);  // warm-up
+        shadow_runs[k] = run_effect_rays(*rows[k].occ, points, shadow_fx, light_dir, args->repeat);
+        ao_runs[k] = run_effect_rays(*rows[k].occ, points, ao_fx, light_dir, std::min(args->repeat, 3));
+      }
+      for (int k = 0; k < 3; ++k)
+        std::printf("shadow %-9s %8.2f Mrays/s (directional, 1 ray per hit pixel, %llu rays%s)\n",
+                    rows[k].name, double(shadow_runs[k].rays) / shadow_runs[k].seconds * 1e-6,
+                    (unsigned long long)shadow_runs[k].rays, k == 2 ? ", rtcOccluded1" : ", any hit");
+      for (int k = 0; k < 3; ++k)
+        std::printf("ao     %-9s %8.2f Mrays/s (%d rays per hit pixel, radius %g, %llu rays%s)\n",
+                    rows[k].name, double(ao_runs[k].rays) / ao_runs[k].seconds * 1e-6, args->ao_rays,
+                    double(ao_fx.ao_radius), (unsigned long long)ao_runs[k].rays,
+                    k == 2 ? ", rtcOccluded1" : ", any hit");
+      size_t same_shadow = 0, same_dag = 0;
+      double ao_diff = 0;
+      for (size_t i = 0; i < points.size(); ++i) {
+        same_shadow += shadow_runs[0].values[i] == shadow_runs[2].values[i];
+        same_dag += shadow_runs[0].values[i] == shadow_runs[1].values[i] &&
+                    ao_runs[0].values[i] == ao_runs[1].values[i];
+        ao_diff += std::fabs(ao_runs[0].values[i] - ao_runs[2].values[i]);
+      }
+      const double np = double(std::max<size_t>(points.size(), 1));
+      std::printf("effects agreement: shadow mask esvo/embree %.3f%%, mean |AO esvo - AO embree| %.4f, "
+                  "esvo == dag on %.3f%% of points\n",
+                  100.0 * double(same_shadow) / np, ao_diff / np, 100.0 * double(same_dag) / np);
+    }
     return 0;
   };
 }

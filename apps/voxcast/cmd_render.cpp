@@ -3,6 +3,8 @@
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <string>
+#include <vector>
 
 #include "commands.hpp"
 #include "voxcast/error.hpp"
@@ -24,6 +26,11 @@ struct RenderArgs {
   std::string heatmap;         // iteration heat map (Figure 32)
   float heatmap_max = 64.f;    // iterations mapped to the top of the ramp
   bool filter = false;
+  // Effects (svdag §4): shadows and ambient occlusion.
+  std::string shadows = "none", point_light, area_light, shadow_beam = "conservative", ao_output;
+  int shadow_rays = 16, ao = 0;
+  float ao_radius = 0.f, ao_cone_angle = 0.f;
+  uint32_t seed = 0;
 };
 
 std::string lower_extension(const std::string& path) {
@@ -90,6 +97,27 @@ Runner add_render(CLI::App& app) {
       ->capture_default_str();
   cmd->add_flag("--filter", args->filter,
                 "Adaptive post-process blur sized by the hit voxels (esvo paper section 6.3)");
+  cmd->add_option("--shadows", args->shadows, "none | hard | soft (soft needs --area-light)")
+      ->capture_default_str();
+  cmd->add_option("--point-light", args->point_light, "Point light position x,y,z");
+  cmd->add_option("--area-light", args->area_light,
+                  "Rectangular area light cx,cy,cz,ux,uy,uz,vx,vy,vz: center and two half-edge vectors");
+  cmd->add_option("--shadow-rays", args->shadow_rays, "Soft shadow rays per pixel (stratified)")
+      ->capture_default_str();
+  cmd->add_option("--shadow-beam", args->shadow_beam,
+                  "Soft shadow beam per pixel (svdag section 4): conservative (exact) | corners "
+                  "(4 corner rays, approximate) | off")
+      ->capture_default_str();
+  cmd->add_option("--ao", args->ao, "Ambient occlusion rays per pixel (0 = off; the paper uses 64)")
+      ->capture_default_str();
+  cmd->add_option("--ao-radius", args->ao_radius,
+                  "AO ray length in world units (0 = 5% of the scene diagonal)")
+      ->capture_default_str();
+  cmd->add_option("--ao-cone-angle", args->ao_cone_angle,
+                  "AO rays stop at nodes subtending this angle in degrees (0 = finest level)")
+      ->capture_default_str();
+  cmd->add_option("--ao-output", args->ao_output, "Also write the AO term as an image (.png or .pfm)");
+  cmd->add_option("--seed", args->seed, "Seed of the per-pixel effect samples")->capture_default_str();
   return [args]() {
     ThreadLimit limit(args->threads);
     RenderOptions opt;
@@ -104,7 +132,7 @@ Runner add_render(CLI::App& app) {
     if (!std::isfinite(args->heatmap_max) || !(args->heatmap_max > 0))
       throw Error("--heatmap-max must be a positive number");
     opt.collect_stats = args->stats || !args->heatmap.empty();
-    for (const std::string* path : {&args->output, &args->depth, &args->normal}) {
+    for (const std::string* path : {&args->output, &args->depth, &args->normal, &args->ao_output}) {
       if (path->empty()) continue;
       std::string ext = lower_extension(*path);
       if (ext != ".png" && ext != ".pfm")
@@ -117,9 +145,54 @@ Runner add_render(CLI::App& app) {
       if (length(l) == 0) throw Error("--light must not be the zero vector");
       opt.light_dir = normalize(l);
     }
+    // ---- effects (svdag §4) ----
+    EffectOptions& fx = opt.effects;
+    if (int(!args->light.empty()) + int(!args->point_light.empty()) + int(!args->area_light.empty()) > 1)
+      throw Error("--light, --point-light and --area-light are mutually exclusive");
+    if (!args->point_light.empty()) {
+      fx.light = LightKind::Point;
+      fx.light_position = parse_vec3(args->point_light, "--point-light");
+    }
+    if (!args->area_light.empty()) {
+      std::vector<std::string> parts;
+      std::string rest = args->area_light;
+      for (size_t pos; (pos = rest.find(',')) != std::string::npos; rest = rest.substr(pos + 1))
+        parts.push_back(rest.substr(0, pos));
+      parts.push_back(rest);
+      if (parts.size() != 9)
+        throw Error("--area-light: '" + args->area_light + "' is not cx,cy,cz,ux,uy,uz,vx,vy,vz");
+      fx.light = LightKind::Area;
+      fx.light_position = parse_vec3(parts[0] + "," + parts[1] + "," + parts[2], "--area-light");
+      fx.area_u = parse_vec3(parts[3] + "," + parts[4] + "," + parts[5], "--area-light");
+      fx.area_v = parse_vec3(parts[6] + "," + parts[7] + "," + parts[8], "--area-light");
+      if (!(length(cross(fx.area_u, fx.area_v)) > 0))
+        throw Error("--area-light: the half-edge vectors must be non-zero and not parallel");
+    }
+    if (args->shadows == "none") fx.shadows = ShadowMode::None;
+    else if (args->shadows == "hard") fx.shadows = ShadowMode::Hard;
+    else if (args->shadows == "soft") fx.shadows = ShadowMode::Soft;
+    else throw Error("--shadows must be none, hard or soft");
+    if (fx.shadows == ShadowMode::Soft && fx.light != LightKind::Area)
+      throw Error("--shadows soft needs --area-light");
+    if (args->shadow_rays < 1 || args->shadow_rays > 4096) throw Error("--shadow-rays must be in 1..4096");
+    fx.shadow_rays = args->shadow_rays;
+    if (args->shadow_beam == "conservative") fx.shadow_beam = ShadowBeam::Conservative;
+    else if (args->shadow_beam == "corners") fx.shadow_beam = ShadowBeam::Corners;
+    else if (args->shadow_beam == "off") fx.shadow_beam = ShadowBeam::Off;
+    else throw Error("--shadow-beam must be conservative, corners or off");
+    if (args->ao < 0 || args->ao > 4096) throw Error("--ao must be in 0..4096");
+    fx.ao_rays = args->ao;
+    if (!std::isfinite(args->ao_radius) || args->ao_radius < 0) throw Error("--ao-radius must be >= 0");
+    if (!(args->ao_cone_angle >= 0 && args->ao_cone_angle < 90))
+      throw Error("--ao-cone-angle must be in [0, 90) degrees");
+    fx.ao_cone_angle_deg = args->ao_cone_angle;
+    fx.seed = args->seed;
+    if (!args->ao_output.empty() && fx.ao_rays == 0) throw Error("--ao-output needs --ao N (N > 0)");
     StageTimer timer(args->verbose);
     LoadedScene scene = load_scene(args->input);  // esvo or dag, by META "format"
     timer.mark("load scene");
+    if (fx.ao_rays > 0)  // default: 5% of the occupied bounds' diagonal
+      fx.ao_radius = args->ao_radius > 0 ? args->ao_radius : 0.05f * length(scene.occupied.extent());
     const VoxelStructure& structure = *scene.structure;
     if (args->camera == "auto") {
       opt.camera = Camera::frame(scene.occupied, opt.width, opt.height);
@@ -137,6 +210,7 @@ Runner add_render(CLI::App& app) {
     write_image(args->output, result.color);
     if (opt.want_depth) write_image(args->depth, result.depth);
     if (opt.want_normal) write_image(args->normal, result.normal, true);
+    if (!args->ao_output.empty()) write_image(args->ao_output, result.ao, true);  // AO as stored, not sRGB-encoded
     if (!args->heatmap.empty()) {
       write_image(args->heatmap, iteration_heatmap(result.iterations, args->heatmap_max));
       std::printf("heatmap: %s, inferno ramp, black = 0, pale yellow = %g iterations\n",
@@ -146,6 +220,19 @@ Runner add_render(CLI::App& app) {
     std::printf("%s: %dx%d, %.1f%% of pixels hit, %.2f Mrays/s\n", args->output.c_str(),
                 opt.width, opt.height, 100.0 * double(result.hits) / double(result.rays),
                 double(result.rays) / result.seconds * 1e-6);
+    if (fx.active()) {
+      const EffectCounters& ec = result.effect_counters;
+      const double secondary = double(ec.shadow_rays + ec.ao_rays);
+      std::printf("effects: %llu shadow rays, %llu AO rays (radius %g)", (unsigned long long)ec.shadow_rays,
+                  (unsigned long long)ec.ao_rays, double(fx.ao_radius));
+      if (ec.beams)
+        std::printf(", %llu of %llu soft-shadow beams fully lit", (unsigned long long)ec.beams_lit,
+                    (unsigned long long)ec.beams);
+      // result.seconds covers primary and secondary rays: the Mrays/s above
+      // counts primary rays only.
+      std::printf("; %.2f Mrays/s primary + secondary\n",
+                  (double(result.rays) + secondary) / result.seconds * 1e-6);
+    }
     if (args->stats) print_stats(result, opt.beam);
     return 0;
   };

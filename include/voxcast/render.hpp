@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "voxcast/camera.hpp"
+#include "voxcast/effects.hpp"
 #include "voxcast/image.hpp"
 #include "voxcast/structure.hpp"
 
@@ -28,6 +29,9 @@ struct RenderOptions {
   bool collect_stats = false;
   /// Adaptive post-process blur of the color image (esvo §6.3); see post_filter().
   bool filter = false;
+  /// Shadows and ambient occlusion per hit pixel (svdag §4, effects.hpp).
+  /// The light of Directional is light_dir above.
+  EffectOptions effects;
 };
 
 struct RenderResult {
@@ -44,6 +48,10 @@ struct RenderResult {
   /// Per-ray average of a frame total (Table 6 divides by the full-resolution rays).
   double per_ray(uint64_t total) const { return rays ? double(total) / double(rays) : 0.0; }
   double filter_seconds = 0;  // wall time of post_filter (0 unless options.filter)
+  // ---- options.effects (inside `seconds`) ----
+  Image ao;                       // 1 channel, AO in [0,1] (1 on misses); when ao_rays > 0
+  Image shadow;                   // 1 channel, light visibility in [0,1] (1 on misses); with shadows
+  EffectCounters effect_counters; // secondary rays traced
 };
 
 RenderResult render(const VoxelStructure& structure, const RenderOptions& options);

@@ -83,6 +83,13 @@ class VoxelStructure {
   virtual bool trace(const Ray& ray, const LodFootprint& lod, SurfaceHit* hit) const = 0;
   /// Linear color and unit normal of the hit voxel.
   virtual void attributes(const SurfaceHit& hit, Color* color, Vec3* normal) const = 0;
+  /// Any hit within [0, ray.tmax] (shadow and AO rays, svdag §4). Default:
+  /// trace(), whose nearest-first traversal stops at the first leaf anyway;
+  /// structures with a cheaper any-hit caster override it (DAG).
+  virtual bool occluded(const Ray& ray, const LodFootprint& lod) const {
+    SurfaceHit hit;
+    return trace(ray, lod, &hit);
+  }
   virtual std::string name() const = 0;
 
   // ---- Beam optimization and profiling (esvo §6.2, §8.5). The defaults make

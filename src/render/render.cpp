@@ -39,6 +39,16 @@ RenderResult render(const VoxelStructure& structure, const RenderOptions& option
   Vec3 to_light = normalize(-options.light_dir);
   if (!is_finite(to_light) || length(to_light) == 0.f) to_light = {0, 1, 0};
   const Color bg = options.background;
+  // Secondary-ray effects (svdag §4, effects.cpp): shadows and AO per hit pixel.
+  EffectOptions fx = options.effects;
+  validate(fx);
+  const bool effects = fx.active();
+  if (fx.ao_rays > 0 && !(fx.ao_radius > 0.f)) fx.ao_radius = 0.05f * length(structure.bounds().extent());
+  const StructureOccluder occluder(structure);
+  if (fx.ao_rays > 0) result.ao = Image(W, H, 1), std::fill(result.ao.pixels.begin(), result.ao.pixels.end(), 1.f);
+  if (fx.shadows != ShadowMode::None)
+    result.shadow = Image(W, H, 1), std::fill(result.shadow.pixels.begin(), result.shadow.pixels.end(), 1.f);
+  std::mutex effects_mutex;
   const bool want_depth = options.want_depth, want_normal = options.want_normal;
 
   // esvo §6.3: per-pixel projected size of the hit voxel, log2 in 3.5 fixed
@@ -66,6 +76,7 @@ RenderResult render(const VoxelStructure& structure, const RenderOptions& option
     int batch_n = 0;
     RayCounters tile_counters, tile_coarse;
     uint64_t tile_beams = 0;
+    EffectCounters tile_fx;
     auto shade_batch = [&] {
       for (int b = 0; b < batch_n; ++b) {
         const SurfaceHit& hit = batch_hit[b];
@@ -81,11 +92,27 @@ RenderResult render(const VoxelStructure& structure, const RenderOptions& option
         // Voxel normals are averages over the surface inside the voxel and may
         // face away from the viewer; shade the side we see.
         if (dot(n, dir) > 0.f) n = -n;
-        const float diffuse = std::fmax(0.f, dot(n, to_light));
-        const Vec3 half_vec = normalize(to_light - dir);  // Blinn: light + view
+        Vec3 light = to_light;
+        float visibility = 1.f, ao = 1.f;
+        if (fx.light != LightKind::Directional) {
+          float dist;
+          light = direction_to_light(fx, options.light_dir, hit.position, &dist);
+        }
+        if (effects) {
+          const ShadingPoint sp{hit.position, n, dir, hit.voxel_size};
+          const uint32_t seed = pixel_seed(x, y, fx.seed);
+          if (fx.shadows != ShadowMode::None)
+            *result.shadow.at(x, y) = visibility =
+                shadow_visibility(occluder, sp, fx, options.light_dir, seed, &tile_fx);
+          if (fx.ao_rays > 0)
+            *result.ao.at(x, y) = ao = ambient_occlusion(occluder, sp, fx, fx.ao_radius, seed, &tile_fx);
+        }
+        const float diffuse = std::fmax(0.f, dot(n, light)) * visibility;
+        const Vec3 half_vec = normalize(light - dir);  // Blinn: light + view
         float spec = std::fmax(0.f, dot(n, half_vec));  // ^32 by squaring (no powf call)
         spec *= spec, spec *= spec, spec *= spec, spec *= spec, spec *= spec;
-        const float k = 0.18f + 0.82f * diffuse;
+        spec *= visibility;
+        const float k = 0.18f * ao + 0.82f * diffuse;
         out[0] = c.r * k + 0.12f * spec;
         out[1] = c.g * k + 0.12f * spec;
         out[2] = c.b * k + 0.12f * spec;
@@ -156,6 +183,10 @@ RenderResult render(const VoxelStructure& structure, const RenderOptions& option
     }
     shade_batch();
     total_hits.fetch_add(hits, std::memory_order_relaxed);
+    if (effects) {
+      std::lock_guard<std::mutex> lock(effects_mutex);
+      result.effect_counters += tile_fx;
+    }
     if (collect) {
       std::lock_guard<std::mutex> lock(stats_mutex);
       result.counters += tile_counters;

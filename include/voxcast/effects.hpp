@@ -1,0 +1,151 @@
+#pragma once
+// Secondary-ray effects on top of the primary hits: hard shadows, soft shadows
+// from a rectangular area light with the per-pixel shadow beam, and ambient
+// occlusion with falloff-in-sampling (Kämpe, Sintorn & Assarsson 2013, svdag
+// §4; Laine & Karras 2010b). Works on any VoxelStructure (through
+// VoxelStructure::occluded) and on anything else that answers occlusion
+// queries (the Embree reference in tests and `voxcast bench`).
+//
+// Determinism: every random number of a pixel comes from a hash of (x, y,
+// seed), so an image does not depend on the thread count or the tile order.
+#include <cstdint>
+
+#include "voxcast/math.hpp"
+#include "voxcast/structure.hpp"
+
+namespace voxcast {
+
+enum class LightKind { Directional, Point, Area };
+enum class ShadowMode { None, Hard, Soft };
+
+/// How soft shadows use the 4-ray beam of svdag §4 (one beam per pixel from
+/// the shading point to the light's corners):
+///   Conservative: the beam is traced conservatively with the structure's
+///     beam_start() (the esvo §6.2 coarse pass, a cone over the whole light):
+///     an empty beam means the pixel is fully lit (no shadow rays); otherwise
+///     every shadow ray is clipped to the box the coarse pass proved to hold
+///     every voxel any ray of the beam can hit (both ends: "from the view
+///     sample" and "from the light", svdag §4). Exact: the answers equal those
+///     without the beam. Structures without beam_start (DAG) trace all rays.
+///   Corners: the literal four corner rays; all four unoccluded -> the pixel
+///     counts as fully lit. NOT conservative (an occluder that fits between the
+///     corner rays is missed), and four point rays give no provable interval,
+///     so the other rays are not shortened. Faster on DAGs; see test_effects
+///     for its measured error.
+///   Off: N rays per pixel.
+enum class ShadowBeam { Off, Conservative, Corners };
+
+struct EffectOptions {
+  // ---- light (the directional direction is RenderOptions::light_dir) ----
+  LightKind light = LightKind::Directional;
+  Vec3 light_position;       // Point: position; Area: rectangle center
+  Vec3 area_u, area_v;       // Area: half-edge vectors (corners center +-u +-v)
+  // ---- shadows ----
+  ShadowMode shadows = ShadowMode::None;
+  int shadow_rays = 16;      // Soft: samples per pixel (stratified over the rectangle)
+  ShadowBeam shadow_beam = ShadowBeam::Conservative;
+  // ---- ambient occlusion (Laine & Karras 2010b falloff-in-sampling) ----
+  int ao_rays = 0;           // 0 = off; svdag §4 uses 64
+  float ao_radius = 0.f;     // world units; <= 0: 5% of the structure's bounds diagonal
+  float ao_cone_angle_deg = 0.f;  // > 0: AO rays stop at nodes subtending this angle (svdag §4)
+  uint32_t seed = 0;         // per-image seed of the per-pixel sample hashes
+
+  bool active() const { return shadows != ShadowMode::None || ao_rays > 0; }
+};
+
+/// Throws voxcast::Error (one line) for invalid settings.
+void validate(const EffectOptions& options);
+
+/// One primary hit to shade.
+struct ShadingPoint {
+  Vec3 position;     // world hit position
+  Vec3 normal;       // unit shading normal, facing the viewer (dot(normal, view_dir) <= 0)
+  Vec3 view_dir;     // unit primary ray direction
+  float voxel_size;  // world side of the hit voxel (offset scale)
+};
+
+/// Start of every secondary ray of `p`: out of the hit voxel along the
+/// shading normal and back along the view ray,
+///   origin = position + voxel_size * (2 * normal - view_dir).
+/// Why 2 voxels: a conservative voxelization of a plane holds only voxels
+/// that touch the plane, i.e. lie within sqrt(3) voxels of it, and the primary
+/// hit is at height >= 0 above the plane (the voxel holding the crossing
+/// point is itself occupied, so the ray enters a voxel no later than that).
+/// The origin is then >= 2 + cos(view angle) > sqrt(3) voxels above the plane:
+/// a ray leaving a flat surface into its upper half space cannot hit the
+/// surface's own voxels (no shadow acne; tested). The price: contact
+/// shadows/occlusion closer than ~2 voxels to the surface are missed.
+Vec3 offset_origin(const ShadingPoint& p);
+
+/// Answers occlusion queries for the effects.
+class Occluder {
+ public:
+  virtual ~Occluder() = default;
+  /// Any hit within [0, ray.tmax] (unit direction).
+  virtual bool occluded(const Ray& ray, const LodFootprint& lod) const = 0;
+  /// Conservative beam pass (esvo §6.2 / svdag §4); default: no information.
+  virtual void beam_start(const BeamFrustum& beam, BeamStart* start) const {
+    (void)beam;
+    *start = BeamStart{};
+  }
+  /// occluded() for a ray of the beam `start` was computed for (finest level).
+  /// Must give exactly occluded()'s answer.
+  virtual bool occluded_in_beam(const Ray& ray, const BeamStart& start) const {
+    (void)start;
+    return occluded(ray, LodFootprint{});
+  }
+};
+
+/// A VoxelStructure as an Occluder (occluded(), beam_start(), trace_hinted()).
+class StructureOccluder final : public Occluder {
+ public:
+  explicit StructureOccluder(const VoxelStructure& s) : s_(s) {}
+  bool occluded(const Ray& ray, const LodFootprint& lod) const override { return s_.occluded(ray, lod); }
+  void beam_start(const BeamFrustum& beam, BeamStart* start) const override {
+    s_.beam_start(beam, start, nullptr);
+  }
+  bool occluded_in_beam(const Ray& ray, const BeamStart& start) const override;
+
+ private:
+  const VoxelStructure& s_;
+};
+
+/// Ray and beam counts of a frame (or of one pixel).
+struct EffectCounters {
+  uint64_t shadow_rays = 0;    // shadow rays traced (incl. the 4 corner rays in Corners mode)
+  uint64_t ao_rays = 0;        // AO rays traced
+  uint64_t beams = 0;          // soft-shadow beams (pixels with the light above the horizon)
+  uint64_t beams_lit = 0;      // beams that proved / declared the pixel fully lit
+  EffectCounters& operator+=(const EffectCounters& o) {
+    shadow_rays += o.shadow_rays, ao_rays += o.ao_rays, beams += o.beams, beams_lit += o.beams_lit;
+    return *this;
+  }
+};
+
+/// Per-pixel hash seed (x, y, image seed) -> 32 bits.
+uint32_t pixel_seed(int x, int y, uint32_t seed);
+
+/// Unit direction from `p` towards the light (the area light's center), and
+/// the light's distance (+inf for a directional light).
+Vec3 direction_to_light(const EffectOptions& o, Vec3 light_dir, Vec3 p, float* distance);
+
+/// Fraction of the light visible from `p` in [0, 1]: hard shadows 0 or 1,
+/// soft shadows the unoccluded fraction of o.shadow_rays stratified samples
+/// (svdag §4 beam per o.shadow_beam). Light directions below the surface
+/// (dot with the normal <= 0) count as occluded without a ray.
+float shadow_visibility(const Occluder& occ, const ShadingPoint& p, const EffectOptions& o,
+                        Vec3 light_dir, uint32_t seed, EffectCounters* counters);
+
+/// Ambient occlusion (1 = open, 0 = fully occluded) of `p` with o.ao_rays
+/// rays, falloff in sampling (Laine & Karras 2010b): the occlusion sought is
+///   1 - AO = integral over the hemisphere of cos(theta)/pi * f(d(w)) dw,
+/// d(w) = distance to the first hit, f(d) = 1 - (d/R)^2 on [0, R], 0 beyond.
+/// f(d) = P(L > d) for a ray length L with CDF (l/R)^2, i.e. L = R*sqrt(u),
+/// so each ray w ~ cos(theta)/pi gets length R*sqrt(u) and AO is the fraction
+/// of unoccluded rays: no hit distances, no weights, any-hit rays only.
+/// Samples: rotated Hammersley in (u1, u2) + base-3 radical inverse in u (one
+/// sample per stratum of each dimension), per-pixel Cranley-Patterson rotation.
+float ambient_occlusion(const Occluder& occ, const ShadingPoint& p, const EffectOptions& o,
+                        float radius, uint32_t seed, EffectCounters* counters);
+
+}  // namespace voxcast
