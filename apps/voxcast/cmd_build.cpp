@@ -21,6 +21,11 @@ struct BuildArgs {
   double voxel_size = std::nan("");
   int threads = 0;
   bool verbose = false;
+  bool contours = false;
+  int max_level = 0;
+  double geometry_error = std::nan(""), color_error = std::nan(""), normal_error = std::nan("");
+  bool out_of_core = false, no_attributes = false;
+  uint32_t cell_size = 0;
 };
 }  // namespace
 
@@ -46,7 +51,25 @@ Runner add_build(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--memory-budget", args->memory_budget,
                   "Refuse builds estimated to need more (e.g. 8G; default 90% of free memory)");
+  cmd->add_flag("--out-of-core", args->out_of_core,
+                "DAG: build sub-volume by sub-volume within --memory-budget (svdag section 3; "
+                "automatic when the in-core estimate exceeds the budget)");
+  cmd->add_option("--cell-size", args->cell_size,
+                  "DAG out-of-core: sub-volume side in voxels (power of two; default from the budget)");
+  cmd->add_flag("--no-attributes", args->no_attributes,
+                "DAG: geometry only (no colors/normals; needed at very high resolutions)");
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)");
+  cmd->add_flag("--contours", args->contours,
+                "Build contours (esvo 5.2, 7.2): voxels shaped by slabs; enables the options below");
+  cmd->add_option("--max-level", args->max_level,
+                  "With --contours: deepest octree level (default: the grid's levels)");
+  cmd->add_option("--geometry-error", args->geometry_error,
+                  "With --contours: variable depth; refine where the contoured shape is farther than "
+                  "this from the surface, in finest-level voxels (esvo 7.1)");
+  cmd->add_option("--color-error", args->color_error,
+                  "With --contours: variable depth; refine where colors below differ by more (0-255)");
+  cmd->add_option("--normal-error", args->normal_error,
+                  "With --contours: variable depth; refine where normals below differ by more (degrees)");
   cmd->add_flag("-v,--verbose", args->verbose, "Print timings per stage");
   return [args]() {
     ThreadLimit limit(args->threads);
@@ -65,8 +88,33 @@ Runner add_build(CLI::App& app) {
     if (args->format != "esvo" && args->format != "dag")
       throw Error("--format: '" + args->format + "' is not esvo or dag");
     s.dag = args->format == "dag";
+    const bool variable = args->max_level != 0 || !std::isnan(args->geometry_error) ||
+                          !std::isnan(args->color_error) || !std::isnan(args->normal_error);
+    if (variable && !args->contours) throw Error("--max-level and --*-error need --contours");
+    if (args->contours) {
+      if (s.dag) throw Error("--contours applies to --format esvo only");
+      if (args->max_level < 0) throw Error("--max-level must be positive");
+      auto tolerance = [](double v, const char* name, double hi) {
+        if (std::isnan(v)) return -1.0;
+        if (!(v >= 0) || !(v <= hi))
+          throw Error(std::string(name) + " must be in 0.." + std::to_string(int(hi)));
+        return v;
+      };
+      const double ge = tolerance(args->geometry_error, "--geometry-error", 1e6);
+      if (ge == 0) throw Error("--geometry-error must be positive");
+      s.contours = true;
+      s.max_level = args->max_level;
+      s.geometry_error = ge > 0 ? ge : 0;
+      s.color_error = tolerance(args->color_error, "--color-error", 255);
+      s.normal_error = tolerance(args->normal_error, "--normal-error", 180);
+    }
     if (s.dag && s.attributes != esvo::AttributeFormat::Raw)
       throw Error("--attributes compressed applies to --format esvo only");
+    if (!s.dag && (args->out_of_core || args->cell_size || args->no_attributes))
+      throw Error("--out-of-core, --cell-size and --no-attributes apply to --format dag only");
+    s.out_of_core = args->out_of_core || args->cell_size != 0;
+    s.cell_size = args->cell_size;
+    s.dag_attributes = !args->no_attributes;
     if (std::filesystem::is_directory(args->output))
       throw Error("output '" + args->output + "' is a directory");
     StageTimer total(false);
@@ -81,6 +129,10 @@ Runner add_build(CLI::App& app) {
       save_dag_scene(args->output, built.dag, info);
       timer.mark("write scene");
       const dag::DagStats st = built.dag.stats();
+      if (built.out_of_core)
+        std::printf("out-of-core: %llu cells of %u^3, voxelize %.2f s, reduce %.2f s\n",
+                    (unsigned long long)built.ooc.cells, built.ooc.cell_size,
+                    built.ooc.voxelize_seconds, built.ooc.reduce_seconds);
       std::printf("%s: %u^3 grid (%d levels), %llu leaf voxels, DAG %s (%.3f bits/leaf voxel, "
                   "%llu nodes vs %llu SVO nodes), %.2f s\n",
                   args->output.c_str(), built.dag.grid.resolution, built.dag.levels(),

@@ -118,7 +118,10 @@ Runner add_info(CLI::App& app) {
     auto mem = octree.memory_stats();
     uint64_t total_voxels = 0;
     for (auto& l : levels) total_voxels += l.voxels;
-    uint64_t leaves = levels.empty() ? 0 : levels.back().voxels;
+    // Leaves on every level (variable-depth contour builds stop early, esvo
+    // §7.1); equals the finest level's count for full-depth octrees.
+    uint64_t leaves = 0;
+    for (auto& l : levels) leaves += l.voxels - l.non_leaf;
     uint64_t file_bytes = std::filesystem::file_size(args->input);
     double hierarchy = double(mem.descriptor_bytes + mem.far_pointer_bytes +
                               mem.page_header_bytes + mem.info_bytes);
@@ -162,7 +165,10 @@ Runner add_info(CLI::App& app) {
                    {"pair_padding", mem.pair_padding_bytes},
                    {"colors", mem.color_bytes},
                    {"normals", mem.normal_bytes},
+                   {"contours", mem.contour_bytes},
                    {"total", mem.total_bytes}};
+    j["contours"] = octree.has_contours();
+    j["contour_count"] = mem.contour_count;
     const bool compressed = mem.attribute_format == esvo::AttributeFormat::Compressed;
     j["attributes"] = compressed ? "compressed" : "raw";
     if (args->json) {
@@ -176,6 +182,10 @@ Runner add_info(CLI::App& app) {
     std::printf("\nstructure   esvo, %u block(s), %s attributes (%s)\n", octree.block_count,
                 compressed ? "compressed" : "raw",
                 compressed ? "esvo 5.5: 24 B per descriptor pair" : "esvo 5.4: 8 B per voxel + lookup");
+    std::printf("contours    %s\n", octree.has_contours()
+                                     ? ("yes, " + std::to_string(mem.contour_count) +
+                                        " contour values (esvo 5.2, variable depth)").c_str()
+                                     : "no");
     std::printf("source      %s, %llu triangles, %s voxelization\n", info.source.c_str(),
                 (unsigned long long)info.source_triangles, info.voxelization.c_str());
     std::printf("grid        %u^3 (%d levels), voxel size %.6g, origin %.6g,%.6g,%.6g\n",
@@ -204,6 +214,8 @@ Runner add_info(CLI::App& app) {
                    : "lookup entries, 32-bit colors + 32-bit normals");
     row(" colors", double(mem.color_bytes), compressed ? "2 words per block" : "32-bit ABGR");
     row(" normals", double(mem.normal_bytes), compressed ? "4 words per block" : "32-bit cube normals");
+    if (octree.has_contours())
+      row("contours", double(mem.contour_bytes), "CONT: 32-bit contour values (pointer/mask word: hierarchy)");
     row("overhead", overhead + double(mem.pair_padding_bytes),
         compressed ? "padding (page alignment, far slots, sibling-pair gaps)"
                    : "padding (page alignment, unused far-pointer slots)");

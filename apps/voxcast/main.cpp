@@ -78,6 +78,7 @@ int main(int argc, char** argv) {
   add(add_render);
   add(add_info);
   add(add_bench);
+  add(add_generate);
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {

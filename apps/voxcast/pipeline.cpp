@@ -73,6 +73,22 @@ BuiltScene build_scene(const BuildSettings& s) {
   uint64_t budget = s.memory_budget;
   if (budget == 0) budget = uint64_t(double(available_memory_bytes()) * 0.9);
   uint64_t need = estimate_build_bytes(out.mesh, grid);
+  if (s.dag && (s.out_of_core || (budget && need > budget))) {
+    // svdag §3 "Implementation details": sub-volumes voxelized and reduced
+    // one at a time, peak memory bounded by the budget.
+    dag::OutOfCoreOptions oo;
+    oo.mode = s.mode;
+    oo.attributes = s.dag_attributes;
+    oo.memory_budget = budget;
+    oo.cell_size = s.cell_size;
+    out.dag = dag::build_dag_out_of_core(out.mesh, grid, oo, &out.ooc);
+    out.out_of_core = true;
+    out.leaf_voxels = out.dag.leaf_voxels;
+    out.voxelize_seconds = out.ooc.voxelize_seconds;
+    out.octree_seconds = out.ooc.reduce_seconds;
+    timer.mark("out-of-core DAG build");
+    return out;
+  }
   if (budget && need > budget)
     throw Error("resolution " + std::to_string(grid.resolution) + " needs an estimated " +
                 format_bytes(double(need)) + ", more than the " + format_bytes(double(budget)) +
@@ -84,6 +100,7 @@ BuiltScene build_scene(const BuildSettings& s) {
     VoxelizeOptions vo;
     vo.mode = s.mode;
     vo.progress = &progress;
+    vo.attributes = !s.dag || s.dag_attributes;
     voxels = voxelize(out.mesh, grid, vo);
   }
   out.voxelize_seconds = timer.mark("voxelize");
@@ -96,7 +113,16 @@ BuiltScene build_scene(const BuildSettings& s) {
   }
   esvo::BuildOptions build_options;
   build_options.attributes = s.attributes;
-  out.octree = esvo::build_octree(voxels, build_options);
+  if (s.contours) {
+    build_options.contours = true;
+    build_options.max_level = s.max_level;
+    build_options.geometry_error = s.geometry_error;
+    build_options.color_error = s.color_error;
+    build_options.normal_error = s.normal_error;
+    out.octree = esvo::build_octree(voxels, out.mesh, build_options);
+  } else {
+    out.octree = esvo::build_octree(voxels, build_options);
+  }
   out.octree_seconds = timer.mark("octree build");
   return out;
 }

@@ -18,6 +18,16 @@ struct BuildSettings {
   esvo::AttributeFormat attributes = esvo::AttributeFormat::Raw;  // esvo §5.4 / §5.5
   bool verbose = false;
   bool dag = false;  // build a sparse voxel DAG (BuiltScene::dag) instead of the ESVO
+  // DAG only: colors + normals per voxel (DATR); the out-of-core path
+  // (build_dag_out_of_core) when asked or when the in-core estimate exceeds
+  // the budget; cell_size 0 = chosen from the budget.
+  bool dag_attributes = true;
+  bool out_of_core = false;
+  uint32_t cell_size = 0;
+  // ESVO only (esvo §5.2, §7.1-7.3): contours and the variable-depth build.
+  bool contours = false;
+  int max_level = 0;
+  double geometry_error = 0, color_error = -1, normal_error = -1;
 };
 
 struct BuiltScene {
@@ -27,6 +37,8 @@ struct BuiltScene {
   dag::SparseVoxelDag dag;  // only when BuildSettings::dag
   uint64_t leaf_voxels = 0;
   double load_seconds = 0, voxelize_seconds = 0, octree_seconds = 0;
+  bool out_of_core = false;      // the DAG came from build_dag_out_of_core
+  dag::OutOfCoreReport ooc;      // when out_of_core
 };
 
 /// Rough upper estimate of the peak bytes voxelizing `mesh` into `grid` takes

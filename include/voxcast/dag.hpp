@@ -116,6 +116,32 @@ class SparseVoxelDag {
 /// copied when the set has them. Deterministic for any thread count.
 SparseVoxelDag build_dag(const VoxelSet& voxels);
 
+/// Out-of-core construction (svdag §3 "Implementation details"; src/dag/build_ooc.cpp).
+struct OutOfCoreOptions {
+  VoxelizationMode mode = VoxelizationMode::Conservative;
+  bool attributes = false;     // store colors + normals (8 B per voxel in memory)
+  uint64_t memory_budget = 0;  // bytes; 0 = 90% of available memory
+  uint32_t cell_size = 0;      // sub-volume side, power of two >= 4; 0 = from the budget
+  bool progress = true;        // progress bar with ETA on a TTY
+};
+struct OutOfCoreReport {
+  uint32_t cell_size = 0;
+  uint64_t cells = 0;                 // non-empty cells
+  uint64_t max_cell_voxels = 0;
+  uint64_t estimated_cell_bytes = 0;  // working set of the fullest cell (estimate)
+  uint64_t fixed_bytes = 0;           // mesh + grid-unit vertices + triangle bins
+  double voxelize_seconds = 0, reduce_seconds = 0, total_seconds = 0;
+};
+/// Voxelizes `mesh` into `grid` one sub-volume (aligned 2^c cube, Morton
+/// order) at a time, reduces each to a sub-DAG merged into global per-level
+/// tables of unique nodes, then builds the levels above the cells. The result
+/// is byte-identical to build_dag(voxelize(mesh, grid, {mode, attributes})).
+/// Throws voxcast::Error when even the smallest cells cannot fit the budget,
+/// when the DAG outgrows it, or past 2^32 - 1 voxels.
+SparseVoxelDag build_dag_out_of_core(const Mesh& mesh, const GridTransform& grid,
+                                     const OutOfCoreOptions& options,
+                                     OutOfCoreReport* report = nullptr);
+
 /// World-space bounds of the occupied voxels resolved to `max_level`.
 Aabb occupied_bounds(const SparseVoxelDag& dag, int max_level = 7);
 
@@ -148,7 +174,7 @@ class DagStructure final : public VoxelStructure {
   /// child = entered face (see CastResult::face).
   bool trace(const Ray& ray, const LodFootprint& lod, SurfaceHit* hit) const override;
   /// Any hit within [0, ray.tmax] (stops at the first leaf; for shadow rays).
-  bool occluded(const Ray& ray, const LodFootprint& lod = {}) const;
+  bool occluded(const Ray& ray, const LodFootprint& lod = {}) const override;
   void attributes(const SurfaceHit& hit, Color* color, Vec3* normal) const override;
   std::string name() const override { return "dag"; }
   const SparseVoxelDag& dag() const { return *dag_; }

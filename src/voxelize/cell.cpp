@@ -1,0 +1,197 @@
+// Cell-restricted surface voxelization for out-of-core DAG builds (svdag §3,
+// "Implementation details": sub-volumes voxelized and reduced one at a time).
+// See cell.hpp for the exactness contract; the rasterizer is voxelize/raster.hpp,
+// the same one voxelize() uses, limited to the cell's box.
+#include <fmt/format.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_sort.h>
+
+#include <algorithm>
+#include <array>
+#include <bit>
+#include <cmath>
+#include <vector>
+
+#include "voxcast/error.hpp"
+#include "voxcast/morton.hpp"
+#include "voxelize/cell.hpp"
+#include "voxelize/internal.hpp"
+#include "voxelize/raster.hpp"
+
+namespace voxcast::detail {
+
+namespace {
+
+using raster::ceil_clamped;
+using raster::floor_clamped;
+using raster::raster_triangle_box;
+
+
+struct Pair {
+  uint64_t code;
+  uint32_t tri;
+  bool operator<(const Pair& o) const { return code != o.code ? code < o.code : tri < o.tri; }
+};
+
+// Rasterizes the listed triangles into the box, in blocks of triangles run in
+// parallel; the blocks are concatenated in block order (= triangle order).
+template <class Rec, class Make>
+std::vector<Rec> raster_cell(const Mesh& mesh, const std::vector<std::array<double, 3>>& gv,
+                             const uint32_t* tris, size_t count, int n, bool six,
+                             const int box_lo[3], const int box_hi[3], Make make) {
+  constexpr size_t kBlock = 64;
+  const size_t nblocks = (count + kBlock - 1) / kBlock;
+  std::vector<std::vector<Rec>> blocks(nblocks);
+  tbb::parallel_for(size_t(0), nblocks, [&](size_t b) {
+    std::vector<Rec>& out = blocks[b];
+    for (size_t i = b * kBlock, e = std::min(count, i + kBlock); i < e; ++i) {
+      const uint32_t t = tris[i];
+      double v[3][3];
+      for (int k = 0; k < 3; ++k)
+        for (int a = 0; a < 3; ++a) v[k][a] = gv[mesh.indices[3 * size_t(t) + size_t(k)]][size_t(a)];
+      raster_triangle_box(v, n, six, box_lo, box_hi,
+                          [&](uint64_t code) { out.push_back(make(code, t)); });
+    }
+  });
+  size_t total = 0;
+  for (const auto& b : blocks) total += b.size();
+  std::vector<Rec> all;
+  all.reserve(total);
+  for (auto& b : blocks) {
+    all.insert(all.end(), b.begin(), b.end());
+    b = {};
+  }
+  return all;
+}
+
+}  // namespace
+
+std::vector<std::array<double, 3>> grid_vertices(const Mesh& mesh, const GridTransform& grid) {
+  // Same expression as voxelize.cpp step 0, so the rasterizer sees the same doubles.
+  std::vector<std::array<double, 3>> gv(mesh.positions.size());
+  const double inv = 1.0 / grid.voxel_size;
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, gv.size(), 1 << 14), [&](const auto& r) {
+    for (size_t i = r.begin(); i < r.end(); ++i)
+      for (int a = 0; a < 3; ++a)
+        gv[i][size_t(a)] = (double(mesh.positions[i][a]) - double(grid.origin[a])) * inv;
+  });
+  return gv;
+}
+
+bool triangle_voxel_range(const std::vector<std::array<double, 3>>& gv, const Mesh& mesh, size_t t,
+                          uint32_t resolution, uint32_t lo[3], uint32_t hi[3]) {
+  const int n = int(resolution);
+  for (int a = 0; a < 3; ++a) {
+    double mn = gv[mesh.indices[3 * t]][size_t(a)], mx = mn;
+    for (int k = 1; k < 3; ++k) {
+      const double x = gv[mesh.indices[3 * t + size_t(k)]][size_t(a)];
+      mn = std::min(mn, x);
+      mx = std::max(mx, x);
+    }
+    const int l = std::max(0, ceil_clamped(mn, -4, n + 4) - 1);
+    const int h = std::min(n - 1, floor_clamped(mx, -4, n + 4));
+    if (l > h) return false;
+    lo[a] = uint32_t(l);
+    hi[a] = uint32_t(h);
+  }
+  return true;
+}
+
+void triangle_voxels_in_box(const double tri[3][3], uint32_t resolution, VoxelizationMode mode,
+                            const int box_lo[3], const int box_hi[3], std::vector<uint64_t>& out) {
+  if (resolution == 0 || !std::has_single_bit(resolution) || resolution > (1u << kMaxGridLevels))
+    throw Error(fmt::format("grid resolution {} is not a power of two between 1 and {}", resolution,
+                            1u << kMaxGridLevels));
+  for (int a = 0; a < 3; ++a)
+    if (box_lo[a] < 0 || box_hi[a] >= int(resolution))
+      throw Error("triangle_voxels_in_box: box outside the grid");
+  raster_triangle_box(tri, int(resolution), mode == VoxelizationMode::SixSeparating, box_lo, box_hi,
+                      [&out](uint64_t code) { out.push_back(code); });
+}
+
+VoxelSet voxelize_cell(const Mesh& mesh, const GridTransform& grid,
+                       const std::vector<std::array<double, 3>>& gv, const uint32_t* tris,
+                       size_t tri_count, const uint32_t cell_lo[3], uint32_t cell_size,
+                       const VoxelizeOptions& opt) {
+  const int n = int(grid.resolution);
+  const bool six = opt.mode == VoxelizationMode::SixSeparating;
+  int box_lo[3], box_hi[3];
+  for (int a = 0; a < 3; ++a) {
+    box_lo[a] = int(cell_lo[a]);
+    box_hi[a] = int(std::min<uint64_t>(uint64_t(cell_lo[a]) + cell_size, uint64_t(n)) - 1);
+  }
+  VoxelSet out;
+  out.grid = grid;
+  if (!opt.attributes) {
+    std::vector<uint64_t> codes = raster_cell<uint64_t>(
+        mesh, gv, tris, tri_count, n, six, box_lo, box_hi, [](uint64_t c, uint32_t) { return c; });
+    tbb::parallel_sort(codes.begin(), codes.end());
+    codes.erase(std::unique(codes.begin(), codes.end()), codes.end());
+    codes.shrink_to_fit();
+    out.codes = std::move(codes);
+    return out;
+  }
+
+  // (code, triangle) pairs in (code, triangle) order: each voxel's triangles
+  // are summed in ascending triangle order, as voxelize() does, so the float
+  // results are identical.
+  std::vector<Pair> pairs = raster_cell<Pair>(mesh, gv, tris, tri_count, n, six, box_lo, box_hi,
+                                              [](uint64_t c, uint32_t t) { return Pair{c, t}; });
+  tbb::parallel_sort(pairs.begin(), pairs.end());
+  std::vector<size_t> starts;  // first pair of every voxel
+  for (size_t i = 0; i < pairs.size(); ++i)
+    if (i == 0 || pairs[i].code != pairs[i - 1].code) starts.push_back(i);
+  const size_t nvox = starts.size();
+  starts.push_back(pairs.size());
+  out.codes.resize(nvox);
+  out.colors.resize(nvox);
+  out.normals.resize(nvox);
+  out.weights.resize(nvox);
+  auto tri_verts = [&](uint32_t t, double v[3][3]) {
+    for (int k = 0; k < 3; ++k)
+      for (int a = 0; a < 3; ++a) v[k][a] = gv[mesh.indices[3 * size_t(t) + size_t(k)]][size_t(a)];
+  };
+  // Box filter, the same arithmetic in the same order as voxelize.cpp step 3.
+  tbb::parallel_for(size_t(0), nvox, [&](size_t vox) {
+    const uint64_t code = pairs[starts[vox]].code;
+    const MortonCoord xyz = morton_decode(code);
+    double wsum = 0, col[4] = {0, 0, 0, 0}, nsum[3] = {0, 0, 0};
+    double best_w = -1;
+    uint32_t best_tri = 0;
+    for (size_t j = starts[vox]; j < starts[vox + 1]; ++j) {
+      const uint32_t t = pairs[j].tri;
+      double tri[3][3];
+      tri_verts(t, tri);
+      VoxelClip clip = clip_triangle_to_voxel(tri, xyz.x, xyz.y, xyz.z);
+      const double wgt = std::max(clip.area, kTouchWeight);
+      const Color c = mesh.surface_color(t, clip.bary_u, clip.bary_v);
+      const Vec3 nm = mesh.surface_normal(t, clip.bary_u, clip.bary_v);
+      wsum += wgt;
+      col[0] += wgt * c.r, col[1] += wgt * c.g, col[2] += wgt * c.b, col[3] += wgt * c.a;
+      nsum[0] += wgt * nm.x, nsum[1] += wgt * nm.y, nsum[2] += wgt * nm.z;
+      if (wgt > best_w) best_w = wgt, best_tri = t;
+    }
+    out.codes[vox] = code;
+    out.colors[vox] = {float(col[0] / wsum), float(col[1] / wsum), float(col[2] / wsum),
+                       float(col[3] / wsum)};
+    double len = std::sqrt(nsum[0] * nsum[0] + nsum[1] * nsum[1] + nsum[2] * nsum[2]);
+    if (len > 1e-6 * wsum) {
+      out.normals[vox] = {float(nsum[0] / len), float(nsum[1] / len), float(nsum[2] / len)};
+    } else {
+      double tri[3][3];
+      tri_verts(best_tri, tri);
+      double a[3], b[3];
+      for (int k = 0; k < 3; ++k) a[k] = tri[1][k] - tri[0][k], b[k] = tri[2][k] - tri[0][k];
+      double fn[3] = {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                      a[0] * b[1] - a[1] * b[0]};
+      double fl = std::sqrt(fn[0] * fn[0] + fn[1] * fn[1] + fn[2] * fn[2]);
+      out.normals[vox] = fl > 0 ? Vec3{float(fn[0] / fl), float(fn[1] / fl), float(fn[2] / fl)}
+                                : Vec3{0, 0, 1};
+    }
+    out.weights[vox] = float(wsum);
+  });
+  return out;
+}
+
+}  // namespace voxcast::detail
