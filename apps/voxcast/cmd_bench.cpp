@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <memory>
+#include <sstream>
 #include <thread>
 #include <vector>
 
@@ -32,6 +33,7 @@ struct BenchArgs {
   int repeat = 5, threads = 0, beam = 8;
   double min_coverage = 0.3;
   bool verbose = false;
+  bool contours = false;
   // --effects (svdag §4): shadow and AO occlusion rays
   bool effects = false;
   int ao_rays = 64;
@@ -92,7 +94,9 @@ Runner add_bench(CLI::App& app) {
   cmd->add_option("MESH", args->input, "Input mesh")->required();
   cmd->add_option("--resolution", args->resolution, "Voxels per axis (power of two)")
       ->capture_default_str();
-  cmd->add_option("--size", args->size, "Image size WxH")->capture_default_str();
+  cmd->add_option("--size", args->size,
+                  "Image size WxH, or a comma-separated list of sizes measured one after another")
+      ->capture_default_str();
   cmd->add_option("--camera", args->camera,
                   "ex,ey,ez,tx,ty,tz,ux,uy,uz,fovy or auto (frames the mesh so that at least "
                   "--min-coverage of the pixels hit it)")
@@ -111,6 +115,9 @@ Runner add_bench(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)");
   cmd->add_flag("-v,--verbose", args->verbose, "Print timings per stage");
+  cmd->add_flag("--contours", args->contours,
+                "Also build the same voxels with contours (esvo section 5.2) and measure them, with "
+                "and without the beam (the shape of esvo Table 4)");
   cmd->add_flag("--effects", args->effects,
                 "Also measure shadow and AO rays (svdag section 4) on the ESVO, a DAG of the same "
                 "voxels and Embree rtcOccluded1");
@@ -120,8 +127,17 @@ Runner add_bench(CLI::App& app) {
       ->capture_default_str();
   return [args]() {
     ThreadLimit limit(args->threads);
-    int width = 0, height = 0;
-    parse_size(args->size, &width, &height);
+    std::vector<std::pair<int, int>> sizes;
+    {
+      std::stringstream list(args->size);
+      std::string one;
+      while (std::getline(list, one, ',')) {
+        int w = 0, h = 0;
+        parse_size(one, &w, &h);
+        sizes.emplace_back(w, h);
+      }
+      if (sizes.empty()) throw Error("--size: no size given");
+    }
     if (args->repeat < 1 || args->repeat > 1000) throw Error("--repeat must be in 1..1000");
     if (args->beam != 0 && args->beam != 4 && args->beam != 8) throw Error("--beam must be 0, 4 or 8");
     if (!(args->min_coverage >= 0 && args->min_coverage <= 0.95))
@@ -139,7 +155,18 @@ Runner add_bench(CLI::App& app) {
     auto octree = std::make_shared<esvo::EsvoOctree>(std::move(built.octree));
     esvo::EsvoStructure voxels(octree);
     EmbreeScene embree(built.mesh);
+    std::shared_ptr<esvo::EsvoOctree> contoured;
+    double contour_build_seconds = 0;
+    if (args->contours) {
+      BuildSettings cs = s;
+      cs.contours = true;
+      BuiltScene cb = build_scene(cs);
+      contour_build_seconds = cb.voxelize_seconds + cb.octree_seconds;
+      contoured = std::make_shared<esvo::EsvoOctree>(std::move(cb.octree));
+    }
 
+    for (size_t size_index = 0; size_index < sizes.size(); ++size_index) {
+    const int width = sizes[size_index].first, height = sizes[size_index].second;
     Camera camera;
     if (args->camera == "auto") {
       camera = Camera::frame(built.mesh.bounds(), width, height);
@@ -164,19 +191,28 @@ Runner add_bench(CLI::App& app) {
     ro_beam.beam = args->beam;
 
     double best_vox = 1e30, best_beam = 1e30, best_e1 = 1e30, best_e8 = 1e30;
+    double best_cont = 1e30, best_cont_beam = 1e30;
     RenderResult vox_result;
     EmbreeScene::DepthRender e1;
+    std::unique_ptr<esvo::EsvoStructure> contour_voxels;
+    if (contoured) contour_voxels = std::make_unique<esvo::EsvoStructure>(contoured);
     render(voxels, ro);  // warm-up: page in the octree, spin up the TBB workers
+    if (contour_voxels) render(*contour_voxels, ro);
     for (int r = 0; r < args->repeat; ++r) {
       vox_result = render(voxels, ro);
       best_vox = std::min(best_vox, vox_result.seconds);
       if (args->beam) best_beam = std::min(best_beam, render(voxels, ro_beam).seconds);
+      if (contour_voxels) {
+        best_cont = std::min(best_cont, render(*contour_voxels, ro).seconds);
+        if (args->beam) best_cont_beam = std::min(best_cont_beam, render(*contour_voxels, ro_beam).seconds);
+      }
       e1 = embree.render_depth(camera, width, height, EmbreeScene::Mode::Single);
       best_e1 = std::min(best_e1, e1.seconds);
       auto e8 = embree.render_depth(camera, width, height, EmbreeScene::Mode::Packet8);
       best_e8 = std::min(best_e8, e8.seconds);
     }
     double rays = double(width) * height;
+    double m_cont = rays / best_cont * 1e-6, m_cont_beam = rays / best_cont_beam * 1e-6;
     double m_vox = rays / best_vox * 1e-6, m_beam = rays / best_beam * 1e-6, m_e1 = rays / best_e1 * 1e-6,
            m_e8 = rays / best_e8 * 1e-6;
 
@@ -210,11 +246,18 @@ Runner add_bench(CLI::App& app) {
                 format_bytes(double(embree.memory_bytes())).c_str());
     std::printf("voxcast     %8.2f Mrays/s\n", m_vox);
     if (args->beam) std::printf("voxcast+beam%8.2f Mrays/s (beam %dx%d, coarse pass included)\n", m_beam, args->beam, args->beam);
+    if (contour_voxels) {
+      std::printf("contours    %8.2f Mrays/s (build %.2f s, %s)\n", m_cont, contour_build_seconds,
+                  format_bytes(double(contoured->memory_stats().total_bytes)).c_str());
+      if (args->beam)
+        std::printf("contours+beam%7.2f Mrays/s (beam %dx%d)\n", m_cont_beam, args->beam, args->beam);
+    }
     std::printf("embree x1   %8.2f Mrays/s (rtcIntersect1)\n", m_e1);
     std::printf("embree x8   %8.2f Mrays/s (rtcIntersect8)\n", m_e8);
-    std::printf("ratio voxcast/embree: %.3f\n",
-                std::max(m_vox, args->beam ? m_beam : 0.0) / std::max(m_e1, m_e8));
-    if (args->effects) {
+    double best_voxcast = std::max(m_vox, args->beam ? m_beam : 0.0);
+    if (contour_voxels) best_voxcast = std::max({best_voxcast, m_cont, args->beam ? m_cont_beam : 0.0});
+    std::printf("ratio voxcast/embree: %.3f\n", best_voxcast / std::max(m_e1, m_e8));
+    if (args->effects && size_index == 0) {
       // Shading points: the ESVO's primary hits of this frame (finest level,
       // voxel normals), offset once (effects.hpp); every caster gets the
       // very same occlusion rays.
@@ -279,6 +322,7 @@ Runner add_bench(CLI::App& app) {
                   "esvo == dag on %.3f%% of points\n",
                   100.0 * double(same_shadow) / np, ao_diff / np, 100.0 * double(same_dag) / np);
     }
+    }  // sizes
     return 0;
   };
 }
