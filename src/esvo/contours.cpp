@@ -147,13 +147,21 @@ double dist2_point_triangle(V3 p, V3 a, V3 b, V3 c) {
   return d2of(a + ab * (vb * denom) + ac * (vc * denom));
 }
 
-/// Keeps the part of polygon `in` with n . x <= off (Sutherland-Hodgman;
-/// points on the plane are kept, so touching geometry survives).
-void clip_polygon(const std::vector<V3>& in, V3 n, double off, std::vector<V3>& out) {
-  out.clear();
-  const size_t k = in.size();
+/// Appends to `out` the part of polygon in[0..k) with n . x <= off
+/// (Sutherland-Hodgman; points on the plane are kept, so touching geometry
+/// survives). A polygon with no vertex beyond the plane is copied as is: that
+/// is exactly what the general loop produces (no crossing edges), found
+/// without the per-edge work -- most clips in the recursion are such no-ops.
+template <class Out>
+void clip_append(const V3* in, size_t k, V3 n, double off, Out& out) {
+  bool any_out = false;
+  for (size_t i = 0; i < k; ++i) any_out |= dot(n, in[i]) - off > 0;
+  if (!any_out) {
+    out.insert(out.end(), in, in + k);
+    return;
+  }
   for (size_t i = 0; i < k; ++i) {
-    const V3 a = in[i], b = in[(i + 1) % k];
+    const V3 a = in[i], b = in[i + 1 == k ? 0 : i + 1];
     const double da = dot(n, a) - off, db = dot(n, b) - off;
     if (da <= 0) out.push_back(a);
     if ((da < 0 && db > 0) || (da > 0 && db < 0)) out.push_back(a + (b - a) * (da / (da - db)));
@@ -161,9 +169,12 @@ void clip_polygon(const std::vector<V3>& in, V3 n, double off, std::vector<V3>& 
 }
 
 /// Convex polyhedron as a list of convex faces; only its vertices are used.
+/// Faces are stored flat (face f = v_[end_[f-1], end_[f])) and the buffers
+/// are reused: one Polyhedron per thread is reset for every voxel, so the
+/// recursion allocates only while the buffers grow.
 class Polyhedron {
  public:
-  Polyhedron(V3 lo, double s) {
+  void reset(V3 lo, double s) {
     const V3 c[8] = {lo,
                      lo + V3{s, 0, 0},
                      lo + V3{0, s, 0},
@@ -172,51 +183,79 @@ class Polyhedron {
                      lo + V3{s, 0, s},
                      lo + V3{0, s, s},
                      lo + V3{s, s, s}};
-    faces_ = {{c[0], c[2], c[3], c[1]}, {c[4], c[5], c[7], c[6]}, {c[0], c[1], c[5], c[4]},
-              {c[2], c[6], c[7], c[3]}, {c[0], c[4], c[6], c[2]}, {c[1], c[3], c[7], c[5]}};
+    v_ = {c[0], c[2], c[3], c[1], c[4], c[5], c[7], c[6], c[0], c[1], c[5], c[4],
+          c[2], c[6], c[7], c[3], c[0], c[4], c[6], c[2], c[1], c[3], c[7], c[5]};
+    end_ = {4, 8, 12, 16, 20, 24};
   }
   /// Keeps n . x <= off; the cut adds a cap face.
   void clip(V3 n, double off) {
-    std::vector<std::vector<V3>> out;
-    std::vector<V3> cap, f;
-    for (const auto& face : faces_) {
-      clip_polygon(face, n, off, f);
-      for (const V3& p : f)
-        if (std::fabs(dot(n, p) - off) <= 1e-12 * (std::fabs(off) + 1)) cap.push_back(p);
-      if (f.size() >= 3) out.push_back(f);
+    const double tol = 1e-12 * (std::fabs(off) + 1);
+    // Fast exit, exact: with no vertex beyond the plane every face is kept
+    // as is, and the cap face is only added when >= 3 (face) vertices lie
+    // on the plane -- the general path below would produce the same faces.
+    bool any_out = false;
+    int on = 0;
+    for (const V3& p : v_) {
+      const double d = dot(n, p) - off;
+      any_out |= d > 0;
+      on += std::fabs(d) <= tol;
     }
-    if (cap.size() >= 3) {
+    if (!any_out && on < 3) return;
+
+    nv_.clear();
+    nend_.clear();
+    cap_.clear();
+    size_t b = 0;
+    for (const uint32_t e : end_) {
+      const size_t s = nv_.size();
+      clip_append(v_.data() + b, e - b, n, off, nv_);
+      b = e;
+      for (size_t i = s; i < nv_.size(); ++i)
+        if (std::fabs(dot(n, nv_[i]) - off) <= tol) cap_.push_back(nv_[i]);
+      if (nv_.size() - s >= 3)
+        nend_.push_back(uint32_t(nv_.size()));
+      else
+        nv_.resize(s);
+    }
+    if (cap_.size() >= 3) {
       // Order the cap points by angle around their centroid in the plane.
       V3 m{0, 0, 0};
-      for (const V3& p : cap) m = m + p;
-      m = m * (1.0 / double(cap.size()));
+      for (const V3& p : cap_) m = m + p;
+      m = m * (1.0 / double(cap_.size()));
       const V3 a = std::fabs(n.x) < 0.9 * len(n) ? V3{1, 0, 0} : V3{0, 1, 0};
       const V3 u = cross(n, a), v = cross(n, u);
-      std::sort(cap.begin(), cap.end(), [&](V3 p, V3 q) {
-        return std::atan2(dot(p - m, v), dot(p - m, u)) < std::atan2(dot(q - m, v), dot(q - m, u));
-      });
-      out.push_back(cap);
+      // The angle is computed once per point instead of twice per
+      // comparison; std::sort sees the same comparison results, so the
+      // permutation (ties included) is the one of the per-comparison form.
+      keyed_.clear();
+      for (const V3& p : cap_) keyed_.push_back({std::atan2(dot(p - m, v), dot(p - m, u)), p});
+      std::sort(keyed_.begin(), keyed_.end(),
+                [](const std::pair<double, V3>& p, const std::pair<double, V3>& q) { return p.first < q.first; });
+      for (const auto& kp : keyed_) nv_.push_back(kp.second);
+      nend_.push_back(uint32_t(nv_.size()));
     }
-    faces_ = std::move(out);
+    v_.swap(nv_);
+    end_.swap(nend_);
   }
   void clip(const GridSlab& s) {
     clip(s.n, s.hi);
     clip(s.n * -1.0, -s.lo);
   }
-  std::vector<V3> vertices() const {
-    std::vector<V3> v;
-    for (const auto& f : faces_) v.insert(v.end(), f.begin(), f.end());
+  /// The distinct vertices, sorted (into `v`, reused).
+  void vertices(std::vector<V3>& v) const {
+    v.assign(v_.begin(), v_.end());
     // Drop exact duplicates (shared by adjacent faces).
     std::sort(v.begin(), v.end(), [](V3 a, V3 b) {
       return a.x != b.x ? a.x < b.x : a.y != b.y ? a.y < b.y : a.z < b.z;
     });
     v.erase(std::unique(v.begin(), v.end(), [](V3 a, V3 b) { return a.x == b.x && a.y == b.y && a.z == b.z; }),
             v.end());
-    return v;
   }
 
  private:
-  std::vector<std::vector<V3>> faces_;
+  std::vector<V3> v_, nv_, cap_;
+  std::vector<uint32_t> end_, nend_;
+  std::vector<std::pair<double, V3>> keyed_;
 };
 
 struct Candidate {
@@ -235,6 +274,8 @@ class Planner {
     const size_t T = mesh.triangle_count();
     tri_.resize(T);
     normal_.resize(T);
+    tlo_.resize(T);
+    thi_.resize(T);
     boundary_.assign(T, 0);
     for (size_t i = 0; i < T; ++i) {
       for (int k = 0; k < 3; ++k) {
@@ -245,6 +286,11 @@ class Planner {
       const V3 n = cross(tri_[i][1] - tri_[i][0], tri_[i][2] - tri_[i][0]);
       const double l = len(n);
       normal_[i] = l > 0 ? n * (1.0 / l) : V3{0, 0, 0};
+      const auto& v = tri_[i];
+      tlo_[i] = {std::min({v[0].x, v[1].x, v[2].x}), std::min({v[0].y, v[1].y, v[2].y}),
+                 std::min({v[0].z, v[1].z, v[2].z})};
+      thi_[i] = {std::max({v[0].x, v[1].x, v[2].x}), std::max({v[0].y, v[1].y, v[2].y}),
+                 std::max({v[0].z, v[1].z, v[2].z})};
     }
     find_boundary_edges(mesh);
     contour_tol_ = o.geometry_error > 0 ? o.geometry_error : kDefaultContourTolerance;
@@ -339,10 +385,11 @@ class Planner {
       bool ok = false;
       for (uint32_t t : tris) {
         const auto& v = tri_[t];
-        // Cheap reject by the triangle's bounding box.
-        const double bx = std::max(std::min({v[0].x, v[1].x, v[2].x}) - p.x, p.x - std::max({v[0].x, v[1].x, v[2].x}));
-        const double by = std::max(std::min({v[0].y, v[1].y, v[2].y}) - p.y, p.y - std::max({v[0].y, v[1].y, v[2].y}));
-        const double bz = std::max(std::min({v[0].z, v[1].z, v[2].z}) - p.z, p.z - std::max({v[0].z, v[1].z, v[2].z}));
+        // Cheap reject by the triangle's bounding box (precomputed).
+        const V3 bl = tlo_[t], bh = thi_[t];
+        const double bx = std::max(bl.x - p.x, p.x - bh.x);
+        const double by = std::max(bl.y - p.y, p.y - bh.y);
+        const double bz = std::max(bl.z - p.z, p.z - bh.z);
         if (bx > tol || by > tol || bz > tol) continue;
         if (dist2_point_triangle(p, v[0], v[1], v[2]) <= tol2) {
           ok = true;
@@ -354,23 +401,46 @@ class Planner {
     return true;
   }
 
-  /// Quantizes direction `dir` to a contour normal and fits the slab around
-  /// the surface points (§7.2), scoring it against P's vertices (Figure 22).
-  bool fit(V3 dir, const std::vector<V3>& pv, const std::vector<V3>& pts, V3 lo, double S, int depth,
-           Candidate* out) const {
+  /// Quantizes direction `dir` to the 6-bit contour normal; false for a zero
+  /// direction.
+  static bool quantize(V3 dir, int n[3]) {
     const double m = std::max({std::fabs(dir.x), std::fabs(dir.y), std::fabs(dir.z)});
     if (!(m > 0)) return false;
+    n[0] = std::clamp(int(std::lround(dir.x * 31.0 / m)), -32, 31);
+    n[1] = std::clamp(int(std::lround(dir.y * 31.0 / m)), -32, 31);
+    n[2] = std::clamp(int(std::lround(dir.z * 31.0 / m)), -32, 31);
+    return true;
+  }
+
+  /// Per candidate normal c (SoA, quantized), the range of n_c . p over
+  /// `pts`, updated into mn[c] / mx[c]. One pass over the points for all
+  /// candidates: the points are read once instead of once per candidate, and
+  /// the inner loop over candidates is independent per lane, so it
+  /// vectorizes without reordering any reduction -- each mn[c] / mx[c] sees
+  /// the points in the same order and the same dot() arithmetic as a
+  /// per-candidate loop, hence bit-identical extrema.
+  static void ranges(const std::vector<V3>& pts, size_t C, const double* nx, const double* ny, const double* nz,
+                     double* mn, double* mx) {
+    for (size_t c = 0; c < C; ++c) mn[c] = INFINITY, mx[c] = -INFINITY;
+    for (const V3& p : pts)
+      for (size_t c = 0; c < C; ++c) {
+        const double d = nx[c] * p.x + ny[c] * p.y + nz[c] * p.z;  // = dot(n, p)
+        mn[c] = d < mn[c] ? d : mn[c];                             // = std::min(mn, d)
+        mx[c] = mx[c] < d ? d : mx[c];                             // = std::max(mx, d)
+      }
+  }
+
+  /// Fits the slab of quantized normal n around the surface points' range
+  /// [smin, smax] (§7.2) and scores it against P's range [pmin, pmax]
+  /// (Figure 22).
+  bool fit(const int n_[3], double pmin, double pmax, double smin, double smax, V3 lo, double S, int depth,
+           Candidate* out) const {
     Candidate c;
-    c.n[0] = std::clamp(int(std::lround(dir.x * 31.0 / m)), -32, 31);
-    c.n[1] = std::clamp(int(std::lround(dir.y * 31.0 / m)), -32, 31);
-    c.n[2] = std::clamp(int(std::lround(dir.z * 31.0 / m)), -32, 31);
+    c.n[0] = n_[0], c.n[1] = n_[1], c.n[2] = n_[2];
     const V3 n{double(c.n[0]), double(c.n[1]), double(c.n[2])};
     const double nl = len(n);
     const V3 center = lo + V3{0.5 * S, 0.5 * S, 0.5 * S};
     const double nc = dot(n, center);
-    double pmin = INFINITY, pmax = -INFINITY, smin = INFINITY, smax = -INFINITY;
-    for (const V3& p : pv) pmin = std::min(pmin, dot(n, p)), pmax = std::max(pmax, dot(n, p));
-    for (const V3& p : pts) smin = std::min(smin, dot(n, p)), smax = std::max(smax, dot(n, p));
     // Voxel-relative range of n . (x - c) / S, widened by the margin.
     const double margin = nl * (std::ldexp(1.0, depth - 21) + 1e-6);
     const double a = (smin - nc) / S, b = (smax - nc) / S;
@@ -421,24 +491,49 @@ class Planner {
     const V3 lo{cx * S, cy * S, cz * S};
     const V3 hi = lo + V3{S, S, S};
 
+    // Per-thread scratch, reused across voxels (the recursion used to spend
+    // a sixth of its time in malloc/free). Only used between here and the
+    // recursive node() call below -- no TBB call happens while it is live,
+    // so a task stolen by this thread cannot clobber it. ct is carried down
+    // the recursion and stays a per-voxel vector.
+    struct Scratch {
+      std::vector<V3> pts, poly, tmp, cand_dirs, pv;
+      std::vector<std::array<int, 3>> qn;
+      std::vector<double> f;
+      Polyhedron P;
+    };
+    thread_local Scratch sc;
+    std::vector<V3>& pts = sc.pts;
+    std::vector<V3>& poly = sc.poly;
+    std::vector<V3>& tmp = sc.tmp;
+    std::vector<V3>& cand_dirs = sc.cand_dirs;
+    std::vector<V3>& pv = sc.pv;
+    pts.clear();
+    cand_dirs.clear();
+
     // 1. The surface inside the cube.
     std::vector<uint32_t> ct;
-    std::vector<V3> pts, poly, tmp;
-    std::vector<V3> cand_dirs;
     V3 mean{0, 0, 0};
+    const V3 planes[6] = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
+    const double offs[6] = {hi.x, -lo.x, hi.y, -lo.y, hi.z, -lo.z};
     for (uint32_t t : tris) {
+      const V3 bl = tlo_[t], bh = thi_[t];
+      if (bh.x < lo.x || bl.x > hi.x || bh.y < lo.y || bl.y > hi.y || bh.z < lo.z || bl.z > hi.z) continue;
       const auto& v = tri_[t];
-      if (std::max({v[0].x, v[1].x, v[2].x}) < lo.x || std::min({v[0].x, v[1].x, v[2].x}) > hi.x ||
-          std::max({v[0].y, v[1].y, v[2].y}) < lo.y || std::min({v[0].y, v[1].y, v[2].y}) > hi.y ||
-          std::max({v[0].z, v[1].z, v[2].z}) < lo.z || std::min({v[0].z, v[1].z, v[2].z}) > hi.z)
-        continue;
       poly.assign(v.begin(), v.end());
-      clip_polygon(poly, {1, 0, 0}, hi.x, tmp), poly.swap(tmp);
-      clip_polygon(poly, {-1, 0, 0}, -lo.x, tmp), poly.swap(tmp);
-      clip_polygon(poly, {0, 1, 0}, hi.y, tmp), poly.swap(tmp);
-      clip_polygon(poly, {0, -1, 0}, -lo.y, tmp), poly.swap(tmp);
-      clip_polygon(poly, {0, 0, 1}, hi.z, tmp), poly.swap(tmp);
-      clip_polygon(poly, {0, 0, -1}, -lo.z, tmp), poly.swap(tmp);
+      // A plane the triangle's box does not cross leaves the triangle as is
+      // (clip_append's fast exit, decided on the box). Only while nothing was
+      // cut: a computed intersection point may stray an ulp outside the
+      // box, so after a cut clip_append decides on the actual vertices.
+      const bool cross_plane[6] = {bh.x > hi.x, bl.x < lo.x, bh.y > hi.y, bl.y < lo.y, bh.z > hi.z, bl.z < lo.z};
+      bool cut = false;
+      for (int k = 0; k < 6; ++k)
+        if (cut || cross_plane[k]) {
+          tmp.clear();
+          clip_append(poly.data(), poly.size(), planes[k], offs[k], tmp);
+          poly.swap(tmp);
+          cut = true;
+        }
       if (poly.empty()) continue;
       ct.push_back(t);
       pts.insert(pts.end(), poly.begin(), poly.end());
@@ -447,10 +542,11 @@ class Planner {
     }
 
     // 2. P = cube ∩ nearest ancestor slabs.
-    Polyhedron P(lo, S);
+    Polyhedron& P = sc.P;
+    P.reset(lo, S);
     const size_t first_slab = slabs.size() > size_t(kMaxAncestors) ? slabs.size() - kMaxAncestors : 0;
     for (size_t s = first_slab; s < slabs.size(); ++s) P.clip(slabs[s]);
-    std::vector<V3> pv = P.vertices();
+    P.vertices(pv);
 
     // 3./4. The contour.
     uint32_t value = 0;
@@ -470,10 +566,29 @@ class Planner {
             }
       }
       cand_dirs.push_back(mean);
+      // Quantize first; a normal equal to an earlier candidate's scores the
+      // same, and only a strictly better gain replaces the best, so dropping
+      // repeats keeps the choice (neighbouring triangles mostly quantize
+      // alike). Scores in candidate order, as before.
+      auto& qn = sc.qn;
+      qn.clear();
+      for (const V3& d : cand_dirs) {
+        std::array<int, 3> n;
+        if (!quantize(d, n.data())) continue;
+        if (std::find(qn.begin(), qn.end(), n) == qn.end()) qn.push_back(n);
+      }
+      const size_t C = qn.size();
+      auto& f = sc.f;  // nx | ny | nz | pmin | pmax | smin | smax, C each
+      f.resize(7 * C);
+      for (size_t j = 0; j < C; ++j) f[j] = qn[j][0], f[C + j] = qn[j][1], f[2 * C + j] = qn[j][2];
+      ranges(pv, C, &f[0], &f[C], &f[2 * C], &f[3 * C], &f[4 * C]);
+      ranges(pts, C, &f[0], &f[C], &f[2 * C], &f[5 * C], &f[6 * C]);
       Candidate best{}, c{};
       best.gain = -1;
-      for (const V3& d : cand_dirs)
-        if (fit(d, pv, pts, lo, S, cd, &c) && c.gain > best.gain) best = c;
+      for (size_t j = 0; j < C; ++j)
+        if (fit(qn[j].data(), f[3 * C + j], f[4 * C + j], f[5 * C + j], f[6 * C + j], lo, S, cd, &c) &&
+            c.gain > best.gain)
+          best = c;
       if (best.gain >= kMinGain * S) {
         ContourValue cv;
         cv.nx = best.n[0], cv.ny = best.n[1], cv.nz = best.n[2];
@@ -482,7 +597,7 @@ class Planner {
         value = encode_contour(cv);
         own = best.slab;
         P.clip(own);
-        pv = P.vertices();
+        P.vertices(pv);
       }
     }
     plan_.contour[size_t(cd)][ci] = value;
@@ -515,6 +630,7 @@ class Planner {
   const int L_, Lmax_;
   std::vector<std::array<V3, 3>> tri_;
   std::vector<V3> normal_;
+  std::vector<V3> tlo_, thi_;  // triangle bounding boxes (both filters test them per voxel)
   std::vector<uint8_t> boundary_;
   std::vector<std::vector<float>> dev_color_, dev_normal_;
   double contour_tol_ = kDefaultContourTolerance;
