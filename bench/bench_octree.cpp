@@ -43,8 +43,8 @@ const voxcast::VoxelSet& shell(int levels) {
   std::sort(set.codes.begin(), set.codes.end());
   for (uint64_t code : set.codes) {
     const voxcast::MortonCoord p = voxcast::morton_decode(code);
-    set.normals.push_back(voxcast::normalize(voxcast::Vec3{float(p.x + 0.5 - c), float(p.y + 0.5 - c),
-                                                           float(p.z + 0.5 - c)}));
+    set.normals.push_back(voxcast::normalize(
+        voxcast::Vec3{float(p.x + 0.5 - c), float(p.y + 0.5 - c), float(p.z + 0.5 - c)}));
     set.colors.push_back({float(p.x) / n, float(p.y) / n, float(p.z) / n, 1.f});
     set.weights.push_back(1.f);
   }

@@ -14,7 +14,8 @@ namespace {
 using namespace voxcast;
 
 const Mesh& bunny() {
-  static const Mesh m = load_mesh(std::filesystem::path(VOXCAST_SOURCE_DIR) / "scenes" / "bunny.obj");
+  static const Mesh m =
+      load_mesh(std::filesystem::path(VOXCAST_SOURCE_DIR) / "scenes" / "bunny.obj");
   return m;
 }
 
@@ -29,7 +30,8 @@ const Mesh& synthetic() {
         float x = float(i) / k, y = float(j) / k;
         float z = 0.5f + 0.1f * std::sin(12 * x) * std::cos(9 * y);
         s.positions.push_back({x, y, z});
-        Vec3 n{-1.2f * std::cos(12 * x) * std::cos(9 * y), 0.9f * std::sin(12 * x) * std::sin(9 * y), 1};
+        Vec3 n{-1.2f * std::cos(12 * x) * std::cos(9 * y),
+               0.9f * std::sin(12 * x) * std::sin(9 * y), 1};
         s.normals.push_back(normalize(n));
       }
     for (int j = 0; j < k; ++j)
@@ -53,22 +55,35 @@ void run(benchmark::State& state, const Mesh& mesh, VoxelizationMode mode, bool 
     voxels = vs.size();
     benchmark::DoNotOptimize(vs.codes.data());
   }
-  state.counters["triangles/s"] =
-      benchmark::Counter(double(mesh.triangle_count()), benchmark::Counter::kIsIterationInvariantRate);
+  state.counters["triangles/s"] = benchmark::Counter(double(mesh.triangle_count()),
+                                                     benchmark::Counter::kIsIterationInvariantRate);
   state.counters["voxels"] = double(voxels);
 }
 
-void BM_VoxelizeBunny(benchmark::State& s) { run(s, bunny(), VoxelizationMode::Conservative, true); }
+void BM_VoxelizeBunny(benchmark::State& s) {
+  run(s, bunny(), VoxelizationMode::Conservative, true);
+}
 void BM_VoxelizeBunnyCodesOnly(benchmark::State& s) {
   run(s, bunny(), VoxelizationMode::Conservative, false);
 }
-void BM_VoxelizeBunny6Sep(benchmark::State& s) { run(s, bunny(), VoxelizationMode::SixSeparating, true); }
+void BM_VoxelizeBunny6Sep(benchmark::State& s) {
+  run(s, bunny(), VoxelizationMode::SixSeparating, true);
+}
 void BM_VoxelizeSynthetic(benchmark::State& s) {
   run(s, synthetic(), VoxelizationMode::Conservative, true);
 }
 
-BENCHMARK(BM_VoxelizeBunny)->Arg(256)->Arg(1024)->Arg(2048)->Unit(benchmark::kMillisecond)->UseRealTime();
-BENCHMARK(BM_VoxelizeBunnyCodesOnly)->Arg(1024)->Arg(2048)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_VoxelizeBunny)
+    ->Arg(256)
+    ->Arg(1024)
+    ->Arg(2048)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK(BM_VoxelizeBunnyCodesOnly)
+    ->Arg(1024)
+    ->Arg(2048)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 BENCHMARK(BM_VoxelizeBunny6Sep)->Arg(2048)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_VoxelizeSynthetic)->Arg(256)->Arg(1024)->Unit(benchmark::kMillisecond)->UseRealTime();
 

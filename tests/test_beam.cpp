@@ -38,8 +38,9 @@ struct BeamDiff {
 bool same_hit(bool a_hit, const SurfaceHit& a, bool b_hit, const SurfaceHit& b) {
   if (a_hit != b_hit) return false;
   if (!a_hit) return true;
-  return std::bit_cast<uint32_t>(a.t) == std::bit_cast<uint32_t>(b.t) && a.voxel_ref == b.voxel_ref &&
-         a.child == b.child && a.level == b.level && a.voxel_size == b.voxel_size &&
+  return std::bit_cast<uint32_t>(a.t) == std::bit_cast<uint32_t>(b.t) &&
+         a.voxel_ref == b.voxel_ref && a.child == b.child && a.level == b.level &&
+         a.voxel_size == b.voxel_size &&
          std::bit_cast<uint32_t>(a.position.x) == std::bit_cast<uint32_t>(b.position.x) &&
          std::bit_cast<uint32_t>(a.position.y) == std::bit_cast<uint32_t>(b.position.y) &&
          std::bit_cast<uint32_t>(a.position.z) == std::bit_cast<uint32_t>(b.position.z);
@@ -78,9 +79,11 @@ BeamDiff compare_beam(const VoxelStructure& s, const Camera& camera, int W, int 
           if (!same_hit(ha, a, hp, plain) || !same_hit(ha, a, hb, b)) {
             if (diff.mismatches++ == 0) {
               char buf[256];
-              std::snprintf(buf, sizeof buf, "pixel (%d,%d): plain hit=%d t=%.9g ref=%llu child=%u, beam hit=%d t=%.9g ref=%llu child=%u",
-                            x, y, int(ha), double(a.t), (unsigned long long)a.voxel_ref, a.child, int(hb),
-                            double(b.t), (unsigned long long)b.voxel_ref, b.child);
+              std::snprintf(buf, sizeof buf,
+                            "pixel (%d,%d): plain hit=%d t=%.9g ref=%llu child=%u, beam hit=%d "
+                            "t=%.9g ref=%llu child=%u",
+                            x, y, int(ha), double(a.t), (unsigned long long)a.voxel_ref, a.child,
+                            int(hb), double(b.t), (unsigned long long)b.voxel_ref, b.child);
               diff.first = buf;
             }
           }
@@ -91,7 +94,8 @@ BeamDiff compare_beam(const VoxelStructure& s, const Camera& camera, int W, int 
   return diff;
 }
 
-std::shared_ptr<const esvo::EsvoOctree> octree_of(const VoxelSet& set, uint32_t max_block_slots = 1u << 20) {
+std::shared_ptr<const esvo::EsvoOctree> octree_of(const VoxelSet& set,
+                                                  uint32_t max_block_slots = 1u << 20) {
   esvo::BuildOptions bo;
   bo.max_block_slots = max_block_slots;
   return std::make_shared<const esvo::EsvoOctree>(esvo::build_octree(set, bo));
@@ -131,8 +135,10 @@ TEST_P(SharedMeshBeam, HitsIdenticalWithAndWithoutBeam) {
         const BeamDiff d = compare_beam(s, cams[ci], W, H, K, lod);
         std::printf("%s cam %zu K=%d lod=%g: %zu rays, %zu hits, iterations/ray %.2f -> %.2f\n",
                     GetParam(), ci, K, double(lod), d.rays, d.hits,
-                    double(d.iterations_plain) / double(d.rays), double(d.iterations_beam) / double(d.rays));
-        EXPECT_EQ(d.mismatches, 0u) << "cam " << ci << " K " << K << " lod " << lod << ": " << d.first;
+                    double(d.iterations_plain) / double(d.rays),
+                    double(d.iterations_beam) / double(d.rays));
+        EXPECT_EQ(d.mismatches, 0u)
+            << "cam " << ci << " K " << K << " lod " << lod << ": " << d.first;
         EXPECT_GT(d.hits, 0u);
         EXPECT_LE(d.iterations_beam, d.iterations_plain);
       }
@@ -141,8 +147,9 @@ TEST_P(SharedMeshBeam, HitsIdenticalWithAndWithoutBeam) {
 }
 
 INSTANTIATE_TEST_SUITE_P(SharedMeshes, SharedMeshBeam,
-                         ::testing::Values("stanford-bunny.obj", "armadillo.off", "refined_elephant.off",
-                                           "camel.off", "fandisk_large.off", "spot.obj", "teapot.obj",
+                         ::testing::Values("stanford-bunny.obj", "armadillo.off",
+                                           "refined_elephant.off", "camel.off", "fandisk_large.off",
+                                           "spot.obj", "teapot.obj",
                                            "CesiumMilkTruck/CesiumMilkTruck.gltf"),
                          [](const ::testing::TestParamInfo<const char*>& info) {
                            std::string s = std::filesystem::path(info.param).stem().string();
@@ -191,14 +198,15 @@ TEST(Beam, RandomOctreesAndCameras) {
     for (int trial = 0; trial < 48; ++trial) {
       Camera cam;
       if (trial % 3 == 0) {
-        cam.eye = {rnd(0.05f, 0.95f), rnd(0.05f, 0.95f), rnd(0.05f, 0.95f)};  // inside the root cube
+        cam.eye = {rnd(0.05f, 0.95f), rnd(0.05f, 0.95f),
+                   rnd(0.05f, 0.95f)};  // inside the root cube
       } else if (trial % 3 == 1 && oi == 0) {
         cam.eye = {rnd(0.45f, 0.55f), rnd(0.45f, 0.55f), rnd(0.45f, 0.55f)};  // inside the ball
       } else {
         cam.eye = {rnd(-1.5f, 2.5f), rnd(-1.5f, 2.5f), rnd(-1.5f, 2.5f)};
       }
       cam.target = {rnd(0.2f, 0.8f), rnd(0.2f, 0.8f), rnd(0.2f, 0.8f)};
-      if (trial % 5 == 4) cam.target = cam.eye + Vec3{0.f, 0.f, 1.f};  // axis-aligned view
+      if (trial % 5 == 4) cam.target = cam.eye + Vec3{0.f, 0.f, 1.f};    // axis-aligned view
       if (trial % 7 == 6) cam.target = cam.eye + Vec3{1e-3f, 1.f, 0.f};  // nearly axis-aligned
       cam.up = normalize(Vec3{rnd(-0.3f, 0.3f), 1.f, rnd(-0.3f, 0.3f)});
       cam.fovy_degrees = rnd(10.f, 100.f);
@@ -243,7 +251,8 @@ TEST(Beam, RenderImagesIdentical) {
       EXPECT_TRUE(a.color.pixels == b.color.pixels) << "tile " << tile << " K " << K;
       EXPECT_TRUE(a.normal.pixels == b.normal.pixels);
       ASSERT_EQ(a.depth.pixels.size(), b.depth.pixels.size());
-      EXPECT_EQ(std::memcmp(a.depth.pixels.data(), b.depth.pixels.data(), a.depth.pixels.size() * 4), 0);
+      EXPECT_EQ(
+          std::memcmp(a.depth.pixels.data(), b.depth.pixels.data(), a.depth.pixels.size() * 4), 0);
     }
   }
 }
@@ -257,16 +266,16 @@ TEST(Beam, BadBlockSizeIsAnError) {
     EXPECT_THROW(render(s, ro), Error) << bad;
   }
   testing::TempDir dir;
-  ASSERT_EQ(testing::run_cli("build " + (kMeshes / "teapot.obj").string() + " -o " + dir.file("t.vxc") +
-                             " --resolution 64")
+  ASSERT_EQ(testing::run_cli("build " + (kMeshes / "teapot.obj").string() + " -o " +
+                             dir.file("t.vxc") + " --resolution 64")
                 .exit_code,
             0);
   const testing::CliResult r =
       testing::run_cli("render " + dir.file("t.vxc") + " -o " + dir.file("a.png") + " --beam 1");
   EXPECT_NE(r.exit_code, 0);
   EXPECT_NE(r.output.find("--beam"), std::string::npos) << r.output;
-  const testing::CliResult ok = testing::run_cli("render " + dir.file("t.vxc") + " -o " + dir.file("b.png") +
-                                                 " --size 64x48 --beam 8");
+  const testing::CliResult ok = testing::run_cli("render " + dir.file("t.vxc") + " -o " +
+                                                 dir.file("b.png") + " --size 64x48 --beam 8");
   EXPECT_EQ(ok.exit_code, 0) << ok.output;
 }
 

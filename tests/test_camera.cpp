@@ -34,21 +34,21 @@ TEST(Camera, ParseAndRoundTrip) {
 
 TEST(Camera, RejectsBadStrings) {
   const char* bad[] = {
-      "",                                  // nothing
-      "1,2,3,4,5,6,7,8,9",                 // 9 numbers
-      "1,2,3,4,5,6,0,1,0,45,1",            // 11 numbers
-      "1,2,3,4,5,6,0,1,0,abc",             // not a number
-      "1,2,3,4,5,6,0,1,0,45x",             // trailing junk
-      "1,2,3,,5,6,0,1,0,45",               // empty field
-      "nan,2,3,4,5,6,0,1,0,45",            // NaN
-      "inf,2,3,4,5,6,0,1,0,45",            // infinity
-      "1e39,2,3,4,5,6,0,1,0,45",           // overflows float
-      "1,2,3,4,5,6,0,1,0,0",               // fovy 0
-      "1,2,3,4,5,6,0,1,0,180",             // fovy 180
-      "1,2,3,4,5,6,0,1,0,-10",             // negative fovy
-      "1,2,3,1,2,3,0,1,0,45",              // eye == target
-      "0,0,0,0,5,0,0,1,0,45",              // up parallel to forward
-      "0,0,0,1,0,0,0,0,0,45",              // zero up
+      "",                         // nothing
+      "1,2,3,4,5,6,7,8,9",        // 9 numbers
+      "1,2,3,4,5,6,0,1,0,45,1",   // 11 numbers
+      "1,2,3,4,5,6,0,1,0,abc",    // not a number
+      "1,2,3,4,5,6,0,1,0,45x",    // trailing junk
+      "1,2,3,,5,6,0,1,0,45",      // empty field
+      "nan,2,3,4,5,6,0,1,0,45",   // NaN
+      "inf,2,3,4,5,6,0,1,0,45",   // infinity
+      "1e39,2,3,4,5,6,0,1,0,45",  // overflows float
+      "1,2,3,4,5,6,0,1,0,0",      // fovy 0
+      "1,2,3,4,5,6,0,1,0,180",    // fovy 180
+      "1,2,3,4,5,6,0,1,0,-10",    // negative fovy
+      "1,2,3,1,2,3,0,1,0,45",     // eye == target
+      "0,0,0,0,5,0,0,1,0,45",     // up parallel to forward
+      "0,0,0,1,0,0,0,0,0,45",     // zero up
   };
   for (const char* s : bad) EXPECT_THROW(Camera::parse(s), Error) << "'" << s << "'";
 }
@@ -122,7 +122,8 @@ TEST(Camera, FrameCentersAndFillsTheImage) {
     const Vec3 e = box.extent() * 0.5f;
     float max_extent = 0.f;
     for (int i = 0; i < 2000; ++i) {
-      const float a = 6.2831853f * float(i % 50) / 50.f, b = 3.14159265f * (float(i / 50) + 0.5f) / 40.f;
+      const float a = 6.2831853f * float(i % 50) / 50.f,
+                  b = 3.14159265f * (float(i / 50) + 0.5f) / 40.f;
       const Vec3 s{std::cos(a) * std::sin(b), std::sin(a) * std::sin(b), std::cos(b)};
       project(box.center() + e * s, &u, &w);
       EXPECT_LE(std::fabs(u), 1.f);

@@ -26,8 +26,9 @@ void expect_one_line_error(const CliResult& r, const std::string& needle = "") {
   ASSERT_NE(pos, std::string::npos) << r.output;
   auto eol = r.output.find('\n', pos);
   ASSERT_NE(eol, std::string::npos);
-  if (!needle.empty())
+  if (!needle.empty()) {
     EXPECT_NE(r.output.substr(pos, eol - pos).find(needle), std::string::npos) << r.output;
+  }
 }
 
 std::string tetra_obj() {
@@ -64,16 +65,16 @@ TEST(Cli, BuildRejectsBadInput) {
       run_cli("build " + dir.file("t.obj") + " -o " + dir.file("a.vxc") + " --resolution 1000"));
   expect_one_line_error(
       run_cli("build " + dir.file("t.obj") + " -o " + dir.file("a.vxc") + " --resolution 0"));
-  expect_one_line_error(run_cli("build " + dir.file("t.obj") + " -o " + dir.file("a.vxc") +
-                                " --resolution 2097152"));
+  expect_one_line_error(
+      run_cli("build " + dir.file("t.obj") + " -o " + dir.file("a.vxc") + " --resolution 2097152"));
   expect_one_line_error(run_cli("build " + dir.file("t.obj") + " -o " + dir.file("a.vxc") +
                                 " --voxelization sloppy"));
   expect_one_line_error(
       run_cli("build " + dir.file("t.obj") + " -o " + dir.file("a.vxc") + " --voxel-size -1"));
   // An absurd resolution is refused up front by the memory estimate.
-  expect_one_line_error(run_cli("build " + dir.file("t.obj") + " -o " + dir.file("a.vxc") +
-                                " --resolution 1048576"),
-                        "memory");
+  expect_one_line_error(
+      run_cli("build " + dir.file("t.obj") + " -o " + dir.file("a.vxc") + " --resolution 1048576"),
+      "memory");
   expect_one_line_error(run_cli("build " + dir.file("t.obj") + " -o " + dir.file("a.vxc") +
                                 " --resolution 256 --memory-budget 1K"),
                         "memory");
@@ -86,8 +87,8 @@ TEST(Cli, BuildRejectsBadInput) {
 TEST(Cli, BuildRenderInfoEndToEnd) {
   TempDir dir;
   write_text(dir.file("t.obj"), tetra_obj());
-  CliResult b = run_cli("build " + dir.file("t.obj") + " -o " + dir.file("t.vxc") +
-                        " --resolution 64");
+  CliResult b =
+      run_cli("build " + dir.file("t.obj") + " -o " + dir.file("t.vxc") + " --resolution 64");
   ASSERT_EQ(b.exit_code, 0) << b.output;
   CliResult info = run_cli("info " + dir.file("t.vxc"));
   ASSERT_EQ(info.exit_code, 0) << info.output;
@@ -113,8 +114,7 @@ TEST(Cli, BuildRenderInfoEndToEnd) {
 TEST(Cli, RenderRejectsBadInput) {
   TempDir dir;
   write_text(dir.file("t.obj"), tetra_obj());
-  ASSERT_EQ(run_cli("build " + dir.file("t.obj") + " -o " + dir.file("t.vxc") +
-                    " --resolution 32")
+  ASSERT_EQ(run_cli("build " + dir.file("t.obj") + " -o " + dir.file("t.vxc") + " --resolution 32")
                 .exit_code,
             0);
   std::string scene = dir.file("t.vxc");
@@ -124,13 +124,12 @@ TEST(Cli, RenderRejectsBadInput) {
   expect_one_line_error(run_cli("render " + scene + " -o " + dir.file("x.png") + " --size 10"));
   expect_one_line_error(
       run_cli("render " + scene + " -o " + dir.file("x.png") + " --camera 1,2,3"));
-  expect_one_line_error(run_cli("render " + scene + " -o " + dir.file("x.png") +
-                                " --camera 0,0,0,0,0,0,0,1,0,45"));
-  expect_one_line_error(run_cli("render " + scene + " -o " + dir.file("x.png") +
-                                " --camera 0,0,5,0,0,0,0,1,0,190"));
-  expect_one_line_error(run_cli("render " + scene + " -o " + dir.file("x.png") + " --lod -1"));
   expect_one_line_error(
-      run_cli("render " + scene + " -o " + dir.file("x.png") + " --light 0,0,0"));
+      run_cli("render " + scene + " -o " + dir.file("x.png") + " --camera 0,0,0,0,0,0,0,1,0,45"));
+  expect_one_line_error(
+      run_cli("render " + scene + " -o " + dir.file("x.png") + " --camera 0,0,5,0,0,0,0,1,0,190"));
+  expect_one_line_error(run_cli("render " + scene + " -o " + dir.file("x.png") + " --lod -1"));
+  expect_one_line_error(run_cli("render " + scene + " -o " + dir.file("x.png") + " --light 0,0,0"));
   // A mesh is not a scene; a truncated scene is not a scene.
   expect_one_line_error(run_cli("render " + dir.file("t.obj") + " -o " + dir.file("x.png")));
   std::string bytes = read_text(scene);
@@ -142,14 +141,14 @@ TEST(Cli, RenderRejectsBadInput) {
 
 TEST(Cli, BuildIsByteIdenticalWhateverTheThreadCount) {
   TempDir dir;
-  ASSERT_EQ(run_cli("build " + kBunny + " -o " + dir.file("a.vxc") +
-                    " --resolution 256 --threads 1")
-                .exit_code,
-            0);
-  ASSERT_EQ(run_cli("build " + kBunny + " -o " + dir.file("b.vxc") +
-                    " --resolution 256 --threads 2")
-                .exit_code,
-            0);
+  ASSERT_EQ(
+      run_cli("build " + kBunny + " -o " + dir.file("a.vxc") + " --resolution 256 --threads 1")
+          .exit_code,
+      0);
+  ASSERT_EQ(
+      run_cli("build " + kBunny + " -o " + dir.file("b.vxc") + " --resolution 256 --threads 2")
+          .exit_code,
+      0);
   std::string a = read_text(dir.file("a.vxc")), b = read_text(dir.file("b.vxc"));
   ASSERT_FALSE(a.empty());
   EXPECT_TRUE(a == b) << "scene files differ between 1 and 2 threads";

@@ -2,6 +2,7 @@
 // bounds, octree builds with BuildOptions::attributes = Compressed, layout
 // (pairing rule), statistics, scene files, validation of corrupt attachments.
 #include <gtest/gtest.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <bit>
@@ -9,11 +10,9 @@
 #include <cstdio>
 #include <filesystem>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <random>
 #include <string>
-
-#include <nlohmann/json.hpp>
-#include <tbb/task_arena.h>
 
 #include "support/cli_runner.hpp"
 #include "support/esvo_testing.hpp"
@@ -43,9 +42,12 @@ Rgb8 to8(const Color& linear) {
   const uint32_t abgr = esvo::encode_color_abgr(linear);
   return {{int(abgr & 0xFF), int(abgr >> 8 & 0xFF), int(abgr >> 16 & 0xFF)}};
 }
-Color from8(int r, int g, int b) { return esvo::decode_color_abgr(uint32_t(r | g << 8 | b << 16) | 0xFF000000u); }
+Color from8(int r, int g, int b) {
+  return esvo::decode_color_abgr(uint32_t(r | g << 8 | b << 16) | 0xFF000000u);
+}
 int max_channel_diff(const Rgb8& a, const Rgb8& b) {
-  return std::max({std::abs(a.c[0] - b.c[0]), std::abs(a.c[1] - b.c[1]), std::abs(a.c[2] - b.c[2])});
+  return std::max(
+      {std::abs(a.c[0] - b.c[0]), std::abs(a.c[1] - b.c[1]), std::abs(a.c[2] - b.c[2])});
 }
 Vec3 random_unit(std::mt19937_64& rng) {
   std::normal_distribution<float> g;
@@ -131,7 +133,8 @@ double block_color_sse(const uint32_t* block, uint32_t used, const std::vector<R
     Color c;
     esvo::decode_compressed_slot(block, s, &c, nullptr);
     const Rgb8 d = to8(c);
-    for (int ch = 0; ch < 3; ++ch) sse += double(d.c[ch] - x[size_t(j)].c[ch]) * (d.c[ch] - x[size_t(j)].c[ch]);
+    for (int ch = 0; ch < 3; ++ch)
+      sse += double(d.c[ch] - x[size_t(j)].c[ch]) * (d.c[ch] - x[size_t(j)].c[ch]);
     ++j;
   }
   return sse;
@@ -212,8 +215,9 @@ TEST(CompressedBlock, ColorFitNearExhaustiveOnSmallRandomBlocks) {
     // blocks where the exhaustive search lands a color on a 1/3 entry.
     EXPECT_LE(ours, 1.25 * ref + 48) << "block " << t << " n=" << n;
   }
-  std::printf("random small blocks: total SSE ours %.0f vs exhaustive %.0f (%.2f%%), worst ratio %.3f\n",
-              ours_total, ref_total, 100.0 * (ours_total / ref_total - 1), worst_ratio);
+  std::printf(
+      "random small blocks: total SSE ours %.0f vs exhaustive %.0f (%.2f%%), worst ratio %.3f\n",
+      ours_total, ref_total, 100.0 * (ours_total / ref_total - 1), worst_ratio);
   // In aggregate the fit is within 2% of the exhaustive search.
   EXPECT_LE(ours_total, 1.02 * ref_total);
 }
@@ -239,7 +243,8 @@ void smooth_block(std::mt19937_64& rng, double step, double spread, Color* color
     const double x = (s & 1) + 2 * (s >> 3), y = (s >> 1) & 1, z = (s >> 2) & 1;
     int c8[3];
     for (int ch = 0; ch < 3; ++ch)
-      c8[ch] = std::clamp(int(std::lround(c0[ch] + g[0][ch] * x + g[1][ch] * y + g[2][ch] * z)), 0, 255);
+      c8[ch] =
+          std::clamp(int(std::lround(c0[ch] + g[0][ch] * x + g[1][ch] * y + g[2][ch] * z)), 0, 255);
     colors[s] = from8(c8[0], c8[1], c8[2]);
     normals[s] = normalize(n0 + t * float(k * (x - 1.5)) + b * float(k * (y + z - 1) * 0.7));
   }
@@ -273,8 +278,10 @@ TEST(CompressedBlock, SmoothDataErrorBounds) {
         normal.add(angle(dn, normals[s]));
       }
     }
-    std::printf("smooth blocks (gradient %.0f/255): color max %.0f mean %.3f /255; normal max %.3f mean %.4f deg\n",
-                c.step, color.max, color.mean(), normal.max / kDeg, normal.mean() / kDeg);
+    std::printf(
+        "smooth blocks (gradient %.0f/255): color max %.0f mean %.3f /255; normal max %.3f mean "
+        "%.4f deg\n",
+        c.step, color.max, color.mean(), normal.max / kDeg, normal.mean() / kDeg);
     EXPECT_LE(color.max, c.color_max);
     EXPECT_LT(color.mean(), c.color_mean);
     EXPECT_LT(normal.max, 3 * kDeg);
@@ -335,7 +342,8 @@ TEST(CompressedBlock, DecodingIsTotal) {
 
 // ---- octrees --------------------------------------------------------------
 
-esvo::BuildOptions compressed_options(uint32_t max_slots = 1u << 20, uint32_t max_values = 1u << 22) {
+esvo::BuildOptions compressed_options(uint32_t max_slots = 1u << 20,
+                                      uint32_t max_values = 1u << 22) {
   esvo::BuildOptions o;
   o.attributes = AttributeFormat::Compressed;
   o.max_block_slots = max_slots;
@@ -403,7 +411,8 @@ TreeErrors compare_with_raw(const EsvoOctree& raw, const EsvoOctree& cmp) {
     for (const VoxelPair& v : voxels) {
       x.push_back(v.raw_color);
       for (int c = 0; c < 3; ++c) {
-        lo[c] = std::min(lo[c], double(v.raw_color.c[c])), hi[c] = std::max(hi[c], double(v.raw_color.c[c]));
+        lo[c] = std::min(lo[c], double(v.raw_color.c[c])),
+        hi[c] = std::max(hi[c], double(v.raw_color.c[c]));
         sse += double(v.raw_color.c[c] - v.cmp_color.c[c]) * (v.raw_color.c[c] - v.cmp_color.c[c]);
       }
       sum += v.raw_normal;
@@ -446,11 +455,12 @@ VoxelSet smooth_shell(int levels) {
 }
 
 void print_errors(const char* what, const TreeErrors& e) {
-  std::printf("%s: %llu blocks; all levels: color max %.0f mean %.3f /255, normal max %.2f mean %.3f deg;"
-              " leaves: color max %.0f mean %.3f /255, normal max %.3f mean %.4f deg\n",
-              what, (unsigned long long)e.blocks, e.color.max, e.color.mean(), e.normal.max / kDeg,
-              e.normal.mean() / kDeg, e.leaf_color.max, e.leaf_color.mean(), e.leaf_normal.max / kDeg,
-              e.leaf_normal.mean() / kDeg);
+  std::printf(
+      "%s: %llu blocks; all levels: color max %.0f mean %.3f /255, normal max %.2f mean %.3f deg;"
+      " leaves: color max %.0f mean %.3f /255, normal max %.3f mean %.4f deg\n",
+      what, (unsigned long long)e.blocks, e.color.max, e.color.mean(), e.normal.max / kDeg,
+      e.normal.mean() / kDeg, e.leaf_color.max, e.leaf_color.mean(), e.leaf_normal.max / kDeg,
+      e.leaf_normal.mean() / kDeg);
 }
 
 TEST(CompressedOctree, SphereShellMatchesRawWithinBounds) {
@@ -570,7 +580,8 @@ TEST(CompressedOctree, PairsOnlyHoldSiblingsAndStatsAddUp) {
   EXPECT_EQ(m.attribute_value_bytes, m.color_bytes + m.normal_bytes);
   EXPECT_EQ(m.attribute_lookup_bytes, 8u * cmp.block_count);
   EXPECT_EQ(m.descriptor_bytes + m.far_pointer_bytes + m.page_header_bytes + m.padding_bytes +
-                m.pair_padding_bytes + m.info_bytes + m.attribute_lookup_bytes + m.attribute_value_bytes,
+                m.pair_padding_bytes + m.info_bytes + m.attribute_lookup_bytes +
+                m.attribute_value_bytes,
             m.total_bytes);
   // Raw build of the same voxels: no pairing gaps, identical topology.
   const EsvoOctree raw = esvo::build_octree(v);
@@ -722,7 +733,8 @@ TEST(CompressedOctree, ValidateRejectsPairsMixingGroups) {
     if (!nl) continue;
     const uint32_t g = child_group_of(good, s);
     if (!(w0 & 0x10000u)) group_parent[g] = s;
-    for (int i = 0; i < std::popcount(nl); ++i) is_desc[g + uint32_t(i)] = true, stack.push_back(g + uint32_t(i));
+    for (int i = 0; i < std::popcount(nl); ++i)
+      is_desc[g + uint32_t(i)] = true, stack.push_back(g + uint32_t(i));
   }
   bool done = false;
   for (const auto& [g, parent] : group_parent) {
@@ -730,12 +742,14 @@ TEST(CompressedOctree, ValidateRejectsPairsMixingGroups) {
     if (!(p & 1) || is_desc.count(p) || !is_desc.count(p - 1)) continue;
     EsvoOctree o = good;
     uint32_t* w = o.words.data();
-    const uint32_t k = uint32_t(std::popcount(((w[size_t(parent) * 2] >> 8) & 0xFF) & ~(w[size_t(parent) * 2] & 0xFF)));
+    const uint32_t k = uint32_t(
+        std::popcount(((w[size_t(parent) * 2] >> 8) & 0xFF) & ~(w[size_t(parent) * 2] & 0xFF)));
     bool ok = true;
     for (uint32_t i = 0; i < k && ok; ++i) {
       uint32_t w0 = w[size_t(g + i) * 2];
       if (((w0 >> 8) & 0xFF) & ~(w0 & 0xFF)) {
-        if ((w0 >> 17) + 1 >= (1u << 15)) ok = false;
+        if ((w0 >> 17) + 1 >= (1u << 15))
+          ok = false;
         else if (w0 & 0x10000u) {
           // far slot: its offset is relative to the descriptor, which moves back by one
           const uint32_t f = g + i + (w0 >> 17);
@@ -777,9 +791,15 @@ TEST(CompressedOctree, RandomCorruptionsAreRejectedOrHarmless) {
     for (int e = 0, edits = 1 + int(rng() % 3); e < edits; ++e) {
       const size_t wi = rng() % 2 ? rng() % structure : rng() % used;
       switch (rng() % 3) {
-        case 0: bad.words[wi] ^= 1u << (rng() % 32); break;
-        case 1: bad.words[wi] = uint32_t(rng()); break;
-        case 2: bad.words[wi] += uint32_t(rng() % 5) - 2; break;
+        case 0:
+          bad.words[wi] ^= 1u << (rng() % 32);
+          break;
+        case 1:
+          bad.words[wi] = uint32_t(rng());
+          break;
+        case 2:
+          bad.words[wi] += uint32_t(rng() % 5) - 2;
+          break;
       }
     }
     try {
@@ -806,7 +826,8 @@ TEST(CompressedOctree, RandomCorruptionsAreRejectedOrHarmless) {
         }
       if (!nl || d + 1 >= bad.levels()) continue;
       const uint32_t g = child_group_of(bad, s);
-      for (int i = 0; i < std::popcount(nl); ++i) stack.push_back(g + uint32_t(i)), depth.push_back(d + 1);
+      for (int i = 0; i < std::popcount(nl); ++i)
+        stack.push_back(g + uint32_t(i)), depth.push_back(d + 1);
     }
     (void)esvo::decode_leaves(bad);
     (void)bad.memory_stats();
@@ -821,8 +842,9 @@ TEST(CompressedCli, BuildInfoShowsAttachment) {
   testing::TempDir dir;
   testing::write_text(dir.file("t.obj"),
                       "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n");
-  const testing::CliResult b = testing::run_cli("build " + dir.file("t.obj") + " -o " + dir.file("t.vxc") +
-                                                " --resolution 64 --attributes compressed");
+  const testing::CliResult b =
+      testing::run_cli("build " + dir.file("t.obj") + " -o " + dir.file("t.vxc") +
+                       " --resolution 64 --attributes compressed");
   ASSERT_EQ(b.exit_code, 0) << b.output;
   const testing::CliResult info = testing::run_cli("info --json " + dir.file("t.vxc"));
   ASSERT_EQ(info.exit_code, 0) << info.output;

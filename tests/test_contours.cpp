@@ -48,8 +48,11 @@ struct Plane2 {  // n . x in [lo, hi], octree space
 /// documented fixed point: |n.(x - c) - 0.75 s p| <= 0.375 s t.
 Plane2 slab_of(uint32_t value, const double lo[3], double side) {
   const int t = int(value >> 25);
-  auto sext = [](uint32_t v, int bits) { return int(v & ((1u << bits) - 1)) - (((v >> (bits - 1)) & 1) ? (1 << bits) : 0); };
-  const int p = sext(value >> 18, 7), nx = sext(value >> 12, 6), ny = sext(value >> 6, 6), nz = sext(value, 6);
+  auto sext = [](uint32_t v, int bits) {
+    return int(v & ((1u << bits) - 1)) - (((v >> (bits - 1)) & 1) ? (1 << bits) : 0);
+  };
+  const int p = sext(value >> 18, 7), nx = sext(value >> 12, 6), ny = sext(value >> 6, 6),
+            nz = sext(value, 6);
   Plane2 s{{double(nx), double(ny), double(nz)}, 0, 0};
   const double c = nx * (lo[0] + side / 2) + ny * (lo[1] + side / 2) + nz * (lo[2] + side / 2);
   s.lo = c + 0.75 * side * p - 0.375 * side * t;
@@ -73,8 +76,8 @@ uint32_t contour_of(const uint32_t* w, uint32_t slot, int i) {
 
 /// True if some leaf whose closed cube contains q (octree space) has q in its
 /// final shape: cube ∩ all ancestor slabs ∩ own slab (§5.3).
-bool in_final_shape(const esvo::EsvoOctree& o, const double q[3], uint32_t slot, const double lo[3], double side,
-                    int* depth_out, int depth = 0) {
+bool in_final_shape(const esvo::EsvoOctree& o, const double q[3], uint32_t slot, const double lo[3],
+                    double side, int* depth_out, int depth = 0) {
   const uint32_t* w = o.words.data();
   const uint32_t w0 = w[size_t(slot) * 2];
   const uint32_t valid = (w0 >> 8) & 0xFF, leaf = w0 & 0xFF, nl = valid & ~leaf;
@@ -82,7 +85,8 @@ bool in_final_shape(const esvo::EsvoOctree& o, const double q[3], uint32_t slot,
   const double eps = 1e-12;
   for (int i = 0; i < 8; ++i) {
     if (!(valid >> i & 1)) continue;
-    const double cl[3] = {lo[0] + ((i & 1) ? h : 0), lo[1] + ((i & 2) ? h : 0), lo[2] + ((i & 4) ? h : 0)};
+    const double cl[3] = {lo[0] + ((i & 1) ? h : 0), lo[1] + ((i & 2) ? h : 0),
+                          lo[2] + ((i & 4) ? h : 0)};
     bool in = true;
     for (int k = 0; k < 3; ++k) in &= q[k] >= cl[k] - eps && q[k] <= cl[k] + h + eps;
     if (!in) continue;
@@ -115,7 +119,8 @@ Mesh uv_sphere(int rings, int segments, Vec3 c, float r) {
   }
   for (int i = 0; i < rings; ++i)
     for (int j = 0; j < segments; ++j) {
-      const uint32_t a = uint32_t(i * segments + j), b = uint32_t(i * segments + (j + 1) % segments);
+      const uint32_t a = uint32_t(i * segments + j),
+                     b = uint32_t(i * segments + (j + 1) % segments);
       const uint32_t cc = a + uint32_t(segments), d = b + uint32_t(segments);
       if (i > 0) m.indices.insert(m.indices.end(), {a, cc, b});
       if (i + 1 < rings) m.indices.insert(m.indices.end(), {b, cc, d});
@@ -135,7 +140,8 @@ esvo::EsvoOctree build(const Mesh& mesh, uint32_t res, bool contours, esvo::Buil
 
 // Samples every triangle (vertices, edge midpoints, random barycentric
 // points) and counts the points outside every leaf's final shape.
-size_t holes(const esvo::EsvoOctree& o, const Mesh& mesh, int samples, uint64_t seed, int* min_depth = nullptr) {
+size_t holes(const esvo::EsvoOctree& o, const Mesh& mesh, int samples, uint64_t seed,
+             int* min_depth = nullptr) {
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> U(0, 1);
   const double side = o.grid.side();
@@ -150,7 +156,8 @@ size_t holes(const esvo::EsvoOctree& o, const Mesh& mesh, int samples, uint64_t 
       P[k][1] = (double(p.y) - o.grid.origin.y) / side + 1;
       P[k][2] = (double(p.z) - o.grid.origin.z) / side + 1;
     }
-    std::vector<std::array<double, 3>> bary = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {.5, .5, 0}, {0, .5, .5}, {.5, 0, .5}};
+    std::vector<std::array<double, 3>> bary = {{1, 0, 0},   {0, 1, 0},   {0, 0, 1},
+                                               {.5, .5, 0}, {0, .5, .5}, {.5, 0, .5}};
     for (int s = 0; s < samples; ++s) {
       double a = U(rng), b = U(rng);
       if (a + b > 1) a = 1 - a, b = 1 - b;
@@ -160,8 +167,10 @@ size_t holes(const esvo::EsvoOctree& o, const Mesh& mesh, int samples, uint64_t 
       double q[3];
       for (int k = 0; k < 3; ++k) q[k] = B[0] * P[0][k] + B[1] * P[1][k] + B[2] * P[2][k];
       int d = 0;
-      if (!in_final_shape(o, q, o.root_slot(), root_lo, 1.0, &d)) ++bad;
-      else mind = std::min(mind, d);
+      if (!in_final_shape(o, q, o.root_slot(), root_lo, 1.0, &d))
+        ++bad;
+      else
+        mind = std::min(mind, d);
     }
   }
   if (min_depth) *min_depth = mind;
@@ -267,9 +276,10 @@ TEST_P(SharedMeshNoHoles, EveryTrianglePointInsideItsLeaf) {
   const esvo::EsvoOctree full = build(mesh, 256, true);
   uint64_t full_voxels = 0;
   for (const auto& l : full.level_stats()) full_voxels += l.voxels;
-  std::printf("%s 256^3: full depth %llu voxels, geometry error 1.5 -> %llu voxels, %.2f vs %.2f MB\n", GetParam(),
-              (unsigned long long)full_voxels, (unsigned long long)voxels, full.memory_stats().total_bytes / 1e6,
-              var.memory_stats().total_bytes / 1e6);
+  std::printf(
+      "%s 256^3: full depth %llu voxels, geometry error 1.5 -> %llu voxels, %.2f vs %.2f MB\n",
+      GetParam(), (unsigned long long)full_voxels, (unsigned long long)voxels,
+      full.memory_stats().total_bytes / 1e6, var.memory_stats().total_bytes / 1e6);
   EXPECT_LT(voxels, full_voxels);
   EXPECT_LT(min_depth, 8);  // some leaves stop above the finest level
   // max_level: everything stops at depth 5.
@@ -283,7 +293,9 @@ TEST_P(SharedMeshNoHoles, EveryTrianglePointInsideItsLeaf) {
 
 INSTANTIATE_TEST_SUITE_P(SharedMeshes, SharedMeshNoHoles,
                          ::testing::Values("stanford-bunny.obj", "fandisk_large.off"),
-                         [](const ::testing::TestParamInfo<const char*>& info) { return test_name(info.param); });
+                         [](const ::testing::TestParamInfo<const char*>& info) {
+                           return test_name(info.param);
+                         });
 
 // ---- the caster against a brute-force ray vs (cube ∩ slabs) oracle ----
 
@@ -299,7 +311,8 @@ void collect_leaves(const esvo::EsvoOctree& o, uint32_t slot, const double lo[3]
   const double h = side / 2;
   for (int i = 0; i < 8; ++i) {
     if (!(valid >> i & 1)) continue;
-    const double cl[3] = {lo[0] + ((i & 1) ? h : 0), lo[1] + ((i & 2) ? h : 0), lo[2] + ((i & 4) ? h : 0)};
+    const double cl[3] = {lo[0] + ((i & 1) ? h : 0), lo[1] + ((i & 2) ? h : 0),
+                          lo[2] + ((i & 4) ? h : 0)};
     std::vector<Plane2> s = slabs;
     if (const uint32_t cv = contour_of(w, slot, i)) s.push_back(slab_of(cv, cl, h));
     if (leaf >> i & 1) {
@@ -311,7 +324,8 @@ void collect_leaves(const esvo::EsvoOctree& o, uint32_t slot, const double lo[3]
       }
       out.push_back(ls);
     } else {
-      collect_leaves(o, group_of(w, slot) + uint32_t(std::popcount(nl & ((1u << i) - 1))), cl, h, s, out);
+      collect_leaves(o, group_of(w, slot) + uint32_t(std::popcount(nl & ((1u << i) - 1))), cl, h, s,
+                     out);
     }
   }
 }
@@ -366,8 +380,8 @@ TEST(Contours, CasterMatchesBruteForceOracle) {
       close += err <= 1e-4;
     }
   }
-  std::printf("oracle: %d rays, %d agree, %d common hits, %d within 1e-4, worst |dt| %.3g\n", rays, agree, hits,
-              close, worst);
+  std::printf("oracle: %d rays, %d agree, %d common hits, %d within 1e-4, worst |dt| %.3g\n", rays,
+              agree, hits, close, worst);
   EXPECT_GE(agree, rays - rays / 200);  // grazing rays may round either way
   EXPECT_GT(hits, rays / 10);
   EXPECT_GE(close, hits - hits / 200);
@@ -391,8 +405,10 @@ TEST(Contours, ValidateRejectsCorruptContours) {
     mutate(bad.words[size_t(slot) * 2 + 1], bad);
     EXPECT_THROW(bad.validate(), Error) << what;
   };
-  expect_bad([](uint32_t& w1, esvo::EsvoOctree&) { w1 |= 0xFFFFFF00u; }, "pointer far past the attachment");
-  expect_bad([](uint32_t& w1, esvo::EsvoOctree&) { w1 &= 0xFFu; }, "pointer at the descriptor itself");
+  expect_bad([](uint32_t& w1, esvo::EsvoOctree&) { w1 |= 0xFFFFFF00u; },
+             "pointer far past the attachment");
+  expect_bad([](uint32_t& w1, esvo::EsvoOctree&) { w1 &= 0xFFu; },
+             "pointer at the descriptor itself");
   {
     esvo::EsvoOctree bad = good;
     const int64_t info = int32_t(bad.words[0]);
@@ -405,11 +421,15 @@ TEST(Contours, ValidateRejectsCorruptContours) {
       EXPECT_THROW(bad.validate(), Error) << "popcount past the end";
     }
   }
-  expect_bad([&](uint32_t& w1, esvo::EsvoOctree& o) {
-    const uint32_t valid = (o.words[size_t(slot) * 2] >> 8) & 0xFF;
-    if (valid != 0xFF) w1 |= (~valid & 0xFF);  // contour for an empty slot
-    else w1 = 0x100;                            // pointer without mask
-  }, "mask outside valid mask");
+  expect_bad(
+      [&](uint32_t& w1, esvo::EsvoOctree& o) {
+        const uint32_t valid = (o.words[size_t(slot) * 2] >> 8) & 0xFF;
+        if (valid != 0xFF)
+          w1 |= (~valid & 0xFF);  // contour for an empty slot
+        else
+          w1 = 0x100;  // pointer without mask
+      },
+      "mask outside valid mask");
 }
 
 TEST(Contours, SceneRoundTripAndMeta) {
@@ -467,7 +487,8 @@ struct Agreement {
   double iou = 0, depth_error = 0;  // depth error in finest voxels, mean over common hits
 };
 
-Agreement compare(const VoxelStructure& s, const EmbreeScene& e, const Camera& cam, int W, int H, double voxel) {
+Agreement compare(const VoxelStructure& s, const EmbreeScene& e, const Camera& cam, int W, int H,
+                  double voxel) {
   RenderOptions ro;
   ro.width = W;
   ro.height = H;
@@ -485,7 +506,8 @@ Agreement compare(const VoxelStructure& s, const EmbreeScene& e, const Camera& c
     uni += hv || he;
     if (hv && he) ++both, err += std::fabs(double(dv) - de);
   }
-  return {double(inter) / double(std::max<size_t>(uni, 1)), err / double(std::max<size_t>(both, 1)) / voxel};
+  return {double(inter) / double(std::max<size_t>(uni, 1)),
+          err / double(std::max<size_t>(both, 1)) / voxel};
 }
 
 class ContourEmbree : public ::testing::TestWithParam<const char*> {};
@@ -510,18 +532,22 @@ TEST_P(ContourEmbree, BetterAgreementThanCubes) {
     const auto mc = cubes->memory_stats(), mk = cont->memory_stats();
     uint64_t nv = 0;
     for (const auto& l : cont->level_stats()) nv += l.voxels;
-    std::printf("%s L=%d: cubes IoU %.4f depth err %.3f vox | contours IoU %.4f depth err %.3f vox | "
-                "%.2f -> %.2f B/voxel (contours %.2f B/voxel, %llu values)\n",
-                GetParam(), L, a.iou, a.depth_error, b.iou, b.depth_error, double(mc.total_bytes) / double(nv),
-                double(mk.total_bytes) / double(nv), double(mk.contour_bytes) / double(nv),
-                (unsigned long long)mk.contour_count);
+    std::printf(
+        "%s L=%d: cubes IoU %.4f depth err %.3f vox | contours IoU %.4f depth err %.3f vox | "
+        "%.2f -> %.2f B/voxel (contours %.2f B/voxel, %llu values)\n",
+        GetParam(), L, a.iou, a.depth_error, b.iou, b.depth_error,
+        double(mc.total_bytes) / double(nv), double(mk.total_bytes) / double(nv),
+        double(mk.contour_bytes) / double(nv), (unsigned long long)mk.contour_count);
     EXPECT_GE(b.iou, a.iou) << L;
     EXPECT_LT(b.depth_error, a.depth_error) << L;
   }
 }
 
-INSTANTIATE_TEST_SUITE_P(SharedMeshes, ContourEmbree, ::testing::Values("stanford-bunny.obj", "fandisk_large.off"),
-                         [](const ::testing::TestParamInfo<const char*>& info) { return test_name(info.param); });
+INSTANTIATE_TEST_SUITE_P(SharedMeshes, ContourEmbree,
+                         ::testing::Values("stanford-bunny.obj", "fandisk_large.off"),
+                         [](const ::testing::TestParamInfo<const char*>& info) {
+                           return test_name(info.param);
+                         });
 
 }  // namespace
 }  // namespace voxcast

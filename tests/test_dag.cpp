@@ -3,6 +3,7 @@
 // indexed by Morton rank (Hitchhiker's guide "dynamic voxel indexing"),
 // scene files are validated, builds are deterministic.
 #include <gtest/gtest.h>
+#include <tbb/global_control.h>
 
 #include <algorithm>
 #include <bit>
@@ -13,8 +14,6 @@
 #include <set>
 #include <string>
 #include <vector>
-
-#include <tbb/global_control.h>
 
 #include "support/cli_runner.hpp"
 #include "support/esvo_testing.hpp"
@@ -44,7 +43,8 @@ void expect_decodes(const VoxelSet& set) {
   const auto ol = o.level_stats();
   const dag::DagStats st = d.stats();
   ASSERT_EQ(ol.size(), st.levels.size());
-  for (size_t l = 0; l < ol.size(); ++l) EXPECT_EQ(st.levels[l].svo_nodes, ol[l].voxels) << "level " << l;
+  for (size_t l = 0; l < ol.size(); ++l)
+    EXPECT_EQ(st.levels[l].svo_nodes, ol[l].voxels) << "level " << l;
   EXPECT_EQ(st.dag_bytes, d.words.size() * 4);
 }
 
@@ -231,8 +231,8 @@ void compare_casters(const VoxelSet& set, int rays, uint64_t seed, Tally* tally)
     const esvo::CastResult re = esvo::cast_ray(o, p, dir, tmax, coef, bias);
     const dag::CastResult rd = dag::cast_ray(d, p, dir, tmax, coef, bias);
     ++tally->rays;
-    const bool same_voxel = re.hit == rd.hit &&
-                            (!re.hit || (re.scale == rd.scale && re.pos.x == rd.pos.x &&
+    const bool same_voxel =
+        re.hit == rd.hit && (!re.hit || (re.scale == rd.scale && re.pos.x == rd.pos.x &&
                                          re.pos.y == rd.pos.y && re.pos.z == rd.pos.z));
     if (!same_voxel) {
       // Tie (as in test_traversal.cpp): both hit, at the same entry t, cubes
@@ -522,7 +522,8 @@ TEST_F(DagScene, RejectsBadMetaAttributesAndFiles) {
     const std::string from = std::to_string(levels) + " levels, " + std::to_string(res);
     Container m;
     for (uint32_t id : original_.section_ids())
-      m.add(id, id == fourcc("META") ? std::vector<uint8_t>(meta.begin(), meta.end()) : original_.get(id));
+      m.add(id, id == fourcc("META") ? std::vector<uint8_t>(meta.begin(), meta.end())
+                                     : original_.get(id));
     expect_rejected(m, from.c_str());
   }
   // A truncated file.
@@ -535,13 +536,15 @@ TEST(DagCli, BuildInfoRender) {
   const std::string mesh = VOXCAST_SHARED_DIR "/meshes/spot.obj";
   if (!std::filesystem::exists(mesh)) GTEST_SKIP() << "no " << mesh;
   testing::TempDir dir;
-  auto r = testing::run_cli("build " + mesh + " -o " + dir.file("s.vxc") + " --format dag --resolution 128");
+  auto r = testing::run_cli("build " + mesh + " -o " + dir.file("s.vxc") +
+                            " --format dag --resolution 128");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   r = testing::run_cli("info " + dir.file("s.vxc"));
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("DAG nodes"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("bits/voxel"), std::string::npos) << r.output;
-  r = testing::run_cli("render " + dir.file("s.vxc") + " -o " + dir.file("s.png") + " --size 64x48");
+  r = testing::run_cli("render " + dir.file("s.vxc") + " -o " + dir.file("s.png") +
+                       " --size 64x48");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_TRUE(std::filesystem::exists(dir.file("s.png")));
   r = testing::run_cli("build " + mesh + " -o " + dir.file("x.vxc") + " --format octree");

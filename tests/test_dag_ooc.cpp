@@ -48,7 +48,8 @@ dag::SparseVoxelDag in_core(const Mesh& mesh, const GridTransform& grid, Voxeliz
 }
 
 dag::SparseVoxelDag out_of_core(const Mesh& mesh, const GridTransform& grid, VoxelizationMode mode,
-                                bool attributes, uint32_t cell, dag::OutOfCoreReport* rep = nullptr) {
+                                bool attributes, uint32_t cell,
+                                dag::OutOfCoreReport* rep = nullptr) {
   dag::OutOfCoreOptions o;
   o.mode = mode;
   o.attributes = attributes;
@@ -82,12 +83,11 @@ TEST_P(OocBunny, ByteIdenticalToInCoreForEveryCellSize) {
   }
 }
 
-INSTANTIATE_TEST_SUITE_P(
-    Modes, OocBunny,
-    ::testing::Values(Case{256, VoxelizationMode::Conservative, true},
-                      Case{256, VoxelizationMode::SixSeparating, true},
-                      Case{256, VoxelizationMode::Conservative, false},
-                      Case{1024, VoxelizationMode::SixSeparating, false}));
+INSTANTIATE_TEST_SUITE_P(Modes, OocBunny,
+                         ::testing::Values(Case{256, VoxelizationMode::Conservative, true},
+                                           Case{256, VoxelizationMode::SixSeparating, true},
+                                           Case{256, VoxelizationMode::Conservative, false},
+                                           Case{1024, VoxelizationMode::SixSeparating, false}));
 
 TEST(OocDag, AutomaticCellSizeFollowsTheBudget) {
   // A budget far below the in-core need forces small cells; still identical.
@@ -145,7 +145,8 @@ TEST(OocDag, CellRasterizerIsTheFullRasterizerRestricted) {
     if (trial % 11 == 0)  // a small triangle
       for (int k = 1; k < 3; ++k)
         for (int a = 0; a < 3; ++a) tri[k][a] = tri[0][a] + (tri[k][a] - tri[0][a]) * 0.03;
-    for (VoxelizationMode mode : {VoxelizationMode::Conservative, VoxelizationMode::SixSeparating}) {
+    for (VoxelizationMode mode :
+         {VoxelizationMode::Conservative, VoxelizationMode::SixSeparating}) {
       std::vector<uint64_t> full;
       triangle_voxels(tri, n, mode, full);
       std::sort(full.begin(), full.end());
@@ -179,7 +180,7 @@ TEST(OocDag, CellRasterizerIsTheFullRasterizerRestricted) {
 TEST(OocDag, TwentyLevelsBuildSaveLoadAndTrace) {
   Mesh m;
   const float e = 2e-5f;
-  m.positions = {{0, 0, 0.5f * e}, {e, 0, 0.5f * e}, {0, e, 0.5f * e},
+  m.positions = {{0, 0, 0.5f * e},     {e, 0, 0.5f * e},         {0, e, 0.5f * e},
                  {1, 1, 1 - 0.5f * e}, {1 - e, 1, 1 - 0.5f * e}, {1, 1 - e, 1 - 0.5f * e}};
   m.indices = {0, 1, 2, 3, 4, 5};
   const GridTransform grid = GridTransform::fit(m.bounds(), 1u << 20);

@@ -50,7 +50,8 @@ Scene make_scene(Mesh mesh, uint32_t resolution) {
   s.voxels = voxelize(s.mesh, GridTransform::fit(s.mesh.bounds(), resolution), VoxelizeOptions{});
   s.esvo = std::make_unique<esvo::EsvoStructure>(
       std::make_shared<esvo::EsvoOctree>(esvo::build_octree(s.voxels)));
-  s.dag = std::make_unique<dag::DagStructure>(std::make_shared<dag::SparseVoxelDag>(dag::build_dag(s.voxels)));
+  s.dag = std::make_unique<dag::DagStructure>(
+      std::make_shared<dag::SparseVoxelDag>(dag::build_dag(s.voxels)));
   return s;
 }
 
@@ -159,7 +160,9 @@ Agreement compare_with_embree(const Scene& s, int W, int H) {
     a.soft_diff += soft_d[i];
     a.corners_diff += corners_d[i];
   }
-  if (a.pixels) a.mean_ao /= double(a.pixels), a.ao_diff /= double(a.pixels), a.soft_diff /= double(a.pixels), a.corners_diff /= double(a.pixels);
+  if (a.pixels)
+    a.mean_ao /= double(a.pixels), a.ao_diff /= double(a.pixels), a.soft_diff /= double(a.pixels),
+        a.corners_diff /= double(a.pixels);
   return a;
 }
 
@@ -171,11 +174,12 @@ TEST_P(EffectsOracle, OcclusionMatchesEmbree) {
   const Scene s = make_scene(load_mesh(path), 1024);
   const Agreement a = compare_with_embree(s, 160, 120);
   const double hard = double(a.hard_agree) / double(a.pixels);
-  std::printf("%s 1024^3, 160x120, %zu shaded pixels (%.1f%% in cast hard shadow, Embree mean AO %.3f): "
-              "hard shadow mask agreement %.3f%%, soft (16 rays) mean |diff| %.4f, AO (64 rays, "
-              "R = 10%% diag) mean |diff| %.4f; corner-ray beam vs exact mean |diff| %.4f\n",
-              GetParam(), a.pixels, 100.0 * double(a.shadowed) / double(a.pixels), a.mean_ao,
-              100.0 * hard, a.soft_diff, a.ao_diff, a.corners_diff);
+  std::printf(
+      "%s 1024^3, 160x120, %zu shaded pixels (%.1f%% in cast hard shadow, Embree mean AO %.3f): "
+      "hard shadow mask agreement %.3f%%, soft (16 rays) mean |diff| %.4f, AO (64 rays, "
+      "R = 10%% diag) mean |diff| %.4f; corner-ray beam vs exact mean |diff| %.4f\n",
+      GetParam(), a.pixels, 100.0 * double(a.shadowed) / double(a.pixels), a.mean_ao, 100.0 * hard,
+      a.soft_diff, a.ao_diff, a.corners_diff);
   ASSERT_GT(a.pixels, 3000u);
   // Not a trivial agreement: some pixels are in cast shadow, AO is not all 1
   // (measured: bunny 11.0% / 0.966, spot 1.1% / 0.981).
@@ -191,10 +195,12 @@ TEST_P(EffectsOracle, OcclusionMatchesEmbree) {
   EXPECT_EQ(a.beam_equal, a.pixels);
 }
 
-INSTANTIATE_TEST_SUITE_P(SharedMeshes, EffectsOracle, ::testing::Values("stanford-bunny.obj", "spot.obj"),
+INSTANTIATE_TEST_SUITE_P(SharedMeshes, EffectsOracle,
+                         ::testing::Values("stanford-bunny.obj", "spot.obj"),
                          [](const ::testing::TestParamInfo<const char*>& info) {
-                           return std::filesystem::path(info.param).stem().string() == "spot" ? std::string("spot")
-                                                                                              : std::string("bunny");
+                           return std::filesystem::path(info.param).stem().string() == "spot"
+                                      ? std::string("spot")
+                                      : std::string("bunny");
                          });
 
 // ---- Renders: ESVO == DAG, thread-count independence ----
@@ -287,7 +293,8 @@ TEST(Effects, FlatLitPlaneHasNoShadowAcne) {
     size_t lit = 0, open = 0;
     for (float v : r.shadow.pixels) lit += v == 1.f;
     for (float v : r.ao.pixels) open += v == 1.f;
-    EXPECT_EQ(lit, r.rays) << "shadow acne with light " << light.x << "," << light.y << "," << light.z;
+    EXPECT_EQ(lit, r.rays) << "shadow acne with light " << light.x << "," << light.y << ","
+                           << light.z;
     // An open plane: AO exactly 1 everywhere (every ray leaves into empty space).
     EXPECT_EQ(open, r.rays);
   }

@@ -4,12 +4,12 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdlib>
-#include <vector>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "voxcast/embree_reference.hpp"
 #include "voxcast/esvo_structure.hpp"
@@ -103,11 +103,12 @@ TEST_P(MeshOracle, DepthMatchesEmbree) {
       const float cos_theta = std::fmax(std::fabs(dot(normal, rays.direction(x, y))), 0.25f);
       close_incidence += std::fabs(dv - de) <= tol / cos_theta;
     }
-  std::printf("%s: %zu voxels, coverage %.1f%%, hit/miss agreement %.3f%%, depth within 2 voxel diagonals "
-              "%.2f%% of common hits (%.3f%% within 2 diagonals / |cos theta|), border hits %zu\n",
-              GetParam(), voxels.size(), 100.0 * double(er.hits) / double(n), 100.0 * double(agree) / double(n),
-              100.0 * double(close) / double(std::max<size_t>(both, 1)),
-              100.0 * double(close_incidence) / double(std::max<size_t>(both, 1)), border_hits);
+  std::printf(
+      "%s: %zu voxels, coverage %.1f%%, hit/miss agreement %.3f%%, depth within 2 voxel diagonals "
+      "%.2f%% of common hits (%.3f%% within 2 diagonals / |cos theta|), border hits %zu\n",
+      GetParam(), voxels.size(), 100.0 * double(er.hits) / double(n),
+      100.0 * double(agree) / double(n), 100.0 * double(close) / double(std::max<size_t>(both, 1)),
+      100.0 * double(close_incidence) / double(std::max<size_t>(both, 1)), border_hits);
   EXPECT_EQ(vr.rays, n);
   EXPECT_GT(both, n / 10) << "the framed mesh should cover a good part of the image";
   EXPECT_GE(double(agree), 0.995 * double(n));
@@ -116,8 +117,9 @@ TEST_P(MeshOracle, DepthMatchesEmbree) {
 }
 
 INSTANTIATE_TEST_SUITE_P(SharedMeshes, MeshOracle,
-                         ::testing::Values("stanford-bunny.obj", "armadillo.off", "refined_elephant.off",
-                                           "camel.off", "fandisk_large.off", "spot.obj", "teapot.obj",
+                         ::testing::Values("stanford-bunny.obj", "armadillo.off",
+                                           "refined_elephant.off", "camel.off", "fandisk_large.off",
+                                           "spot.obj", "teapot.obj",
                                            "CesiumMilkTruck/CesiumMilkTruck.gltf"),
                          [](const ::testing::TestParamInfo<const char*>& info) {
                            std::string s = std::filesystem::path(info.param).stem().string();

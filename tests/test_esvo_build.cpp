@@ -1,13 +1,12 @@
 // ESVO builder, layout, attribute encoding, validation and statistics.
 #include <gtest/gtest.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <bit>
 #include <cmath>
 #include <map>
 #include <random>
-
-#include <tbb/task_arena.h>
 
 #include "support/esvo_testing.hpp"
 #include "voxcast/error.hpp"
@@ -57,13 +56,16 @@ std::vector<esvo::LevelStats> brute_force_levels(const VoxelSet& v) {
 }
 
 double angle(Vec3 a, Vec3 b) {
-  const double cx = double(a.y) * b.z - double(a.z) * b.y, cy = double(a.z) * b.x - double(a.x) * b.z,
+  const double cx = double(a.y) * b.z - double(a.z) * b.y,
+               cy = double(a.z) * b.x - double(a.x) * b.z,
                cz = double(a.x) * b.y - double(a.y) * b.x;
   const double d = double(a.x) * b.x + double(a.y) * b.y + double(a.z) * b.z;
   return std::atan2(std::sqrt(cx * cx + cy * cy + cz * cz), d);
 }
 
-double to_srgb(double c) { return c <= 0.0031308 ? 12.92 * c : 1.055 * std::pow(c, 1 / 2.4) - 0.055; }
+double to_srgb(double c) {
+  return c <= 0.0031308 ? 12.92 * c : 1.055 * std::pow(c, 1 / 2.4) - 0.055;
+}
 
 void check_octree(const VoxelSet& v, const EsvoOctree& o) {
   ASSERT_NO_THROW(o.validate());
@@ -172,7 +174,8 @@ TEST(EsvoBuild, DenseGridPointQueries) {
     for (uint32_t z = 0; z < 32; ++z)
       for (uint32_t y = 0; y < 32; ++y)
         for (uint32_t x = 0; x < 32; ++x)
-          ASSERT_EQ(testing::query_leaf(o, x, y, z), occupied(x, y, z)) << x << "," << y << "," << z;
+          ASSERT_EQ(testing::query_leaf(o, x, y, z), occupied(x, y, z))
+              << x << "," << y << "," << z;
   }
 }
 
@@ -301,10 +304,13 @@ TEST(EsvoValidate, DetectsCorruption) {
     mutate(o);
     EXPECT_THROW(o.validate(), Error) << what;
   };
-  expect_invalid([&](EsvoOctree& o) { o.words[root * 2] &= ~(0x7FFFu << 17); }, "zero child pointer");
-  expect_invalid([&](EsvoOctree& o) { o.words[root * 2] |= 0xFFFFu << 16; }, "pointer out of range");
+  expect_invalid([&](EsvoOctree& o) { o.words[root * 2] &= ~(0x7FFFu << 17); },
+                 "zero child pointer");
+  expect_invalid([&](EsvoOctree& o) { o.words[root * 2] |= 0xFFFFu << 16; },
+                 "pointer out of range");
   expect_invalid([&](EsvoOctree& o) { o.words[0] += 2; }, "page header");
-  expect_invalid([&](EsvoOctree& o) { o.words.resize(o.words.size() - esvo::kPageWords); }, "truncated");
+  expect_invalid([&](EsvoOctree& o) { o.words.resize(o.words.size() - esvo::kPageWords); },
+                 "truncated");
   expect_invalid([&](EsvoOctree& o) { o.block_count += 1; }, "block count");
   expect_invalid([&](EsvoOctree& o) { o.grid = testing::unit_grid(4); }, "levels too small");
   expect_invalid([&](EsvoOctree& o) { o.grid = testing::unit_grid(6); }, "levels too large");
@@ -321,8 +327,8 @@ TEST(EsvoValidate, DetectsCorruption) {
   expect_invalid(
       [&](EsvoOctree& o) {
         const uint32_t g = child_group_of(o, root);
-        o.words[(g + 1) * 2] = (o.words[(g + 1) * 2] & 0xFFFFu) | ((o.words[g * 2] >> 17) + 1) << 17 |
-                               (o.words[g * 2] & 0x10000u);
+        o.words[(g + 1) * 2] = (o.words[(g + 1) * 2] & 0xFFFFu) |
+                               ((o.words[g * 2] >> 17) + 1) << 17 | (o.words[g * 2] & 0x10000u);
         if (o.words[g * 2] & 0x10000u)  // far: reuse the far pointer, corrected by one slot
           o.words[(g + 1) * 2] = o.words[g * 2] - (1u << 17);
       },
@@ -354,7 +360,7 @@ TEST(EsvoEncoding, ColorRoundTrip) {
     ASSERT_NEAR(to_srgb(d.b), to_srgb(c.b), 0.5 / 255 + 1e-5);
     ASSERT_NEAR(d.a, c.a, 0.5 / 255 + 1e-5);
   }
-  EXPECT_EQ(esvo::encode_color_abgr({1, 0, 0, 1}), 0xFF0000FFu);  // R in the low byte
+  EXPECT_EQ(esvo::encode_color_abgr({1, 0, 0, 1}), 0xFF0000FFu);     // R in the low byte
   EXPECT_EQ(esvo::encode_color_abgr({-1, 2, NAN, 0}), 0x0000FF00u);  // clamped
 }
 
@@ -389,7 +395,8 @@ TEST(EsvoEncoding, NormalErrorBound) {
   double worst = 0;
   for (int i = 0; i < 200000; ++i) {
     Vec3 n = normalize(Vec3{g(rng), g(rng), g(rng)});
-    if (i % 4 == 0) n.x = std::copysign(std::max(std::fabs(n.y), std::fabs(n.z)), n.x);  // face edges
+    if (i % 4 == 0)
+      n.x = std::copysign(std::max(std::fabs(n.y), std::fabs(n.z)), n.x);  // face edges
     n = normalize(n);
     const Vec3 d = esvo::decode_normal_cube(esvo::encode_normal_cube(n));
     worst = std::max(worst, angle(n, d));

@@ -22,7 +22,9 @@
 namespace voxcast {
 namespace {
 
-std::string file_bytes(const std::string& path) { return testing::read_text(path); }
+std::string file_bytes(const std::string& path) {
+  return testing::read_text(path);
+}
 
 TEST(Generate, SameSeedSameBytesOtherSeedOtherBytes) {
   testing::TempDir dir;
@@ -35,8 +37,10 @@ TEST(Generate, SameSeedSameBytesOtherSeedOtherBytes) {
     generate::write_mesh(dir.file(std::string("b") + ext), generate::hairball(h));
     h.seed = 6;
     generate::write_mesh(dir.file(std::string("c") + ext), generate::hairball(h));
-    EXPECT_EQ(file_bytes(dir.file(std::string("a") + ext)), file_bytes(dir.file(std::string("b") + ext)));
-    EXPECT_NE(file_bytes(dir.file(std::string("a") + ext)), file_bytes(dir.file(std::string("c") + ext)));
+    EXPECT_EQ(file_bytes(dir.file(std::string("a") + ext)),
+              file_bytes(dir.file(std::string("b") + ext)));
+    EXPECT_NE(file_bytes(dir.file(std::string("a") + ext)),
+              file_bytes(dir.file(std::string("c") + ext)));
   }
   generate::TerrainOptions t;
   t.size = 40;
@@ -60,7 +64,8 @@ size_t menger_faces_by_subdivision(int level) {
       for (int z = 0; z < 3; ++z)
         for (int y = 0; y < 3; ++y)
           for (int x = 0; x < 3; ++x)
-            if ((x == 1) + (y == 1) + (z == 1) < 2) next.push_back({3 * c[0] + x, 3 * c[1] + y, 3 * c[2] + z});
+            if ((x == 1) + (y == 1) + (z == 1) < 2)
+              next.push_back({3 * c[0] + x, 3 * c[1] + y, 3 * c[2] + z});
     cubes = std::move(next);
   }
   std::map<std::tuple<int, int, int, int>, int> faces;  // (axis, min corner) -> cubes using it
@@ -112,7 +117,8 @@ TEST(Generate, HairballTubesAreClosedAndVoxelize) {
     for (int k = 0; k < 3; ++k) ++directed[{m.indices[3 * t + k], m.indices[3 * t + (k + 1) % 3]}];
   for (const auto& [e, c] : directed) {
     ASSERT_EQ(c, 1);
-    ASSERT_EQ(directed.count({e.second, e.first}), 1u) << "open edge " << e.first << "-" << e.second;
+    ASSERT_EQ(directed.count({e.second, e.first}), 1u)
+        << "open edge " << e.first << "-" << e.second;
   }
   for (const Vec3& p : m.positions) EXPECT_LE(length(p), 1.0f + 1e-5f);
   testing::TempDir dir;
@@ -133,7 +139,8 @@ int vertical_hits(const Mesh& m, double x, double z) {
                c = m.positions[m.indices[3 * t + 2]];
     // Point-in-triangle in the xz projection (barycentric, closed on one side
     // by a tie rule so shared edges count once).
-    const double d = (double(b.z) - c.z) * (double(a.x) - c.x) + (double(c.x) - b.x) * (double(a.z) - c.z);
+    const double d =
+        (double(b.z) - c.z) * (double(a.x) - c.x) + (double(c.x) - b.x) * (double(a.z) - c.z);
     const double u = ((double(b.z) - c.z) * (x - c.x) + (double(c.x) - b.x) * (z - c.z)) / d;
     const double v = ((double(c.z) - a.z) * (x - c.x) + (double(a.x) - c.x) * (z - c.z)) / d;
     if (u > 0 && v > 0 && 1 - u - v > 0) ++hits;
@@ -180,11 +187,12 @@ TEST(Generate, CliWritesAndRejectsBadInput) {
   struct Bad {
     std::string args, message;
   };
-  for (const Bad& b : {Bad{"generate donut -o " + dir.file("x.obj"), "not hairball, menger or terrain"},
-                       Bad{"generate menger --level 9 -o " + dir.file("x.obj"), "level 9 is outside"},
-                       Bad{"generate terrain --size 1 -o " + dir.file("x.obj"), "size 1 is outside"},
-                       Bad{"generate hairball --sides 2 -o " + dir.file("x.obj"), "sides 2"},
-                       Bad{"generate menger -o " + dir.file("x.stl"), "must end in .obj or .ply"}}) {
+  for (const Bad& b :
+       {Bad{"generate donut -o " + dir.file("x.obj"), "not hairball, menger or terrain"},
+        Bad{"generate menger --level 9 -o " + dir.file("x.obj"), "level 9 is outside"},
+        Bad{"generate terrain --size 1 -o " + dir.file("x.obj"), "size 1 is outside"},
+        Bad{"generate hairball --sides 2 -o " + dir.file("x.obj"), "sides 2"},
+        Bad{"generate menger -o " + dir.file("x.stl"), "must end in .obj or .ply"}}) {
     r = testing::run_cli(b.args);
     EXPECT_EQ(r.exit_code, 1) << b.args << "\n" << r.output;
     EXPECT_NE(r.output.find("voxcast: error: "), std::string::npos) << r.output;

@@ -64,7 +64,8 @@ TEST(Srgb, KnownValuesAndInverse) {
     EXPECT_NEAR(linear_to_srgb(srgb_to_linear(x)), x, 2e-6f) << x;
     EXPECT_NEAR(srgb_to_linear(linear_to_srgb(x)), x, 2e-6f) << x;
   }
-  for (int i = 1; i <= 100; ++i) EXPECT_GT(srgb_to_linear(i / 100.0f), srgb_to_linear((i - 1) / 100.0f));
+  for (int i = 1; i <= 100; ++i)
+    EXPECT_GT(srgb_to_linear(i / 100.0f), srgb_to_linear((i - 1) / 100.0f));
 }
 
 TEST(Pfm, RoundTripIsBitExact) {
@@ -96,7 +97,8 @@ TEST(Pfm, HeaderAndBottomToTopRows) {
   ASSERT_EQ(bytes.substr(0, header.size()), header);
   ASSERT_EQ(bytes.size(), header.size() + 2 * 3 * 3 * 4);
   auto file_float = [&](size_t i) {
-    const unsigned char* b = reinterpret_cast<const unsigned char*>(bytes.data() + header.size() + 4 * i);
+    const unsigned char* b =
+        reinterpret_cast<const unsigned char*>(bytes.data() + header.size() + 4 * i);
     uint32_t u = uint32_t(b[0]) | uint32_t(b[1]) << 8 | uint32_t(b[2]) << 16 | uint32_t(b[3]) << 24;
     float f;
     std::memcpy(&f, &u, 4);

@@ -25,8 +25,8 @@ namespace {
 const fs::path kShared = fs::path(VOXCAST_SHARED_DIR) / "meshes";
 const fs::path kAssimpModels = "/usr/share/assimp/models";
 
-#define REQUIRE_DIR(dir)                                                   \
-  do {                                                                     \
+#define REQUIRE_DIR(dir)                                                    \
+  do {                                                                      \
     if (!fs::is_directory(dir)) GTEST_SKIP() << (dir) << " is not present"; \
   } while (0)
 
@@ -120,9 +120,8 @@ void expect_one_line_naming(const std::string& msg, const fs::path& p) {
 
 TEST(MeshImport, SharedMeshesLoadWithIndependentTriangleCounts) {
   REQUIRE_DIR(kShared);
-  const char* files[] = {"stanford-bunny.obj", "spot.obj",          "teapot.obj",
-                         "armadillo.off",      "refined_elephant.off", "camel.off",
-                         "fandisk_large.off"};
+  const char* files[] = {"stanford-bunny.obj",   "spot.obj",  "teapot.obj",       "armadillo.off",
+                         "refined_elephant.off", "camel.off", "fandisk_large.off"};
   for (const char* f : files) {
     SCOPED_TRACE(f);
     fs::path p = kShared / f;
@@ -146,7 +145,7 @@ TEST(MeshImport, BunnyHasItsKnownSizeAndComputedNormals) {
   MeshLoadStats stats;
   Mesh m = load_mesh(kShared / "stanford-bunny.obj", &stats);
   EXPECT_EQ(stats.input_triangles, 69451u);  // the classic Stanford bunny count
-  EXPECT_TRUE(stats.normals_computed);        // the OBJ has no 'vn' lines
+  EXPECT_TRUE(stats.normals_computed);       // the OBJ has no 'vn' lines
   // Smooth normals must mostly point away from the centroid on this closed,
   // roughly convex-ish scan: a flipped or garbage computation would not.
   Vec3 c = m.bounds().center();
@@ -262,9 +261,14 @@ TEST(MeshImport, AssimpTestModelFormats) {
     size_t min_tris;
   };
   const Case cases[] = {
-      {"PLY/cube.ply", 12},        {"PLY/cube_binary.ply", 12}, {"STL/triangle.stl", 1},
-      {"STL/Spider_binary.stl", 100}, {"FBX/box.fbx", 12},      {"Collada/cube_triangulate.dae", 12},
-      {"glTF2/BoxTextured-glTF-Binary/BoxTextured.glb", 12}, {"OFF/Cube.off", 12},
+      {"PLY/cube.ply", 12},
+      {"PLY/cube_binary.ply", 12},
+      {"STL/triangle.stl", 1},
+      {"STL/Spider_binary.stl", 100},
+      {"FBX/box.fbx", 12},
+      {"Collada/cube_triangulate.dae", 12},
+      {"glTF2/BoxTextured-glTF-Binary/BoxTextured.glb", 12},
+      {"OFF/Cube.off", 12},
   };
   for (const Case& c : cases) {
     fs::path p = kAssimpModels / c.file;
@@ -326,11 +330,12 @@ TEST(MeshImport, ColladaWithTgaTexture) {
 TEST(MeshImport, PlyVertexColorsAreLinearized) {
   TempDir tmp;
   // 8-bit PLY colors are sRGB-encoded: 128 must come back as srgb_to_linear(128/255).
-  fs::path p = tmp.write("colored.ply",
-                         "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
-                         "property float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n"
-                         "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
-                         "0 0 0 128 0 255\n1 0 0 128 0 255\n0 1 0 128 0 255\n3 0 1 2\n");
+  fs::path p =
+      tmp.write("colored.ply",
+                "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                "property float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n"
+                "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+                "0 0 0 128 0 255\n1 0 0 128 0 255\n0 1 0 128 0 255\n3 0 1 2\n");
   Mesh m = load_mesh(p);
   ASSERT_EQ(m.colors.size(), 3u);
   EXPECT_NEAR(m.colors[0].r, srgb_to_linear(128 / 255.0f), 1e-4f);
@@ -368,10 +373,11 @@ TEST(MeshImport, OutOfRangeIndexThrows) {
   expect_one_line_naming(load_error(p), p);
   fs::path q = tmp.write("range.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 5\n");
   expect_one_line_naming(load_error(q), q);
-  fs::path r = tmp.write("range.ply",
-                         "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
-                         "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
-                         "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 5\n");
+  fs::path r =
+      tmp.write("range.ply",
+                "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+                "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 5\n");
   expect_one_line_naming(load_error(r), r);
 }
 
@@ -461,9 +467,9 @@ TEST(MeshImport, DegenerateTrianglesAreDroppedAndCounted) {
   TempDir tmp;
   fs::path p = tmp.write("degen.obj",
                          "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 2 0 0\nv 1 1 0\n"
-                         "f 1 2 3\n"   // fine
-                         "f 1 1 2\n"   // repeated index
-                         "f 1 2 4\n"   // collinear: zero area
+                         "f 1 2 3\n"    // fine
+                         "f 1 1 2\n"    // repeated index
+                         "f 1 2 4\n"    // collinear: zero area
                          "f 2 5 3\n");  // fine
   MeshLoadStats stats;
   Mesh m = load_mesh(p, &stats);
@@ -521,10 +527,11 @@ TEST(MeshImport, FileNormalsAreKeptAndBadOnesRepaired) {
 TEST(MeshImport, QuadsAreTriangulatedAndMaterialsKept) {
   TempDir tmp;
   tmp.write("cube.mtl", "newmtl red\nKd 1 0 0\nnewmtl blue\nKd 0 0 0.5\n");
-  fs::path p = tmp.write("cube.obj", "mtllib cube.mtl\n"
-                                     "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\n"
-                                     "usemtl red\nf 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\n"
-                                     "usemtl blue\nf 2 3 7 6\nf 3 4 8 7\nf 4 1 5 8\n");
+  fs::path p = tmp.write("cube.obj",
+                         "mtllib cube.mtl\n"
+                         "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\n"
+                         "usemtl red\nf 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\n"
+                         "usemtl blue\nf 2 3 7 6\nf 3 4 8 7\nf 4 1 5 8\n");
   MeshLoadStats stats;
   Mesh m = load_mesh(p, &stats);
   EXPECT_EQ(m.triangle_count(), 12u);
@@ -541,8 +548,9 @@ TEST(MeshImport, QuadsAreTriangulatedAndMaterialsKept) {
 TEST(MeshImport, MissingTextureFallsBackToBaseColorWithAWarning) {
   TempDir tmp;
   tmp.write("t.mtl", "newmtl m\nKd 1 1 1\nmap_Kd does_not_exist.png\n");
-  fs::path p = tmp.write("t.obj", "mtllib t.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\n"
-                                  "usemtl m\nf 1/1 2/2 3/3\n");
+  fs::path p = tmp.write("t.obj",
+                         "mtllib t.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\n"
+                         "usemtl m\nf 1/1 2/2 3/3\n");
   MeshLoadStats stats;
   Mesh m = load_mesh(p, &stats);
   ASSERT_EQ(stats.warnings.size(), 1u);
@@ -561,8 +569,10 @@ TEST(MeshImport, ObjUvsUseTopLeftOrigin) {
   img.at(0, 1)[2] = 1;
   write_image(tmp.path / "tex.png", img);
   tmp.write("t.mtl", "newmtl m\nKd 1 1 1\nmap_Kd tex.png\n");
-  fs::path p = tmp.write("t.obj", "mtllib t.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0.5 0.75\nvt 0.5 0.75\nvt 0.5 0.75\n"
-                                  "usemtl m\nf 1/1 2/2 3/3\n");
+  fs::path p =
+      tmp.write("t.obj",
+                "mtllib t.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0.5 0.75\nvt 0.5 0.75\nvt 0.5 0.75\n"
+                "usemtl m\nf 1/1 2/2 3/3\n");
   Mesh m = load_mesh(p);
   ASSERT_EQ(m.uvs.size(), 3u);
   EXPECT_NEAR(m.uvs[0].y, 0.25f, 1e-6f);  // the center of the top texel row
@@ -696,13 +706,15 @@ TEST(Mesh, ValidateMeshRejectsBrokenInvariants) {
 // Found by fuzz/fuzz_mesh: Assimp's PLY reader never returns on this header.
 TEST(MeshImport, MalformedPlyHeaderIsRejectedNotHung) {
   TempDir tmp;
-  fs::path p = tmp.write("hang.ply",
-                         "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
-                         "property float z\nelement face 1\npr2\n");
+  fs::path p =
+      tmp.write("hang.ply",
+                "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                "property float z\nelement face 1\npr2\n");
   std::string msg = load_error(p);
   expect_one_line_naming(msg, p);
   EXPECT_NE(msg.find("PLY"), std::string::npos) << msg;
-  fs::path q = tmp.write("noend.ply", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n");
+  fs::path q =
+      tmp.write("noend.ply", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n");
   EXPECT_NE(load_error(q).find("end_header"), std::string::npos);
   fs::path r = tmp.write("huge.ply",
                          "ply\nformat binary_little_endian 1.0\nelement vertex 99999999999\n"

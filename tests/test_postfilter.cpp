@@ -25,7 +25,9 @@ uint64_t mix(uint64_t x) {  // splitmix64 finalizer: deterministic test noise
   x = (x ^ (x >> 27)) * 0x94d049bb133111ebull;
   return x ^ (x >> 31);
 }
-float noise01(uint64_t seed) { return float(mix(seed) >> 40) / float(1 << 24); }
+float noise01(uint64_t seed) {
+  return float(mix(seed) >> 40) / float(1 << 24);
+}
 
 Image single_channel(int w, int h, float (*f)(int, int)) {
   Image im(w, h, 1);
@@ -96,7 +98,8 @@ TEST(PostFilterKernel, HasThePaperShape) {
   // (d^2) or a 1/d density (d^1) would miss these by 6-12 samples.
   for (double d : {6.0, 12.0, 18.0}) {
     const double expected = 96.0 * std::pow(d / 24.0, 1.5);
-    const auto inside = std::count_if(k.begin(), k.end(), [&](const auto& s) { return s.dist <= d; });
+    const auto inside =
+        std::count_if(k.begin(), k.end(), [&](const auto& s) { return s.dist <= d; });
     EXPECT_NEAR(double(inside), expected, 3.0) << "d = " << d;
   }
   // Sparser samples stand for more area: weight * density ≈ 1, i.e. the
@@ -172,7 +175,8 @@ TEST(PostFilter, LargeRadiusSmoothsACheckerboard) {
   EXPECT_NEAR(before, 0.25, 1e-9);
   EXPECT_LT(after, before / 20.0) << "before " << before << " after " << after;
   // A 2x2 checkerboard (voxels of 2 pixels) as well.
-  const Image im2 = single_channel(W, H, [](int x, int y) { return float(((x >> 1) + (y >> 1)) & 1); });
+  const Image im2 =
+      single_channel(W, H, [](int x, int y) { return float(((x >> 1) + (y >> 1)) & 1); });
   const double after2 = variance(post_filter(im2, code), 24);
   EXPECT_LT(after2, variance(im2, 24) / 20.0) << after2;
 }
@@ -216,7 +220,8 @@ TEST(PostFilter, RadiusStepGivesNoSeam) {
   const Image im = single_channel(W, H, [](int, int y) { return y == 31 || y == 32 ? 1.f : 0.f; });
   std::vector<uint8_t> code(size_t(W) * H);
   for (int y = 0; y < H; ++y)
-    for (int x = 0; x < W; ++x) code[size_t(y) * W + x] = encode_filter_radius(x < step ? 16.f : 2.f);
+    for (int x = 0; x < W; ++x)
+      code[size_t(y) * W + x] = encode_filter_radius(x < step ? 16.f : 2.f);
   const Image ours = post_filter(im, code), naive = naive_filter(im, code);
   auto max_jump = [&](const Image& out, int* where) {
     float jump = 0;
@@ -253,7 +258,8 @@ TEST(PostFilter, DeterministicAcrossThreadCounts) {
   for (size_t i = 0; i < code.size(); ++i) code[i] = uint8_t(mix(i + 99) % 180);
   const Image one = post_filter(im, code, 1);
   EXPECT_NE(one.pixels, im.pixels);
-  for (int threads : {2, 0}) EXPECT_EQ(post_filter(im, code, threads).pixels, one.pixels) << threads;
+  for (int threads : {2, 0})
+    EXPECT_EQ(post_filter(im, code, threads).pixels, one.pixels) << threads;
 }
 
 TEST(PostFilter, RejectsMismatchedInputs) {
@@ -265,7 +271,8 @@ TEST(PostFilter, RejectsMismatchedInputs) {
 class PostFilterRender : public ::testing::Test {
  protected:
   void SetUp() override {
-    auto octree = std::make_shared<esvo::EsvoOctree>(esvo::build_octree(testing::make_sphere_shell(5)));
+    auto octree =
+        std::make_shared<esvo::EsvoOctree>(esvo::build_octree(testing::make_sphere_shell(5)));
     structure = std::make_unique<esvo::EsvoStructure>(octree);
     options.width = 96, options.height = 72;
     options.lod_pixels = 0.f;
@@ -289,7 +296,8 @@ TEST_F(PostFilterRender, FilterChangesOnlyHitPixels) {
     for (int x = 0; x < options.width; ++x)
       if (std::isfinite(*plain.depth.at(x, y)))
         for (int c = 0; c < 3; ++c)
-          lo[c] = std::min(lo[c], plain.color.at(x, y)[c]), hi[c] = std::max(hi[c], plain.color.at(x, y)[c]);
+          lo[c] = std::min(lo[c], plain.color.at(x, y)[c]),
+          hi[c] = std::max(hi[c], plain.color.at(x, y)[c]);
   uint64_t changed = 0;
   for (int y = 0; y < options.height; ++y)
     for (int x = 0; x < options.width; ++x) {

@@ -45,7 +45,8 @@ EsvoOctree hand_octree(int levels, const std::vector<uint32_t>& descriptors) {
 
 // World ray of the unit grid -> octree space ([1,2]^3; t unchanged).
 CastResult counted(const EsvoOctree& o, Vec3 world_origin, Vec3 dir, RayCounters* c) {
-  return esvo::cast_ray(o, world_origin + Vec3{1, 1, 1}, normalize(dir), INFINITY, 0.f, 0.f, nullptr, c);
+  return esvo::cast_ray(o, world_origin + Vec3{1, 1, 1}, normalize(dir), INFINITY, 0.f, 0.f,
+                        nullptr, c);
 }
 
 TEST(RenderStats, ExactCountsOneLevel) {
@@ -146,7 +147,8 @@ TEST(RenderStats, LoopInvariantsOnRandomRays) {
     if (i % 4 == 0) lod.size_per_t = 0.02f;  // LOD stops are hits too
     RayCounters c;
     SurfaceHit h;
-    const bool hit = s.trace_hinted({o, normalize(target - o), INFINITY}, lod, TraceHints{nullptr, &c}, &h);
+    const bool hit =
+        s.trace_hinted({o, normalize(target - o), INFINITY}, lod, TraceHints{nullptr, &c}, &h);
     SurfaceHit plain;
     ASSERT_EQ(hit, s.trace({o, normalize(target - o), INFINITY}, lod, &plain));
     if (hit) {
@@ -199,7 +201,9 @@ TEST(RenderStats, CountersDoNotChangeTheImageAndAddUp) {
     ro.collect_stats = true;
     const RenderResult on = render(s, ro);
     EXPECT_TRUE(off.color.pixels == on.color.pixels);
-    EXPECT_EQ(std::memcmp(off.depth.pixels.data(), on.depth.pixels.data(), off.depth.pixels.size() * 4), 0);
+    EXPECT_EQ(
+        std::memcmp(off.depth.pixels.data(), on.depth.pixels.data(), off.depth.pixels.size() * 4),
+        0);
     EXPECT_TRUE(off.normal.pixels == on.normal.pixels);
     EXPECT_EQ(off.counters.iterations, 0u);  // off = not collected
     EXPECT_TRUE(off.iterations.pixels.empty());
@@ -242,7 +246,9 @@ TEST(RenderStats, HeatmapRamp) {
   EXPECT_LT(h.at(0, 0)[0] + h.at(0, 0)[1] + h.at(0, 0)[2], 0.01f);
   EXPECT_GT(h.at(10, 0)[0], 0.9f);
   EXPECT_GT(h.at(10, 0)[1], 0.9f);
-  auto luma = [&](int x) { return 0.2126f * h.at(x, 0)[0] + 0.7152f * h.at(x, 0)[1] + 0.0722f * h.at(x, 0)[2]; };
+  auto luma = [&](int x) {
+    return 0.2126f * h.at(x, 0)[0] + 0.7152f * h.at(x, 0)[1] + 0.0722f * h.at(x, 0)[2];
+  };
   for (int x = 1; x < 11; ++x) EXPECT_GT(luma(x), luma(x - 1)) << x;
   *it.at(3, 0) = 1000.f;  // clamped
   EXPECT_EQ(iteration_heatmap(it, 64.f).at(3, 0)[1], h.at(10, 0)[1]);
@@ -251,10 +257,14 @@ TEST(RenderStats, HeatmapRamp) {
 
 TEST(RenderStats, CliStatsAndHeatmap) {
   testing::TempDir dir;
-  const std::string mesh = (std::filesystem::path(VOXCAST_SHARED_DIR) / "meshes" / "stanford-bunny.obj").string();
-  ASSERT_EQ(testing::run_cli("build " + mesh + " -o " + dir.file("b.vxc") + " --resolution 128").exit_code, 0);
-  const testing::CliResult r = testing::run_cli("render " + dir.file("b.vxc") + " -o " + dir.file("a.png") +
-                                                " --size 80x60 --stats --beam 4 --heatmap " + dir.file("h.png"));
+  const std::string mesh =
+      (std::filesystem::path(VOXCAST_SHARED_DIR) / "meshes" / "stanford-bunny.obj").string();
+  ASSERT_EQ(testing::run_cli("build " + mesh + " -o " + dir.file("b.vxc") + " --resolution 128")
+                .exit_code,
+            0);
+  const testing::CliResult r =
+      testing::run_cli("render " + dir.file("b.vxc") + " -o " + dir.file("a.png") +
+                       " --size 80x60 --stats --beam 4 --heatmap " + dir.file("h.png"));
   ASSERT_EQ(r.exit_code, 0) << r.output;
   for (const char* row : {"iterations", "intersect", "push", "store", "advance", "pop", "bytes",
                           "coarse pass", "heatmap:", "= 64 iterations"})
@@ -271,8 +281,9 @@ TEST(RenderStats, CliStatsAndHeatmap) {
                 .exit_code,
             0);
   EXPECT_TRUE(std::filesystem::exists(dir.file("h2.png")));
-  const testing::CliResult bad = testing::run_cli("render " + dir.file("b.vxc") + " -o " + dir.file("a.png") +
-                                                  " --heatmap " + dir.file("h.pfm"));
+  const testing::CliResult bad =
+      testing::run_cli("render " + dir.file("b.vxc") + " -o " + dir.file("a.png") + " --heatmap " +
+                       dir.file("h.pfm"));
   EXPECT_NE(bad.exit_code, 0);
   EXPECT_NE(bad.output.find("--heatmap"), std::string::npos) << bad.output;
 }

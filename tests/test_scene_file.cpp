@@ -2,13 +2,12 @@
 // damage (truncation, byte corruption, structurally bad contents behind a
 // valid checksum, bad metadata) ends in a voxcast::Error, never a crash.
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <bit>
 #include <cstring>
 #include <fstream>
 #include <random>
-
-#include <unistd.h>
 
 #include "support/esvo_testing.hpp"
 #include "voxcast/error.hpp"
@@ -210,7 +209,8 @@ TEST_F(SceneFile, StructuralCorruptionBehindValidChecksum) {
   for (size_t b = 0; b < good.words.size(); b += esvo::kPageWords) {
     structure.push_back(b);  // page header (or attachment/padding words)
     const uint32_t info = uint32_t(b + good.words[b]);
-    if (b == 0 || (info > b && info + 6 < good.words.size() && good.words[info] == esvo::kInfoMagic)) {
+    if (b == 0 ||
+        (info > b && info + 6 < good.words.size() && good.words[info] == esvo::kInfoMagic)) {
       for (size_t k = b; k < info && k < good.words.size(); k += 2) structure.push_back(k);
       for (size_t k = info; k < info + 8 + (info - b) / 2 && k < good.words.size(); ++k)
         structure.push_back(k);
@@ -224,10 +224,18 @@ TEST_F(SceneFile, StructuralCorruptionBehindValidChecksum) {
     for (int e = 0; e < edits; ++e) {
       const size_t wi = rng() % 2 ? structure[rng() % structure.size()] : rng() % used;
       switch (rng() % 4) {
-        case 0: bad.words[wi] ^= 1u << (rng() % 32); break;           // bit flip
-        case 1: bad.words[wi] = uint32_t(rng()); break;               // random word
-        case 2: bad.words[wi] += uint32_t(rng() % 5) - 2; break;      // off by a little
-        case 3: bad.words[wi] ^= uint32_t(rng() % 0x7FFF) << 17; break;  // child pointer field
+        case 0:
+          bad.words[wi] ^= 1u << (rng() % 32);
+          break;  // bit flip
+        case 1:
+          bad.words[wi] = uint32_t(rng());
+          break;  // random word
+        case 2:
+          bad.words[wi] += uint32_t(rng() % 5) - 2;
+          break;  // off by a little
+        case 3:
+          bad.words[wi] ^= uint32_t(rng() % 0x7FFF) << 17;
+          break;  // child pointer field
       }
     }
     if (trial % 20 == 0) {  // through a real file with a recomputed checksum
@@ -274,20 +282,26 @@ TEST_F(SceneFile, BadMetadataIsRejected) {
     return m.replace(at, from.size(), to);
   };
   EXPECT_EQ(with_meta(meta), "<no error>");
-  for (const std::string& m :
-       {std::string("{"), std::string("[]"), std::string("not json"), std::string(""),
-        replaced("\"levels\": 3", "\"levels\": 0"), replaced("\"levels\": 3", "\"levels\": 21"),
-        replaced("\"levels\": 3", "\"levels\": \"3\""), replaced("\"levels\": 3", "\"levels\": -3"),
-        replaced("\"levels\": 3", "\"levels\": 4"), replaced("\"resolution\": 8", "\"resolution\": 9"),
-        replaced("\"voxel_size\": 0.125", "\"voxel_size\": -0.125"),
-        replaced("\"voxel_size\": 0.125", "\"voxel_size\": 0"),
-        replaced("\"voxel_size\": 0.125", "\"voxel_size\": 1e400"),
-        replaced("\"format\": \"esvo\"", "\"format\": \"dag\""),
-        replaced("\"block_count\": 1", "\"block_count\": 0"),
-        replaced("\"block_count\": 1", "\"block_count\": 2"),
-        replaced("\"source\": \"bunny.obj\"", "\"source\": 5"),
-        replaced("\"source_triangles\": 69451", "\"source_triangles\": 1.5"),
-        replaced("-1.25", "1e39"), replaced("-1.25", "\"x\"")}) {
+  for (const std::string& m : {std::string("{"),
+                               std::string("[]"),
+                               std::string("not json"),
+                               std::string(""),
+                               replaced("\"levels\": 3", "\"levels\": 0"),
+                               replaced("\"levels\": 3", "\"levels\": 21"),
+                               replaced("\"levels\": 3", "\"levels\": \"3\""),
+                               replaced("\"levels\": 3", "\"levels\": -3"),
+                               replaced("\"levels\": 3", "\"levels\": 4"),
+                               replaced("\"resolution\": 8", "\"resolution\": 9"),
+                               replaced("\"voxel_size\": 0.125", "\"voxel_size\": -0.125"),
+                               replaced("\"voxel_size\": 0.125", "\"voxel_size\": 0"),
+                               replaced("\"voxel_size\": 0.125", "\"voxel_size\": 1e400"),
+                               replaced("\"format\": \"esvo\"", "\"format\": \"dag\""),
+                               replaced("\"block_count\": 1", "\"block_count\": 0"),
+                               replaced("\"block_count\": 1", "\"block_count\": 2"),
+                               replaced("\"source\": \"bunny.obj\"", "\"source\": 5"),
+                               replaced("\"source_triangles\": 69451", "\"source_triangles\": 1.5"),
+                               replaced("-1.25", "1e39"),
+                               replaced("-1.25", "\"x\"")}) {
     const std::string err = with_meta(m);
     EXPECT_NE(err, "<no error>") << m;
     EXPECT_EQ(err.find('\n'), std::string::npos) << err;
@@ -307,12 +321,15 @@ TEST_F(SceneFile, FileSystemErrors) {
   EXPECT_NE(error_of([&] { load_esvo_scene(path("missing.vxc")); }).find("no such file"),
             std::string::npos);
   write_bytes(path("empty.vxc"), {});
-  EXPECT_NE(error_of([&] { load_esvo_scene(path("empty.vxc")); }).find("too short"), std::string::npos);
+  EXPECT_NE(error_of([&] { load_esvo_scene(path("empty.vxc")); }).find("too short"),
+            std::string::npos);
   fs::create_directories(path("dir.vxc"));
-  EXPECT_NE(error_of([&] { load_esvo_scene(path("dir.vxc")); }).find("directory"), std::string::npos);
-  write_bytes(path("text.vxc"), {'h', 'e', 'l', 'l', 'o', ' ', 'w', 'o', 'r', 'l', 'd', '!', '!', '!', '!',
-                                  '!', '!'});
-  EXPECT_NE(error_of([&] { load_esvo_scene(path("text.vxc")); }).find("bad magic"), std::string::npos);
+  EXPECT_NE(error_of([&] { load_esvo_scene(path("dir.vxc")); }).find("directory"),
+            std::string::npos);
+  write_bytes(path("text.vxc"), {'h', 'e', 'l', 'l', 'o', ' ', 'w', 'o', 'r', 'l', 'd', '!', '!',
+                                 '!', '!', '!', '!'});
+  EXPECT_NE(error_of([&] { load_esvo_scene(path("text.vxc")); }).find("bad magic"),
+            std::string::npos);
 
   save_esvo_scene(path("a.vxc"), small_octree(), sample_info());
   std::vector<uint8_t> bytes = read_bytes(path("a.vxc"));

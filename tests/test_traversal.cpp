@@ -10,17 +10,17 @@
 
 #include "support/dda_oracle.hpp"
 #include "support/esvo_testing.hpp"
-#include "voxcast/esvo_structure.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/esvo_structure.hpp"
 #include "voxcast/morton.hpp"
 #include "voxcast/render.hpp"
 
 namespace voxcast {
 namespace {
 
+using esvo::cast_ray;
 using esvo::CastResult;
 using esvo::EsvoOctree;
-using esvo::cast_ray;
 using esvo::kMaxScale;
 using testing::DdaHit;
 using testing::DenseGrid;
@@ -112,7 +112,8 @@ TEST(TraversalHand, TwoLevelsNearAndFar) {
   // cube [1.25,1.5]^3. Near: child pointer 1 -> slot 2. Far: child pointer 1
   // -> far pointer slot 2 holding offset +2 -> descriptor at slot 3.
   const EsvoOctree near = hand_octree(2, {desc(1, false, 0x01, 0x00), desc(0, false, 0x80, 0x80)});
-  const EsvoOctree far = hand_octree(2, {desc(1, true, 0x01, 0x00), 2u, desc(0, false, 0x80, 0x80)});
+  const EsvoOctree far =
+      hand_octree(2, {desc(1, true, 0x01, 0x00), 2u, desc(0, false, 0x80, 0x80)});
   for (const EsvoOctree* o : {&near, &far}) {
     CastResult r = cast(*o, {0.5f, 1.3f, 1.3f}, {1, 0, 0});
     ASSERT_TRUE(r.hit);
@@ -166,7 +167,8 @@ bool box_span(DVec3 o, DVec3 d, const double lo[3], const double hi[3], double* 
 }
 
 bool grown_span(DVec3 o, DVec3 d, int x, int y, int z, double grow, double* t0, double* t1) {
-  const double lo[3] = {x - grow, y - grow, z - grow}, hi[3] = {x + 1 + grow, y + 1 + grow, z + 1 + grow};
+  const double lo[3] = {x - grow, y - grow, z - grow},
+               hi[3] = {x + 1 + grow, y + 1 + grow, z + 1 + grow};
   return box_span(o, d, lo, hi, t0, t1);
 }
 
@@ -190,7 +192,8 @@ DdaHit robust_first_hit(const DenseGrid& g, DVec3 o, DVec3 d, double shrink) {
     if (next.hit && next.x == h.x && next.y == h.y && next.z == h.z) {
       // Still inside (rounding at the exit point): nudge forward a little.
       const double nudge = 1e-9 * (1 + t_skip);
-      const DVec3 o3{o.x + d.x * (t_skip + nudge), o.y + d.y * (t_skip + nudge), o.z + d.z * (t_skip + nudge)};
+      const DVec3 o3{o.x + d.x * (t_skip + nudge), o.y + d.y * (t_skip + nudge),
+                     o.z + d.z * (t_skip + nudge)};
       next = g.cast(o3, d, INFINITY);
       if (next.hit) next.t_enter += t_skip + nudge, next.t_exit += t_skip + nudge;
     } else if (next.hit) {
@@ -204,7 +207,8 @@ DdaHit robust_first_hit(const DenseGrid& g, DVec3 o, DVec3 d, double shrink) {
 // Checks one ray (octree space, unit direction) against the oracle.
 // `grid` is the occupancy at the level the cast must stop at: the finest
 // level without a footprint, a coarser one with a constant footprint `bias`.
-void check_ray(const EsvoOctree& octree, const DenseGrid& grid, Vec3 p, Vec3 d, Tally* tally, float bias = 0.f) {
+void check_ray(const EsvoOctree& octree, const DenseGrid& grid, Vec3 p, Vec3 d, Tally* tally,
+               float bias = 0.f) {
   const int L = grid.levels();
   const double n = grid.resolution();
   const CastResult r = cast_ray(octree, p, d, INFINITY, 0.f, bias);
@@ -218,7 +222,8 @@ void check_ray(const EsvoOctree& octree, const DenseGrid& grid, Vec3 p, Vec3 d, 
   if (r.hit) {
     ++tally->hits;
     ASSERT_EQ(r.scale, kMaxScale - L) << "must stop at the footprint's level";
-    const double fx = (double(r.pos.x) - 1) * n, fy = (double(r.pos.y) - 1) * n, fz = (double(r.pos.z) - 1) * n;
+    const double fx = (double(r.pos.x) - 1) * n, fy = (double(r.pos.y) - 1) * n,
+                 fz = (double(r.pos.z) - 1) * n;
     ex = int(fx), ey = int(fy), ez = int(fz);
     ASSERT_TRUE(fx == ex && fy == ey && fz == ez) << "pos is not a voxel corner";
     ASSERT_TRUE(grid.occupied(ex, ey, ez)) << "hit an empty voxel " << ex << "," << ey << "," << ez;
@@ -226,7 +231,8 @@ void check_ray(const EsvoOctree& octree, const DenseGrid& grid, Vec3 p, Vec3 d, 
     if (L == octree.levels()) {
       uint32_t parent = 0;
       int child = -1;
-      ASSERT_TRUE(testing::query_leaf(octree, uint32_t(ex), uint32_t(ey), uint32_t(ez), &parent, &child));
+      ASSERT_TRUE(
+          testing::query_leaf(octree, uint32_t(ex), uint32_t(ey), uint32_t(ez), &parent, &child));
       EXPECT_EQ(r.parent_slot, parent);
       EXPECT_EQ(r.child, child);
     }
@@ -243,19 +249,22 @@ void check_ray(const EsvoOctree& octree, const DenseGrid& grid, Vec3 p, Vec3 d, 
         ++tally->exact_ties;  // the ray passes exactly through a shared edge/corner
       } else {
         ASSERT_TRUE(grown_span(go, gd, ex, ey, ez, delta, &te, &t1))
-            << "cast hit voxel " << ex << "," << ey << "," << ez << " the ray does not come near; p=("
-            << p.x << "," << p.y << "," << p.z << ") d=(" << d.x << "," << d.y << "," << d.z << ") ref "
-            << ref.hit << " " << ref.x << "," << ref.y << "," << ref.z << " t " << ref.t_enter;
+            << "cast hit voxel " << ex << "," << ey << "," << ez
+            << " the ray does not come near; p=(" << p.x << "," << p.y << "," << p.z << ") d=("
+            << d.x << "," << d.y << "," << d.z << ") ref " << ref.hit << " " << ref.x << ","
+            << ref.y << "," << ref.z << " t " << ref.t_enter;
         ASSERT_TRUE(!robust.hit || te <= robust.t_enter + 1e-9 * (1 + te))
             << "cast skipped voxel " << robust.x << "," << robust.y << "," << robust.z << " (t "
-            << robust.t_enter << ") and hit " << ex << "," << ey << "," << ez << " (t " << te << "); p=("
-            << p.x << "," << p.y << "," << p.z << ") d=(" << d.x << "," << d.y << "," << d.z << ")";
+            << robust.t_enter << ") and hit " << ex << "," << ey << "," << ez << " (t " << te
+            << "); p=(" << p.x << "," << p.y << "," << p.z << ") d=(" << d.x << "," << d.y << ","
+            << d.z << ")";
         ++tally->near_ties;
       }
     } else {
-      ASSERT_FALSE(robust.hit) << "cast missed voxel " << robust.x << "," << robust.y << "," << robust.z
-                               << " at t " << robust.t_enter << "; p=(" << p.x << "," << p.y << ","
-                               << p.z << ") d=(" << d.x << "," << d.y << "," << d.z << ")";
+      ASSERT_FALSE(robust.hit) << "cast missed voxel " << robust.x << "," << robust.y << ","
+                               << robust.z << " at t " << robust.t_enter << "; p=(" << p.x << ","
+                               << p.y << "," << p.z << ") d=(" << d.x << "," << d.y << "," << d.z
+                               << ")";
       ++tally->near_ties;
     }
   }
@@ -269,10 +278,10 @@ void check_ray(const EsvoOctree& octree, const DenseGrid& grid, Vec3 p, Vec3 d, 
     ASSERT_TRUE(grown_span(go, gd, ex, ey, ez, delta, &g0, &g1));
     const double hi = grown_span(go, gd, ex, ey, ez, -delta, &s0, &s1) ? s0 : g1;
     const double slack = 1e-6 * (1 + g0);
-    EXPECT_GE(r.t, g0 - slack) << "p=(" << p.x << "," << p.y << "," << p.z << ") d=(" << d.x << "," << d.y << ","
-                               << d.z << ")";
-    EXPECT_LE(r.t, hi + slack) << "p=(" << p.x << "," << p.y << "," << p.z << ") d=(" << d.x << "," << d.y << ","
-                               << d.z << ")";
+    EXPECT_GE(r.t, g0 - slack) << "p=(" << p.x << "," << p.y << "," << p.z << ") d=(" << d.x << ","
+                               << d.y << "," << d.z << ")";
+    EXPECT_LE(r.t, hi + slack) << "p=(" << p.x << "," << p.y << "," << p.z << ") d=(" << d.x << ","
+                               << d.y << "," << d.z << ")";
   }
 }
 
@@ -458,7 +467,8 @@ TEST(TraversalLod, PixelConeHitsCoarserAncestorEarlier) {
   int coarser = 0, hits = 0;
   for (int i = 0; i < 5000; ++i) {
     Vec3 p = Vec3{1.5f, 1.5f, 1.5f} + gen.sphere() * 3.f;
-    const Vec3 d = normalize(Vec3{gen.uni(1.3f, 1.7f), gen.uni(1.3f, 1.7f), gen.uni(1.3f, 1.7f)} - p);
+    const Vec3 d =
+        normalize(Vec3{gen.uni(1.3f, 1.7f), gen.uni(1.3f, 1.7f), gen.uni(1.3f, 1.7f)} - p);
     const CastResult fine = cast_ray(octree, p, d, INFINITY, 0.f, 0.f);
     // ~8 finest voxels at the sphere's distance (t ~ 2.3).
     const float coef = 8.f / 512.f / 2.3f;
@@ -492,8 +502,8 @@ TEST(TraversalLod, PixelConeHitsCoarserAncestorEarlier) {
     EXPECT_TRUE(g.occupied(cx, cy, cz)) << level;
     const double m = g.resolution();
     double t0, t1;
-    ASSERT_TRUE(grown_span({(p.x - 1) * m, (p.y - 1) * m, (p.z - 1) * m}, {d.x * m, d.y * m, d.z * m}, cx, cy, cz,
-                           kDeltaOct * m, &t0, &t1));
+    ASSERT_TRUE(grown_span({(p.x - 1) * m, (p.y - 1) * m, (p.z - 1) * m},
+                           {d.x * m, d.y * m, d.z * m}, cx, cy, cz, kDeltaOct * m, &t0, &t1));
     EXPECT_LE(t0, fine.t + 1e-5);
   }
   EXPECT_GT(hits, 1000);
@@ -549,7 +559,8 @@ namespace voxcast {
 namespace {
 
 TEST(Render, ImagesCountsAndLod) {
-  auto octree = std::make_shared<esvo::EsvoOctree>(esvo::build_octree(testing::make_sphere_shell(7)));
+  auto octree =
+      std::make_shared<esvo::EsvoOctree>(esvo::build_octree(testing::make_sphere_shell(7)));
   const esvo::EsvoStructure s(octree);
   RenderOptions ro;
   ro.width = 67;  // not a multiple of the tile size

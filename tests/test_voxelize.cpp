@@ -105,7 +105,9 @@ class TriangleGen {
 
 std::string describe(const Tri& t) {
   std::string s;
-  for (auto& p : t) s += "(" + std::to_string(p[0]) + "," + std::to_string(p[1]) + "," + std::to_string(p[2]) + ") ";
+  for (auto& p : t)
+    s +=
+        "(" + std::to_string(p[0]) + "," + std::to_string(p[1]) + "," + std::to_string(p[2]) + ") ";
   return s;
 }
 
@@ -169,7 +171,8 @@ TEST(TriangleVoxels, SixSeparatingIsSubsetOfConservative) {
 // 6-separating along the dominant axis: a plane z = 0.3 x + 0.2 y + c gives
 // exactly one or two voxels per column (S&S sec. 3.2).
 TEST(TriangleVoxels, SixSeparatingOneOrTwoPerColumn) {
-  Tri t{{{{-40, -40, 20 - 0.3 * 40 - 0.2 * 40}}, {{100, -40, 20 + 0.3 * 100 - 0.2 * 40}},
+  Tri t{{{{-40, -40, 20 - 0.3 * 40 - 0.2 * 40}},
+         {{100, -40, 20 + 0.3 * 100 - 0.2 * 40}},
          {{-40, 100, 20 - 0.3 * 40 + 0.2 * 100}}}};
   auto s = voxels_of(t, 32, VoxelizationMode::SixSeparating);
   std::map<std::pair<uint32_t, uint32_t>, int> per_column;
@@ -201,11 +204,11 @@ TEST(TriangleVoxels, RejectsBadInput) {
 // rotated so that no symmetry plane is grid aligned.
 Mesh make_icosphere(int subdiv, Vec3 c, float r) {
   const float t = (1.0f + std::sqrt(5.0f)) / 2.0f;
-  std::vector<Vec3> p = {{-1, t, 0}, {1, t, 0}, {-1, -t, 0}, {1, -t, 0}, {0, -1, t}, {0, 1, t},
-                         {0, -1, -t}, {0, 1, -t}, {t, 0, -1}, {t, 0, 1}, {-t, 0, -1}, {-t, 0, 1}};
-  std::vector<uint32_t> idx = {0, 11, 5, 0, 5,  1,  0, 1, 7, 0, 7,  10, 0, 10, 11, 1, 5, 9, 5, 11,
-                               4, 11, 10, 2, 10, 7, 6, 7, 1, 8, 3, 9, 4, 3, 4, 2, 3, 2, 6, 3, 6, 8, 3, 8, 9,
-                               4, 9, 5, 2, 4, 11, 6, 2, 10, 8, 6, 7, 9, 8, 1};
+  std::vector<Vec3> p = {{-1, t, 0},  {1, t, 0},  {-1, -t, 0}, {1, -t, 0}, {0, -1, t},  {0, 1, t},
+                         {0, -1, -t}, {0, 1, -t}, {t, 0, -1},  {t, 0, 1},  {-t, 0, -1}, {-t, 0, 1}};
+  std::vector<uint32_t> idx = {0, 11, 5,  0, 5,  1, 0, 1, 7, 0, 7,  10, 0, 10, 11, 1, 5, 9, 5, 11,
+                               4, 11, 10, 2, 10, 7, 6, 7, 1, 8, 3,  9,  4, 3,  4,  2, 3, 2, 6, 3,
+                               6, 8,  3,  8, 9,  4, 9, 5, 2, 4, 11, 6,  2, 10, 8,  6, 7, 9, 8, 1};
   for (auto& q : p) q = normalize(q);
   for (int s = 0; s < subdiv; ++s) {
     std::map<std::pair<uint32_t, uint32_t>, uint32_t> mid;
@@ -346,7 +349,8 @@ TEST(Voxelize, ThinClosedSlabIsWatertight) {
         for (uint32_t x = 0; x < 64; ++x) {
           Vec3 l = to_local({x + 0.5f, y + 0.5f, z + 0.5f});
           // Strictly inside, with a margin for float rounding.
-          if (std::fabs(l.x) < hx - 1e-3f && std::fabs(l.y) < hy - 1e-3f && std::fabs(l.z) < hz - 1e-3f) {
+          if (std::fabs(l.x) < hx - 1e-3f && std::fabs(l.y) < hy - 1e-3f &&
+              std::fabs(l.z) < hz - 1e-3f) {
             ++inside_centers;
             leaked += state[x + 64 * (y + 64 * z)] == 2;
           }
@@ -526,7 +530,8 @@ TEST(Voxelize, AreaWeightsOnSphereAndScaledGrid) {
   // Outward normals of a sphere point away from its center.
   for (size_t i = 0; i < vs.size(); ++i) {
     MortonCoord q = morton_decode(vs.codes[i]);
-    Vec3 center{float(g.origin.x + (q.x + 0.5) * g.voxel_size), float(g.origin.y + (q.y + 0.5) * g.voxel_size),
+    Vec3 center{float(g.origin.x + (q.x + 0.5) * g.voxel_size),
+                float(g.origin.y + (q.y + 0.5) * g.voxel_size),
                 float(g.origin.z + (q.z + 0.5) * g.voxel_size)};
     Vec3 radial = normalize(center - Vec3{1.5f, -2.0f, 0.25f});
     EXPECT_GT(dot(radial, vs.normals[i]), 0.9f);

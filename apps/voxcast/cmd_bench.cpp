@@ -1,5 +1,9 @@
 // voxcast bench MESH: the voxel ray caster against Embree on the same mesh,
 // camera, image size, tiles and threads, measured in one run.
+#include <tbb/blocked_range.h>
+#include <tbb/combinable.h>
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -8,10 +12,6 @@
 #include <sstream>
 #include <thread>
 #include <vector>
-
-#include <tbb/blocked_range.h>
-#include <tbb/combinable.h>
-#include <tbb/parallel_for.h>
 
 #include "commands.hpp"
 #include "pipeline.hpp"
@@ -27,7 +27,7 @@ namespace voxcast::cli {
 namespace {
 struct BenchArgs {
   std::string input, size = "1024x768", camera = "auto", voxelization = "conservative",
-              attributes = "raw";
+                     attributes = "raw";
   uint32_t resolution = 2048;
   float lod = 1.f;
   int repeat = 5, threads = 0, beam = 8;
@@ -64,15 +64,19 @@ EffectRun run_effect_rays(const Occluder& occ, const std::vector<ShadingPoint>& 
   for (int r = 0; r < repeat; ++r) {
     tbb::combinable<EffectCounters> counters;
     const auto t0 = std::chrono::steady_clock::now();
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 256), [&](const tbb::blocked_range<size_t>& b) {
-      EffectCounters& c = counters.local();
-      for (size_t i = b.begin(); i != b.end(); ++i) {
-        const uint32_t seed = pixel_seed(int(i), 0, fx.seed);
-        run.values[i] = fx.ao_rays > 0 ? ambient_occlusion(occ, points[i], fx, fx.ao_radius, seed, &c)
-                                       : shadow_visibility(occ, points[i], fx, light_dir, seed, &c);
-      }
-    });
-    run.seconds = std::min(run.seconds, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 256),
+                      [&](const tbb::blocked_range<size_t>& b) {
+                        EffectCounters& c = counters.local();
+                        for (size_t i = b.begin(); i != b.end(); ++i) {
+                          const uint32_t seed = pixel_seed(int(i), 0, fx.seed);
+                          run.values[i] =
+                              fx.ao_rays > 0
+                                  ? ambient_occlusion(occ, points[i], fx, fx.ao_radius, seed, &c)
+                                  : shadow_visibility(occ, points[i], fx, light_dir, seed, &c);
+                        }
+                      });
+    run.seconds = std::min(
+        run.seconds, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
     EffectCounters total;
     counters.combine_each([&](const EffectCounters& c) { total += c; });
     run.rays = total.shadow_rays + total.ao_rays;
@@ -115,13 +119,15 @@ Runner add_bench(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)");
   cmd->add_flag("-v,--verbose", args->verbose, "Print timings per stage");
-  cmd->add_flag("--contours", args->contours,
-                "Also build the same voxels with contours (esvo section 5.2) and measure them, with "
-                "and without the beam (the shape of esvo Table 4)");
+  cmd->add_flag(
+      "--contours", args->contours,
+      "Also build the same voxels with contours (esvo section 5.2) and measure them, with "
+      "and without the beam (the shape of esvo Table 4)");
   cmd->add_flag("--effects", args->effects,
                 "Also measure shadow and AO rays (svdag section 4) on the ESVO, a DAG of the same "
                 "voxels and Embree rtcOccluded1");
-  cmd->add_option("--ao-rays", args->ao_rays, "AO rays per hit pixel for --effects")->capture_default_str();
+  cmd->add_option("--ao-rays", args->ao_rays, "AO rays per hit pixel for --effects")
+      ->capture_default_str();
   cmd->add_option("--ao-radius", args->ao_radius,
                   "AO ray length for --effects (0 = 5% of the mesh bounds diagonal)")
       ->capture_default_str();
@@ -139,11 +145,13 @@ Runner add_bench(CLI::App& app) {
       if (sizes.empty()) throw Error("--size: no size given");
     }
     if (args->repeat < 1 || args->repeat > 1000) throw Error("--repeat must be in 1..1000");
-    if (args->beam != 0 && args->beam != 4 && args->beam != 8) throw Error("--beam must be 0, 4 or 8");
+    if (args->beam != 0 && args->beam != 4 && args->beam != 8)
+      throw Error("--beam must be 0, 4 or 8");
     if (!(args->min_coverage >= 0 && args->min_coverage <= 0.95))
       throw Error("--min-coverage must be in [0, 0.95]");
     if (args->ao_rays < 1 || args->ao_rays > 4096) throw Error("--ao-rays must be in 1..4096");
-    if (!std::isfinite(args->ao_radius) || args->ao_radius < 0) throw Error("--ao-radius must be >= 0");
+    if (!std::isfinite(args->ao_radius) || args->ao_radius < 0)
+      throw Error("--ao-radius must be >= 0");
 
     BuildSettings s;
     s.mesh_path = args->input;
@@ -166,162 +174,177 @@ Runner add_bench(CLI::App& app) {
     }
 
     for (size_t size_index = 0; size_index < sizes.size(); ++size_index) {
-    const int width = sizes[size_index].first, height = sizes[size_index].second;
-    Camera camera;
-    if (args->camera == "auto") {
-      camera = Camera::frame(built.mesh.bounds(), width, height);
-      // Misses flatter every ray caster: zoom in until the mesh covers enough pixels.
-      for (int i = 0; i < 12; ++i) {
-        double c = coverage(embree.render_depth(camera, width, height, EmbreeScene::Mode::Single).depth);
-        if (c >= args->min_coverage) break;
-        camera.fovy_degrees *= 0.85f;
-      }
-    } else {
-      camera = Camera::parse(args->camera);
-    }
-
-    RenderOptions ro;
-    ro.width = width;
-    ro.height = height;
-    ro.camera = camera;
-    ro.lod_pixels = args->lod;
-    ro.want_depth = true;
-
-    RenderOptions ro_beam = ro;
-    ro_beam.beam = args->beam;
-
-    double best_vox = 1e30, best_beam = 1e30, best_e1 = 1e30, best_e8 = 1e30;
-    double best_cont = 1e30, best_cont_beam = 1e30;
-    RenderResult vox_result;
-    EmbreeScene::DepthRender e1;
-    std::unique_ptr<esvo::EsvoStructure> contour_voxels;
-    if (contoured) contour_voxels = std::make_unique<esvo::EsvoStructure>(contoured);
-    render(voxels, ro);  // warm-up: page in the octree, spin up the TBB workers
-    if (contour_voxels) render(*contour_voxels, ro);
-    for (int r = 0; r < args->repeat; ++r) {
-      vox_result = render(voxels, ro);
-      best_vox = std::min(best_vox, vox_result.seconds);
-      if (args->beam) best_beam = std::min(best_beam, render(voxels, ro_beam).seconds);
-      if (contour_voxels) {
-        best_cont = std::min(best_cont, render(*contour_voxels, ro).seconds);
-        if (args->beam) best_cont_beam = std::min(best_cont_beam, render(*contour_voxels, ro_beam).seconds);
-      }
-      e1 = embree.render_depth(camera, width, height, EmbreeScene::Mode::Single);
-      best_e1 = std::min(best_e1, e1.seconds);
-      auto e8 = embree.render_depth(camera, width, height, EmbreeScene::Mode::Packet8);
-      best_e8 = std::min(best_e8, e8.seconds);
-    }
-    double rays = double(width) * height;
-    double m_cont = rays / best_cont * 1e-6, m_cont_beam = rays / best_cont_beam * 1e-6;
-    double m_vox = rays / best_vox * 1e-6, m_beam = rays / best_beam * 1e-6, m_e1 = rays / best_e1 * 1e-6,
-           m_e8 = rays / best_e8 * 1e-6;
-
-    // How well the voxels reproduce the mesh in this very frame.
-    size_t agree = 0, both = 0, close = 0;
-    double tol = 2.0 * std::sqrt(3.0) * octree->grid.voxel_size;
-    for (size_t i = 0; i < vox_result.depth.pixels.size(); ++i) {
-      float dv = vox_result.depth.pixels[i], de = e1.depth.pixels[i];
-      agree += std::isfinite(dv) == std::isfinite(de);
-      if (std::isfinite(dv) && std::isfinite(de)) {
-        ++both;
-        close += std::fabs(dv - de) <= tol;
-      }
-    }
-    auto mem = octree->memory_stats();
-    int threads = args->threads ? args->threads : int(std::thread::hardware_concurrency());
-    std::printf("mesh        %s: %zu triangles\n", args->input.c_str(), built.mesh.triangle_count());
-    std::printf("camera      %s\n", camera.to_string().c_str());
-    std::printf("image       %dx%d, %.1f%% of pixels hit the mesh, %d threads, best of %d\n",
-                width, height, 100.0 * coverage(e1.depth), threads, args->repeat);
-    std::printf("voxels      %u^3 %s, %llu leaf voxels, lod %.2g px\n", octree->grid.resolution,
-                voxelization_name(s.mode), (unsigned long long)built.leaf_voxels, args->lod);
-    std::printf("agreement   hit/miss %.3f%%, depth within 2 leaf voxel diagonals %.3f%%\n",
-                100.0 * double(agree) / rays, both ? 100.0 * double(close) / double(both) : 0.0);
-    std::printf("build       voxcast %.2f s (voxelize %.2f s + octree %.2f s), embree %.2f s\n",
-                built.voxelize_seconds + built.octree_seconds, built.voxelize_seconds,
-                built.octree_seconds, embree.build_seconds());
-    std::printf("memory      voxcast %s (%.2f B/leaf voxel), embree %s\n",
-                format_bytes(double(mem.total_bytes)).c_str(),
-                double(mem.total_bytes) / double(built.leaf_voxels),
-                format_bytes(double(embree.memory_bytes())).c_str());
-    std::printf("voxcast     %8.2f Mrays/s\n", m_vox);
-    if (args->beam) std::printf("voxcast+beam%8.2f Mrays/s (beam %dx%d, coarse pass included)\n", m_beam, args->beam, args->beam);
-    if (contour_voxels) {
-      std::printf("contours    %8.2f Mrays/s (build %.2f s, %s)\n", m_cont, contour_build_seconds,
-                  format_bytes(double(contoured->memory_stats().total_bytes)).c_str());
-      if (args->beam)
-        std::printf("contours+beam%7.2f Mrays/s (beam %dx%d)\n", m_cont_beam, args->beam, args->beam);
-    }
-    std::printf("embree x1   %8.2f Mrays/s (rtcIntersect1)\n", m_e1);
-    std::printf("embree x8   %8.2f Mrays/s (rtcIntersect8)\n", m_e8);
-    double best_voxcast = std::max(m_vox, args->beam ? m_beam : 0.0);
-    if (contour_voxels) best_voxcast = std::max({best_voxcast, m_cont, args->beam ? m_cont_beam : 0.0});
-    std::printf("ratio voxcast/embree: %.3f\n", best_voxcast / std::max(m_e1, m_e8));
-    if (args->effects && size_index == 0) {
-      // Shading points: the ESVO's primary hits of this frame (finest level,
-      // voxel normals), offset once (effects.hpp); every caster gets the
-      // very same occlusion rays.
-      const CameraRays cam(camera, width, height);
-      std::vector<ShadingPoint> points;
-      for (int y = 0; y < height; ++y)
-        for (int x = 0; x < width; ++x) {
-          const Ray ray = cam.ray(x, y);
-          SurfaceHit hit;
-          if (!voxels.trace(ray, LodFootprint{}, &hit)) continue;
-          Color c;
-          Vec3 n;
-          voxels.attributes(hit, &c, &n);
-          if (dot(n, ray.dir) > 0.f) n = -n;
-          points.push_back({hit.position, n, ray.dir, hit.voxel_size});
+      const int width = sizes[size_index].first, height = sizes[size_index].second;
+      Camera camera;
+      if (args->camera == "auto") {
+        camera = Camera::frame(built.mesh.bounds(), width, height);
+        // Misses flatter every ray caster: zoom in until the mesh covers enough pixels.
+        for (int i = 0; i < 12; ++i) {
+          double c =
+              coverage(embree.render_depth(camera, width, height, EmbreeScene::Mode::Single).depth);
+          if (c >= args->min_coverage) break;
+          camera.fovy_degrees *= 0.85f;
         }
-      BuildSettings ds = s;
-      ds.dag = true;
-      ds.verbose = false;
-      BuiltScene dag_built = build_scene(ds);  // the same mesh, grid and voxelization
-      const dag::DagStructure dag_voxels(std::make_shared<dag::SparseVoxelDag>(std::move(dag_built.dag)));
-      const StructureOccluder esvo_occ(voxels), dag_occ(dag_voxels);
-      const EmbreeOccluder embree_occ(embree);
-      EffectOptions shadow_fx;
-      shadow_fx.shadows = ShadowMode::Hard;
-      EffectOptions ao_fx;
-      ao_fx.ao_rays = args->ao_rays;
-      ao_fx.ao_radius = args->ao_radius > 0 ? args->ao_radius : 0.05f * length(built.mesh.bounds().extent());
-      const Vec3 light_dir = ro.light_dir;
-      std::printf("effects     %zu shading points (ESVO primary hits, offset 2 voxels along the normal + 1 back)\n",
-                  points.size());
-      struct Row {
-        const char* name;
-        const Occluder* occ;
-      };
-      const Row rows[] = {{"esvo", &esvo_occ}, {"dag", &dag_occ}, {"embree x1", &embree_occ}};
-      EffectRun shadow_runs[3], ao_runs[3];
-      for (int k = 0; k < 3; ++k) {
-        run_effect_rays(*rows[k].occ, points, shadow_fx, light_dir, 1);  // warm-up
-        shadow_runs[k] = run_effect_rays(*rows[k].occ, points, shadow_fx, light_dir, args->repeat);
-        ao_runs[k] = run_effect_rays(*rows[k].occ, points, ao_fx, light_dir, std::min(args->repeat, 3));
+      } else {
+        camera = Camera::parse(args->camera);
       }
-      for (int k = 0; k < 3; ++k)
-        std::printf("shadow %-9s %8.2f Mrays/s (directional, 1 ray per hit pixel, %llu rays%s)\n",
-                    rows[k].name, double(shadow_runs[k].rays) / shadow_runs[k].seconds * 1e-6,
-                    (unsigned long long)shadow_runs[k].rays, k == 2 ? ", rtcOccluded1" : ", any hit");
-      for (int k = 0; k < 3; ++k)
-        std::printf("ao     %-9s %8.2f Mrays/s (%d rays per hit pixel, radius %g, %llu rays%s)\n",
-                    rows[k].name, double(ao_runs[k].rays) / ao_runs[k].seconds * 1e-6, args->ao_rays,
-                    double(ao_fx.ao_radius), (unsigned long long)ao_runs[k].rays,
-                    k == 2 ? ", rtcOccluded1" : ", any hit");
-      size_t same_shadow = 0, same_dag = 0;
-      double ao_diff = 0;
-      for (size_t i = 0; i < points.size(); ++i) {
-        same_shadow += shadow_runs[0].values[i] == shadow_runs[2].values[i];
-        same_dag += shadow_runs[0].values[i] == shadow_runs[1].values[i] &&
-                    ao_runs[0].values[i] == ao_runs[1].values[i];
-        ao_diff += std::fabs(ao_runs[0].values[i] - ao_runs[2].values[i]);
+
+      RenderOptions ro;
+      ro.width = width;
+      ro.height = height;
+      ro.camera = camera;
+      ro.lod_pixels = args->lod;
+      ro.want_depth = true;
+
+      RenderOptions ro_beam = ro;
+      ro_beam.beam = args->beam;
+
+      double best_vox = 1e30, best_beam = 1e30, best_e1 = 1e30, best_e8 = 1e30;
+      double best_cont = 1e30, best_cont_beam = 1e30;
+      RenderResult vox_result;
+      EmbreeScene::DepthRender e1;
+      std::unique_ptr<esvo::EsvoStructure> contour_voxels;
+      if (contoured) contour_voxels = std::make_unique<esvo::EsvoStructure>(contoured);
+      render(voxels, ro);  // warm-up: page in the octree, spin up the TBB workers
+      if (contour_voxels) render(*contour_voxels, ro);
+      for (int r = 0; r < args->repeat; ++r) {
+        vox_result = render(voxels, ro);
+        best_vox = std::min(best_vox, vox_result.seconds);
+        if (args->beam) best_beam = std::min(best_beam, render(voxels, ro_beam).seconds);
+        if (contour_voxels) {
+          best_cont = std::min(best_cont, render(*contour_voxels, ro).seconds);
+          if (args->beam)
+            best_cont_beam = std::min(best_cont_beam, render(*contour_voxels, ro_beam).seconds);
+        }
+        e1 = embree.render_depth(camera, width, height, EmbreeScene::Mode::Single);
+        best_e1 = std::min(best_e1, e1.seconds);
+        auto e8 = embree.render_depth(camera, width, height, EmbreeScene::Mode::Packet8);
+        best_e8 = std::min(best_e8, e8.seconds);
       }
-      const double np = double(std::max<size_t>(points.size(), 1));
-      std::printf("effects agreement: shadow mask esvo/embree %.3f%%, mean |AO esvo - AO embree| %.4f, "
-                  "esvo == dag on %.3f%% of points\n",
-                  100.0 * double(same_shadow) / np, ao_diff / np, 100.0 * double(same_dag) / np);
-    }
+      double rays = double(width) * height;
+      double m_cont = rays / best_cont * 1e-6, m_cont_beam = rays / best_cont_beam * 1e-6;
+      double m_vox = rays / best_vox * 1e-6, m_beam = rays / best_beam * 1e-6,
+             m_e1 = rays / best_e1 * 1e-6, m_e8 = rays / best_e8 * 1e-6;
+
+      // How well the voxels reproduce the mesh in this very frame.
+      size_t agree = 0, both = 0, close = 0;
+      double tol = 2.0 * std::sqrt(3.0) * octree->grid.voxel_size;
+      for (size_t i = 0; i < vox_result.depth.pixels.size(); ++i) {
+        float dv = vox_result.depth.pixels[i], de = e1.depth.pixels[i];
+        agree += std::isfinite(dv) == std::isfinite(de);
+        if (std::isfinite(dv) && std::isfinite(de)) {
+          ++both;
+          close += std::fabs(dv - de) <= tol;
+        }
+      }
+      auto mem = octree->memory_stats();
+      int threads = args->threads ? args->threads : int(std::thread::hardware_concurrency());
+      std::printf("mesh        %s: %zu triangles\n", args->input.c_str(),
+                  built.mesh.triangle_count());
+      std::printf("camera      %s\n", camera.to_string().c_str());
+      std::printf("image       %dx%d, %.1f%% of pixels hit the mesh, %d threads, best of %d\n",
+                  width, height, 100.0 * coverage(e1.depth), threads, args->repeat);
+      std::printf("voxels      %u^3 %s, %llu leaf voxels, lod %.2g px\n", octree->grid.resolution,
+                  voxelization_name(s.mode), (unsigned long long)built.leaf_voxels, args->lod);
+      std::printf("agreement   hit/miss %.3f%%, depth within 2 leaf voxel diagonals %.3f%%\n",
+                  100.0 * double(agree) / rays, both ? 100.0 * double(close) / double(both) : 0.0);
+      std::printf("build       voxcast %.2f s (voxelize %.2f s + octree %.2f s), embree %.2f s\n",
+                  built.voxelize_seconds + built.octree_seconds, built.voxelize_seconds,
+                  built.octree_seconds, embree.build_seconds());
+      std::printf("memory      voxcast %s (%.2f B/leaf voxel), embree %s\n",
+                  format_bytes(double(mem.total_bytes)).c_str(),
+                  double(mem.total_bytes) / double(built.leaf_voxels),
+                  format_bytes(double(embree.memory_bytes())).c_str());
+      std::printf("voxcast     %8.2f Mrays/s\n", m_vox);
+      if (args->beam)
+        std::printf("voxcast+beam%8.2f Mrays/s (beam %dx%d, coarse pass included)\n", m_beam,
+                    args->beam, args->beam);
+      if (contour_voxels) {
+        std::printf("contours    %8.2f Mrays/s (build %.2f s, %s)\n", m_cont, contour_build_seconds,
+                    format_bytes(double(contoured->memory_stats().total_bytes)).c_str());
+        if (args->beam)
+          std::printf("contours+beam%7.2f Mrays/s (beam %dx%d)\n", m_cont_beam, args->beam,
+                      args->beam);
+      }
+      std::printf("embree x1   %8.2f Mrays/s (rtcIntersect1)\n", m_e1);
+      std::printf("embree x8   %8.2f Mrays/s (rtcIntersect8)\n", m_e8);
+      double best_voxcast = std::max(m_vox, args->beam ? m_beam : 0.0);
+      if (contour_voxels)
+        best_voxcast = std::max({best_voxcast, m_cont, args->beam ? m_cont_beam : 0.0});
+      std::printf("ratio voxcast/embree: %.3f\n", best_voxcast / std::max(m_e1, m_e8));
+      if (args->effects && size_index == 0) {
+        // Shading points: the ESVO's primary hits of this frame (finest level,
+        // voxel normals), offset once (effects.hpp); every caster gets the
+        // very same occlusion rays.
+        const CameraRays cam(camera, width, height);
+        std::vector<ShadingPoint> points;
+        for (int y = 0; y < height; ++y)
+          for (int x = 0; x < width; ++x) {
+            const Ray ray = cam.ray(x, y);
+            SurfaceHit hit;
+            if (!voxels.trace(ray, LodFootprint{}, &hit)) continue;
+            Color c;
+            Vec3 n;
+            voxels.attributes(hit, &c, &n);
+            if (dot(n, ray.dir) > 0.f) n = -n;
+            points.push_back({hit.position, n, ray.dir, hit.voxel_size});
+          }
+        BuildSettings ds = s;
+        ds.dag = true;
+        ds.verbose = false;
+        BuiltScene dag_built = build_scene(ds);  // the same mesh, grid and voxelization
+        const dag::DagStructure dag_voxels(
+            std::make_shared<dag::SparseVoxelDag>(std::move(dag_built.dag)));
+        const StructureOccluder esvo_occ(voxels), dag_occ(dag_voxels);
+        const EmbreeOccluder embree_occ(embree);
+        EffectOptions shadow_fx;
+        shadow_fx.shadows = ShadowMode::Hard;
+        EffectOptions ao_fx;
+        ao_fx.ao_rays = args->ao_rays;
+        ao_fx.ao_radius =
+            args->ao_radius > 0 ? args->ao_radius : 0.05f * length(built.mesh.bounds().extent());
+        const Vec3 light_dir = ro.light_dir;
+        std::printf(
+            "effects     %zu shading points (ESVO primary hits, offset 2 voxels along the normal + "
+            "1 back)\n",
+            points.size());
+        struct Row {
+          const char* name;
+          const Occluder* occ;
+        };
+        const Row rows[] = {{"esvo", &esvo_occ}, {"dag", &dag_occ}, {"embree x1", &embree_occ}};
+        EffectRun shadow_runs[3], ao_runs[3];
+        for (int k = 0; k < 3; ++k) {
+          run_effect_rays(*rows[k].occ, points, shadow_fx, light_dir, 1);  // warm-up
+          shadow_runs[k] =
+              run_effect_rays(*rows[k].occ, points, shadow_fx, light_dir, args->repeat);
+          ao_runs[k] =
+              run_effect_rays(*rows[k].occ, points, ao_fx, light_dir, std::min(args->repeat, 3));
+        }
+        for (int k = 0; k < 3; ++k)
+          std::printf("shadow %-9s %8.2f Mrays/s (directional, 1 ray per hit pixel, %llu rays%s)\n",
+                      rows[k].name, double(shadow_runs[k].rays) / shadow_runs[k].seconds * 1e-6,
+                      (unsigned long long)shadow_runs[k].rays,
+                      k == 2 ? ", rtcOccluded1" : ", any hit");
+        for (int k = 0; k < 3; ++k)
+          std::printf("ao     %-9s %8.2f Mrays/s (%d rays per hit pixel, radius %g, %llu rays%s)\n",
+                      rows[k].name, double(ao_runs[k].rays) / ao_runs[k].seconds * 1e-6,
+                      args->ao_rays, double(ao_fx.ao_radius), (unsigned long long)ao_runs[k].rays,
+                      k == 2 ? ", rtcOccluded1" : ", any hit");
+        size_t same_shadow = 0, same_dag = 0;
+        double ao_diff = 0;
+        for (size_t i = 0; i < points.size(); ++i) {
+          same_shadow += shadow_runs[0].values[i] == shadow_runs[2].values[i];
+          same_dag += shadow_runs[0].values[i] == shadow_runs[1].values[i] &&
+                      ao_runs[0].values[i] == ao_runs[1].values[i];
+          ao_diff += std::fabs(ao_runs[0].values[i] - ao_runs[2].values[i]);
+        }
+        const double np = double(std::max<size_t>(points.size(), 1));
+        std::printf(
+            "effects agreement: shadow mask esvo/embree %.3f%%, mean |AO esvo - AO embree| %.4f, "
+            "esvo == dag on %.3f%% of points\n",
+            100.0 * double(same_shadow) / np, ao_diff / np, 100.0 * double(same_dag) / np);
+      }
     }  // sizes
     return 0;
   };

@@ -54,22 +54,27 @@ Runner add_build(CLI::App& app) {
   cmd->add_flag("--out-of-core", args->out_of_core,
                 "DAG: build sub-volume by sub-volume within --memory-budget (svdag section 3; "
                 "automatic when the in-core estimate exceeds the budget)");
-  cmd->add_option("--cell-size", args->cell_size,
-                  "DAG out-of-core: sub-volume side in voxels (power of two; default from the budget)");
+  cmd->add_option(
+      "--cell-size", args->cell_size,
+      "DAG out-of-core: sub-volume side in voxels (power of two; default from the budget)");
   cmd->add_flag("--no-attributes", args->no_attributes,
                 "DAG: geometry only (no colors/normals; needed at very high resolutions)");
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)");
-  cmd->add_flag("--contours", args->contours,
-                "Build contours (esvo 5.2, 7.2): voxels shaped by slabs; enables the options below");
+  cmd->add_flag(
+      "--contours", args->contours,
+      "Build contours (esvo 5.2, 7.2): voxels shaped by slabs; enables the options below");
   cmd->add_option("--max-level", args->max_level,
                   "With --contours: deepest octree level (default: the grid's levels)");
-  cmd->add_option("--geometry-error", args->geometry_error,
-                  "With --contours: variable depth; refine where the contoured shape is farther than "
-                  "this from the surface, in finest-level voxels (esvo 7.1)");
-  cmd->add_option("--color-error", args->color_error,
-                  "With --contours: variable depth; refine where colors below differ by more (0-255)");
-  cmd->add_option("--normal-error", args->normal_error,
-                  "With --contours: variable depth; refine where normals below differ by more (degrees)");
+  cmd->add_option(
+      "--geometry-error", args->geometry_error,
+      "With --contours: variable depth; refine where the contoured shape is farther than "
+      "this from the surface, in finest-level voxels (esvo 7.1)");
+  cmd->add_option(
+      "--color-error", args->color_error,
+      "With --contours: variable depth; refine where colors below differ by more (0-255)");
+  cmd->add_option(
+      "--normal-error", args->normal_error,
+      "With --contours: variable depth; refine where normals below differ by more (degrees)");
   cmd->add_flag("-v,--verbose", args->verbose, "Print timings per stage");
   return [args]() {
     ThreadLimit limit(args->threads);
@@ -83,7 +88,8 @@ Runner add_build(CLI::App& app) {
     }
     s.mode = parse_voxelization(args->voxelization);
     s.attributes = parse_attribute_format(args->attributes);
-    if (!args->memory_budget.empty()) s.memory_budget = parse_byte_size(args->memory_budget.c_str());
+    if (!args->memory_budget.empty())
+      s.memory_budget = parse_byte_size(args->memory_budget.c_str());
     s.verbose = args->verbose;
     if (args->format != "esvo" && args->format != "dag")
       throw Error("--format: '" + args->format + "' is not esvo or dag");
@@ -133,12 +139,13 @@ Runner add_build(CLI::App& app) {
         std::printf("out-of-core: %llu cells of %u^3, voxelize %.2f s, reduce %.2f s\n",
                     (unsigned long long)built.ooc.cells, built.ooc.cell_size,
                     built.ooc.voxelize_seconds, built.ooc.reduce_seconds);
-      std::printf("%s: %u^3 grid (%d levels), %llu leaf voxels, DAG %s (%.3f bits/leaf voxel, "
-                  "%llu nodes vs %llu SVO nodes), %.2f s\n",
-                  args->output.c_str(), built.dag.grid.resolution, built.dag.levels(),
-                  (unsigned long long)built.leaf_voxels, format_bytes(double(st.dag_bytes)).c_str(),
-                  st.bits_per_voxel, (unsigned long long)st.dag_nodes,
-                  (unsigned long long)st.svo_nodes, total.mark("total"));
+      std::printf(
+          "%s: %u^3 grid (%d levels), %llu leaf voxels, DAG %s (%.3f bits/leaf voxel, "
+          "%llu nodes vs %llu SVO nodes), %.2f s\n",
+          args->output.c_str(), built.dag.grid.resolution, built.dag.levels(),
+          (unsigned long long)built.leaf_voxels, format_bytes(double(st.dag_bytes)).c_str(),
+          st.bits_per_voxel, (unsigned long long)st.dag_nodes, (unsigned long long)st.svo_nodes,
+          total.mark("total"));
       return 0;
     }
     save_esvo_scene(args->output, built.octree, info);
@@ -146,7 +153,8 @@ Runner add_build(CLI::App& app) {
     auto mem = built.octree.memory_stats();
     std::printf("%s: %u^3 grid (%d levels), %llu leaf voxels, %s (%.2f bytes/leaf voxel), %.2f s\n",
                 args->output.c_str(), built.octree.grid.resolution, built.octree.levels(),
-                (unsigned long long)built.leaf_voxels, format_bytes(double(mem.total_bytes)).c_str(),
+                (unsigned long long)built.leaf_voxels,
+                format_bytes(double(mem.total_bytes)).c_str(),
                 double(mem.total_bytes) / double(built.leaf_voxels), total.mark("total"));
     return 0;
   };

@@ -22,8 +22,9 @@ struct GenerateArgs {
 Runner add_generate(CLI::App& app) {
   auto args = std::make_shared<GenerateArgs>();
   CLI::App* cmd = app.add_subcommand(
-      "generate", "Write a procedural stress mesh: hairball (random tubes), menger (sponge), "
-                  "terrain (fBm height field)");
+      "generate",
+      "Write a procedural stress mesh: hairball (random tubes), menger (sponge), "
+      "terrain (fBm height field)");
   cmd->add_option("KIND", args->kind, "hairball | menger | terrain")->required();
   cmd->add_option("-o,--output", args->output, "Output mesh (.obj or binary .ply)")->required();
   cmd->add_option("--seed", args->seed, "Random seed (hairball, terrain)")->capture_default_str();
@@ -35,9 +36,11 @@ Runner add_generate(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--step", args->step, "hairball: random-walk step length")->capture_default_str();
   cmd->add_option("--level", args->level, "menger: recursion level 0..5")->capture_default_str();
-  cmd->add_option("--size", args->size, "terrain: vertices per side (N x N)")->capture_default_str();
+  cmd->add_option("--size", args->size, "terrain: vertices per side (N x N)")
+      ->capture_default_str();
   cmd->add_option("--octaves", args->octaves, "terrain: fBm octaves")->capture_default_str();
-  cmd->add_option("--height", args->height, "terrain: height scale (extent 1)")->capture_default_str();
+  cmd->add_option("--height", args->height, "terrain: height scale (extent 1)")
+      ->capture_default_str();
   cmd->add_option("--persistence", args->persistence, "terrain: amplitude factor per octave")
       ->capture_default_str();
   return [args]() {

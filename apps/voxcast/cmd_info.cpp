@@ -51,19 +51,24 @@ int print_dag_info(const InfoArgs& args, const Container& container) {
   j["attributes"] = d.has_attributes();
   for (int l = 0; l <= L; ++l) {
     const dag::LevelStats& ls = st.levels[size_t(l)];
-    j["per_level"].push_back({{"level", l}, {"dag_nodes", ls.dag_nodes},
-                              {"svo_nodes", ls.svo_nodes}, {"dag_bytes", ls.dag_bytes}});
+    j["per_level"].push_back({{"level", l},
+                              {"dag_nodes", ls.dag_nodes},
+                              {"svo_nodes", ls.svo_nodes},
+                              {"dag_bytes", ls.dag_bytes}});
   }
   j["nodes"] = {{"dag", st.dag_nodes}, {"svo", st.svo_nodes}};
-  j["memory"] = {{"dag", st.dag_bytes},       {"svo_1byte", st.svo_bytes},
-                 {"esvo_8byte", st.esvo_bytes}, {"voxel_index", st.index_bytes},
+  j["memory"] = {{"dag", st.dag_bytes},
+                 {"svo_1byte", st.svo_bytes},
+                 {"esvo_8byte", st.esvo_bytes},
+                 {"voxel_index", st.index_bytes},
                  {"attributes", st.attribute_bytes}};
   j["bits_per_voxel"] = st.bits_per_voxel;
   if (args.json) {
     std::printf("%s\n", j.dump(2).c_str());
     return 0;
   }
-  std::printf("scene       %s (%s)\n", args.input.c_str(), format_bytes(double(file_bytes)).c_str());
+  std::printf("scene       %s (%s)\n", args.input.c_str(),
+              format_bytes(double(file_bytes)).c_str());
   std::printf("sections    ");
   for (auto& s : sections) std::printf("%s ", s.c_str());
   std::printf("\nstructure   sparse voxel DAG (svdag), 4^3 leaf masks, %s\n",
@@ -123,8 +128,8 @@ Runner add_info(CLI::App& app) {
     uint64_t leaves = 0;
     for (auto& l : levels) leaves += l.voxels - l.non_leaf;
     uint64_t file_bytes = std::filesystem::file_size(args->input);
-    double hierarchy = double(mem.descriptor_bytes + mem.far_pointer_bytes +
-                              mem.page_header_bytes + mem.info_bytes);
+    double hierarchy = double(mem.descriptor_bytes + mem.far_pointer_bytes + mem.page_header_bytes +
+                              mem.info_bytes);
     double attributes = double(mem.attribute_lookup_bytes + mem.attribute_value_bytes);
     double overhead = double(mem.padding_bytes);
 
@@ -146,8 +151,8 @@ Runner add_info(CLI::App& app) {
     j["voxels_total"] = total_voxels;
     j["leaf_voxels"] = leaves;
     for (size_t l = 0; l < levels.size(); ++l) {
-      nlohmann::json row{{"level", l}, {"voxels", levels[l].voxels},
-                         {"non_leaf", levels[l].non_leaf}};
+      nlohmann::json row{
+          {"level", l}, {"voxels", levels[l].voxels}, {"non_leaf", levels[l].non_leaf}};
       if (l + 1 < levels.size() && levels[l].non_leaf) {
         double branching = double(levels[l + 1].voxels) / double(levels[l].non_leaf);
         row["branching"] = branching;
@@ -176,16 +181,19 @@ Runner add_info(CLI::App& app) {
       return 0;
     }
 
-    std::printf("scene       %s (%s)\n", args->input.c_str(), format_bytes(double(file_bytes)).c_str());
+    std::printf("scene       %s (%s)\n", args->input.c_str(),
+                format_bytes(double(file_bytes)).c_str());
     std::printf("sections    ");
     for (auto& s : sections) std::printf("%s ", s.c_str());
-    std::printf("\nstructure   esvo, %u block(s), %s attributes (%s)\n", octree.block_count,
-                compressed ? "compressed" : "raw",
-                compressed ? "esvo 5.5: 24 B per descriptor pair" : "esvo 5.4: 8 B per voxel + lookup");
+    std::printf(
+        "\nstructure   esvo, %u block(s), %s attributes (%s)\n", octree.block_count,
+        compressed ? "compressed" : "raw",
+        compressed ? "esvo 5.5: 24 B per descriptor pair" : "esvo 5.4: 8 B per voxel + lookup");
     std::printf("contours    %s\n", octree.has_contours()
-                                     ? ("yes, " + std::to_string(mem.contour_count) +
-                                        " contour values (esvo 5.2, variable depth)").c_str()
-                                     : "no");
+                                        ? ("yes, " + std::to_string(mem.contour_count) +
+                                           " contour values (esvo 5.2, variable depth)")
+                                              .c_str()
+                                        : "no");
     std::printf("source      %s, %llu triangles, %s voxelization\n", info.source.c_str(),
                 (unsigned long long)info.source_triangles, info.voxelization.c_str());
     std::printf("grid        %u^3 (%d levels), voxel size %.6g, origin %.6g,%.6g,%.6g\n",
@@ -213,9 +221,11 @@ Runner add_info(CLI::App& app) {
         compressed ? "compressed blocks (DXT1 colors + 4x4-grid normals)"
                    : "lookup entries, 32-bit colors + 32-bit normals");
     row(" colors", double(mem.color_bytes), compressed ? "2 words per block" : "32-bit ABGR");
-    row(" normals", double(mem.normal_bytes), compressed ? "4 words per block" : "32-bit cube normals");
+    row(" normals", double(mem.normal_bytes),
+        compressed ? "4 words per block" : "32-bit cube normals");
     if (octree.has_contours())
-      row("contours", double(mem.contour_bytes), "CONT: 32-bit contour values (pointer/mask word: hierarchy)");
+      row("contours", double(mem.contour_bytes),
+          "CONT: 32-bit contour values (pointer/mask word: hierarchy)");
     row("overhead", overhead + double(mem.pair_padding_bytes),
         compressed ? "padding (page alignment, far slots, sibling-pair gaps)"
                    : "padding (page alignment, unused far-pointer slots)");

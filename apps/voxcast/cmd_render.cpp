@@ -21,10 +21,10 @@ struct RenderArgs {
   float lod = 1.f;
   int threads = 0;
   bool verbose = false;
-  int beam = 0;                // esvo §6.2 block size, 0 = off
-  bool stats = false;          // esvo §8.5 Table 6 counters
-  std::string heatmap;         // iteration heat map (Figure 32)
-  float heatmap_max = 64.f;    // iterations mapped to the top of the ramp
+  int beam = 0;              // esvo §6.2 block size, 0 = off
+  bool stats = false;        // esvo §8.5 Table 6 counters
+  std::string heatmap;       // iteration heat map (Figure 32)
+  float heatmap_max = 64.f;  // iterations mapped to the top of the ramp
   bool filter = false;
   // Effects (svdag §4): shadows and ambient occlusion.
   std::string shadows = "none", point_light, area_light, shadow_beam = "conservative", ao_output;
@@ -63,8 +63,9 @@ void print_stats(const RenderResult& r, int beam) {
     std::printf("  coarse pass: %llu beams of %dx%d, %.1f nodes visited per beam\n",
                 (unsigned long long)r.beams, beam, beam,
                 r.beams ? double(c.iterations) / double(r.beams) : 0.0);
-  std::printf("  note: counting is compiled into a separate caster; Mrays/s above is\n"
-              "        lower than without --stats/--heatmap\n");
+  std::printf(
+      "  note: counting is compiled into a separate caster; Mrays/s above is\n"
+      "        lower than without --stats/--heatmap\n");
 }
 }  // namespace
 
@@ -92,7 +93,8 @@ Runner add_render(CLI::App& app) {
       ->capture_default_str();
   cmd->add_flag("--stats", args->stats,
                 "Print per-ray profiling counters (esvo paper Table 6); slower");
-  cmd->add_option("--heatmap", args->heatmap, "Write the per-pixel iteration count as a .png heat map");
+  cmd->add_option("--heatmap", args->heatmap,
+                  "Write the per-pixel iteration count as a .png heat map");
   cmd->add_option("--heatmap-max", args->heatmap_max, "Iterations at the top of the heat map ramp")
       ->capture_default_str();
   cmd->add_flag("--filter", args->filter,
@@ -100,8 +102,9 @@ Runner add_render(CLI::App& app) {
   cmd->add_option("--shadows", args->shadows, "none | hard | soft (soft needs --area-light)")
       ->capture_default_str();
   cmd->add_option("--point-light", args->point_light, "Point light position x,y,z");
-  cmd->add_option("--area-light", args->area_light,
-                  "Rectangular area light cx,cy,cz,ux,uy,uz,vx,vy,vz: center and two half-edge vectors");
+  cmd->add_option(
+      "--area-light", args->area_light,
+      "Rectangular area light cx,cy,cz,ux,uy,uz,vx,vy,vz: center and two half-edge vectors");
   cmd->add_option("--shadow-rays", args->shadow_rays, "Soft shadow rays per pixel (stratified)")
       ->capture_default_str();
   cmd->add_option("--shadow-beam", args->shadow_beam,
@@ -116,8 +119,10 @@ Runner add_render(CLI::App& app) {
   cmd->add_option("--ao-cone-angle", args->ao_cone_angle,
                   "AO rays stop at nodes subtending this angle in degrees (0 = finest level)")
       ->capture_default_str();
-  cmd->add_option("--ao-output", args->ao_output, "Also write the AO term as an image (.png or .pfm)");
-  cmd->add_option("--seed", args->seed, "Seed of the per-pixel effect samples")->capture_default_str();
+  cmd->add_option("--ao-output", args->ao_output,
+                  "Also write the AO term as an image (.png or .pfm)");
+  cmd->add_option("--seed", args->seed, "Seed of the per-pixel effect samples")
+      ->capture_default_str();
   return [args]() {
     ThreadLimit limit(args->threads);
     RenderOptions opt;
@@ -147,7 +152,9 @@ Runner add_render(CLI::App& app) {
     }
     // ---- effects (svdag §4) ----
     EffectOptions& fx = opt.effects;
-    if (int(!args->light.empty()) + int(!args->point_light.empty()) + int(!args->area_light.empty()) > 1)
+    if (int(!args->light.empty()) + int(!args->point_light.empty()) +
+            int(!args->area_light.empty()) >
+        1)
       throw Error("--light, --point-light and --area-light are mutually exclusive");
     if (!args->point_light.empty()) {
       fx.light = LightKind::Point;
@@ -168,31 +175,43 @@ Runner add_render(CLI::App& app) {
       if (!(length(cross(fx.area_u, fx.area_v)) > 0))
         throw Error("--area-light: the half-edge vectors must be non-zero and not parallel");
     }
-    if (args->shadows == "none") fx.shadows = ShadowMode::None;
-    else if (args->shadows == "hard") fx.shadows = ShadowMode::Hard;
-    else if (args->shadows == "soft") fx.shadows = ShadowMode::Soft;
-    else throw Error("--shadows must be none, hard or soft");
+    if (args->shadows == "none")
+      fx.shadows = ShadowMode::None;
+    else if (args->shadows == "hard")
+      fx.shadows = ShadowMode::Hard;
+    else if (args->shadows == "soft")
+      fx.shadows = ShadowMode::Soft;
+    else
+      throw Error("--shadows must be none, hard or soft");
     if (fx.shadows == ShadowMode::Soft && fx.light != LightKind::Area)
       throw Error("--shadows soft needs --area-light");
-    if (args->shadow_rays < 1 || args->shadow_rays > 4096) throw Error("--shadow-rays must be in 1..4096");
+    if (args->shadow_rays < 1 || args->shadow_rays > 4096)
+      throw Error("--shadow-rays must be in 1..4096");
     fx.shadow_rays = args->shadow_rays;
-    if (args->shadow_beam == "conservative") fx.shadow_beam = ShadowBeam::Conservative;
-    else if (args->shadow_beam == "corners") fx.shadow_beam = ShadowBeam::Corners;
-    else if (args->shadow_beam == "off") fx.shadow_beam = ShadowBeam::Off;
-    else throw Error("--shadow-beam must be conservative, corners or off");
+    if (args->shadow_beam == "conservative")
+      fx.shadow_beam = ShadowBeam::Conservative;
+    else if (args->shadow_beam == "corners")
+      fx.shadow_beam = ShadowBeam::Corners;
+    else if (args->shadow_beam == "off")
+      fx.shadow_beam = ShadowBeam::Off;
+    else
+      throw Error("--shadow-beam must be conservative, corners or off");
     if (args->ao < 0 || args->ao > 4096) throw Error("--ao must be in 0..4096");
     fx.ao_rays = args->ao;
-    if (!std::isfinite(args->ao_radius) || args->ao_radius < 0) throw Error("--ao-radius must be >= 0");
+    if (!std::isfinite(args->ao_radius) || args->ao_radius < 0)
+      throw Error("--ao-radius must be >= 0");
     if (!(args->ao_cone_angle >= 0 && args->ao_cone_angle < 90))
       throw Error("--ao-cone-angle must be in [0, 90) degrees");
     fx.ao_cone_angle_deg = args->ao_cone_angle;
     fx.seed = args->seed;
-    if (!args->ao_output.empty() && fx.ao_rays == 0) throw Error("--ao-output needs --ao N (N > 0)");
+    if (!args->ao_output.empty() && fx.ao_rays == 0)
+      throw Error("--ao-output needs --ao N (N > 0)");
     StageTimer timer(args->verbose);
     LoadedScene scene = load_scene(args->input);  // esvo or dag, by META "format"
     timer.mark("load scene");
     if (fx.ao_rays > 0)  // default: 5% of the occupied bounds' diagonal
-      fx.ao_radius = args->ao_radius > 0 ? args->ao_radius : 0.05f * length(scene.occupied.extent());
+      fx.ao_radius =
+          args->ao_radius > 0 ? args->ao_radius : 0.05f * length(scene.occupied.extent());
     const VoxelStructure& structure = *scene.structure;
     if (args->camera == "auto") {
       opt.camera = Camera::frame(scene.occupied, opt.width, opt.height);
@@ -210,21 +229,23 @@ Runner add_render(CLI::App& app) {
     write_image(args->output, result.color);
     if (opt.want_depth) write_image(args->depth, result.depth);
     if (opt.want_normal) write_image(args->normal, result.normal, true);
-    if (!args->ao_output.empty()) write_image(args->ao_output, result.ao, true);  // AO as stored, not sRGB-encoded
+    if (!args->ao_output.empty())
+      write_image(args->ao_output, result.ao, true);  // AO as stored, not sRGB-encoded
     if (!args->heatmap.empty()) {
       write_image(args->heatmap, iteration_heatmap(result.iterations, args->heatmap_max));
       std::printf("heatmap: %s, inferno ramp, black = 0, pale yellow = %g iterations\n",
                   args->heatmap.c_str(), double(args->heatmap_max));
     }
     timer.mark("write images");
-    std::printf("%s: %dx%d, %.1f%% of pixels hit, %.2f Mrays/s\n", args->output.c_str(),
-                opt.width, opt.height, 100.0 * double(result.hits) / double(result.rays),
+    std::printf("%s: %dx%d, %.1f%% of pixels hit, %.2f Mrays/s\n", args->output.c_str(), opt.width,
+                opt.height, 100.0 * double(result.hits) / double(result.rays),
                 double(result.rays) / result.seconds * 1e-6);
     if (fx.active()) {
       const EffectCounters& ec = result.effect_counters;
       const double secondary = double(ec.shadow_rays + ec.ao_rays);
-      std::printf("effects: %llu shadow rays, %llu AO rays (radius %g)", (unsigned long long)ec.shadow_rays,
-                  (unsigned long long)ec.ao_rays, double(fx.ao_radius));
+      std::printf("effects: %llu shadow rays, %llu AO rays (radius %g)",
+                  (unsigned long long)ec.shadow_rays, (unsigned long long)ec.ao_rays,
+                  double(fx.ao_radius));
       if (ec.beams)
         std::printf(", %llu of %llu soft-shadow beams fully lit", (unsigned long long)ec.beams_lit,
                     (unsigned long long)ec.beams);

@@ -57,7 +57,9 @@ ThreadLimit::ThreadLimit(int threads) {
   if (threads > 0)
     impl = new Impl{tbb::global_control(tbb::global_control::max_allowed_parallelism, threads)};
 }
-ThreadLimit::~ThreadLimit() { delete impl; }
+ThreadLimit::~ThreadLimit() {
+  delete impl;
+}
 
 }  // namespace voxcast::cli
 

@@ -12,9 +12,9 @@ namespace voxcast::cli {
 struct BuildSettings {
   std::string mesh_path;
   uint32_t resolution = 1024;  // ignored when voxel_size > 0
-  double voxel_size = 0;  // > 0: fit the grid to this voxel size
+  double voxel_size = 0;       // > 0: fit the grid to this voxel size
   VoxelizationMode mode = VoxelizationMode::Conservative;
-  uint64_t memory_budget = 0;  // 0: 90% of available memory
+  uint64_t memory_budget = 0;                                     // 0: 90% of available memory
   esvo::AttributeFormat attributes = esvo::AttributeFormat::Raw;  // esvo §5.4 / §5.5
   bool verbose = false;
   bool dag = false;  // build a sparse voxel DAG (BuiltScene::dag) instead of the ESVO
@@ -37,8 +37,8 @@ struct BuiltScene {
   dag::SparseVoxelDag dag;  // only when BuildSettings::dag
   uint64_t leaf_voxels = 0;
   double load_seconds = 0, voxelize_seconds = 0, octree_seconds = 0;
-  bool out_of_core = false;      // the DAG came from build_dag_out_of_core
-  dag::OutOfCoreReport ooc;      // when out_of_core
+  bool out_of_core = false;  // the DAG came from build_dag_out_of_core
+  dag::OutOfCoreReport ooc;  // when out_of_core
 };
 
 /// Rough upper estimate of the peak bytes voxelizing `mesh` into `grid` takes

@@ -74,14 +74,14 @@ struct LevelStats {
 struct DagStats {
   std::vector<LevelStats> levels;  // size L + 1
   uint64_t leaf_voxels = 0;
-  uint64_t dag_nodes = 0;          // all levels
-  uint64_t dag_bytes = 0;          // words.size() * 4 (geometry only)
-  uint64_t svo_nodes = 0;          // levels 0..L-1
-  uint64_t svo_bytes = 0;          // pointer-less SVO, 1 byte per node (Schnabel & Klein)
-  uint64_t esvo_bytes = 0;         // 8 bytes per node (ESVO descriptor + contour word)
-  uint64_t index_bytes = 0;        // voxel_prefix (attribute indexing, derived at load)
-  uint64_t attribute_bytes = 0;    // colors + normals
-  double bits_per_voxel = 0;       // dag_bytes * 8 / leaf_voxels
+  uint64_t dag_nodes = 0;        // all levels
+  uint64_t dag_bytes = 0;        // words.size() * 4 (geometry only)
+  uint64_t svo_nodes = 0;        // levels 0..L-1
+  uint64_t svo_bytes = 0;        // pointer-less SVO, 1 byte per node (Schnabel & Klein)
+  uint64_t esvo_bytes = 0;       // 8 bytes per node (ESVO descriptor + contour word)
+  uint64_t index_bytes = 0;      // voxel_prefix (attribute indexing, derived at load)
+  uint64_t attribute_bytes = 0;  // colors + normals
+  double bits_per_voxel = 0;     // dag_bytes * 8 / leaf_voxels
 };
 
 class SparseVoxelDag {
@@ -92,7 +92,8 @@ class SparseVoxelDag {
   std::vector<uint32_t> normals;  // per leaf voxel, cube-face encoding; empty iff colors is
   // Derived by finalize():
   std::vector<uint32_t> voxel_prefix;  // parallels words, see above
-  std::vector<uint32_t> level_start;   // word index of the first node of level l, l = 0..L-1 (L-1: end)
+  std::vector<uint32_t>
+      level_start;  // word index of the first node of level l, l = 0..L-1 (L-1: end)
   uint64_t leaf_voxels = 0;
 
   int levels() const { return grid.levels; }
@@ -126,7 +127,7 @@ struct OutOfCoreOptions {
 };
 struct OutOfCoreReport {
   uint32_t cell_size = 0;
-  uint64_t cells = 0;                 // non-empty cells
+  uint64_t cells = 0;  // non-empty cells
   uint64_t max_cell_voxels = 0;
   uint64_t estimated_cell_bytes = 0;  // working set of the fullest cell (estimate)
   uint64_t fixed_bytes = 0;           // mesh + grid-unit vertices + triangle bins

@@ -38,17 +38,17 @@ enum class ShadowBeam { Off, Conservative, Corners };
 struct EffectOptions {
   // ---- light (the directional direction is RenderOptions::light_dir) ----
   LightKind light = LightKind::Directional;
-  Vec3 light_position;       // Point: position; Area: rectangle center
-  Vec3 area_u, area_v;       // Area: half-edge vectors (corners center +-u +-v)
+  Vec3 light_position;  // Point: position; Area: rectangle center
+  Vec3 area_u, area_v;  // Area: half-edge vectors (corners center +-u +-v)
   // ---- shadows ----
   ShadowMode shadows = ShadowMode::None;
-  int shadow_rays = 16;      // Soft: samples per pixel (stratified over the rectangle)
+  int shadow_rays = 16;  // Soft: samples per pixel (stratified over the rectangle)
   ShadowBeam shadow_beam = ShadowBeam::Conservative;
   // ---- ambient occlusion (Laine & Karras 2010b falloff-in-sampling) ----
-  int ao_rays = 0;           // 0 = off; svdag §4 uses 64
-  float ao_radius = 0.f;     // world units; <= 0: 5% of the structure's bounds diagonal
+  int ao_rays = 0;                // 0 = off; svdag §4 uses 64
+  float ao_radius = 0.f;          // world units; <= 0: 5% of the structure's bounds diagonal
   float ao_cone_angle_deg = 0.f;  // > 0: AO rays stop at nodes subtending this angle (svdag §4)
-  uint32_t seed = 0;         // per-image seed of the per-pixel sample hashes
+  uint32_t seed = 0;              // per-image seed of the per-pixel sample hashes
 
   bool active() const { return shadows != ShadowMode::None || ao_rays > 0; }
 };
@@ -100,7 +100,9 @@ class Occluder {
 class StructureOccluder final : public Occluder {
  public:
   explicit StructureOccluder(const VoxelStructure& s) : s_(s) {}
-  bool occluded(const Ray& ray, const LodFootprint& lod) const override { return s_.occluded(ray, lod); }
+  bool occluded(const Ray& ray, const LodFootprint& lod) const override {
+    return s_.occluded(ray, lod);
+  }
   void beam_start(const BeamFrustum& beam, BeamStart* start) const override {
     s_.beam_start(beam, start, nullptr);
   }
@@ -112,10 +114,10 @@ class StructureOccluder final : public Occluder {
 
 /// Ray and beam counts of a frame (or of one pixel).
 struct EffectCounters {
-  uint64_t shadow_rays = 0;    // shadow rays traced (incl. the 4 corner rays in Corners mode)
-  uint64_t ao_rays = 0;        // AO rays traced
-  uint64_t beams = 0;          // soft-shadow beams (pixels with the light above the horizon)
-  uint64_t beams_lit = 0;      // beams that proved / declared the pixel fully lit
+  uint64_t shadow_rays = 0;  // shadow rays traced (incl. the 4 corner rays in Corners mode)
+  uint64_t ao_rays = 0;      // AO rays traced
+  uint64_t beams = 0;        // soft-shadow beams (pixels with the light above the horizon)
+  uint64_t beams_lit = 0;    // beams that proved / declared the pixel fully lit
   EffectCounters& operator+=(const EffectCounters& o) {
     shadow_rays += o.shadow_rays, ao_rays += o.ao_rays, beams += o.beams, beams_lit += o.beams_lit;
     return *this;

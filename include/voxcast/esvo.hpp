@@ -129,8 +129,8 @@ inline constexpr uint32_t kAttachContours = 3;
 /// How a scene stores its colors and normals (§5.4 raw, §5.5 compressed).
 enum class AttributeFormat : uint32_t { Raw = 0, Compressed = 1 };
 
-uint32_t encode_color_abgr(const Color& linear);     // sRGB-encodes
-Color decode_color_abgr(uint32_t abgr);              // back to linear
+uint32_t encode_color_abgr(const Color& linear);  // sRGB-encodes
+Color decode_color_abgr(uint32_t abgr);           // back to linear
 uint32_t encode_normal_cube(Vec3 unit_normal);
 Vec3 decode_normal_cube(uint32_t code);
 
@@ -200,16 +200,16 @@ struct BuildOptions {
 
 /// Per-level counts for `voxcast info` (esvo §8.2). Level 0 is the root.
 struct LevelStats {
-  uint64_t voxels = 0;     // voxels at this level
-  uint64_t non_leaf = 0;   // of which subdivided (own a descriptor)
+  uint64_t voxels = 0;    // voxels at this level
+  uint64_t non_leaf = 0;  // of which subdivided (own a descriptor)
 };
 
 struct MemoryStats {
-  uint64_t descriptor_bytes = 0;   // child descriptors
+  uint64_t descriptor_bytes = 0;  // child descriptors
   uint64_t far_pointer_bytes = 0;
   uint64_t page_header_bytes = 0;
-  uint64_t padding_bytes = 0;      // unused slots (alignment, reserved far slots)
-  uint64_t info_bytes = 0;         // info sections
+  uint64_t padding_bytes = 0;  // unused slots (alignment, reserved far slots)
+  uint64_t info_bytes = 0;     // info sections
   uint64_t attribute_lookup_bytes = 0;
   uint64_t attribute_value_bytes = 0;  // = color_bytes + normal_bytes
   uint64_t total_bytes = 0;
@@ -229,8 +229,8 @@ struct MemoryStats {
 
 class EsvoOctree {
  public:
-  GridTransform grid;            // world placement of the root cube
-  std::vector<uint32_t> words;   // the blocks, layout above
+  GridTransform grid;           // world placement of the root cube
+  std::vector<uint32_t> words;  // the blocks, layout above
   uint32_t block_count = 0;
 
   int levels() const { return grid.levels; }

@@ -9,12 +9,12 @@ namespace voxcast::esvo {
 
 /// Ray in octree space (root cube [1,2]^3) and the result of a cast.
 struct CastResult {
-  float t;              // hit t (same parameterization as the input ray); +inf on a miss
-  Vec3 pos;             // min corner of the hit cube, octree space
-  uint32_t parent_slot; // descriptor slot of the hit voxel's parent
-  int child;            // child slot index of the hit voxel in its parent
-  int scale;            // hit cube side = 2^(scale - kMaxScale)
-  bool hit;             // authoritative hit flag (t of a hit can be any value in [0, tmax])
+  float t;               // hit t (same parameterization as the input ray); +inf on a miss
+  Vec3 pos;              // min corner of the hit cube, octree space
+  uint32_t parent_slot;  // descriptor slot of the hit voxel's parent
+  int child;             // child slot index of the hit voxel in its parent
+  int scale;             // hit cube side = 2^(scale - kMaxScale)
+  bool hit;              // authoritative hit flag (t of a hit can be any value in [0, tmax])
 };
 
 /// Appendix A, ported: `origin`/`dir` in octree space, t in [0, tmax].

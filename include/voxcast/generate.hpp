@@ -33,10 +33,10 @@ Mesh menger(int level);
 
 struct TerrainOptions {
   uint64_t seed = 1;
-  int size = 256;           // vertices per side, 2 .. 8192
-  int octaves = 6;          // fBm octaves, 1 .. 16
-  double height = 0.25;     // vertical scale; the terrain spans [0,1] in x and z
-  double persistence = 0.5; // amplitude factor per octave
+  int size = 256;            // vertices per side, 2 .. 8192
+  int octaves = 6;           // fBm octaves, 1 .. 16
+  double height = 0.25;      // vertical scale; the terrain spans [0,1] in x and z
+  double persistence = 0.5;  // amplitude factor per octave
 };
 /// Height field y = height * fBm(x, z) over an N x N vertex grid of [0,1]^2
 /// (value noise, smooth interpolation, frequency doubling per octave).

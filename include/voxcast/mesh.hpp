@@ -29,10 +29,10 @@ struct Material {
 /// per triangle.
 struct Mesh {
   std::vector<Vec3> positions;
-  std::vector<Vec3> normals;   // unit length; always present after load_mesh
-  std::vector<Color> colors;   // linear vertex colors, optional
-  std::vector<Vec2> uvs;       // optional, only meaningful with a textured material;
-                               // origin at the texture's top-left, v down (glTF convention)
+  std::vector<Vec3> normals;      // unit length; always present after load_mesh
+  std::vector<Color> colors;      // linear vertex colors, optional
+  std::vector<Vec2> uvs;          // optional, only meaningful with a textured material;
+                                  // origin at the texture's top-left, v down (glTF convention)
   std::vector<uint32_t> indices;  // 3 per triangle
   std::vector<uint32_t> triangle_material;
   std::vector<Material> materials;
@@ -48,9 +48,9 @@ struct Mesh {
 };
 
 struct MeshLoadStats {
-  size_t input_triangles = 0;       // after triangulation
-  size_t degenerate_dropped = 0;    // zero-area or repeated-index triangles
-  bool normals_computed = false;    // the file had no normals
+  size_t input_triangles = 0;     // after triangulation
+  size_t degenerate_dropped = 0;  // zero-area or repeated-index triangles
+  bool normals_computed = false;  // the file had no normals
   /// Problems that did not stop the import (e.g. a texture file that is
   /// missing or unreadable: the material falls back to its base color).
   std::vector<std::string> warnings;

@@ -3,8 +3,9 @@
 // lowest three bits of a code are the ESVO child slot index (x | y<<1 | z<<2)
 // of the voxel inside its parent and `code >> 3` is the parent's code.
 // 21 bits per axis are representable; voxcast uses at most 20 (2^20 grids).
-#include <cstdint>
 #include <immintrin.h>
+
+#include <cstdint>
 
 namespace voxcast {
 

@@ -49,9 +49,9 @@ struct RenderResult {
   double per_ray(uint64_t total) const { return rays ? double(total) / double(rays) : 0.0; }
   double filter_seconds = 0;  // wall time of post_filter (0 unless options.filter)
   // ---- options.effects (inside `seconds`) ----
-  Image ao;                       // 1 channel, AO in [0,1] (1 on misses); when ao_rays > 0
-  Image shadow;                   // 1 channel, light visibility in [0,1] (1 on misses); with shadows
-  EffectCounters effect_counters; // secondary rays traced
+  Image ao;      // 1 channel, AO in [0,1] (1 on misses); when ao_rays > 0
+  Image shadow;  // 1 channel, light visibility in [0,1] (1 on misses); with shadows
+  EffectCounters effect_counters;  // secondary rays traced
 };
 
 RenderResult render(const VoxelStructure& structure, const RenderOptions& options);

@@ -8,10 +8,9 @@
 #include <cstdint>
 #include <filesystem>
 #include <map>
+#include <memory>
 #include <string>
 #include <vector>
-
-#include <memory>
 
 #include "voxcast/dag.hpp"
 #include "voxcast/esvo.hpp"
@@ -46,8 +45,8 @@ class Container {
 
 /// What a scene file says about how it was made (shown by `voxcast info`).
 struct SceneInfo {
-  std::string source;         // input mesh file name
-  std::string voxelization;   // "conservative" / "6-separating"
+  std::string source;        // input mesh file name
+  std::string voxelization;  // "conservative" / "6-separating"
   uint64_t source_triangles = 0;
   uint64_t leaf_voxels = 0;
 };

@@ -48,9 +48,9 @@ struct VoxelSet {
   GridTransform grid;
   std::vector<uint64_t> codes;  // Morton codes (see morton.hpp), ascending, unique
   // The attribute arrays are empty when VoxelizeOptions::attributes was false.
-  std::vector<Color> colors;    // area-weighted mean surface color, linear RGBA
-  std::vector<Vec3> normals;    // area-weighted mean shading normal, unit length
-  std::vector<float> weights;   // surface area inside the voxel, in voxel units^2
+  std::vector<Color> colors;   // area-weighted mean surface color, linear RGBA
+  std::vector<Vec3> normals;   // area-weighted mean shading normal, unit length
+  std::vector<float> weights;  // surface area inside the voxel, in voxel units^2
   size_t size() const { return codes.size(); }
 };
 

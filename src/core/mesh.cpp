@@ -101,7 +101,8 @@ Color Mesh::surface_color(size_t t, float u, float v) const {
     mat = &materials[triangle_material[t]];
   if (mat) {
     c = mat->base_color;
-    if (mat->texture >= 0 && size_t(mat->texture) < textures.size() && uvs.size() == positions.size()) {
+    if (mat->texture >= 0 && size_t(mat->texture) < textures.size() &&
+        uvs.size() == positions.size()) {
       Vec2 a = uvs[i0], b = uvs[i1], d = uvs[i2];
       Vec2 uv{w * a.x + u * b.x + v * d.x, w * a.y + u * b.y + v * d.y};
       Color tex = textures[size_t(mat->texture)].sample(uv);
@@ -137,20 +138,20 @@ Vec3 Mesh::surface_normal(size_t t, float u, float v) const {
 
 void validate_mesh(const Mesh& m) {
   const size_t nv = m.positions.size();
-  if (nv > size_t(UINT32_MAX)) throw Error(fmt::format("mesh has {} vertices, more than 32-bit indices can address", nv));
+  if (nv > size_t(UINT32_MAX))
+    throw Error(fmt::format("mesh has {} vertices, more than 32-bit indices can address", nv));
   if (m.indices.size() % 3 != 0)
     throw Error(fmt::format("mesh index count {} is not a multiple of 3", m.indices.size()));
   auto check_size = [&](size_t n, const char* what) {
-    if (n != 0 && n != nv)
-      throw Error(fmt::format("mesh has {} {} for {} vertices", n, what, nv));
+    if (n != 0 && n != nv) throw Error(fmt::format("mesh has {} {} for {} vertices", n, what, nv));
   };
   check_size(m.normals.size(), "normals");
   check_size(m.colors.size(), "colors");
   check_size(m.uvs.size(), "uvs");
   for (size_t i = 0; i < m.indices.size(); ++i)
     if (m.indices[i] >= nv)
-      throw Error(fmt::format("triangle {} references vertex {} but the mesh has {} vertices", i / 3,
-                              m.indices[i], nv));
+      throw Error(fmt::format("triangle {} references vertex {} but the mesh has {} vertices",
+                              i / 3, m.indices[i], nv));
   for (size_t i = 0; i < nv; ++i)
     if (!is_finite(m.positions[i]))
       throw Error(fmt::format("vertex {} has a non-finite coordinate", i));

@@ -19,7 +19,9 @@ Progress::Progress(std::string label, uint64_t total, bool enabled)
       start_(std::chrono::steady_clock::now()),
       tty_(enabled && isatty(STDERR_FILENO)) {}
 
-Progress::~Progress() { finish(); }
+Progress::~Progress() {
+  finish();
+}
 
 void Progress::advance(uint64_t units) {
   uint64_t done = done_.fetch_add(units, std::memory_order_relaxed) + units;

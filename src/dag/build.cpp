@@ -10,14 +10,14 @@
 // in order of their first occurrence in Morton order, which keeps the nodes
 // a ray visits together close in memory and makes the output a function of
 // the voxel set alone.
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_sort.h>
+
 #include <array>
 #include <bit>
 #include <cstring>
 #include <string>
 #include <utility>
-
-#include <tbb/parallel_for.h>
-#include <tbb/parallel_sort.h>
 
 #include "voxcast/dag.hpp"
 #include "voxcast/error.hpp"
@@ -70,8 +70,7 @@ SparseVoxelDag build_dag(const VoxelSet& voxels) {
     throw Error("DAG build: the grid must have 2.." + std::to_string(kMaxGridLevels) +
                 " levels (at least 4^3 voxels), not " + std::to_string(L));
   if (voxels.codes.empty()) throw Error("DAG build: no voxels");
-  if (voxels.codes.size() > 0xFFFFFFFFull)
-    throw Error("DAG build: more than 2^32 - 1 voxels");
+  if (voxels.codes.size() > 0xFFFFFFFFull) throw Error("DAG build: more than 2^32 - 1 voxels");
   const bool attrs = !voxels.colors.empty();
   if (attrs && (voxels.colors.size() != voxels.size() || voxels.normals.size() != voxels.size()))
     throw Error("DAG build: attribute arrays do not match the voxel count");
@@ -80,7 +79,7 @@ SparseVoxelDag build_dag(const VoxelSet& voxels) {
   dag.grid = voxels.grid;
 
   // Level L-2: one 64-bit mask per occupied 4^3 block; bit = code & 63.
-  std::vector<uint64_t> keys;   // Morton code of each node's cube at its level
+  std::vector<uint64_t> keys;  // Morton code of each node's cube at its level
   std::vector<uint64_t> masks;
   {
     for (uint64_t code : voxels.codes) {
@@ -139,7 +138,8 @@ SparseVoxelDag build_dag(const VoxelSet& voxels) {
 
   // Layout: level 0 (the root) first, each level after the one above, so
   // every child pointer points forward.
-  std::vector<std::vector<uint64_t>> node_offset(size_t(L - 1));  // word offset of node id in its level
+  std::vector<std::vector<uint64_t>> node_offset(
+      size_t(L - 1));  // word offset of node id in its level
   uint64_t total = 0;
   dag.level_start.assign(size_t(L), 0);
   for (int l = 0; l <= L - 2; ++l) {

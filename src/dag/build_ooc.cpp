@@ -23,6 +23,8 @@
 // has left after the fixed parts for the DAG; the DAG is checked against the
 // budget after every cell.
 #include <fmt/format.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_sort.h>
 
 #include <algorithm>
 #include <bit>
@@ -30,9 +32,6 @@
 #include <cmath>
 #include <string>
 #include <unordered_map>
-
-#include <tbb/parallel_for.h>
-#include <tbb/parallel_sort.h>
 
 #include "voxcast/dag.hpp"
 #include "voxcast/error.hpp"
@@ -50,7 +49,9 @@ double seconds_since(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
-std::string mib(double bytes) { return fmt::format("{:.1f} MiB", bytes / (1024.0 * 1024.0)); }
+std::string mib(double bytes) {
+  return fmt::format("{:.1f} MiB", bytes / (1024.0 * 1024.0));
+}
 
 // Unique nodes of one level, interned by their words (svdag §3: one node per
 // distinct subtree). Leaf-mask nodes are 2 words (mask bits 31..0, 63..32);
@@ -64,7 +65,8 @@ class LevelTable {
     for (uint64_t s = hash(w, len) & mask;; s = (s + 1) & mask) {
       const uint32_t e = slots_[s];
       if (e == 0) {
-        if (data_.size() + len > 0xFFFFFFFFull) throw Error("DAG build: the DAG exceeds 2^32 words");
+        if (data_.size() + len > 0xFFFFFFFFull)
+          throw Error("DAG build: the DAG exceeds 2^32 words");
         const uint32_t id = uint32_t(start_.size());
         start_.push_back(uint32_t(data_.size()));
         data_.insert(data_.end(), w, w + len);
@@ -170,11 +172,11 @@ double triangle_pairs(const double v[3][3]) {
 }
 
 struct CellPlan {
-  int bits = 0;                 // cell side = 2^bits voxels
-  uint64_t bins = 0;            // (cell, triangle) entries
-  double max_cell_pairs = 0;    // estimated pairs of the fullest cell
-  uint64_t fixed_bytes = 0;     // mesh + vertices + bins
-  uint64_t cell_bytes = 0;      // working set of the fullest cell
+  int bits = 0;               // cell side = 2^bits voxels
+  uint64_t bins = 0;          // (cell, triangle) entries
+  double max_cell_pairs = 0;  // estimated pairs of the fullest cell
+  uint64_t fixed_bytes = 0;   // mesh + vertices + bins
+  uint64_t cell_bytes = 0;    // working set of the fullest cell
 };
 
 uint64_t mesh_bytes(const Mesh& m) {
@@ -189,7 +191,9 @@ uint64_t mesh_bytes(const Mesh& m) {
 // vectors and their concatenation (8 + 8) plus the leaf keys/masks/ids of the
 // cell (~12); attributes = 16-byte pairs twice, the VoxelSet (~40 B per voxel,
 // about half a voxel per pair) and the pair index.
-double bytes_per_pair(bool attributes) { return attributes ? 32.0 + 24.0 + 12.0 : 28.0; }
+double bytes_per_pair(bool attributes) {
+  return attributes ? 32.0 + 24.0 + 12.0 : 28.0;
+}
 
 CellPlan plan_cells(const Mesh& mesh, const std::vector<std::array<double, 3>>& gv,
                     const GridTransform& grid, int bits, bool attributes) {
@@ -213,8 +217,8 @@ CellPlan plan_cells(const Mesh& mesh, const std::vector<std::array<double, 3>>& 
         }
   }
   for (const auto& [cell, pairs] : per_cell) p.max_cell_pairs = std::max(p.max_cell_pairs, pairs);
-  p.fixed_bytes = mesh_bytes(mesh) + gv.size() * sizeof(gv[0]) + p.bins * sizeof(Bin) +
-                  per_cell.size() * 64;
+  p.fixed_bytes =
+      mesh_bytes(mesh) + gv.size() * sizeof(gv[0]) + p.bins * sizeof(Bin) + per_cell.size() * 64;
   p.cell_bytes = uint64_t(p.max_cell_pairs * bytes_per_pair(attributes));
   return p;
 }
@@ -316,8 +320,9 @@ SparseVoxelDag build_dag_out_of_core(const Mesh& mesh, const GridTransform& grid
       max_cell_voxels = std::max<uint64_t>(max_cell_voxels, vs.codes.size());
       voxel_total += vs.codes.size();
       if (voxel_total > 0xFFFFFFFFull)
-        throw Error("DAG build: more than 2^32 - 1 voxels (the voxel index is 32-bit); lower "
-                    "--resolution");
+        throw Error(
+            "DAG build: more than 2^32 - 1 voxels (the voxel index is 32-bit); lower "
+            "--resolution");
       if (options.attributes) {
         const size_t base = dag.colors.size();
         dag.colors.resize(base + vs.size());
@@ -359,13 +364,15 @@ SparseVoxelDag build_dag_out_of_core(const Mesh& mesh, const GridTransform& grid
       roots_keys.push_back(cell);
       roots_ids.push_back(ids[0]);
       reduce_s += seconds_since(t0);
-      uint64_t held = plan.fixed_bytes + uint64_t(dag.colors.capacity() + dag.normals.capacity()) * 4;
+      uint64_t held =
+          plan.fixed_bytes + uint64_t(dag.colors.capacity() + dag.normals.capacity()) * 4;
       for (const LevelTable& t : tables) held += t.bytes();
       if (held > budget)
-        throw Error(fmt::format("out-of-core DAG build: the DAG so far plus the mesh hold {}, more "
-                                "than the {} memory budget; raise --memory-budget or lower "
-                                "--resolution",
-                                mib(double(held)), mib(double(budget))));
+        throw Error(
+            fmt::format("out-of-core DAG build: the DAG so far plus the mesh hold {}, more "
+                        "than the {} memory budget; raise --memory-budget or lower "
+                        "--resolution",
+                        mib(double(held)), mib(double(budget))));
     }
     progress.finish();
   }
@@ -408,7 +415,8 @@ SparseVoxelDag build_dag_out_of_core(const Mesh& mesh, const GridTransform& grid
         const uint32_t h = src[s];
         dst[s] = h;
         const int k = std::popcount(h);
-        for (int j = 1; j <= k; ++j) dst[s + uint32_t(j)] = child_base + child_start[src[s + uint32_t(j)]];
+        for (int j = 1; j <= k; ++j)
+          dst[s + uint32_t(j)] = child_base + child_start[src[s + uint32_t(j)]];
       });
     }
     // Level l's ids were needed only by level l-1, done before.

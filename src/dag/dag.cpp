@@ -1,26 +1,31 @@
 // SparseVoxelDag validation, derived voxel index (Hitchhiker's guide,
 // "Dynamic voxel indexing" with the prefix sums in the parent), statistics
 // (svdag Table 2) and decoding. Layout in dag.hpp.
+#include "voxcast/dag.hpp"
+
 #include <bit>
 #include <cmath>
 #include <string>
 
-#include "voxcast/dag.hpp"
 #include "voxcast/error.hpp"
 
 namespace voxcast::dag {
 namespace {
 
-[[noreturn]] void corrupt(const std::string& what) { throw Error("corrupt DAG: " + what); }
+[[noreturn]] void corrupt(const std::string& what) {
+  throw Error("corrupt DAG: " + what);
+}
 
-inline uint64_t leaf_mask(const uint32_t* w) { return uint64_t(w[0]) | uint64_t(w[1]) << 32; }
+inline uint64_t leaf_mask(const uint32_t* w) {
+  return uint64_t(w[0]) | uint64_t(w[1]) << 32;
+}
 
 }  // namespace
 
 void SparseVoxelDag::finalize() {
   const int L = grid.levels;
-  if (L < 2 || L > kMaxGridLevels) corrupt("depth " + std::to_string(L) + " is outside 2.." +
-                                           std::to_string(kMaxGridLevels));
+  if (L < 2 || L > kMaxGridLevels)
+    corrupt("depth " + std::to_string(L) + " is outside 2.." + std::to_string(kMaxGridLevels));
   if (grid.resolution != (1u << L)) corrupt("resolution is not 2^levels");
   if (!(grid.voxel_size > 0) || !std::isfinite(grid.voxel_size) || !is_finite(grid.origin))
     corrupt("bad grid placement");
@@ -57,7 +62,8 @@ void SparseVoxelDag::finalize() {
       } else {
         const uint32_t h = words[s];
         if ((h & 0xFFu) == 0) corrupt("empty child mask at word " + std::to_string(s));
-        if (h & kReservedHeaderBits) corrupt("reserved header bits set at word " + std::to_string(s));
+        if (h & kReservedHeaderBits)
+          corrupt("reserved header bits set at word " + std::to_string(s));
         for (size_t j = 1; j < size; ++j) {
           const uint32_t p = words[s + j];
           // Strictly forward, past the node itself: no pointer chain can cycle.
@@ -71,7 +77,8 @@ void SparseVoxelDag::finalize() {
             mark[p] = uint8_t(tag + 1);
             ++next_expected;
           } else if (mark[p] != tag + 1) {
-            corrupt("pointer at word " + std::to_string(s + j) + " targets a node of another level");
+            corrupt("pointer at word " + std::to_string(s + j) +
+                    " targets a node of another level");
           }
         }
       }
@@ -93,7 +100,8 @@ void SparseVoxelDag::finalize() {
       for (int j = 0; j < k; ++j) {
         const uint32_t p = words[w + 1 + size_t(j)];
         voxel_prefix[w + 1 + size_t(j)] = uint32_t(sum);
-        sum += children_are_leaves ? uint64_t(std::popcount(leaf_mask(&words[p]))) : voxel_prefix[p];
+        sum +=
+            children_are_leaves ? uint64_t(std::popcount(leaf_mask(&words[p]))) : voxel_prefix[p];
       }
       if (sum > 0xFFFFFFFFull) corrupt("more than 2^32 - 1 leaf voxels");
       voxel_prefix[w] = uint32_t(sum);
@@ -102,8 +110,7 @@ void SparseVoxelDag::finalize() {
   }
   leaf_voxels = L == 2 ? uint64_t(std::popcount(leaf_mask(&words[0]))) : voxel_prefix[0];
 
-  if (colors.size() != normals.size())
-    corrupt("color and normal arrays differ in size");
+  if (colors.size() != normals.size()) corrupt("color and normal arrays differ in size");
   if (!colors.empty() && colors.size() != leaf_voxels)
     corrupt("attribute arrays hold " + std::to_string(colors.size()) + " voxels, the DAG " +
             std::to_string(leaf_voxels));
@@ -167,7 +174,8 @@ std::vector<uint64_t> SparseVoxelDag::decode_leaves() const {
     const uint32_t mask = words[w] & 0xFFu;
     int j = 0;
     for (int c = 0; c < 8; ++c)
-      if (mask & (1u << c)) self(self, words[w + 1 + size_t(j++)], level + 1, code << 3 | uint64_t(c));
+      if (mask & (1u << c))
+        self(self, words[w + 1 + size_t(j++)], level + 1, code << 3 | uint64_t(c));
   };
   visit(visit, 0, 0, 0);
   return out;
@@ -197,8 +205,8 @@ Aabb occupied_bounds(const SparseVoxelDag& dag, int max_level) {
     int j = 0;
     for (int c = 0; c < 8; ++c)
       if (mask & (1u << c))
-        self(self, dag.words[w + 1 + size_t(j++)], level + 1, 2 * x + (c & 1), 2 * y + ((c >> 1) & 1),
-             2 * z + ((c >> 2) & 1));
+        self(self, dag.words[w + 1 + size_t(j++)], level + 1, 2 * x + (c & 1),
+             2 * y + ((c >> 1) & 1), 2 * z + ((c >> 2) & 1));
   };
   visit(visit, 0, 0, 0, 0, 0);
   const double cell = dag.grid.side() / double(1u << stop);

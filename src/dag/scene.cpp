@@ -15,14 +15,13 @@
 #include <bit>
 #include <cmath>
 #include <cstring>
+#include <nlohmann/json.hpp>
 #include <string>
 
-#include <nlohmann/json.hpp>
-
-#include "voxcast/esvo_structure.hpp"
-#include "voxcast/error.hpp"
-#include "voxcast/scene_file.hpp"
 #include "io/meta_json.hpp"
+#include "voxcast/error.hpp"
+#include "voxcast/esvo_structure.hpp"
+#include "voxcast/scene_file.hpp"
 
 namespace voxcast {
 namespace {

@@ -19,10 +19,11 @@
 //  * the any-hit variant (shadow rays) skips the index bookkeeping; the first
 //    leaf found is returned immediately, as in the closest-hit variant (the
 //    loop visits voxels front to back, so it is also the closest one).
+#include <immintrin.h>
+
 #include <bit>
 #include <cmath>
 #include <cstdint>
-#include <immintrin.h>
 
 #include "voxcast/dag.hpp"
 #include "voxcast/error.hpp"
@@ -32,10 +33,18 @@ namespace {
 
 using esvo::kMaxScale;
 
-inline float vmin(float a, float b) { return a < b ? a : b; }
-inline float vmax(float a, float b) { return a > b ? a : b; }
-inline uint32_t float_bits(float f) { return std::bit_cast<uint32_t>(f); }
-inline float bits_float(uint32_t u) { return std::bit_cast<float>(u); }
+inline float vmin(float a, float b) {
+  return a < b ? a : b;
+}
+inline float vmax(float a, float b) {
+  return a > b ? a : b;
+}
+inline uint32_t float_bits(float f) {
+  return std::bit_cast<uint32_t>(f);
+}
+inline float bits_float(uint32_t u) {
+  return std::bit_cast<float>(u);
+}
 
 // Bit c set iff byte c of m is non-zero: the child mask of a 4^3 leaf-mask
 // node over its eight 2^3 sub-blocks.
@@ -132,7 +141,8 @@ CastResult cast(const SparseVoxelDag& dag, Vec3 p, Vec3 d, float tmax, float siz
     // Child slot in the un-mirrored node (esvo: child_shift = idx ^ octant_mask).
     const int c = idx ^ octant_mask ^ 7;
     if ((child_mask >> c) & 1u && t_min <= t_max) {
-      if (tc_max * size_coef + size_bias >= scale_exp2) [[unlikely]] break;  // LOD, at t_min
+      if (tc_max * size_coef + size_bias >= scale_exp2) [[unlikely]]
+        break;  // LOD, at t_min
 
       float tv_max = vmin(t_max, tc_max);
       const float half = scale_exp2 * 0.5f;
@@ -185,11 +195,15 @@ CastResult cast(const SparseVoxelDag& dag, Vec3 p, Vec3 d, float tmax, float siz
     // POP: highest differing position bit = the scale to resume at.
     if ((idx & step_mask) != 0) {
       uint32_t differing_bits = 0;
-      if ((step_mask & 1) != 0) differing_bits |= float_bits(pos_x) ^ float_bits(pos_x + scale_exp2);
-      if ((step_mask & 2) != 0) differing_bits |= float_bits(pos_y) ^ float_bits(pos_y + scale_exp2);
-      if ((step_mask & 4) != 0) differing_bits |= float_bits(pos_z) ^ float_bits(pos_z + scale_exp2);
+      if ((step_mask & 1) != 0)
+        differing_bits |= float_bits(pos_x) ^ float_bits(pos_x + scale_exp2);
+      if ((step_mask & 2) != 0)
+        differing_bits |= float_bits(pos_y) ^ float_bits(pos_y + scale_exp2);
+      if ((step_mask & 4) != 0)
+        differing_bits |= float_bits(pos_z) ^ float_bits(pos_z + scale_exp2);
       scale = std::bit_width(differing_bits) - 1;
-      if (scale >= s_max) [[unlikely]] break;
+      if (scale >= s_max) [[unlikely]]
+        break;
       scale_exp2 = bits_float(uint32_t(scale - s_max + 127) << 23);
 
       parent = stack_parent[scale];
@@ -226,7 +240,8 @@ CastResult cast(const SparseVoxelDag& dag, Vec3 p, Vec3 d, float tmax, float siz
     result.voxel_index = base;
     // Entered face: the axis whose entry plane (the mirrored cube's upper
     // corner) is crossed last. Entering a cube while moving +x means its -x face.
-    const float ex = tx(pos_x + scale_exp2), ey = ty(pos_y + scale_exp2), ez = tz(pos_z + scale_exp2);
+    const float ex = tx(pos_x + scale_exp2), ey = ty(pos_y + scale_exp2),
+                ez = tz(pos_z + scale_exp2);
     const int axis = (ex >= ey && ex >= ez) ? 0 : (ey >= ez ? 1 : 2);
     result.face = axis * 2 + (d[axis] > 0.0f ? 1 : 0);
   }
@@ -294,7 +309,8 @@ bool DagStructure::occluded(const Ray& ray, const LodFootprint& lod) const {
   const float inv_side = float(1.0 / g.side());
   const Vec3 p = (ray.origin - g.origin) * inv_side + Vec3{1, 1, 1};
   const Vec3 d = ray.dir * inv_side;
-  return cast_occluded(*dag_, p, d, ray.tmax, lod.size_per_t * inv_side, lod.size_at_origin * inv_side);
+  return cast_occluded(*dag_, p, d, ray.tmax, lod.size_per_t * inv_side,
+                       lod.size_at_origin * inv_side);
 }
 
 void DagStructure::attributes(const SurfaceHit& hit, Color* color, Vec3* normal) const {

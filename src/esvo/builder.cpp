@@ -35,15 +35,15 @@
 // the contour pointers (relative to the descriptor, Appendix A) are filled
 // in when the block is closed, and a block is closed early if they could
 // exceed 24 bits.
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <bit>
 #include <cmath>
 #include <numeric>
 #include <stdexcept>
 #include <string>
-
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
 
 #include "esvo/compress.hpp"
 #include "esvo/contours.hpp"
@@ -65,12 +65,12 @@ constexpr Vec3 kDefaultNormal{0.f, 0.f, 1.f};
 
 /// Nodes of one octree level that own a descriptor (levels 0..L-1).
 struct Level {
-  std::vector<uint64_t> code;         // Morton code at this level (freed after use)
-  std::vector<uint8_t> mask;          // valid mask
-  std::vector<uint32_t> first_child;  // index of the first child in the next level
-  std::vector<uint64_t> desc_below;   // descriptors strictly below this node
-  std::vector<uint64_t> values_below; // attribute values of those descriptors
-  std::vector<uint64_t> value;        // this node's encoded attributes (levels >= 1)
+  std::vector<uint64_t> code;          // Morton code at this level (freed after use)
+  std::vector<uint8_t> mask;           // valid mask
+  std::vector<uint32_t> first_child;   // index of the first child in the next level
+  std::vector<uint64_t> desc_below;    // descriptors strictly below this node
+  std::vector<uint64_t> values_below;  // attribute values of those descriptors
+  std::vector<uint64_t> value;         // this node's encoded attributes (levels >= 1)
   // Aggregated attributes (only while building the next coarser level).
   std::vector<Color> color;
   std::vector<Vec3> normal;
@@ -130,37 +130,41 @@ void reduce_attributes(const std::vector<Color>& cc, const std::vector<Vec3>& cn
   p.color.resize(m);
   p.normal.resize(m);
   p.weight.resize(m);
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
-    for (size_t i = r.begin(); i != r.end(); ++i) {
-      const uint32_t first = p.first_child[i];
-      const int k = std::popcount(unsigned(p.mask[i]));
-      double w = 0, r4[4] = {0, 0, 0, 0}, u4[4] = {0, 0, 0, 0};
-      double nx = 0, ny = 0, nz = 0;
-      for (int j = 0; j < k; ++j) {
-        const Color& c = cc[first + j];
-        const double wj = cw[first + j];
-        w += wj;
-        r4[0] += wj * c.r, r4[1] += wj * c.g, r4[2] += wj * c.b, r4[3] += wj * c.a;
-        u4[0] += c.r, u4[1] += c.g, u4[2] += c.b, u4[3] += c.a;
-        nx += wj * cn[first + j].x, ny += wj * cn[first + j].y, nz += wj * cn[first + j].z;
-      }
-      // Zero total weight (degenerate input) falls back to the plain mean.
-      const double* s = w > 0 ? r4 : u4;
-      const double inv = w > 0 ? 1.0 / w : 1.0 / k;
-      p.color[i] = {float(s[0] * inv), float(s[1] * inv), float(s[2] * inv), float(s[3] * inv)};
-      const double len = std::sqrt(nx * nx + ny * ny + nz * nz);
-      // Opposite normals can cancel exactly; keep the first child's normal then.
-      p.normal[i] = len > 1e-12 ? Vec3{float(nx / len), float(ny / len), float(nz / len)} : cn[first];
-      p.weight[i] = float(w);
-    }
-  });
+  tbb::parallel_for(
+      tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t i = r.begin(); i != r.end(); ++i) {
+          const uint32_t first = p.first_child[i];
+          const int k = std::popcount(unsigned(p.mask[i]));
+          double w = 0, r4[4] = {0, 0, 0, 0}, u4[4] = {0, 0, 0, 0};
+          double nx = 0, ny = 0, nz = 0;
+          for (int j = 0; j < k; ++j) {
+            const Color& c = cc[first + j];
+            const double wj = cw[first + j];
+            w += wj;
+            r4[0] += wj * c.r, r4[1] += wj * c.g, r4[2] += wj * c.b, r4[3] += wj * c.a;
+            u4[0] += c.r, u4[1] += c.g, u4[2] += c.b, u4[3] += c.a;
+            nx += wj * cn[first + j].x, ny += wj * cn[first + j].y, nz += wj * cn[first + j].z;
+          }
+          // Zero total weight (degenerate input) falls back to the plain mean.
+          const double* s = w > 0 ? r4 : u4;
+          const double inv = w > 0 ? 1.0 / w : 1.0 / k;
+          p.color[i] = {float(s[0] * inv), float(s[1] * inv), float(s[2] * inv), float(s[3] * inv)};
+          const double len = std::sqrt(nx * nx + ny * ny + nz * nz);
+          // Opposite normals can cancel exactly; keep the first child's normal then.
+          p.normal[i] =
+              len > 1e-12 ? Vec3{float(nx / len), float(ny / len), float(nz / len)} : cn[first];
+          p.weight[i] = float(w);
+        }
+      });
 }
 
-void encode_values(const std::vector<Color>& c, const std::vector<Vec3>& n, std::vector<uint64_t>& out) {
+void encode_values(const std::vector<Color>& c, const std::vector<Vec3>& n,
+                   std::vector<uint64_t>& out) {
   out.resize(c.size());
   tbb::parallel_for(tbb::blocked_range<size_t>(0, c.size(), 8192),
                     [&](const tbb::blocked_range<size_t>& r) {
-                      for (size_t i = r.begin(); i != r.end(); ++i) out[i] = encode_value(c[i], n[i]);
+                      for (size_t i = r.begin(); i != r.end(); ++i)
+                        out[i] = encode_value(c[i], n[i]);
                     });
 }
 
@@ -209,7 +213,8 @@ class Layout {
   EsvoOctree run(const GridTransform& grid) {
     uint64_t total_desc = 1 + lv_[0].desc_below[0];
     uint64_t total_values = lv_[0].values_below[0] + std::popcount(unsigned(lv_[0].mask[0]));
-    out_.reserve(size_t(span_bound(total_desc, compressed_) + total_desc + 2 * total_values + 4096));
+    out_.reserve(
+        size_t(span_bound(total_desc, compressed_) + total_desc + 2 * total_values + 4096));
 
     open_block(0);
     // The root: slot 1, the first descriptor of block 0 (slot 0 is the page header).
@@ -286,7 +291,7 @@ class Layout {
   void place_descriptor(uint32_t slot, int depth, uint32_t index) {
     const uint32_t valid = lv_[depth].mask[index];
     uint32_t leaf = depth + 1 == L_ ? valid : 0;  // all leaves sit at depth L
-    out_[size_t(slot) * 2 + 1] = 0;  // no contour (§5.2)
+    out_[size_t(slot) * 2 + 1] = 0;               // no contour (§5.2)
     lookup_[slot - block_start_] = uint32_t(values_.size()) << 8 | valid;
     const uint32_t first = lv_[depth].first_child[index];
     const int k = std::popcount(valid);
@@ -329,10 +334,11 @@ class Layout {
     const uint64_t used = cursor_ - block_start_;
     // With contours, also keep every contour pointer within 24 bits (it
     // spans at most the descriptor area, the info section and the contours).
-    if (block_groups_ > 0 && (used + 2 * g + 16 > opt_.max_block_slots ||
-                              values_.size() + group_values > opt_.max_block_values ||
-                              (plan_ != nullptr && 2 * (used + 2 * g + 16) + contours_.size() + 8 * g + 64 >
-                                                       detail::kMaxContourPointer))) {
+    if (block_groups_ > 0 &&
+        (used + 2 * g + 16 > opt_.max_block_slots ||
+         values_.size() + group_values > opt_.max_block_values ||
+         (plan_ != nullptr &&
+          2 * (used + 2 * g + 16) + contours_.size() + 8 * g + 64 > detail::kMaxContourPointer))) {
       close_block();
       open_block((cursor_ * 2 + kPageWords - 1) / kPageWords * kPageWords / 2);
     }
@@ -352,8 +358,8 @@ class Layout {
         vals += cl.values_below[c];
         const bool no_break =
             used_after + span + 48 <= opt_.max_block_slots && vals <= opt_.max_block_values &&
-            (plan_ == nullptr ||
-             2 * (used_after + span + 48) + contours_.size() + vals + 64 <= detail::kMaxContourPointer);
+            (plan_ == nullptr || 2 * (used_after + span + 48) + contours_.size() + vals + 64 <=
+                                     detail::kMaxContourPointer);
         const uint64_t distance = (g - i) + g + span + 32;
         if (cl.desc_below[c] > 0 && !(no_break && distance <= kMaxNearPointer)) far_mask |= 1u << i;
         span += span_bound(cl.desc_below[c], compressed_);
@@ -456,9 +462,11 @@ class Layout {
                               const uint32_t e = lookup_[2 * k + size_t(half)];
                               const uint32_t mask = e & 0xFFu;
                               used |= mask << (8 * half);
-                              for (int j = 0; j < std::popcount(mask); ++j) vals[n++] = values_[(e >> 8) + uint32_t(j)];
+                              for (int j = 0; j < std::popcount(mask); ++j)
+                                vals[n++] = values_[(e >> 8) + uint32_t(j)];
                             }
-                            detail::encode_block_from_raw(vals, used, blocks + detail::kCompressedBlockWords * k);
+                            detail::encode_block_from_raw(
+                                vals, used, blocks + detail::kCompressedBlockWords * k);
                           }
                         });
     } else {
@@ -506,7 +514,8 @@ void check_block_limits(const BuildOptions& options) {
 }
 
 /// Phase 1 (bottom-up levels) into `lv` and the leaf values.
-void build_levels(const VoxelSet& voxels, std::vector<Level>& lv, std::vector<uint64_t>& leaf_values) {
+void build_levels(const VoxelSet& voxels, std::vector<Level>& lv,
+                  std::vector<uint64_t>& leaf_values) {
   const int L = voxels.grid.levels;
   const size_t n = voxels.size();
 
@@ -561,7 +570,8 @@ void build_levels(const VoxelSet& voxels, std::vector<Level>& lv, std::vector<ui
       });
     }
   }
-  if (lv[0].mask.size() != 1) throw std::logic_error("esvo builder: root level is not a single node");
+  if (lv[0].mask.size() != 1)
+    throw std::logic_error("esvo builder: root level is not a single node");
 }
 
 /// Subtree sizes of the planned (variable-depth) tree for phase 2's far
@@ -602,16 +612,15 @@ EsvoOctree build_octree(const VoxelSet& voxels, const Mesh& mesh, const BuildOpt
   const bool variable = options.max_level != 0 || options.geometry_error > 0 ||
                         options.color_error >= 0 || options.normal_error >= 0;
   if (!options.contours) {
-    if (variable)
-      throw Error("cannot build octree: max level and error tolerances need contours");
+    if (variable) throw Error("cannot build octree: max level and error tolerances need contours");
     return build_octree(voxels, options);
   }
   check_input(voxels);
   check_block_limits(options);
   const int L = voxels.grid.levels;
   if (options.max_level < 0 || options.max_level > L)
-    throw Error("cannot build octree: max level " + std::to_string(options.max_level) + " outside 1.." +
-                std::to_string(L));
+    throw Error("cannot build octree: max level " + std::to_string(options.max_level) +
+                " outside 1.." + std::to_string(L));
   if (!std::isfinite(options.geometry_error) || !std::isfinite(options.color_error) ||
       !std::isfinite(options.normal_error))
     throw Error("cannot build octree: error tolerances must be finite");

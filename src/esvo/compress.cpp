@@ -71,12 +71,24 @@ struct D3 {
   double& operator[](int i) { return i == 0 ? x : (i == 1 ? y : z); }
   double operator[](int i) const { return i == 0 ? x : (i == 1 ? y : z); }
 };
-D3 operator+(D3 a, D3 b) { return {a.x + b.x, a.y + b.y, a.z + b.z}; }
-D3 operator-(D3 a, D3 b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
-D3 operator*(D3 a, double s) { return {a.x * s, a.y * s, a.z * s}; }
-double dot(D3 a, D3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
-D3 cross(D3 a, D3 b) { return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x}; }
-double norm(D3 a) { return std::sqrt(dot(a, a)); }
+D3 operator+(D3 a, D3 b) {
+  return {a.x + b.x, a.y + b.y, a.z + b.z};
+}
+D3 operator-(D3 a, D3 b) {
+  return {a.x - b.x, a.y - b.y, a.z - b.z};
+}
+D3 operator*(D3 a, double s) {
+  return {a.x * s, a.y * s, a.z * s};
+}
+double dot(D3 a, D3 b) {
+  return a.x * b.x + a.y * b.y + a.z * b.z;
+}
+D3 cross(D3 a, D3 b) {
+  return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
+}
+double norm(D3 a) {
+  return std::sqrt(dot(a, a));
+}
 D3 unit(D3 a) {
   const double l = norm(a);
   return l > 0 ? a * (1.0 / l) : D3{0, 0, 1};
@@ -94,7 +106,8 @@ D3 principal_axis(const double m[3][3]) {
   if (!(best > 1e-24)) return {};
   v = unit(v);
   for (int it = 0; it < 8; ++it) {
-    const D3 w{m[0][0] * v.x + m[0][1] * v.y + m[0][2] * v.z, m[1][0] * v.x + m[1][1] * v.y + m[1][2] * v.z,
+    const D3 w{m[0][0] * v.x + m[0][1] * v.y + m[0][2] * v.z,
+               m[1][0] * v.x + m[1][1] * v.y + m[1][2] * v.z,
                m[2][0] * v.x + m[2][1] * v.y + m[2][2] * v.z};
     if (!(dot(w, w) > 1e-30)) break;
     v = unit(w);
@@ -104,8 +117,12 @@ D3 principal_axis(const double m[3][3]) {
 
 // ---------------------------------------------------------------- colors ----
 
-uint32_t expand5(uint32_t x) { return x << 3 | x >> 2; }
-uint32_t expand6(uint32_t x) { return x << 2 | x >> 4; }
+uint32_t expand5(uint32_t x) {
+  return x << 3 | x >> 2;
+}
+uint32_t expand6(uint32_t x) {
+  return x << 2 | x >> 4;
+}
 
 /// The four decoded palette entries (8-bit sRGB) of endpoints c0, c1 (565).
 struct Palette {
@@ -124,7 +141,9 @@ Palette make_palette(uint32_t c0, uint32_t c1) {
   return p;
 }
 
-uint32_t pack565(int r, int g, int b) { return uint32_t(r) << 11 | uint32_t(g) << 5 | uint32_t(b); }
+uint32_t pack565(int r, int g, int b) {
+  return uint32_t(r) << 11 | uint32_t(g) << 5 | uint32_t(b);
+}
 
 /// Optimal endpoints for a single 8-bit value with index 2 ((2a + b + 1) / 3):
 /// per channel width (5 or 6 bits) and target, the (a, b) pair with the least
@@ -173,7 +192,8 @@ class ColorEncoder {
       double best = INFINITY;
       int bk = 0;
       for (int k = 0; k < 4; ++k) {
-        const double dr = x_[i][0] - p.c[k][0], dg = x_[i][1] - p.c[k][1], db = x_[i][2] - p.c[k][2];
+        const double dr = x_[i][0] - p.c[k][0], dg = x_[i][1] - p.c[k][1],
+                     db = x_[i][2] - p.c[k][2];
         const double e = dr * dr + dg * dg + db * db;
         if (e < best) best = e, bk = k;
       }
@@ -236,7 +256,8 @@ class ColorEncoder {
     {
       double lo[3] = {255, 255, 255}, hi[3] = {0, 0, 0};
       for (int i = 0; i < n_; ++i)
-        for (int c = 0; c < 3; ++c) lo[c] = std::min(lo[c], double(x_[i][c])), hi[c] = std::max(hi[c], double(x_[i][c]));
+        for (int c = 0; c < 3; ++c)
+          lo[c] = std::min(lo[c], double(x_[i][c])), hi[c] = std::max(hi[c], double(x_[i][c]));
       consider(quantize(lo), quantize(hi));
     }
 
@@ -275,7 +296,8 @@ class ColorEncoder {
               if (!(which >> end & 1)) continue;
               const int v = int(ep[end] >> kShift[c]) & kMax[c];
               if (v + d < 0 || v + d > kMax[c]) ok = false;
-              ep[end] = (ep[end] & ~(uint32_t(kMax[c]) << kShift[c])) | uint32_t(std::clamp(v + d, 0, kMax[c])) << kShift[c];
+              ep[end] = (ep[end] & ~(uint32_t(kMax[c]) << kShift[c])) |
+                        uint32_t(std::clamp(v + d, 0, kMax[c])) << kShift[c];
             }
             if (!ok) continue;
             const double before = fit_.sse;
@@ -301,7 +323,8 @@ constexpr int kAxisExpBias = 15;
 /// Cube point (major component +-1) of a cube normal code; face > 5 -> +z.
 D3 cube_point(uint32_t code) {
   const Vec3 n = decode_normal_cube(code);  // normalized; rescale to the cube
-  const double m = std::max({std::fabs(double(n.x)), std::fabs(double(n.y)), std::fabs(double(n.z))});
+  const double m =
+      std::max({std::fabs(double(n.x)), std::fabs(double(n.y)), std::fabs(double(n.z))});
   return D3{n.x / m, n.y / m, n.z / m};
 }
 
@@ -471,7 +494,8 @@ class NormalEncoder {
     const D3 center = b + e1 * (0.5 * (lo1 + hi1)) + e2 * (0.5 * (lo2 + hi2));
     const double h1 = 0.5 * (hi1 - lo1), h2 = 0.5 * (hi2 - lo2);
     // 2-D grid and 1-D (parallel axes 4:1 -> 16 even levels along e1).
-    NormalFit cand[2] = {evaluate(center, e1 * h1, e2 * h2), evaluate(center, e1 * (0.8 * h1), e1 * (0.2 * h1))};
+    NormalFit cand[2] = {evaluate(center, e1 * h1, e2 * h2),
+                         evaluate(center, e1 * (0.8 * h1), e1 * (0.2 * h1))};
     for (NormalFit f : cand) {
       consider(f);
       for (int round = 0; round < 3 && std::isfinite(f.score); ++round) {
@@ -656,7 +680,8 @@ void decode_compressed_slot(const uint32_t* block, int slot, Color* color, Vec3*
     static constexpr float kC[4] = {-1.f, -1.f / 3.f, 1.f / 3.f, 1.f};
     const auto axis = [](uint32_t bits, float c) {
       // 2^(e - 15) * c, built from the exponent bits (e in 0..15).
-      const float scale = std::bit_cast<float>(uint32_t(int(bits >> 12 & 15u) - kAxisExpBias + 127) << 23) * c;
+      const float scale =
+          std::bit_cast<float>(uint32_t(int(bits >> 12 & 15u) - kAxisExpBias + 127) << 23) * c;
       const auto m4 = [](uint32_t v) { return float(int32_t(v << 28) >> 28); };
       return Vec3{m4(bits) * scale, m4(bits >> 4) * scale, m4(bits >> 8) * scale};
     };

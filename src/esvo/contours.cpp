@@ -39,6 +39,9 @@
 // compression error (§5.5) is not part of it.
 #include "esvo/contours.hpp"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <array>
 #include <bit>
@@ -46,9 +49,6 @@
 #include <cstring>
 #include <numeric>
 #include <unordered_map>
-
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
 
 #include "esvo/layout_internal.hpp"
 #include "voxcast/error.hpp"
@@ -83,7 +83,8 @@ bool EsvoOctree::has_contours() const {
   if (info <= 0 || uint64_t(info) + detail::kInfoAttachTable > size) return false;
   const uint64_t count = words[size_t(info) + detail::kInfoAttachCountWord];
   for (uint64_t a = 0; a < count && uint64_t(info) + detail::kInfoAttachTable + 2 * a < size; ++a)
-    if (words[size_t(uint64_t(info) + detail::kInfoAttachTable + 2 * a)] == kAttachContours) return true;
+    if (words[size_t(uint64_t(info) + detail::kInfoAttachTable + 2 * a)] == kAttachContours)
+      return true;
   return false;
 }
 
@@ -93,8 +94,8 @@ Slab contour_slab(uint32_t value, const double lo[3], double side) {
   const ContourValue c = decode_contour(value);
   Slab s;
   s.n[0] = c.nx, s.n[1] = c.ny, s.n[2] = c.nz;
-  const double center = s.n[0] * (lo[0] + 0.5 * side) + s.n[1] * (lo[1] + 0.5 * side) +
-                        s.n[2] * (lo[2] + 0.5 * side);
+  const double center =
+      s.n[0] * (lo[0] + 0.5 * side) + s.n[1] * (lo[1] + 0.5 * side) + s.n[2] * (lo[2] + 0.5 * side);
   const double mid = center + 0.75 * side * c.position, half = 0.375 * side * c.thickness;
   s.lo = mid - half;
   s.hi = mid + half;
@@ -106,14 +107,26 @@ namespace {
 struct V3 {
   double x = 0, y = 0, z = 0;
 };
-inline V3 operator+(V3 a, V3 b) { return {a.x + b.x, a.y + b.y, a.z + b.z}; }
-inline V3 operator-(V3 a, V3 b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
-inline V3 operator*(V3 a, double s) { return {a.x * s, a.y * s, a.z * s}; }
-inline double dot(V3 a, V3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
-inline V3 cross(V3 a, V3 b) { return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x}; }
-inline double len(V3 a) { return std::sqrt(dot(a, a)); }
+inline V3 operator+(V3 a, V3 b) {
+  return {a.x + b.x, a.y + b.y, a.z + b.z};
+}
+inline V3 operator-(V3 a, V3 b) {
+  return {a.x - b.x, a.y - b.y, a.z - b.z};
+}
+inline V3 operator*(V3 a, double s) {
+  return {a.x * s, a.y * s, a.z * s};
+}
+inline double dot(V3 a, V3 b) {
+  return a.x * b.x + a.y * b.y + a.z * b.z;
+}
+inline V3 cross(V3 a, V3 b) {
+  return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
+}
+inline double len(V3 a) {
+  return std::sqrt(dot(a, a));
+}
 
-constexpr int kMaxAncestors = 6;      // ancestor slabs used for the polyhedron P
+constexpr int kMaxAncestors = 6;       // ancestor slabs used for the polyhedron P
 constexpr size_t kMaxCandidates = 24;  // triangle normals tried per voxel (§7.2 "a small subset")
 constexpr double kMinGain = 0.02;      // a contour must cut >= 2% of the side off P
 constexpr double kDefaultContourTolerance = 0.25;  // finest voxels (BuildOptions::geometry_error)
@@ -230,7 +243,9 @@ class Polyhedron {
       keyed_.clear();
       for (const V3& p : cap_) keyed_.push_back({std::atan2(dot(p - m, v), dot(p - m, u)), p});
       std::sort(keyed_.begin(), keyed_.end(),
-                [](const std::pair<double, V3>& p, const std::pair<double, V3>& q) { return p.first < q.first; });
+                [](const std::pair<double, V3>& p, const std::pair<double, V3>& q) {
+                  return p.first < q.first;
+                });
       for (const auto& kp : keyed_) nv_.push_back(kp.second);
       nend_.push_back(uint32_t(nv_.size()));
     }
@@ -248,7 +263,8 @@ class Polyhedron {
     std::sort(v.begin(), v.end(), [](V3 a, V3 b) {
       return a.x != b.x ? a.x < b.x : a.y != b.y ? a.y < b.y : a.z < b.z;
     });
-    v.erase(std::unique(v.begin(), v.end(), [](V3 a, V3 b) { return a.x == b.x && a.y == b.y && a.z == b.z; }),
+    v.erase(std::unique(v.begin(), v.end(),
+                        [](V3 a, V3 b) { return a.x == b.x && a.y == b.y && a.z == b.z; }),
             v.end());
   }
 
@@ -269,7 +285,10 @@ struct Candidate {
 class Planner {
  public:
   Planner(const TreeView& t, const GridTransform& g, const Mesh& mesh, const BuildOptions& o)
-      : t_(t), o_(o), L_(t.levels), Lmax_(o.max_level > 0 ? std::min(o.max_level, t.levels) : t.levels) {
+      : t_(t),
+        o_(o),
+        L_(t.levels),
+        Lmax_(o.max_level > 0 ? std::min(o.max_level, t.levels) : t.levels) {
     const double inv = 1.0 / g.voxel_size;
     const size_t T = mesh.triangle_count();
     tri_.resize(T);
@@ -329,7 +348,8 @@ class Planner {
       Vec3 p = mesh.positions[mesh.indices[3 * t + size_t(k)]];
       Vec3 q = mesh.positions[mesh.indices[3 * t + size_t((k + 1) % 3)]];
       if (std::tie(q.x, q.y, q.z) < std::tie(p.x, p.y, p.z)) std::swap(p, q);
-      return Key{{p.x + 0.f, p.y + 0.f, p.z + 0.f, q.x + 0.f, q.y + 0.f, q.z + 0.f}};  // +0: -0 -> 0
+      return Key{
+          {p.x + 0.f, p.y + 0.f, p.z + 0.f, q.x + 0.f, q.y + 0.f, q.z + 0.f}};  // +0: -0 -> 0
     };
     const size_t T = mesh.triangle_count();
     count.reserve(3 * T);
@@ -353,28 +373,30 @@ class Planner {
       const size_t m = t_.count[size_t(d)];
       dev_color_[size_t(d)].assign(m, 0.f);
       dev_normal_[size_t(d)].assign(m, 0.f);
-      tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 2048), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t i = r.begin(); i != r.end(); ++i) {
-          const uint64_t v = t_.value[size_t(d)][i];
-          const Vec3 nv = decode_normal_cube(uint32_t(v >> 32));
-          const uint32_t first = t_.first_child[size_t(d)][i];
-          const int k = std::popcount(unsigned(t_.mask[size_t(d)][i]));
-          float dc = 0, dn = 0;
-          for (int j = 0; j < k; ++j) {
-            const uint64_t w = t_.value[size_t(d) + 1][first + uint32_t(j)];
-            int cd = 0;
-            for (int ch = 0; ch < 3; ++ch)
-              cd = std::max(cd, std::abs(int((v >> (8 * ch)) & 0xFF) - int((w >> (8 * ch)) & 0xFF)));
-            const Vec3 nw = decode_normal_cube(uint32_t(w >> 32));
-            const float cosang = std::clamp(nv.x * nw.x + nv.y * nw.y + nv.z * nw.z, -1.f, 1.f);
-            const float ang = std::acos(cosang) * 57.29577951308232f;
-            dc = std::max(dc, float(cd) + dev_color_[size_t(d) + 1][first + uint32_t(j)]);
-            dn = std::max(dn, ang + dev_normal_[size_t(d) + 1][first + uint32_t(j)]);
-          }
-          dev_color_[size_t(d)][i] = dc;
-          dev_normal_[size_t(d)][i] = dn;
-        }
-      });
+      tbb::parallel_for(
+          tbb::blocked_range<size_t>(0, m, 2048), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t i = r.begin(); i != r.end(); ++i) {
+              const uint64_t v = t_.value[size_t(d)][i];
+              const Vec3 nv = decode_normal_cube(uint32_t(v >> 32));
+              const uint32_t first = t_.first_child[size_t(d)][i];
+              const int k = std::popcount(unsigned(t_.mask[size_t(d)][i]));
+              float dc = 0, dn = 0;
+              for (int j = 0; j < k; ++j) {
+                const uint64_t w = t_.value[size_t(d) + 1][first + uint32_t(j)];
+                int cd = 0;
+                for (int ch = 0; ch < 3; ++ch)
+                  cd = std::max(
+                      cd, std::abs(int((v >> (8 * ch)) & 0xFF) - int((w >> (8 * ch)) & 0xFF)));
+                const Vec3 nw = decode_normal_cube(uint32_t(w >> 32));
+                const float cosang = std::clamp(nv.x * nw.x + nv.y * nw.y + nv.z * nw.z, -1.f, 1.f);
+                const float ang = std::acos(cosang) * 57.29577951308232f;
+                dc = std::max(dc, float(cd) + dev_color_[size_t(d) + 1][first + uint32_t(j)]);
+                dn = std::max(dn, ang + dev_normal_[size_t(d) + 1][first + uint32_t(j)]);
+              }
+              dev_color_[size_t(d)][i] = dc;
+              dev_normal_[size_t(d)][i] = dn;
+            }
+          });
     }
   }
 
@@ -419,8 +441,8 @@ class Planner {
   /// vectorizes without reordering any reduction -- each mn[c] / mx[c] sees
   /// the points in the same order and the same dot() arithmetic as a
   /// per-candidate loop, hence bit-identical extrema.
-  static void ranges(const std::vector<V3>& pts, size_t C, const double* nx, const double* ny, const double* nz,
-                     double* mn, double* mx) {
+  static void ranges(const std::vector<V3>& pts, size_t C, const double* nx, const double* ny,
+                     const double* nz, double* mn, double* mx) {
     for (size_t c = 0; c < C; ++c) mn[c] = INFINITY, mx[c] = -INFINITY;
     for (const V3& p : pts)
       for (size_t c = 0; c < C; ++c) {
@@ -433,8 +455,8 @@ class Planner {
   /// Fits the slab of quantized normal n around the surface points' range
   /// [smin, smax] (§7.2) and scores it against P's range [pmin, pmax]
   /// (Figure 22).
-  bool fit(const int n_[3], double pmin, double pmax, double smin, double smax, V3 lo, double S, int depth,
-           Candidate* out) const {
+  bool fit(const int n_[3], double pmin, double pmax, double smin, double smax, V3 lo, double S,
+           int depth, Candidate* out) const {
     Candidate c;
     c.n[0] = n_[0], c.n[1] = n_[1], c.n[2] = n_[2];
     const V3 n{double(c.n[0]), double(c.n[1]), double(c.n[2])};
@@ -469,14 +491,16 @@ class Planner {
   /// Processes the children of node (depth, index) at cube (x, y, z) of its
   /// level; `tris` overlap the node, `slabs` are its ancestors' contours
   /// (nearest last), including its own.
-  void node(int depth, uint32_t index, uint32_t x, uint32_t y, uint32_t z, const std::vector<uint32_t>& tris,
-            const std::vector<GridSlab>& slabs) {
+  void node(int depth, uint32_t index, uint32_t x, uint32_t y, uint32_t z,
+            const std::vector<uint32_t>& tris, const std::vector<GridSlab>& slabs) {
     const uint32_t mask = t_.mask[size_t(depth)][index];
     const uint32_t first = t_.first_child[size_t(depth)][index];
     int rank[8], slot[8], k = 0;
     for (int i = 0; i < 8; ++i)
       if (mask >> i & 1) rank[k] = k, slot[k] = i, ++k;
-    auto child = [&](int j) { this->child(depth + 1, first + uint32_t(rank[j]), slot[j], x, y, z, tris, slabs); };
+    auto child = [&](int j) {
+      this->child(depth + 1, first + uint32_t(rank[j]), slot[j], x, y, z, tris, slabs);
+    };
     if (depth < 4) {
       tbb::parallel_for(0, k, child);
     } else {
@@ -484,9 +508,10 @@ class Planner {
     }
   }
 
-  void child(int cd, uint32_t ci, int i, uint32_t px, uint32_t py, uint32_t pz, const std::vector<uint32_t>& tris,
-             const std::vector<GridSlab>& slabs) {
-    const uint32_t cx = 2 * px + uint32_t(i & 1), cy = 2 * py + uint32_t(i >> 1 & 1), cz = 2 * pz + uint32_t(i >> 2 & 1);
+  void child(int cd, uint32_t ci, int i, uint32_t px, uint32_t py, uint32_t pz,
+             const std::vector<uint32_t>& tris, const std::vector<GridSlab>& slabs) {
+    const uint32_t cx = 2 * px + uint32_t(i & 1), cy = 2 * py + uint32_t(i >> 1 & 1),
+                   cz = 2 * pz + uint32_t(i >> 2 & 1);
     const double S = std::ldexp(1.0, L_ - cd);
     const V3 lo{cx * S, cy * S, cz * S};
     const V3 hi = lo + V3{S, S, S};
@@ -518,14 +543,16 @@ class Planner {
     const double offs[6] = {hi.x, -lo.x, hi.y, -lo.y, hi.z, -lo.z};
     for (uint32_t t : tris) {
       const V3 bl = tlo_[t], bh = thi_[t];
-      if (bh.x < lo.x || bl.x > hi.x || bh.y < lo.y || bl.y > hi.y || bh.z < lo.z || bl.z > hi.z) continue;
+      if (bh.x < lo.x || bl.x > hi.x || bh.y < lo.y || bl.y > hi.y || bh.z < lo.z || bl.z > hi.z)
+        continue;
       const auto& v = tri_[t];
       poly.assign(v.begin(), v.end());
       // A plane the triangle's box does not cross leaves the triangle as is
       // (clip_append's fast exit, decided on the box). Only while nothing was
       // cut: a computed intersection point may stray an ulp outside the
       // box, so after a cut clip_append decides on the actual vertices.
-      const bool cross_plane[6] = {bh.x > hi.x, bl.x < lo.x, bh.y > hi.y, bl.y < lo.y, bh.z > hi.z, bl.z < lo.z};
+      const bool cross_plane[6] = {bh.x > hi.x, bl.x<lo.x, bh.y> hi.y, bl.y<lo.y, bh.z> hi.z,
+                                   bl.z < lo.z};
       bool cut = false;
       for (int k = 0; k < 6; ++k)
         if (cut || cross_plane[k]) {
@@ -544,7 +571,8 @@ class Planner {
     // 2. P = cube ∩ nearest ancestor slabs.
     Polyhedron& P = sc.P;
     P.reset(lo, S);
-    const size_t first_slab = slabs.size() > size_t(kMaxAncestors) ? slabs.size() - kMaxAncestors : 0;
+    const size_t first_slab =
+        slabs.size() > size_t(kMaxAncestors) ? slabs.size() - kMaxAncestors : 0;
     for (size_t s = first_slab; s < slabs.size(); ++s) P.clip(slabs[s]);
     P.vertices(pv);
 
@@ -586,7 +614,8 @@ class Planner {
       Candidate best{}, c{};
       best.gain = -1;
       for (size_t j = 0; j < C; ++j)
-        if (fit(qn[j].data(), f[3 * C + j], f[4 * C + j], f[5 * C + j], f[6 * C + j], lo, S, cd, &c) &&
+        if (fit(qn[j].data(), f[3 * C + j], f[4 * C + j], f[5 * C + j], f[6 * C + j], lo, S, cd,
+                &c) &&
             c.gain > best.gain)
           best = c;
       if (best.gain >= kMinGain * S) {
@@ -608,8 +637,10 @@ class Planner {
     if (!leaf && variable_ && !ct.empty()) {
       const bool refine_geometry = o_.geometry_error > 0 && !within(pv, ct, o_.geometry_error);
       bool refine_attributes = false;
-      if (o_.color_error >= 0 && dev_color_[size_t(cd)][ci] > o_.color_error) refine_attributes = true;
-      if (o_.normal_error >= 0 && dev_normal_[size_t(cd)][ci] > o_.normal_error) refine_attributes = true;
+      if (o_.color_error >= 0 && dev_color_[size_t(cd)][ci] > o_.color_error)
+        refine_attributes = true;
+      if (o_.normal_error >= 0 && dev_normal_[size_t(cd)][ci] > o_.normal_error)
+        refine_attributes = true;
       leaf = !refine_geometry && !refine_attributes;
     }
     if (leaf) {

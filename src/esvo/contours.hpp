@@ -18,7 +18,7 @@ struct TreeView {
   std::vector<const uint8_t*> mask;          // depth 0..L-1: valid masks
   std::vector<const uint32_t*> first_child;  // depth 0..L-1: first child's index at depth + 1
   std::vector<size_t> count;                 // nodes at depth 0..L
-  std::vector<const uint64_t*> value;        // depth 1..L (entry 0 unused): raw color | normal << 32
+  std::vector<const uint64_t*> value;  // depth 1..L (entry 0 unused): raw color | normal << 32
 };
 
 struct ContourPlan {

@@ -14,14 +14,24 @@ namespace voxcast::esvo::detail {
 inline constexpr uint32_t kPointerShift = 17;
 inline constexpr uint32_t kFarBit = 0x10000u;
 inline constexpr uint32_t kMaxNearPointer = (1u << 15) - 1;
-inline uint32_t valid_mask(uint32_t w0) { return (w0 >> 8) & 0xFFu; }
-inline uint32_t leaf_mask(uint32_t w0) { return w0 & 0xFFu; }
-inline uint32_t non_leaf_mask(uint32_t w0) { return valid_mask(w0) & ~leaf_mask(w0); }
+inline uint32_t valid_mask(uint32_t w0) {
+  return (w0 >> 8) & 0xFFu;
+}
+inline uint32_t leaf_mask(uint32_t w0) {
+  return w0 & 0xFFu;
+}
+inline uint32_t non_leaf_mask(uint32_t w0) {
+  return valid_mask(w0) & ~leaf_mask(w0);
+}
 // Child descriptor word 1 (§5.2): | 31..8 contour pointer | 7..0 contour mask |
 inline constexpr uint32_t kContourPointerShift = 8;
 inline constexpr uint32_t kMaxContourPointer = (1u << 24) - 1;
-inline uint32_t contour_mask(uint32_t w1) { return w1 & 0xFFu; }
-inline uint32_t contour_pointer(uint32_t w1) { return w1 >> kContourPointerShift; }
+inline uint32_t contour_mask(uint32_t w1) {
+  return w1 & 0xFFu;
+}
+inline uint32_t contour_pointer(uint32_t w1) {
+  return w1 >> kContourPointerShift;
+}
 
 // Info section layout (word offsets from the info section).
 inline constexpr size_t kInfoMagicWord = 0, kInfoFirstSlotWord = 1, kInfoSlotCountWord = 2,
@@ -65,15 +75,15 @@ inline uint32_t child_group(const uint32_t* w, uint32_t slot) {
 
 /// One block, as located by parse_blocks().
 struct BlockInfo {
-  uint64_t first_slot;   // block start (its first page header)
-  uint64_t slot_count;   // descriptor area size in slots (page headers included)
-  uint64_t info;         // word index of the info section
-  uint64_t info_words;   // 4 + 2 * attachment count
-  uint64_t attach;       // word index of the color/normal attachment
-  uint32_t attach_type;  // kAttachRawColorNormal or kAttachCompressedColorNormal
-  uint64_t value_count;  // raw: values in that attachment; compressed: 0
-  uint64_t pair_count;   // compressed: compression blocks (descriptor pairs); raw: 0
-  uint64_t end;          // one past the last word of the block
+  uint64_t first_slot;         // block start (its first page header)
+  uint64_t slot_count;         // descriptor area size in slots (page headers included)
+  uint64_t info;               // word index of the info section
+  uint64_t info_words;         // 4 + 2 * attachment count
+  uint64_t attach;             // word index of the color/normal attachment
+  uint32_t attach_type;        // kAttachRawColorNormal or kAttachCompressedColorNormal
+  uint64_t value_count;        // raw: values in that attachment; compressed: 0
+  uint64_t pair_count;         // compressed: compression blocks (descriptor pairs); raw: 0
+  uint64_t end;                // one past the last word of the block
   uint64_t contours = 0;       // word index of the contour attachment (0 = none)
   uint64_t contour_count = 0;  // contour values in it
 };

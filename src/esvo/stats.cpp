@@ -95,9 +95,9 @@ MemoryStats EsvoOctree::memory_stats() const {
       m.contour_count += b.contour_count;
     }
     if (compressed) {
-      m.attribute_lookup_bytes += 2 * 4;  // attachment header only, no lookup table
-      m.color_bytes += b.pair_count * 8;   // words 0-1 of each compression block
-      m.normal_bytes += b.pair_count * 16; // words 2-5
+      m.attribute_lookup_bytes += 2 * 4;    // attachment header only, no lookup table
+      m.color_bytes += b.pair_count * 8;    // words 0-1 of each compression block
+      m.normal_bytes += b.pair_count * 16;  // words 2-5
       // Pairing gaps: empty slots (not a page header, descriptor or far
       // pointer) whose pair partner is a descriptor.
       for (uint64_t s = b.first_slot; s < b.first_slot + b.slot_count; ++s)

@@ -65,11 +65,19 @@ namespace {
 // min/max that compile to one minss/maxss: std::fmin/fmax must honour NaN
 // operands and end up as libm calls that spill the loop's registers (they
 // were ~10% of the caster in a profile). Inputs are checked finite up front.
-inline float vmin(float a, float b) { return a < b ? a : b; }
-inline float vmax(float a, float b) { return a > b ? a : b; }
+inline float vmin(float a, float b) {
+  return a < b ? a : b;
+}
+inline float vmax(float a, float b) {
+  return a > b ? a : b;
+}
 
-inline uint32_t float_bits(float f) { return std::bit_cast<uint32_t>(f); }
-inline float bits_float(uint32_t u) { return std::bit_cast<float>(u); }
+inline uint32_t float_bits(float f) {
+  return std::bit_cast<uint32_t>(f);
+}
+inline float bits_float(uint32_t u) {
+  return std::bit_cast<float>(u);
+}
 
 // Converts our descriptor word 0 into the listing's layout: valid mask in
 // bits 15..8, NON-leaf mask in bits 7..0, pointer/far bits unchanged.
@@ -86,8 +94,8 @@ using LoopCounters = std::conditional_t<kCount, RayCounters, NoCounters>;
 template <bool kCount>
 CastResult cast_ray_impl(const EsvoOctree& octree, Vec3 p, Vec3 d, float tmax, float size_coef,
                          float size_bias, const Aabb* region, RayCounters* counters) {
-  constexpr int s_max = kMaxScale;         // float mantissa bits
-  constexpr float epsilon = 0x1p-23f;      // exp2f(-s_max)
+  constexpr int s_max = kMaxScale;     // float mantissa bits
+  constexpr float epsilon = 0x1p-23f;  // exp2f(-s_max)
   const uint32_t* const words = octree.words.data();
   [[maybe_unused]] LoopCounters<kCount> cnt{};
   // Adds the loop's counts to *counters on every exit.
@@ -152,7 +160,8 @@ CastResult cast_ray_impl(const EsvoOctree& octree, Vec3 p, Vec3 d, float tmax, f
     // end at its exit planes, in the mirrored frame where the entry corner of
     // [lo, hi] is hi on a negative axis and 3 - lo on a mirrored one (exact).
     // See "Why a start region gives bit-identical hits" above.
-    const bool mx = (octant_mask & 1) == 0, my = (octant_mask & 2) == 0, mz = (octant_mask & 4) == 0;
+    const bool mx = (octant_mask & 1) == 0, my = (octant_mask & 2) == 0,
+               mz = (octant_mask & 4) == 0;
     const float in_x = mx ? 3.0f - region->lo.x : region->hi.x;
     const float in_y = my ? 3.0f - region->lo.y : region->hi.y;
     const float in_z = mz ? 3.0f - region->lo.z : region->hi.z;
@@ -203,7 +212,8 @@ CastResult cast_ray_impl(const EsvoOctree& octree, Vec3 p, Vec3 d, float tmax, f
     const uint32_t child_masks = child_descriptor << child_shift;
     if ((child_masks & 0x8000u) != 0 && t_min <= t_max) {
       // LOD termination: the voxel is small enough for the ray's footprint.
-      if (tc_max * size_coef + size_bias >= scale_exp2) [[unlikely]] break;  // at t_min
+      if (tc_max * size_coef + size_bias >= scale_exp2) [[unlikely]]
+        break;  // at t_min
 
       // INTERSECT: active span vs cube, and the center t values that PUSH
       // reuses (§6.1 "Sharing computation between INTERSECT and PUSH").
@@ -243,7 +253,8 @@ CastResult cast_ray_impl(const EsvoOctree& octree, Vec3 p, Vec3 d, float tmax, f
 
       if (t_min <= tv_max) {
         // A leaf (valid, not subdivided): hit at t_min.
-        if ((child_masks & 0x0080u) == 0) [[unlikely]] break;
+        if ((child_masks & 0x0080u) == 0) [[unlikely]]
+          break;
 
         // PUSH: save (parent, t_max), the active span end of this cube's
         // level, as in Figure 15 line 19 (the Appendix A transcription stores
@@ -296,11 +307,15 @@ CastResult cast_ray_impl(const EsvoOctree& octree, Vec3 p, Vec3 d, float tmax, f
       if constexpr (kCount) ++cnt.pops;
       // Highest differing bit between the old and new positions = new scale.
       uint32_t differing_bits = 0;
-      if ((step_mask & 1) != 0) differing_bits |= float_bits(pos_x) ^ float_bits(pos_x + scale_exp2);
-      if ((step_mask & 2) != 0) differing_bits |= float_bits(pos_y) ^ float_bits(pos_y + scale_exp2);
-      if ((step_mask & 4) != 0) differing_bits |= float_bits(pos_z) ^ float_bits(pos_z + scale_exp2);
+      if ((step_mask & 1) != 0)
+        differing_bits |= float_bits(pos_x) ^ float_bits(pos_x + scale_exp2);
+      if ((step_mask & 2) != 0)
+        differing_bits |= float_bits(pos_y) ^ float_bits(pos_y + scale_exp2);
+      if ((step_mask & 4) != 0)
+        differing_bits |= float_bits(pos_z) ^ float_bits(pos_z + scale_exp2);
       scale = std::bit_width(differing_bits) - 1;
-      if (scale >= s_max) [[unlikely]] break;  // left the root cube
+      if (scale >= s_max) [[unlikely]]
+        break;  // left the root cube
       scale_exp2 = bits_float(uint32_t(scale - s_max + 127) << 23);
 
       parent = stack_parent[scale];
@@ -355,7 +370,8 @@ CastResult cast_ray(const EsvoOctree& octree, Vec3 p, Vec3 d, float tmax, float 
 
 // ---------------------------------------------------------------------------
 
-EsvoStructure::EsvoStructure(std::shared_ptr<const EsvoOctree> octree) : octree_(std::move(octree)) {
+EsvoStructure::EsvoStructure(std::shared_ptr<const EsvoOctree> octree)
+    : octree_(std::move(octree)) {
   if (!octree_) throw Error("EsvoStructure: no octree");
   if (octree_->words.size() < 4) throw Error("EsvoStructure: empty octree");
   if (!(octree_->grid.side() > 0)) throw Error("EsvoStructure: octree has a non-positive side");
@@ -383,7 +399,8 @@ bool trace_impl(const EsvoOctree& octree, const Ray& ray, const LodFootprint& lo
   const CastResult r = cast_ray_impl<kCount>(octree, p, d, ray.tmax, lod.size_per_t * inv_side,
                                              lod.size_at_origin * inv_side, region, counters);
   if (!r.hit) return false;
-  const float cube = bits_float(uint32_t(r.scale - kMaxScale + 127) << 23);  // 2^(scale-23), octree units
+  const float cube =
+      bits_float(uint32_t(r.scale - kMaxScale + 127) << 23);  // 2^(scale-23), octree units
   // Hit point p + t d, clamped into the hit cube (§6.1 "Hit position").
   const float eps = 0x1p-23f;
   Vec3 q = p + d * r.t;
@@ -413,7 +430,8 @@ bool EsvoStructure::trace_hinted(const Ray& ray, const LodFootprint& lod, const 
     if (hints.beam->empty) return false;
     region = &hints.beam->region;
   }
-  if (hints.counters != nullptr) return trace_impl<true>(*octree_, ray, lod, region, hints.counters, hit);
+  if (hints.counters != nullptr)
+    return trace_impl<true>(*octree_, ray, lod, region, hints.counters, hit);
   return trace_impl<false>(*octree_, ray, lod, region, nullptr, hit);
 }
 
@@ -490,7 +508,8 @@ void EsvoStructure::beam_start(const BeamFrustum& beam, BeamStart* start,
   // 8x8 blocks: 0.5 -> 29 ms coarse pass per frame (1 core), 1 -> 17 ms,
   // 2 -> 11 ms, 4 -> 7 ms; 2 gave the fastest frames.
   constexpr double kStopFraction = 2.0;
-  const double width2 = double(beam.angular_width) * beam.angular_width * kStopFraction * kStopFraction;
+  const double width2 =
+      double(beam.angular_width) * beam.angular_width * kStopFraction * kStopFraction;
   // LOD (§6.1): the caster stops at a cube of side <= size_coef * tc_max +
   // size_bias, both octree units (size_coef = size_per_t / side, tc_max in
   // world units), and tc_max <= the world distance to the cube's far corner,
@@ -524,8 +543,7 @@ void EsvoStructure::beam_start(const BeamFrustum& beam, BeamStart* start,
     const float far_bound = std::fabs(cx) + std::fabs(cy) + std::fabs(cz) + 3.f * h;
     const float tol = abs_tol_f + ang_tol_f * far_bound;
     bool outside = false;
-    for (int i = 0; i < 4; ++i)
-      outside |= nx[i] * cx + ny[i] * cy + nz[i] * cz + h * n1[i] < -tol;
+    for (int i = 0; i < 4; ++i) outside |= nx[i] * cx + ny[i] * cy + nz[i] * cz + h * n1[i] < -tol;
     if (outside) return 0;
     if (lo[0] >= region.lo.x && lo[1] >= region.lo.y && lo[2] >= region.lo.z &&
         lo[0] + s <= region.hi.x && lo[1] + s <= region.hi.y && lo[2] + s <= region.hi.z)
@@ -533,9 +551,11 @@ void EsvoStructure::beam_start(const BeamFrustum& beam, BeamStart* start,
     if (leaf) return 1;
     const float dx = vmax(std::fabs(cx) - h, 0.f), dy = vmax(std::fabs(cy) - h, 0.f),
                 dz = vmax(std::fabs(cz) - h, 0.f);
-    if (double(s) * s <= width2 * (dx * dx + dy * dy + dz * dz)) return 1;  // narrower than the beam there
+    if (double(s) * s <= width2 * (dx * dx + dy * dy + dz * dz))
+      return 1;  // narrower than the beam there
     if (lod_coef > 0 || lod_bias > 0) {
-      const double far = std::sqrt(double(cx) * cx + double(cy) * cy + double(cz) * cz) + h * 1.7320508075688772;
+      const double far =
+          std::sqrt(double(cx) * cx + double(cy) * cy + double(cz) * cz) + h * 1.7320508075688772;
       if (s <= lod_coef * (far + tol) + lod_bias) return 1;  // may be a LOD stop
     }
     return 2;
@@ -554,9 +574,14 @@ void EsvoStructure::beam_start(const BeamFrustum& beam, BeamStart* start,
   int top = 0;
   const float root_lo[3] = {1.f, 1.f, 1.f};
   switch (classify(root_lo, 1.f, false)) {
-    case 1: keep(root_lo, 1.f); break;
-    case 2: stack[top++] = {o.root_slot(), {1.f, 1.f, 1.f}, 1.f}; break;
-    default: break;
+    case 1:
+      keep(root_lo, 1.f);
+      break;
+    case 2:
+      stack[top++] = {o.root_slot(), {1.f, 1.f, 1.f}, 1.f};
+      break;
+    default:
+      break;
   }
   while (top > 0) {
     const Node node = stack[--top];
@@ -579,8 +604,8 @@ void EsvoStructure::beam_start(const BeamFrustum& beam, BeamStart* start,
         keep(lo, hs);
       } else if (what == 2) {
         ++cnt.pushes;
-        const uint32_t child =
-            uint32_t(int32_t(node.slot) + rel) + uint32_t(std::popcount(non_leaf & ((1u << i) - 1)));
+        const uint32_t child = uint32_t(int32_t(node.slot) + rel) +
+                               uint32_t(std::popcount(non_leaf & ((1u << i) - 1)));
         stack[top++] = {child, {lo[0], lo[1], lo[2]}, hs};
       }
     }

@@ -31,7 +31,9 @@ namespace voxcast::esvo {
 namespace detail {
 namespace {
 
-[[noreturn]] void fail(const std::string& what) { throw Error("corrupt scene: " + what); }
+[[noreturn]] void fail(const std::string& what) {
+  throw Error("corrupt scene: " + what);
+}
 [[noreturn]] void fail_at(const std::string& what, uint64_t slot) {
   fail(what + " at slot " + std::to_string(slot));
 }
@@ -88,7 +90,8 @@ std::vector<BlockInfo> parse_blocks(const EsvoOctree& octree) {
       }
       if (type != kAttachRawColorNormal && type != kAttachCompressedColorNormal) continue;
       if (found) fail("more than one color/normal attachment" + where);
-      if (b > 0 && type != blocks[0].attach_type) fail("attachment type differs from block 0" + where);
+      if (b > 0 && type != blocks[0].attach_type)
+        fail("attachment type differs from block 0" + where);
       const int64_t at = int64_t(bi.info) + int32_t(w[bi.info + kInfoAttachTable + 2 * a + 1]);
       if (at < int64_t(bi.info + bi.info_words) || uint64_t(at) + 2 > size)
         fail("attachment out of range" + where);
@@ -221,7 +224,8 @@ void EsvoOctree::validate() const {
   // slots of a pair (2k, 2k+1) are descriptors, 2k+1 continues 2k's group.
   if (blocks[0].attach_type == kAttachCompressedColorNormal)
     for (uint64_t s = 0; s + 1 < total_slots; s += 2)
-      if ((visited[s] & 1) && (visited[s + 1] & 2)) fail_at("compression block shared by two child groups", s);
+      if ((visited[s] & 1) && (visited[s + 1] & 2))
+        fail_at("compression block shared by two child groups", s);
 }
 
 }  // namespace voxcast::esvo

@@ -13,13 +13,13 @@
 // parse() accepts exactly this canonical layout. Because every byte is then
 // either checked against a fixed value or covered by a hash, any corruption
 // of a written file is detected before the sections are interpreted.
+#include <xxhash.h>
+
 #include <algorithm>
 #include <bit>
 #include <cstring>
 #include <fstream>
 #include <string>
-
-#include <xxhash.h>
 
 #include "voxcast/error.hpp"
 #include "voxcast/image.hpp"
@@ -31,7 +31,9 @@ namespace {
 constexpr char kMagic[8] = {'V', 'O', 'X', 'C', 'A', 'S', 'T', '\0'};
 constexpr size_t kHeaderBytes = 16, kEntryBytes = 32;
 
-uint64_t align8(uint64_t x) { return (x + 7) & ~uint64_t(7); }
+uint64_t align8(uint64_t x) {
+  return (x + 7) & ~uint64_t(7);
+}
 
 template <class T>
 T load_le(const uint8_t* p) {  // the format is little-endian, as is x86-64
@@ -54,11 +56,15 @@ std::string fourcc_name(uint32_t id) {
   return s;
 }
 
-[[noreturn]] void corrupt(const std::string& what) { throw Error("corrupt scene: " + what); }
+[[noreturn]] void corrupt(const std::string& what) {
+  throw Error("corrupt scene: " + what);
+}
 
 }  // namespace
 
-void Container::add(uint32_t id, std::vector<uint8_t> bytes) { sections_[id] = std::move(bytes); }
+void Container::add(uint32_t id, std::vector<uint8_t> bytes) {
+  sections_[id] = std::move(bytes);
+}
 
 const std::vector<uint8_t>& Container::get(uint32_t id) const {
   auto it = sections_.find(id);

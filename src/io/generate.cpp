@@ -23,14 +23,24 @@ namespace {
 struct Vec3d {
   double x, y, z;
 };
-Vec3d operator+(Vec3d a, Vec3d b) { return {a.x + b.x, a.y + b.y, a.z + b.z}; }
-Vec3d operator-(Vec3d a, Vec3d b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
-Vec3d operator*(Vec3d a, double s) { return {a.x * s, a.y * s, a.z * s}; }
-double dot(Vec3d a, Vec3d b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+Vec3d operator+(Vec3d a, Vec3d b) {
+  return {a.x + b.x, a.y + b.y, a.z + b.z};
+}
+Vec3d operator-(Vec3d a, Vec3d b) {
+  return {a.x - b.x, a.y - b.y, a.z - b.z};
+}
+Vec3d operator*(Vec3d a, double s) {
+  return {a.x * s, a.y * s, a.z * s};
+}
+double dot(Vec3d a, Vec3d b) {
+  return a.x * b.x + a.y * b.y + a.z * b.z;
+}
 Vec3d cross(Vec3d a, Vec3d b) {
   return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
 }
-Vec3d normalize(Vec3d a) { return a * (1.0 / std::sqrt(dot(a, a))); }
+Vec3d normalize(Vec3d a) {
+  return a * (1.0 / std::sqrt(dot(a, a)));
+}
 
 // Deterministic uniform double in [0, 1) from the 53 high bits of a 64-bit
 // Mersenne Twister (std::mt19937_64's output sequence is fixed by the
@@ -61,11 +71,12 @@ class Rng {
 
 template <class T>
 void check_range(const char* what, T v, T lo, T hi) {
-  if (!(v >= lo && v <= hi))
-    throw Error(fmt::format("{} {} is outside {} .. {}", what, v, lo, hi));
+  if (!(v >= lo && v <= hi)) throw Error(fmt::format("{} {} is outside {} .. {}", what, v, lo, hi));
 }
 
-Vec3 to_float(const Vec3d& v) { return {float(v.x), float(v.y), float(v.z)}; }
+Vec3 to_float(const Vec3d& v) {
+  return {float(v.x), float(v.y), float(v.z)};
+}
 
 }  // namespace
 
@@ -112,11 +123,13 @@ Mesh hairball(const HairballOptions& o) {
       const Vec3d prev = path[size_t(i == 0 ? 0 : i - 1)];
       const Vec3d next = path[size_t(i + 1 == rings ? i : i + 1)];
       Vec3d tn = next - prev;
-      if (dot(tn, tn) > 1e-24) tn = normalize(tn);
-      else tn = tan;
+      if (dot(tn, tn) > 1e-24)
+        tn = normalize(tn);
+      else
+        tn = tan;
       Vec3d un = u - tn * dot(u, tn);
-      if (dot(un, un) < 1e-12) un = normalize(cross(tn, std::fabs(tn.x) < 0.9 ? Vec3d{1, 0, 0}
-                                                                             : Vec3d{0, 1, 0}));
+      if (dot(un, un) < 1e-12)
+        un = normalize(cross(tn, std::fabs(tn.x) < 0.9 ? Vec3d{1, 0, 0} : Vec3d{0, 1, 0}));
       u = normalize(un);
       tan = tn;
       const Vec3d v = cross(tan, u);
@@ -164,7 +177,8 @@ Mesh menger(int level) {
   auto vertex = [&](int x, int y, int z) {
     const uint64_t key = (uint64_t(z) * stride + uint64_t(y)) * stride + uint64_t(x);
     auto [it, fresh] = vid.try_emplace(key, uint32_t(m.positions.size()));
-    if (fresh) m.positions.push_back({float(double(x) / n), float(double(y) / n), float(double(z) / n)});
+    if (fresh)
+      m.positions.push_back({float(double(x) / n), float(double(y) / n), float(double(z) / n)});
     return it->second;
   };
   // Face of axis a at the low (dir = 0) or high side: the four corners in

@@ -1,7 +1,5 @@
 // Image export (PNG via libpng's simplified API, PFM by hand), reading back,
 // the sRGB transfer functions and atomic file replacement.
-#include "voxcast/image.hpp"
-
 #include <fcntl.h>
 #include <fmt/format.h>
 #include <png.h>
@@ -18,6 +16,7 @@
 #include <string>
 
 #include "voxcast/error.hpp"
+#include "voxcast/image.hpp"
 
 namespace voxcast {
 
@@ -51,10 +50,18 @@ void write_png(const std::filesystem::path& path, const Image& im, bool already_
   img.width = png_uint_32(im.width);
   img.height = png_uint_32(im.height);
   switch (im.channels) {
-    case 1: img.format = PNG_FORMAT_GRAY; break;
-    case 2: img.format = PNG_FORMAT_GA; break;
-    case 3: img.format = PNG_FORMAT_RGB; break;
-    case 4: img.format = PNG_FORMAT_RGBA; break;
+    case 1:
+      img.format = PNG_FORMAT_GRAY;
+      break;
+    case 2:
+      img.format = PNG_FORMAT_GA;
+      break;
+    case 3:
+      img.format = PNG_FORMAT_RGB;
+      break;
+    case 4:
+      img.format = PNG_FORMAT_RGBA;
+      break;
     default:
       throw Error(fmt::format("cannot write {}: PNG needs 1 to 4 channels, image has {}",
                               path.string(), im.channels));
@@ -88,8 +95,10 @@ void write_pfm(const std::filesystem::path& path, const Image& im) {
   // PFM has no alpha: 2/4-channel images keep their color channels (gray or
   // RGB) and drop alpha, which is what every PFM consumer expects anyway.
   int out_c;
-  if (im.channels == 1 || im.channels == 2) out_c = 1;
-  else if (im.channels == 3 || im.channels == 4) out_c = 3;
+  if (im.channels == 1 || im.channels == 2)
+    out_c = 1;
+  else if (im.channels == 3 || im.channels == 4)
+    out_c = 3;
   else
     throw Error(fmt::format("cannot write {}: PFM needs 1 to 4 channels, image has {}",
                             path.string(), im.channels));
@@ -130,8 +139,10 @@ void write_image(const std::filesystem::path& path, const Image& image, bool alr
     throw Error(fmt::format("cannot write {}: unknown image extension '{}' (use .png or .pfm)",
                             path.string(), path.extension().string()));
   check_image(image, path);
-  if (ext == ".png") write_png(path, image, already_srgb);
-  else write_pfm(path, image);
+  if (ext == ".png")
+    write_png(path, image, already_srgb);
+  else
+    write_pfm(path, image);
 }
 
 Image read_pfm(const std::filesystem::path& path) {
@@ -149,9 +160,12 @@ Image read_pfm(const std::filesystem::path& path) {
   };
   std::string magic = token();
   int channels;
-  if (magic == "PF") channels = 3;
-  else if (magic == "Pf") channels = 1;
-  else throw Error(fmt::format("{}: not a PFM file (magic '{}')", name, magic.substr(0, 8)));
+  if (magic == "PF")
+    channels = 3;
+  else if (magic == "Pf")
+    channels = 1;
+  else
+    throw Error(fmt::format("{}: not a PFM file (magic '{}')", name, magic.substr(0, 8)));
   long w = 0, h = 0;
   double scale = 0;
   try {
@@ -207,7 +221,8 @@ Image read_png(const std::filesystem::path& path) {
                      : (alpha ? PNG_FORMAT_GA : PNG_FORMAT_GRAY);
   if (img.width == 0 || img.height == 0 || img.width > (1u << 16) || img.height > (1u << 16)) {
     png_image_free(&img);
-    throw Error(fmt::format("{}: unsupported PNG size {}x{}", path.string(), img.width, img.height));
+    throw Error(
+        fmt::format("{}: unsupported PNG size {}x{}", path.string(), img.width, img.height));
   }
   std::vector<uint8_t> bytes(PNG_IMAGE_SIZE(img));
   if (!png_image_finish_read(&img, nullptr, bytes.data(), 0, nullptr)) {
@@ -216,7 +231,8 @@ Image read_png(const std::filesystem::path& path) {
     throw Error(fmt::format("{}: corrupt PNG ({})", path.string(), msg));
   }
   Image im(int(img.width), int(img.height), channels);
-  for (size_t i = 0; i < bytes.size() && i < im.pixels.size(); ++i) im.pixels[i] = float(bytes[i]) / 255.0f;
+  for (size_t i = 0; i < bytes.size() && i < im.pixels.size(); ++i)
+    im.pixels[i] = float(bytes[i]) / 255.0f;
   return im;
 }
 

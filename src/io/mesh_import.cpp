@@ -22,6 +22,7 @@
 #include <assimp/scene.h>
 #include <assimp/texture.h>
 #include <fmt/format.h>
+#include <stb_image.h>
 
 #include <algorithm>
 #include <assimp/Importer.hpp>
@@ -38,8 +39,6 @@
 #include "voxcast/error.hpp"
 #include "voxcast/image.hpp"
 #include "voxcast/mesh.hpp"
-
-#include <stb_image.h>
 
 namespace voxcast {
 
@@ -129,7 +128,8 @@ class SceneConverter {
     }
     if (out.indices.empty()) {
       if (stats.input_triangles > 0)
-        throw Error(fmt::format("{}: all {} triangles are degenerate", name_, stats.input_triangles));
+        throw Error(
+            fmt::format("{}: all {} triangles are degenerate", name_, stats.input_triangles));
       throw Error(fmt::format("{}: contains no triangles", name_));
     }
     compact_vertices(out);
@@ -167,7 +167,8 @@ class SceneConverter {
       if (a >= nv || b >= nv || c >= nv)
         throw Error(fmt::format("{}: face {} of mesh {} references vertex {} but the mesh has {}",
                                 name_, f, mesh_index, std::max({a, b, c}), nv));
-      if (a == b || b == c || a == c || area2(am.mVertices[a], am.mVertices[b], am.mVertices[c]) == 0) {
+      if (a == b || b == c || a == c ||
+          area2(am.mVertices[a], am.mVertices[b], am.mVertices[c]) == 0) {
         ++stats.degenerate_dropped;
         continue;
       }
@@ -287,7 +288,8 @@ class SceneConverter {
     bool placeholder = mat == nullptr;
     if (mat) {
       aiString name;
-      if (mat->Get(AI_MATKEY_NAME, name) == AI_SUCCESS && std::string_view(name.C_Str()) == AI_DEFAULT_MATERIAL_NAME)
+      if (mat->Get(AI_MATKEY_NAME, name) == AI_SUCCESS &&
+          std::string_view(name.C_Str()) == AI_DEFAULT_MATERIAL_NAME)
         placeholder = true;
     }
     const uint64_t key = (uint64_t(mi) << 1) | uint64_t(placeholder && has_colors);
@@ -304,8 +306,10 @@ class SceneConverter {
         found = mat->Get(AI_MATKEY_COLOR_DIFFUSE, c) == AI_SUCCESS;
         // Diffuse colors are RGB; opacity lives in a separate key.
         float opacity = 1.0f;
-        if (found && mat->Get(AI_MATKEY_OPACITY, opacity) == AI_SUCCESS) c.a = opacity;
-        else c.a = 1.0f;
+        if (found && mat->Get(AI_MATKEY_OPACITY, opacity) == AI_SUCCESS)
+          c.a = opacity;
+        else
+          c.a = 1.0f;
       }
       if (found)
         m.base_color = {clamp_unit(c.r, 0.8f), clamp_unit(c.g, 0.8f), clamp_unit(c.b, 0.8f),
@@ -352,7 +356,8 @@ class SceneConverter {
   Texture load_texture(const std::string& ref) {
     const std::string what = fmt::format("'{}' of {}", one_line(ref, 120), name_);
     // Embedded: "*N" references and, for FBX, textures matched by file name.
-    if (const aiTexture* emb = scene_.GetEmbeddedTexture(ref.c_str())) return convert_embedded(*emb, what);
+    if (const aiTexture* emb = scene_.GetEmbeddedTexture(ref.c_str()))
+      return convert_embedded(*emb, what);
     if (!ref.empty() && ref[0] == '*')
       throw Error(fmt::format("texture {} refers to a missing embedded texture", what));
 
@@ -365,7 +370,8 @@ class SceneConverter {
       std::error_code ec;
       if (c.empty() || !fs::is_regular_file(c, ec)) continue;
       std::ifstream in(c, std::ios::binary);
-      std::vector<uint8_t> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+      std::vector<uint8_t> bytes((std::istreambuf_iterator<char>(in)),
+                                 std::istreambuf_iterator<char>());
       if (!in.good() && !in.eof())
         throw Error(fmt::format("texture {}: cannot read {}", what, c.string()));
       return decode_image(bytes.data(), bytes.size(), what);
@@ -455,7 +461,8 @@ void precheck_off(const fs::path& path, const std::string& name) {
   head >> magic;
   // Only the 3-D variants with one vertex per line are checked (ST/C/N only add
   // per-vertex values); nOFF/4OFF and anything else are left to Assimp.
-  static const char* const kVariants[] = {"OFF", "COFF", "NOFF", "CNOFF", "STOFF", "STCOFF", "STNOFF", "STCNOFF"};
+  static const char* const kVariants[] = {"OFF",   "COFF",   "NOFF",   "CNOFF",
+                                          "STOFF", "STCOFF", "STNOFF", "STCNOFF"};
   if (std::find(std::begin(kVariants), std::end(kVariants), magic) == std::end(kVariants)) return;
   // The counts follow the magic on the same line or on the next one.
   std::string rest;
@@ -470,20 +477,25 @@ void precheck_off(const fs::path& path, const std::string& name) {
   if (!(counts >> nv >> nf)) throw Error(fmt::format("{}: malformed OFF header", name));
   // Every vertex line needs at least 6 bytes ("0 0 0\n"), every face 8 ("3 0 1 2\n").
   if (nv > text.size() / 6 || nf > text.size() / 8 || nv * 6 + nf * 8 > text.size())
-    throw Error(fmt::format("{}: OFF header claims {} vertices and {} faces, more than the {}-byte file can hold",
-                            name, nv, nf, text.size()));
+    throw Error(fmt::format(
+        "{}: OFF header claims {} vertices and {} faces, more than the {}-byte file can hold", name,
+        nv, nf, text.size()));
   for (unsigned long long v = 0; v < nv; ++v)
-    if (!next_line(line)) throw Error(fmt::format("{}: truncated OFF file (vertex {} of {} missing)", name, v, nv));
+    if (!next_line(line))
+      throw Error(fmt::format("{}: truncated OFF file (vertex {} of {} missing)", name, v, nv));
   for (unsigned long long f = 0; f < nf; ++f) {
-    if (!next_line(line)) throw Error(fmt::format("{}: truncated OFF file (face {} of {} missing)", name, f, nf));
+    if (!next_line(line))
+      throw Error(fmt::format("{}: truncated OFF file (face {} of {} missing)", name, f, nf));
     std::istringstream face(line);
     unsigned long long n = 0;
     if (!(face >> n)) throw Error(fmt::format("{}: malformed OFF face {}", name, f));
     for (unsigned long long k = 0; k < n; ++k) {
       long long idx = -1;
-      if (!(face >> idx)) throw Error(fmt::format("{}: OFF face {} has fewer than {} indices", name, f, n));
+      if (!(face >> idx))
+        throw Error(fmt::format("{}: OFF face {} has fewer than {} indices", name, f, n));
       if (idx < 0 || static_cast<unsigned long long>(idx) >= nv)
-        throw Error(fmt::format("{}: OFF face {} references vertex {} but the file has {}", name, f, idx, nv));
+        throw Error(fmt::format("{}: OFF face {} references vertex {} but the file has {}", name, f,
+                                idx, nv));
     }
   }
 }
@@ -499,7 +511,8 @@ void precheck_ply(const fs::path& path, const std::string& name, bool ply_extens
   in.read(head.data(), std::streamsize(head.size()));
   head.resize(size_t(in.gcount()));
   // Assimp takes a file for PLY by its extension or by a leading "ply" token.
-  const bool ply_magic = head.size() >= 3 && std::tolower(static_cast<unsigned char>(head[0])) == 'p' &&
+  const bool ply_magic = head.size() >= 3 &&
+                         std::tolower(static_cast<unsigned char>(head[0])) == 'p' &&
                          std::tolower(static_cast<unsigned char>(head[1])) == 'l' &&
                          std::tolower(static_cast<unsigned char>(head[2])) == 'y';
   if (!ply_extension && !ply_magic) return;
@@ -507,8 +520,8 @@ void precheck_ply(const fs::path& path, const std::string& name, bool ply_extens
     throw Error(fmt::format("{}: malformed PLY header (the first line is not 'ply')", name));
   std::error_code ec;
   const uint64_t file_size = fs::file_size(path, ec);
-  static const char* const kTypes[] = {"char",  "uchar",  "short", "ushort", "int",     "uint",
-                                       "float", "double", "int8",  "uint8",  "int16",   "uint16",
+  static const char* const kTypes[] = {"char",  "uchar",  "short",   "ushort", "int",   "uint",
+                                       "float", "double", "int8",    "uint8",  "int16", "uint16",
                                        "int32", "uint32", "float32", "float64"};
   auto is_type = [&](const std::string& t) {
     return std::find(std::begin(kTypes), std::end(kTypes), t) != std::end(kTypes);
@@ -528,7 +541,8 @@ void precheck_ply(const fs::path& path, const std::string& name, bool ply_extens
     if (key == "format") {
       std::string fmt_name, version;
       if (!(words >> fmt_name >> version) ||
-          (fmt_name != "ascii" && fmt_name != "binary_little_endian" && fmt_name != "binary_big_endian"))
+          (fmt_name != "ascii" && fmt_name != "binary_little_endian" &&
+           fmt_name != "binary_big_endian"))
         throw Error(fmt::format("{}: malformed PLY header (line {}: bad format)", name, line_no));
     } else if (key == "element") {
       std::string elem;
@@ -536,8 +550,9 @@ void precheck_ply(const fs::path& path, const std::string& name, bool ply_extens
       if (!(words >> elem >> count))
         throw Error(fmt::format("{}: malformed PLY header (line {}: bad element)", name, line_no));
       if (count > file_size)
-        throw Error(fmt::format("{}: PLY header claims {} {} elements, more than the {}-byte file can hold",
-                                name, count, elem, file_size));
+        throw Error(
+            fmt::format("{}: PLY header claims {} {} elements, more than the {}-byte file can hold",
+                        name, count, elem, file_size));
     } else if (key == "property") {
       std::string type, a, b, prop;
       words >> type;
@@ -546,9 +561,11 @@ void precheck_ply(const fs::path& path, const std::string& name, bool ply_extens
         ok = bool(words >> a >> b >> prop) && is_type(a) && is_type(b);
       else
         ok = is_type(type) && bool(words >> prop);
-      if (!ok) throw Error(fmt::format("{}: malformed PLY header (line {}: bad property)", name, line_no));
+      if (!ok)
+        throw Error(fmt::format("{}: malformed PLY header (line {}: bad property)", name, line_no));
     } else {
-      throw Error(fmt::format("{}: malformed PLY header (line {}: unknown keyword)", name, line_no));
+      throw Error(
+          fmt::format("{}: malformed PLY header (line {}: unknown keyword)", name, line_no));
     }
   }
   throw Error(fmt::format("{}: malformed PLY header (no end_header)", name));
@@ -565,14 +582,16 @@ Mesh load_mesh(const std::filesystem::path& path, MeshLoadStats* stats_out) {
 
   {
     std::string ext = path.extension().string();
-    std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+    std::transform(ext.begin(), ext.end(), ext.begin(),
+                   [](unsigned char c) { return char(std::tolower(c)); });
     if (ext == ".off") precheck_off(path, name);
     precheck_ply(path, name, ext == ".ply");
   }
 
   Assimp::Importer importer;
   // Points and lines are removed by SortByPType instead of reaching us.
-  importer.SetPropertyInteger(AI_CONFIG_PP_SBP_REMOVE, aiPrimitiveType_POINT | aiPrimitiveType_LINE);
+  importer.SetPropertyInteger(AI_CONFIG_PP_SBP_REMOVE,
+                              aiPrimitiveType_POINT | aiPrimitiveType_LINE);
   // ValidateDataStructure runs first and rejects out-of-range indices before
   // JoinIdenticalVertices would index with them. No GenNormals: we compute
   // missing normals ourselves, area-weighted, and only where missing.

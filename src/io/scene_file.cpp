@@ -10,15 +10,15 @@
 //   'ESVO' the octree words (little-endian u32, layout in esvo.hpp).
 // Loading checks every META field's type and range and then runs
 // EsvoOctree::validate(), so a loaded octree is safe to traverse.
+#include "voxcast/scene_file.hpp"
+
 #include <cmath>
 #include <cstring>
+#include <nlohmann/json.hpp>
 #include <string>
 
-#include <nlohmann/json.hpp>
-
-#include "voxcast/error.hpp"
-#include "voxcast/scene_file.hpp"
 #include "io/meta_json.hpp"
+#include "voxcast/error.hpp"
 
 namespace voxcast {
 namespace {
@@ -35,7 +35,8 @@ void save_esvo_scene(const std::filesystem::path& path, const esvo::EsvoOctree& 
       {"grid", meta::grid_to_json(octree.grid)},
       {"block_count", octree.block_count},
       {"leaf_voxels", info.leaf_voxels},
-      {"attributes", octree.attribute_format() == esvo::AttributeFormat::Compressed ? "compressed" : "raw"},
+      {"attributes",
+       octree.attribute_format() == esvo::AttributeFormat::Compressed ? "compressed" : "raw"},
   });
   if (octree.has_contours()) meta["contours"] = true;
   Container c;
@@ -85,7 +86,8 @@ esvo::EsvoOctree esvo_scene_from_container(const Container& c, SceneInfo* info) 
   std::memcpy(octree.words.data(), esvo_bytes.data(), esvo_bytes.size());
   octree.validate();
   if (!meta_attributes.empty() &&
-      (meta_attributes == "compressed") != (octree.attribute_format() == esvo::AttributeFormat::Compressed))
+      (meta_attributes == "compressed") !=
+          (octree.attribute_format() == esvo::AttributeFormat::Compressed))
     meta::bad("'attributes' does not match the ESVO attachments");
   if (meta_contours >= 0 && (meta_contours == 1) != octree.has_contours())
     meta::bad("'contours' does not match the ESVO attachments");

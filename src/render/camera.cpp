@@ -30,7 +30,8 @@ void check_camera(const Camera& c) {
     throw Error("camera: fovy must be in (0, 180) degrees");
   const Vec3 f = c.target - c.eye;
   if (!(length(f) > 0)) throw Error("camera: eye and target coincide");
-  if (nearly_parallel(normalize(f), c.up)) throw Error("camera: up is parallel to the view direction");
+  if (nearly_parallel(normalize(f), c.up))
+    throw Error("camera: up is parallel to the view direction");
 }
 
 }  // namespace
@@ -40,12 +41,16 @@ Camera Camera::parse(const std::string& text) {
   const char* s = text.c_str();
   int n = 0;
   while (true) {
-    if (n == 10) throw Error("camera: expected exactly 10 numbers 'ex,ey,ez,tx,ty,tz,ux,uy,uz,fovy', got more");
+    if (n == 10)
+      throw Error(
+          "camera: expected exactly 10 numbers 'ex,ey,ez,tx,ty,tz,ux,uy,uz,fovy', got more");
     char* end = nullptr;
     errno = 0;
     const float x = std::strtof(s, &end);
-    if (end == s) throw Error("camera: expected a number at '" + std::string(s) + "' in '" + text + "'");
-    if (errno == ERANGE || !std::isfinite(x)) throw Error("camera: number out of range in '" + text + "'");
+    if (end == s)
+      throw Error("camera: expected a number at '" + std::string(s) + "' in '" + text + "'");
+    if (errno == ERANGE || !std::isfinite(x))
+      throw Error("camera: number out of range in '" + text + "'");
     v[n++] = x;
     while (*end == ' ') ++end;
     if (*end == '\0') break;
@@ -109,7 +114,8 @@ Camera Camera::frame(const Aabb& bounds, int width, int height) {
   if (!(dist > 0)) dist = radius > 0 ? radius : 1.f;  // a point: any distance works
   c.eye = c.target + back * dist;
   if (c.eye.x == c.target.x && c.eye.y == c.target.y && c.eye.z == c.target.z)
-    c.eye = c.target + back * (std::fabs(c.target.x) + std::fabs(c.target.y) + std::fabs(c.target.z) + 1.f);
+    c.eye = c.target +
+            back * (std::fabs(c.target.x) + std::fabs(c.target.y) + std::fabs(c.target.z) + 1.f);
   return c;
 }
 

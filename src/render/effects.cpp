@@ -24,9 +24,13 @@ uint32_t hash32(uint32_t x) {
 }
 
 // [0, 1) from the top 24 bits.
-float unit_float(uint32_t h) { return float(h >> 8) * 0x1p-24f; }
+float unit_float(uint32_t h) {
+  return float(h >> 8) * 0x1p-24f;
+}
 
-float frac(float x) { return x - std::floor(x); }
+float frac(float x) {
+  return x - std::floor(x);
+}
 
 // Radical inverses (van der Corput) in bases 2 and 3: the 2nd and 3rd
 // Hammersley dimensions, one sample per 1/N stratum of each dimension.
@@ -55,9 +59,15 @@ float sample(int i, int n, int dim, uint32_t seed) {
   const float shift = unit_float(hash32(seed ^ (0x9e3779b9u * uint32_t(dim + 1))));
   float u;
   switch (dim) {
-    case 0: u = (float(i) + 0.5f) / float(n); break;
-    case 1: u = radical_inverse2(uint32_t(i)); break;
-    default: u = radical_inverse3(uint32_t(i)); break;
+    case 0:
+      u = (float(i) + 0.5f) / float(n);
+      break;
+    case 1:
+      u = radical_inverse2(uint32_t(i));
+      break;
+    default:
+      u = radical_inverse3(uint32_t(i));
+      break;
   }
   return std::clamp(frac(u + shift), 0x1p-20f, 1.f - 0x1p-20f);
 }
@@ -71,12 +81,15 @@ void basis(Vec3 n, Vec3* t, Vec3* b) {
   *b = {c, sign + n.y * n.y * a, -n.y};
 }
 
-bool finite_nonzero(Vec3 v) { return is_finite(v) && length(v) > 0.f; }
+bool finite_nonzero(Vec3 v) {
+  return is_finite(v) && length(v) > 0.f;
+}
 
 }  // namespace
 
 void validate(const EffectOptions& o) {
-  if (o.shadow_rays < 1 || o.shadow_rays > 4096) throw Error("effects: shadow rays must be in 1..4096");
+  if (o.shadow_rays < 1 || o.shadow_rays > 4096)
+    throw Error("effects: shadow rays must be in 1..4096");
   if (o.ao_rays < 0 || o.ao_rays > 4096) throw Error("effects: AO rays must be in 0..4096");
   if (!std::isfinite(o.ao_radius)) throw Error("effects: AO radius must be finite");
   if (!(o.ao_cone_angle_deg >= 0.f && o.ao_cone_angle_deg < 90.f))
@@ -84,7 +97,8 @@ void validate(const EffectOptions& o) {
   if (o.light != LightKind::Directional && !is_finite(o.light_position))
     throw Error("effects: light position must be finite");
   if (o.light == LightKind::Area) {
-    if (!finite_nonzero(o.area_u) || !finite_nonzero(o.area_v) || !(length(cross(o.area_u, o.area_v)) > 0.f))
+    if (!finite_nonzero(o.area_u) || !finite_nonzero(o.area_v) ||
+        !(length(cross(o.area_u, o.area_v)) > 0.f))
       throw Error("effects: area light edges must be finite, non-zero and not parallel");
   }
   if (o.shadows == ShadowMode::Soft && o.light != LightKind::Area)
@@ -105,7 +119,8 @@ bool StructureOccluder::occluded_in_beam(const Ray& ray, const BeamStart& start)
 }
 
 uint32_t pixel_seed(int x, int y, uint32_t seed) {
-  return hash32(uint32_t(x) * 0x8da6b343u ^ hash32(uint32_t(y) * 0xd8163841u ^ hash32(seed + 0x2545f491u)));
+  return hash32(uint32_t(x) * 0x8da6b343u ^
+                hash32(uint32_t(y) * 0xd8163841u ^ hash32(seed + 0x2545f491u)));
 }
 
 Vec3 direction_to_light(const EffectOptions& o, Vec3 light_dir, Vec3 p, float* distance) {
@@ -137,8 +152,9 @@ float shadow_visibility(const Occluder& occ, const ShadingPoint& p, const Effect
 
   // ---- Soft shadows, rectangular area light (svdag §4) ----
   const int n = o.shadow_rays;
-  const Vec3 corner[4] = {o.light_position + o.area_u + o.area_v, o.light_position - o.area_u + o.area_v,
-                          o.light_position - o.area_u - o.area_v, o.light_position + o.area_u - o.area_v};
+  const Vec3 corner[4] = {
+      o.light_position + o.area_u + o.area_v, o.light_position - o.area_u + o.area_v,
+      o.light_position - o.area_u - o.area_v, o.light_position + o.area_u - o.area_v};
   bool all_above = true, any_above = false;
   for (const Vec3& k : corner) {
     const bool above = dot(k - origin, p.normal) > 0.f;
@@ -178,7 +194,8 @@ float shadow_visibility(const Occluder& occ, const ShadingPoint& p, const Effect
     }
     if (ok) {
       for (int i = 0; i < 4; ++i)
-        for (int j = i + 1; j < 4; ++j) min_cos = std::min(min_cos, dot(beam.edge[i], beam.edge[j]));
+        for (int j = i + 1; j < 4; ++j)
+          min_cos = std::min(min_cos, dot(beam.edge[i], beam.edge[j]));
       // Widest angle between two directions of the cone = between two corner
       // directions (the cone is their convex hull); 1e-4 relative + 1e-6 rad slack.
       beam.angular_width = std::acos(std::clamp(min_cos, -1.f, 1.f)) * 1.0001f + 1e-6f;

@@ -19,20 +19,28 @@ namespace {
 
 const char* embree_error_name(RTCError e) {
   switch (e) {
-    case RTC_ERROR_NONE: return "none";
-    case RTC_ERROR_UNKNOWN: return "unknown error";
-    case RTC_ERROR_INVALID_ARGUMENT: return "invalid argument";
-    case RTC_ERROR_INVALID_OPERATION: return "invalid operation";
-    case RTC_ERROR_OUT_OF_MEMORY: return "out of memory";
-    case RTC_ERROR_UNSUPPORTED_CPU: return "unsupported CPU";
-    case RTC_ERROR_CANCELLED: return "cancelled";
+    case RTC_ERROR_NONE:
+      return "none";
+    case RTC_ERROR_UNKNOWN:
+      return "unknown error";
+    case RTC_ERROR_INVALID_ARGUMENT:
+      return "invalid argument";
+    case RTC_ERROR_INVALID_OPERATION:
+      return "invalid operation";
+    case RTC_ERROR_OUT_OF_MEMORY:
+      return "out of memory";
+    case RTC_ERROR_UNSUPPORTED_CPU:
+      return "unsupported CPU";
+    case RTC_ERROR_CANCELLED:
+      return "cancelled";
   }
   return "unrecognized error";
 }
 
 void check(RTCDevice device, const char* what) {
   const RTCError e = rtcGetDeviceError(device);
-  if (e != RTC_ERROR_NONE) throw Error(std::string("embree: ") + what + ": " + embree_error_name(e));
+  if (e != RTC_ERROR_NONE)
+    throw Error(std::string("embree: ") + what + ": " + embree_error_name(e));
 }
 
 }  // namespace
@@ -56,7 +64,8 @@ EmbreeScene::EmbreeScene(const Mesh& mesh) : impl_(std::make_unique<Impl>()) {
   rtcSetDeviceMemoryMonitorFunction(
       impl_->device,
       [](void* user, ssize_t bytes, bool) -> bool {
-        static_cast<std::atomic<int64_t>*>(user)->fetch_add(int64_t(bytes), std::memory_order_relaxed);
+        static_cast<std::atomic<int64_t>*>(user)->fetch_add(int64_t(bytes),
+                                                            std::memory_order_relaxed);
         return true;
       },
       &impl_->bytes);
@@ -69,10 +78,12 @@ EmbreeScene::EmbreeScene(const Mesh& mesh) : impl_(std::make_unique<Impl>()) {
   check(impl_->device, "rtcNewGeometry");
   rtcSetGeometryBuildQuality(geom, RTC_BUILD_QUALITY_HIGH);
   // Embree-owned copies: its buffers are padded for its 16-byte vertex loads.
-  auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                                        3 * sizeof(float), mesh.positions.size()));
-  auto* idx = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
-                                                             3 * sizeof(uint32_t), mesh.triangle_count()));
+  auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0,
+                                                        RTC_FORMAT_FLOAT3, 3 * sizeof(float),
+                                                        mesh.positions.size()));
+  auto* idx = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0,
+                                                             RTC_FORMAT_UINT3, 3 * sizeof(uint32_t),
+                                                             mesh.triangle_count()));
   if (!v || !idx) {
     rtcReleaseGeometry(geom);
     check(impl_->device, "rtcSetNewGeometryBuffer");

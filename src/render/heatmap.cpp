@@ -33,7 +33,8 @@ Image iteration_heatmap(const Image& iterations, float max_iterations) {
       const float f = u - float(i);
       float* o = out.at(x, y);
       for (int k = 0; k < 3; ++k) {
-        const float srgb = (float(kInferno[i][k]) * (1.f - f) + float(kInferno[i + 1][k]) * f) / 255.f;
+        const float srgb =
+            (float(kInferno[i][k]) * (1.f - f) + float(kInferno[i + 1][k]) * f) / 255.f;
         o[k] = srgb_to_linear(srgb);
       }
     }

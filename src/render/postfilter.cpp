@@ -9,8 +9,8 @@
 // produce a seam (Figure 17c vs 17d); misses carry radius 1, so the blur stops
 // at silhouettes instead of mixing in the background.
 #include <tbb/blocked_range2d.h>
-#include <tbb/partitioner.h>
 #include <tbb/parallel_for.h>
+#include <tbb/partitioner.h>
 #include <tbb/task_arena.h>
 
 #include <algorithm>
@@ -134,7 +134,7 @@ void filter_pixel(const float* color, const uint8_t* code, const float* radius_o
   const size_t index = size_t(y) * W + x;
   const float* c = color + index * C;
   float r = radius_of[code[index]];  // line 1
-  if (r <= 1.f) {                     // line 2: no filtering needed
+  if (r <= 1.f) {                    // line 2: no filtering needed
     for (int k = 0; k < C; ++k) out[k] = c[k];
     return;
   }
@@ -150,8 +150,8 @@ void filter_pixel(const float* color, const uint8_t* code, const float* radius_o
       if (sx < 0 || sy < 0 || sx >= W || sy >= H) continue;  // outside the image
     }
     const size_t n = size_t(ptrdiff_t(index) + offset[i]);  // line 5
-    r = std::min(r, radius_of[code[n]]);                   // line 6
-    if (s.dist > r) break;                                 // line 7
+    r = std::min(r, radius_of[code[n]]);                    // line 6
+    if (s.dist > r) break;                                  // line 7
     // Line 8: taper linearly to zero between r - 1 and r.
     const double w = double(s.weight) * double(std::min(r - s.dist, 1.f));
     const float* cn = color + n * C;
@@ -191,11 +191,11 @@ void filter_texel(const Texel* texels, std::span<const PostFilterSample> kernel,
       if (sx < 0 || sy < 0 || sx >= W || sy >= H) continue;
     }
     const Texel& n = texels[size_t(ptrdiff_t(index) + offset[i])];  // line 5
-    r = std::min(r, n.v[3]);                                       // line 6
-    if (s.dist > r) break;                                         // line 7
-    const float w = s.weight * std::min(r - s.dist, 1.f);          // line 8
-    for (int k = 0; k < 4; ++k) a[k] += n.v[k] * w;                // line 9 (lane 3 unused)
-    accum_w += w;                                                  // line 10
+    r = std::min(r, n.v[3]);                                        // line 6
+    if (s.dist > r) break;                                          // line 7
+    const float w = s.weight * std::min(r - s.dist, 1.f);           // line 8
+    for (int k = 0; k < 4; ++k) a[k] += n.v[k] * w;                 // line 9 (lane 3 unused)
+    accum_w += w;                                                   // line 10
   }
   // The center sample always counts, so accum_w > 0.
   for (int k = 0; k < 3; ++k) out[k] = a[k] / accum_w;  // line 12
@@ -246,16 +246,21 @@ Image post_filter(const Image& color, const std::vector<uint8_t>& radius_code, i
             else
               filter_texel<true>(texels.data(), kernel, offset.data(), W, H, x, y, o);
           } else if (inside) {
-            filter_pixel<NC, false>(in, code, radius_of.data(), kernel, offset.data(), W, H, C, x, y, o);
+            filter_pixel<NC, false>(in, code, radius_of.data(), kernel, offset.data(), W, H, C, x,
+                                    y, o);
           } else {
-            filter_pixel<NC, true>(in, code, radius_of.data(), kernel, offset.data(), W, H, C, x, y, o);
+            filter_pixel<NC, true>(in, code, radius_of.data(), kernel, offset.data(), W, H, C, x, y,
+                                   o);
           }
         }
       }
     };
-    if (C == 3) run.template operator()<3>();
-    else if (C == 1) run.template operator()<1>();
-    else run.template operator()<0>();
+    if (C == 3)
+      run.template operator()<3>();
+    else if (C == 1)
+      run.template operator()<1>();
+    else
+      run.template operator()<0>();
   };
   const tbb::blocked_range2d<int> all(0, H, 16, 0, W, 64);
   auto go = [&] { tbb::parallel_for(all, filter_tiles, tbb::simple_partitioner()); };

@@ -43,11 +43,14 @@ RenderResult render(const VoxelStructure& structure, const RenderOptions& option
   EffectOptions fx = options.effects;
   validate(fx);
   const bool effects = fx.active();
-  if (fx.ao_rays > 0 && !(fx.ao_radius > 0.f)) fx.ao_radius = 0.05f * length(structure.bounds().extent());
+  if (fx.ao_rays > 0 && !(fx.ao_radius > 0.f))
+    fx.ao_radius = 0.05f * length(structure.bounds().extent());
   const StructureOccluder occluder(structure);
-  if (fx.ao_rays > 0) result.ao = Image(W, H, 1), std::fill(result.ao.pixels.begin(), result.ao.pixels.end(), 1.f);
+  if (fx.ao_rays > 0)
+    result.ao = Image(W, H, 1), std::fill(result.ao.pixels.begin(), result.ao.pixels.end(), 1.f);
   if (fx.shadows != ShadowMode::None)
-    result.shadow = Image(W, H, 1), std::fill(result.shadow.pixels.begin(), result.shadow.pixels.end(), 1.f);
+    result.shadow = Image(W, H, 1),
+    std::fill(result.shadow.pixels.begin(), result.shadow.pixels.end(), 1.f);
   std::mutex effects_mutex;
   const bool want_depth = options.want_depth, want_normal = options.want_normal;
 
@@ -105,10 +108,11 @@ RenderResult render(const VoxelStructure& structure, const RenderOptions& option
             *result.shadow.at(x, y) = visibility =
                 shadow_visibility(occluder, sp, fx, options.light_dir, seed, &tile_fx);
           if (fx.ao_rays > 0)
-            *result.ao.at(x, y) = ao = ambient_occlusion(occluder, sp, fx, fx.ao_radius, seed, &tile_fx);
+            *result.ao.at(x, y) = ao =
+                ambient_occlusion(occluder, sp, fx, fx.ao_radius, seed, &tile_fx);
         }
         const float diffuse = std::fmax(0.f, dot(n, light)) * visibility;
-        const Vec3 half_vec = normalize(light - dir);  // Blinn: light + view
+        const Vec3 half_vec = normalize(light - dir);   // Blinn: light + view
         float spec = std::fmax(0.f, dot(n, half_vec));  // ^32 by squaring (no powf call)
         spec *= spec, spec *= spec, spec *= spec, spec *= spec, spec *= spec;
         spec *= visibility;

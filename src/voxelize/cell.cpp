@@ -2,6 +2,8 @@
 // "Implementation details": sub-volumes voxelized and reduced one at a time).
 // See cell.hpp for the exactness contract; the rasterizer is voxelize/raster.hpp,
 // the same one voxelize() uses, limited to the cell's box.
+#include "voxelize/cell.hpp"
+
 #include <fmt/format.h>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -15,7 +17,6 @@
 
 #include "voxcast/error.hpp"
 #include "voxcast/morton.hpp"
-#include "voxelize/cell.hpp"
 #include "voxelize/internal.hpp"
 #include "voxelize/raster.hpp"
 
@@ -26,7 +27,6 @@ namespace {
 using raster::ceil_clamped;
 using raster::floor_clamped;
 using raster::raster_triangle_box;
-
 
 struct Pair {
   uint64_t code;
@@ -49,7 +49,8 @@ std::vector<Rec> raster_cell(const Mesh& mesh, const std::vector<std::array<doub
       const uint32_t t = tris[i];
       double v[3][3];
       for (int k = 0; k < 3; ++k)
-        for (int a = 0; a < 3; ++a) v[k][a] = gv[mesh.indices[3 * size_t(t) + size_t(k)]][size_t(a)];
+        for (int a = 0; a < 3; ++a)
+          v[k][a] = gv[mesh.indices[3 * size_t(t) + size_t(k)]][size_t(a)];
       raster_triangle_box(v, n, six, box_lo, box_hi,
                           [&](uint64_t code) { out.push_back(make(code, t)); });
     }
@@ -137,7 +138,9 @@ VoxelSet voxelize_cell(const Mesh& mesh, const GridTransform& grid,
   // are summed in ascending triangle order, as voxelize() does, so the float
   // results are identical.
   std::vector<Pair> pairs = raster_cell<Pair>(mesh, gv, tris, tri_count, n, six, box_lo, box_hi,
-                                              [](uint64_t c, uint32_t t) { return Pair{c, t}; });
+                                              [](uint64_t c, uint32_t t) {
+                                                return Pair{c, t};
+                                              });
   tbb::parallel_sort(pairs.begin(), pairs.end());
   std::vector<size_t> starts;  // first pair of every voxel
   for (size_t i = 0; i < pairs.size(); ++i)
@@ -186,8 +189,8 @@ VoxelSet voxelize_cell(const Mesh& mesh, const GridTransform& grid,
       double fn[3] = {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
                       a[0] * b[1] - a[1] * b[0]};
       double fl = std::sqrt(fn[0] * fn[0] + fn[1] * fn[1] + fn[2] * fn[2]);
-      out.normals[vox] = fl > 0 ? Vec3{float(fn[0] / fl), float(fn[1] / fl), float(fn[2] / fl)}
-                                : Vec3{0, 0, 1};
+      out.normals[vox] =
+          fl > 0 ? Vec3{float(fn[0] / fl), float(fn[1] / fl), float(fn[2] / fl)} : Vec3{0, 0, 1};
     }
     out.weights[vox] = float(wsum);
   });

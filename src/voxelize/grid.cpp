@@ -54,8 +54,7 @@ GridTransform GridTransform::fit(const Aabb& bounds, uint32_t resolution) {
     double lo = bounds.lo[a], hi = bounds.hi[a];
     double o = 0.5 * (lo + hi) - 0.5 * side;
     float of = float(o);
-    while (double(of) > lo - 0.25 * kMargin * side)
-      of = std::nextafter(of, -INFINITY);
+    while (double(of) > lo - 0.25 * kMargin * side) of = std::nextafter(of, -INFINITY);
     g.origin[a] = of;
     double need = (hi - double(of)) * (1.0 + 0.25 * kMargin);
     side = std::max(side, need);

@@ -8,9 +8,9 @@ namespace voxcast::detail {
 /// Part of one triangle inside one voxel (box filter of the surface, used for
 /// the voxel's attributes).
 struct VoxelClip {
-  double area = 0;      // clipped polygon area, voxel units^2 (0: touches only)
-  float bary_u = 0;     // barycentrics of the clipped polygon's centroid
-  float bary_v = 0;     // (weights of vertex 1 and vertex 2)
+  double area = 0;   // clipped polygon area, voxel units^2 (0: touches only)
+  float bary_u = 0;  // barycentrics of the clipped polygon's centroid
+  float bary_v = 0;  // (weights of vertex 1 and vertex 2)
 };
 
 // Touch-only pairs (the triangle meets the voxel in a point or segment) get

@@ -5,6 +5,8 @@
 // column from the triangle plane, and keep the voxels that also pass the 2-D
 // edge tests of the two side projections. Then sort the (voxel, triangle)
 // pairs, merge duplicates and box-filter the attributes.
+#include "voxcast/voxelize.hpp"
+
 #include <fmt/format.h>
 #include <tbb/blocked_range.h>
 #include <tbb/enumerable_thread_specific.h>
@@ -20,7 +22,6 @@
 #include "voxcast/error.hpp"
 #include "voxcast/morton.hpp"
 #include "voxcast/progress.hpp"
-#include "voxcast/voxelize.hpp"
 #include "voxelize/internal.hpp"
 #include "voxelize/raster.hpp"
 
@@ -162,7 +163,6 @@ std::vector<Span<Rec>> split(const Rec* data, size_t n, size_t parts) {
   return spans;
 }
 
-
 template <class Traits>
 VoxelSet voxelize_impl(const Mesh& mesh, const GridTransform& grid, const VoxelizeOptions& opt,
                        const Traits& tr) {
@@ -199,8 +199,7 @@ VoxelSet voxelize_impl(const Mesh& mesh, const GridTransform& grid, const Voxeli
     for (size_t t = t0; t < t1; ++t) {
       double tri[3][3];
       tri_verts(t, tri);
-      raster_triangle(tri, n, six,
-                      [&](uint64_t code) { arena.push(tr.make(code, uint32_t(t))); });
+      raster_triangle(tri, n, six, [&](uint64_t code) { arena.push(tr.make(code, uint32_t(t))); });
     }
     arena.end_block();
     if (opt.progress) opt.progress->advance(t1 - t0);
@@ -313,8 +312,8 @@ VoxelSet voxelize_impl(const Mesh& mesh, const GridTransform& grid, const Voxeli
         double fn[3] = {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
                         a[0] * b[1] - a[1] * b[0]};
         double fl = std::sqrt(fn[0] * fn[0] + fn[1] * fn[1] + fn[2] * fn[2]);
-        out.normals[vox] = fl > 0 ? Vec3{float(fn[0] / fl), float(fn[1] / fl), float(fn[2] / fl)}
-                                  : Vec3{0, 0, 1};
+        out.normals[vox] =
+            fl > 0 ? Vec3{float(fn[0] / fl), float(fn[1] / fl), float(fn[2] / fl)} : Vec3{0, 0, 1};
       }
       out.weights[vox] = float(wsum);
       ++vox;
@@ -339,8 +338,8 @@ void triangle_voxels(const double tri[3][3], uint32_t resolution, VoxelizationMo
 VoxelSet voxelize(const Mesh& mesh, const GridTransform& grid, const VoxelizeOptions& options) {
   check_resolution(grid.resolution);
   if (grid.levels != std::countr_zero(grid.resolution))
-    throw Error(fmt::format("grid levels {} do not match resolution {}", grid.levels,
-                            grid.resolution));
+    throw Error(
+        fmt::format("grid levels {} do not match resolution {}", grid.levels, grid.resolution));
   if (!(grid.voxel_size > 0) || !std::isfinite(grid.voxel_size) || !is_finite(grid.origin))
     throw Error("grid voxel size must be positive and its origin finite");
   validate_mesh(mesh);
@@ -353,7 +352,8 @@ VoxelSet voxelize(const Mesh& mesh, const GridTransform& grid, const VoxelizeOpt
     return empty;
   }
   const int tri_bits = std::max(1, int(std::bit_width(uint64_t(ntri - 1))));
-  if (3 * grid.levels + tri_bits <= 64) return voxelize_impl(mesh, grid, options, PackedTraits{tri_bits});
+  if (3 * grid.levels + tri_bits <= 64)
+    return voxelize_impl(mesh, grid, options, PackedTraits{tri_bits});
   return voxelize_impl(mesh, grid, options, WideTraits{});
 }
 

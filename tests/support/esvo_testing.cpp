@@ -21,7 +21,9 @@ uint64_t mix(uint64_t x) {
   x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
   return x ^ (x >> 31);
 }
-float unit_float(uint64_t h) { return float(h >> 40) / float(1u << 24); }  // [0,1)
+float unit_float(uint64_t h) {
+  return float(h >> 40) / float(1u << 24);
+}  // [0,1)
 
 }  // namespace
 
@@ -115,13 +117,15 @@ VoxelSet make_sphere_shell(int levels) {
     const MortonCoord p = morton_decode(set.codes[i]);
     const Vec3 d{float(p.x + 0.5 - c), float(p.y + 0.5 - c), float(p.z + 0.5 - c)};
     set.normals[i] = normalize(d);
-    set.colors[i] = {float(p.x) / float(res), float(p.y) / float(res), float(p.z) / float(res), 1.f};
+    set.colors[i] = {float(p.x) / float(res), float(p.y) / float(res), float(p.z) / float(res),
+                     1.f};
     set.weights[i] = 1.f;
   }
   return set;
 }
 
-VoxelSet make_dense_grid(int levels, const std::function<bool(uint32_t, uint32_t, uint32_t)>& occupied) {
+VoxelSet make_dense_grid(int levels,
+                         const std::function<bool(uint32_t, uint32_t, uint32_t)>& occupied) {
   VoxelSet set;
   set.grid = unit_grid(levels);
   const uint32_t res = set.grid.resolution;

@@ -32,7 +32,8 @@ VoxelSet make_sphere_shell(int levels);
 
 /// Every voxel of the 2^levels grid for which `occupied(x, y, z)` is true
 /// (iterates the whole N^3 grid, keep levels small).
-VoxelSet make_dense_grid(int levels, const std::function<bool(uint32_t, uint32_t, uint32_t)>& occupied);
+VoxelSet make_dense_grid(int levels,
+                         const std::function<bool(uint32_t, uint32_t, uint32_t)>& occupied);
 
 /// The full 2^levels grid (all N^3 voxels).
 VoxelSet make_full_grid(int levels);

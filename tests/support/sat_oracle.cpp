@@ -12,9 +12,15 @@ namespace {
 struct D3 {
   double x, y, z;
 };
-D3 sub(D3 a, D3 b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
-D3 cross(D3 a, D3 b) { return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x}; }
-double dot(D3 a, D3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+D3 sub(D3 a, D3 b) {
+  return {a.x - b.x, a.y - b.y, a.z - b.z};
+}
+D3 cross(D3 a, D3 b) {
+  return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
+}
+double dot(D3 a, D3 b) {
+  return a.x * b.x + a.y * b.y + a.z * b.z;
+}
 
 // Separated along `axis` iff the triangle's projection interval and the box's
 // projection [-r, r] (box centered at the origin, half size h) are disjoint.
@@ -32,7 +38,8 @@ bool sat_triangle_box_overlap(const double tri[3][3], const double lo[3], double
   const double h = 0.5 * size;
   const D3 c{lo[0] + h, lo[1] + h, lo[2] + h};
   // Move the box center to the origin.
-  const D3 v[3] = {sub({tri[0][0], tri[0][1], tri[0][2]}, c), sub({tri[1][0], tri[1][1], tri[1][2]}, c),
+  const D3 v[3] = {sub({tri[0][0], tri[0][1], tri[0][2]}, c),
+                   sub({tri[1][0], tri[1][1], tri[1][2]}, c),
                    sub({tri[2][0], tri[2][1], tri[2][2]}, c)};
   const D3 e[3] = {sub(v[1], v[0]), sub(v[2], v[1]), sub(v[0], v[2])};
   const D3 axes[3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
