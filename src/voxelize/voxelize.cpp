@@ -279,43 +279,13 @@ VoxelSet voxelize_impl(const Mesh& mesh, const GridTransform& grid, const Voxeli
         continue;
       }
       // Box filter (area-weighted means) over this voxel's triangles.
+      while (j < end && tr.code(pairs[j]) == code) ++j;
       const MortonCoord xyz = morton_decode(code);
-      double wsum = 0, col[4] = {0, 0, 0, 0}, nsum[3] = {0, 0, 0};
-      double best_w = -1;
-      uint32_t best_tri = 0;
-      for (; j < end && tr.code(pairs[j]) == code; ++j) {
-        const uint32_t t = tr.tri(pairs[j]);
-        double tri[3][3];
-        tri_verts(t, tri);
-        detail::VoxelClip clip = detail::clip_triangle_to_voxel(tri, xyz.x, xyz.y, xyz.z);
-        const double wgt = std::max(clip.area, detail::kTouchWeight);
-        const Color c = mesh.surface_color(t, clip.bary_u, clip.bary_v);
-        const Vec3 nm = mesh.surface_normal(t, clip.bary_u, clip.bary_v);
-        wsum += wgt;
-        col[0] += wgt * c.r, col[1] += wgt * c.g, col[2] += wgt * c.b, col[3] += wgt * c.a;
-        nsum[0] += wgt * nm.x, nsum[1] += wgt * nm.y, nsum[2] += wgt * nm.z;
-        if (wgt > best_w) best_w = wgt, best_tri = t;
-      }
       out.codes[vox] = code;
-      out.colors[vox] = {float(col[0] / wsum), float(col[1] / wsum), float(col[2] / wsum),
-                         float(col[3] / wsum)};
-      double len = std::sqrt(nsum[0] * nsum[0] + nsum[1] * nsum[1] + nsum[2] * nsum[2]);
-      if (len > 1e-6 * wsum) {
-        out.normals[vox] = {float(nsum[0] / len), float(nsum[1] / len), float(nsum[2] / len)};
-      } else {
-        // Opposite sheets cancel (e.g. both sides of a thin wall in one
-        // voxel): the face normal of the largest contribution.
-        double tri[3][3];
-        tri_verts(best_tri, tri);
-        double a[3], b[3];
-        for (int k = 0; k < 3; ++k) a[k] = tri[1][k] - tri[0][k], b[k] = tri[2][k] - tri[0][k];
-        double fn[3] = {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
-                        a[0] * b[1] - a[1] * b[0]};
-        double fl = std::sqrt(fn[0] * fn[0] + fn[1] * fn[1] + fn[2] * fn[2]);
-        out.normals[vox] =
-            fl > 0 ? Vec3{float(fn[0] / fl), float(fn[1] / fl), float(fn[2] / fl)} : Vec3{0, 0, 1};
-      }
-      out.weights[vox] = float(wsum);
+      detail::box_filter_voxel(
+          mesh, tri_verts, xyz.x, xyz.y, xyz.z, j - i,
+          [&](size_t k) { return uint32_t(tr.tri(pairs[i + k])); }, &out.colors[vox],
+          &out.normals[vox], &out.weights[vox]);
       ++vox;
       i = j;
     }
