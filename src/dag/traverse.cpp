@@ -25,6 +25,7 @@
 #include <cmath>
 #include <cstdint>
 
+#include "core/octree_ray.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/error.hpp"
 
@@ -33,18 +34,10 @@ namespace {
 
 using esvo::kMaxScale;
 
-inline float vmin(float a, float b) {
-  return a < b ? a : b;
-}
-inline float vmax(float a, float b) {
-  return a > b ? a : b;
-}
-inline uint32_t float_bits(float f) {
-  return std::bit_cast<uint32_t>(f);
-}
-inline float bits_float(uint32_t u) {
-  return std::bit_cast<float>(u);
-}
+using ::voxcast::detail::bits_float;
+using ::voxcast::detail::float_bits;
+using ::voxcast::detail::vmax;
+using ::voxcast::detail::vmin;
 
 // Bit c set iff byte c of m is non-zero: the child mask of a 4^3 leaf-mask
 // node over its eight 2^3 sub-blocks.
@@ -59,7 +52,6 @@ template <bool kAnyHit>
 CastResult cast(const SparseVoxelDag& dag, Vec3 p, Vec3 d, float tmax, float size_coef,
                 float size_bias) {
   constexpr int s_max = kMaxScale;
-  constexpr float epsilon = 0x1p-23f;
   const uint32_t* const words = dag.words.data();
   const uint32_t* const prefix = dag.voxel_prefix.data();
   const int leaf_scale = s_max - dag.levels();  // scale of the leaf voxels
@@ -81,25 +73,13 @@ CastResult cast(const SparseVoxelDag& dag, Vec3 p, Vec3 d, float tmax, float siz
   float stack_tmax[s_max + 1];
   uint32_t stack_base[s_max + 1];
 
-  if (std::fabs(d.x) < epsilon) d.x = std::copysign(epsilon, d.x);
-  if (std::fabs(d.y) < epsilon) d.y = std::copysign(epsilon, d.y);
-  if (std::fabs(d.z) < epsilon) d.z = std::copysign(epsilon, d.z);
-
-  const float tx_coef = 1.0f / -std::fabs(d.x);
-  const float ty_coef = 1.0f / -std::fabs(d.y);
-  const float tz_coef = 1.0f / -std::fabs(d.z);
-  float tx_bias = tx_coef * p.x;
-  float ty_bias = ty_coef * p.y;
-  float tz_bias = tz_coef * p.z;
-
-  int octant_mask = 7;
-  if (d.x > 0.0f) octant_mask ^= 1, tx_bias = 3.0f * tx_coef - tx_bias;
-  if (d.y > 0.0f) octant_mask ^= 2, ty_bias = 3.0f * ty_coef - ty_bias;
-  if (d.z > 0.0f) octant_mask ^= 4, tz_bias = 3.0f * tz_coef - tz_bias;
-
-  auto tx = [&](float x) { return std::fma(x, tx_coef, -tx_bias); };
-  auto ty = [&](float y) { return std::fma(y, ty_coef, -ty_bias); };
-  auto tz = [&](float z) { return std::fma(z, tz_coef, -tz_bias); };
+  d = ::voxcast::detail::avoid_tiny_components(d);
+  const ::voxcast::detail::MirroredRay ray(p, d);
+  const float tx_coef = ray.tx_coef, ty_coef = ray.ty_coef, tz_coef = ray.tz_coef;
+  const int octant_mask = ray.octant_mask;
+  auto tx = [&](float x) { return ray.tx(x); };
+  auto ty = [&](float y) { return ray.ty(y); };
+  auto tz = [&](float z) { return ray.tz(z); };
 
   float t_min = vmax(vmax(tx(2.0f), ty(2.0f)), tz(2.0f));
   float t_max = vmin(vmin(tx(1.0f), ty(1.0f)), tz(1.0f));

@@ -55,6 +55,7 @@
 #include <cstring>
 #include <type_traits>
 
+#include "core/octree_ray.hpp"
 #include "esvo/compress.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_structure.hpp"
@@ -62,22 +63,12 @@
 namespace voxcast::esvo {
 namespace {
 
-// min/max that compile to one minss/maxss: std::fmin/fmax must honour NaN
-// operands and end up as libm calls that spill the loop's registers (they
-// were ~10% of the caster in a profile). Inputs are checked finite up front.
-inline float vmin(float a, float b) {
-  return a < b ? a : b;
-}
-inline float vmax(float a, float b) {
-  return a > b ? a : b;
-}
+// Branch-free min/max and float-bit helpers (core/octree_ray.hpp).
+using ::voxcast::detail::vmax;
+using ::voxcast::detail::vmin;
 
-inline uint32_t float_bits(float f) {
-  return std::bit_cast<uint32_t>(f);
-}
-inline float bits_float(uint32_t u) {
-  return std::bit_cast<float>(u);
-}
+using ::voxcast::detail::bits_float;
+using ::voxcast::detail::float_bits;
 
 // Converts our descriptor word 0 into the listing's layout: valid mask in
 // bits 15..8, NON-leaf mask in bits 7..0, pointer/far bits unchanged.
@@ -94,8 +85,7 @@ using LoopCounters = std::conditional_t<kCount, RayCounters, NoCounters>;
 template <bool kCount>
 CastResult cast_ray_impl(const EsvoOctree& octree, Vec3 p, Vec3 d, float tmax, float size_coef,
                          float size_bias, const Aabb* region, RayCounters* counters) {
-  constexpr int s_max = kMaxScale;     // float mantissa bits
-  constexpr float epsilon = 0x1p-23f;  // exp2f(-s_max)
+  constexpr int s_max = kMaxScale;  // float mantissa bits
   const uint32_t* const words = octree.words.data();
   [[maybe_unused]] LoopCounters<kCount> cnt{};
   // Adds the loop's counts to *counters on every exit.
@@ -125,31 +115,15 @@ CastResult cast_ray_impl(const EsvoOctree& octree, Vec3 p, Vec3 d, float tmax, f
   uint32_t stack_parent[s_max + 1];
   float stack_tmax[s_max + 1];
 
-  // Get rid of small direction components to avoid division by zero. The
-  // sign of a zero component is kept (copysign), which picks the side a ray
-  // lying exactly in a grid plane is considered to be on.
-  if (std::fabs(d.x) < epsilon) d.x = std::copysign(epsilon, d.x);
-  if (std::fabs(d.y) < epsilon) d.y = std::copysign(epsilon, d.y);
-  if (std::fabs(d.z) < epsilon) d.z = std::copysign(epsilon, d.z);
-
-  // t(x) = x * coef - bias for each axis, in the mirrored frame where every
-  // direction component is negative (§6.1 "Alternate coordinate system").
-  const float tx_coef = 1.0f / -std::fabs(d.x);
-  const float ty_coef = 1.0f / -std::fabs(d.y);
-  const float tz_coef = 1.0f / -std::fabs(d.z);
-  float tx_bias = tx_coef * p.x;
-  float ty_bias = ty_coef * p.y;
-  float tz_bias = tz_coef * p.z;
-
-  int octant_mask = 7;
-  if (d.x > 0.0f) octant_mask ^= 1, tx_bias = 3.0f * tx_coef - tx_bias;
-  if (d.y > 0.0f) octant_mask ^= 2, ty_bias = 3.0f * ty_coef - ty_bias;
-  if (d.z > 0.0f) octant_mask ^= 4, tz_bias = 3.0f * tz_coef - tz_bias;
-
-  // Each corner/center t below is one FMA: t = fma(x, coef, -bias).
-  auto tx = [&](float x) { return std::fma(x, tx_coef, -tx_bias); };
-  auto ty = [&](float y) { return std::fma(y, ty_coef, -ty_bias); };
-  auto tz = [&](float z) { return std::fma(z, tz_coef, -tz_bias); };
+  // Mirrored frame with every direction component negative (§6.1 "Alternate
+  // coordinate system"); tiny components are replaced as in Appendix A.
+  d = ::voxcast::detail::avoid_tiny_components(d);
+  const ::voxcast::detail::MirroredRay ray(p, d);
+  const float tx_coef = ray.tx_coef, ty_coef = ray.ty_coef, tz_coef = ray.tz_coef;
+  const int octant_mask = ray.octant_mask;
+  auto tx = [&](float x) { return ray.tx(x); };
+  auto ty = [&](float y) { return ray.ty(y); };
+  auto tz = [&](float z) { return ray.tz(z); };
 
   // Active t-span: the root cube [1,2]^3 clipped to [0, tmax].
   float t_min = vmax(vmax(tx(2.0f), ty(2.0f)), tz(2.0f));
