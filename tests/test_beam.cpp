@@ -18,6 +18,7 @@
 #include "render/beam.hpp"
 #include "support/cli_runner.hpp"
 #include "support/esvo_testing.hpp"
+#include "support/shared_meshes.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/mesh.hpp"
@@ -146,17 +147,8 @@ TEST_P(SharedMeshBeam, HitsIdenticalWithAndWithoutBeam) {
   }
 }
 
-INSTANTIATE_TEST_SUITE_P(SharedMeshes, SharedMeshBeam,
-                         ::testing::Values("stanford-bunny.obj", "armadillo.off",
-                                           "refined_elephant.off", "camel.off", "fandisk_large.off",
-                                           "spot.obj", "teapot.obj",
-                                           "CesiumMilkTruck/CesiumMilkTruck.gltf"),
-                         [](const ::testing::TestParamInfo<const char*>& info) {
-                           std::string s = std::filesystem::path(info.param).stem().string();
-                           for (char& ch : s)
-                             if (!std::isalnum(static_cast<unsigned char>(ch))) ch = '_';
-                           return s;
-                         });
+INSTANTIATE_TEST_SUITE_P(SharedMeshes, SharedMeshBeam, voxcast::testing::all_shared_meshes(),
+                         voxcast::testing::mesh_test_name);
 
 // The comparison above can fail: a start region that is too small (here the
 // far half of the true one) changes hits.

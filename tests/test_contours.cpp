@@ -17,6 +17,7 @@
 #include <string>
 #include <vector>
 
+#include "support/shared_meshes.hpp"
 #include "voxcast/embree_reference.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
@@ -30,13 +31,6 @@ namespace voxcast {
 namespace {
 
 const std::filesystem::path kMeshes = std::filesystem::path(VOXCAST_SHARED_DIR) / "meshes";
-
-std::string test_name(const char* mesh) {
-  std::string s = std::filesystem::path(mesh).stem().string();
-  for (char& ch : s)
-    if (!std::isalnum(static_cast<unsigned char>(ch))) ch = '_';
-  return s;
-}
 
 // ---- independent decoding of the layout in esvo.hpp (no builder code) ----
 
@@ -293,9 +287,7 @@ TEST_P(SharedMeshNoHoles, EveryTrianglePointInsideItsLeaf) {
 
 INSTANTIATE_TEST_SUITE_P(SharedMeshes, SharedMeshNoHoles,
                          ::testing::Values("stanford-bunny.obj", "fandisk_large.off"),
-                         [](const ::testing::TestParamInfo<const char*>& info) {
-                           return test_name(info.param);
-                         });
+                         voxcast::testing::mesh_test_name);
 
 // ---- the caster against a brute-force ray vs (cube ∩ slabs) oracle ----
 
@@ -545,9 +537,7 @@ TEST_P(ContourEmbree, BetterAgreementThanCubes) {
 
 INSTANTIATE_TEST_SUITE_P(SharedMeshes, ContourEmbree,
                          ::testing::Values("stanford-bunny.obj", "fandisk_large.off"),
-                         [](const ::testing::TestParamInfo<const char*>& info) {
-                           return test_name(info.param);
-                         });
+                         voxcast::testing::mesh_test_name);
 
 }  // namespace
 }  // namespace voxcast

@@ -13,6 +13,7 @@
 #include <memory>
 #include <vector>
 
+#include "support/shared_meshes.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/effects.hpp"
 #include "voxcast/embree_reference.hpp"
@@ -197,11 +198,7 @@ TEST_P(EffectsOracle, OcclusionMatchesEmbree) {
 
 INSTANTIATE_TEST_SUITE_P(SharedMeshes, EffectsOracle,
                          ::testing::Values("stanford-bunny.obj", "spot.obj"),
-                         [](const ::testing::TestParamInfo<const char*>& info) {
-                           return std::filesystem::path(info.param).stem().string() == "spot"
-                                      ? std::string("spot")
-                                      : std::string("bunny");
-                         });
+                         voxcast::testing::mesh_test_name);
 
 // ---- Renders: ESVO == DAG, thread-count independence ----
 

@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "support/shared_meshes.hpp"
 #include "voxcast/embree_reference.hpp"
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/mesh.hpp"
@@ -159,29 +160,11 @@ TEST_P(ContourMeshOracle, DepthWithinTwoVoxelDiagonalsOfEmbree) {
   EXPECT_GE(double(close), 0.99 * double(both));
 }
 
-INSTANTIATE_TEST_SUITE_P(SharedMeshes, ContourMeshOracle,
-                         ::testing::Values("stanford-bunny.obj", "armadillo.off",
-                                           "refined_elephant.off", "camel.off", "fandisk_large.off",
-                                           "spot.obj", "teapot.obj",
-                                           "CesiumMilkTruck/CesiumMilkTruck.gltf"),
-                         [](const ::testing::TestParamInfo<const char*>& info) {
-                           std::string s = std::filesystem::path(info.param).stem().string();
-                           for (char& ch : s)
-                             if (!std::isalnum(static_cast<unsigned char>(ch))) ch = '_';
-                           return s;
-                         });
+INSTANTIATE_TEST_SUITE_P(SharedMeshes, ContourMeshOracle, voxcast::testing::all_shared_meshes(),
+                         voxcast::testing::mesh_test_name);
 
-INSTANTIATE_TEST_SUITE_P(SharedMeshes, MeshOracle,
-                         ::testing::Values("stanford-bunny.obj", "armadillo.off",
-                                           "refined_elephant.off", "camel.off", "fandisk_large.off",
-                                           "spot.obj", "teapot.obj",
-                                           "CesiumMilkTruck/CesiumMilkTruck.gltf"),
-                         [](const ::testing::TestParamInfo<const char*>& info) {
-                           std::string s = std::filesystem::path(info.param).stem().string();
-                           for (char& ch : s)
-                             if (!std::isalnum(static_cast<unsigned char>(ch))) ch = '_';
-                           return s;
-                         });
+INSTANTIATE_TEST_SUITE_P(SharedMeshes, MeshOracle, voxcast::testing::all_shared_meshes(),
+                         voxcast::testing::mesh_test_name);
 
 }  // namespace
 }  // namespace voxcast

@@ -25,6 +25,27 @@ std::string fourcc_name(uint32_t id) {
   return s;
 }
 
+// The facts every scene format shares, as JSON.
+nlohmann::json scene_json(const std::string& path, uint64_t file_bytes, const char* format,
+                          const Container& container, const SceneInfo& info,
+                          const GridTransform& grid) {
+  nlohmann::json j;
+  j["file"] = path;
+  j["file_bytes"] = file_bytes;
+  j["format"] = format;
+  std::vector<std::string> sections;
+  for (uint32_t id : container.section_ids()) sections.push_back(fourcc_name(id));
+  j["sections"] = sections;
+  j["source"] = info.source;
+  j["source_triangles"] = info.source_triangles;
+  j["voxelization"] = info.voxelization;
+  j["resolution"] = grid.resolution;
+  j["levels"] = grid.levels;
+  j["voxel_size"] = grid.voxel_size;
+  j["origin"] = {grid.origin.x, grid.origin.y, grid.origin.z};
+  return j;
+}
+
 // DAG scenes: nodes per level DAG vs SVO and memory DAG vs pointer-less SVO
 // (1 B/node) vs ESVO (8 B/node), bits per voxel: the shape of svdag Table 2.
 int print_dag_info(const InfoArgs& args, const Container& container) {
@@ -33,20 +54,7 @@ int print_dag_info(const InfoArgs& args, const Container& container) {
   const dag::DagStats st = d.stats();
   const uint64_t file_bytes = std::filesystem::file_size(args.input);
   const int L = d.levels();
-  nlohmann::json j;
-  j["file"] = args.input;
-  j["file_bytes"] = file_bytes;
-  j["format"] = "dag";
-  std::vector<std::string> sections;
-  for (uint32_t id : container.section_ids()) sections.push_back(fourcc_name(id));
-  j["sections"] = sections;
-  j["source"] = info.source;
-  j["source_triangles"] = info.source_triangles;
-  j["voxelization"] = info.voxelization;
-  j["resolution"] = d.grid.resolution;
-  j["levels"] = L;
-  j["voxel_size"] = d.grid.voxel_size;
-  j["origin"] = {d.grid.origin.x, d.grid.origin.y, d.grid.origin.z};
+  nlohmann::json j = scene_json(args.input, file_bytes, "dag", container, info, d.grid);
   j["leaf_voxels"] = st.leaf_voxels;
   j["attributes"] = d.has_attributes();
   for (int l = 0; l <= L; ++l) {
@@ -70,7 +78,7 @@ int print_dag_info(const InfoArgs& args, const Container& container) {
   std::printf("scene       %s (%s)\n", args.input.c_str(),
               format_bytes(double(file_bytes)).c_str());
   std::printf("sections    ");
-  for (auto& s : sections) std::printf("%s ", s.c_str());
+  for (const auto& s : j["sections"]) std::printf("%s ", s.get<std::string>().c_str());
   std::printf("\nstructure   sparse voxel DAG (svdag), 4^3 leaf masks, %s\n",
               d.has_attributes() ? "colors + normals per voxel (Morton-rank index)"
                                  : "geometry only (gray, face normals)");
@@ -133,20 +141,7 @@ Runner add_info(CLI::App& app) {
     double attributes = double(mem.attribute_lookup_bytes + mem.attribute_value_bytes);
     double overhead = double(mem.padding_bytes);
 
-    nlohmann::json j;
-    j["file"] = args->input;
-    j["file_bytes"] = file_bytes;
-    j["format"] = "esvo";
-    std::vector<std::string> sections;
-    for (uint32_t id : container.section_ids()) sections.push_back(fourcc_name(id));
-    j["sections"] = sections;
-    j["source"] = info.source;
-    j["source_triangles"] = info.source_triangles;
-    j["voxelization"] = info.voxelization;
-    j["resolution"] = octree.grid.resolution;
-    j["levels"] = octree.levels();
-    j["voxel_size"] = octree.grid.voxel_size;
-    j["origin"] = {octree.grid.origin.x, octree.grid.origin.y, octree.grid.origin.z};
+    nlohmann::json j = scene_json(args->input, file_bytes, "esvo", container, info, octree.grid);
     j["blocks"] = octree.block_count;
     j["voxels_total"] = total_voxels;
     j["leaf_voxels"] = leaves;
@@ -184,7 +179,7 @@ Runner add_info(CLI::App& app) {
     std::printf("scene       %s (%s)\n", args->input.c_str(),
                 format_bytes(double(file_bytes)).c_str());
     std::printf("sections    ");
-    for (auto& s : sections) std::printf("%s ", s.c_str());
+    for (const auto& s : j["sections"]) std::printf("%s ", s.get<std::string>().c_str());
     std::printf(
         "\nstructure   esvo, %u block(s), %s attributes (%s)\n", octree.block_count,
         compressed ? "compressed" : "raw",
