@@ -21,27 +21,8 @@ namespace {
 
 using esvo::CastResult;
 using esvo::EsvoOctree;
-
-uint32_t desc(uint32_t child_ptr, bool far, uint32_t valid, uint32_t leaf) {
-  return child_ptr << 17 | (far ? 1u : 0u) << 16 | valid << 8 | leaf;
-}
-
-// Single-block octree as esvo.hpp describes (same as test_traversal.cpp).
-EsvoOctree hand_octree(int levels, const std::vector<uint32_t>& descriptors) {
-  EsvoOctree o;
-  o.grid = testing::unit_grid(levels);
-  o.block_count = 1;
-  const uint32_t slots = 1 + uint32_t(descriptors.size());
-  o.words.assign(size_t(slots) * 2 + 4, 0);
-  o.words[0] = slots * 2;
-  for (size_t i = 0; i < descriptors.size(); ++i) o.words[(i + 1) * 2] = descriptors[i];
-  uint32_t* info = &o.words[size_t(slots) * 2];
-  info[0] = esvo::kInfoMagic;
-  info[1] = uint32_t(-int32_t(slots * 2 - 2));
-  info[2] = slots;
-  info[3] = 0;
-  return o;
-}
+using testing::desc;
+using testing::hand_octree;
 
 // World ray of the unit grid -> octree space ([1,2]^3; t unchanged).
 CastResult counted(const EsvoOctree& o, Vec3 world_origin, Vec3 dir, RayCounters* c) {

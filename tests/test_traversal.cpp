@@ -24,32 +24,12 @@ using esvo::EsvoOctree;
 using esvo::kMaxScale;
 using testing::DdaHit;
 using testing::DenseGrid;
+using testing::desc;
 using testing::DVec3;
+using testing::hand_octree;
 
 // ---------------------------------------------------------------------------
-// Hand-built octrees, laid out as esvo.hpp describes: slot 0 page header,
-// descriptors from slot 1, then the info section (no attachments: the caster
-// never reads attributes).
-
-uint32_t desc(uint32_t child_ptr, bool far, uint32_t valid, uint32_t leaf) {
-  return child_ptr << 17 | (far ? 1u : 0u) << 16 | valid << 8 | leaf;
-}
-
-EsvoOctree hand_octree(int levels, const std::vector<uint32_t>& descriptors) {
-  EsvoOctree o;
-  o.grid = testing::unit_grid(levels);
-  o.block_count = 1;
-  const uint32_t slots = 1 + uint32_t(descriptors.size());
-  o.words.assign(size_t(slots) * 2 + 4, 0);
-  o.words[0] = slots * 2;  // page header -> info section (word offset)
-  for (size_t i = 0; i < descriptors.size(); ++i) o.words[(i + 1) * 2] = descriptors[i];
-  uint32_t* info = &o.words[size_t(slots) * 2];
-  info[0] = esvo::kInfoMagic;
-  info[1] = uint32_t(-int32_t(slots * 2 - 2));  // info -> first descriptor slot
-  info[2] = slots;
-  info[3] = 0;
-  return o;
-}
+// Hand-built octrees (testing::hand_octree, laid out as esvo.hpp describes).
 
 CastResult cast(const EsvoOctree& o, Vec3 p, Vec3 d, float tmax = INFINITY) {
   return cast_ray(o, p, normalize(d), tmax, 0.f, 0.f);

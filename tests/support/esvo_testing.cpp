@@ -166,4 +166,24 @@ bool query_leaf(const esvo::EsvoOctree& octree, uint32_t x, uint32_t y, uint32_t
   return false;
 }
 
+uint32_t desc(uint32_t child_ptr, bool far, uint32_t valid, uint32_t leaf) {
+  return child_ptr << 17 | (far ? 1u : 0u) << 16 | valid << 8 | leaf;
+}
+
+esvo::EsvoOctree hand_octree(int levels, const std::vector<uint32_t>& descriptors) {
+  esvo::EsvoOctree o;
+  o.grid = unit_grid(levels);
+  o.block_count = 1;
+  const uint32_t slots = 1 + uint32_t(descriptors.size());
+  o.words.assign(size_t(slots) * 2 + 4, 0);
+  o.words[0] = slots * 2;  // page header -> info section (word offset)
+  for (size_t i = 0; i < descriptors.size(); ++i) o.words[(i + 1) * 2] = descriptors[i];
+  uint32_t* info = &o.words[size_t(slots) * 2];
+  info[0] = esvo::kInfoMagic;
+  info[1] = uint32_t(-int32_t(slots * 2 - 2));  // info -> first descriptor slot
+  info[2] = slots;
+  info[3] = 0;
+  return o;
+}
+
 }  // namespace voxcast::testing

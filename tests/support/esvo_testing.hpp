@@ -45,4 +45,12 @@ VoxelSet make_full_grid(int levels);
 bool query_leaf(const esvo::EsvoOctree& octree, uint32_t x, uint32_t y, uint32_t z,
                 uint32_t* parent_slot = nullptr, int* child = nullptr);
 
+/// Word 0 of a child descriptor (esvo.hpp, Figure 2) for hand-built octrees.
+uint32_t desc(uint32_t child_ptr, bool far, uint32_t valid, uint32_t leaf);
+
+/// A single-block octree laid out by hand as esvo.hpp describes: slot 0 page
+/// header, `descriptors` (word 0 each, word 1 zero) from slot 1, then the info
+/// section with no attachments (the caster never reads attributes).
+esvo::EsvoOctree hand_octree(int levels, const std::vector<uint32_t>& descriptors);
+
 }  // namespace voxcast::testing
