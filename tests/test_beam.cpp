@@ -3,7 +3,8 @@
 // the plain caster (hit flag, t bit for bit, voxel, child, level, position),
 // on the shared meshes and on random octrees with random cameras (eye
 // outside, inside the root cube, inside occupied space; partial blocks at
-// the image borders; LOD on and off).
+// the image borders; LOD on and off), for the ESVO octree and for the sparse
+// voxel DAG of the same voxels (svdag §4: the same loop, the same beam).
 #include <gtest/gtest.h>
 
 #include <bit>
@@ -14,11 +15,13 @@
 #include <memory>
 #include <random>
 #include <string>
+#include <vector>
 
 #include "render/beam.hpp"
 #include "support/cli_runner.hpp"
 #include "support/esvo_testing.hpp"
 #include "support/shared_meshes.hpp"
+#include "voxcast/dag.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/mesh.hpp"
@@ -102,6 +105,19 @@ std::shared_ptr<const esvo::EsvoOctree> octree_of(const VoxelSet& set,
   return std::make_shared<const esvo::EsvoOctree>(esvo::build_octree(set, bo));
 }
 
+std::shared_ptr<const dag::SparseVoxelDag> dag_of(const VoxelSet& set) {
+  return std::make_shared<const dag::SparseVoxelDag>(dag::build_dag(set));
+}
+
+// The ESVO octree and the DAG of the same voxels (both VoxelStructures).
+std::vector<std::unique_ptr<VoxelStructure>> structures_of(const VoxelSet& set,
+                                                           uint32_t max_block_slots = 1u << 20) {
+  std::vector<std::unique_ptr<VoxelStructure>> v;
+  v.push_back(std::make_unique<esvo::EsvoStructure>(octree_of(set, max_block_slots)));
+  v.push_back(std::make_unique<dag::DagStructure>(dag_of(set)));
+  return v;
+}
+
 // ---------------------------------------------------------------------------
 
 class SharedMeshBeam : public ::testing::TestWithParam<const char*> {};
@@ -113,7 +129,7 @@ TEST_P(SharedMeshBeam, HitsIdenticalWithAndWithoutBeam) {
   VoxelizeOptions vo;
   vo.mode = VoxelizationMode::Conservative;
   const VoxelSet voxels = voxelize(mesh, GridTransform::fit(mesh.bounds(), 1024), vo);
-  const esvo::EsvoStructure s(octree_of(voxels));
+  const auto structures = structures_of(voxels);
   const int W = 320, H = 240;
   // Framed view; a view from inside the bounds (eye in the root cube); a
   // grazing view from far away with a narrow field of view.
@@ -130,18 +146,21 @@ TEST_P(SharedMeshBeam, HitsIdenticalWithAndWithoutBeam) {
   far.target = b.center();
   far.fovy_degrees = 15.f;
   cams.push_back(far);
-  for (size_t ci = 0; ci < cams.size(); ++ci) {
-    for (int K : {4, 8}) {
-      for (float lod : {0.f, 1.f}) {
-        const BeamDiff d = compare_beam(s, cams[ci], W, H, K, lod);
-        std::printf("%s cam %zu K=%d lod=%g: %zu rays, %zu hits, iterations/ray %.2f -> %.2f\n",
-                    GetParam(), ci, K, double(lod), d.rays, d.hits,
-                    double(d.iterations_plain) / double(d.rays),
-                    double(d.iterations_beam) / double(d.rays));
-        EXPECT_EQ(d.mismatches, 0u)
-            << "cam " << ci << " K " << K << " lod " << lod << ": " << d.first;
-        EXPECT_GT(d.hits, 0u);
-        EXPECT_LE(d.iterations_beam, d.iterations_plain);
+  for (const auto& s : structures) {
+    for (size_t ci = 0; ci < cams.size(); ++ci) {
+      for (int K : {4, 8}) {
+        for (float lod : {0.f, 1.f}) {
+          const BeamDiff d = compare_beam(*s, cams[ci], W, H, K, lod);
+          std::printf(
+              "%s %s cam %zu K=%d lod=%g: %zu rays, %zu hits, iterations/ray %.2f -> %.2f\n",
+              GetParam(), s->name().c_str(), ci, K, double(lod), d.rays, d.hits,
+              double(d.iterations_plain) / double(d.rays),
+              double(d.iterations_beam) / double(d.rays));
+          EXPECT_EQ(d.mismatches, 0u)
+              << s->name() << " cam " << ci << " K " << K << " lod " << lod << ": " << d.first;
+          EXPECT_GT(d.hits, 0u);
+          EXPECT_LE(d.iterations_beam, d.iterations_plain);
+        }
       }
     }
   }
@@ -153,20 +172,23 @@ INSTANTIATE_TEST_SUITE_P(SharedMeshes, SharedMeshBeam, voxcast::testing::all_sha
 // The comparison above can fail: a start region that is too small (here the
 // far half of the true one) changes hits.
 TEST(Beam, ComparisonDetectsABadStartRegion) {
-  const esvo::EsvoStructure s(octree_of(testing::make_sphere_shell(6)));
-  Camera cam;
-  cam.eye = {0.5f, 0.6f, 2.5f};
-  cam.target = {0.5f, 0.5f, 0.5f};
-  const BeamDiff ok = compare_beam(s, cam, 256, 192, 8, 0.f);
-  EXPECT_EQ(ok.mismatches, 0u) << ok.first;
-  ASSERT_GT(ok.hits, 100u);
-  const BeamDiff bad = compare_beam(s, cam, 256, 192, 8, 0.f, [](BeamStart& b) {
-    if (!b.empty) b.region.hi.z = 0.5f * (b.region.lo.z + b.region.hi.z);  // drops the near side
-  });
-  EXPECT_GT(bad.mismatches, 0u);
-  // Beam works: fewer iterations, and the sphere's corners are empty blocks.
-  EXPECT_LT(ok.iterations_beam, ok.iterations_plain);
-  EXPECT_GT(ok.empty_blocks, 0u);
+  for (const auto& sp : structures_of(testing::make_sphere_shell(6))) {
+    SCOPED_TRACE(sp->name());
+    const VoxelStructure& s = *sp;
+    Camera cam;
+    cam.eye = {0.5f, 0.6f, 2.5f};
+    cam.target = {0.5f, 0.5f, 0.5f};
+    const BeamDiff ok = compare_beam(s, cam, 256, 192, 8, 0.f);
+    EXPECT_EQ(ok.mismatches, 0u) << ok.first;
+    ASSERT_GT(ok.hits, 100u);
+    const BeamDiff bad = compare_beam(s, cam, 256, 192, 8, 0.f, [](BeamStart& b) {
+      if (!b.empty) b.region.hi.z = 0.5f * (b.region.lo.z + b.region.hi.z);  // drops the near side
+    });
+    EXPECT_GT(bad.mismatches, 0u);
+    // Beam works: fewer iterations, and the sphere's corners are empty blocks.
+    EXPECT_LT(ok.iterations_beam, ok.iterations_plain);
+    EXPECT_GT(ok.empty_blocks, 0u);
+  }
 }
 
 TEST(Beam, RandomOctreesAndCameras) {
@@ -175,18 +197,24 @@ TEST(Beam, RandomOctreesAndCameras) {
   auto rnd = [&](float lo, float hi) { return lo + (hi - lo) * u01(rng); };
   // A solid ball (eye inside occupied space), random clouds at two depths,
   // a shell, and a multi-block layout with far pointers.
-  std::vector<std::shared_ptr<const esvo::EsvoOctree>> octrees;
-  octrees.push_back(octree_of(testing::make_dense_grid(5, [](uint32_t x, uint32_t y, uint32_t z) {
+  // Each set as an ESVO octree and as a DAG (structure index oi / 2).
+  std::vector<std::unique_ptr<VoxelStructure>> structures;
+  auto add = [&](const VoxelSet& set, uint32_t max_block_slots = 1u << 20) {
+    for (auto& s : structures_of(set, max_block_slots)) structures.push_back(std::move(s));
+  };
+  add(testing::make_dense_grid(5, [](uint32_t x, uint32_t y, uint32_t z) {
     const int dx = int(x) - 16, dy = int(y) - 16, dz = int(z) - 16;
     return dx * dx + dy * dy + dz * dz < 144;
-  })));
-  octrees.push_back(octree_of(testing::make_random_voxels(4, 300, 1)));
-  octrees.push_back(octree_of(testing::make_random_voxels(7, 3000, 2)));
-  octrees.push_back(octree_of(testing::make_sphere_shell(7)));
-  octrees.push_back(octree_of(testing::make_random_voxels(6, 5000, 3), 64));
+  }));
+  add(testing::make_random_voxels(4, 300, 1));
+  add(testing::make_random_voxels(7, 3000, 2));
+  add(testing::make_sphere_shell(7));
+  add(testing::make_random_voxels(6, 5000, 3), 64);
+  add(testing::make_random_voxels(2, 20, 4));  // the smallest DAG: the root is a 4^3 leaf mask
   size_t total_rays = 0, total_hits = 0, inside_eyes = 0;
-  for (size_t oi = 0; oi < octrees.size(); ++oi) {
-    const esvo::EsvoStructure s(octrees[oi]);
+  for (size_t si = 0; si < structures.size(); ++si) {
+    const VoxelStructure& s = *structures[si];
+    const size_t oi = si / 2;
     for (int trial = 0; trial < 48; ++trial) {
       Camera cam;
       if (trial % 3 == 0) {
@@ -209,7 +237,7 @@ TEST(Beam, RandomOctreesAndCameras) {
       const int W = 37 + trial, H = 29 + (trial * 3) % 11;  // blocks cut by the borders
       const float lod = (trial % 4 == 3) ? 2.f : 0.f;
       const BeamDiff d = compare_beam(s, cam, W, H, K, lod);
-      EXPECT_EQ(d.mismatches, 0u) << "octree " << oi << " trial " << trial << " eye "
+      EXPECT_EQ(d.mismatches, 0u) << s.name() << " " << oi << " trial " << trial << " eye "
                                   << cam.to_string() << ": " << d.first;
       total_rays += d.rays;
       total_hits += d.hits;
@@ -223,28 +251,32 @@ TEST(Beam, RandomOctreesAndCameras) {
 // The renderer with the beam produces the same images; the timed frame
 // includes the coarse pass; tiles that do not divide by K work.
 TEST(Beam, RenderImagesIdentical) {
-  const esvo::EsvoStructure s(octree_of(testing::make_sphere_shell(7)));
-  RenderOptions ro;
-  ro.width = 101;
-  ro.height = 67;
-  ro.camera.eye = {0.3f, 0.7f, 1.9f};
-  ro.camera.target = {0.5f, 0.5f, 0.5f};
-  ro.want_depth = ro.want_normal = true;
-  ro.lod_pixels = 0.f;
-  for (int tile : {16, 10}) {
-    ro.tile_size = tile;
-    ro.beam = 0;
-    const RenderResult a = render(s, ro);
-    for (int K : {4, 8}) {
-      ro.beam = K;
-      const RenderResult b = render(s, ro);
-      EXPECT_EQ(a.hits, b.hits);
-      EXPECT_GT(b.hits, 0u);
-      EXPECT_TRUE(a.color.pixels == b.color.pixels) << "tile " << tile << " K " << K;
-      EXPECT_TRUE(a.normal.pixels == b.normal.pixels);
-      ASSERT_EQ(a.depth.pixels.size(), b.depth.pixels.size());
-      EXPECT_EQ(
-          std::memcmp(a.depth.pixels.data(), b.depth.pixels.data(), a.depth.pixels.size() * 4), 0);
+  for (const auto& sp : structures_of(testing::make_sphere_shell(7))) {
+    SCOPED_TRACE(sp->name());
+    const VoxelStructure& s = *sp;
+    RenderOptions ro;
+    ro.width = 101;
+    ro.height = 67;
+    ro.camera.eye = {0.3f, 0.7f, 1.9f};
+    ro.camera.target = {0.5f, 0.5f, 0.5f};
+    ro.want_depth = ro.want_normal = true;
+    ro.lod_pixels = 0.f;
+    for (int tile : {16, 10}) {
+      ro.tile_size = tile;
+      ro.beam = 0;
+      const RenderResult a = render(s, ro);
+      for (int K : {4, 8}) {
+        ro.beam = K;
+        const RenderResult b = render(s, ro);
+        EXPECT_EQ(a.hits, b.hits);
+        EXPECT_GT(b.hits, 0u);
+        EXPECT_TRUE(a.color.pixels == b.color.pixels) << "tile " << tile << " K " << K;
+        EXPECT_TRUE(a.normal.pixels == b.normal.pixels);
+        ASSERT_EQ(a.depth.pixels.size(), b.depth.pixels.size());
+        EXPECT_EQ(
+            std::memcmp(a.depth.pixels.data(), b.depth.pixels.data(), a.depth.pixels.size() * 4),
+            0);
+      }
     }
   }
 }

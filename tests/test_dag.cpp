@@ -17,6 +17,7 @@
 
 #include "support/cli_runner.hpp"
 #include "support/esvo_testing.hpp"
+#include "support/shared_meshes.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_structure.hpp"
@@ -59,25 +60,34 @@ TEST(DagBuild, DecodesRandomSetsAndShells) {
   expect_decodes(testing::make_sphere_shell(9));
 }
 
-TEST(DagBuild, DecodesVoxelizedMeshes) {
-  const std::filesystem::path dir = VOXCAST_SHARED_DIR "/meshes";
-  int done = 0;
-  for (const char* name : {"stanford-bunny.obj", "spot.obj"}) {
-    if (!std::filesystem::exists(dir / name)) continue;
-    const Mesh mesh = load_mesh(dir / name);
-    for (uint32_t res : {256u, 1024u}) {
-      SCOPED_TRACE(std::string(name) + " " + std::to_string(res));
-      VoxelizeOptions vo;
-      vo.attributes = false;
-      const VoxelSet set = voxelize(mesh, GridTransform::fit(mesh.bounds(), res), vo);
-      const SparseVoxelDag d = dag::build_dag(set);
-      EXPECT_TRUE(d.decode_leaves() == set.codes);
-      EXPECT_LT(d.stats().dag_nodes, d.stats().svo_nodes / 2) << "a surface should share nodes";
-      ++done;
-    }
+// Every shared mesh at 1024^3 (and 256^3): the DAG decodes to exactly the
+// voxel set the octree is built from, with the octree's node count per level.
+class DagSharedMesh : public ::testing::TestWithParam<const char*> {};
+
+TEST_P(DagSharedMesh, DecodesToTheVoxelSetOfTheOctree) {
+  const std::filesystem::path path =
+      std::filesystem::path(VOXCAST_SHARED_DIR "/meshes") / GetParam();
+  if (!std::filesystem::exists(path)) GTEST_SKIP() << "shared mesh not found: " << path;
+  const Mesh mesh = load_mesh(path);
+  for (uint32_t res : {256u, 1024u}) {
+    SCOPED_TRACE(std::string(GetParam()) + " " + std::to_string(res));
+    VoxelizeOptions vo;
+    vo.attributes = false;
+    const VoxelSet set = voxelize(mesh, GridTransform::fit(mesh.bounds(), res), vo);
+    const SparseVoxelDag d = dag::build_dag(set);
+    EXPECT_EQ(d.leaf_voxels, set.size());
+    EXPECT_TRUE(d.decode_leaves() == set.codes);
+    const dag::DagStats st = d.stats();
+    EXPECT_LT(st.dag_nodes, st.svo_nodes / 2) << "a surface should share nodes";
+    const auto ol = esvo::build_octree(set).level_stats();
+    ASSERT_EQ(ol.size(), st.levels.size());
+    for (size_t l = 0; l < ol.size(); ++l)
+      EXPECT_EQ(st.levels[l].svo_nodes, ol[l].voxels) << "level " << l;
   }
-  if (done == 0) GTEST_SKIP() << "shared meshes not found in " << dir;
 }
+
+INSTANTIATE_TEST_SUITE_P(Shared, DagSharedMesh, testing::all_shared_meshes(),
+                         testing::mesh_test_name);
 
 TEST(DagBuild, RejectsUnsupportedInput) {
   EXPECT_THROW(dag::build_dag(testing::make_full_grid(1)), Error);  // 2^3 < one 4^3 leaf mask

@@ -11,8 +11,10 @@
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <random>
 #include <vector>
 
+#include "support/esvo_testing.hpp"
 #include "support/shared_meshes.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/effects.hpp"
@@ -199,6 +201,88 @@ TEST_P(EffectsOracle, OcclusionMatchesEmbree) {
 INSTANTIATE_TEST_SUITE_P(SharedMeshes, EffectsOracle,
                          ::testing::Values("stanford-bunny.obj", "spot.obj"),
                          voxcast::testing::mesh_test_name);
+
+// ---- The DAG's any-hit caster (4^3 blocks decided at once, early exit past
+// tmax) answers exactly what its closest-hit loop and the ESVO answer ----
+
+// Rays of every kind: random; short and long; from voxel corners, edge
+// midpoints and centers along small-integer directions (rays exactly through
+// grid edges and corners, where the loop's tie rules decide); axis-aligned;
+// from inside occupied space; with and without a LOD cone.
+TEST(Effects, DagAnyHitEqualsClosestHit) {
+  std::vector<VoxelSet> sets;
+  sets.push_back(testing::make_random_voxels(5, 4000, 7));
+  sets.push_back(testing::make_random_voxels(7, 60000, 8));
+  sets.push_back(testing::make_sphere_shell(6));
+  sets.push_back(testing::make_full_grid(3));
+  sets.push_back(
+      voxelize(load_mesh(kMeshes / "stanford-bunny.obj"),
+               GridTransform::fit(load_mesh(kMeshes / "stanford-bunny.obj").bounds(), 128), {}));
+  std::mt19937 rng(977);
+  std::uniform_real_distribution<float> u01(0.f, 1.f);
+  size_t rays = 0, hits = 0, grid_rays = 0, mismatches = 0;
+  for (size_t si = 0; si < sets.size(); ++si) {
+    const VoxelSet& set = sets[si];
+    const esvo::EsvoStructure e(std::make_shared<esvo::EsvoOctree>(esvo::build_octree(set)));
+    const dag::DagStructure d(std::make_shared<dag::SparseVoxelDag>(dag::build_dag(set)));
+    const GridTransform& g = set.grid;
+    const float side = float(g.side()), voxel = side / float(1u << g.levels);
+    auto check = [&](const Ray& ray, const LodFootprint& lod) {
+      SurfaceHit hit;
+      const bool closest = d.trace(ray, lod, &hit);
+      const bool any = d.occluded(ray, lod);
+      const bool esvo_any = e.occluded(ray, lod);
+      ++rays;
+      hits += any;
+      if (any != closest || any != esvo_any) {
+        if (mismatches++ < 5)
+          ADD_FAILURE() << "set " << si << " ray " << ray.origin.x << "," << ray.origin.y << ","
+                        << ray.origin.z << " dir " << ray.dir.x << "," << ray.dir.y << ","
+                        << ray.dir.z << " tmax " << ray.tmax << ": occluded " << any << ", trace "
+                        << closest << ", esvo " << esvo_any;
+      }
+    };
+    const int dirs[][3] = {{1, 1, 0}, {1, 1, 1}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {2, 1, 0},
+                           {1, 2, 2}, {3, 1, 1}, {1, 1, 2}, {0, 1, 1}, {1, 0, 1}, {2, 2, 1}};
+    for (int i = 0; i < 12000; ++i) {
+      Ray ray;
+      LodFootprint lod;
+      if (i % 2 == 0) {  // random origin around the cube, random direction
+        ray.origin = g.origin + Vec3{u01(rng), u01(rng), u01(rng)} * (1.4f * side) -
+                     Vec3{0.2f, 0.2f, 0.2f} * side;
+        ray.dir = normalize(Vec3{u01(rng) - 0.5f, u01(rng) - 0.5f, u01(rng) - 0.5f});
+      } else {  // from a grid point (corner / edge midpoint / center) along an integer direction
+        ++grid_rays;
+        const uint32_t n = 1u << g.levels;
+        auto coord = [&]() { return float(rng() % (n + 1)) + 0.5f * float(rng() % 2); };
+        ray.origin = g.origin + Vec3{coord(), coord(), coord()} * voxel;
+        const int* k = dirs[rng() % (sizeof dirs / sizeof dirs[0])];
+        Vec3 dir{float(k[0]), float(k[1]), float(k[2])};
+        for (int a = 0; a < 3; ++a)
+          if (rng() % 2) dir[a] = -dir[a];
+        ray.dir = normalize(dir);
+      }
+      switch (i % 4) {  // segment length: a few voxels (AO), longer, unbounded (shadow)
+        case 0:
+          ray.tmax = voxel * (0.5f + 6.f * u01(rng));
+          break;
+        case 1:
+          ray.tmax = side * u01(rng);
+          break;
+        default:
+          ray.tmax = INFINITY;
+          break;
+      }
+      if (i % 7 == 3) lod.size_per_t = 0.05f;  // AO cone: the fast path must stay off
+      check(ray, lod);
+    }
+  }
+  std::printf("%zu rays (%zu from grid points along integer directions), %zu hits\n", rays,
+              grid_rays, hits);
+  EXPECT_EQ(mismatches, 0u);
+  EXPECT_GT(hits, rays / 5);
+  EXPECT_LT(hits, rays * 4 / 5);
+}
 
 // ---- Renders: ESVO == DAG, thread-count independence ----
 

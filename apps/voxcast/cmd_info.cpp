@@ -71,6 +71,9 @@ int print_dag_info(const InfoArgs& args, const Container& container) {
                  {"voxel_index", st.index_bytes},
                  {"attributes", st.attribute_bytes}};
   j["bits_per_voxel"] = st.bits_per_voxel;
+  // 64-bit voxel indices (dag.hpp): words of the top levels whose nodes hold
+  // >= 2^32 voxels carry 64-bit prefix entries (0 below 2^32 voxels).
+  j["voxel_index_wide_words"] = d.wide_words;
   if (args.json) {
     std::printf("%s\n", j.dump(2).c_str());
     return 0;
@@ -113,6 +116,11 @@ int print_dag_info(const InfoArgs& args, const Container& container) {
     std::printf("attributes  %s colors + normals, %s voxel index (derived at load)\n",
                 format_bytes(double(st.attribute_bytes)).c_str(),
                 format_bytes(double(st.index_bytes)).c_str());
+  if (d.wide_words)
+    std::printf(
+        "voxel index 64-bit prefix entries for the %u words of the levels whose nodes "
+        "hold >= 2^32 voxels\n",
+        d.wide_words);
   return 0;
 }
 }  // namespace

@@ -32,8 +32,7 @@
 //
 // Enforced by validate(): the tiling and order above, masks non-empty,
 // reserved bits zero, pointers in bounds, pointing forward at the start of a
-// node of the next level, leaf voxel count < 2^32, attribute arrays sized to
-// the leaf count.
+// node of the next level, attribute arrays sized to the leaf count.
 //
 // Attributes (Hitchhiker's guide to voxels, "Dynamic voxel indexing",
 // prefix-sum-in-parent variant): leaf voxels are numbered 0..V-1 in Morton
@@ -44,12 +43,27 @@
 // leaf voxels in the node's children before slot i; header words hold the
 // node's own leaf count, leaf-mask words 0. A ray accumulates these while
 // descending, so the hit voxel's index costs no extra memory reads beyond
-// the pointer's neighbour. A coarser (LOD) hit voxel shows the attributes of
-// its first leaf voxel in Morton order. Without attributes, voxels are gray
-// (0.5, 0.5, 0.5) with the normal of the cube face the ray entered.
+// the pointer's neighbour. A coarser (LOD) hit cube holds the consecutive
+// ranks [first, first + count) (Morton order keeps a cube's voxels together);
+// it shows their mean linear color and normalized mean normal, like the
+// parent averages of an ESVO (esvo §5.4), via `attribute_prefix` below.
+// Without attributes, voxels are gray (0.5, 0.5, 0.5) with the normal of the
+// cube face the ray entered.
+//
+// 64-bit voxel indices: a scene may hold 2^32 or more leaf voxels (the bunny
+// at 65536^3 has ~1.5e10), but only nodes near the root can count that many.
+// Counts are monotone up the tree (a parent holds at least what any child
+// holds), so the levels with some node of >= 2^32 voxels are a prefix 0..T-1
+// of the levels. Their words [0, wide_words) take their prefix entries from
+// `voxel_prefix_wide` (u64); every other word from `voxel_prefix` (u32, whose
+// first wide_words entries are 0). Index memory is 4 bytes per DAG word plus
+// 8 per top-level word: T = 0 (no wide table) below 2^32 voxels; for the bunny
+// at 65536^3 (1.47e10 voxels, 3.9e8 words) only the root's 9 words are wide,
+// 1.47 GiB + 72 B of index where u64 entries throughout would take 2.9 GiB.
 //
 // The DAG occupies [1,2]^3 in octree space exactly as the ESVO does
 // (esvo §6.1); cube side 2^(s - esvo::kMaxScale) at scale s.
+#include <array>
 #include <cstdint>
 #include <memory>
 #include <vector>
@@ -79,9 +93,15 @@ struct DagStats {
   uint64_t svo_nodes = 0;        // levels 0..L-1
   uint64_t svo_bytes = 0;        // pointer-less SVO, 1 byte per node (Schnabel & Klein)
   uint64_t esvo_bytes = 0;       // 8 bytes per node (ESVO descriptor + contour word)
-  uint64_t index_bytes = 0;      // voxel_prefix (attribute indexing, derived at load)
+  uint64_t index_bytes = 0;      // voxel_prefix (+ _wide) + attribute_prefix (derived at load)
   uint64_t attribute_bytes = 0;  // colors + normals
   double bits_per_voxel = 0;     // dag_bytes * 8 / leaf_voxels
+};
+
+/// Leaf voxels [first, first + count) in Morton order.
+struct VoxelRange {
+  uint64_t first = 0;
+  uint64_t count = 0;
 };
 
 class SparseVoxelDag {
@@ -91,13 +111,20 @@ class SparseVoxelDag {
   std::vector<uint32_t> colors;   // per leaf voxel in Morton order, ABGR; empty = no attributes
   std::vector<uint32_t> normals;  // per leaf voxel, cube-face encoding; empty iff colors is
   // Derived by finalize():
-  std::vector<uint32_t> voxel_prefix;  // parallels words, see above
+  std::vector<uint32_t> voxel_prefix;       // parallels words, see above
+  std::vector<uint64_t> voxel_prefix_wide;  // words [0, wide_words): their u64 entries
+  uint32_t wide_words = 0;                  // = level_start[T], see above
   std::vector<uint32_t>
       level_start;  // word index of the first node of level l, l = 0..L-1 (L-1: end)
   uint64_t leaf_voxels = 0;
 
   int levels() const { return grid.levels; }
   bool has_attributes() const { return !colors.empty(); }
+  /// Prefix entry of word `w` (see above): the node's leaf count for a header
+  /// word, the leaf count of the children before the slot for a pointer word.
+  uint64_t prefix_entry(uint32_t w) const {
+    return w < wide_words ? voxel_prefix_wide[w] : voxel_prefix[w];
+  }
 
   /// Validates `words` and the attribute arrays (throws voxcast::Error naming
   /// the first problem) and computes the derived fields. After it succeeds,
@@ -107,8 +134,31 @@ class SparseVoxelDag {
   DagStats stats() const;
   /// The leaf voxels as sorted Morton codes (inverse of build_dag).
   std::vector<uint64_t> decode_leaves() const;
+  /// The leaf voxels (sorted global Morton codes) inside the cube at `level`
+  /// (0 = root .. L = one voxel) whose Morton code at that level is `cube`.
+  std::vector<uint64_t> decode_cube(int level, uint64_t cube) const;
+  /// Morton rank of `code`: the number of leaf voxels with a smaller code.
+  uint64_t voxel_rank(uint64_t code) const;
+  /// The leaf voxels [first, first + count) of the cube at `level` that holds
+  /// leaf voxel `voxel` (< leaf_voxels): one descent by rank, O(L).
+  VoxelRange cube_range(uint64_t voxel, int level) const;
   /// Linear color and unit normal of leaf voxel `index` (Morton rank).
   void voxel_attributes(uint64_t index, Color* color, Vec3* normal) const;
+  /// Mean linear color and normalized mean normal of the leaf voxels in
+  /// `range` (what a coarse LOD hit shows), from the blocked prefix sums below.
+  void mean_attributes(VoxelRange range, Color* color, Vec3* normal) const;
+
+  // Derived by finalize() when there are attributes (never stored in files):
+  // fixed-point sums (kAttributeSumOne = 1.0) of the linear r, g, b, a and the
+  // normal x, y, z of leaf voxels [0, 64 b), b = 0 .. leaf_voxels / 64. A
+  // range's mean is two table lookups plus at most 2 x 32 voxels summed
+  // directly at its ends (from the nearer block boundary; 2 x 16 on average,
+  // ranges of <= 64 voxels summed directly); integer sums make it exact and
+  // independent of the summation order (and so of the thread count). 56 B per
+  // 64 voxels = 0.875 B per leaf voxel on top of the 8 B of colors + normals.
+  static constexpr int kAttributeBlock = 64;
+  static constexpr double kAttributeSumOne = 16777216.0;  // 2^24
+  std::vector<std::array<int64_t, 7>> attribute_prefix;
 };
 
 /// Builds the DAG of `voxels` (L >= 2; throws voxcast::Error otherwise):
@@ -138,7 +188,7 @@ struct OutOfCoreReport {
 /// tables of unique nodes, then builds the levels above the cells. The result
 /// is byte-identical to build_dag(voxelize(mesh, grid, {mode, attributes})).
 /// Throws voxcast::Error when even the smallest cells cannot fit the budget,
-/// when the DAG outgrows it, or past 2^32 - 1 voxels.
+/// when the DAG outgrows it, or past 2^32 DAG words (pointers are 32-bit).
 SparseVoxelDag build_dag_out_of_core(const Mesh& mesh, const GridTransform& grid,
                                      const OutOfCoreOptions& options,
                                      OutOfCoreReport* report = nullptr);
@@ -150,7 +200,7 @@ Aabb occupied_bounds(const SparseVoxelDag& dag, int max_level = 7);
 struct CastResult {
   float t;               // entry t of the hit cube (input ray parameterization)
   Vec3 pos;              // min corner of the hit cube, octree space
-  uint32_t voxel_index;  // Morton rank of the hit cube's first leaf voxel
+  uint64_t voxel_index;  // Morton rank of the hit cube's first leaf voxel
   int scale;             // hit cube side = 2^(scale - esvo::kMaxScale)
   int face;              // entered cube face: axis*2 + (outward normal negative ? 1 : 0)
   bool hit;
@@ -174,6 +224,14 @@ class DagStructure final : public VoxelStructure {
   /// voxel_ref = Morton rank of the hit voxel (its first leaf for LOD hits),
   /// child = entered face (see CastResult::face).
   bool trace(const Ray& ray, const LodFootprint& lod, SurfaceHit* hit) const override;
+  /// trace() started at the beam's region (esvo §6.2; bit-identical hits), with counters.
+  bool trace_hinted(const Ray& ray, const LodFootprint& lod, const TraceHints& hints,
+                    SurfaceHit* hit) const override;
+  /// Coarse pass of the beam optimization (src/dag/beam.cpp, core/beam_frustum.hpp).
+  void beam_start(const BeamFrustum& beam, BeamStart* start, RayCounters* counters) const override;
+  /// attributes() + 8 bytes (color and normal words) when the DAG has attributes.
+  void attributes_counted(const SurfaceHit& hit, Color* color, Vec3* normal,
+                          RayCounters* counters) const override;
   /// Any hit within [0, ray.tmax] (stops at the first leaf; for shadow rays).
   bool occluded(const Ray& ray, const LodFootprint& lod = {}) const override;
   void attributes(const SurfaceHit& hit, Color* color, Vec3* normal) const override;

@@ -70,7 +70,6 @@ SparseVoxelDag build_dag(const VoxelSet& voxels) {
     throw Error("DAG build: the grid must have 2.." + std::to_string(kMaxGridLevels) +
                 " levels (at least 4^3 voxels), not " + std::to_string(L));
   if (voxels.codes.empty()) throw Error("DAG build: no voxels");
-  if (voxels.codes.size() > 0xFFFFFFFFull) throw Error("DAG build: more than 2^32 - 1 voxels");
   const bool attrs = !voxels.colors.empty();
   if (attrs && (voxels.colors.size() != voxels.size() || voxels.normals.size() != voxels.size()))
     throw Error("DAG build: attribute arrays do not match the voxel count");
@@ -91,6 +90,9 @@ SparseVoxelDag build_dag(const VoxelSet& voxels) {
       masks.back() |= 1ull << (code & 63);
     }
   }
+  // Node positions and ids are 32-bit (merge_identical); the voxel count
+  // itself is not limited (64-bit voxel index, dag.hpp).
+  if (keys.size() > 0xFFFFFFFFull) throw Error("DAG build: more than 2^32 - 1 leaf-mask nodes");
 
   // unique_leaf: merged leaf masks; unique_inner[l]: merged interior nodes.
   std::vector<uint32_t> ids;

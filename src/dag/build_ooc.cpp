@@ -31,7 +31,6 @@
 #include <chrono>
 #include <cmath>
 #include <string>
-#include <unordered_map>
 
 #include "voxcast/dag.hpp"
 #include "voxcast/error.hpp"
@@ -146,46 +145,7 @@ void reduce_level(LevelTable& table, const std::vector<uint64_t>& keys,
   if (!parent_keys->empty()) flush();
 }
 
-struct Bin {
-  uint64_t cell;  // Morton code of the cell at the cell level
-  uint32_t tri;
-  bool operator<(const Bin& o) const { return cell != o.cell ? cell < o.cell : tri < o.tri; }
-};
-
-// Estimated (voxel, triangle) pairs of one triangle (as the CLI's in-core
-// estimate: area * L1 norm of the unit normal + an edge band), in voxel units.
-double triangle_pairs(const double v[3][3]) {
-  double e1[3], e2[3];
-  for (int a = 0; a < 3; ++a) e1[a] = v[1][a] - v[0][a], e2[a] = v[2][a] - v[0][a];
-  const double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
-                       e1[0] * e2[1] - e1[1] * e2[0]};
-  const double len = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
-  const double l1 = len > 0 ? (std::fabs(n[0]) + std::fabs(n[1]) + std::fabs(n[2])) / len : 1.0;
-  double perim = 0;
-  for (int k = 0; k < 3; ++k) {
-    const double* p = v[k];
-    const double* q = v[(k + 1) % 3];
-    perim += std::sqrt((q[0] - p[0]) * (q[0] - p[0]) + (q[1] - p[1]) * (q[1] - p[1]) +
-                       (q[2] - p[2]) * (q[2] - p[2]));
-  }
-  return 0.5 * len * l1 + 2.0 * perim + 4.0;
-}
-
-struct CellPlan {
-  int bits = 0;               // cell side = 2^bits voxels
-  uint64_t bins = 0;          // (cell, triangle) entries
-  double max_cell_pairs = 0;  // estimated pairs of the fullest cell
-  uint64_t fixed_bytes = 0;   // mesh + vertices + bins
-  uint64_t cell_bytes = 0;    // working set of the fullest cell
-};
-
-uint64_t mesh_bytes(const Mesh& m) {
-  uint64_t b = m.positions.size() * sizeof(Vec3) + m.normals.size() * sizeof(Vec3) +
-               m.colors.size() * sizeof(Color) + m.uvs.size() * sizeof(Vec2) +
-               m.indices.size() * 4 + m.triangle_material.size() * 4;
-  for (const Texture& t : m.textures) b += t.rgba.size();
-  return b;
-}
+using detail::CellPlan;
 
 // Bytes one cell holds per estimated pair: geometry = the per-block code
 // vectors and their concatenation (8 + 8) plus the leaf keys/masks/ids of the
@@ -193,34 +153,6 @@ uint64_t mesh_bytes(const Mesh& m) {
 // about half a voxel per pair) and the pair index.
 double bytes_per_pair(bool attributes) {
   return attributes ? 32.0 + 24.0 + 12.0 : 28.0;
-}
-
-CellPlan plan_cells(const Mesh& mesh, const std::vector<std::array<double, 3>>& gv,
-                    const GridTransform& grid, int bits, bool attributes) {
-  CellPlan p;
-  p.bits = bits;
-  const double side = std::ldexp(1.0, bits);
-  const double cap = 3.0 * side * side + 12.0 * side;  // a plane through the cube + edge band
-  std::unordered_map<uint64_t, double> per_cell;
-  for (size_t t = 0; t < mesh.triangle_count(); ++t) {
-    uint32_t lo[3], hi[3];
-    if (!detail::triangle_voxel_range(gv, mesh, t, grid.resolution, lo, hi)) continue;
-    double v[3][3];
-    for (int k = 0; k < 3; ++k)
-      for (int a = 0; a < 3; ++a) v[k][a] = gv[mesh.indices[3 * t + size_t(k)]][size_t(a)];
-    const double share = std::min(triangle_pairs(v), cap);
-    for (uint32_t z = lo[2] >> bits; z <= hi[2] >> bits; ++z)
-      for (uint32_t y = lo[1] >> bits; y <= hi[1] >> bits; ++y)
-        for (uint32_t x = lo[0] >> bits; x <= hi[0] >> bits; ++x) {
-          ++p.bins;
-          per_cell[morton_encode(x, y, z)] += share;
-        }
-  }
-  for (const auto& [cell, pairs] : per_cell) p.max_cell_pairs = std::max(p.max_cell_pairs, pairs);
-  p.fixed_bytes =
-      mesh_bytes(mesh) + gv.size() * sizeof(gv[0]) + p.bins * sizeof(Bin) + per_cell.size() * 64;
-  p.cell_bytes = uint64_t(p.max_cell_pairs * bytes_per_pair(attributes));
-  return p;
 }
 
 }  // namespace
@@ -253,11 +185,12 @@ SparseVoxelDag build_dag_out_of_core(const Mesh& mesh, const GridTransform& grid
         options.cell_size > grid.resolution)
       throw Error(fmt::format("cell size {} is not a power of two between 4 and the resolution {}",
                               options.cell_size, grid.resolution));
-    plan = plan_cells(mesh, gv, grid, std::countr_zero(options.cell_size), options.attributes);
+    plan = detail::plan_cells(mesh, gv, grid, std::countr_zero(options.cell_size),
+                              bytes_per_pair(options.attributes));
   } else {
     const int min_bits = std::min(L, kMinCellBits);
     for (int bits = L; bits >= min_bits; --bits) {
-      plan = plan_cells(mesh, gv, grid, bits, options.attributes);
+      plan = detail::plan_cells(mesh, gv, grid, bits, bytes_per_pair(options.attributes));
       if (plan.fixed_bytes < budget && plan.cell_bytes <= (budget - plan.fixed_bytes) / 2) break;
       if (bits == min_bits)
         throw Error(fmt::format(
@@ -274,17 +207,7 @@ SparseVoxelDag build_dag_out_of_core(const Mesh& mesh, const GridTransform& grid
   // Bin every triangle into the cells its voxel bounding box overlaps, then
   // sort by (cell Morton code, triangle): cells in Morton order, each cell's
   // triangles ascending (voxelize_cell sums attributes in that order).
-  std::vector<Bin> bins;
-  bins.reserve(size_t(plan.bins));
-  for (size_t t = 0; t < mesh.triangle_count(); ++t) {
-    uint32_t lo[3], hi[3];
-    if (!detail::triangle_voxel_range(gv, mesh, t, grid.resolution, lo, hi)) continue;
-    for (uint32_t z = lo[2] >> c; z <= hi[2] >> c; ++z)
-      for (uint32_t y = lo[1] >> c; y <= hi[1] >> c; ++y)
-        for (uint32_t x = lo[0] >> c; x <= hi[0] >> c; ++x)
-          bins.push_back({morton_encode(x, y, z), uint32_t(t)});
-  }
-  tbb::parallel_sort(bins.begin(), bins.end());
+  std::vector<detail::CellBin> bins = detail::bin_triangles(mesh, gv, grid, c);
 
   std::vector<LevelTable> tables(size_t(L - 1));  // levels 0 .. L-2
   SparseVoxelDag dag;
@@ -319,10 +242,6 @@ SparseVoxelDag build_dag_out_of_core(const Mesh& mesh, const GridTransform& grid
       ++cells;
       max_cell_voxels = std::max<uint64_t>(max_cell_voxels, vs.codes.size());
       voxel_total += vs.codes.size();
-      if (voxel_total > 0xFFFFFFFFull)
-        throw Error(
-            "DAG build: more than 2^32 - 1 voxels (the voxel index is 32-bit); lower "
-            "--resolution");
       if (options.attributes) {
         const size_t base = dag.colors.size();
         dag.colors.resize(base + vs.size());

@@ -3,6 +3,10 @@
 // (svdag Table 2) and decoding. Layout in dag.hpp.
 #include "voxcast/dag.hpp"
 
+#include <immintrin.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
 #include <bit>
 #include <cmath>
 #include <string>
@@ -18,6 +22,60 @@ namespace {
 
 inline uint64_t leaf_mask(const uint32_t* w) {
   return uint64_t(w[0]) | uint64_t(w[1]) << 32;
+}
+
+using AttributeSum = std::array<int64_t, 7>;
+
+// Fixed point, 2^24 = 1.0, rounded half away from zero (no libm call: this
+// runs for up to 126 voxels per LOD hit).
+inline int64_t to_fixed(float v) {
+  const double x = double(v) * SparseVoxelDag::kAttributeSumOne;
+  return int64_t(x + (x >= 0 ? 0.5 : -0.5));
+}
+
+// to_fixed of the decoded channels of a color byte: index c = linear value of
+// sRGB byte c (esvo::decode_color_abgr), 256 + c = alpha byte c.
+const std::array<int64_t, 512>& fixed_channel_table() {
+  static const std::array<int64_t, 512> table = [] {
+    std::array<int64_t, 512> t{};
+    for (uint32_t c = 0; c < 256; ++c) {
+      t[c] = to_fixed(esvo::decode_color_abgr(c).r);
+      t[256 + c] = to_fixed(esvo::decode_color_abgr(c << 24).a);
+    }
+    return t;
+  }();
+  return table;
+}
+
+// Fixed-point sums of linear r, g, b, a and normal x, y, z of voxels
+// [first, first + count): the per-voxel rounding is the only error, the sums
+// are exact (|value| <= 2^24, so up to 2^39 voxels fit in 63 bits).
+AttributeSum attribute_sum(const uint32_t* colors, const uint32_t* normals, size_t first,
+                           size_t count) {
+  const std::array<int64_t, 512>& ch = fixed_channel_table();
+  AttributeSum sum{};
+  for (size_t i = first; i < first + count; ++i) {
+    const uint32_t abgr = colors[i];
+    sum[0] += ch[abgr & 0xFF];
+    sum[1] += ch[(abgr >> 8) & 0xFF];
+    sum[2] += ch[(abgr >> 16) & 0xFF];
+    sum[3] += ch[256 + (abgr >> 24)];
+    // esvo::decode_normal_cube inlined (esvo.hpp cube-face encoding: face in
+    // bits 31..29, 14-bit u in 28..15, 15-bit v in 14..0): this loop is the
+    // per-voxel cost of LOD shading, and the call dominated it.
+    const uint32_t code = normals[i];
+    uint32_t face = code >> 29;
+    if (face > 5) face = 4;
+    const uint32_t axis = face >> 1;
+    const float u = float((code >> 15) & 0x3FFFu) * (2.f / 16383.f) - 1.f;
+    const float v = float(code & 0x7FFFu) * (2.f / 32767.f) - 1.f;
+    const float len = std::sqrt(1.f + u * u + v * v);
+    static constexpr uint32_t kNext[3] = {1, 2, 0};
+    sum[4 + axis] += to_fixed(((face & 1) ? -1.f : 1.f) / len);
+    sum[4 + kNext[axis]] += to_fixed(u / len);
+    sum[4 + kNext[kNext[axis]]] += to_fixed(v / len);
+  }
+  return sum;
 }
 
 }  // namespace
@@ -91,29 +149,73 @@ void SparseVoxelDag::finalize() {
 
   // Leaf voxel counts bottom-up (children live in later levels): header word
   // = the node's count, pointer word j = count of the children before it.
+  // Levels whose nodes all count < 2^32 keep 32-bit entries; the first level
+  // (from the bottom) with a larger node and every level above it go to the
+  // 64-bit table (dag.hpp "64-bit voxel indices"). Counts only grow upward,
+  // so those levels are a prefix 0..T-1 and the words a prefix [0, wide_words).
   voxel_prefix.assign(n, 0);
+  voxel_prefix_wide.clear();
+  wide_words = 0;
+  auto count_of = [&](uint32_t p, bool is_leaf) -> uint64_t {
+    return is_leaf ? uint64_t(std::popcount(leaf_mask(&words[p]))) : prefix_entry(p);
+  };
   for (int l = L - 3; l >= 0; --l) {
     const bool children_are_leaves = l + 1 == L - 2;
-    for (size_t w = level_start[size_t(l)]; w < level_start[size_t(l + 1)];) {
+    const size_t begin = level_start[size_t(l)], end = level_start[size_t(l + 1)];
+    if (wide_words == 0) {
+      // Does level l need 64-bit entries? Its children's counts are known.
+      bool wide = false;
+      for (size_t w = begin; w < end && !wide;) {
+        const int k = std::popcount(words[w] & 0xFFu);
+        uint64_t sum = 0;
+        for (int j = 0; j < k; ++j) sum += count_of(words[w + 1 + size_t(j)], children_are_leaves);
+        wide = sum > 0xFFFFFFFFull;
+        w += 1 + size_t(k);
+      }
+      if (wide) {
+        wide_words = uint32_t(end);
+        voxel_prefix_wide.assign(end, 0);
+      }
+    }
+    for (size_t w = begin; w < end;) {
       const int k = std::popcount(words[w] & 0xFFu);
       uint64_t sum = 0;
+      auto store = [&](size_t at, uint64_t v) {
+        if (at < wide_words)
+          voxel_prefix_wide[at] = v;
+        else
+          voxel_prefix[at] = uint32_t(v);
+      };
       for (int j = 0; j < k; ++j) {
-        const uint32_t p = words[w + 1 + size_t(j)];
-        voxel_prefix[w + 1 + size_t(j)] = uint32_t(sum);
-        sum +=
-            children_are_leaves ? uint64_t(std::popcount(leaf_mask(&words[p]))) : voxel_prefix[p];
+        store(w + 1 + size_t(j), sum);
+        sum += count_of(words[w + 1 + size_t(j)], children_are_leaves);
       }
-      if (sum > 0xFFFFFFFFull) corrupt("more than 2^32 - 1 leaf voxels");
-      voxel_prefix[w] = uint32_t(sum);
+      store(w, sum);
       w += 1 + size_t(k);
     }
   }
-  leaf_voxels = L == 2 ? uint64_t(std::popcount(leaf_mask(&words[0]))) : voxel_prefix[0];
+  leaf_voxels = L == 2 ? uint64_t(std::popcount(leaf_mask(&words[0]))) : prefix_entry(0);
 
   if (colors.size() != normals.size()) corrupt("color and normal arrays differ in size");
   if (!colors.empty() && colors.size() != leaf_voxels)
     corrupt("attribute arrays hold " + std::to_string(colors.size()) + " voxels, the DAG " +
             std::to_string(leaf_voxels));
+
+  // Blocked prefix sums of the attributes for LOD means (dag.hpp): each
+  // block summed on its own (in parallel), then one sequential scan; integer
+  // sums, so the table is the same for every thread count.
+  attribute_prefix.clear();
+  if (!colors.empty()) {
+    const size_t blocks = colors.size() / kAttributeBlock;
+    attribute_prefix.assign(blocks + 1, {});
+    tbb::parallel_for(size_t(0), blocks, [&](size_t b) {
+      attribute_prefix[b + 1] =
+          attribute_sum(colors.data(), normals.data(), b * kAttributeBlock, kAttributeBlock);
+    });
+    for (size_t b = 1; b <= blocks; ++b)
+      for (int k = 0; k < 7; ++k)
+        attribute_prefix[b][size_t(k)] += attribute_prefix[b - 1][size_t(k)];
+  }
 }
 
 DagStats SparseVoxelDag::stats() const {
@@ -151,7 +253,8 @@ DagStats SparseVoxelDag::stats() const {
   for (const LevelStats& ls : st.levels) st.dag_nodes += ls.dag_nodes;
   st.svo_bytes = st.svo_nodes;
   st.esvo_bytes = st.svo_nodes * 8;
-  st.index_bytes = uint64_t(voxel_prefix.size()) * 4;
+  st.index_bytes = uint64_t(voxel_prefix.size()) * 4 + uint64_t(voxel_prefix_wide.size()) * 8 +
+                   uint64_t(attribute_prefix.size()) * sizeof(attribute_prefix[0]);
   st.attribute_bytes = uint64_t(colors.size() + normals.size()) * 4;
   st.bits_per_voxel = st.leaf_voxels ? double(st.dag_bytes) * 8.0 / double(st.leaf_voxels) : 0.0;
   return st;
@@ -189,6 +292,150 @@ void SparseVoxelDag::voxel_attributes(uint64_t index, Color* color, Vec3* normal
   }
   *color = esvo::decode_color_abgr(colors[size_t(index)]);
   *normal = esvo::decode_normal_cube(normals[size_t(index)]);
+}
+
+std::vector<uint64_t> SparseVoxelDag::decode_cube(int level, uint64_t cube) const {
+  const int L = grid.levels;
+  if (level < 0 || level > L)
+    throw Error("decode_cube: level " + std::to_string(level) + " is outside 0.." +
+                std::to_string(L));
+  if (level < 21 && (cube >> (3 * level)) != 0)
+    throw Error("decode_cube: cube code " + std::to_string(cube) + " is outside level " +
+                std::to_string(level));
+  std::vector<uint64_t> out;
+  // Down the cube's path to the node at min(level, L-2).
+  const int node_level = std::min(level, L - 2);
+  uint32_t w = 0;
+  for (int k = 0; k < node_level; ++k) {
+    const uint32_t c = uint32_t(cube >> (3 * (level - 1 - k))) & 7u;
+    const uint32_t mask = words[w] & 0xFFu;
+    if (!((mask >> c) & 1u)) return out;
+    w = words[w + 1 + size_t(std::popcount(mask & ((1u << c) - 1)))];
+  }
+  if (level >= L - 2) {
+    // Inside one 4^3 mask: the cube's voxels are a run of 8^(L-level) bits.
+    const int bits = 3 * (L - level);
+    const uint64_t first = cube << bits;
+    uint64_t m = leaf_mask(&words[w]) >> (first & 63);
+    if (bits < 6) m &= (1ull << (1 << bits)) - 1;
+    while (m) {
+      out.push_back(first + uint64_t(std::countr_zero(m)));
+      m &= m - 1;
+    }
+    return out;
+  }
+  auto visit = [&](auto&& self, uint32_t node, int k, uint64_t code) -> void {
+    if (k == L - 2) {
+      uint64_t m = leaf_mask(&words[node]);
+      while (m) {
+        out.push_back(code << 6 | uint64_t(std::countr_zero(m)));
+        m &= m - 1;
+      }
+      return;
+    }
+    const uint32_t mask = words[node] & 0xFFu;
+    int j = 0;
+    for (int c = 0; c < 8; ++c)
+      if (mask & (1u << c))
+        self(self, words[node + 1 + size_t(j++)], k + 1, code << 3 | uint64_t(c));
+  };
+  visit(visit, w, level, cube);
+  return out;
+}
+
+uint64_t SparseVoxelDag::voxel_rank(uint64_t code) const {
+  const int L = grid.levels;
+  if (L < 21 && (code >> (3 * L)) != 0) return leaf_voxels;  // past the grid
+  uint64_t rank = 0;
+  uint32_t w = 0;
+  for (int k = 0; k < L - 2; ++k) {
+    const uint32_t c = uint32_t(code >> (3 * (L - 1 - k))) & 7u;
+    const uint32_t mask = words[w] & 0xFFu;
+    const int k_children = std::popcount(mask);
+    const int j = std::popcount(mask & ((1u << c) - 1));
+    // Voxels in the children before slot c: the prefix entry of the next
+    // present child's pointer, or the node's own count if there is none.
+    rank += j < k_children ? prefix_entry(w + 1 + uint32_t(j)) : prefix_entry(w);
+    if (!((mask >> c) & 1u)) return rank;
+    w = words[w + 1 + size_t(j)];
+  }
+  const uint64_t below = (1ull << (code & 63)) - 1;
+  return rank + uint64_t(std::popcount(leaf_mask(&words[w]) & below));
+}
+
+VoxelRange SparseVoxelDag::cube_range(uint64_t voxel, int level) const {
+  const int L = grid.levels;
+  if (level < 0 || level > L)
+    throw Error("cube_range: level " + std::to_string(level) + " is outside 0.." +
+                std::to_string(L));
+  if (voxel >= leaf_voxels)
+    throw Error("cube_range: voxel " + std::to_string(voxel) + " is past the " +
+                std::to_string(leaf_voxels) + " leaf voxels");
+  if (level == 0) return {0, leaf_voxels};
+  // Descend to the child holding rank `voxel`: the last child whose prefix
+  // entry (voxels before it) is <= the remaining rank.
+  uint64_t first = 0, rem = voxel;
+  uint32_t w = 0;
+  const int node_level = std::min(level, L - 2);
+  for (int k = 0; k < node_level; ++k) {
+    int j = std::popcount(words[w] & 0xFFu) - 1;
+    while (j > 0 && prefix_entry(w + 1 + uint32_t(j)) > rem) --j;
+    const uint64_t before = prefix_entry(w + 1 + uint32_t(j));
+    first += before;
+    rem -= before;
+    w = words[w + 1 + size_t(j)];
+  }
+  const uint64_t m = leaf_mask(&words[w]);
+  if (level == node_level && level < L - 2) return {first, prefix_entry(w)};
+  if (level == L - 2) return {first, uint64_t(std::popcount(m))};
+  // Inside the 4^3 mask: bit of the rem-th voxel, then its run of 8^(L-level) bits.
+  const uint64_t bit = uint64_t(std::countr_zero(_pdep_u64(1ull << rem, m)));
+  const int bits = 3 * (L - level);  // 3 (a 2^3 sub-block) or 0 (one voxel)
+  const uint64_t lo = bit >> bits << bits;
+  const uint64_t run = ((1ull << (1 << bits)) - 1) << lo;
+  return {first + uint64_t(std::popcount(m & ((1ull << lo) - 1))),
+          uint64_t(std::popcount(m & run))};
+}
+
+void SparseVoxelDag::mean_attributes(VoxelRange range, Color* color, Vec3* normal) const {
+  if (colors.empty() || range.count == 0 || range.first >= colors.size() ||
+      range.count > colors.size() - range.first) {
+    voxel_attributes(range.first, color, normal);  // gray / out of range: as one voxel
+    return;
+  }
+  const size_t a = size_t(range.first), e = size_t(range.first + range.count);
+  const size_t B = kAttributeBlock, V = colors.size();
+  AttributeSum sum;
+  if (e - a <= B) {
+    sum = attribute_sum(colors.data(), normals.data(), a, e - a);
+  } else {
+    // Sum of voxels [0, x) from the nearer block boundary: at most B/2
+    // voxels summed directly per end (32 on average when B = 64 -> 16).
+    auto prefix_at = [&](size_t x) {
+      const size_t lo = x / B * B, hi = lo + B;
+      if (x - lo <= B / 2 || hi > V) {
+        AttributeSum p = attribute_sum(colors.data(), normals.data(), lo, x - lo);
+        for (int k = 0; k < 7; ++k) p[size_t(k)] += attribute_prefix[lo / B][size_t(k)];
+        return p;
+      }
+      AttributeSum p = attribute_sum(colors.data(), normals.data(), x, hi - x);
+      for (int k = 0; k < 7; ++k) p[size_t(k)] = attribute_prefix[hi / B][size_t(k)] - p[size_t(k)];
+      return p;
+    };
+    const AttributeSum pa = prefix_at(a), pe = prefix_at(e);
+    for (int k = 0; k < 7; ++k) sum[size_t(k)] = pe[size_t(k)] - pa[size_t(k)];
+  }
+  const double scale = 1.0 / (kAttributeSumOne * double(range.count));
+  *color = {float(double(sum[0]) * scale), float(double(sum[1]) * scale),
+            float(double(sum[2]) * scale), float(double(sum[3]) * scale)};
+  const Vec3 n{float(double(sum[4]) * scale), float(double(sum[5]) * scale),
+               float(double(sum[6]) * scale)};
+  const float len = length(n);
+  // Opposed normals can cancel; then the first voxel's normal stands in.
+  if (len > 1e-6f)
+    *normal = n * (1.0f / len);
+  else
+    *normal = esvo::decode_normal_cube(normals[a]);
 }
 
 Aabb occupied_bounds(const SparseVoxelDag& dag, int max_level) {

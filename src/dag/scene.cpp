@@ -89,7 +89,9 @@ dag::SparseVoxelDag dag_scene_from_container(const Container& c, SceneInfo* info
     if (!a.is_boolean()) bad("'attributes' is not a boolean");
     attributes = a.get<bool>();
     info_from_json(meta, &si);
-    si.leaf_voxels = get_uint(meta, "leaf_voxels", 1, 0xFFFFFFFFull);
+    // 64-bit voxel indices (dag.hpp): at most every voxel of a 2^20 grid.
+    // Files from before 64-bit indices (< 2^32 voxels) load unchanged.
+    si.leaf_voxels = get_uint(meta, "leaf_voxels", 1, uint64_t(1) << (3 * kMaxGridLevels));
   } catch (const nlohmann::json::exception& e) {
     throw Error(std::string("corrupt scene: META section: ") + e.what());
   }

@@ -15,7 +15,10 @@
 //    current parent. Descending adds the parent's prefix sum for the child
 //    (stored next to the pointer in voxel_prefix) or a popcount inside a mask;
 //  * no contours (svdag §4: "we do not need to perform any intersection tests
-//    with contours");
+//    with contours"), which lets the loop stop as soon as t_min passes the
+//    span's end (see ADVANCE) instead of stepping out through every ancestor;
+//  * the beam optimization (esvo §6.2) is the ESVO's: the same start region
+//    clipping here, the coarse pass in src/dag/beam.cpp;
 //  * the any-hit variant (shadow rays) skips the index bookkeeping; the first
 //    leaf found is returned immediately, as in the closest-hit variant (the
 //    loop visits voxels front to back, so it is also the closest one).
@@ -24,6 +27,7 @@
 #include <bit>
 #include <cmath>
 #include <cstdint>
+#include <type_traits>
 
 #include "core/octree_ray.hpp"
 #include "voxcast/dag.hpp"
@@ -48,12 +52,35 @@ inline uint32_t byte_mask(uint64_t m) {
   return uint32_t(_pext_u64(m, 0x0101010101010101ull));
 }
 
-template <bool kAnyHit>
+// Table 6 counters (esvo §8.5) for the counting instantiation only.
+struct NoCounters {};
+template <bool kCount>
+using LoopCounters = std::conditional_t<kCount, RayCounters, NoCounters>;
+
+// `region` (beam optimization, esvo §6.2): clip the active span to the box
+// exactly as esvo's cast_ray_impl does, so hits stay bit-identical (proof at
+// the top of src/esvo/traverse.cpp). Counters: descriptor_fetches = node
+// headers and 64-bit leaf masks, far_reads = child pointer words.
+template <bool kAnyHit, bool kCount = false>
 CastResult cast(const SparseVoxelDag& dag, Vec3 p, Vec3 d, float tmax, float size_coef,
-                float size_bias) {
+                float size_bias, const Aabb* region = nullptr, RayCounters* counters = nullptr) {
   constexpr int s_max = kMaxScale;
+  [[maybe_unused]] LoopCounters<kCount> cnt{};
+  struct Flush {  // adds the loop's counts to *counters on every exit
+    [[maybe_unused]] LoopCounters<kCount>* from;
+    RayCounters* to;
+    ~Flush() {
+      if constexpr (kCount) {
+        if (to) *to += *from;
+      }
+    }
+  } flush{&cnt, counters};
   const uint32_t* const words = dag.words.data();
   const uint32_t* const prefix = dag.voxel_prefix.data();
+  // Words [0, wide_words) (the top levels, nodes of >= 2^32 voxels) take
+  // 64-bit prefix entries (dag.hpp "64-bit voxel indices").
+  const uint64_t* const prefix_wide = dag.voxel_prefix_wide.data();
+  const uint32_t wide_words = dag.wide_words;
   const int leaf_scale = s_max - dag.levels();  // scale of the leaf voxels
   const int mask_scale = leaf_scale + 1;        // children of a leaf-mask node
 
@@ -71,7 +98,7 @@ CastResult cast(const SparseVoxelDag& dag, Vec3 p, Vec3 d, float tmax, float siz
   // the Morton rank of the parent's first leaf voxel.
   uint32_t stack_parent[s_max + 1];
   float stack_tmax[s_max + 1];
-  uint32_t stack_base[s_max + 1];
+  uint64_t stack_base[s_max + 1];
 
   d = ::voxcast::detail::avoid_tiny_components(d);
   const ::voxcast::detail::MirroredRay ray(p, d);
@@ -84,6 +111,19 @@ CastResult cast(const SparseVoxelDag& dag, Vec3 p, Vec3 d, float tmax, float siz
   float t_min = vmax(vmax(tx(2.0f), ty(2.0f)), tz(2.0f));
   float t_max = vmin(vmin(tx(1.0f), ty(1.0f)), tz(1.0f));
   float h = t_max;
+  if (region != nullptr) {
+    // Entry/exit planes of the region in the mirrored frame (esvo traverse.cpp).
+    const bool mx = (octant_mask & 1) == 0, my = (octant_mask & 2) == 0,
+               mz = (octant_mask & 4) == 0;
+    const float in_x = mx ? 3.0f - region->lo.x : region->hi.x;
+    const float in_y = my ? 3.0f - region->lo.y : region->hi.y;
+    const float in_z = mz ? 3.0f - region->lo.z : region->hi.z;
+    const float out_x = mx ? 3.0f - region->hi.x : region->lo.x;
+    const float out_y = my ? 3.0f - region->hi.y : region->lo.y;
+    const float out_z = mz ? 3.0f - region->hi.z : region->lo.z;
+    t_min = vmax(t_min, vmax(vmax(tx(in_x), ty(in_y)), tz(in_z)));
+    t_max = vmin(t_max, vmin(vmin(tx(out_x), ty(out_y)), tz(out_z)));
+  }
   t_min = vmax(t_min, 0.0f);
   t_max = vmin(t_max, tmax);
   if (!(t_min <= t_max)) return result;
@@ -91,7 +131,7 @@ CastResult cast(const SparseVoxelDag& dag, Vec3 p, Vec3 d, float tmax, float siz
   uint32_t parent = 0;      // root node, word 0
   uint32_t child_mask = 0;  // of `parent`; 0 = not fetched (masks are never empty)
   uint64_t leaf64 = 0;      // the 4^3 mask when parent is a leaf-mask node
-  uint32_t base = 0;        // Morton rank of parent's first leaf voxel
+  uint64_t base = 0;        // Morton rank of parent's first leaf voxel
   int idx = 0;
   float pos_x = 1.0f, pos_y = 1.0f, pos_z = 1.0f;
   int scale = s_max - 1;
@@ -102,7 +142,9 @@ CastResult cast(const SparseVoxelDag& dag, Vec3 p, Vec3 d, float tmax, float siz
   if (tz(1.5f) > t_min) idx ^= 4, pos_z = 1.5f;
 
   while (scale < s_max) {
+    if constexpr (kCount) ++cnt.iterations;
     if (child_mask == 0) {
+      if constexpr (kCount) cnt.descriptor_fetches += scale >= mask_scale;
       if (scale > mask_scale) {
         child_mask = words[parent] & 0xFFu;
       } else if (scale == mask_scale) {
@@ -123,6 +165,7 @@ CastResult cast(const SparseVoxelDag& dag, Vec3 p, Vec3 d, float tmax, float siz
     if ((child_mask >> c) & 1u && t_min <= t_max) {
       if (tc_max * size_coef + size_bias >= scale_exp2) [[unlikely]]
         break;  // LOD, at t_min
+      if constexpr (kCount) ++cnt.intersects;
 
       float tv_max = vmin(t_max, tc_max);
       const float half = scale_exp2 * 0.5f;
@@ -134,7 +177,9 @@ CastResult cast(const SparseVoxelDag& dag, Vec3 p, Vec3 d, float tmax, float siz
         if (scale == leaf_scale) break;  // a leaf voxel: hit at t_min
 
         // PUSH (esvo Figure 15 line 19: the active t_max).
+        if constexpr (kCount) ++cnt.pushes;
         if (tc_max < h) {
+          if constexpr (kCount) ++cnt.stores;
           stack_parent[scale] = parent;
           stack_tmax[scale] = t_max;
           stack_base[scale] = base;
@@ -143,8 +188,9 @@ CastResult cast(const SparseVoxelDag& dag, Vec3 p, Vec3 d, float tmax, float siz
 
         if (scale > mask_scale) {
           const uint32_t w = parent + 1 + uint32_t(std::popcount(child_mask & ((1u << c) - 1)));
-          if constexpr (!kAnyHit) base += prefix[w];
+          if constexpr (!kAnyHit) base += w < wide_words ? prefix_wide[w] : prefix[w];
           parent = words[w];
+          if constexpr (kCount) ++cnt.far_reads;
         } else {  // into sub-block c of the 4^3 mask
           if constexpr (!kAnyHit) base += uint32_t(std::popcount(leaf64 & ((1ull << (8 * c)) - 1)));
           parent = uint32_t(leaf64 >> (8 * c)) & 0xFFu;
@@ -164,6 +210,7 @@ CastResult cast(const SparseVoxelDag& dag, Vec3 p, Vec3 d, float tmax, float siz
     }
 
     // ADVANCE
+    if constexpr (kCount) ++cnt.advances;
     int step_mask = 0;
     if (tx_corner <= tc_max) step_mask ^= 1, pos_x -= scale_exp2;
     if (ty_corner <= tc_max) step_mask ^= 2, pos_y -= scale_exp2;
@@ -172,8 +219,20 @@ CastResult cast(const SparseVoxelDag& dag, Vec3 p, Vec3 d, float tmax, float siz
     t_min = tc_max;
     idx ^= step_mask;
 
+    // Past the end of the span: a miss. Without contours (svdag §4) every
+    // active t_max is min(E, exit t of the current parent cube) with E the
+    // end of [0, tmax] clipped to the root and the region, and a child's exit
+    // t is <= its parent's (fma is monotone), so t_min > t_max means t_min > E.
+    // From then on no t_max exceeds E, so nothing is pushed or hit, and
+    // without pushes each ADVANCE moves to a cube whose exit t is >= the
+    // current one (monotone again), so t_min stays > E: the loop could only
+    // step out through every ancestor. The ESVO loop cannot stop here (a
+    // contour also narrows t_max). Ends short AO/shadow and beam-clipped rays.
+    if (t_min > t_max) return result;
+
     // POP: highest differing position bit = the scale to resume at.
     if ((idx & step_mask) != 0) {
+      if constexpr (kCount) ++cnt.pops;
       uint32_t differing_bits = 0;
       if ((step_mask & 1) != 0)
         differing_bits |= float_bits(pos_x) ^ float_bits(pos_x + scale_exp2);
@@ -216,7 +275,7 @@ CastResult cast(const SparseVoxelDag& dag, Vec3 p, Vec3 d, float tmax, float siz
     else if (scale == mask_scale)
       base += uint32_t(std::popcount(leaf64 & ((1ull << (8 * c)) - 1)));
     else
-      base += prefix[parent + 1 + uint32_t(std::popcount(child_mask & ((1u << c) - 1)))];
+      base += dag.prefix_entry(parent + 1 + uint32_t(std::popcount(child_mask & ((1u << c) - 1))));
     result.voxel_index = base;
     // Entered face: the axis whose entry plane (the mirrored cube's upper
     // corner) is crossed last. Entering a cube while moving +x means its -x face.
@@ -260,14 +319,28 @@ Aabb DagStructure::bounds() const {
 }
 
 bool DagStructure::trace(const Ray& ray, const LodFootprint& lod, SurfaceHit* hit) const {
+  return DagStructure::trace_hinted(ray, lod, TraceHints{}, hit);
+}
+
+bool DagStructure::trace_hinted(const Ray& ray, const LodFootprint& lod, const TraceHints& hints,
+                                SurfaceHit* hit) const {
+  const Aabb* region = nullptr;
+  if (hints.beam != nullptr && hints.beam->valid) {
+    // esvo §6.2: the coarse pass (beam_start) proved that no ray of the beam hits anything.
+    if (hints.beam->empty) return false;
+    region = &hints.beam->region;
+  }
   // World <-> octree space exactly as EsvoStructure::trace (esvo §6.1).
   const GridTransform& g = dag_->grid;
   const float side = float(g.side());
   const float inv_side = float(1.0 / g.side());
   const Vec3 p = (ray.origin - g.origin) * inv_side + Vec3{1, 1, 1};
   const Vec3 d = ray.dir * inv_side;
+  const float size_coef = lod.size_per_t * inv_side, size_bias = lod.size_at_origin * inv_side;
   const CastResult r =
-      cast_ray(*dag_, p, d, ray.tmax, lod.size_per_t * inv_side, lod.size_at_origin * inv_side);
+      hints.counters != nullptr
+          ? cast<false, true>(*dag_, p, d, ray.tmax, size_coef, size_bias, region, hints.counters)
+          : cast<false>(*dag_, p, d, ray.tmax, size_coef, size_bias, region);
   if (!r.hit) return false;
   const float cube = bits_float(uint32_t(r.scale - kMaxScale + 127) << 23);
   const float eps = 0x1p-23f;
@@ -295,7 +368,12 @@ bool DagStructure::occluded(const Ray& ray, const LodFootprint& lod) const {
 
 void DagStructure::attributes(const SurfaceHit& hit, Color* color, Vec3* normal) const {
   if (dag_->has_attributes()) {
-    dag_->voxel_attributes(hit.voxel_ref, color, normal);
+    // A coarse (LOD) hit shows the mean of all its leaf voxels (dag.hpp),
+    // as an ESVO parent shows its children's average (esvo §5.4).
+    if (hit.level < dag_->levels() && hit.voxel_ref < dag_->leaf_voxels)
+      dag_->mean_attributes(dag_->cube_range(hit.voxel_ref, hit.level), color, normal);
+    else
+      dag_->voxel_attributes(hit.voxel_ref, color, normal);
     return;
   }
   // Geometry-only DAG: gray, normal of the entered cube face.

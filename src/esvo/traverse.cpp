@@ -48,6 +48,13 @@
 // before V, and a ray that missed still misses. The same holds for ending the
 // span at R's exit (V lies inside R). Mirrored coordinates 3 - c are exact
 // for c in [1, 2], so R's planes are grid planes like any other.
+// Caveat: PUSH computes a child's center t as fma(half, coef, t(corner)), not
+// as t(center) itself; the two can differ by about an ulp of t(corner), so
+// when t_min lies within that ulp of a center plane the descent may pick the
+// neighbouring child. That choice compares against t_min, which the region
+// can change, so for such near-ties the argument above is not a proof. The
+// beam tests (every shared mesh, three cameras, random cameras inside and
+// outside the scene, ESVO and DAG) have not found a differing hit.
 #include <algorithm>
 #include <bit>
 #include <cmath>
@@ -55,6 +62,7 @@
 #include <cstring>
 #include <type_traits>
 
+#include "core/beam_frustum.hpp"
 #include "core/octree_ray.hpp"
 #include "esvo/compress.hpp"
 #include "voxcast/error.hpp"
@@ -424,120 +432,19 @@ void EsvoStructure::attributes_counted(const SurfaceHit& hit, Color* color, Vec3
 }
 
 // ---------------------------------------------------------------------------
-// Coarse pass of the beam optimization (§6.2).
-//
-// The paper casts distance rays through the block corners and stops "as soon
-// as we encounter a voxel that is not large enough to certainly cover at
-// least one ray in the coarse grid". We do the conservative variant of the
-// same idea as a frustum query: a depth-first walk of the hierarchy that
-// drops every node whose cube lies outside the beam's pyramid (4 planes
-// through the eye, slightly widened), and keeps a node's whole cube, instead
-// of descending, once it is a leaf, could be a LOD stop for some ray, or is
-// no larger than the beam's width at its nearest point. The result is the
-// bounding box R of the kept cubes. Every voxel a ray of the beam can hit
-// lies in the pyramid, so R contains it (its cube or an ancestor's was kept),
-// and cast_ray started at R's entry planes returns the same hit bit for bit
-// (see the proof at the top). R's near faces are set by the nearest surface
-// in the beam, which is where the paper's conservative distance would start.
-//
-// Contours (§6.2: "contour tests must be disabled in the coarse pass"): the
-// pass only looks at whole cubes, which contain their contour-clipped
-// volume, so it stays conservative once contours exist; the fine rays may
-// then use contours, since a contour only narrows a voxel's span.
-//
-// Widening: the rays of a beam are at least one pixel inside the four edge
-// directions (render/beam.cpp), and the caster's rounded rays stay within a
-// few ulps of the octree coordinates (abs_tol) plus the direction change of
-// the 2^-23 clamp of tiny direction components (ang_tol per unit distance).
+// Coarse pass of the beam optimization (§6.2): a conservative frustum walk of
+// the octree; the cube test and the start region are shared with the DAG
+// (core/beam_frustum.hpp, which explains the construction). Here only the
+// node iteration: child descriptors with their leaf masks and far pointers.
 void EsvoStructure::beam_start(const BeamFrustum& beam, BeamStart* start,
                                RayCounters* counters) const {
   *start = BeamStart{};
   const EsvoOctree& o = *octree_;
-  const GridTransform& g = o.grid;
-  const float inv_side = float(1.0 / g.side());
-  // Eye in octree space, the same float the caster starts from.
-  const Vec3 pf = (beam.eye - g.origin) * inv_side + Vec3{1, 1, 1};
-  if (!is_finite(pf)) return;  // no information
-  const double e[3] = {pf.x, pf.y, pf.z};
-  // Side planes through the eye: unit normals pointing into the beam. The
-  // octree transform is a uniform scale + shift, so world directions serve.
-  double n[4][3];
-  double sum[3] = {0, 0, 0};
-  for (const Vec3& c : beam.edge) sum[0] += c.x, sum[1] += c.y, sum[2] += c.z;
-  for (int i = 0; i < 4; ++i) {
-    const Vec3 a = beam.edge[i], b = beam.edge[(i + 1) & 3];
-    double v[3] = {double(a.y) * b.z - double(a.z) * b.y, double(a.z) * b.x - double(a.x) * b.z,
-                   double(a.x) * b.y - double(a.y) * b.x};
-    const double len = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-    if (!(len > 0) || !std::isfinite(len)) return;  // degenerate beam: no information
-    const double sgn = (v[0] * sum[0] + v[1] * sum[1] + v[2] * sum[2]) < 0 ? -1.0 : 1.0;
-    for (int k = 0; k < 3; ++k) n[i][k] = v[k] * sgn / len;
-  }
-  const double emax = std::max({std::fabs(e[0]), std::fabs(e[1]), std::fabs(e[2]), 2.0});
-  const double abs_tol = 0x1p-18 * emax;
-  const double ang_tol = 0x1p-21 * g.side() + 1e-6;
-  // Stop descending at cubes no wider than kStopFraction x the beam's width
-  // at their nearest point. Any value is conservative; a coarser cut makes
-  // the pass cheaper but starts the rays earlier. On the bunny at 2048^3,
-  // 8x8 blocks: 0.5 -> 29 ms coarse pass per frame (1 core), 1 -> 17 ms,
-  // 2 -> 11 ms, 4 -> 7 ms; 2 gave the fastest frames.
-  constexpr double kStopFraction = 2.0;
-  const double width2 =
-      double(beam.angular_width) * beam.angular_width * kStopFraction * kStopFraction;
-  // LOD (§6.1): the caster stops at a cube of side <= size_coef * tc_max +
-  // size_bias, both octree units (size_coef = size_per_t / side, tc_max in
-  // world units), and tc_max <= the world distance to the cube's far corner,
-  // so side <= size_per_t * far (octree units) + bias; 1/64 of slack for rounding.
-  const double lod_coef = double(beam.lod.size_per_t) * (1.0 + 0x1p-6);
-  const double lod_bias = double(beam.lod.size_at_origin) * inv_side * (1.0 + 0x1p-6);
-
-  Aabb region;  // empty
+  ::voxcast::detail::BeamClassifier beam_cls(beam, o.grid);
+  if (!beam_cls.valid()) return;  // no information
   const uint32_t* const words = o.words.data();
-  RayCounters cnt;
-
-  // Classifies a cube [lo, lo + s]: 0 = outside the beam or already inside
-  // the region, 1 = keep whole, 2 = descend.
-  // Plane normals as float lanes (the 4-plane test vectorizes); float
-  // rounding here is < 2^-20 of the distances involved and is covered by
-  // float_tol below (an angular widening of ~1e-6 rad, far below a pixel).
-  float nx[4], ny[4], nz[4], n1[4];
-  for (int i = 0; i < 4; ++i) {
-    nx[i] = float(n[i][0]), ny[i] = float(n[i][1]), nz[i] = float(n[i][2]);
-    n1[i] = std::fabs(nx[i]) + std::fabs(ny[i]) + std::fabs(nz[i]);
-  }
-  const float ex = float(e[0]), ey = float(e[1]), ez = float(e[2]);
-  const float abs_tol_f = float(abs_tol);
-  const float ang_tol_f = float(ang_tol) + 0x1p-18f;  // + float_tol
-  auto classify = [&](const float lo[3], float s, bool leaf) -> int {
-    ++cnt.intersects;
-    const float h = 0.5f * s;
-    const float cx = lo[0] + h - ex, cy = lo[1] + h - ey, cz = lo[2] + h - ez;
-    // Upper bound of the distance to the cube's far corner without a sqrt
-    // (the L1 norm bounds the L2 norm); it only scales the tiny ang_tol.
-    const float far_bound = std::fabs(cx) + std::fabs(cy) + std::fabs(cz) + 3.f * h;
-    const float tol = abs_tol_f + ang_tol_f * far_bound;
-    bool outside = false;
-    for (int i = 0; i < 4; ++i) outside |= nx[i] * cx + ny[i] * cy + nz[i] * cz + h * n1[i] < -tol;
-    if (outside) return 0;
-    if (lo[0] >= region.lo.x && lo[1] >= region.lo.y && lo[2] >= region.lo.z &&
-        lo[0] + s <= region.hi.x && lo[1] + s <= region.hi.y && lo[2] + s <= region.hi.z)
-      return 0;  // adds nothing: its voxels are inside R already
-    if (leaf) return 1;
-    const float dx = vmax(std::fabs(cx) - h, 0.f), dy = vmax(std::fabs(cy) - h, 0.f),
-                dz = vmax(std::fabs(cz) - h, 0.f);
-    if (double(s) * s <= width2 * (dx * dx + dy * dy + dz * dz))
-      return 1;  // narrower than the beam there
-    if (lod_coef > 0 || lod_bias > 0) {
-      const double far =
-          std::sqrt(double(cx) * cx + double(cy) * cy + double(cz) * cz) + h * 1.7320508075688772;
-      if (s <= lod_coef * (far + tol) + lod_bias) return 1;  // may be a LOD stop
-    }
-    return 2;
-  };
-  auto keep = [&](const float lo[3], float s) {
-    region.extend({lo[0], lo[1], lo[2]});
-    region.extend({lo[0] + s, lo[1] + s, lo[2] + s});  // exact: dyadic coordinates in [1, 2]
-  };
+  RayCounters& cnt = beam_cls.counters;
+  using Cls = ::voxcast::detail::BeamClassifier;
 
   struct Node {
     uint32_t slot;
@@ -547,11 +454,11 @@ void EsvoStructure::beam_start(const BeamFrustum& beam, BeamStart* start,
   Node stack[8 * (kMaxScale + 1)];
   int top = 0;
   const float root_lo[3] = {1.f, 1.f, 1.f};
-  switch (classify(root_lo, 1.f, false)) {
-    case 1:
-      keep(root_lo, 1.f);
+  switch (beam_cls.classify(root_lo, 1.f, false)) {
+    case Cls::kKeep:
+      beam_cls.keep(root_lo, 1.f);
       break;
-    case 2:
+    case Cls::kDescend:
       stack[top++] = {o.root_slot(), {1.f, 1.f, 1.f}, 1.f};
       break;
     default:
@@ -573,10 +480,10 @@ void EsvoStructure::beam_start(const BeamFrustum& beam, BeamStart* start,
       if ((valid >> i & 1u) == 0) continue;
       const float lo[3] = {node.lo[0] + ((i & 1) ? hs : 0.f), node.lo[1] + ((i & 2) ? hs : 0.f),
                            node.lo[2] + ((i & 4) ? hs : 0.f)};
-      const int what = classify(lo, hs, (leaf >> i & 1u) != 0);
-      if (what == 1) {
-        keep(lo, hs);
-      } else if (what == 2) {
+      const int what = beam_cls.classify(lo, hs, (leaf >> i & 1u) != 0);
+      if (what == Cls::kKeep) {
+        beam_cls.keep(lo, hs);
+      } else if (what == Cls::kDescend) {
         ++cnt.pushes;
         const uint32_t child = uint32_t(int32_t(node.slot) + rel) +
                                uint32_t(std::popcount(non_leaf & ((1u << i) - 1)));
@@ -584,10 +491,7 @@ void EsvoStructure::beam_start(const BeamFrustum& beam, BeamStart* start,
       }
     }
   }
-  start->valid = true;
-  start->empty = region.empty();
-  start->region = region;
-  if (counters != nullptr) *counters += cnt;
+  beam_cls.finish(start, counters);
 }
 
 void EsvoStructure::attributes(const SurfaceHit& hit, Color* color, Vec3* normal) const {

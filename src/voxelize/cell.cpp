@@ -13,6 +13,7 @@
 #include <array>
 #include <bit>
 #include <cmath>
+#include <unordered_map>
 #include <vector>
 
 #include "voxcast/error.hpp"
@@ -97,6 +98,74 @@ bool triangle_voxel_range(const std::vector<std::array<double, 3>>& gv, const Me
     hi[a] = uint32_t(h);
   }
   return true;
+}
+
+std::vector<CellBin> bin_triangles(const Mesh& mesh, const std::vector<std::array<double, 3>>& gv,
+                                   const GridTransform& grid, int bits) {
+  std::vector<CellBin> bins;
+  for (size_t t = 0; t < mesh.triangle_count(); ++t) {
+    uint32_t lo[3], hi[3];
+    if (!triangle_voxel_range(gv, mesh, t, grid.resolution, lo, hi)) continue;
+    for (uint32_t z = lo[2] >> bits; z <= hi[2] >> bits; ++z)
+      for (uint32_t y = lo[1] >> bits; y <= hi[1] >> bits; ++y)
+        for (uint32_t x = lo[0] >> bits; x <= hi[0] >> bits; ++x)
+          bins.push_back({morton_encode(x, y, z), uint32_t(t)});
+  }
+  tbb::parallel_sort(bins.begin(), bins.end());
+  return bins;
+}
+
+double triangle_pairs(const double v[3][3]) {
+  double e1[3], e2[3];
+  for (int a = 0; a < 3; ++a) e1[a] = v[1][a] - v[0][a], e2[a] = v[2][a] - v[0][a];
+  const double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                       e1[0] * e2[1] - e1[1] * e2[0]};
+  const double len = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+  const double l1 = len > 0 ? (std::fabs(n[0]) + std::fabs(n[1]) + std::fabs(n[2])) / len : 1.0;
+  double perim = 0;
+  for (int k = 0; k < 3; ++k) {
+    const double* p = v[k];
+    const double* q = v[(k + 1) % 3];
+    perim += std::sqrt((q[0] - p[0]) * (q[0] - p[0]) + (q[1] - p[1]) * (q[1] - p[1]) +
+                       (q[2] - p[2]) * (q[2] - p[2]));
+  }
+  return 0.5 * len * l1 + 2.0 * perim + 4.0;
+}
+
+uint64_t mesh_bytes(const Mesh& m) {
+  uint64_t b = m.positions.size() * sizeof(Vec3) + m.normals.size() * sizeof(Vec3) +
+               m.colors.size() * sizeof(Color) + m.uvs.size() * sizeof(Vec2) +
+               m.indices.size() * 4 + m.triangle_material.size() * 4;
+  for (const Texture& t : m.textures) b += t.rgba.size();
+  return b;
+}
+
+CellPlan plan_cells(const Mesh& mesh, const std::vector<std::array<double, 3>>& gv,
+                    const GridTransform& grid, int bits, double bytes_per_pair) {
+  CellPlan p;
+  p.bits = bits;
+  const double side = std::ldexp(1.0, bits);
+  const double cap = 3.0 * side * side + 12.0 * side;  // a plane through the cube + edge band
+  std::unordered_map<uint64_t, double> per_cell;
+  for (size_t t = 0; t < mesh.triangle_count(); ++t) {
+    uint32_t lo[3], hi[3];
+    if (!triangle_voxel_range(gv, mesh, t, grid.resolution, lo, hi)) continue;
+    double v[3][3];
+    for (int k = 0; k < 3; ++k)
+      for (int a = 0; a < 3; ++a) v[k][a] = gv[mesh.indices[3 * t + size_t(k)]][size_t(a)];
+    const double share = std::min(triangle_pairs(v), cap);
+    for (uint32_t z = lo[2] >> bits; z <= hi[2] >> bits; ++z)
+      for (uint32_t y = lo[1] >> bits; y <= hi[1] >> bits; ++y)
+        for (uint32_t x = lo[0] >> bits; x <= hi[0] >> bits; ++x) {
+          ++p.bins;
+          per_cell[morton_encode(x, y, z)] += share;
+        }
+  }
+  for (const auto& [cell, pairs] : per_cell) p.max_cell_pairs = std::max(p.max_cell_pairs, pairs);
+  p.fixed_bytes = mesh_bytes(mesh) + gv.size() * sizeof(gv[0]) + p.bins * sizeof(CellBin) +
+                  per_cell.size() * 64;
+  p.cell_bytes = uint64_t(p.max_cell_pairs * bytes_per_pair);
+  return p;
 }
 
 void triangle_voxels_in_box(const double tri[3][3], uint32_t resolution, VoxelizationMode mode,

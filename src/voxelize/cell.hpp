@@ -1,7 +1,8 @@
 #pragma once
 // Cell-restricted voxelization for out-of-core builds (svdag §3 "Implementation
 // details": the grid is split into sub-volumes that are voxelized and reduced
-// one at a time). Not a public interface; used by src/dag/build_ooc.cpp.
+// one at a time). Not a public interface; used by src/dag/build_ooc.cpp and the
+// ESVO cell-by-cell build (src/esvo/build_cells.cpp).
 //
 // Contract: for any aligned cube ("cell") of the grid, voxelize_cell() returns
 // exactly the voxels (and, with attributes, exactly the attribute values) that
@@ -36,6 +37,40 @@ VoxelSet voxelize_cell(const Mesh& mesh, const GridTransform& grid,
                        const std::vector<std::array<double, 3>>& gv, const uint32_t* tris,
                        size_t tri_count, const uint32_t cell_lo[3], uint32_t cell_size,
                        const VoxelizeOptions& options);
+
+/// One (cell, triangle) entry of the triangle bins of a cell-by-cell build.
+struct CellBin {
+  uint64_t cell;  // Morton code of the cell at the cell level
+  uint32_t tri;
+  bool operator<(const CellBin& o) const { return cell != o.cell ? cell < o.cell : tri < o.tri; }
+};
+
+/// Every triangle binned into the cells of side 2^bits its voxel bounding
+/// box overlaps, sorted by (cell Morton code, triangle): cells in Morton
+/// order, each cell's triangles ascending as voxelize_cell() needs them.
+std::vector<CellBin> bin_triangles(const Mesh& mesh, const std::vector<std::array<double, 3>>& gv,
+                                   const GridTransform& grid, int bits);
+
+/// Estimated (voxel, triangle) pairs of one triangle (grid units): area *
+/// L1 norm of the unit normal + an edge band (as the CLI's in-core estimate).
+double triangle_pairs(const double v[3][3]);
+
+/// Bytes held by the mesh's arrays.
+uint64_t mesh_bytes(const Mesh& mesh);
+
+/// Memory estimate of a cell-by-cell build with cells of side 2^bits.
+struct CellPlan {
+  int bits = 0;               // cell side = 2^bits voxels
+  uint64_t bins = 0;          // (cell, triangle) entries
+  double max_cell_pairs = 0;  // estimated pairs of the fullest cell
+  uint64_t fixed_bytes = 0;   // mesh + vertices + bins
+  uint64_t cell_bytes = 0;    // working set of the fullest cell
+};
+
+/// The estimate for cells of side 2^bits, with `bytes_per_pair` bytes of
+/// working set per estimated (voxel, triangle) pair of a cell.
+CellPlan plan_cells(const Mesh& mesh, const std::vector<std::array<double, 3>>& gv,
+                    const GridTransform& grid, int bits, double bytes_per_pair);
 
 /// The voxels of one triangle (grid units) inside the inclusive box
 /// [box_lo, box_hi] of an N^3 grid, appended unsorted (possibly duplicated).
