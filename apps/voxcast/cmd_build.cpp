@@ -52,11 +52,11 @@ Runner add_build(CLI::App& app) {
   cmd->add_option("--memory-budget", args->memory_budget,
                   "Refuse builds estimated to need more (e.g. 8G; default 90% of free memory)");
   cmd->add_flag("--out-of-core", args->out_of_core,
-                "DAG: build sub-volume by sub-volume within --memory-budget (svdag section 3; "
-                "automatic when the in-core estimate exceeds the budget)");
-  cmd->add_option(
-      "--cell-size", args->cell_size,
-      "DAG out-of-core: sub-volume side in voxels (power of two; default from the budget)");
+                "DAG or --contours: build sub-volume by sub-volume within --memory-budget "
+                "(svdag section 3, esvo 7.1; automatic when the in-core estimate exceeds the "
+                "budget)");
+  cmd->add_option("--cell-size", args->cell_size,
+                  "Out-of-core: sub-volume side in voxels (power of two; default from the budget)");
   cmd->add_flag("--no-attributes", args->no_attributes,
                 "DAG: geometry only (no colors/normals; needed at very high resolutions)");
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)");
@@ -71,10 +71,11 @@ Runner add_build(CLI::App& app) {
       "this from the surface, in finest-level voxels (esvo 7.1)");
   cmd->add_option(
       "--color-error", args->color_error,
-      "With --contours: variable depth; refine where colors below differ by more (0-255)");
-  cmd->add_option(
-      "--normal-error", args->normal_error,
-      "With --contours: variable depth; refine where normals below differ by more (degrees)");
+      "With --contours: variable depth; refine where a voxel's stored color, as decoded "
+      "(after --attributes compression), differs from a finest-level voxel's below it by "
+      "more (8-bit sRGB, 0-255) (esvo 7.3)");
+  cmd->add_option("--normal-error", args->normal_error,
+                  "With --contours: variable depth; the same for normals (degrees)");
   cmd->add_flag("-v,--verbose", args->verbose, "Print timings per stage");
   return [args]() {
     ThreadLimit limit(args->threads);
@@ -116,8 +117,9 @@ Runner add_build(CLI::App& app) {
     }
     if (s.dag && s.attributes != esvo::AttributeFormat::Raw)
       throw Error("--attributes compressed applies to --format esvo only");
-    if (!s.dag && (args->out_of_core || args->cell_size || args->no_attributes))
-      throw Error("--out-of-core, --cell-size and --no-attributes apply to --format dag only");
+    if (!s.dag && args->no_attributes) throw Error("--no-attributes applies to --format dag only");
+    if (!s.dag && !s.contours && (args->out_of_core || args->cell_size))
+      throw Error("--out-of-core and --cell-size apply to --format dag or --contours");
     s.out_of_core = args->out_of_core || args->cell_size != 0;
     s.cell_size = args->cell_size;
     s.dag_attributes = !args->no_attributes;
@@ -150,6 +152,10 @@ Runner add_build(CLI::App& app) {
     }
     save_esvo_scene(args->output, built.octree, info);
     timer.mark("write scene");
+    if (built.out_of_core && !built.esvo_cells.in_core)
+      std::printf("out-of-core: %llu cells of %u^3 (%llu planned below their root), %.2f s\n",
+                  (unsigned long long)built.esvo_cells.cells, built.esvo_cells.cell_size,
+                  (unsigned long long)built.esvo_cells.refined_cells, built.octree_seconds);
     auto mem = built.octree.memory_stats();
     std::printf("%s: %u^3 grid (%d levels), %llu leaf voxels, %s (%.2f bytes/leaf voxel), %.2f s\n",
                 args->output.c_str(), built.octree.grid.resolution, built.octree.levels(),

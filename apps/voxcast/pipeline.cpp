@@ -89,6 +89,34 @@ BuiltScene build_scene(const BuildSettings& s) {
     timer.mark("out-of-core DAG build");
     return out;
   }
+  esvo::BuildOptions build_options;
+  build_options.attributes = s.attributes;
+  if (s.contours) {
+    build_options.contours = true;
+    build_options.max_level = s.max_level;
+    build_options.geometry_error = s.geometry_error;
+    build_options.color_error = s.color_error;
+    build_options.normal_error = s.normal_error;
+  }
+  // esvo §7.1-7.3 "memory bounded": one cell's full-depth voxels at a time,
+  // only the kept (variable-depth) octree is held; same bytes as in core.
+  // Without a color/normal tolerance it voxelizes every cell once and is as
+  // fast as the in-core build (docs/notes-vardepth.md), so it is the default
+  // there; with one, the attribute tests stream the cells two more times,
+  // so only when the in-core estimate exceeds the budget (or when asked).
+  const bool attribute_tolerance = s.color_error >= 0 || s.normal_error >= 0;
+  if (!s.dag && s.contours &&
+      (s.out_of_core || (budget && need > budget) || !attribute_tolerance)) {
+    VoxelizeOptions vo;
+    vo.mode = s.mode;
+    vo.attributes = true;
+    out.octree = esvo::build_octree_cells(out.mesh, grid, vo, build_options, s.cell_size, budget,
+                                          &out.esvo_cells);
+    out.out_of_core = true;
+    out.leaf_voxels = out.esvo_cells.voxels;
+    out.octree_seconds = timer.mark("cell-by-cell octree build");
+    return out;
+  }
   if (budget && need > budget)
     throw Error("resolution " + std::to_string(grid.resolution) + " needs an estimated " +
                 format_bytes(double(need)) + ", more than the " + format_bytes(double(budget)) +
@@ -111,14 +139,7 @@ BuiltScene build_scene(const BuildSettings& s) {
     out.octree_seconds = timer.mark("DAG build");
     return out;
   }
-  esvo::BuildOptions build_options;
-  build_options.attributes = s.attributes;
   if (s.contours) {
-    build_options.contours = true;
-    build_options.max_level = s.max_level;
-    build_options.geometry_error = s.geometry_error;
-    build_options.color_error = s.color_error;
-    build_options.normal_error = s.normal_error;
     out.octree = esvo::build_octree(voxels, out.mesh, build_options);
   } else {
     out.octree = esvo::build_octree(voxels, build_options);

@@ -2,6 +2,7 @@
 // mesh file -> voxels -> ESVO, shared by `build` and `bench`.
 #include <string>
 
+#include "esvo/build_cells.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/esvo.hpp"
 #include "voxcast/mesh.hpp"
@@ -18,9 +19,10 @@ struct BuildSettings {
   esvo::AttributeFormat attributes = esvo::AttributeFormat::Raw;  // esvo §5.4 / §5.5
   bool verbose = false;
   bool dag = false;  // build a sparse voxel DAG (BuiltScene::dag) instead of the ESVO
-  // DAG only: colors + normals per voxel (DATR); the out-of-core path
+  // DAG: colors + normals per voxel (DATR); the out-of-core path
   // (build_dag_out_of_core) when asked or when the in-core estimate exceeds
-  // the budget; cell_size 0 = chosen from the budget.
+  // the budget; cell_size 0 = chosen from the budget. ESVO with contours: the
+  // same for the cell-by-cell build (esvo::build_octree_cells).
   bool dag_attributes = true;
   bool out_of_core = false;
   uint32_t cell_size = 0;
@@ -37,8 +39,10 @@ struct BuiltScene {
   dag::SparseVoxelDag dag;  // only when BuildSettings::dag
   uint64_t leaf_voxels = 0;
   double load_seconds = 0, voxelize_seconds = 0, octree_seconds = 0;
-  bool out_of_core = false;  // the DAG came from build_dag_out_of_core
-  dag::OutOfCoreReport ooc;  // when out_of_core
+  bool out_of_core = false;         // the DAG came from build_dag_out_of_core, or the ESVO
+                                    // from build_octree_cells
+  dag::OutOfCoreReport ooc;         // when out_of_core (DAG)
+  esvo::CellBuildStats esvo_cells;  // when out_of_core (ESVO)
 };
 
 /// Rough upper estimate of the peak bytes voxelizing `mesh` into `grid` takes

@@ -189,11 +189,14 @@ struct BuildOptions {
   /// shape without it is within the threshold; 0.25 when unset).
   /// <= 0: unset.
   double geometry_error = 0;
-  /// REFINE-ATTRIBUTES (§7.3): a voxel is subdivided if the decoded (8-bit
-  /// sRGB, raw) color of any voxel below it differs from its own by more
-  /// than this in any channel (0-255 units), resp. the decoded normal by more
-  /// than `normal_error` degrees. < 0: unset. Variable depth is on when any of
-  /// the three tolerances is set; unset tolerances never force a subdivision.
+  /// REFINE-ATTRIBUTES (§7.3): a voxel is subdivided if the color it decodes
+  /// to as a leaf (8-bit sRGB; with compressed attributes after the §5.5
+  /// block compression of its descriptor pair) differs by more than this in
+  /// any channel (0-255 units) from the raw-encoded color of some full-depth
+  /// voxel below it, resp. its decoded normal by more than `normal_error`
+  /// degrees. Guaranteed for every leaf above max_level (tested by brute
+  /// force). < 0: unset. Variable depth is on when any of the three
+  /// tolerances is set; unset tolerances never force a subdivision.
   double color_error = -1;
   double normal_error = -1;
 };

@@ -35,6 +35,19 @@
 // the contour pointers (relative to the descriptor, Appendix A) are filled
 // in when the block is closed, and a block is closed early if they could
 // exceed 24 bits.
+//
+// Decoded-attribute tolerance (§7.3: "attribute quantization and compression
+// is performed before the test"): the planner tests a leaf's raw 8-bit
+// encoding, which is exactly what a raw build stores. A compressed leaf
+// decodes to what the §5.5 block of its parent's descriptor pair makes of
+// it, and the pairs are only known after the layout. So with compressed
+// attributes and a color/normal tolerance the builder decodes every leaf
+// above the max level from the laid-out octree, compares it with every
+// full-depth voxel below it, forces the ones out of tolerance to subdivide
+// (ContourPlanner::refine) and lays out again, until no leaf is out of
+// tolerance. Refinement only grows and stops at max_level, so this ends;
+// every step is deterministic, so the output does not depend on the thread
+// count.
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
@@ -44,12 +57,18 @@
 #include <numeric>
 #include <stdexcept>
 #include <string>
+#include <utility>
+#include <vector>
 
+#include "esvo/build_cells.hpp"
 #include "esvo/compress.hpp"
 #include "esvo/contours.hpp"
 #include "esvo/layout_internal.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
+#include "voxcast/morton.hpp"
+#include "voxcast/system.hpp"
+#include "voxelize/cell.hpp"
 
 namespace voxcast::esvo {
 namespace {
@@ -513,9 +532,12 @@ void check_block_limits(const BuildOptions& options) {
     throw Error("cannot build octree: block limits must be in 1..2^32 slots and 1..2^24 values");
 }
 
-/// Phase 1 (bottom-up levels) into `lv` and the leaf values.
+/// Phase 1 (bottom-up levels) into `lv` and the leaf values, up to depth
+/// `stop` (a cell's root in the cell-by-cell build: its voxels have one
+/// node there, which keeps its float attributes and code; lv[0..stop) stay
+/// empty).
 void build_levels(const VoxelSet& voxels, std::vector<Level>& lv,
-                  std::vector<uint64_t>& leaf_values) {
+                  std::vector<uint64_t>& leaf_values, int stop = 0) {
   const int L = voxels.grid.levels;
   const size_t n = voxels.size();
 
@@ -534,9 +556,9 @@ void build_levels(const VoxelSet& voxels, std::vector<Level>& lv,
   const std::vector<float>& leaf_weight = voxels.weights.empty() ? dw : voxels.weights;
   encode_values(leaf_color, leaf_normal, leaf_values);
 
-  // Phase 1: levels L-1 .. 0.
+  // Phase 1: levels L-1 .. stop.
   lv.assign(static_cast<size_t>(L), Level{});
-  for (int d = L - 1; d >= 0; --d) {
+  for (int d = L - 1; d >= stop; --d) {
     Level& p = lv[size_t(d)];
     if (d == L - 1) {
       reduce_codes(voxels.codes, p);
@@ -570,15 +592,71 @@ void build_levels(const VoxelSet& voxels, std::vector<Level>& lv,
       });
     }
   }
-  if (lv[0].mask.size() != 1)
+  if (lv[size_t(stop)].mask.size() != 1)
     throw std::logic_error("esvo builder: root level is not a single node");
 }
 
+/// The leaves of the laid-out `octree` above depth `lmax` whose decoded
+/// attributes are out of tolerance (§7.3), as (depth, index in phase 1's tree).
+std::vector<std::pair<int, uint32_t>> decoded_violations(const EsvoOctree& octree,
+                                                         const detail::TreeView& tree,
+                                                         const BuildOptions& options, int lmax) {
+  struct Leaf {
+    uint32_t parent_slot;
+    int child, depth;
+    uint32_t index;
+  };
+  std::vector<Leaf> leaves;
+  struct Item {
+    uint32_t slot;
+    int depth;
+    uint32_t index;
+  };
+  std::vector<Item> stack{{octree.root_slot(), 0, 0}};
+  const uint32_t* w = octree.words.data();
+  while (!stack.empty()) {
+    const Item it = stack.back();
+    stack.pop_back();
+    const uint32_t w0 = w[size_t(it.slot) * 2];
+    const uint32_t valid = detail::valid_mask(w0), leaf = detail::leaf_mask(w0);
+    const uint32_t first = tree.first_child[size_t(it.depth)][it.index];
+    const uint32_t group = valid & ~leaf ? detail::child_group(w, it.slot) : 0;
+    for (uint32_t i = 0, r = 0, g = 0; i < 8; ++i) {
+      if (!(valid >> i & 1)) continue;
+      const uint32_t c = first + r++;
+      if (!(leaf >> i & 1))
+        stack.push_back({group + g++, it.depth + 1, c});
+      else if (it.depth + 1 < lmax)
+        leaves.push_back({it.slot, int(i), it.depth + 1, c});
+    }
+  }
+  std::vector<uint8_t> bad(leaves.size(), 0);
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, leaves.size(), 64),
+                    [&](const tbb::blocked_range<size_t>& r) {
+                      for (size_t k = r.begin(); k != r.end(); ++k) {
+                        const Leaf& l = leaves[k];
+                        Color color;
+                        Vec3 normal;
+                        octree.attributes(l.parent_slot, l.child, &color, &normal);
+                        // Decoded colors are 8-bit sRGB codes mapped to linear
+                        // (raw and §5.5 alike); encoding maps them back exactly.
+                        bad[k] = detail::attributes_exceed(
+                            tree, l.depth, l.index, encode_color_abgr(color), normal, options);
+                      }
+                    });
+  std::vector<std::pair<int, uint32_t>> out;
+  for (size_t k = 0; k < leaves.size(); ++k)
+    if (bad[k]) out.push_back({leaves[k].depth, leaves[k].index});
+  return out;
+}
+
 /// Subtree sizes of the planned (variable-depth) tree for phase 2's far
-/// pointer and block decisions: dropped subtrees count nothing.
-void planned_sizes(std::vector<Level>& lv, const detail::ContourPlan& plan) {
+/// pointer and block decisions: dropped subtrees count nothing. Depths
+/// `top` down to `stop` (default: all).
+void planned_sizes(std::vector<Level>& lv, const detail::ContourPlan& plan, int top = -1,
+                   int stop = 0) {
   const int L = int(lv.size());
-  for (int d = L - 2; d >= 0; --d) {
+  for (int d = top >= 0 ? top : L - 2; d >= stop; --d) {
     Level& p = lv[size_t(d)];
     const Level& c = lv[size_t(d) + 1];
     const std::vector<uint8_t>& leaf = plan.leaf[size_t(d) + 1];
@@ -640,9 +718,406 @@ EsvoOctree build_octree(const VoxelSet& voxels, const Mesh& mesh, const BuildOpt
   }
   tree.count[size_t(L)] = leaf_values.size();
   tree.value[size_t(L)] = leaf_values.data();
-  const detail::ContourPlan plan = detail::plan_contours(tree, voxels.grid, mesh, options);
-  planned_sizes(lv, plan);
-  return Layout(lv, leaf_values, options, &plan).run(voxels.grid);
+  detail::ContourPlanner planner(tree, voxels.grid, mesh, options);
+  const int lmax = options.max_level > 0 ? options.max_level : L;
+  const bool check_decoded = options.attributes == AttributeFormat::Compressed &&
+                             (options.color_error >= 0 || options.normal_error >= 0);
+  for (;;) {
+    const detail::ContourPlan& plan = planner.plan();
+    planned_sizes(lv, plan);
+    EsvoOctree octree = Layout(lv, leaf_values, options, &plan).run(voxels.grid);
+    // Raw leaves decode to the raw encoding the planner already tested.
+    if (!check_decoded) return octree;
+    const auto bad = decoded_violations(octree, tree, options, lmax);
+    if (bad.empty()) return octree;
+    planner.refine(bad);
+  }
+}
+
+// ---- Cell-by-cell variable-depth build (build_cells.hpp) ----
+//
+// The in-core build above holds the full-depth voxel set and phase 1 over
+// it (about 70 B per voxel) although a variable-depth octree keeps only a
+// small part of it. Here the grid is split into aligned cells of side 2^c
+// (node depth C = L - c), visited in Morton order, so the octree below a
+// cell's root is that cell's own full-depth tree, and the cells' nodes of
+// any level, concatenated in visit order, are that level in Morton order.
+// A cell is voxelized with voxelize_cell() (exactly voxelize()'s voxels and
+// attributes inside the cell) and phase 1 runs up to its root.
+// reduce_attributes() is a pure function of a node's children, so the top
+// levels 0..C built from the cell roots equal the in-core ones bit for bit.
+// The planner (§7.1-7.2) plans depths 1..C (the top plan); a refined cell
+// root leaves a seed (its triangles and ancestor slabs) instead of
+// descending, and that cell's own planner continues from the seed, which
+// gives the in-core plan below it (a voxel's plan depends only on what its
+// ancestors hand down). Of each refined cell only the nodes the plan keeps
+// are appended: the children of kept refined voxels, with their planned
+// subtree sizes. The layout then runs on the kept tree; it only reads nodes
+// it visits and their children, so it writes the in-core bytes.
+//   Without a color/normal tolerance, one pass: the top plan needs no
+//   attributes and no cell's voxels (a voxel's plan does not depend on its
+//   siblings, so it is planned on the tree of all cells that have
+//   triangles, a superset), then each cell is voxelized once.
+//   With one, REFINE-ATTRIBUTES of a top voxel (§7.3) needs its value (the
+//   top levels) and every full-depth voxel below it: pass 1 collects the
+//   cell roots, pass 2 streams the cells against their ancestors' values
+//   (flags OR-ed over the cells), pass 3 plans the refined cells.
+// Peak memory: the mesh, triangle bins and planner mesh data, the top
+// levels (one node per cell and above) with the seeds, one cell's build,
+// and the kept output.
+namespace {
+
+// Working set of a cell per estimated (voxel, triangle) pair: the pairs
+// (16 B, twice while concatenated, + sort), and per voxel (about half a pair)
+// the VoxelSet (40 B), leaf values (8), phase 1 (~24) and the cell's plan (~9).
+constexpr double kCellBytesPerPair = 32.0 + 24.0 + 12.0 + 0.5 * (8.0 + 24.0 + 9.0);
+// Planner mesh data per triangle (grid-unit vertices, normal, box, boundary
+// flags) and the boundary-edge map while it is built.
+constexpr double kPlannerBytesPerTriangle = 72.0 + 24.0 + 48.0 + 1.0 + 3.0 * 48.0;
+
+/// One cell's full-depth voxels.
+VoxelSet voxelize_one(const Mesh& mesh, const GridTransform& grid,
+                      const std::vector<std::array<double, 3>>& gv,
+                      const std::vector<uint32_t>& tris, uint64_t cell, int c,
+                      const VoxelizeOptions& vo) {
+  const MortonCoord cc = morton_decode(cell);
+  const uint32_t lo[3] = {cc.x << c, cc.y << c, cc.z << c};
+  return voxcast::detail::voxelize_cell(mesh, grid, gv, tris.data(), tris.size(), lo, 1u << c, vo);
+}
+
+/// The TreeView of levels [from, L) of `lv` plus the leaf values (null /
+/// zero entries elsewhere).
+detail::TreeView tree_view(const std::vector<Level>& lv, const std::vector<uint64_t>* leaf_values,
+                           int from, int to) {
+  const int L = int(lv.size());
+  detail::TreeView tree;
+  tree.levels = L;
+  tree.mask.assign(size_t(L), nullptr);
+  tree.first_child.assign(size_t(L), nullptr);
+  tree.count.assign(size_t(L) + 1, 0);
+  tree.value.assign(size_t(L) + 1, nullptr);
+  for (int d = from; d <= std::min(to, L - 1); ++d) {
+    tree.mask[size_t(d)] = lv[size_t(d)].mask.data();
+    tree.first_child[size_t(d)] = lv[size_t(d)].first_child.data();
+    tree.count[size_t(d)] = lv[size_t(d)].mask.size();
+    if (d >= 1 && !lv[size_t(d)].value.empty()) tree.value[size_t(d)] = lv[size_t(d)].value.data();
+  }
+  if (leaf_values != nullptr) {
+    tree.count[size_t(L)] = leaf_values->size();
+    tree.value[size_t(L)] = leaf_values->data();
+  }
+  return tree;
+}
+
+}  // namespace
+
+EsvoOctree build_octree_cells(const Mesh& mesh, const GridTransform& grid,
+                              const VoxelizeOptions& voxelize_options, const BuildOptions& options,
+                              uint32_t cell_size, uint64_t memory_budget, CellBuildStats* stats) {
+  CellBuildStats st;
+  if (!options.contours) throw Error("cannot build octree cell by cell: needs contours");
+  check_block_limits(options);
+  const int L = grid.levels;
+  if (L < 2 || L > kMaxGridLevels || grid.resolution != (1u << L))
+    throw Error("cannot build octree cell by cell: the grid must have 2.." +
+                std::to_string(kMaxGridLevels) + " levels");
+  if (options.max_level < 0 || options.max_level > L)
+    throw Error("cannot build octree: max level " + std::to_string(options.max_level) +
+                " outside 1.." + std::to_string(L));
+  if (!std::isfinite(options.geometry_error) || !std::isfinite(options.color_error) ||
+      !std::isfinite(options.normal_error))
+    throw Error("cannot build octree: error tolerances must be finite");
+  if (mesh.triangle_count() > size_t(UINT32_MAX))
+    throw Error("cannot build octree: more than 2^32-1 triangles");
+  VoxelizeOptions vo = voxelize_options;
+  vo.progress = nullptr;
+  const bool attr_tolerance = options.color_error >= 0 || options.normal_error >= 0;
+  if (options.attributes == AttributeFormat::Compressed && attr_tolerance) {
+    // The §7.3 decoded-value loop (lay out, decode, refine, repeat) needs the
+    // full-depth values of every leaf above the max level in each round.
+    st.in_core = true;
+    const VoxelSet vs = voxelize(mesh, grid, voxelize_options);
+    st.voxels = st.max_cell_voxels = vs.size();
+    if (stats) *stats = st;
+    return build_octree(vs, mesh, options);
+  }
+
+  const std::vector<std::array<double, 3>> gv = voxcast::detail::grid_vertices(mesh, grid);
+  voxcast::detail::CellPlan cp;
+  const uint64_t planner_bytes = uint64_t(kPlannerBytesPerTriangle * double(mesh.triangle_count()));
+  if (cell_size != 0) {
+    if (!std::has_single_bit(cell_size) || cell_size < 2 || cell_size > grid.resolution / 2)
+      throw Error("cell size " + std::to_string(cell_size) +
+                  " is not a power of two between 2 and half the resolution " +
+                  std::to_string(grid.resolution));
+    cp =
+        voxcast::detail::plan_cells(mesh, gv, grid, std::countr_zero(cell_size), kCellBytesPerPair);
+  } else {
+    uint64_t budget = memory_budget;
+    if (budget == 0) budget = uint64_t(double(available_memory_bytes()) * 0.9);
+    const int min_bits = std::min(L - 1, 5);  // 32^3: smaller cells only multiply the bins
+    for (int bits = L - 1; bits >= min_bits; --bits) {
+      cp = voxcast::detail::plan_cells(mesh, gv, grid, bits, kCellBytesPerPair);
+      const uint64_t fixed = cp.fixed_bytes + planner_bytes;
+      if (budget == 0 || (fixed < budget && cp.cell_bytes <= (budget - fixed) / 2)) break;
+    }
+  }
+  const int c = cp.bits;
+  const int C = L - c;  // depth of the cells' roots
+  st.cell_size = 1u << c;
+  st.estimated_bytes = cp.fixed_bytes + planner_bytes + cp.cell_bytes;
+  std::vector<voxcast::detail::CellBin> bins = voxcast::detail::bin_triangles(mesh, gv, grid, c);
+  // Cell b's triangles: bins[cell_start[b], cell_start[b + 1]).
+  std::vector<size_t> cell_start;
+  for (size_t i = 0; i < bins.size(); ++i)
+    if (i == 0 || bins[i].cell != bins[i - 1].cell) cell_start.push_back(i);
+  cell_start.push_back(bins.size());
+  const size_t nbins = cell_start.size() - 1;
+  std::vector<uint32_t> tris;
+  auto cell_tris = [&](size_t b) {
+    tris.clear();
+    for (size_t i = cell_start[b]; i < cell_start[b + 1]; ++i) tris.push_back(bins[i].tri);
+    return bins[cell_start[b]].cell;
+  };
+
+  const std::shared_ptr<const detail::PlannerMesh> pmesh = detail::make_planner_mesh(grid, mesh);
+  std::vector<Level> lv(static_cast<size_t>(L));
+  detail::ContourPlan plan;
+  plan.contour.resize(size_t(L) + 1);
+  plan.leaf.resize(size_t(L));
+  std::vector<uint64_t> leaf_values;  // kept depth-L voxels
+
+  // The non-empty cells' roots, in Morton order.
+  struct Roots {
+    std::vector<uint32_t> bin;  // its bin group
+    std::vector<uint64_t> code;
+    std::vector<uint8_t> mask;
+    std::vector<Color> color;
+    std::vector<Vec3> normal;
+    std::vector<float> weight;
+    std::vector<uint32_t> first_child;  // in lv[C + 1], if refined
+    std::vector<uint64_t> desc_below, values_below;
+  } roots;
+  // Voxelizes cell group b and runs phase 1 up to its root; false if empty.
+  auto cell_levels = [&](size_t b, std::vector<Level>& clv, std::vector<uint64_t>& cleaf) {
+    const uint64_t cell = cell_tris(b);
+    const VoxelSet vs = voxelize_one(mesh, grid, gv, tris, cell, c, vo);
+    if (vs.codes.empty()) return false;
+    if (vs.size() >= (uint64_t(1) << 32))
+      throw Error("cannot build octree: more than 2^32 voxels in one cell");
+    build_levels(vs, clv, cleaf, C);
+    return true;
+  };
+  auto add_root = [&](size_t b, const std::vector<Level>& clv, size_t voxels) {
+    const Level& r = clv[size_t(C)];
+    st.voxels += voxels;
+    st.max_cell_voxels = std::max<uint64_t>(st.max_cell_voxels, voxels);
+    roots.bin.push_back(uint32_t(b));
+    roots.code.push_back(r.code[0]);
+    roots.mask.push_back(r.mask[0]);
+    roots.color.push_back(r.color[0]);
+    roots.normal.push_back(r.normal[0]);
+    roots.weight.push_back(r.weight[0]);
+    roots.first_child.push_back(0);
+    roots.desc_below.push_back(0);
+    roots.values_below.push_back(0);
+  };
+  // Plans root k's subtree from its seed and appends the nodes the plan
+  // keeps below it: depths > C, the children of kept refined voxels.
+  std::vector<uint32_t> cur, next;
+  auto keep_cell = [&](size_t k, std::vector<Level>& clv, const std::vector<uint64_t>& cleaf,
+                       const detail::SubtreeSeed& seed) {
+    ++st.refined_cells;
+    const detail::TreeView ct = tree_view(clv, &cleaf, C, L - 1);
+    detail::ContourPlanner cplanner(ct, pmesh, options, seed);
+    const detail::ContourPlan& cplan = cplanner.plan();
+    planned_sizes(clv, cplan, L - 2, C);
+    roots.desc_below[k] = clv[size_t(C)].desc_below[0];
+    roots.values_below[k] = clv[size_t(C)].values_below[0];
+    cur.assign(1, 0);
+    for (int d = C; d < L; ++d) {
+      const Level& src = clv[size_t(d)];
+      Level& dst = lv[size_t(d)];
+      const size_t base_next = d + 1 < L ? lv[size_t(d) + 1].mask.size() : leaf_values.size();
+      next.clear();
+      for (const uint32_t i : cur) {
+        const bool refined = d == C || !cplan.leaf[size_t(d)][i];
+        uint32_t fc = 0;
+        if (refined) {
+          const uint64_t f = base_next + next.size();
+          if (f >= (uint64_t(1) << 32)) throw Error("cannot build octree: more than 2^32 nodes");
+          fc = uint32_t(f);
+          const uint32_t first = src.first_child[i];
+          for (int j = 0; j < std::popcount(unsigned(src.mask[i])); ++j)
+            next.push_back(first + uint32_t(j));
+        }
+        if (d == C) {
+          roots.first_child[k] = fc;
+          continue;
+        }
+        dst.mask.push_back(src.mask[i]);
+        dst.first_child.push_back(fc);
+        dst.desc_below.push_back(src.desc_below[i]);
+        dst.values_below.push_back(src.values_below[i]);
+        dst.value.push_back(src.value[i]);
+        plan.contour[size_t(d)].push_back(cplan.contour[size_t(d)][i]);
+        plan.leaf[size_t(d)].push_back(cplan.leaf[size_t(d)][i]);
+      }
+      cur.swap(next);
+    }
+    for (const uint32_t i : cur) {  // depth L
+      leaf_values.push_back(cleaf[i]);
+      plan.contour[size_t(L)].push_back(cplan.contour[size_t(L)][i]);
+    }
+  };
+  // The top levels 0..C from the cell roots, as build_levels() reduces them
+  // (codes kept per depth in top_codes).
+  std::vector<std::vector<uint64_t>> top_codes(size_t(C) + 1);
+  auto build_top = [&]() {
+    if (roots.code.empty()) throw Error("cannot build octree: no voxels");
+    st.cells = roots.code.size();
+    Level& r = lv[size_t(C)];
+    r.code = std::move(roots.code);
+    r.mask = std::move(roots.mask);
+    r.color = std::move(roots.color);
+    r.normal = std::move(roots.normal);
+    r.weight = std::move(roots.weight);
+    r.first_child = std::move(roots.first_child);
+    r.desc_below = std::move(roots.desc_below);
+    r.values_below = std::move(roots.values_below);
+    for (int d = C - 1; d >= 0; --d) {
+      Level& p = lv[size_t(d)];
+      Level& ch = lv[size_t(d) + 1];
+      reduce_codes(ch.code, p);
+      reduce_attributes(ch.color, ch.normal, ch.weight, p);
+      encode_values(ch.color, ch.normal, ch.value);
+      top_codes[size_t(d) + 1] = std::move(ch.code);
+      std::vector<Color>().swap(ch.color);
+      std::vector<Vec3>().swap(ch.normal);
+      std::vector<float>().swap(ch.weight);
+      p.desc_below.assign(p.mask.size(), 0);
+      p.values_below.assign(p.mask.size(), 0);
+    }
+    if (lv[0].mask.size() != 1)
+      throw std::logic_error("esvo builder: root level is not a single node");
+  };
+
+  if (!attr_tolerance) {
+    // One pass. Without a color/normal tolerance a voxel's contour and
+    // decision depend only on its ancestors' triangles and slabs (§7.1-7.2),
+    // not on its siblings or any attributes, so the top levels can be
+    // planned before any cell is voxelized, on the tree of the cells that
+    // have triangles (a superset of the non-empty ones); each cell is then
+    // voxelized once, its root kept and, if refined, its subtree planned.
+    std::vector<Level> sup(static_cast<size_t>(L));
+    for (size_t b = 0; b < nbins; ++b) sup[size_t(C)].code.push_back(bins[cell_start[b]].cell);
+    sup[size_t(C)].mask.assign(nbins, 0);
+    sup[size_t(C)].first_child.assign(nbins, 0);
+    for (int d = C - 1; d >= 0; --d) reduce_codes(sup[size_t(d) + 1].code, sup[size_t(d)]);
+    // Values are not read without an attribute tolerance (the planner's
+    // REFINE-ATTRIBUTES is off), but the view needs them.
+    for (int d = 1; d <= C; ++d) sup[size_t(d)].value.assign(sup[size_t(d)].mask.size(), 0);
+    const detail::TreeView top = tree_view(sup, nullptr, 0, C);
+    detail::ContourPlanner planner(top, pmesh, options, C, nullptr);
+    const detail::ContourPlan& tp = planner.plan();
+    for (size_t b = 0; b < nbins; ++b) {
+      std::vector<Level> clv;
+      std::vector<uint64_t> cleaf;
+      if (!cell_levels(b, clv, cleaf)) continue;
+      add_root(b, clv, cleaf.size());
+      if (const auto seed = planner.take_seed(uint32_t(b)))
+        keep_cell(roots.bin.size() - 1, clv, cleaf, *seed);
+    }
+    build_top();
+    // The top plan of the non-empty nodes (a subsequence of sup's, by code).
+    for (int d = 1; d <= C; ++d) {
+      const std::vector<uint64_t>& real = top_codes[size_t(d)];
+      const std::vector<uint64_t>& all = sup[size_t(d)].code;
+      plan.contour[size_t(d)].resize(real.size());
+      if (d < L) plan.leaf[size_t(d)].resize(real.size());
+      for (size_t i = 0, j = 0; i < real.size(); ++i, ++j) {
+        while (all[j] != real[i]) ++j;
+        plan.contour[size_t(d)][i] = tp.contour[size_t(d)][j];
+        if (d < L) plan.leaf[size_t(d)][i] = tp.leaf[size_t(d)][j];
+      }
+    }
+  } else {
+    // Pass 1: the cell roots.
+    for (size_t b = 0; b < nbins; ++b) {
+      std::vector<Level> clv;
+      std::vector<uint64_t> cleaf;
+      if (cell_levels(b, clv, cleaf)) add_root(b, clv, cleaf.size());
+    }
+    const std::vector<uint32_t> cell_bin = roots.bin;
+    build_top();
+    const size_t ncells = cell_bin.size();
+
+    // Pass 2: REFINE-ATTRIBUTES flags of the top voxels (depth 1..C).
+    std::vector<std::vector<uint8_t>> attr_flags(size_t(C) + 1);
+    for (int d = 1; d <= C; ++d) attr_flags[size_t(d)].assign(lv[size_t(d)].mask.size(), 0);
+    std::vector<uint64_t> values;
+    for (size_t k = 0; k < ncells; ++k) {
+      // The cell's ancestors (depth C: itself), bottom-up.
+      uint32_t anc[kMaxGridLevels + 1];
+      anc[C] = uint32_t(k);
+      for (int d = C - 1; d >= 1; --d) {
+        const std::vector<uint32_t>& fc = lv[size_t(d)].first_child;
+        anc[d] = uint32_t(std::upper_bound(fc.begin(), fc.end(), anc[d + 1]) - fc.begin() - 1);
+      }
+      bool all_set = true;
+      for (int d = 1; d <= C; ++d) all_set = all_set && attr_flags[size_t(d)][anc[d]];
+      if (all_set) continue;
+      const uint64_t cell = cell_tris(cell_bin[k]);
+      VoxelSet vs = voxelize_one(mesh, grid, gv, tris, cell, c, vo);
+      if (vs.colors.empty()) {
+        vs.colors.assign(vs.size(), kDefaultColor);
+        vs.normals.assign(vs.size(), kDefaultNormal);
+      }
+      encode_values(vs.colors, vs.normals, values);
+      vs = VoxelSet{};
+      tbb::parallel_for(1, C + 1, [&](int d) {
+        uint8_t& f = attr_flags[size_t(d)][anc[d]];
+        if (f) return;
+        const uint64_t v = lv[size_t(d)].value[anc[d]];
+        f = detail::values_exceed(values.data(), 0, values.size(), uint32_t(v),
+                                  decode_normal_cube(uint32_t(v >> 32)), options);
+      });
+    }
+
+    // The top plan (depths 1..C), then pass 3: every refined cell again.
+    const detail::TreeView top = tree_view(lv, nullptr, 0, C);
+    detail::ContourPlanner planner(top, pmesh, options, C, &attr_flags);
+    const detail::ContourPlan& tp = planner.plan();
+    for (int d = 1; d <= C; ++d) {
+      plan.contour[size_t(d)] = tp.contour[size_t(d)];
+      if (d < L) plan.leaf[size_t(d)] = tp.leaf[size_t(d)];
+    }
+    attr_flags = {};
+    Level& r = lv[size_t(C)];
+    roots.first_child = std::move(r.first_child);
+    roots.desc_below = std::move(r.desc_below);
+    roots.values_below = std::move(r.values_below);
+    for (size_t k = 0; k < ncells; ++k) {
+      const auto seed = planner.take_seed(uint32_t(k));
+      if (!seed) continue;
+      std::vector<Level> clv;
+      std::vector<uint64_t> cleaf;
+      cell_levels(cell_bin[k], clv, cleaf);
+      keep_cell(k, clv, cleaf, *seed);
+    }
+    r.first_child = std::move(roots.first_child);
+    r.desc_below = std::move(roots.desc_below);
+    r.values_below = std::move(roots.values_below);
+  }
+  bins = {};
+
+  // Subtree sizes of the top levels from the cells', then the layout of the
+  // kept tree (the decoded-value loop is not needed: raw leaves decode to
+  // what the planner tested, and compressed ones without a color/normal
+  // tolerance are not tested).
+  planned_sizes(lv, plan, C - 1, 0);
+  if (stats) *stats = st;
+  return Layout(lv, leaf_values, options, &plan).run(grid);
 }
 
 }  // namespace voxcast::esvo

@@ -31,12 +31,17 @@
 // Variable depth (§7.1): a voxel above max_level is subdivided when
 // REFINE-GEOMETRY holds (some vertex of its final shape is farther than
 // geometry_error from the surface; checked on the vertices only, as §7.2
-// suggests) or REFINE-ATTRIBUTES (§7.3: some voxel below it has a decoded
-// 8-bit color / normal farther than the tolerance from its own; bound by
-// the triangle inequality over the levels, computed bottom-up). Otherwise its
-// subtree is dropped and it becomes a leaf, keeping its box-filtered
-// attributes from phase 1. The attribute test uses the raw 8-bit encoding;
-// compression error (§5.5) is not part of it.
+// suggests) or REFINE-ATTRIBUTES (§7.3: the attributes the voxel decodes to
+// are farther than the tolerance from the original attributes of some
+// full-depth voxel below it; attributes_exceed() compares every one of them,
+// exactly). Otherwise its subtree is dropped and it becomes a leaf, keeping
+// its box-filtered attributes from phase 1. The planner tests the raw 8-bit
+// encoding, which is what a raw build decodes to; with compressed attributes
+// (§5.5) the decoded value also depends on the block the leaf shares with
+// its sibling pair, known only after the layout, so the builder tests the
+// decoded leaves afterwards and ContourPlanner::refine() subdivides the ones
+// out of tolerance ("attribute quantization and compression is performed
+// before the test", §7.3).
 #include "esvo/contours.hpp"
 
 #include <tbb/blocked_range.h>
@@ -47,7 +52,9 @@
 #include <bit>
 #include <cmath>
 #include <cstring>
+#include <numbers>
 #include <numeric>
+#include <stdexcept>
 #include <unordered_map>
 
 #include "esvo/layout_internal.hpp"
@@ -199,17 +206,36 @@ class Polyhedron {
     v_ = {c[0], c[2], c[3], c[1], c[4], c[5], c[7], c[6], c[0], c[1], c[5], c[4],
           c[2], c[6], c[7], c[3], c[0], c[4], c[6], c[2], c[1], c[3], c[7], c[5]};
     end_ = {4, 8, 12, 16, 20, 24};
+    center_ = lo + V3{0.5 * s, 0.5 * s, 0.5 * s};
+    side_ = s;
   }
   /// Keeps n . x <= off; the cut adds a cap face.
   void clip(V3 n, double off) {
     const double tol = 1e-12 * (std::fabs(off) + 1);
+    // Plane beyond the whole cube (most ancestor slabs of a small voxel,
+    // §7.2, are far thicker than it): every vertex of P lies in the cube
+    // (new vertices interpolate two old ones) up to rounding errors far
+    // below the 1e-6 margin, so every distance is < -tol and the loop
+    // below would take its fast exit; decided without the per-vertex loop.
+    // (A bounding box of P, tighter, costs more to maintain than it saves.)
+    const double n1 = std::fabs(n.x) + std::fabs(n.y) + std::fabs(n.z);
+    if (dot(n, center_) + 0.5 * side_ * n1 - off <
+        -(tol + 1e-6 * n1 * (side_ + 1) + 1e-9 * (std::fabs(off) + 1)))
+      return;
+    // The signed distance of every face vertex, computed once: the loop
+    // below is clip_append() per face with these values instead of
+    // recomputed ones (the same dot() expression, so the same bits; the
+    // build is -ffp-contract=off) -- a vertex is shared by three or more
+    // faces.
+    d_.resize(v_.size());
     // Fast exit, exact: with no vertex beyond the plane every face is kept
     // as is, and the cap face is only added when >= 3 (face) vertices lie
     // on the plane -- the general path below would produce the same faces.
     bool any_out = false;
     int on = 0;
-    for (const V3& p : v_) {
-      const double d = dot(n, p) - off;
+    for (size_t i = 0; i < v_.size(); ++i) {
+      const double d = dot(n, v_[i]) - off;
+      d_[i] = d;
       any_out |= d > 0;
       on += std::fabs(d) <= tol;
     }
@@ -220,11 +246,23 @@ class Polyhedron {
     cap_.clear();
     size_t b = 0;
     for (const uint32_t e : end_) {
-      const size_t s = nv_.size();
-      clip_append(v_.data() + b, e - b, n, off, nv_);
+      // Sutherland-Hodgman as in clip_append(); kept points within tol of
+      // the plane also go to the cap, in output order.
+      const size_t s = nv_.size(), k = e - b;
+      for (size_t i = 0; i < k; ++i) {
+        const size_t ia = b + i, ib = b + (i + 1 == k ? 0 : i + 1);
+        const double da = d_[ia], db = d_[ib];
+        if (da <= 0) {
+          nv_.push_back(v_[ia]);
+          if (std::fabs(da) <= tol) cap_.push_back(v_[ia]);
+        }
+        if ((da < 0 && db > 0) || (da > 0 && db < 0)) {
+          const V3 a = v_[ia], x = a + (v_[ib] - a) * (da / (da - db));
+          nv_.push_back(x);
+          if (std::fabs(dot(n, x) - off) <= tol) cap_.push_back(x);
+        }
+      }
       b = e;
-      for (size_t i = s; i < nv_.size(); ++i)
-        if (std::fabs(dot(n, nv_[i]) - off) <= tol) cap_.push_back(nv_[i]);
       if (nv_.size() - s >= 3)
         nend_.push_back(uint32_t(nv_.size()));
       else
@@ -240,8 +278,21 @@ class Polyhedron {
       // The angle is computed once per point instead of twice per
       // comparison; std::sort sees the same comparison results, so the
       // permutation (ties included) is the one of the per-comparison form.
+      // A point reached from several faces (a vertex on the plane, or an
+      // intersection computed to the same bits from both faces of an edge)
+      // reuses the angle of its first copy: same point, same key.
       keyed_.clear();
-      for (const V3& p : cap_) keyed_.push_back({std::atan2(dot(p - m, v), dot(p - m, u)), p});
+      for (const V3& p : cap_) {
+        double key = 0;
+        bool found = false;
+        for (const auto& kp : keyed_)
+          if (kp.second.x == p.x && kp.second.y == p.y && kp.second.z == p.z) {
+            key = kp.first, found = true;
+            break;
+          }
+        if (!found) key = std::atan2(dot(p - m, v), dot(p - m, u));
+        keyed_.push_back({key, p});
+      }
       std::sort(keyed_.begin(), keyed_.end(),
                 [](const std::pair<double, V3>& p, const std::pair<double, V3>& q) {
                   return p.first < q.first;
@@ -256,22 +307,46 @@ class Polyhedron {
     clip(s.n, s.hi);
     clip(s.n * -1.0, -s.lo);
   }
-  /// The distinct vertices, sorted (into `v`, reused).
+  /// The distinct vertices (into `v`, reused), in first-occurrence order.
+  /// Exact duplicates (shared by adjacent faces) are dropped with a small
+  /// open-addressing table on the coordinates: its users (within(), the
+  /// range minima/maxima of ranges()) only depend on the set of points, so
+  /// this gives the same results as sorting and std::unique did, without
+  /// the sort (a quarter of the planning time).
   void vertices(std::vector<V3>& v) const {
-    v.assign(v_.begin(), v_.end());
-    // Drop exact duplicates (shared by adjacent faces).
-    std::sort(v.begin(), v.end(), [](V3 a, V3 b) {
-      return a.x != b.x ? a.x < b.x : a.y != b.y ? a.y < b.y : a.z < b.z;
-    });
-    v.erase(std::unique(v.begin(), v.end(),
-                        [](V3 a, V3 b) { return a.x == b.x && a.y == b.y && a.z == b.z; }),
-            v.end());
+    v.clear();
+    size_t cap = 64;
+    while (cap < 2 * v_.size()) cap *= 2;
+    table_.assign(cap, -1);
+    for (const V3& p : v_) {
+      // +0.0 maps -0 to +0, which == treats as equal.
+      const uint64_t hx = std::bit_cast<uint64_t>(p.x + 0.0),
+                     hy = std::bit_cast<uint64_t>(p.y + 0.0),
+                     hz = std::bit_cast<uint64_t>(p.z + 0.0);
+      uint64_t h = (hx * 0x9E3779B97F4A7C15ull) ^ (hy * 0xC2B2AE3D27D4EB4Full) ^
+                   (hz * 0x165667B19E3779F9ull);
+      h ^= h >> 29;
+      for (size_t i = size_t(h) & (cap - 1);; i = (i + 1) & (cap - 1)) {
+        const int32_t j = table_[i];
+        if (j < 0) {
+          table_[i] = int32_t(v.size());
+          v.push_back(p);
+          break;
+        }
+        const V3 q = v[size_t(j)];
+        if (q.x == p.x && q.y == p.y && q.z == p.z) break;
+      }
+    }
   }
 
  private:
   std::vector<V3> v_, nv_, cap_;
+  std::vector<double> d_;  // clip(): signed distance per entry of v_
+  V3 center_;              // the cube of reset()
+  double side_ = 0;
   std::vector<uint32_t> end_, nend_;
   std::vector<std::pair<double, V3>> keyed_;
+  mutable std::vector<int32_t> table_;  // vertices(): hash table of indices into v
 };
 
 struct Candidate {
@@ -282,124 +357,135 @@ struct Candidate {
   GridSlab slab;
 };
 
+}  // namespace
+
+/// The mesh as the planner reads it, built once per build: the cell-by-cell
+/// build runs one planner per cell and must not redo the O(T) parts (the
+/// boundary-edge hash map) per cell.
+struct PlannerMesh {
+  std::vector<std::array<V3, 3>> tri;  // triangles in grid units
+  std::vector<V3> normal;              // unit normals (0 for degenerate triangles)
+  std::vector<V3> lo, hi;              // bounding boxes (both filters test them per voxel)
+  std::vector<uint8_t> boundary;       // bit k: edge k -> k+1 is a mesh boundary edge
+};
+
+/// What child() hands down to a refined voxel's subtree (its node() call):
+/// the triangles overlapping it and the ancestor slabs including its own.
+struct SubtreeSeed {
+  int depth = 0;
+  uint32_t x = 0, y = 0, z = 0;  // cube at its level
+  std::vector<uint32_t> tris;
+  std::vector<GridSlab> slabs;
+};
+
+namespace {
+
+/// Mesh boundary edges (one adjacent triangle, matched by position so split
+/// vertices do not count as boundaries): bit k of boundary[t] = edge k -> k+1.
+void find_boundary_edges(const Mesh& mesh, std::vector<uint8_t>& boundary) {
+  struct Key {
+    float a[6];
+    bool operator==(const Key& o) const { return std::memcmp(a, o.a, sizeof a) == 0; }
+  };
+  struct Hash {
+    size_t operator()(const Key& k) const {
+      uint64_t h = 1469598103934665603ull;
+      for (float f : k.a) h = (h ^ std::bit_cast<uint32_t>(f)) * 1099511628211ull;
+      return size_t(h);
+    }
+  };
+  std::unordered_map<Key, uint32_t, Hash> count;
+  auto key = [&](size_t t, int k) {
+    Vec3 p = mesh.positions[mesh.indices[3 * t + size_t(k)]];
+    Vec3 q = mesh.positions[mesh.indices[3 * t + size_t((k + 1) % 3)]];
+    if (std::tie(q.x, q.y, q.z) < std::tie(p.x, p.y, p.z)) std::swap(p, q);
+    return Key{{p.x + 0.f, p.y + 0.f, p.z + 0.f, q.x + 0.f, q.y + 0.f, q.z + 0.f}};  // +0: -0 -> 0
+  };
+  const size_t T = mesh.triangle_count();
+  count.reserve(3 * T);
+  for (size_t t = 0; t < T; ++t)
+    for (int k = 0; k < 3; ++k) ++count[key(t, k)];
+  for (size_t t = 0; t < T; ++t)
+    for (int k = 0; k < 3; ++k)
+      if (count[key(t, k)] == 1) boundary[t] |= uint8_t(1u << k);
+}
+
 class Planner {
  public:
-  Planner(const TreeView& t, const GridTransform& g, const Mesh& mesh, const BuildOptions& o)
+  /// `stop_depth` (cell-by-cell top plan): refined voxels at that depth are
+  /// not descended into; their seeds are kept for the cells' planners.
+  /// `attr_flags` [depth][node]: precomputed REFINE-ATTRIBUTES answers (the
+  /// full-depth voxels are not in `t`), used instead of attributes_exceed().
+  Planner(const TreeView& t, std::shared_ptr<const PlannerMesh> m, const BuildOptions& o,
+          int stop_depth = 1 << 30, const std::vector<std::vector<uint8_t>>* attr_flags = nullptr)
       : t_(t),
         o_(o),
         L_(t.levels),
-        Lmax_(o.max_level > 0 ? std::min(o.max_level, t.levels) : t.levels) {
-    const double inv = 1.0 / g.voxel_size;
-    const size_t T = mesh.triangle_count();
-    tri_.resize(T);
-    normal_.resize(T);
-    tlo_.resize(T);
-    thi_.resize(T);
-    boundary_.assign(T, 0);
-    for (size_t i = 0; i < T; ++i) {
-      for (int k = 0; k < 3; ++k) {
-        const Vec3 p = mesh.positions[mesh.indices[3 * i + size_t(k)]];
-        tri_[i][size_t(k)] = {(double(p.x) - g.origin.x) * inv, (double(p.y) - g.origin.y) * inv,
-                              (double(p.z) - g.origin.z) * inv};
-      }
-      const V3 n = cross(tri_[i][1] - tri_[i][0], tri_[i][2] - tri_[i][0]);
-      const double l = len(n);
-      normal_[i] = l > 0 ? n * (1.0 / l) : V3{0, 0, 0};
-      const auto& v = tri_[i];
-      tlo_[i] = {std::min({v[0].x, v[1].x, v[2].x}), std::min({v[0].y, v[1].y, v[2].y}),
-                 std::min({v[0].z, v[1].z, v[2].z})};
-      thi_[i] = {std::max({v[0].x, v[1].x, v[2].x}), std::max({v[0].y, v[1].y, v[2].y}),
-                 std::max({v[0].z, v[1].z, v[2].z})};
-    }
-    find_boundary_edges(mesh);
+        Lmax_(o.max_level > 0 ? std::min(o.max_level, t.levels) : t.levels),
+        mesh_(std::move(m)),
+        tri_(mesh_->tri),
+        normal_(mesh_->normal),
+        tlo_(mesh_->lo),
+        thi_(mesh_->hi),
+        boundary_(mesh_->boundary),
+        stop_depth_(stop_depth),
+        attr_flags_(attr_flags) {
+    if (stop_depth_ <= L_) seeds_.resize(t.count[size_t(stop_depth_)]);
     contour_tol_ = o.geometry_error > 0 ? o.geometry_error : kDefaultContourTolerance;
     variable_ = o.geometry_error > 0 || o.color_error >= 0 || o.normal_error >= 0;
     plan_.contour.resize(size_t(L_) + 1);
     plan_.leaf.resize(size_t(L_));
     for (int d = 1; d <= L_; ++d) plan_.contour[size_t(d)].assign(t.count[size_t(d)], 0);
     for (int d = 1; d < L_; ++d) plan_.leaf[size_t(d)].assign(t.count[size_t(d)], 0);
-    if (o.color_error >= 0 || o.normal_error >= 0) attribute_deviation();
+    seen_.resize(size_t(L_) + 1);
+    for (int d = 1; d <= L_; ++d) seen_[size_t(d)].assign(t.count[size_t(d)], 0);
   }
 
-  ContourPlan run() {
-    std::vector<uint32_t> all(tri_.size());
-    std::iota(all.begin(), all.end(), 0u);
-    node(0, 0, 0, 0, 0, all, {});
-    return std::move(plan_);
+  /// Plans every voxel not planned yet and re-plans the paths marked by
+  /// refine(). A voxel's contour and decision depend only on its ancestors'
+  /// (the triangles and slabs handed down) and on the forced set, so
+  /// re-planning a path reproduces it and only the subtrees below newly
+  /// forced voxels change.
+  const ContourPlan& run() {
+    if (start_ != nullptr) {
+      // A cell's subtree: node (start depth, 0) is the seed's voxel.
+      const SubtreeSeed& s = *start_;
+      par_depth_ = s.depth + 4;
+      node(s.depth, 0, s.x, s.y, s.z, s.tris, s.slabs);
+    } else {
+      std::vector<uint32_t> all(tri_.size());
+      std::iota(all.begin(), all.end(), 0u);
+      node(0, 0, 0, 0, 0, all, {});
+    }
+    for (const auto& [d, i] : redo_list_) redo_[size_t(d)][i] = 0;
+    redo_list_.clear();
+    return plan_;
   }
 
- private:
-  /// Mesh boundary edges (one adjacent triangle, matched by position so split
-  /// vertices do not count as boundaries): bit k of boundary_[t] = edge k -> k+1.
-  void find_boundary_edges(const Mesh& mesh) {
-    struct Key {
-      float a[6];
-      bool operator==(const Key& o) const { return std::memcmp(a, o.a, sizeof a) == 0; }
-    };
-    struct Hash {
-      size_t operator()(const Key& k) const {
-        uint64_t h = 1469598103934665603ull;
-        for (float f : k.a) h = (h ^ std::bit_cast<uint32_t>(f)) * 1099511628211ull;
-        return size_t(h);
+  /// Forces the planned leaf (depth, index) to be subdivided on the next
+  /// run() and marks the path to it for re-planning.
+  void force(int depth, uint32_t index) {
+    if (forced_.empty()) {
+      forced_.resize(size_t(L_));
+      redo_.resize(size_t(L_));
+      for (int d = 1; d < L_; ++d) {
+        forced_[size_t(d)].assign(t_.count[size_t(d)], 0);
+        redo_[size_t(d)].assign(t_.count[size_t(d)], 0);
       }
-    };
-    std::unordered_map<Key, uint32_t, Hash> count;
-    auto key = [&](size_t t, int k) {
-      Vec3 p = mesh.positions[mesh.indices[3 * t + size_t(k)]];
-      Vec3 q = mesh.positions[mesh.indices[3 * t + size_t((k + 1) % 3)]];
-      if (std::tie(q.x, q.y, q.z) < std::tie(p.x, p.y, p.z)) std::swap(p, q);
-      return Key{
-          {p.x + 0.f, p.y + 0.f, p.z + 0.f, q.x + 0.f, q.y + 0.f, q.z + 0.f}};  // +0: -0 -> 0
-    };
-    const size_t T = mesh.triangle_count();
-    count.reserve(3 * T);
-    for (size_t t = 0; t < T; ++t)
-      for (int k = 0; k < 3; ++k) ++count[key(t, k)];
-    for (size_t t = 0; t < T; ++t)
-      for (int k = 0; k < 3; ++k)
-        if (count[key(t, k)] == 1) boundary_[t] |= uint8_t(1u << k);
-  }
-
-  /// §7.3 REFINE-ATTRIBUTES bound, bottom-up: dev(v) = max over children c
-  /// of dist(v, c) + dev(c) >= the distance from v's decoded attributes to
-  /// any voxel's below it (triangle inequality). Colors: max channel
-  /// difference of the 8-bit sRGB codes; normals: angle in degrees.
-  void attribute_deviation() {
-    dev_color_.resize(size_t(L_) + 1);
-    dev_normal_.resize(size_t(L_) + 1);
-    dev_color_[size_t(L_)].assign(t_.count[size_t(L_)], 0.f);
-    dev_normal_[size_t(L_)].assign(t_.count[size_t(L_)], 0.f);
-    for (int d = L_ - 1; d >= 1; --d) {
-      const size_t m = t_.count[size_t(d)];
-      dev_color_[size_t(d)].assign(m, 0.f);
-      dev_normal_[size_t(d)].assign(m, 0.f);
-      tbb::parallel_for(
-          tbb::blocked_range<size_t>(0, m, 2048), [&](const tbb::blocked_range<size_t>& r) {
-            for (size_t i = r.begin(); i != r.end(); ++i) {
-              const uint64_t v = t_.value[size_t(d)][i];
-              const Vec3 nv = decode_normal_cube(uint32_t(v >> 32));
-              const uint32_t first = t_.first_child[size_t(d)][i];
-              const int k = std::popcount(unsigned(t_.mask[size_t(d)][i]));
-              float dc = 0, dn = 0;
-              for (int j = 0; j < k; ++j) {
-                const uint64_t w = t_.value[size_t(d) + 1][first + uint32_t(j)];
-                int cd = 0;
-                for (int ch = 0; ch < 3; ++ch)
-                  cd = std::max(
-                      cd, std::abs(int((v >> (8 * ch)) & 0xFF) - int((w >> (8 * ch)) & 0xFF)));
-                const Vec3 nw = decode_normal_cube(uint32_t(w >> 32));
-                const float cosang = std::clamp(nv.x * nw.x + nv.y * nw.y + nv.z * nw.z, -1.f, 1.f);
-                const float ang = std::acos(cosang) * 57.29577951308232f;
-                dc = std::max(dc, float(cd) + dev_color_[size_t(d) + 1][first + uint32_t(j)]);
-                dn = std::max(dn, ang + dev_normal_[size_t(d) + 1][first + uint32_t(j)]);
-              }
-              dev_color_[size_t(d)][i] = dc;
-              dev_normal_[size_t(d)][i] = dn;
-            }
-          });
+    }
+    if (depth < 1 || depth >= Lmax_) throw std::logic_error("esvo planner: cannot refine");
+    forced_[size_t(depth)][index] = 1;
+    // Up the tree: the parent of node i at depth d is the last node of
+    // depth d - 1 whose first child is <= i (first_child increases).
+    for (int d = depth; d >= 1 && !redo_[size_t(d)][index]; --d) {
+      redo_[size_t(d)][index] = 1;
+      redo_list_.push_back({d, index});
+      const uint32_t* fc = t_.first_child[size_t(d) - 1];
+      index = uint32_t(std::upper_bound(fc, fc + t_.count[size_t(d) - 1], index) - fc - 1);
     }
   }
 
+ private:
   /// True if every point is within `tol` (grid units) of some triangle of `tris`.
   bool within(const std::vector<V3>& pts, const std::vector<uint32_t>& tris, double tol) const {
     const double tol2 = tol * tol;
@@ -495,13 +581,21 @@ class Planner {
             const std::vector<uint32_t>& tris, const std::vector<GridSlab>& slabs) {
     const uint32_t mask = t_.mask[size_t(depth)][index];
     const uint32_t first = t_.first_child[size_t(depth)][index];
+    // Children planned by an earlier run() are skipped unless refine()
+    // marked their subtree (their plan cannot have changed otherwise).
     int rank[8], slot[8], k = 0;
-    for (int i = 0; i < 8; ++i)
-      if (mask >> i & 1) rank[k] = k, slot[k] = i, ++k;
+    for (int i = 0, r = 0; i < 8; ++i) {
+      if (!(mask >> i & 1)) continue;
+      const uint32_t c = first + uint32_t(r++);
+      uint8_t& seen = seen_[size_t(depth) + 1][c];
+      if (seen && (redo_.empty() || depth + 1 >= L_ || !redo_[size_t(depth) + 1][c])) continue;
+      seen = 1;
+      rank[k] = r - 1, slot[k] = i, ++k;
+    }
     auto child = [&](int j) {
       this->child(depth + 1, first + uint32_t(rank[j]), slot[j], x, y, z, tris, slabs);
     };
-    if (depth < 4) {
+    if (depth < par_depth_) {
       tbb::parallel_for(0, k, child);
     } else {
       for (int j = 0; j < k; ++j) child(j);
@@ -625,8 +719,12 @@ class Planner {
         cv.thickness = best.thick;
         value = encode_contour(cv);
         own = best.slab;
-        P.clip(own);
-        P.vertices(pv);
+        // The final shape's vertices (P ∩ own slab) are only read by
+        // REFINE-GEOMETRY below (§7.1); full-depth builds skip the two cuts.
+        if (o_.geometry_error > 0 && cd < Lmax_) {
+          P.clip(own);
+          P.vertices(pv);
+        }
       }
     }
     plan_.contour[size_t(cd)][ci] = value;
@@ -634,17 +732,32 @@ class Planner {
 
     // Variable depth (§7.1): leaf here, or refine?
     bool leaf = cd >= Lmax_;
-    if (!leaf && variable_ && !ct.empty()) {
+    if (!leaf && !forced_.empty() && forced_[size_t(cd)][ci]) {
+      leaf = false;  // the decoded attributes failed the test (refine())
+    } else if (!leaf && variable_ && !ct.empty()) {
       const bool refine_geometry = o_.geometry_error > 0 && !within(pv, ct, o_.geometry_error);
-      bool refine_attributes = false;
-      if (o_.color_error >= 0 && dev_color_[size_t(cd)][ci] > o_.color_error)
-        refine_attributes = true;
-      if (o_.normal_error >= 0 && dev_normal_[size_t(cd)][ci] > o_.normal_error)
-        refine_attributes = true;
+      // §7.3 on the raw encoding (what a raw build decodes to); skipped when
+      // the geometry already refines.
+      const uint64_t v = t_.value[size_t(cd)][ci];
+      const bool refine_attributes =
+          !refine_geometry && (o_.color_error >= 0 || o_.normal_error >= 0) &&
+          (attr_flags_ != nullptr ? (*attr_flags_)[size_t(cd)][ci] != 0
+                                  : attributes_exceed(t_, cd, ci, uint32_t(v),
+                                                      decode_normal_cube(uint32_t(v >> 32)), o_));
       leaf = !refine_geometry && !refine_attributes;
     }
-    if (leaf) {
-      plan_.leaf[size_t(cd)][ci] = 1;
+    plan_.leaf[size_t(cd)][ci] = uint8_t(leaf);  // a re-plan (refine()) may clear it
+    if (leaf) return;
+    if (cd == stop_depth_) {
+      // Cell-by-cell build: the cell's own planner continues from here with
+      // exactly what node() below would get.
+      auto seed = std::make_unique<SubtreeSeed>();
+      seed->depth = cd;
+      seed->x = cx, seed->y = cy, seed->z = cz;
+      seed->tris = std::move(ct);
+      seed->slabs = slabs;
+      if (value != 0) seed->slabs.push_back(own);
+      seeds_[ci] = std::move(seed);
       return;
     }
     if (value != 0) {
@@ -659,22 +772,146 @@ class Planner {
   const TreeView& t_;
   const BuildOptions& o_;
   const int L_, Lmax_;
-  std::vector<std::array<V3, 3>> tri_;
-  std::vector<V3> normal_;
-  std::vector<V3> tlo_, thi_;  // triangle bounding boxes (both filters test them per voxel)
-  std::vector<uint8_t> boundary_;
-  std::vector<std::vector<float>> dev_color_, dev_normal_;
+  std::shared_ptr<const PlannerMesh> mesh_;
+  const std::vector<std::array<V3, 3>>& tri_;
+  const std::vector<V3>& normal_;
+  const std::vector<V3>&tlo_, &thi_;  // triangle bounding boxes (both filters test them per voxel)
+  const std::vector<uint8_t>& boundary_;
+  // Cell-by-cell build (build_cells.cpp): see the constructor.
+  const int stop_depth_;
+  const std::vector<std::vector<uint8_t>>* attr_flags_;
+  std::vector<std::unique_ptr<SubtreeSeed>> seeds_;  // [node at stop_depth_]
+  int par_depth_ = 4;                                // parallel over children above this depth
+  // Incremental re-planning (refine()): [depth][node], depth 1..L (seen_)
+  // resp. 1..L-1 (forced_, redo_; empty until the first refine()).
+  std::vector<std::vector<uint8_t>> seen_;    // planned by some run()
+  std::vector<std::vector<uint8_t>> forced_;  // must be subdivided
+  std::vector<std::vector<uint8_t>> redo_;    // subtree holds a newly forced voxel
+  std::vector<std::pair<int, uint32_t>> redo_list_;
   double contour_tol_ = kDefaultContourTolerance;
   bool variable_ = false;
   ContourPlan plan_;
+
+ public:
+  const ContourPlan& result() const { return plan_; }
+  const SubtreeSeed* start_ = nullptr;  // plan only this seed's subtree (a cell)
+  std::vector<std::unique_ptr<SubtreeSeed>>& seeds() { return seeds_; }
 };
 
 }  // namespace
 
-ContourPlan plan_contours(const TreeView& tree, const GridTransform& grid, const Mesh& mesh,
-                          const BuildOptions& options) {
+struct PlannerState {
+  Planner planner;
+};
+
+std::shared_ptr<const PlannerMesh> make_planner_mesh(const GridTransform& g, const Mesh& mesh) {
   if (mesh.triangle_count() == 0) throw Error("cannot build contours: the mesh has no triangles");
-  return Planner(tree, grid, mesh, options).run();
+  auto m = std::make_shared<PlannerMesh>();
+  const double inv = 1.0 / g.voxel_size;
+  const size_t T = mesh.triangle_count();
+  m->tri.resize(T);
+  m->normal.resize(T);
+  m->lo.resize(T);
+  m->hi.resize(T);
+  m->boundary.assign(T, 0);
+  for (size_t i = 0; i < T; ++i) {
+    for (int k = 0; k < 3; ++k) {
+      const Vec3 p = mesh.positions[mesh.indices[3 * i + size_t(k)]];
+      m->tri[i][size_t(k)] = {(double(p.x) - g.origin.x) * inv, (double(p.y) - g.origin.y) * inv,
+                              (double(p.z) - g.origin.z) * inv};
+    }
+    const auto& v = m->tri[i];
+    const V3 n = cross(v[1] - v[0], v[2] - v[0]);
+    const double l = len(n);
+    m->normal[i] = l > 0 ? n * (1.0 / l) : V3{0, 0, 0};
+    m->lo[i] = {std::min({v[0].x, v[1].x, v[2].x}), std::min({v[0].y, v[1].y, v[2].y}),
+                std::min({v[0].z, v[1].z, v[2].z})};
+    m->hi[i] = {std::max({v[0].x, v[1].x, v[2].x}), std::max({v[0].y, v[1].y, v[2].y}),
+                std::max({v[0].z, v[1].z, v[2].z})};
+  }
+  find_boundary_edges(mesh, m->boundary);
+  return m;
+}
+
+ContourPlanner::ContourPlanner(const TreeView& tree, const GridTransform& grid, const Mesh& mesh,
+                               const BuildOptions& options) {
+  p_ = std::make_unique<PlannerState>(
+      PlannerState{Planner(tree, make_planner_mesh(grid, mesh), options)});
+}
+
+ContourPlanner::ContourPlanner(const TreeView& tree, std::shared_ptr<const PlannerMesh> mesh,
+                               const BuildOptions& options, int stop_depth,
+                               const std::vector<std::vector<uint8_t>>* attr_flags) {
+  p_ = std::make_unique<PlannerState>(
+      PlannerState{Planner(tree, std::move(mesh), options, stop_depth, attr_flags)});
+}
+
+ContourPlanner::ContourPlanner(const TreeView& tree, std::shared_ptr<const PlannerMesh> mesh,
+                               const BuildOptions& options, const SubtreeSeed& seed) {
+  p_ = std::make_unique<PlannerState>(PlannerState{Planner(tree, std::move(mesh), options)});
+  p_->planner.start_ = &seed;
+}
+
+std::shared_ptr<const SubtreeSeed> ContourPlanner::take_seed(uint32_t index) {
+  auto& seeds = p_->planner.seeds();
+  if (index >= seeds.size()) return nullptr;
+  return std::shared_ptr<const SubtreeSeed>(std::move(seeds[index]));
+}
+
+ContourPlanner::~ContourPlanner() = default;
+
+const ContourPlan& ContourPlanner::plan() {
+  if (!planned_) p_->planner.run();
+  planned_ = true;
+  return p_->planner.result();
+}
+
+void ContourPlanner::refine(const std::vector<std::pair<int, uint32_t>>& leaves) {
+  for (const auto& [d, i] : leaves) p_->planner.force(d, i);
+  p_->planner.run();
+  planned_ = true;
+}
+
+size_t first_leaf(const TreeView& tree, int depth, size_t index) {
+  for (int d = depth; d < tree.levels; ++d) {
+    if (index >= tree.count[size_t(d)]) return tree.count[size_t(tree.levels)];
+    index = tree.first_child[size_t(d)][index];
+  }
+  return index;
+}
+
+bool attributes_exceed(const TreeView& tree, int depth, size_t index, uint32_t color_abgr,
+                       Vec3 normal, const BuildOptions& o) {
+  const size_t b = first_leaf(tree, depth, index), e = first_leaf(tree, depth, index + 1);
+  return values_exceed(tree.value[size_t(tree.levels)], b, e, color_abgr, normal, o);
+}
+
+bool values_exceed(const uint64_t* v, size_t b, size_t e, uint32_t color_abgr, Vec3 normal,
+                   const BuildOptions& o) {
+  if (o.color_error >= 0) {
+    // 8-bit sRGB codes, max channel difference (alpha is not stored, §5.5).
+    const int c[3] = {int(color_abgr & 0xFF), int(color_abgr >> 8 & 0xFF),
+                      int(color_abgr >> 16 & 0xFF)};
+    for (size_t u = b; u < e; ++u)
+      for (int ch = 0; ch < 3; ++ch)
+        if (std::abs(int(v[u] >> (8 * ch) & 0xFF) - c[ch]) > o.color_error) return true;
+  }
+  if (o.normal_error >= 0) {
+    // angle > tolerance <=> cos(angle) < cos(tolerance), in double with the
+    // float normals' lengths divided out (equal normals give cos 1 +- 1e-16,
+    // not 1 - 1e-7); the 1e-12 slack is < 1e-4 degrees at any tolerance.
+    const double cos_tol =
+        std::cos(std::min(o.normal_error, 180.0) * (std::numbers::pi / 180.0)) - 1e-12;
+    const double m[3] = {normal.x, normal.y, normal.z};
+    const double m2 = m[0] * m[0] + m[1] * m[1] + m[2] * m[2];
+    for (size_t u = b; u < e; ++u) {
+      const Vec3 n = decode_normal_cube(uint32_t(v[u] >> 32));
+      const double d = double(n.x) * m[0] + double(n.y) * m[1] + double(n.z) * m[2];
+      const double n2 = double(n.x) * n.x + double(n.y) * n.y + double(n.z) * n.z;
+      if (d < cos_tol * std::sqrt(n2 * m2)) return true;
+    }
+  }
+  return false;
 }
 
 }  // namespace detail
