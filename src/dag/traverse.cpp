@@ -111,19 +111,8 @@ CastResult cast(const SparseVoxelDag& dag, Vec3 p, Vec3 d, float tmax, float siz
   float t_min = vmax(vmax(tx(2.0f), ty(2.0f)), tz(2.0f));
   float t_max = vmin(vmin(tx(1.0f), ty(1.0f)), tz(1.0f));
   float h = t_max;
-  if (region != nullptr) {
-    // Entry/exit planes of the region in the mirrored frame (esvo traverse.cpp).
-    const bool mx = (octant_mask & 1) == 0, my = (octant_mask & 2) == 0,
-               mz = (octant_mask & 4) == 0;
-    const float in_x = mx ? 3.0f - region->lo.x : region->hi.x;
-    const float in_y = my ? 3.0f - region->lo.y : region->hi.y;
-    const float in_z = mz ? 3.0f - region->lo.z : region->hi.z;
-    const float out_x = mx ? 3.0f - region->hi.x : region->lo.x;
-    const float out_y = my ? 3.0f - region->hi.y : region->lo.y;
-    const float out_z = mz ? 3.0f - region->hi.z : region->lo.z;
-    t_min = vmax(t_min, vmax(vmax(tx(in_x), ty(in_y)), tz(in_z)));
-    t_max = vmin(t_max, vmin(vmin(tx(out_x), ty(out_y)), tz(out_z)));
-  }
+  // Beam optimization (esvo §6.2), exactly as the ESVO caster.
+  if (region != nullptr) ray.clip_to_region(*region, &t_min, &t_max);
   t_min = vmax(t_min, 0.0f);
   t_max = vmin(t_max, tmax);
   if (!(t_min <= t_max)) return result;

@@ -137,22 +137,9 @@ CastResult cast_ray_impl(const EsvoOctree& octree, Vec3 p, Vec3 d, float tmax, f
   float t_min = vmax(vmax(tx(2.0f), ty(2.0f)), tz(2.0f));
   float t_max = vmin(vmin(tx(1.0f), ty(1.0f)), tz(1.0f));
   float h = t_max;  // stays the root's exit: it only gates stack writes
-  if (region != nullptr) {
-    // Beam optimization (§6.2): start at the entry planes of the region and
-    // end at its exit planes, in the mirrored frame where the entry corner of
-    // [lo, hi] is hi on a negative axis and 3 - lo on a mirrored one (exact).
-    // See "Why a start region gives bit-identical hits" above.
-    const bool mx = (octant_mask & 1) == 0, my = (octant_mask & 2) == 0,
-               mz = (octant_mask & 4) == 0;
-    const float in_x = mx ? 3.0f - region->lo.x : region->hi.x;
-    const float in_y = my ? 3.0f - region->lo.y : region->hi.y;
-    const float in_z = mz ? 3.0f - region->lo.z : region->hi.z;
-    const float out_x = mx ? 3.0f - region->hi.x : region->lo.x;
-    const float out_y = my ? 3.0f - region->hi.y : region->lo.y;
-    const float out_z = mz ? 3.0f - region->hi.z : region->lo.z;
-    t_min = vmax(t_min, vmax(vmax(tx(in_x), ty(in_y)), tz(in_z)));
-    t_max = vmin(t_max, vmin(vmin(tx(out_x), ty(out_y)), tz(out_z)));
-  }
+  // Beam optimization (§6.2): start at the entry planes of the region and
+  // end at its exit planes. See "Why a start region gives bit-identical hits".
+  if (region != nullptr) ray.clip_to_region(*region, &t_min, &t_max);
   t_min = vmax(t_min, 0.0f);
   t_max = vmin(t_max, tmax);
 
