@@ -35,6 +35,7 @@ void expect_same_dag(const dag::SparseVoxelDag& a, const dag::SparseVoxelDag& b)
   EXPECT_TRUE(a.words == b.words);
   EXPECT_TRUE(a.colors == b.colors);
   EXPECT_TRUE(a.normals == b.normals);
+  EXPECT_TRUE(a.attribute_blocks == b.attribute_blocks);
   EXPECT_EQ(a.leaf_voxels, b.leaf_voxels);
   EXPECT_TRUE(a.level_start == b.level_start);
 }
@@ -88,6 +89,22 @@ INSTANTIATE_TEST_SUITE_P(Modes, OocBunny,
                                            Case{256, VoxelizationMode::SixSeparating, true},
                                            Case{256, VoxelizationMode::Conservative, false},
                                            Case{1024, VoxelizationMode::SixSeparating, false}));
+
+TEST(OocDag, CompressedAttributesByteIdenticalToInCore) {
+  // Compressed attributes (dag.hpp, esvo §5.5 on Morton runs) are encoded
+  // from the raw arrays, which are identical, so the blocks are too.
+  const GridTransform grid = GridTransform::fit(bunny().bounds(), 256);
+  dag::SparseVoxelDag ref = in_core(bunny(), grid, VoxelizationMode::Conservative, true);
+  ref.compress_attributes();
+  ASSERT_TRUE(ref.compressed_attributes());
+  for (uint32_t cell : {16u, 64u}) {
+    SCOPED_TRACE("cell " + std::to_string(cell));
+    dag::SparseVoxelDag d = out_of_core(bunny(), grid, VoxelizationMode::Conservative, true, cell);
+    d.compress_attributes();
+    expect_same_dag(ref, d);
+    EXPECT_TRUE(ref.attribute_prefix == d.attribute_prefix);
+  }
+}
 
 TEST(OocDag, AutomaticCellSizeFollowsTheBudget) {
   // A budget far below the in-core need forces small cells; still identical.

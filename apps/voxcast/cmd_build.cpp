@@ -44,7 +44,8 @@ Runner add_build(CLI::App& app) {
   cmd->add_option("--voxelization", args->voxelization, "conservative | 6-separating")
       ->capture_default_str();
   cmd->add_option("--attributes", args->attributes,
-                  "Color/normal storage: raw (8 B/voxel) | compressed (esvo §5.5 blocks, lossy)")
+                  "Color/normal storage: raw (8 B/voxel) | compressed (esvo §5.5 blocks, lossy; "
+                  "dag: 16 Morton-order voxels per 24 B block)")
       ->capture_default_str();
   cmd->add_option("--format", args->format,
                   "Structure: esvo (ESVO octree) | dag (sparse voxel DAG, svdag paper section 3)")
@@ -115,8 +116,8 @@ Runner add_build(CLI::App& app) {
       s.color_error = tolerance(args->color_error, "--color-error", 255);
       s.normal_error = tolerance(args->normal_error, "--normal-error", 180);
     }
-    if (s.dag && s.attributes != esvo::AttributeFormat::Raw)
-      throw Error("--attributes compressed applies to --format esvo only");
+    if (s.dag && s.attributes != esvo::AttributeFormat::Raw && args->no_attributes)
+      throw Error("--attributes compressed and --no-attributes exclude each other");
     if (!s.dag && args->no_attributes) throw Error("--no-attributes applies to --format dag only");
     if (!s.dag && !s.contours && (args->out_of_core || args->cell_size))
       throw Error("--out-of-core and --cell-size apply to --format dag or --contours");

@@ -71,6 +71,12 @@ int print_dag_info(const InfoArgs& args, const Container& container) {
                  {"voxel_index", st.index_bytes},
                  {"attributes", st.attribute_bytes}};
   j["bits_per_voxel"] = st.bits_per_voxel;
+  // Raw 8 B/voxel or esvo §5.5 blocks of 16 voxels in Morton order (dag.hpp).
+  if (d.has_attributes()) {
+    j["attribute_format"] = st.compressed_attributes ? "compressed" : "raw";
+    j["attribute_bytes_per_voxel"] =
+        st.leaf_voxels ? double(st.attribute_bytes) / double(st.leaf_voxels) : 0.0;
+  }
   // 64-bit voxel indices (dag.hpp): words of the top levels whose nodes hold
   // >= 2^32 voxels carry 64-bit prefix entries (0 below 2^32 voxels).
   j["voxel_index_wide_words"] = d.wide_words;
@@ -113,9 +119,12 @@ int print_dag_info(const InfoArgs& args, const Container& container) {
   std::printf("  ESVO (8 B/node)  %14s  %10.3f   descriptor + contour word\n",
               format_bytes(double(st.esvo_bytes)).c_str(), double(st.esvo_bytes) * 8 / v);
   if (d.has_attributes())
-    std::printf("attributes  %s colors + normals, %s voxel index (derived at load)\n",
-                format_bytes(double(st.attribute_bytes)).c_str(),
-                format_bytes(double(st.index_bytes)).c_str());
+    std::printf(
+        "attributes  %s colors + normals, %s (%.3f B/voxel), %s voxel index (derived at "
+        "load)\n",
+        format_bytes(double(st.attribute_bytes)).c_str(),
+        st.compressed_attributes ? "compressed esvo §5.5 blocks of 16 voxels" : "raw",
+        double(st.attribute_bytes) / v, format_bytes(double(st.index_bytes)).c_str());
   if (d.wide_words)
     std::printf(
         "voxel index 64-bit prefix entries for the %u words of the levels whose nodes "

@@ -82,6 +82,9 @@ BuiltScene build_scene(const BuildSettings& s) {
     oo.memory_budget = budget;
     oo.cell_size = s.cell_size;
     out.dag = dag::build_dag_out_of_core(out.mesh, grid, oo, &out.ooc);
+    // esvo §5.5 blocks over the Morton-order array (dag.hpp); from the same
+    // raw values as in core, so the scene bytes stay identical.
+    if (s.attributes == esvo::AttributeFormat::Compressed) out.dag.compress_attributes();
     out.out_of_core = true;
     out.leaf_voxels = out.dag.leaf_voxels;
     out.voxelize_seconds = out.ooc.voxelize_seconds;
@@ -102,8 +105,10 @@ BuiltScene build_scene(const BuildSettings& s) {
   // only the kept (variable-depth) octree is held; same bytes as in core.
   // Without a color/normal tolerance it voxelizes every cell once and is as
   // fast as the in-core build (docs/notes-vardepth.md), so it is the default
-  // there; with one, the attribute tests stream the cells two more times,
-  // so only when the in-core estimate exceeds the budget (or when asked).
+  // there; with one, the attribute tests stream the cells two more times
+  // (with compressed attributes also once per §7.3 decoded-leaf round for
+  // the cells holding a leaf to test), so only when the in-core estimate
+  // exceeds the budget (or when asked).
   const bool attribute_tolerance = s.color_error >= 0 || s.normal_error >= 0;
   if (!s.dag && s.contours &&
       (s.out_of_core || (budget && need > budget) || !attribute_tolerance)) {
@@ -136,6 +141,7 @@ BuiltScene build_scene(const BuildSettings& s) {
   if (voxels.size() == 0) throw Error("the mesh produced no voxels");
   if (s.dag) {
     out.dag = dag::build_dag(voxels);
+    if (s.attributes == esvo::AttributeFormat::Compressed) out.dag.compress_attributes();
     out.octree_seconds = timer.mark("DAG build");
     return out;
   }

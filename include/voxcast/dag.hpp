@@ -50,6 +50,21 @@
 // Without attributes, voxels are gray (0.5, 0.5, 0.5) with the normal of the
 // cube face the ray entered.
 //
+// Compressed attributes (esvo §5.5 applied to the Morton-order array, cf.
+// Hitchhiker's guide: attributes in a separate array found by voxel index):
+// instead of `colors`/`normals`, `attribute_blocks` holds ceil(V / 16) blocks
+// of 6 words, block k = voxels [16k, 16k + 16) (slot = index & 15), encoded
+// by the ESVO block codec (esvo.hpp "Compressed attribute attachment", the
+// same bit fields and encoder; the last block's unused slots get index 0).
+// Morton-adjacent voxels are mostly spatially close, the coherence §5.5
+// relies on when it packs sibling voxels (but a run of 16 spans more surface
+// than an ESVO block of two siblings' children, and may straddle a Morton
+// jump: larger errors, docs/notes-dagattr.md). 24 B per 16 voxels = 1.5 B per
+// voxel instead of 8; a hit decodes one slot of one 24-byte block (at most
+// two cache lines, one miss where raw reads two arrays). `attribute_prefix`
+// is derived from the decoded values, so a LOD mean is the mean of what the
+// leaves show. Built by compress_attributes() from the raw arrays.
+//
 // 64-bit voxel indices: a scene may hold 2^32 or more leaf voxels (the bunny
 // at 65536^3 has ~1.5e10), but only nodes near the root can count that many.
 // Counts are monotone up the tree (a parent holds at least what any child
@@ -94,8 +109,9 @@ struct DagStats {
   uint64_t svo_bytes = 0;        // pointer-less SVO, 1 byte per node (Schnabel & Klein)
   uint64_t esvo_bytes = 0;       // 8 bytes per node (ESVO descriptor + contour word)
   uint64_t index_bytes = 0;      // voxel_prefix (+ _wide) + attribute_prefix (derived at load)
-  uint64_t attribute_bytes = 0;  // colors + normals
-  double bits_per_voxel = 0;     // dag_bytes * 8 / leaf_voxels
+  uint64_t attribute_bytes = 0;  // colors + normals, or the compressed blocks
+  bool compressed_attributes = false;  // attribute_bytes are esvo §5.5 blocks (24 B / 16 voxels)
+  double bits_per_voxel = 0;           // dag_bytes * 8 / leaf_voxels
 };
 
 /// Leaf voxels [first, first + count) in Morton order.
@@ -110,6 +126,11 @@ class SparseVoxelDag {
   std::vector<uint32_t> words;    // layout above
   std::vector<uint32_t> colors;   // per leaf voxel in Morton order, ABGR; empty = no attributes
   std::vector<uint32_t> normals;  // per leaf voxel, cube-face encoding; empty iff colors is
+  // Compressed alternative to colors + normals (see above): 6 words per 16
+  // voxels; non-empty only when colors and normals are empty.
+  std::vector<uint32_t> attribute_blocks;
+  static constexpr uint32_t kCompressedSlots = 16;
+  static constexpr uint32_t kCompressedBlockWords = 6;
   // Derived by finalize():
   std::vector<uint32_t> voxel_prefix;       // parallels words, see above
   std::vector<uint64_t> voxel_prefix_wide;  // words [0, wide_words): their u64 entries
@@ -119,7 +140,13 @@ class SparseVoxelDag {
   uint64_t leaf_voxels = 0;
 
   int levels() const { return grid.levels; }
-  bool has_attributes() const { return !colors.empty(); }
+  bool has_attributes() const { return !colors.empty() || !attribute_blocks.empty(); }
+  bool compressed_attributes() const { return !attribute_blocks.empty(); }
+  /// Replaces colors + normals by `attribute_blocks` (esvo §5.5 encoder, one
+  /// block per 16 voxels in parallel; deterministic for any thread count)
+  /// and re-derives the LOD prefix sums from the decoded values. No-op
+  /// without attributes or when already compressed.
+  void compress_attributes();
   /// Prefix entry of word `w` (see above): the node's leaf count for a header
   /// word, the leaf count of the children before the slot for a pointer word.
   uint64_t prefix_entry(uint32_t w) const {

@@ -91,9 +91,11 @@ void DagStructure::beam_start(const BeamFrustum& beam, BeamStart* start,
 void DagStructure::attributes_counted(const SurfaceHit& hit, Color* color, Vec3* normal,
                                       RayCounters* counters) const {
   attributes(hit, color, normal);
-  // One 32-bit color and one 32-bit normal per voxel (dag.hpp); the index
-  // itself came with the traversal (prefix sums next to the pointers).
-  if (counters != nullptr && dag_->has_attributes()) counters->attribute_bytes += 8;
+  // Raw: one 32-bit color and one 32-bit normal per voxel (dag.hpp);
+  // compressed: the voxel's 24-byte esvo §5.5 block (as the ESVO counts it).
+  // The index itself came with the traversal (prefix sums next to the pointers).
+  if (counters != nullptr && dag_->has_attributes())
+    counters->attribute_bytes += dag_->compressed_attributes() ? 24 : 8;
 }
 
 }  // namespace voxcast::dag

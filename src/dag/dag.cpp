@@ -11,6 +11,7 @@
 #include <cmath>
 #include <string>
 
+#include "esvo/compress.hpp"
 #include "voxcast/error.hpp"
 
 namespace voxcast::dag {
@@ -76,6 +77,43 @@ AttributeSum attribute_sum(const uint32_t* colors, const uint32_t* normals, size
     sum[4 + kNext[kNext[axis]]] += to_fixed(v / len);
   }
   return sum;
+}
+
+// The same sums over compressed attributes (dag.hpp): of the decoded values,
+// so a LOD mean averages what the leaves show.
+AttributeSum compressed_sum(const uint32_t* blocks, size_t first, size_t count) {
+  constexpr size_t S = SparseVoxelDag::kCompressedSlots, W = SparseVoxelDag::kCompressedBlockWords;
+  AttributeSum sum{};
+  for (size_t i = first; i < first + count; ++i) {
+    Color c;
+    Vec3 n;
+    esvo::decode_compressed_slot(blocks + i / S * W, int(i % S), &c, &n);
+    sum[0] += to_fixed(c.r), sum[1] += to_fixed(c.g), sum[2] += to_fixed(c.b);
+    sum[3] += to_fixed(c.a);
+    sum[4] += to_fixed(n.x), sum[5] += to_fixed(n.y), sum[6] += to_fixed(n.z);
+  }
+  return sum;
+}
+
+AttributeSum range_sum(const SparseVoxelDag& d, size_t first, size_t count) {
+  return d.compressed_attributes() ? compressed_sum(d.attribute_blocks.data(), first, count)
+                                   : attribute_sum(d.colors.data(), d.normals.data(), first, count);
+}
+
+// Blocked prefix sums of the attributes for LOD means (dag.hpp): each
+// block summed on its own (in parallel), then one sequential scan; integer
+// sums, so the table is the same for every thread count.
+void derive_attribute_prefix(SparseVoxelDag& d) {
+  constexpr size_t B = SparseVoxelDag::kAttributeBlock;
+  d.attribute_prefix.clear();
+  if (!d.has_attributes()) return;
+  const size_t blocks = size_t(d.leaf_voxels) / B;
+  d.attribute_prefix.assign(blocks + 1, {});
+  tbb::parallel_for(size_t(0), blocks,
+                    [&](size_t b) { d.attribute_prefix[b + 1] = range_sum(d, b * B, B); });
+  for (size_t b = 1; b <= blocks; ++b)
+    for (int k = 0; k < 7; ++k)
+      d.attribute_prefix[b][size_t(k)] += d.attribute_prefix[b - 1][size_t(k)];
 }
 
 }  // namespace
@@ -201,21 +239,36 @@ void SparseVoxelDag::finalize() {
     corrupt("attribute arrays hold " + std::to_string(colors.size()) + " voxels, the DAG " +
             std::to_string(leaf_voxels));
 
-  // Blocked prefix sums of the attributes for LOD means (dag.hpp): each
-  // block summed on its own (in parallel), then one sequential scan; integer
-  // sums, so the table is the same for every thread count.
-  attribute_prefix.clear();
-  if (!colors.empty()) {
-    const size_t blocks = colors.size() / kAttributeBlock;
-    attribute_prefix.assign(blocks + 1, {});
-    tbb::parallel_for(size_t(0), blocks, [&](size_t b) {
-      attribute_prefix[b + 1] =
-          attribute_sum(colors.data(), normals.data(), b * kAttributeBlock, kAttributeBlock);
-    });
-    for (size_t b = 1; b <= blocks; ++b)
-      for (int k = 0; k < 7; ++k)
-        attribute_prefix[b][size_t(k)] += attribute_prefix[b - 1][size_t(k)];
+  if (!attribute_blocks.empty()) {
+    if (!colors.empty()) corrupt("both raw and compressed attribute arrays");
+    const uint64_t blocks = (leaf_voxels + kCompressedSlots - 1) / kCompressedSlots;
+    if (attribute_blocks.size() != blocks * kCompressedBlockWords)
+      corrupt("compressed attributes hold " + std::to_string(attribute_blocks.size()) +
+              " words, expected " + std::to_string(blocks * kCompressedBlockWords) + " for " +
+              std::to_string(leaf_voxels) + " voxels");
   }
+  derive_attribute_prefix(*this);
+}
+
+void SparseVoxelDag::compress_attributes() {
+  if (colors.empty()) return;
+  // esvo §5.5 on runs of 16 Morton-consecutive voxels; the shared ESVO
+  // encoder (compress.hpp) fits each block from the raw 8-byte values.
+  const size_t V = colors.size(), blocks = (V + kCompressedSlots - 1) / kCompressedSlots;
+  std::vector<uint32_t> out(blocks * kCompressedBlockWords);
+  tbb::parallel_for(size_t(0), blocks, [&](size_t k) {
+    uint64_t values[kCompressedSlots];
+    const size_t first = k * kCompressedSlots;
+    const size_t n = std::min<size_t>(kCompressedSlots, V - first);
+    for (size_t j = 0; j < n; ++j)
+      values[j] = uint64_t(colors[first + j]) | uint64_t(normals[first + j]) << 32;
+    esvo::detail::encode_block_from_raw(values, uint32_t((1ull << n) - 1),
+                                        &out[k * kCompressedBlockWords]);
+  });
+  attribute_blocks = std::move(out);
+  colors = {};
+  normals = {};
+  derive_attribute_prefix(*this);
 }
 
 DagStats SparseVoxelDag::stats() const {
@@ -255,7 +308,8 @@ DagStats SparseVoxelDag::stats() const {
   st.esvo_bytes = st.svo_nodes * 8;
   st.index_bytes = uint64_t(voxel_prefix.size()) * 4 + uint64_t(voxel_prefix_wide.size()) * 8 +
                    uint64_t(attribute_prefix.size()) * sizeof(attribute_prefix[0]);
-  st.attribute_bytes = uint64_t(colors.size() + normals.size()) * 4;
+  st.attribute_bytes = uint64_t(colors.size() + normals.size() + attribute_blocks.size()) * 4;
+  st.compressed_attributes = compressed_attributes();
   st.bits_per_voxel = st.leaf_voxels ? double(st.dag_bytes) * 8.0 / double(st.leaf_voxels) : 0.0;
   return st;
 }
@@ -285,6 +339,13 @@ std::vector<uint64_t> SparseVoxelDag::decode_leaves() const {
 }
 
 void SparseVoxelDag::voxel_attributes(uint64_t index, Color* color, Vec3* normal) const {
+  if (!attribute_blocks.empty() && index < leaf_voxels) {
+    // One slot of one 24-byte block (dag.hpp "Compressed attributes").
+    esvo::decode_compressed_slot(
+        &attribute_blocks[size_t(index / kCompressedSlots) * kCompressedBlockWords],
+        int(index % kCompressedSlots), color, normal);
+    return;
+  }
   if (colors.empty() || index >= colors.size()) {
     *color = {0.5f, 0.5f, 0.5f, 1.f};
     *normal = {0, 0, 1};
@@ -398,27 +459,27 @@ VoxelRange SparseVoxelDag::cube_range(uint64_t voxel, int level) const {
 }
 
 void SparseVoxelDag::mean_attributes(VoxelRange range, Color* color, Vec3* normal) const {
-  if (colors.empty() || range.count == 0 || range.first >= colors.size() ||
-      range.count > colors.size() - range.first) {
+  if (!has_attributes() || range.count == 0 || range.first >= leaf_voxels ||
+      range.count > leaf_voxels - range.first) {
     voxel_attributes(range.first, color, normal);  // gray / out of range: as one voxel
     return;
   }
   const size_t a = size_t(range.first), e = size_t(range.first + range.count);
-  const size_t B = kAttributeBlock, V = colors.size();
+  const size_t B = kAttributeBlock, V = size_t(leaf_voxels);
   AttributeSum sum;
   if (e - a <= B) {
-    sum = attribute_sum(colors.data(), normals.data(), a, e - a);
+    sum = range_sum(*this, a, e - a);
   } else {
     // Sum of voxels [0, x) from the nearer block boundary: at most B/2
     // voxels summed directly per end (32 on average when B = 64 -> 16).
     auto prefix_at = [&](size_t x) {
       const size_t lo = x / B * B, hi = lo + B;
       if (x - lo <= B / 2 || hi > V) {
-        AttributeSum p = attribute_sum(colors.data(), normals.data(), lo, x - lo);
+        AttributeSum p = range_sum(*this, lo, x - lo);
         for (int k = 0; k < 7; ++k) p[size_t(k)] += attribute_prefix[lo / B][size_t(k)];
         return p;
       }
-      AttributeSum p = attribute_sum(colors.data(), normals.data(), x, hi - x);
+      AttributeSum p = range_sum(*this, x, hi - x);
       for (int k = 0; k < 7; ++k) p[size_t(k)] = attribute_prefix[hi / B][size_t(k)] - p[size_t(k)];
       return p;
     };
@@ -432,10 +493,12 @@ void SparseVoxelDag::mean_attributes(VoxelRange range, Color* color, Vec3* norma
                float(double(sum[6]) * scale)};
   const float len = length(n);
   // Opposed normals can cancel; then the first voxel's normal stands in.
-  if (len > 1e-6f)
+  if (len > 1e-6f) {
     *normal = n * (1.0f / len);
-  else
-    *normal = esvo::decode_normal_cube(normals[a]);
+  } else {
+    Color first;
+    voxel_attributes(a, &first, normal);
+  }
 }
 
 Aabb occupied_bounds(const SparseVoxelDag& dag, int max_level) {

@@ -6,8 +6,13 @@
 //          "source": ..., "voxelization": ..., "source_triangles": ...,
 //          "leaf_voxels": V}
 //   'SDAG' the DAG words (little-endian u32, layout in dag.hpp)
-//   'DATR' only if "attributes": V pairs of u32 (ABGR color, cube-face
-//          normal), leaf voxels in Morton order (dag.hpp "Attributes").
+//   'DATR' only if "attributes" and not compressed: V pairs of u32 (ABGR
+//          color, cube-face normal), leaf voxels in Morton order (dag.hpp
+//          "Attributes").
+//   'DATC' only if "attributes" and META "attribute_format": "compressed":
+//          ceil(V / 16) esvo §5.5 blocks of 6 u32 (dag.hpp "Compressed
+//          attributes"). The key is written only for compressed scenes, so raw
+//          scenes are unchanged and older files (no key = raw) still load.
 // The voxel index (voxel_prefix) is derived at load time, never stored.
 // Loading checks every META field and then SparseVoxelDag::finalize()
 // validates the words (bounds, forward-only pointers, masks, tiling, depth),
@@ -28,6 +33,7 @@ namespace {
 
 constexpr uint32_t kDagSection = fourcc("SDAG");
 constexpr uint32_t kDagAttributes = fourcc("DATR");
+constexpr uint32_t kDagCompressedAttributes = fourcc("DATC");
 
 std::vector<uint32_t> to_words(const std::vector<uint8_t>& bytes) {
   std::vector<uint32_t> w(bytes.size() / 4);
@@ -55,13 +61,18 @@ void save_dag_scene(const std::filesystem::path& path, const dag::SparseVoxelDag
       {"attributes", dag.has_attributes()},
       {"leaf_voxels", dag.leaf_voxels},
   });
+  if (dag.compressed_attributes()) meta["attribute_format"] = "compressed";
   static_assert(std::endian::native == std::endian::little, "scene files are little-endian");
   Container c;
   c.add(meta::kSection, meta::dump(meta));
   std::vector<uint8_t> words(dag.words.size() * 4);
   if (!words.empty()) std::memcpy(words.data(), dag.words.data(), words.size());
   c.add(kDagSection, std::move(words));
-  if (dag.has_attributes()) {
+  if (dag.compressed_attributes()) {
+    std::vector<uint8_t> blocks(dag.attribute_blocks.size() * 4);
+    std::memcpy(blocks.data(), dag.attribute_blocks.data(), blocks.size());
+    c.add(kDagCompressedAttributes, std::move(blocks));
+  } else if (dag.has_attributes()) {
     std::vector<uint8_t> attr(dag.colors.size() * 8);
     for (size_t i = 0; i < dag.colors.size(); ++i) {
       std::memcpy(&attr[8 * i], &dag.colors[i], 4);
@@ -80,7 +91,7 @@ dag::SparseVoxelDag dag_scene_from_container(const Container& c, SceneInfo* info
   const nlohmann::json meta = meta::parse(c);
   dag::SparseVoxelDag dag;
   SceneInfo si;
-  bool attributes = false;
+  bool attributes = false, compressed = false;
   try {
     using namespace meta;
     if (get_string(meta, "format") != "dag") bad("format is not 'dag'");
@@ -88,6 +99,12 @@ dag::SparseVoxelDag dag_scene_from_container(const Container& c, SceneInfo* info
     const nlohmann::json& a = field(meta, "attributes");
     if (!a.is_boolean()) bad("'attributes' is not a boolean");
     attributes = a.get<bool>();
+    if (meta.contains("attribute_format")) {
+      const std::string f = get_string(meta, "attribute_format");
+      if (f != "raw" && f != "compressed") bad("'attribute_format' is not raw or compressed");
+      compressed = f == "compressed";
+      if (compressed && !attributes) bad("'attribute_format' is compressed without attributes");
+    }
     info_from_json(meta, &si);
     // 64-bit voxel indices (dag.hpp): at most every voxel of a 2^20 grid.
     // Files from before 64-bit indices (< 2^32 voxels) load unchanged.
@@ -100,10 +117,26 @@ dag::SparseVoxelDag dag_scene_from_container(const Container& c, SceneInfo* info
     throw Error("corrupt scene: SDAG section size " + std::to_string(bytes.size()) +
                 " is not a whole number of words of at least one node");
   dag.words = to_words(bytes);
-  if (attributes != c.has(kDagAttributes))
-    throw Error(attributes ? "corrupt scene: META says attributes but there is no DATR section"
-                           : "corrupt scene: unexpected DATR section");
-  if (attributes) {
+  const bool raw = attributes && !compressed;
+  if (raw != c.has(kDagAttributes))
+    throw Error(raw ? "corrupt scene: META says attributes but there is no DATR section"
+                    : "corrupt scene: unexpected DATR section");
+  if (compressed != c.has(kDagCompressedAttributes))
+    throw Error(compressed ? "corrupt scene: META says compressed attributes but there is no DATC "
+                             "section"
+                           : "corrupt scene: unexpected DATC section");
+  if (compressed) {
+    // Size checked against META before finalize() checks it against the DAG.
+    const std::vector<uint8_t>& ab = c.get(kDagCompressedAttributes);
+    const uint64_t blocks = (si.leaf_voxels + dag::SparseVoxelDag::kCompressedSlots - 1) /
+                            dag::SparseVoxelDag::kCompressedSlots;
+    const uint64_t expected = blocks * dag::SparseVoxelDag::kCompressedBlockWords * 4;
+    if (ab.size() != expected)
+      throw Error("corrupt scene: DATC section holds " + std::to_string(ab.size()) +
+                  " bytes, expected " + std::to_string(expected) + " (24 per 16 leaf voxels, " +
+                  std::to_string(si.leaf_voxels) + " voxels)");
+    dag.attribute_blocks = to_words(ab);
+  } else if (attributes) {
     const std::vector<uint8_t>& ab = c.get(kDagAttributes);
     if (ab.size() != si.leaf_voxels * 8)
       throw Error("corrupt scene: DATR section holds " + std::to_string(ab.size()) +

@@ -1,0 +1,105 @@
+// Per-hit attribute lookup of the sparse voxel DAG (dag.hpp "Attributes"):
+// raw 8 B/voxel arrays vs esvo §5.5 blocks of 16 Morton-order voxels
+// ("Compressed attributes"). Indices are random, like the hits of a frame
+// over a large scene (every lookup a likely cache miss for large DAGs).
+// VOXCAST_BENCH_DAG=scene.vxc (a DAG scene with raw attributes) benchmarks
+// that scene; otherwise a sphere shell of 2^9 voxels per axis.
+#include <benchmark/benchmark.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <map>
+#include <memory>
+#include <random>
+#include <vector>
+
+#include "voxcast/dag.hpp"
+#include "voxcast/morton.hpp"
+#include "voxcast/scene_file.hpp"
+
+namespace {
+
+using voxcast::dag::SparseVoxelDag;
+
+const SparseVoxelDag& bench_dag(bool compressed) {
+  static std::map<bool, std::unique_ptr<SparseVoxelDag>> cache;
+  auto it = cache.find(compressed);
+  if (it != cache.end()) return *it->second;
+  auto d = std::make_unique<SparseVoxelDag>();
+  if (const char* path = std::getenv("VOXCAST_BENCH_DAG")) {
+    *d = voxcast::load_dag_scene(path);
+  } else {
+    voxcast::VoxelSet set;
+    const int L = 9;
+    set.grid.levels = L;
+    set.grid.resolution = 1u << L;
+    set.grid.voxel_size = 1.0 / set.grid.resolution;
+    const double n = set.grid.resolution, c = n * 0.5, r = n * 0.4;
+    for (uint32_t z = 0; z < set.grid.resolution; ++z)
+      for (uint32_t y = 0; y < set.grid.resolution; ++y)
+        for (uint32_t x = 0; x < set.grid.resolution; ++x) {
+          const double dx = x + 0.5 - c, dy = y + 0.5 - c, dz = z + 0.5 - c;
+          const double dist = std::sqrt(dx * dx + dy * dy + dz * dz);
+          if (std::fabs(dist - r) <= 0.5) set.codes.push_back(voxcast::morton_encode(x, y, z));
+        }
+    std::sort(set.codes.begin(), set.codes.end());
+    for (uint64_t code : set.codes) {
+      const voxcast::MortonCoord p = voxcast::morton_decode(code);
+      set.normals.push_back(voxcast::normalize(
+          voxcast::Vec3{float(p.x + 0.5 - c), float(p.y + 0.5 - c), float(p.z + 0.5 - c)}));
+      set.colors.push_back({float(p.x / n), float(p.y / n), float(p.z / n), 1.f});
+      set.weights.push_back(1.f);
+    }
+    *d = voxcast::dag::build_dag(set);
+  }
+  if (compressed) d->compress_attributes();
+  return *cache.emplace(compressed, std::move(d)).first->second;
+}
+
+std::vector<uint64_t> random_indices(uint64_t count, size_t n) {
+  std::mt19937_64 rng(7);
+  std::vector<uint64_t> out(n);
+  for (uint64_t& i : out) i = rng() % count;
+  return out;
+}
+
+/// ns per voxel_attributes call (one leaf hit's shading lookup).
+void BM_DagVoxelAttributes(benchmark::State& state) {
+  const SparseVoxelDag& d = bench_dag(state.range(0) != 0);
+  const std::vector<uint64_t> idx = random_indices(d.leaf_voxels, 1 << 16);
+  size_t k = 0;
+  for (auto _ : state) {
+    voxcast::Color c;
+    voxcast::Vec3 n;
+    d.voxel_attributes(idx[k], &c, &n);
+    benchmark::DoNotOptimize(c);
+    benchmark::DoNotOptimize(n);
+    k = (k + 1) & (idx.size() - 1);
+  }
+  state.SetLabel(state.range(0) ? "compressed" : "raw");
+  state.counters["attr_B_per_voxel"] = double(d.stats().attribute_bytes) / double(d.leaf_voxels);
+}
+BENCHMARK(BM_DagVoxelAttributes)->Arg(0)->Arg(1);
+
+/// ns per mean_attributes call for a LOD hit 3 levels above the leaves
+/// (cubes of 8^3 voxels, a surface holds ~100 of them).
+void BM_DagMeanAttributesLod3(benchmark::State& state) {
+  const SparseVoxelDag& d = bench_dag(state.range(0) != 0);
+  const std::vector<uint64_t> idx = random_indices(d.leaf_voxels, 1 << 12);
+  std::vector<voxcast::dag::VoxelRange> ranges;
+  for (uint64_t i : idx) ranges.push_back(d.cube_range(i, d.levels() - 3));
+  size_t k = 0;
+  for (auto _ : state) {
+    voxcast::Color c;
+    voxcast::Vec3 n;
+    d.mean_attributes(ranges[k], &c, &n);
+    benchmark::DoNotOptimize(c);
+    benchmark::DoNotOptimize(n);
+    k = (k + 1) & (ranges.size() - 1);
+  }
+  state.SetLabel(state.range(0) ? "compressed" : "raw");
+}
+BENCHMARK(BM_DagMeanAttributesLod3)->Arg(0)->Arg(1);
+
+}  // namespace
