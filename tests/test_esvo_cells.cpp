@@ -2,7 +2,8 @@
 // octree built from one cell's voxels at a time must equal the in-core build
 // byte for byte, for tiny cells (many cells, deep cell roots, refined and
 // pruned cell roots), raw and compressed attributes, with and without a max
-// level and attribute tolerances.
+// level and attribute tolerances (compressed with a color/normal tolerance:
+// the §7.3 decoded-leaf loop, streamed).
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>
 
@@ -53,12 +54,15 @@ struct Mix {
 };
 
 // Full depth with contours; geometry only; geometry + attributes; a max
-// level with a normal tolerance; attributes only.
+// level with a normal tolerance; attributes only; geometry + color only;
+// normal only (compressed, the last five run the §7.3 decoded-leaf loop).
 const Mix kMixes[] = {{"contours", 0, 0, -1, -1},
                       {"geometry", 0, 1.0, -1, -1},
                       {"geometry+attributes", 0, 1.0, 16, 12},
                       {"max-level+normal", 5, -1, -1, 10},
-                      {"attributes", 0, -1, 10, 10}};
+                      {"attributes", 0, -1, 10, 10},
+                      {"geometry+color", 0, 1.0, 6, -1},
+                      {"normal", 0, -1, -1, 6}};
 
 void expect_same(const esvo::EsvoOctree& a, const esvo::EsvoOctree& b, const std::string& what) {
   EXPECT_EQ(a.block_count, b.block_count) << what;
@@ -82,6 +86,9 @@ TEST_P(CellBuild, SameBytesAsInCore) {
   VoxelizeOptions vo;
   vo.attributes = true;
   const VoxelSet v = voxelize(mesh, grid, vo);
+  // Over the compressed tolerance mixes: the decoded-leaf loop found
+  // failing leaves inside cells and at or above the cells' roots.
+  uint64_t replanned = 0, forced_top = 0;
   for (const auto format : {esvo::AttributeFormat::Raw, esvo::AttributeFormat::Compressed}) {
     for (const Mix& mix : kMixes) {
       esvo::BuildOptions o;
@@ -95,7 +102,7 @@ TEST_P(CellBuild, SameBytesAsInCore) {
       o.max_block_slots = 3000;
       o.max_block_values = 6000;
       const esvo::EsvoOctree ref = esvo::build_octree(v, mesh, o);
-      const bool in_core = format == esvo::AttributeFormat::Compressed &&
+      const bool decoded = format == esvo::AttributeFormat::Compressed &&
                            (mix.color_error >= 0 || mix.normal_error >= 0);
       // 4^3 / 8^3 cells: hundreds of cells with deep roots (CellSizeFromBudget
       // has a few large ones).
@@ -106,8 +113,13 @@ TEST_P(CellBuild, SameBytesAsInCore) {
         esvo::CellBuildStats st;
         const esvo::EsvoOctree got = esvo::build_octree_cells(mesh, grid, vo, o, cell, 0, &st);
         expect_same(ref, got, what);
-        EXPECT_EQ(st.in_core, in_core) << what;
-        if (in_core) continue;
+        EXPECT_FALSE(st.in_core) << what;
+        // The loop ends with a round without failures, so it found some
+        // iff it ran more than one.
+        EXPECT_EQ(st.decoded_rounds > 0, decoded) << what;
+        EXPECT_EQ(st.decoded_rounds > 1, st.replanned_cells + st.forced_top_leaves > 0) << what;
+        replanned += st.replanned_cells;
+        forced_top += st.forced_top_leaves;
         EXPECT_EQ(st.cell_size, cell) << what;
         EXPECT_EQ(st.voxels, v.size()) << what;
         // Many cells; below the max level some are planned below their root
@@ -126,6 +138,8 @@ TEST_P(CellBuild, SameBytesAsInCore) {
       }
     }
   }
+  EXPECT_GT(replanned, 0u);
+  EXPECT_GT(forced_top, 0u);
 }
 
 INSTANTIATE_TEST_SUITE_P(Meshes, CellBuild,
@@ -148,10 +162,16 @@ TEST(CellBuild, SameBytesForAnyThreadCount) {
   o.contours = true;
   o.geometry_error = 1;
   o.normal_error = 8;
+  esvo::BuildOptions oc = o;  // and the decoded-leaf loop
+  oc.attributes = esvo::AttributeFormat::Compressed;
+  oc.color_error = 8;
   const esvo::EsvoOctree all = esvo::build_octree_cells(mesh, grid, vo, o, 8, 0);
+  const esvo::EsvoOctree all_c = esvo::build_octree_cells(mesh, grid, vo, oc, 8, 0);
   tbb::global_control one(tbb::global_control::max_allowed_parallelism, 1);
   const esvo::EsvoOctree single = esvo::build_octree_cells(mesh, grid, vo, o, 8, 0);
   expect_same(all, single, "1 thread vs all");
+  expect_same(all_c, esvo::build_octree_cells(mesh, grid, vo, oc, 8, 0),
+              "compressed: 1 thread vs all");
 }
 
 TEST(CellBuild, CellSizeFromBudget) {
@@ -203,6 +223,18 @@ TEST(CellBuild, CliSceneEqualsInCoreScene) {
   EXPECT_GT(fa.size(), 8192u);
   EXPECT_TRUE(fa == file_bytes(dir.file("b.vxc")));
   EXPECT_TRUE(fa == file_bytes(dir.file("c.vxc")));
+  // Compressed with a normal tolerance: the streamed decoded-leaf loop.
+  const std::string cargs = args + " --attributes compressed";
+  auto f = testing::run_cli("build '" + mesh + "' -o " + dir.file("f.vxc") + cargs);
+  ASSERT_EQ(f.exit_code, 0) << f.output;
+  EXPECT_EQ(f.output.find("out-of-core"), std::string::npos) << f.output;
+  auto g =
+      testing::run_cli("build '" + mesh + "' -o " + dir.file("g.vxc") + cargs + " --cell-size 32");
+  ASSERT_EQ(g.exit_code, 0) << g.output;
+  EXPECT_NE(g.output.find("out-of-core"), std::string::npos) << g.output;
+  const std::string ff = file_bytes(dir.file("f.vxc"));
+  EXPECT_GT(ff.size(), 8192u);
+  EXPECT_TRUE(ff == file_bytes(dir.file("g.vxc")));
   // Without a color/normal tolerance the cell-by-cell build is the default.
   auto e = testing::run_cli("build '" + mesh + "' -o " + dir.file("e.vxc") +
                             " --resolution 256 --contours --geometry-error 1");

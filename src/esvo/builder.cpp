@@ -54,6 +54,7 @@
 #include <algorithm>
 #include <bit>
 #include <cmath>
+#include <map>
 #include <numeric>
 #include <stdexcept>
 #include <string>
@@ -596,11 +597,19 @@ void build_levels(const VoxelSet& voxels, std::vector<Level>& lv,
     throw std::logic_error("esvo builder: root level is not a single node");
 }
 
-/// The leaves of the laid-out `octree` above depth `lmax` whose decoded
-/// attributes are out of tolerance (§7.3), as (depth, index in phase 1's tree).
-std::vector<std::pair<int, uint32_t>> decoded_violations(const EsvoOctree& octree,
-                                                         const detail::TreeView& tree,
-                                                         const BuildOptions& options, int lmax) {
+/// A leaf of the laid-out octree above the max level with the attributes it
+/// decodes to (§7.3: after the §5.5 compression of its descriptor pair).
+struct DecodedLeaf {
+  int depth;
+  uint32_t index;  // in phase 1's tree (the kept tree in the cell build)
+  uint32_t color;  // 8-bit sRGB code
+  Vec3 normal;
+};
+
+/// Every leaf of the laid-out `octree` above depth `lmax`, decoded, in
+/// descriptor walk order.
+std::vector<DecodedLeaf> decoded_leaves(const EsvoOctree& octree, const detail::TreeView& tree,
+                                        int lmax) {
   struct Leaf {
     uint32_t parent_slot;
     int child, depth;
@@ -630,7 +639,7 @@ std::vector<std::pair<int, uint32_t>> decoded_violations(const EsvoOctree& octre
         leaves.push_back({it.slot, int(i), it.depth + 1, c});
     }
   }
-  std::vector<uint8_t> bad(leaves.size(), 0);
+  std::vector<DecodedLeaf> out(leaves.size());
   tbb::parallel_for(tbb::blocked_range<size_t>(0, leaves.size(), 64),
                     [&](const tbb::blocked_range<size_t>& r) {
                       for (size_t k = r.begin(); k != r.end(); ++k) {
@@ -640,10 +649,26 @@ std::vector<std::pair<int, uint32_t>> decoded_violations(const EsvoOctree& octre
                         octree.attributes(l.parent_slot, l.child, &color, &normal);
                         // Decoded colors are 8-bit sRGB codes mapped to linear
                         // (raw and §5.5 alike); encoding maps them back exactly.
-                        bad[k] = detail::attributes_exceed(
-                            tree, l.depth, l.index, encode_color_abgr(color), normal, options);
+                        out[k] = {l.depth, l.index, encode_color_abgr(color), normal};
                       }
                     });
+  return out;
+}
+
+/// The leaves of the laid-out `octree` above depth `lmax` whose decoded
+/// attributes are out of tolerance (§7.3), as (depth, index in phase 1's tree).
+std::vector<std::pair<int, uint32_t>> decoded_violations(const EsvoOctree& octree,
+                                                         const detail::TreeView& tree,
+                                                         const BuildOptions& options, int lmax) {
+  const std::vector<DecodedLeaf> leaves = decoded_leaves(octree, tree, lmax);
+  std::vector<uint8_t> bad(leaves.size(), 0);
+  tbb::parallel_for(
+      tbb::blocked_range<size_t>(0, leaves.size(), 64), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t k = r.begin(); k != r.end(); ++k) {
+          const DecodedLeaf& l = leaves[k];
+          bad[k] = detail::attributes_exceed(tree, l.depth, l.index, l.color, l.normal, options);
+        }
+      });
   std::vector<std::pair<int, uint32_t>> out;
   for (size_t k = 0; k < leaves.size(); ++k)
     if (bad[k]) out.push_back({leaves[k].depth, leaves[k].index});
@@ -762,6 +787,10 @@ EsvoOctree build_octree(const VoxelSet& voxels, const Mesh& mesh, const BuildOpt
 //   top levels) and every full-depth voxel below it: pass 1 collects the
 //   cell roots, pass 2 streams the cells against their ancestors' values
 //   (flags OR-ed over the cells), pass 3 plans the refined cells.
+//   With compressed attributes too, the in-core decoded-leaf loop (§7.3)
+//   follows, per round streaming only the cells that hold a leaf to test;
+//   each refined cell's kept nodes stay a separate segment, so a cell
+//   re-planned with forced leaves replaces only its own (see the loop).
 // Peak memory: the mesh, triangle bins and planner mesh data, the top
 // levels (one node per cell and above) with the seeds, one cell's build,
 // and the kept output.
@@ -832,16 +861,10 @@ EsvoOctree build_octree_cells(const Mesh& mesh, const GridTransform& grid,
   VoxelizeOptions vo = voxelize_options;
   vo.progress = nullptr;
   const bool attr_tolerance = options.color_error >= 0 || options.normal_error >= 0;
-  if (options.attributes == AttributeFormat::Compressed && attr_tolerance) {
-    // The §7.3 decoded-value loop (lay out, decode, refine, repeat) needs the
-    // full-depth values of every leaf above the max level in each round.
-    st.in_core = true;
-    const VoxelSet vs = voxelize(mesh, grid, voxelize_options);
-    st.voxels = st.max_cell_voxels = vs.size();
-    if (stats) *stats = st;
-    return build_octree(vs, mesh, options);
-  }
-
+  // With compressed attributes a leaf decodes to what the §5.5 block of its
+  // descriptor pair makes of it (§7.3), known only after the layout: the
+  // decoded-leaf loop at the end.
+  const bool check_decoded = options.attributes == AttributeFormat::Compressed && attr_tolerance;
   const std::vector<std::array<double, 3>> gv = voxcast::detail::grid_vertices(mesh, grid);
   voxcast::detail::CellPlan cp;
   const uint64_t planner_bytes = uint64_t(kPlannerBytesPerTriangle * double(mesh.triangle_count()));
@@ -922,54 +945,108 @@ EsvoOctree build_octree_cells(const Mesh& mesh, const GridTransform& grid,
     roots.desc_below.push_back(0);
     roots.values_below.push_back(0);
   };
-  // Plans root k's subtree from its seed and appends the nodes the plan
-  // keeps below it: depths > C, the children of kept refined voxels.
+  // A refined cell's kept nodes below its root (depths C+1..L), with
+  // first_child local to the segment (0 for leaves). The decoded-leaf loop
+  // keeps one per cell, so that re-planning a cell replaces only its own.
+  struct Segment {
+    std::vector<Level> lv;  // depths C+1..L-1
+    detail::ContourPlan plan;
+    std::vector<uint64_t> leaf_values;
+    std::vector<std::vector<uint32_t>> local;   // [depth]: index in the cell's tree (loop only)
+    uint64_t desc_below = 0, values_below = 0;  // of the cell's root
+  };
+  // Plans a cell's subtree from its seed (forcing `forced`, (depth, index in
+  // the cell's tree), as refine() does in core) and keeps the nodes the plan
+  // keeps below its root: the children of kept refined voxels.
   std::vector<uint32_t> cur, next;
-  auto keep_cell = [&](size_t k, std::vector<Level>& clv, const std::vector<uint64_t>& cleaf,
-                       const detail::SubtreeSeed& seed) {
-    ++st.refined_cells;
+  auto plan_cell = [&](std::vector<Level>& clv, const std::vector<uint64_t>& cleaf,
+                       const detail::SubtreeSeed& seed,
+                       const std::vector<std::pair<int, uint32_t>>* forced, Segment& seg) {
     const detail::TreeView ct = tree_view(clv, &cleaf, C, L - 1);
     detail::ContourPlanner cplanner(ct, pmesh, options, seed);
-    const detail::ContourPlan& cplan = cplanner.plan();
+    const detail::ContourPlan* cp = &cplanner.plan();
+    if (forced != nullptr && !forced->empty()) {
+      cplanner.refine(*forced);
+      cp = &cplanner.plan();
+    }
+    const detail::ContourPlan& cplan = *cp;
     planned_sizes(clv, cplan, L - 2, C);
-    roots.desc_below[k] = clv[size_t(C)].desc_below[0];
-    roots.values_below[k] = clv[size_t(C)].values_below[0];
+    seg = Segment{};
+    seg.lv.resize(size_t(L));
+    seg.plan.contour.resize(size_t(L) + 1);
+    seg.plan.leaf.resize(size_t(L));
+    if (check_decoded) seg.local.resize(size_t(L));
+    seg.desc_below = clv[size_t(C)].desc_below[0];
+    seg.values_below = clv[size_t(C)].values_below[0];
     cur.assign(1, 0);
     for (int d = C; d < L; ++d) {
       const Level& src = clv[size_t(d)];
-      Level& dst = lv[size_t(d)];
-      const size_t base_next = d + 1 < L ? lv[size_t(d) + 1].mask.size() : leaf_values.size();
+      Level& dst = seg.lv[size_t(d)];
       next.clear();
       for (const uint32_t i : cur) {
         const bool refined = d == C || !cplan.leaf[size_t(d)][i];
         uint32_t fc = 0;
         if (refined) {
-          const uint64_t f = base_next + next.size();
-          if (f >= (uint64_t(1) << 32)) throw Error("cannot build octree: more than 2^32 nodes");
-          fc = uint32_t(f);
+          fc = uint32_t(next.size());
           const uint32_t first = src.first_child[i];
           for (int j = 0; j < std::popcount(unsigned(src.mask[i])); ++j)
             next.push_back(first + uint32_t(j));
         }
-        if (d == C) {
-          roots.first_child[k] = fc;
-          continue;
-        }
+        if (d == C) continue;
         dst.mask.push_back(src.mask[i]);
         dst.first_child.push_back(fc);
         dst.desc_below.push_back(src.desc_below[i]);
         dst.values_below.push_back(src.values_below[i]);
         dst.value.push_back(src.value[i]);
-        plan.contour[size_t(d)].push_back(cplan.contour[size_t(d)][i]);
-        plan.leaf[size_t(d)].push_back(cplan.leaf[size_t(d)][i]);
+        seg.plan.contour[size_t(d)].push_back(cplan.contour[size_t(d)][i]);
+        seg.plan.leaf[size_t(d)].push_back(cplan.leaf[size_t(d)][i]);
+        if (check_decoded) seg.local[size_t(d)].push_back(i);
       }
       cur.swap(next);
     }
     for (const uint32_t i : cur) {  // depth L
-      leaf_values.push_back(cleaf[i]);
-      plan.contour[size_t(L)].push_back(cplan.contour[size_t(L)][i]);
+      seg.leaf_values.push_back(cleaf[i]);
+      seg.plan.contour[size_t(L)].push_back(cplan.contour[size_t(L)][i]);
     }
   };
+  // Appends cell k's segment to the global levels (Morton order: cells are
+  // appended in visit order) with global first_child, and sets its root's.
+  auto append_segment = [&](size_t k, const Segment& seg, std::vector<uint32_t>& root_first,
+                            std::vector<uint64_t>& root_desc, std::vector<uint64_t>& root_vals) {
+    auto base = [&](int d) {  // where depth d's next node goes
+      return d < L ? lv[size_t(d)].mask.size() : leaf_values.size();
+    };
+    if (base(C + 1) >= (uint64_t(1) << 32))
+      throw Error("cannot build octree: more than 2^32 nodes");
+    root_first[k] = uint32_t(base(C + 1));
+    root_desc[k] = seg.desc_below;
+    root_vals[k] = seg.values_below;
+    for (int d = C + 1; d < L; ++d) {
+      const Level& src = seg.lv[size_t(d)];
+      Level& dst = lv[size_t(d)];
+      const uint64_t b = base(d + 1);
+      if (b + (d + 1 < L ? seg.lv[size_t(d) + 1].mask.size() : seg.leaf_values.size()) >=
+          (uint64_t(1) << 32))
+        throw Error("cannot build octree: more than 2^32 nodes");
+      const std::vector<uint8_t>& leaf = seg.plan.leaf[size_t(d)];
+      for (size_t j = 0; j < src.mask.size(); ++j)
+        dst.first_child.push_back(leaf[j] ? 0 : uint32_t(b + src.first_child[j]));
+      dst.mask.insert(dst.mask.end(), src.mask.begin(), src.mask.end());
+      dst.desc_below.insert(dst.desc_below.end(), src.desc_below.begin(), src.desc_below.end());
+      dst.values_below.insert(dst.values_below.end(), src.values_below.begin(),
+                              src.values_below.end());
+      dst.value.insert(dst.value.end(), src.value.begin(), src.value.end());
+      plan.contour[size_t(d)].insert(plan.contour[size_t(d)].end(),
+                                     seg.plan.contour[size_t(d)].begin(),
+                                     seg.plan.contour[size_t(d)].end());
+      plan.leaf[size_t(d)].insert(plan.leaf[size_t(d)].end(), leaf.begin(), leaf.end());
+    }
+    leaf_values.insert(leaf_values.end(), seg.leaf_values.begin(), seg.leaf_values.end());
+    plan.contour[size_t(L)].insert(plan.contour[size_t(L)].end(),
+                                   seg.plan.contour[size_t(L)].begin(),
+                                   seg.plan.contour[size_t(L)].end());
+  };
+  Segment seg;
   // The top levels 0..C from the cell roots, as build_levels() reduces them
   // (codes kept per depth in top_codes).
   std::vector<std::vector<uint64_t>> top_codes(size_t(C) + 1);
@@ -1025,8 +1102,12 @@ EsvoOctree build_octree_cells(const Mesh& mesh, const GridTransform& grid,
       std::vector<uint64_t> cleaf;
       if (!cell_levels(b, clv, cleaf)) continue;
       add_root(b, clv, cleaf.size());
-      if (const auto seed = planner.take_seed(uint32_t(b)))
-        keep_cell(roots.bin.size() - 1, clv, cleaf, *seed);
+      if (const auto seed = planner.take_seed(uint32_t(b))) {
+        ++st.refined_cells;
+        plan_cell(clv, cleaf, *seed, nullptr, seg);
+        append_segment(roots.bin.size() - 1, seg, roots.first_child, roots.desc_below,
+                       roots.values_below);
+      }
     }
     build_top();
     // The top plan of the non-empty nodes (a subsequence of sup's, by code).
@@ -1088,26 +1169,215 @@ EsvoOctree build_octree_cells(const Mesh& mesh, const GridTransform& grid,
     const detail::TreeView top = tree_view(lv, nullptr, 0, C);
     detail::ContourPlanner planner(top, pmesh, options, C, &attr_flags);
     const detail::ContourPlan& tp = planner.plan();
-    for (int d = 1; d <= C; ++d) {
-      plan.contour[size_t(d)] = tp.contour[size_t(d)];
-      if (d < L) plan.leaf[size_t(d)] = tp.leaf[size_t(d)];
-    }
-    attr_flags = {};
+    auto copy_top_plan = [&]() {
+      for (int d = 1; d <= C; ++d) {
+        plan.contour[size_t(d)] = tp.contour[size_t(d)];
+        if (d < L) plan.leaf[size_t(d)] = tp.leaf[size_t(d)];
+      }
+    };
+    copy_top_plan();
     Level& r = lv[size_t(C)];
-    roots.first_child = std::move(r.first_child);
-    roots.desc_below = std::move(r.desc_below);
-    roots.values_below = std::move(r.values_below);
-    for (size_t k = 0; k < ncells; ++k) {
-      const auto seed = planner.take_seed(uint32_t(k));
-      if (!seed) continue;
-      std::vector<Level> clv;
-      std::vector<uint64_t> cleaf;
-      cell_levels(cell_bin[k], clv, cleaf);
-      keep_cell(k, clv, cleaf, *seed);
+    if (!check_decoded) {
+      attr_flags = {};
+      roots.first_child = std::move(r.first_child);
+      roots.desc_below = std::move(r.desc_below);
+      roots.values_below = std::move(r.values_below);
+      for (size_t k = 0; k < ncells; ++k) {
+        const auto seed = planner.take_seed(uint32_t(k));
+        if (!seed) continue;
+        std::vector<Level> clv;
+        std::vector<uint64_t> cleaf;
+        cell_levels(cell_bin[k], clv, cleaf);
+        ++st.refined_cells;
+        plan_cell(clv, cleaf, *seed, nullptr, seg);
+        append_segment(k, seg, roots.first_child, roots.desc_below, roots.values_below);
+      }
+      r.first_child = std::move(roots.first_child);
+      r.desc_below = std::move(roots.desc_below);
+      r.values_below = std::move(roots.values_below);
+    } else {
+      // The §7.3 decoded-leaf loop of the in-core build, streamed. Each
+      // round: lay out, decode every leaf above the max level, stream the
+      // cells holding one (a top leaf, depth <= C, covers whole cells; a
+      // deeper one lies in one cell) to test it against its full-depth
+      // voxels, force the failures (top leaves in the top planner, deeper
+      // ones in their cell's plan) and re-plan only the cells that changed.
+      // Every round lays out the in-core round's tree, so both find the
+      // same failures and force the same set: the same bytes. The top
+      // planner keeps the attribute flags of pass 2 for the voxels it
+      // reaches below newly forced top leaves.
+      std::vector<Segment> segs(ncells);
+      std::vector<uint8_t> has_seg(ncells, 0);
+      std::vector<std::shared_ptr<const detail::SubtreeSeed>> seeds(ncells);
+      std::vector<std::vector<std::pair<int, uint32_t>>> forced(ncells);
+      auto replan = [&](size_t k, std::vector<Level>& clv, const std::vector<uint64_t>& cleaf) {
+        plan_cell(clv, cleaf, *seeds[k], &forced[k], segs[k]);
+        has_seg[k] = 1;
+      };
+      auto plan_new_cells = [&]() {  // cells whose root the top plan newly refines
+        for (size_t k = 0; k < ncells; ++k) {
+          auto seed = planner.take_seed(uint32_t(k));
+          if (!seed) continue;
+          seeds[k] = std::move(seed);
+          std::vector<Level> clv;
+          std::vector<uint64_t> cleaf;
+          cell_levels(cell_bin[k], clv, cleaf);
+          replan(k, clv, cleaf);
+        }
+      };
+      plan_new_cells();
+      const int lmax = options.max_level > 0 ? options.max_level : L;
+      // [depth][k]: where cell k's nodes of depth d > C start in lv[d].
+      std::vector<std::vector<size_t>> off(static_cast<size_t>(L));
+      // Leaves that passed, with the decoded value they passed with: top
+      // ones by (depth, index), inner ones per cell by (depth, local index).
+      struct Passed {
+        int depth;
+        uint32_t local;
+        DecodedLeaf value;
+      };
+      auto passed_less = [](const Passed& a, const Passed& b) {
+        return a.depth != b.depth ? a.depth < b.depth : a.local < b.local;
+      };
+      auto same_value = [](const DecodedLeaf& a, const DecodedLeaf& b) {
+        return a.color == b.color &&
+               std::bit_cast<uint32_t>(a.normal.x) == std::bit_cast<uint32_t>(b.normal.x) &&
+               std::bit_cast<uint32_t>(a.normal.y) == std::bit_cast<uint32_t>(b.normal.y) &&
+               std::bit_cast<uint32_t>(a.normal.z) == std::bit_cast<uint32_t>(b.normal.z);
+      };
+      std::vector<std::vector<Passed>> passed(ncells);
+      std::map<std::pair<int, uint32_t>, DecodedLeaf> top_passed;
+      EsvoOctree result;
+      for (;;) {
+        // The kept tree of this round.
+        for (int d = C + 1; d < L; ++d) {
+          lv[size_t(d)] = Level{};
+          plan.leaf[size_t(d)].clear();
+        }
+        for (int d = C + 1; d <= L; ++d) plan.contour[size_t(d)].clear();
+        leaf_values.clear();
+        r.first_child.assign(ncells, 0);
+        r.desc_below.assign(ncells, 0);
+        r.values_below.assign(ncells, 0);
+        for (int d = C + 1; d < L; ++d) off[size_t(d)].assign(ncells + 1, 0);
+        for (size_t k = 0; k < ncells; ++k) {
+          for (int d = C + 1; d < L; ++d) off[size_t(d)][k] = lv[size_t(d)].mask.size();
+          if (has_seg[k] && !plan.leaf[size_t(C)][k])
+            append_segment(k, segs[k], r.first_child, r.desc_below, r.values_below);
+        }
+        for (int d = C + 1; d < L; ++d) off[size_t(d)][ncells] = lv[size_t(d)].mask.size();
+        planned_sizes(lv, plan, C - 1, 0);
+        EsvoOctree octree = Layout(lv, leaf_values, options, &plan).run(grid);
+        ++st.decoded_rounds;
+        const std::vector<DecodedLeaf> leaves =
+            decoded_leaves(octree, tree_view(lv, &leaf_values, 0, L - 1), lmax);
+
+        // Which leaves each cell must test: the top leaf covering it (leaves
+        // are disjoint, so at most one) and the leaves inside it. A leaf that
+        // passed in an earlier round with the same decoded value passes
+        // again (same voxels below it), so only leaves whose §5.5 block
+        // changed are tested, and only the cells holding one are streamed.
+        constexpr uint32_t kNone = UINT32_MAX;
+        std::vector<uint32_t> top_leaf(ncells, kNone);
+        std::vector<std::vector<uint32_t>> inner(ncells);
+        std::vector<uint8_t> top_bad(leaves.size(), 0);
+        std::vector<uint8_t> top_tested(leaves.size(), 0);
+        for (size_t j = 0; j < leaves.size(); ++j) {
+          const DecodedLeaf& l = leaves[j];
+          if (l.depth <= C) {
+            const auto hit = top_passed.find({l.depth, l.index});
+            if (hit != top_passed.end() && same_value(hit->second, l)) continue;
+            top_tested[j] = 1;
+            // Its cells: [first, end) at depth C.
+            size_t b0 = l.index, e0 = size_t(l.index) + 1;
+            for (int d = l.depth; d < C; ++d) {
+              const std::vector<uint32_t>& fc = lv[size_t(d)].first_child;
+              b0 = fc[b0];
+              e0 = e0 < fc.size() ? fc[e0] : lv[size_t(d) + 1].mask.size();
+            }
+            for (size_t k = b0; k < e0; ++k) top_leaf[k] = uint32_t(j);
+          } else {
+            const std::vector<size_t>& o = off[size_t(l.depth)];
+            const size_t k =
+                size_t(std::upper_bound(o.begin(), o.end(), size_t(l.index)) - o.begin() - 1);
+            inner[k].push_back(uint32_t(j));
+          }
+        }
+        std::vector<size_t> changed;  // cells re-planned this round
+        for (size_t k = 0; k < ncells; ++k) {
+          const bool test_top = top_leaf[k] != kNone && !top_bad[top_leaf[k]];
+          // This round's inner leaves of cell k as (depth, local index), and
+          // the ones not passed before with this value.
+          std::vector<Passed> now;
+          std::vector<uint32_t> todo;  // indices into now
+          for (const uint32_t j : inner[k]) {
+            const DecodedLeaf& l = leaves[j];
+            const uint32_t local =
+                segs[k].local[size_t(l.depth)][l.index - off[size_t(l.depth)][k]];
+            const Passed q{l.depth, local, l};
+            const std::vector<Passed>& pk = passed[k];
+            const auto it = std::lower_bound(pk.begin(), pk.end(), q, passed_less);
+            if (it == pk.end() || passed_less(q, *it) || !same_value(it->value, l))
+              todo.push_back(uint32_t(now.size()));
+            now.push_back(q);
+          }
+          if (!test_top && todo.empty()) {
+            std::sort(now.begin(), now.end(), passed_less);
+            passed[k] = std::move(now);
+            continue;
+          }
+          std::vector<Level> clv;
+          std::vector<uint64_t> cleaf;
+          cell_levels(cell_bin[k], clv, cleaf);
+          if (test_top) {
+            const DecodedLeaf& l = leaves[top_leaf[k]];
+            top_bad[top_leaf[k]] =
+                detail::values_exceed(cleaf.data(), 0, cleaf.size(), l.color, l.normal, options);
+          }
+          const detail::TreeView ct = tree_view(clv, &cleaf, C, L - 1);
+          std::vector<uint8_t> bad(todo.size(), 0);
+          tbb::parallel_for(size_t(0), todo.size(), [&](size_t u) {
+            const Passed& q = now[todo[u]];
+            bad[u] = detail::attributes_exceed(ct, q.depth, q.local, q.value.color, q.value.normal,
+                                               options);
+          });
+          std::vector<uint8_t> failed(now.size(), 0);
+          for (size_t u = 0; u < todo.size(); ++u) {
+            if (!bad[u]) continue;
+            failed[todo[u]] = 1;
+            forced[k].push_back({now[todo[u]].depth, now[todo[u]].local});
+          }
+          std::vector<Passed> keep;
+          for (size_t u = 0; u < now.size(); ++u)
+            if (!failed[u]) keep.push_back(now[u]);
+          std::sort(keep.begin(), keep.end(), passed_less);
+          passed[k] = std::move(keep);
+          // Re-plan now, while its voxels are at hand.
+          if (std::find(bad.begin(), bad.end(), 1) != bad.end())
+            replan(k, clv, cleaf), changed.push_back(k), ++st.replanned_cells;
+        }
+        for (size_t j = 0; j < leaves.size(); ++j)
+          if (top_tested[j] && !top_bad[j])
+            top_passed[{leaves[j].depth, leaves[j].index}] = leaves[j];
+        std::vector<std::pair<int, uint32_t>> bad_top;
+        for (size_t j = 0; j < leaves.size(); ++j)
+          if (top_bad[j]) bad_top.push_back({leaves[j].depth, leaves[j].index});
+        if (bad_top.empty() && changed.empty()) {
+          result = std::move(octree);
+          break;
+        }
+        if (!bad_top.empty()) {
+          st.forced_top_leaves += bad_top.size();
+          planner.refine(bad_top);
+          copy_top_plan();
+          plan_new_cells();
+        }
+      }
+      for (size_t k = 0; k < ncells; ++k) st.refined_cells += has_seg[k];
+      bins = {};
+      if (stats) *stats = st;
+      return result;
     }
-    r.first_child = std::move(roots.first_child);
-    r.desc_below = std::move(roots.desc_below);
-    r.values_below = std::move(roots.values_below);
   }
   bins = {};
 

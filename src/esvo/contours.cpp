@@ -477,7 +477,10 @@ class Planner {
     forced_[size_t(depth)][index] = 1;
     // Up the tree: the parent of node i at depth d is the last node of
     // depth d - 1 whose first child is <= i (first_child increases).
-    for (int d = depth; d >= 1 && !redo_[size_t(d)][index]; --d) {
+    // A cell's planner stops below its seed's voxel, which run() always visits.
+    const int top = start_ != nullptr ? start_->depth : 0;
+    if (depth <= top) throw std::logic_error("esvo planner: cannot refine above the seed");
+    for (int d = depth; d > top && !redo_[size_t(d)][index]; --d) {
       redo_[size_t(d)][index] = 1;
       redo_list_.push_back({d, index});
       const uint32_t* fc = t_.first_child[size_t(d) - 1];
