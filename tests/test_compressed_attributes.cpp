@@ -14,6 +14,7 @@
 #include <random>
 #include <string>
 
+#include "support/attribute_oracle.hpp"
 #include "support/cli_runner.hpp"
 #include "support/esvo_testing.hpp"
 #include "voxcast/error.hpp"
@@ -24,30 +25,19 @@
 namespace voxcast {
 namespace {
 
+using testing::angle;
+using testing::kDeg;
+using testing::max_channel_diff;
+using testing::Rgb8;
+using testing::to8;
+
 using esvo::AttributeFormat;
 using esvo::EsvoOctree;
 
 // ---- independent helpers (written from the esvo.hpp spec, not the codec) ----
 
-double angle(Vec3 a, Vec3 b) {
-  const double dx = double(a.x) - b.x, dy = double(a.y) - b.y, dz = double(a.z) - b.z;
-  return 2.0 * std::asin(std::min(1.0, 0.5 * std::sqrt(dx * dx + dy * dy + dz * dz)));
-}
-constexpr double kDeg = 3.14159265358979323846 / 180.0;
-
-struct Rgb8 {
-  int c[3];
-};
-Rgb8 to8(const Color& linear) {
-  const uint32_t abgr = esvo::encode_color_abgr(linear);
-  return {{int(abgr & 0xFF), int(abgr >> 8 & 0xFF), int(abgr >> 16 & 0xFF)}};
-}
 Color from8(int r, int g, int b) {
   return esvo::decode_color_abgr(uint32_t(r | g << 8 | b << 16) | 0xFF000000u);
-}
-int max_channel_diff(const Rgb8& a, const Rgb8& b) {
-  return std::max(
-      {std::abs(a.c[0] - b.c[0]), std::abs(a.c[1] - b.c[1]), std::abs(a.c[2] - b.c[2])});
 }
 Vec3 random_unit(std::mt19937_64& rng) {
   std::normal_distribution<float> g;

@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "esvo/build_cells.hpp"
+#include "support/attribute_oracle.hpp"
 #include "support/cli_runner.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
@@ -26,26 +27,11 @@
 namespace voxcast {
 namespace {
 
-const std::filesystem::path kMeshes = std::filesystem::path(VOXCAST_SHARED_DIR) / "meshes";
-
-/// A shared test mesh with smooth procedural vertex colors, so the color
-/// tolerance has work (as test_esvo_vardepth.cpp).
 Mesh load(const char* name) {
-  const std::filesystem::path p = kMeshes / name;
-  if (!std::filesystem::exists(p)) throw Error("missing test mesh " + p.string());
-  Mesh m = load_mesh(p);
-  const Aabb b = m.bounds();
-  const Vec3 e = b.hi - b.lo;
-  const float s = std::max({e.x, e.y, e.z});
-  m.colors.clear();
-  for (const Vec3& q : m.positions) {
-    const Vec3 u = (q - b.lo) / s;
-    m.colors.push_back({0.5f + 0.5f * std::sin(19.f * u.x),
-                        0.5f + 0.5f * std::sin(13.f * u.y + 1.f),
-                        0.5f + 0.5f * std::sin(23.f * u.z + 2.f), 1.f});
-  }
-  return m;
+  return testing::load_mesh_with_wave_colors(name);
 }
+
+const std::filesystem::path kMeshes = std::filesystem::path(VOXCAST_SHARED_DIR) / "meshes";
 
 struct Mix {
   const char* name;

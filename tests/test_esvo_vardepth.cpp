@@ -18,6 +18,7 @@
 #include <string>
 #include <vector>
 
+#include "support/attribute_oracle.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
 #include "voxcast/mesh.hpp"
@@ -25,6 +26,10 @@
 
 namespace voxcast {
 namespace {
+
+Mesh load(const char* name) {
+  return testing::load_mesh_with_wave_colors(name);
+}
 
 const std::filesystem::path kMeshes = std::filesystem::path(VOXCAST_SHARED_DIR) / "meshes";
 
@@ -109,25 +114,6 @@ uint64_t voxel_count(const esvo::EsvoOctree& o) {
   uint64_t n = 0;
   for (const auto& l : o.level_stats()) n += l.voxels;
   return n;
-}
-
-/// A shared test mesh with smooth procedural vertex colors (waves across the
-/// bounding box, a few periods per axis), so the color tolerance has work.
-Mesh load(const char* name) {
-  const std::filesystem::path p = kMeshes / name;
-  if (!std::filesystem::exists(p)) throw Error("missing test mesh " + p.string());
-  Mesh m = load_mesh(p);
-  const Aabb b = m.bounds();
-  const Vec3 e = b.hi - b.lo;
-  const float s = std::max({e.x, e.y, e.z});
-  m.colors.clear();
-  for (const Vec3& q : m.positions) {
-    const Vec3 u = (q - b.lo) / s;
-    m.colors.push_back({0.5f + 0.5f * std::sin(19.f * u.x),
-                        0.5f + 0.5f * std::sin(13.f * u.y + 1.f),
-                        0.5f + 0.5f * std::sin(23.f * u.z + 2.f), 1.f});
-  }
-  return m;
 }
 
 TEST(VariableDepth, ColorCodesRoundTrip) {
