@@ -31,7 +31,7 @@
 namespace voxcast {
 namespace {
 
-const std::filesystem::path kMeshes = std::filesystem::path(VOXCAST_SHARED_DIR) / "meshes";
+const std::filesystem::path kMeshes = std::filesystem::path(VOXCAST_TEST_DATA_DIR) / "meshes";
 
 struct BeamDiff {
   size_t rays = 0, hits = 0, mismatches = 0, empty_blocks = 0;

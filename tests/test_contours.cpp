@@ -30,7 +30,7 @@
 namespace voxcast {
 namespace {
 
-const std::filesystem::path kMeshes = std::filesystem::path(VOXCAST_SHARED_DIR) / "meshes";
+const std::filesystem::path kMeshes = std::filesystem::path(VOXCAST_TEST_DATA_DIR) / "meshes";
 
 // ---- independent decoding of the layout in esvo.hpp (no builder code) ----
 

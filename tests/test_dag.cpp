@@ -66,7 +66,7 @@ class DagSharedMesh : public ::testing::TestWithParam<const char*> {};
 
 TEST_P(DagSharedMesh, DecodesToTheVoxelSetOfTheOctree) {
   const std::filesystem::path path =
-      std::filesystem::path(VOXCAST_SHARED_DIR "/meshes") / GetParam();
+      std::filesystem::path(VOXCAST_TEST_DATA_DIR "/meshes") / GetParam();
   if (!std::filesystem::exists(path)) GTEST_SKIP() << "shared mesh not found: " << path;
   const Mesh mesh = load_mesh(path);
   for (uint32_t res : {256u, 1024u}) {
@@ -543,7 +543,7 @@ TEST_F(DagScene, RejectsBadMetaAttributesAndFiles) {
 }
 
 TEST(DagCli, BuildInfoRender) {
-  const std::string mesh = VOXCAST_SHARED_DIR "/meshes/spot.obj";
+  const std::string mesh = VOXCAST_TEST_DATA_DIR "/meshes/spot.obj";
   if (!std::filesystem::exists(mesh)) GTEST_SKIP() << "no " << mesh;
   testing::TempDir dir;
   auto r = testing::run_cli("build " + mesh + " -o " + dir.file("s.vxc") +

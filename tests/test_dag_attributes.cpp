@@ -157,7 +157,7 @@ VoxelSet smooth_shell(int levels) {
 
 const Mesh& bunny() {
   static const Mesh m =
-      load_mesh(std::filesystem::path(VOXCAST_SHARED_DIR) / "meshes" / "stanford-bunny.obj");
+      load_mesh(std::filesystem::path(VOXCAST_TEST_DATA_DIR) / "meshes" / "stanford-bunny.obj");
   return m;
 }
 
@@ -201,7 +201,7 @@ TEST(DagCompressed, RandomAttributesKeepPerBlockGuarantees) {
 }
 
 TEST(DagCompressed, SharedMeshWithinBounds) {
-  if (!std::filesystem::exists(VOXCAST_SHARED_DIR "/meshes/stanford-bunny.obj"))
+  if (!std::filesystem::exists(VOXCAST_TEST_DATA_DIR "/meshes/stanford-bunny.obj"))
     GTEST_SKIP() << "no shared bunny";
   VoxelizeOptions vo;
   vo.attributes = true;
@@ -429,10 +429,10 @@ TEST_F(DagCompressedScene, RejectsCorruptAttributes) {
 // ---- CLI --------------------------------------------------------------------
 
 TEST(DagCompressedCli, BuildInfoRenderInCoreEqualsOutOfCore) {
-  if (!std::filesystem::exists(VOXCAST_SHARED_DIR "/meshes/stanford-bunny.obj"))
+  if (!std::filesystem::exists(VOXCAST_TEST_DATA_DIR "/meshes/stanford-bunny.obj"))
     GTEST_SKIP() << "no shared bunny";
   testing::TempDir dir;
-  const std::string mesh = VOXCAST_SHARED_DIR "/meshes/stanford-bunny.obj";
+  const std::string mesh = VOXCAST_TEST_DATA_DIR "/meshes/stanford-bunny.obj";
   auto a = testing::run_cli("build '" + mesh + "' -o " + dir.file("a.vxc") +
                             " --format dag --resolution 256 --attributes compressed");
   ASSERT_EQ(a.exit_code, 0) << a.output;

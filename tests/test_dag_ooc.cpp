@@ -23,7 +23,7 @@
 namespace voxcast {
 namespace {
 
-const std::filesystem::path kMeshes = VOXCAST_SHARED_DIR "/meshes";
+const std::filesystem::path kMeshes = VOXCAST_TEST_DATA_DIR "/meshes";
 
 const Mesh& bunny() {
   static const Mesh m = load_mesh(kMeshes / "stanford-bunny.obj");

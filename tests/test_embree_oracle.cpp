@@ -21,7 +21,7 @@
 namespace voxcast {
 namespace {
 
-const std::filesystem::path kMeshes = std::filesystem::path(VOXCAST_SHARED_DIR) / "meshes";
+const std::filesystem::path kMeshes = std::filesystem::path(VOXCAST_TEST_DATA_DIR) / "meshes";
 
 TEST(EmbreeScene, SingleRaysOnATriangle) {
   Mesh m;

@@ -31,7 +31,7 @@ Mesh load(const char* name) {
   return testing::load_mesh_with_wave_colors(name);
 }
 
-const std::filesystem::path kMeshes = std::filesystem::path(VOXCAST_SHARED_DIR) / "meshes";
+const std::filesystem::path kMeshes = std::filesystem::path(VOXCAST_TEST_DATA_DIR) / "meshes";
 
 struct Mix {
   const char* name;

@@ -22,7 +22,7 @@ using namespace voxcast;
 
 namespace {
 
-const fs::path kShared = fs::path(VOXCAST_SHARED_DIR) / "meshes";
+const fs::path kShared = fs::path(VOXCAST_TEST_DATA_DIR) / "meshes";
 const fs::path kAssimpModels = "/usr/share/assimp/models";
 
 #define REQUIRE_DIR(dir)                                                    \

@@ -239,7 +239,7 @@ TEST(RenderStats, HeatmapRamp) {
 TEST(RenderStats, CliStatsAndHeatmap) {
   testing::TempDir dir;
   const std::string mesh =
-      (std::filesystem::path(VOXCAST_SHARED_DIR) / "meshes" / "stanford-bunny.obj").string();
+      (std::filesystem::path(VOXCAST_TEST_DATA_DIR) / "meshes" / "stanford-bunny.obj").string();
   ASSERT_EQ(testing::run_cli("build " + mesh + " -o " + dir.file("b.vxc") + " --resolution 128")
                 .exit_code,
             0);

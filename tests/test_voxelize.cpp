@@ -580,7 +580,7 @@ TEST(Voxelize, RejectsBadGrid) {
 // Shared closed meshes through load_mesh (skipped without the shared folder).
 TEST(Voxelize, SharedClosedMeshesAreWatertight) {
   namespace fs = std::filesystem;
-  const fs::path dir = fs::path(VOXCAST_SHARED_DIR) / "meshes";
+  const fs::path dir = fs::path(VOXCAST_TEST_DATA_DIR) / "meshes";
   const fs::path file = dir / "armadillo.off";
   if (!fs::exists(file)) GTEST_SKIP() << file << " not present";
   Mesh m = load_mesh(file);

@@ -38,7 +38,7 @@ inline int max_channel_diff(const Rgb8& a, const Rgb8& b) {
 /// A shared test mesh (../shared/meshes/NAME) with smooth procedural vertex
 /// colors (waves across the bounding box, a few periods per axis).
 inline Mesh load_mesh_with_wave_colors(const char* name) {
-  const std::filesystem::path p = std::filesystem::path(VOXCAST_SHARED_DIR) / "meshes" / name;
+  const std::filesystem::path p = std::filesystem::path(VOXCAST_TEST_DATA_DIR) / "meshes" / name;
   if (!std::filesystem::exists(p)) throw Error("missing test mesh " + p.string());
   Mesh m = load_mesh(p);
   const Aabb b = m.bounds();
