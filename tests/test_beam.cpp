@@ -21,6 +21,7 @@
 #include "support/cli_runner.hpp"
 #include "support/esvo_testing.hpp"
 #include "support/shared_meshes.hpp"
+#include "support/test_data.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_structure.hpp"
@@ -123,9 +124,7 @@ std::vector<std::unique_ptr<VoxelStructure>> structures_of(const VoxelSet& set,
 class SharedMeshBeam : public ::testing::TestWithParam<const char*> {};
 
 TEST_P(SharedMeshBeam, HitsIdenticalWithAndWithoutBeam) {
-  const std::filesystem::path path = kMeshes / GetParam();
-  ASSERT_TRUE(std::filesystem::exists(path)) << path;
-  const Mesh mesh = load_mesh(path);
+  const Mesh mesh = load_mesh(testing::test_mesh(GetParam()));
   VoxelizeOptions vo;
   vo.mode = VoxelizationMode::Conservative;
   const VoxelSet voxels = voxelize(mesh, GridTransform::fit(mesh.bounds(), 1024), vo);

@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "support/shared_meshes.hpp"
+#include "support/test_data.hpp"
 #include "voxcast/embree_reference.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
@@ -248,9 +249,7 @@ TEST(Contours, NoHolesSphere) {
 class SharedMeshNoHoles : public ::testing::TestWithParam<const char*> {};
 
 TEST_P(SharedMeshNoHoles, EveryTrianglePointInsideItsLeaf) {
-  const std::filesystem::path path = kMeshes / GetParam();
-  ASSERT_TRUE(std::filesystem::exists(path)) << path;
-  const Mesh mesh = load_mesh(path);
+  const Mesh mesh = load_mesh(testing::test_mesh(GetParam()));
   for (uint32_t res : {64u, 256u}) {
     const esvo::EsvoOctree t = build(mesh, res, true);
     ASSERT_NO_THROW(t.validate());
@@ -285,8 +284,7 @@ TEST_P(SharedMeshNoHoles, EveryTrianglePointInsideItsLeaf) {
   EXPECT_EQ(holes(t5, mesh, 2, 44), 0u);
 }
 
-INSTANTIATE_TEST_SUITE_P(SharedMeshes, SharedMeshNoHoles,
-                         ::testing::Values("stanford-bunny.obj", "fandisk_large.off"),
+INSTANTIATE_TEST_SUITE_P(SharedMeshes, SharedMeshNoHoles, voxcast::testing::all_shared_meshes(),
                          voxcast::testing::mesh_test_name);
 
 // ---- the caster against a brute-force ray vs (cube ∩ slabs) oracle ----

@@ -18,6 +18,7 @@
 #include "support/cli_runner.hpp"
 #include "support/esvo_testing.hpp"
 #include "support/shared_meshes.hpp"
+#include "support/test_data.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_structure.hpp"
@@ -65,9 +66,7 @@ TEST(DagBuild, DecodesRandomSetsAndShells) {
 class DagSharedMesh : public ::testing::TestWithParam<const char*> {};
 
 TEST_P(DagSharedMesh, DecodesToTheVoxelSetOfTheOctree) {
-  const std::filesystem::path path =
-      std::filesystem::path(VOXCAST_TEST_DATA_DIR "/meshes") / GetParam();
-  if (!std::filesystem::exists(path)) GTEST_SKIP() << "shared mesh not found: " << path;
+  const std::filesystem::path path = testing::test_mesh(GetParam());
   const Mesh mesh = load_mesh(path);
   for (uint32_t res : {256u, 1024u}) {
     SCOPED_TRACE(std::string(GetParam()) + " " + std::to_string(res));
@@ -543,8 +542,7 @@ TEST_F(DagScene, RejectsBadMetaAttributesAndFiles) {
 }
 
 TEST(DagCli, BuildInfoRender) {
-  const std::string mesh = VOXCAST_TEST_DATA_DIR "/meshes/spot.obj";
-  if (!std::filesystem::exists(mesh)) GTEST_SKIP() << "no " << mesh;
+  const std::string mesh = testing::test_mesh("spot.obj").string();
   testing::TempDir dir;
   auto r = testing::run_cli("build " + mesh + " -o " + dir.file("s.vxc") +
                             " --format dag --resolution 128");

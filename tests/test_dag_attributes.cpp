@@ -201,8 +201,7 @@ TEST(DagCompressed, RandomAttributesKeepPerBlockGuarantees) {
 }
 
 TEST(DagCompressed, SharedMeshWithinBounds) {
-  if (!std::filesystem::exists(VOXCAST_TEST_DATA_DIR "/meshes/stanford-bunny.obj"))
-    GTEST_SKIP() << "no shared bunny";
+  testing::test_mesh("stanford-bunny.obj");
   VoxelizeOptions vo;
   vo.attributes = true;
   const SparseVoxelDag raw =
@@ -429,8 +428,7 @@ TEST_F(DagCompressedScene, RejectsCorruptAttributes) {
 // ---- CLI --------------------------------------------------------------------
 
 TEST(DagCompressedCli, BuildInfoRenderInCoreEqualsOutOfCore) {
-  if (!std::filesystem::exists(VOXCAST_TEST_DATA_DIR "/meshes/stanford-bunny.obj"))
-    GTEST_SKIP() << "no shared bunny";
+  testing::test_mesh("stanford-bunny.obj");
   testing::TempDir dir;
   const std::string mesh = VOXCAST_TEST_DATA_DIR "/meshes/stanford-bunny.obj";
   auto a = testing::run_cli("build '" + mesh + "' -o " + dir.file("a.vxc") +

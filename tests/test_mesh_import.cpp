@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "support/test_data.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/image.hpp"
 #include "voxcast/mesh.hpp"
@@ -23,12 +24,7 @@ using namespace voxcast;
 namespace {
 
 const fs::path kShared = fs::path(VOXCAST_TEST_DATA_DIR) / "meshes";
-const fs::path kAssimpModels = "/usr/share/assimp/models";
-
-#define REQUIRE_DIR(dir)                                                    \
-  do {                                                                      \
-    if (!fs::is_directory(dir)) GTEST_SKIP() << (dir) << " is not present"; \
-  } while (0)
+const fs::path kAssimpModels = voxcast::testing::kAssimpModels;
 
 // A private directory that is removed with everything in it.
 struct TempDir {
@@ -119,12 +115,12 @@ void expect_one_line_naming(const std::string& msg, const fs::path& p) {
 // ------------------------------------------------------------ shared meshes
 
 TEST(MeshImport, SharedMeshesLoadWithIndependentTriangleCounts) {
-  REQUIRE_DIR(kShared);
+  voxcast::testing::require_file(kShared);
   const char* files[] = {"stanford-bunny.obj",   "spot.obj",  "teapot.obj",       "armadillo.off",
                          "refined_elephant.off", "camel.off", "fandisk_large.off"};
   for (const char* f : files) {
     SCOPED_TRACE(f);
-    fs::path p = kShared / f;
+    fs::path p = voxcast::testing::require_file(kShared / f);
     size_t expected = p.extension() == ".obj" ? count_obj_triangles(p) : count_off_triangles(p);
     ASSERT_GT(expected, 0u);
     MeshLoadStats stats;
@@ -141,7 +137,7 @@ TEST(MeshImport, SharedMeshesLoadWithIndependentTriangleCounts) {
 }
 
 TEST(MeshImport, BunnyHasItsKnownSizeAndComputedNormals) {
-  REQUIRE_DIR(kShared);
+  voxcast::testing::require_file(kShared);
   MeshLoadStats stats;
   Mesh m = load_mesh(kShared / "stanford-bunny.obj", &stats);
   EXPECT_EQ(stats.input_triangles, 69451u);  // the classic Stanford bunny count
@@ -201,7 +197,7 @@ size_t count_found(const std::vector<Vec2>& wanted, const std::vector<Vec2>& hav
 
 TEST(MeshImport, GltfTruckKeepsTextureAndTopLeftUvs) {
   const fs::path dir = kShared / "CesiumMilkTruck";
-  REQUIRE_DIR(dir);
+  voxcast::testing::require_file(dir);
   Mesh m = load_mesh(dir / "CesiumMilkTruck.gltf");
   ASSERT_EQ(m.uvs.size(), m.positions.size());
   ASSERT_EQ(m.textures.size(), 1u);
@@ -255,7 +251,7 @@ TEST(MeshImport, GltfTruckKeepsTextureAndTopLeftUvs) {
 // ------------------------------------------------- formats in assimp-testmodels
 
 TEST(MeshImport, AssimpTestModelFormats) {
-  REQUIRE_DIR(kAssimpModels);
+  voxcast::testing::require_file(kAssimpModels);
   struct Case {
     const char* file;
     size_t min_tris;
@@ -272,7 +268,7 @@ TEST(MeshImport, AssimpTestModelFormats) {
   };
   for (const Case& c : cases) {
     fs::path p = kAssimpModels / c.file;
-    if (!fs::exists(p)) continue;
+    voxcast::testing::require_file(p);
     SCOPED_TRACE(c.file);
     MeshLoadStats stats;
     Mesh m = load_mesh(p, &stats);
@@ -284,7 +280,7 @@ TEST(MeshImport, AssimpTestModelFormats) {
 
 TEST(MeshImport, AsciiPlyCubeCountsMatchHeader) {
   fs::path p = kAssimpModels / "PLY/cube.ply";
-  if (!fs::exists(p)) GTEST_SKIP();
+  voxcast::testing::require_file(p);
   // Header says 8 vertices, 6 quads: 12 triangles, none degenerate.
   MeshLoadStats stats;
   Mesh m = load_mesh(p, &stats);
@@ -297,7 +293,7 @@ TEST(MeshImport, AsciiPlyCubeCountsMatchHeader) {
 
 TEST(MeshImport, GlbEmbeddedPngTexture) {
   fs::path p = kAssimpModels / "glTF2/BoxTextured-glTF-Binary/BoxTextured.glb";
-  if (!fs::exists(p)) GTEST_SKIP();
+  voxcast::testing::require_file(p);
   Mesh m = load_mesh(p);
   ASSERT_EQ(m.textures.size(), 1u);
   EXPECT_GT(m.textures[0].width, 0);
@@ -306,7 +302,7 @@ TEST(MeshImport, GlbEmbeddedPngTexture) {
 
 TEST(MeshImport, ObjWithJpegTextures) {
   fs::path p = kAssimpModels / "OBJ/spider.obj";
-  if (!fs::exists(p)) GTEST_SKIP();
+  voxcast::testing::require_file(p);
   Mesh m = load_mesh(p);  // map_Kd uses Windows paths (".\SpiderTex.jpg")
   ASSERT_FALSE(m.textures.empty());
   for (const Texture& t : m.textures) {
@@ -320,7 +316,7 @@ TEST(MeshImport, ObjWithJpegTextures) {
 
 TEST(MeshImport, ColladaWithTgaTexture) {
   fs::path p = kAssimpModels / "Collada/duck.dae";
-  if (!fs::exists(p)) GTEST_SKIP();
+  voxcast::testing::require_file(p);
   Mesh m = load_mesh(p);  // duckCM.tga
   ASSERT_EQ(m.textures.size(), 1u);
   EXPECT_GT(m.textures[0].width, 0);
@@ -416,13 +412,13 @@ TEST(MeshImport, TruncatedBinaryFilesThrow) {
 }
 
 TEST(MeshImport, BrokenAssimpTestModelsNeverCrash) {
-  REQUIRE_DIR(kAssimpModels);
+  voxcast::testing::require_file(kAssimpModels);
   std::vector<fs::path> files;
   for (const char* dir : {"invalid", "glTF2/IndexOutOfRange", "glTF2/BoxWithInfinites-glTF-Binary",
                           "glTF2/MissingBin", "glTF2/wrongTypes", "glTF2/BoxBadNormals-glTF-Binary",
                           "glTF2/IncorrectVertexArrays", "glTF2/SchemaFailures"}) {
     fs::path d = kAssimpModels / dir;
-    if (!fs::is_directory(d)) continue;
+    voxcast::testing::require_file(d);
     for (const auto& e : fs::recursive_directory_iterator(d))
       if (e.is_regular_file() && e.path().extension() != ".bin" && e.path().extension() != ".png" &&
           e.path().extension() != ".txt")
@@ -457,7 +453,7 @@ TEST(MeshImport, OffHeaderClaimingTooMuchFailsFast) {
 
 TEST(MeshImport, InfiniteCoordinatesInGlbThrow) {
   fs::path p = kAssimpModels / "glTF2/BoxWithInfinites-glTF-Binary/BoxWithInfinites.glb";
-  if (!fs::exists(p)) GTEST_SKIP();
+  voxcast::testing::require_file(p);
   expect_one_line_naming(load_error(p), p);
 }
 

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "support/sat_oracle.hpp"
+#include "support/test_data.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/mesh.hpp"
 #include "voxcast/morton.hpp"
@@ -577,13 +578,9 @@ TEST(Voxelize, RejectsBadGrid) {
   EXPECT_THROW(voxelize(m, unit_grid(8), {}), Error);
 }
 
-// Shared closed meshes through load_mesh (skipped without the shared folder).
+// A shipped closed mesh through load_mesh.
 TEST(Voxelize, SharedClosedMeshesAreWatertight) {
-  namespace fs = std::filesystem;
-  const fs::path dir = fs::path(VOXCAST_TEST_DATA_DIR) / "meshes";
-  const fs::path file = dir / "armadillo.off";
-  if (!fs::exists(file)) GTEST_SKIP() << file << " not present";
-  Mesh m = load_mesh(file);
+  Mesh m = load_mesh(testing::test_mesh("armadillo.off"));
   for (auto mode : {VoxelizationMode::Conservative, VoxelizationMode::SixSeparating}) {
     VoxelizeOptions opt;
     opt.mode = mode;

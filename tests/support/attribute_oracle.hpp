@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <string>
 
+#include "support/test_data.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
 #include "voxcast/mesh.hpp"
@@ -35,12 +36,10 @@ inline int max_channel_diff(const Rgb8& a, const Rgb8& b) {
       {std::abs(a.c[0] - b.c[0]), std::abs(a.c[1] - b.c[1]), std::abs(a.c[2] - b.c[2])});
 }
 
-/// A shared test mesh (../shared/meshes/NAME) with smooth procedural vertex
+/// A shipped test mesh (tests/data/meshes/NAME) with smooth procedural vertex
 /// colors (waves across the bounding box, a few periods per axis).
 inline Mesh load_mesh_with_wave_colors(const char* name) {
-  const std::filesystem::path p = std::filesystem::path(VOXCAST_TEST_DATA_DIR) / "meshes" / name;
-  if (!std::filesystem::exists(p)) throw Error("missing test mesh " + p.string());
-  Mesh m = load_mesh(p);
+  Mesh m = load_mesh(test_mesh(name));
   const Aabb b = m.bounds();
   const Vec3 e = b.hi - b.lo;
   const float s = std::max({e.x, e.y, e.z});

@@ -1,5 +1,5 @@
 #pragma once
-// The shared test meshes (../shared/meshes) as a GoogleTest parameter list,
+// The shipped test meshes (tests/data/meshes) as a GoogleTest parameter list,
 // with readable test names ("stanford_bunny", "CesiumMilkTruck", ...).
 #include <gtest/gtest.h>
 
