@@ -7,7 +7,7 @@ cd "$(dirname "$0")/.."
 RES=${1:-2048}
 SIZE=${2:-1024x768}
 shift $(( $# > 2 ? 2 : $# )) || true
-MESHES=${MESHES:-../shared/meshes}
+MESHES=${MESHES:-tests/data/meshes}
 BIN=${VOXCAST:-build/voxcast}
 echo "| mesh | triangles | leaf voxels | coverage | voxcast Mrays/s | voxcast+beam8 | Embree x1 | Embree x8 | ratio | voxel build s | Embree build s | voxcast MiB | Embree MiB | hit agreement | depth ≤ 2 diag |"
 echo "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"

@@ -8,7 +8,7 @@ cd "$(dirname "$0")/.."
 RES=${1:-1024}
 shift || true
 MESHES=("$@")
-[ ${#MESHES[@]} -gt 0 ] || MESHES=(../shared/meshes/stanford-bunny.obj ../shared/meshes/fandisk_large.off ../shared/meshes/armadillo.off)
+[ ${#MESHES[@]} -gt 0 ] || MESHES=(tests/data/meshes/stanford-bunny.obj tests/data/meshes/fandisk_large.off tests/data/meshes/armadillo.off)
 BIN=${VOXCAST:-build/voxcast}
 SIZES=512x384,1024x768,2048x1536
 echo "| mesh | image | coverage | cubes | cubes+beam | contours | contours+beam | Embree x1 | Embree x8 | contours+beam / Embree best |"
