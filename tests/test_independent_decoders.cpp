@@ -20,6 +20,7 @@
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -471,8 +472,8 @@ TEST(IndependentDecoders, EsvoCompressedContourSceneMatchesImplementationAndSour
 }
 
 /// The DAG saved to a scene file: its DATC words decoded independently match
-/// voxel_attributes() of the loaded DAG, and the source attributes of voxel i
-/// (Morton rank i) within the bounds.
+/// voxel_attributes() and mean_attributes() of the loaded DAG, and the source
+/// attributes of voxel i (Morton rank i) within the bounds.
 Errors check_dag_scene(const dag::SparseVoxelDag& d, const VoxelSet& src, const std::string& name) {
   const std::filesystem::path file = temp_path(name + ".vxc");
   save_dag_scene(file, d, {});
@@ -494,6 +495,29 @@ Errors check_dag_scene(const dag::SparseVoxelDag& d, const VoxelSet& src, const 
     }
     const Source want = source_of(src, size_t(i));
     e.add(max_diff(want.srgb, s.color.srgb), ind::angle_between(want.normal, s.normal));
+  }
+  // LOD means (dag.hpp: mean linear color and normalized mean normal of a
+  // voxel range, from prefix sums of the decoded values) of random ranges,
+  // against the mean of the independently decoded voxels.
+  std::mt19937_64 rng(src.size());
+  for (int t = 0; t < 200; ++t) {
+    const uint64_t count = 1 + rng() % std::min<uint64_t>(300, src.size());
+    const uint64_t first = rng() % (src.size() - count + 1);
+    double sum[6] = {};
+    for (uint64_t i = first; i < first + count; ++i) {
+      const ind::BlockSlot s = ind::decode_dag_voxel(blocks, i);
+      const double v[6] = {s.color.r, s.color.g, s.color.b, s.normal.x, s.normal.y, s.normal.z};
+      for (int k = 0; k < 6; ++k) sum[k] += v[k];
+    }
+    Color c;
+    Vec3 n;
+    loaded.mean_attributes({first, count}, &c, &n);
+    // 2^-24 fixed point per summand: far below these tolerances.
+    const std::string at = name + " range " + std::to_string(first) + "+" + std::to_string(count);
+    EXPECT_NEAR(c.r, sum[0] / double(count), 1e-5) << at;
+    EXPECT_NEAR(c.g, sum[1] / double(count), 1e-5) << at;
+    EXPECT_NEAR(c.b, sum[2] / double(count), 1e-5) << at;
+    EXPECT_LT(ind::angle_between(ref(n), normalized({sum[3], sum[4], sum[5]})), 1e-4) << at;
   }
   std::printf(
       "%s: %zu voxels; vs source: color max %d mean %.3f /255, normal max %.3f mean "

@@ -16,6 +16,7 @@ Lines starting with '#' and blank lines are ignored. Text after '- ' / '+ '
 is taken literally (no regex), to the end of the line.
 """
 import argparse
+import fcntl
 import os
 import re
 import subprocess
@@ -172,6 +173,12 @@ def main():
         return 0
 
     os.makedirs(a.scratch, exist_ok=True)
+    lock = open(os.path.join(a.scratch, ".mutation-lock"), "w")
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        print(f"mutation: waiting for another run in {a.scratch}", flush=True)
+        fcntl.flock(lock, fcntl.LOCK_EX)
     # The copy mirrors the tree (sources at the root, build/ inside) so that
     # compile commands, relative to a ccache base directory above both, are
     # the same as a developer build's and hit its cache.

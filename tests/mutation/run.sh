@@ -12,9 +12,10 @@
 #   tests/mutation/run.sh --test REGEX --build 'TARGET...' NAME...
 #                                      the named mutations against another subset
 #
-# The scratch copy (default ${TMPDIR:-/tmp}/voxcast-mutation, override with
-# VOXCAST_MUTATION_DIR) keeps its build directory between runs, so only the
-# first run builds everything; the working tree itself is never modified.
+# The scratch copy (default ${TMPDIR:-/tmp}/voxcast-mutation-<checksum of this
+# tree's path>, one per checkout; override with VOXCAST_MUTATION_DIR) keeps its
+# build directory between runs, so only the first run builds everything; the
+# working tree itself is never modified. A lock in the copy serializes runs.
 # JOBS (default 2) is passed to the build and to ctest. ccache is used when
 # installed (CMAKE_CXX_COMPILER_LAUNCHER=ccache unless set otherwise).
 # Not part of ./run test: it rebuilds once per mutation.
@@ -24,5 +25,6 @@ root=$(cd "$here/../.." && pwd)
 if [ -z "${CMAKE_CXX_COMPILER_LAUNCHER:-}" ] && command -v ccache >/dev/null; then
   export CMAKE_CXX_COMPILER_LAUNCHER=ccache
 fi
+scratch=${VOXCAST_MUTATION_DIR:-${TMPDIR:-/tmp}/voxcast-mutation-$(printf %s "$root" | cksum | cut -d' ' -f1)}
 exec python3 "$here/mutate.py" --root "$root" --list "$here/mutations.txt" \
-  --scratch "${VOXCAST_MUTATION_DIR:-${TMPDIR:-/tmp}/voxcast-mutation}" --jobs "${JOBS:-2}" "$@"
+  --scratch "$scratch" --jobs "${JOBS:-2}" "$@"
