@@ -421,9 +421,10 @@ TEST(IndependentDecoders, EsvoRawSceneMatchesSource) {
   const Errors e = check_esvo_scene(o, v, false, false, "esvo raw shell L=6");
   // Raw values are the source quantized: 8-bit sRGB (rounding of the same
   // value: at most 1 apart when float and double round a tie differently) and
-  // 14/15-bit face coordinates (< 7e-5 rad, EsvoEncoding.NormalErrorBound).
+  // 14/15-bit face coordinates: half a step on each, the bound of
+  // EsvoEncoding.NormalErrorBound. Measured: colors 0, normals 0.004 deg.
   EXPECT_LE(e.color_max, 1);
-  EXPECT_LT(e.normal_max, 7e-5);
+  EXPECT_LE(e.normal_max, std::hypot(1.0 / 16383, 1.0 / 32767) + 2e-6);
 }
 
 TEST(IndependentDecoders, EsvoCompressedSceneMatchesImplementationAndSource) {
