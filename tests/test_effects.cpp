@@ -84,11 +84,11 @@ void add_quad(Mesh* m, Vec3 corner, Vec3 e1, Vec3 e2) {
 // two voxels of a shadow boundary (near_shadow_boundary below); the mean
 // |AO difference| is <= 0.01 and <= 30 % of Embree's mean occlusion (1 - AO).
 // Measured 99.28-99.97 % with 0 unexplained disagreements, AO 0.0006-0.0067
-// (<= 22 % of the occlusion). Both differences are the voxel layer's
-// thickness (about a voxel either side of the surface): they halve with each
-// doubling of the resolution (bunny AO 0.0041 / 0.0025 / 0.0015 at 512 /
-// 1024 / 2048^3), so a fixed figure only holds at the resolution it was
-// measured at. (README used to claim 99.5 % and 0.003, true of the bunny alone.)
+// (<= 22 % of the occlusion). Both differences come from the voxel layer's
+// thickness (about a voxel either side of the surface) and shrink with the
+// voxel size (bunny AO 0.0041 / 0.0025 / 0.0015 at 512 / 1024 / 2048^3), so
+// a fixed figure only holds at the resolution it was measured at. (README
+// used to claim 99.5 % and 0.003, true of the bunny alone.)
 constexpr double kMinMaskAgreement = 0.99;
 constexpr double kMaxMeanAoDiff = 0.01;
 constexpr double kMaxAoShareOfOcclusion = 0.3;
@@ -394,8 +394,9 @@ std::string occlusion_case_name(const ::testing::TestParamInfo<OcclusionCase>& i
 }
 
 // Every shared mesh. Measured alone (1024^3, this camera and these lights),
-// the bunny and the armadillo have >= 7 % of their points in cast shadow;
-// the others 0.3-5.7 %, so they get a ground plane to cast on.
+// the bunny and the armadillo have >= 7 % of their points in cast shadow
+// under both lights; the others 0.3-5.7 % under at least one, so they get a
+// ground plane to cast on.
 INSTANTIATE_TEST_SUITE_P(
     SharedMeshes, EffectsOracle,
     ::testing::Values(OcclusionCase{"stanford-bunny.obj", false},
