@@ -11,6 +11,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <ostream>
 #include <random>
 #include <string>
 #include <vector>
@@ -313,6 +314,11 @@ struct OcclusionCase {
   const char* mesh;
   bool ground;  // add a ground plane (the mesh alone casts too little shadow)
 };
+
+// Readable (and stable: no pointer bytes) parameter text in test names.
+void PrintTo(const OcclusionCase& c, std::ostream* os) {
+  *os << c.mesh << (c.ground ? " + ground plane" : "");
+}
 
 class EffectsOracle : public ::testing::TestWithParam<OcclusionCase> {};
 
