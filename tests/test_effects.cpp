@@ -11,7 +11,9 @@
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <ostream>
 #include <random>
+#include <string>
 #include <vector>
 
 #include "support/esvo_testing.hpp"
@@ -71,53 +73,96 @@ void add_quad(Mesh* m, Vec3 corner, Vec3 e1, Vec3 e2) {
 
 // ---- Against Embree on the shared meshes ----
 //
-// For every pixel where both the voxels and the mesh are hit, the shading
-// point is Embree's hit (position), with the voxel normal of the same pixel
-// and the leaf voxel size as offset scale, so both ray casters answer the very
-// same occlusion rays and only the geometry differs.
+// Shading points: every pixel where both the voxels (ESVO) and the mesh are
+// hit, at Embree's hit position, with the voxel normal of the same pixel and
+// the leaf voxel size as offset scale. Every occluder (Embree on the source
+// triangles, the ESVO, the DAG, the negative controls) answers the very same
+// shadow and AO rays from these points, so only the geometry differs.
 
-struct Agreement {
-  size_t pixels = 0, hard_agree = 0, dag_equal = 0, beam_equal = 0, shadowed = 0;
-  double ao_diff = 0, soft_diff = 0, corners_diff = 0, mean_ao = 0;
+// What README ("Tests", shadows and AO) states for the voxel occluders against
+// Embree at 1024^3, for a directional and for a point light: hard shadow masks
+// agree on >= 99 % of the shading points and every disagreement lies within
+// two voxels of a shadow boundary (near_shadow_boundary below); the mean
+// |AO difference| is <= 0.01 and <= 30 % of Embree's mean occlusion (1 - AO).
+// Measured 99.28-99.97 % with 0 unexplained disagreements, AO 0.0006-0.0067
+// (<= 22 % of the occlusion). Both differences come from the voxel layer's
+// thickness (about a voxel either side of the surface) and shrink with the
+// voxel size (bunny AO 0.0041 / 0.0025 / 0.0015 at 512 / 1024 / 2048^3), so
+// a fixed figure only holds at the resolution it was measured at. (README
+// used to claim 99.5 % and 0.003, true of the bunny alone.)
+constexpr double kMinMaskAgreement = 0.99;
+constexpr double kMaxMeanAoDiff = 0.01;
+constexpr double kMaxAoShareOfOcclusion = 0.3;
+// Embree must find >= 5 % of the points in cast shadow (a ray blocked, light
+// above the horizon) under each light, so that an occluder that never
+// occludes misses the mask threshold by >= 4 points instead of passing.
+constexpr double kMinShadowed = 0.05;
+
+// The lights, AO and soft-shadow settings, from the framed mesh's bounds.
+struct OcclusionSetup {
+  Vec3 light_dir;  // directional light (RenderOptions::light_dir convention)
+  EffectOptions dir, point, soft, soft_off, soft_corners, ao;
+  float ao_radius = 0;
 };
 
-Agreement compare_with_embree(const Scene& s, int W, int H) {
-  const EmbreeScene embree(s.mesh);
-  const EmbreeOccluder eocc(embree);
-  const StructureOccluder vocc(*s.esvo), docc(*s.dag);
-  const Camera camera = Camera::frame(s.mesh.bounds(), W, H);
-  const CameraRays cam(camera, W, H);
-  const Aabb b = s.mesh.bounds();
+OcclusionSetup occlusion_setup(const Aabb& b) {
   const float diag = length(b.extent());
-  const float voxel = float(s.voxels.grid.voxel_size);
-
-  EffectOptions hard;
-  hard.shadows = ShadowMode::Hard;
+  OcclusionSetup o;
   // Grazing light from the side: much of the visible surface is lit by rays
   // that pass close to other parts of the mesh (a light from behind the
   // camera would leave little in shadow and make agreement trivial).
-  const Vec3 light_dir = normalize(Vec3{0.8f, -0.3f, -0.3f});
-  EffectOptions soft;
-  soft.shadows = ShadowMode::Soft;
-  soft.light = LightKind::Area;
-  soft.light_position = b.center() + Vec3{-1.2f, 0.8f, 0.5f} * diag;
-  soft.area_u = Vec3{0.15f, 0, 0} * diag;
-  soft.area_v = Vec3{0, 0, 0.15f} * diag;
-  soft.shadow_rays = 16;
-  EffectOptions soft_off = soft, soft_corners = soft;
-  soft_off.shadow_beam = ShadowBeam::Off;
-  soft_corners.shadow_beam = ShadowBeam::Corners;
-  EffectOptions ao;
-  ao.ao_rays = 64;
-  const float radius = 0.1f * diag;
+  o.light_dir = normalize(Vec3{0.8f, -0.3f, -0.3f});
+  o.dir.shadows = ShadowMode::Hard;
+  // A point light up and to the left, near enough that its rays diverge
+  // visibly over the mesh, at the area light's center.
+  o.point.shadows = ShadowMode::Hard;
+  o.point.light = LightKind::Point;
+  o.point.light_position = b.center() + Vec3{-1.2f, 0.8f, 0.5f} * diag;
+  o.soft.shadows = ShadowMode::Soft;
+  o.soft.light = LightKind::Area;
+  o.soft.light_position = o.point.light_position;
+  o.soft.area_u = Vec3{0.15f, 0, 0} * diag;
+  o.soft.area_v = Vec3{0, 0, 0.15f} * diag;
+  o.soft.shadow_rays = 16;
+  o.soft_off = o.soft_corners = o.soft;
+  o.soft_off.shadow_beam = ShadowBeam::Off;
+  o.soft_corners.shadow_beam = ShadowBeam::Corners;
+  o.ao.ao_rays = 64;
+  o.ao_radius = 0.1f * diag;
+  return o;
+}
 
-  std::vector<int> used(size_t(W) * H, 0), hard_ok(used.size(), 0), dag_ok(used.size(), 0),
-      beam_ok(used.size(), 0), in_shadow(used.size(), 0);
-  std::vector<float> ao_e(used.size(), 0);
-  std::vector<double> ao_d(used.size(), 0), soft_d(used.size(), 0), corners_d(used.size(), 0);
-  tbb::parallel_for(0, H, [&](int y) {
+// A rectangular ground plane (normal +y, the framing camera's up) under `m`,
+// `gap` below its lowest point, reaching `reach` beyond its bounds in x and
+// z: a receiver for the mesh's shadows (and its contact-free AO). Padded to
+// keep the mesh's optional per-vertex / per-triangle arrays consistent.
+Mesh with_ground_plane(Mesh m, float gap, float reach) {
+  const Aabb b = m.bounds();
+  const size_t nv = m.positions.size(), nt = m.triangle_count();
+  const float y = b.lo.y - gap;
+  add_quad(&m, {b.lo.x - reach, y, b.lo.z - reach}, {0, 0, b.hi.z - b.lo.z + 2 * reach},
+           {b.hi.x - b.lo.x + 2 * reach, 0, 0});
+  if (!m.colors.empty()) m.colors.resize(m.positions.size(), Color{0.8f, 0.8f, 0.8f, 1.f});
+  if (!m.uvs.empty()) m.uvs.resize(m.positions.size(), Vec2{0, 0});
+  if (!m.triangle_material.empty()) m.triangle_material.resize(m.triangle_count(), 0);
+  EXPECT_EQ(m.positions.size(), nv + 4);
+  EXPECT_EQ(m.triangle_count(), nt + 2);
+  validate_mesh(m);
+  return m;
+}
+
+struct ShadePoint {
+  ShadingPoint p;
+  uint32_t seed;
+};
+
+std::vector<ShadePoint> shading_points(const Scene& s, const EmbreeScene& embree,
+                                       const Camera& camera, int W, int H) {
+  const CameraRays cam(camera, W, H);
+  const float voxel = float(s.voxels.grid.voxel_size);
+  std::vector<ShadePoint> points;
+  for (int y = 0; y < H; ++y)
     for (int x = 0; x < W; ++x) {
-      const size_t i = size_t(y) * W + x;
       const Ray ray = cam.ray(x, y);
       const float te = embree.intersect(ray);
       SurfaceHit hit;
@@ -126,81 +171,247 @@ Agreement compare_with_embree(const Scene& s, int W, int H) {
       Vec3 n;
       s.esvo->attributes(hit, &c, &n);
       if (dot(n, ray.dir) > 0.f) n = -n;
-      const ShadingPoint p{ray.origin + ray.dir * te, n, ray.dir, voxel};
-      const uint32_t seed = pixel_seed(x, y, 0);
-      used[i] = 1;
-      const float he = shadow_visibility(eocc, p, hard, light_dir, seed, nullptr);
-      const float hv = shadow_visibility(vocc, p, hard, light_dir, seed, nullptr);
-      const float hd = shadow_visibility(docc, p, hard, light_dir, seed, nullptr);
-      hard_ok[i] = he == hv;
-      in_shadow[i] = he == 0.f && dot(light_dir, n) < 0.f;  // blocked by a ray, not by the horizon
-      const float se = shadow_visibility(eocc, p, soft, light_dir, seed, nullptr);
-      const float sv = shadow_visibility(vocc, p, soft, light_dir, seed, nullptr);
-      const float sv_off = shadow_visibility(vocc, p, soft_off, light_dir, seed, nullptr);
-      const float sd = shadow_visibility(docc, p, soft, light_dir, seed, nullptr);
-      const float sc = shadow_visibility(vocc, p, soft_corners, light_dir, seed, nullptr);
-      soft_d[i] = std::fabs(se - sv);
-      corners_d[i] = std::fabs(sc - sv);
-      beam_ok[i] = sv == sv_off;
-      const float ae = ambient_occlusion(eocc, p, ao, radius, seed, nullptr);
-      const float av = ambient_occlusion(vocc, p, ao, radius, seed, nullptr);
-      const float ad = ambient_occlusion(docc, p, ao, radius, seed, nullptr);
-      ao_d[i] = std::fabs(ae - av);
-      ao_e[i] = ae;
-      dag_ok[i] = hv == hd && sv == sd && av == ad;
+      points.push_back({{ray.origin + ray.dir * te, n, ray.dir, voxel}, pixel_seed(x, y, 0)});
+    }
+  return points;
+}
+
+// One occluder's answers at every shading point. `cast_*`: a shadow ray was
+// traced (the light is above the horizon), so a 0 was decided by the occluder.
+struct Answers {
+  std::vector<float> dir, point, ao, soft, soft_off, soft_corners;
+  std::vector<char> cast_dir, cast_point;
+};
+
+Answers answer(const Occluder& occ, const std::vector<ShadePoint>& pts, const OcclusionSetup& o,
+               bool with_soft) {
+  const size_t n = pts.size();
+  Answers a;
+  a.dir.resize(n), a.point.resize(n), a.ao.resize(n), a.cast_dir.resize(n), a.cast_point.resize(n);
+  if (with_soft) a.soft.resize(n), a.soft_off.resize(n), a.soft_corners.resize(n);
+  tbb::parallel_for(size_t(0), n, [&](size_t i) {
+    const ShadingPoint& p = pts[i].p;
+    const uint32_t seed = pts[i].seed;
+    EffectCounters cd, cp;
+    a.dir[i] = shadow_visibility(occ, p, o.dir, o.light_dir, seed, &cd);
+    a.point[i] = shadow_visibility(occ, p, o.point, o.light_dir, seed, &cp);
+    a.cast_dir[i] = cd.shadow_rays > 0;
+    a.cast_point[i] = cp.shadow_rays > 0;
+    a.ao[i] = ambient_occlusion(occ, p, o.ao, o.ao_radius, seed, nullptr);
+    if (with_soft) {
+      a.soft[i] = shadow_visibility(occ, p, o.soft, o.light_dir, seed, nullptr);
+      a.soft_off[i] = shadow_visibility(occ, p, o.soft_off, o.light_dir, seed, nullptr);
+      a.soft_corners[i] = shadow_visibility(occ, p, o.soft_corners, o.light_dir, seed, nullptr);
     }
   });
-  Agreement a;
-  for (size_t i = 0; i < used.size(); ++i) {
-    if (!used[i]) continue;
-    ++a.pixels;
-    a.hard_agree += hard_ok[i];
-    a.shadowed += in_shadow[i];
-    a.mean_ao += ao_e[i];
-    a.dag_equal += dag_ok[i];
-    a.beam_equal += beam_ok[i];
-    a.ao_diff += ao_d[i];
-    a.soft_diff += soft_d[i];
-    a.corners_diff += corners_d[i];
-  }
-  if (a.pixels)
-    a.mean_ao /= double(a.pixels), a.ao_diff /= double(a.pixels), a.soft_diff /= double(a.pixels),
-        a.corners_diff /= double(a.pixels);
   return a;
 }
 
-class EffectsOracle : public ::testing::TestWithParam<const char*> {};
-
-TEST_P(EffectsOracle, OcclusionMatchesEmbree) {
-  const std::filesystem::path path = kMeshes / GetParam();
-  ASSERT_TRUE(std::filesystem::exists(path)) << path;
-  const Scene s = make_scene(load_mesh(path), 1024);
-  const Agreement a = compare_with_embree(s, 160, 120);
-  const double hard = double(a.hard_agree) / double(a.pixels);
-  std::printf(
-      "%s 1024^3, 160x120, %zu shaded pixels (%.1f%% in cast hard shadow, Embree mean AO %.3f): "
-      "hard shadow mask agreement %.3f%%, soft (16 rays) mean |diff| %.4f, AO (64 rays, "
-      "R = 10%% diag) mean |diff| %.4f; corner-ray beam vs exact mean |diff| %.4f\n",
-      GetParam(), a.pixels, 100.0 * double(a.shadowed) / double(a.pixels), a.mean_ao, 100.0 * hard,
-      a.soft_diff, a.ao_diff, a.corners_diff);
-  ASSERT_GT(a.pixels, 3000u);
-  // Not a trivial agreement: some pixels are in cast shadow, AO is not all 1
-  // (measured: bunny 11.0% / 0.966, spot 1.1% / 0.981).
-  EXPECT_GT(a.shadowed, a.pixels / 100);
-  EXPECT_LT(a.mean_ao, 0.99);
-  // Measured: bunny 99.57% / 0.0053 / 0.0025, spot 99.85% / 0.0012 / 0.0010.
-  EXPECT_GE(hard, 0.99);
-  EXPECT_LE(a.soft_diff, 0.01);
-  EXPECT_LE(a.ao_diff, 0.01);
-  // Same voxels -> same answers, ray for ray, whichever structure.
-  EXPECT_EQ(a.dag_equal, a.pixels);
-  // The conservative beam (svdag §4 via the esvo §6.2 coarse pass) is exact.
-  EXPECT_EQ(a.beam_equal, a.pixels);
+// Share of points in cast shadow: a shadow ray was traced and blocked.
+double shadowed_share(const std::vector<float>& vis, const std::vector<char>& cast) {
+  size_t k = 0;
+  for (size_t i = 0; i < vis.size(); ++i) k += cast[i] && vis[i] == 0.f;
+  return vis.empty() ? 0.0 : double(k) / double(vis.size());
 }
 
-INSTANTIATE_TEST_SUITE_P(SharedMeshes, EffectsOracle,
-                         ::testing::Values("stanford-bunny.obj", "spot.obj"),
-                         voxcast::testing::mesh_test_name);
+double mean(const std::vector<float>& v) {
+  double s = 0;
+  for (float x : v) s += x;
+  return v.empty() ? 0.0 : s / double(v.size());
+}
+
+double mean_abs_diff(const std::vector<float>& a, const std::vector<float>& b) {
+  double s = 0;
+  for (size_t i = 0; i < a.size(); ++i) s += std::fabs(double(a[i]) - double(b[i]));
+  return a.empty() ? 0.0 : s / double(a.size());
+}
+
+double equal_share(const std::vector<float>& a, const std::vector<float>& b) {
+  size_t k = 0;
+  for (size_t i = 0; i < a.size(); ++i) k += a[i] == b[i];
+  return a.empty() ? 0.0 : double(k) / double(a.size());
+}
+
+// A hard-shadow disagreement the voxel representation explains: a
+// conservative voxel layer stands up to sqrt(3) voxels off the surface, so a
+// shadow ray that passes that close to the mesh may be blocked by voxels and
+// not by triangles (and the two-voxel ray offset moves where it starts).
+// Explained = some copy of the ray shifted by at most two voxels (26
+// directions, radii 0.5 .. 2 voxels) gets the other answer from Embree, i.e.
+// the ray runs within two voxels of a shadow boundary. A disagreement deep in
+// a shadow or deep in the light is not explained.
+bool near_shadow_boundary(const EmbreeScene& embree, const Ray& ray, float voxel) {
+  const bool answer = embree.occluded(ray);
+  for (float r : {0.5f, 1.f, 1.5f, 2.f})
+    for (int dx = -1; dx <= 1; ++dx)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dz = -1; dz <= 1; ++dz) {
+          if (dx == 0 && dy == 0 && dz == 0) continue;
+          const Vec3 shift = normalize(Vec3{float(dx), float(dy), float(dz)}) * (r * voxel);
+          if (embree.occluded(Ray{ray.origin + shift, ray.dir, ray.tmax}) != answer) return true;
+        }
+  return false;
+}
+
+// The hard shadow ray of `p` (what shadow_visibility traces).
+Ray hard_shadow_ray(const ShadingPoint& p, const EffectOptions& o, Vec3 light_dir) {
+  const Vec3 origin = offset_origin(p);
+  float dist;
+  const Vec3 d = direction_to_light(o, light_dir, origin, &dist);
+  return Ray{origin, d, dist};
+}
+
+// The comparison with Embree that README's statement is about.
+struct MaskAgreement {
+  double share = 0;        // points with the same hard-shadow answer
+  size_t unexplained = 0;  // disagreements not near a shadow boundary
+  bool ok() const { return share >= kMinMaskAgreement && unexplained == 0; }
+};
+
+struct OcclusionAgreement {
+  MaskAgreement dir, point;
+  double ao_diff = 0;   // mean |AO difference|
+  double ao_bound = 0;  // what it may be: kMaxMeanAoDiff, and a share of Embree's mean occlusion
+  bool ao_ok() const { return ao_diff <= ao_bound; }
+  bool passes() const { return dir.ok() && point.ok() && ao_ok(); }
+};
+
+MaskAgreement compare_mask(const EmbreeScene& embree, const std::vector<ShadePoint>& pts,
+                           const EffectOptions& o, Vec3 light_dir, const std::vector<float>& ref,
+                           const std::vector<float>& a) {
+  MaskAgreement m;
+  m.share = equal_share(ref, a);
+  for (size_t i = 0; i < pts.size(); ++i)
+    if (ref[i] != a[i] &&
+        !near_shadow_boundary(embree, hard_shadow_ray(pts[i].p, o, light_dir), pts[i].p.voxel_size))
+      ++m.unexplained;
+  return m;
+}
+
+OcclusionAgreement compare_occlusion(const EmbreeScene& embree, const std::vector<ShadePoint>& pts,
+                                     const OcclusionSetup& o, const Answers& reference,
+                                     const Answers& a) {
+  OcclusionAgreement r;
+  r.dir = compare_mask(embree, pts, o.dir, o.light_dir, reference.dir, a.dir);
+  r.point = compare_mask(embree, pts, o.point, o.light_dir, reference.point, a.point);
+  r.ao_diff = mean_abs_diff(reference.ao, a.ao);
+  r.ao_bound = std::min(kMaxMeanAoDiff, kMaxAoShareOfOcclusion * (1.0 - mean(reference.ao)));
+  return r;
+}
+
+// Negative controls: an occluder whose any-hit answer is fixed (never
+// occludes / always occludes). Both must fail the comparison.
+class FixedAnswerOccluder final : public Occluder {
+ public:
+  explicit FixedAnswerOccluder(bool answer) : answer_(answer) {}
+  bool occluded(const Ray&, const LodFootprint&) const override { return answer_; }
+
+ private:
+  bool answer_;
+};
+
+struct OcclusionCase {
+  const char* mesh;
+  bool ground;  // add a ground plane (the mesh alone casts too little shadow)
+};
+
+// Readable (and stable: no pointer bytes) parameter text in test names.
+void PrintTo(const OcclusionCase& c, std::ostream* os) {
+  *os << c.mesh << (c.ground ? " + ground plane" : "");
+}
+
+class EffectsOracle : public ::testing::TestWithParam<OcclusionCase> {};
+
+TEST_P(EffectsOracle, OcclusionMatchesEmbree) {
+  const OcclusionCase& param = GetParam();
+  const std::filesystem::path path = kMeshes / param.mesh;
+  ASSERT_TRUE(std::filesystem::exists(path)) << path;
+  Mesh mesh = load_mesh(path);
+  // Camera, lights and AO radius follow the mesh alone, so a ground plane
+  // only adds a receiver at the bottom of the frame.
+  const Aabb framed = mesh.bounds();
+  const float diag = length(framed.extent());
+  if (param.ground) mesh = with_ground_plane(std::move(mesh), 0.02f * diag, 0.25f * diag);
+  const Scene s = make_scene(std::move(mesh), 1024);
+  const int W = 160, H = 120;
+  const Camera camera = Camera::frame(framed, W, H);
+  const EmbreeScene embree(s.mesh);
+  const std::vector<ShadePoint> pts = shading_points(s, embree, camera, W, H);
+  const OcclusionSetup o = occlusion_setup(framed);
+
+  const EmbreeOccluder eocc(embree);
+  const StructureOccluder vocc(*s.esvo), docc(*s.dag);
+  const Answers ref = answer(eocc, pts, o, true);
+  const Answers esvo = answer(vocc, pts, o, true);
+  const Answers dag = answer(docc, pts, o, true);
+  const Answers never = answer(FixedAnswerOccluder(false), pts, o, false);
+  const Answers always = answer(FixedAnswerOccluder(true), pts, o, false);
+  const OcclusionAgreement ae = compare_occlusion(embree, pts, o, ref, esvo),
+                           ad = compare_occlusion(embree, pts, o, ref, dag),
+                           an = compare_occlusion(embree, pts, o, ref, never),
+                           aa = compare_occlusion(embree, pts, o, ref, always);
+  const double shadow_dir = shadowed_share(ref.dir, ref.cast_dir),
+               shadow_point = shadowed_share(ref.point, ref.cast_point);
+  auto line = [](const char* what, const OcclusionAgreement& a) {
+    std::printf(
+        "  %-8s masks %.3f%% / %.3f%% (unexplained %zu / %zu), AO mean |diff| %.4f (bound "
+        "%.4f)\n",
+        what, 100.0 * a.dir.share, 100.0 * a.point.share, a.dir.unexplained, a.point.unexplained,
+        a.ao_diff, a.ao_bound);
+  };
+  std::printf(
+      "%s%s 1024^3, %dx%d, %zu shading points; Embree: %.1f%% / %.1f%% in cast shadow "
+      "(directional / point), mean AO %.3f (64 rays, R = 10%% diag); ESVO soft (16 rays) mean "
+      "|diff| %.4f, corner-ray beam vs exact %.4f\n",
+      param.mesh, param.ground ? " + ground plane" : "", W, H, pts.size(), 100.0 * shadow_dir,
+      100.0 * shadow_point, mean(ref.ao), mean_abs_diff(ref.soft, esvo.soft),
+      mean_abs_diff(esvo.soft_corners, esvo.soft));
+  line("ESVO", ae);
+  line("DAG", ad);
+  line("never", an);
+  line("always", aa);
+  ASSERT_GT(pts.size(), 3000u);
+  // Not a trivial agreement: enough in cast shadow under both lights.
+  EXPECT_GE(shadow_dir, kMinShadowed);
+  EXPECT_GE(shadow_point, kMinShadowed);
+  // README's statement, for both structures.
+  EXPECT_TRUE(ae.passes()) << "ESVO vs Embree";
+  EXPECT_TRUE(ad.passes()) << "DAG vs Embree";
+  // The same comparison rejects both controls, on every criterion.
+  EXPECT_FALSE(an.dir.ok() || an.point.ok() || an.ao_ok()) << "never-occluding control passes";
+  EXPECT_FALSE(aa.dir.ok() || aa.point.ok() || aa.ao_ok()) << "always-occluding control passes";
+  // The voxel layer is thicker than the surface: voxel AO is darker, never
+  // brighter on average (a structure that lost voxels would be brighter).
+  EXPECT_LE(mean(esvo.ao), mean(ref.ao));
+  // Soft shadows (no README figure; the bound the beam modes are judged by).
+  EXPECT_LE(mean_abs_diff(ref.soft, esvo.soft), 0.01);
+  // Same voxels -> same answers, ray for ray, whichever structure.
+  EXPECT_EQ(esvo.dir, dag.dir);
+  EXPECT_EQ(esvo.point, dag.point);
+  EXPECT_EQ(esvo.ao, dag.ao);
+  EXPECT_EQ(esvo.soft, dag.soft);
+  // The conservative beam (svdag §4 via the esvo §6.2 coarse pass) is exact.
+  EXPECT_EQ(esvo.soft, esvo.soft_off);
+  EXPECT_EQ(dag.soft, dag.soft_off);
+}
+
+std::string occlusion_case_name(const ::testing::TestParamInfo<OcclusionCase>& info) {
+  return voxcast::testing::mesh_test_name({info.param.mesh, info.index});
+}
+
+// Every shared mesh. Measured alone (1024^3, this camera and these lights),
+// the bunny and the armadillo have >= 7 % of their points in cast shadow
+// under both lights; the others 0.3-5.7 % under at least one, so they get a
+// ground plane to cast on.
+INSTANTIATE_TEST_SUITE_P(
+    SharedMeshes, EffectsOracle,
+    ::testing::Values(OcclusionCase{"stanford-bunny.obj", false},
+                      OcclusionCase{"armadillo.off", false},
+                      OcclusionCase{"refined_elephant.off", true}, OcclusionCase{"camel.off", true},
+                      OcclusionCase{"fandisk_large.off", true}, OcclusionCase{"spot.obj", true},
+                      OcclusionCase{"teapot.obj", true},
+                      OcclusionCase{"CesiumMilkTruck/CesiumMilkTruck.gltf", true}),
+    occlusion_case_name);
 
 // ---- The DAG's any-hit caster (4^3 blocks decided at once, early exit past
 // tmax) answers exactly what its closest-hit loop and the ESVO answer ----

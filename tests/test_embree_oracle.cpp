@@ -32,6 +32,14 @@ TEST(EmbreeScene, SingleRaysOnATriangle) {
   EXPECT_NEAR(s.intersect({{0.2f, 0.2f, 2.f}, {0, 0, -1}, INFINITY}), 2.f, 1e-5f);
   EXPECT_TRUE(std::isinf(s.intersect({{0.8f, 0.8f, 2.f}, {0, 0, -1}, INFINITY})));
   EXPECT_TRUE(std::isinf(s.intersect({{0.2f, 0.2f, 2.f}, {0, 0, -1}, 1.5f})));
+  // The hit with its triangle and geometric normal (the triangle's plane).
+  const EmbreeScene::Hit h = s.intersect_hit({{0.2f, 0.2f, 2.f}, {0, 0, -1}, INFINITY});
+  EXPECT_NEAR(h.t, 2.f, 1e-5f);
+  EXPECT_EQ(h.triangle, 0u);
+  EXPECT_EQ(h.ng.x, 0.f);
+  EXPECT_EQ(h.ng.y, 0.f);
+  EXPECT_NE(h.ng.z, 0.f);
+  EXPECT_TRUE(std::isinf(s.intersect_hit({{0.8f, 0.8f, 2.f}, {0, 0, -1}, INFINITY}).t));
   EXPECT_TRUE(s.occluded({{0.2f, 0.2f, 2.f}, {0, 0, -1}, INFINITY}));
   EXPECT_FALSE(s.occluded({{0.2f, 0.2f, 2.f}, {0, 0, 1}, INFINITY}));
   EXPECT_GT(s.memory_bytes(), 0u);
@@ -72,7 +80,6 @@ TEST_P(MeshOracle, DepthMatchesEmbree) {
   ro.camera = Camera::frame(mesh.bounds(), ro.width, ro.height);
   ro.lod_pixels = 0.f;
   ro.want_depth = true;
-  ro.want_normal = true;
   const RenderResult vr = render(structure, ro);
   const EmbreeScene embree(mesh);
   const auto er = embree.render_depth(ro.camera, ro.width, ro.height, EmbreeScene::Mode::Single);
@@ -82,9 +89,13 @@ TEST_P(MeshOracle, DepthMatchesEmbree) {
   // along a ray at incidence angle theta the first voxel may come up to
   // thickness / |cos theta| before the triangle: near silhouettes the error in
   // t grows without bound. We report the plain two-diagonal agreement and
-  // assert 99% with the tolerance divided by |cos theta| (voxel normal,
-  // clamped at cos 75 deg).
-  size_t agree = 0, both = 0, close = 0, close_incidence = 0, border_hits = 0;
+  // assert 99% with the tolerance divided by |cos theta|, theta from the
+  // source mesh: the geometric normal of the triangle Embree hits (the
+  // voxels' own normal would let a wrong normal loosen its own check), clamped
+  // at cos 75 deg (a 4x wider tolerance) where the surface is seen edge-on.
+  // Measured at 2048^3: 99.10 % (teapot) - 99.94 % (fandisk), with 1.0 -
+  // 8.6 % of the common hits clamped.
+  size_t agree = 0, both = 0, close = 0, close_incidence = 0, clamped = 0, border_hits = 0;
   const size_t n = size_t(ro.width) * ro.height;
   const float tol = 2.f * std::sqrt(3.f) * voxel;
   const CameraRays rays(ro.camera, ro.width, ro.height);
@@ -99,22 +110,27 @@ TEST_P(MeshOracle, DepthMatchesEmbree) {
       ++both;
       const bool ok = std::fabs(dv - de) <= tol;
       close += ok;
-      const float* nn = vr.normal.at(x, y);
-      const Vec3 normal = normalize(Vec3{nn[0] * 2 - 1, nn[1] * 2 - 1, nn[2] * 2 - 1});
-      const float cos_theta = std::fmax(std::fabs(dot(normal, rays.direction(x, y))), 0.25f);
-      close_incidence += std::fabs(dv - de) <= tol / cos_theta;
+      const EmbreeScene::Hit eh = embree.intersect_hit(rays.ray(x, y));
+      ASSERT_EQ(eh.t, de) << "the same ray must give the same Embree hit";
+      const float cos_mesh = std::fabs(dot(normalize(eh.ng), rays.direction(x, y)));
+      clamped += cos_mesh < 0.25f;
+      close_incidence += std::fabs(dv - de) <= tol / std::fmax(cos_mesh, 0.25f);
     }
   std::printf(
       "%s: %zu voxels, coverage %.1f%%, hit/miss agreement %.3f%%, depth within 2 voxel diagonals "
-      "%.2f%% of common hits (%.3f%% within 2 diagonals / |cos theta|), border hits %zu\n",
+      "%.2f%% of common hits (%.3f%% within 2 diagonals / |cos theta| of the mesh; %.2f%% of "
+      "common hits beyond 75 deg, clamped), border hits %zu\n",
       GetParam(), voxels.size(), 100.0 * double(er.hits) / double(n),
       100.0 * double(agree) / double(n), 100.0 * double(close) / double(std::max<size_t>(both, 1)),
-      100.0 * double(close_incidence) / double(std::max<size_t>(both, 1)), border_hits);
+      100.0 * double(close_incidence) / double(std::max<size_t>(both, 1)),
+      100.0 * double(clamped) / double(std::max<size_t>(both, 1)), border_hits);
   EXPECT_EQ(vr.rays, n);
   EXPECT_GT(both, n / 10) << "the framed mesh should cover a good part of the image";
   EXPECT_GE(double(agree), 0.995 * double(n));
   EXPECT_GE(double(close), 0.90 * double(both));
   EXPECT_GE(double(close_incidence), 0.99 * double(both));
+  // The 4x clamp must stay the exception, or it would carry the check.
+  EXPECT_LE(double(clamped), 0.10 * double(both));
 }
 
 // The same oracle on the octree with contours (esvo §5.2): slabs follow the

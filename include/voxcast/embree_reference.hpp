@@ -1,11 +1,13 @@
 #pragma once
 // Embree 3 ray casts of the source mesh: the independent oracle for tests and
 // the peer that `voxcast bench` measures against.
+#include <cmath>
 #include <cstdint>
 #include <memory>
 
 #include "voxcast/camera.hpp"
 #include "voxcast/image.hpp"
+#include "voxcast/math.hpp"
 #include "voxcast/mesh.hpp"
 
 namespace voxcast {
@@ -20,6 +22,13 @@ class EmbreeScene {
 
   /// rtcIntersect1: distance along the unit direction, +inf on a miss.
   float intersect(const Ray& ray) const;
+  struct Hit {
+    float t = INFINITY;  // distance along the unit direction, +inf on a miss
+    Vec3 ng;             // Embree's geometric normal (RTCHit Ng): unnormalized, winding-oriented
+    uint32_t triangle = UINT32_MAX;  // primitive index into the mesh's triangles
+  };
+  /// rtcIntersect1 with the hit triangle and its geometric normal.
+  Hit intersect_hit(const Ray& ray) const;
   /// rtcOccluded1.
   bool occluded(const Ray& ray) const;
 

@@ -134,12 +134,21 @@ inline void init_ray(RTCRayHit& rh, const Ray& ray) {
 }  // namespace
 
 float EmbreeScene::intersect(const Ray& ray) const {
+  return intersect_hit(ray).t;
+}
+
+EmbreeScene::Hit EmbreeScene::intersect_hit(const Ray& ray) const {
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
   RTCRayHit rh;
   init_ray(rh, ray);
   rtcIntersect1(impl_->scene, &ctx, &rh);
-  return rh.hit.geomID == RTC_INVALID_GEOMETRY_ID ? INFINITY : rh.ray.tfar;
+  Hit h;
+  if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return h;
+  h.t = rh.ray.tfar;
+  h.ng = {rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z};
+  h.triangle = rh.hit.primID;
+  return h;
 }
 
 bool EmbreeScene::occluded(const Ray& ray) const {
