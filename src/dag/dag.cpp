@@ -41,7 +41,7 @@ const std::array<int64_t, 512>& fixed_channel_table() {
     std::array<int64_t, 512> t{};
     for (uint32_t c = 0; c < 256; ++c) {
       t[c] = to_fixed(esvo::decode_color_abgr(c).r);
-      t[256 + c] = to_fixed(esvo::decode_color_abgr(c << 24).a);
+      t[256 + c] = to_fixed(esvo::decode_color_abgr(esvo::layout::ColorA::put(c)).a);
     }
     return t;
   }();
@@ -57,19 +57,19 @@ AttributeSum attribute_sum(const uint32_t* colors, const uint32_t* normals, size
   AttributeSum sum{};
   for (size_t i = first; i < first + count; ++i) {
     const uint32_t abgr = colors[i];
-    sum[0] += ch[abgr & 0xFF];
-    sum[1] += ch[(abgr >> 8) & 0xFF];
-    sum[2] += ch[(abgr >> 16) & 0xFF];
-    sum[3] += ch[256 + (abgr >> 24)];
+    sum[0] += ch[esvo::layout::ColorR::get(abgr)];
+    sum[1] += ch[esvo::layout::ColorG::get(abgr)];
+    sum[2] += ch[esvo::layout::ColorB::get(abgr)];
+    sum[3] += ch[256 + esvo::layout::ColorA::get(abgr)];
     // esvo::decode_normal_cube inlined (esvo.hpp cube-face encoding: face in
     // bits 31..29, 14-bit u in 28..15, 15-bit v in 14..0): this loop is the
     // per-voxel cost of LOD shading, and the call dominated it.
     const uint32_t code = normals[i];
-    uint32_t face = code >> 29;
+    uint32_t face = esvo::layout::NormalFace::get(code);
     if (face > 5) face = 4;
     const uint32_t axis = face >> 1;
-    const float u = float((code >> 15) & 0x3FFFu) * (2.f / 16383.f) - 1.f;
-    const float v = float(code & 0x7FFFu) * (2.f / 32767.f) - 1.f;
+    const float u = float(esvo::layout::NormalU::get(code)) * (2.f / 16383.f) - 1.f;
+    const float v = float(esvo::layout::NormalV::get(code)) * (2.f / 32767.f) - 1.f;
     const float len = std::sqrt(1.f + u * u + v * v);
     static constexpr uint32_t kNext[3] = {1, 2, 0};
     sum[4 + axis] += to_fixed(((face & 1) ? -1.f : 1.f) / len);
@@ -148,7 +148,7 @@ void SparseVoxelDag::finalize() {
         corrupt("word " + std::to_string(s) + " of level " + std::to_string(l) +
                 " is not the start of a node referenced from the level above "
                 "(a gap, or a pointer into a node or to the wrong level)");
-      const size_t size = leaf ? 2 : 1 + size_t(std::popcount(words[s] & 0xFFu));
+      const size_t size = leaf ? 2 : 1 + size_t(std::popcount(layout::ChildMask::get(words[s])));
       if (s + size > n) corrupt("node at word " + std::to_string(s) + " is truncated");
       for (size_t j = 1; j < size; ++j)
         if (mark[s + j] != 0)
@@ -157,7 +157,8 @@ void SparseVoxelDag::finalize() {
         if (leaf_mask(&words[s]) == 0) corrupt("empty leaf mask at word " + std::to_string(s));
       } else {
         const uint32_t h = words[s];
-        if ((h & 0xFFu) == 0) corrupt("empty child mask at word " + std::to_string(s));
+        if (layout::ChildMask::get(h) == 0)
+          corrupt("empty child mask at word " + std::to_string(s));
         if (h & kReservedHeaderBits)
           corrupt("reserved header bits set at word " + std::to_string(s));
         for (size_t j = 1; j < size; ++j) {
@@ -204,7 +205,7 @@ void SparseVoxelDag::finalize() {
       // Does level l need 64-bit entries? Its children's counts are known.
       bool wide = false;
       for (size_t w = begin; w < end && !wide;) {
-        const int k = std::popcount(words[w] & 0xFFu);
+        const int k = std::popcount(layout::ChildMask::get(words[w]));
         uint64_t sum = 0;
         for (int j = 0; j < k; ++j) sum += count_of(words[w + 1 + size_t(j)], children_are_leaves);
         wide = sum > 0xFFFFFFFFull;
@@ -216,7 +217,7 @@ void SparseVoxelDag::finalize() {
       }
     }
     for (size_t w = begin; w < end;) {
-      const int k = std::popcount(words[w] & 0xFFu);
+      const int k = std::popcount(layout::ChildMask::get(words[w]));
       uint64_t sum = 0;
       auto store = [&](size_t at, uint64_t v) {
         if (at < wide_words)
@@ -289,12 +290,12 @@ DagStats SparseVoxelDag::stats() const {
       if (leaf) {
         const uint64_t m = leaf_mask(&words[w]);
         int blocks = 0;
-        for (int c = 0; c < 8; ++c) blocks += ((m >> (8 * c)) & 0xFF) != 0;
+        for (int c = 0; c < 8; ++c) blocks += layout::LeafMaskBytes::get(m, unsigned(c)) != 0;
         st.levels[size_t(L - 1)].svo_nodes += mult[w] * uint64_t(blocks);
         st.levels[size_t(L)].svo_nodes += mult[w] * uint64_t(std::popcount(m));
         w += 2;
       } else {
-        const int k = std::popcount(words[w] & 0xFFu);
+        const int k = std::popcount(layout::ChildMask::get(words[w]));
         for (int j = 0; j < k; ++j) mult[words[w + 1 + size_t(j)]] += mult[w];
         w += 1 + size_t(k);
       }
@@ -328,7 +329,7 @@ std::vector<uint64_t> SparseVoxelDag::decode_leaves() const {
       }
       return;
     }
-    const uint32_t mask = words[w] & 0xFFu;
+    const uint32_t mask = layout::ChildMask::get(words[w]);
     int j = 0;
     for (int c = 0; c < 8; ++c)
       if (mask & (1u << c))
@@ -369,7 +370,7 @@ std::vector<uint64_t> SparseVoxelDag::decode_cube(int level, uint64_t cube) cons
   uint32_t w = 0;
   for (int k = 0; k < node_level; ++k) {
     const uint32_t c = uint32_t(cube >> (3 * (level - 1 - k))) & 7u;
-    const uint32_t mask = words[w] & 0xFFu;
+    const uint32_t mask = layout::ChildMask::get(words[w]);
     if (!((mask >> c) & 1u)) return out;
     w = words[w + 1 + size_t(std::popcount(mask & ((1u << c) - 1)))];
   }
@@ -394,7 +395,7 @@ std::vector<uint64_t> SparseVoxelDag::decode_cube(int level, uint64_t cube) cons
       }
       return;
     }
-    const uint32_t mask = words[node] & 0xFFu;
+    const uint32_t mask = layout::ChildMask::get(words[node]);
     int j = 0;
     for (int c = 0; c < 8; ++c)
       if (mask & (1u << c))
@@ -411,7 +412,7 @@ uint64_t SparseVoxelDag::voxel_rank(uint64_t code) const {
   uint32_t w = 0;
   for (int k = 0; k < L - 2; ++k) {
     const uint32_t c = uint32_t(code >> (3 * (L - 1 - k))) & 7u;
-    const uint32_t mask = words[w] & 0xFFu;
+    const uint32_t mask = layout::ChildMask::get(words[w]);
     const int k_children = std::popcount(mask);
     const int j = std::popcount(mask & ((1u << c) - 1));
     // Voxels in the children before slot c: the prefix entry of the next
@@ -439,7 +440,7 @@ VoxelRange SparseVoxelDag::cube_range(uint64_t voxel, int level) const {
   uint32_t w = 0;
   const int node_level = std::min(level, L - 2);
   for (int k = 0; k < node_level; ++k) {
-    int j = std::popcount(words[w] & 0xFFu) - 1;
+    int j = std::popcount(layout::ChildMask::get(words[w])) - 1;
     while (j > 0 && prefix_entry(w + 1 + uint32_t(j)) > rem) --j;
     const uint64_t before = prefix_entry(w + 1 + uint32_t(j));
     first += before;
@@ -511,7 +512,7 @@ Aabb occupied_bounds(const SparseVoxelDag& dag, int max_level) {
       for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], c[a]), hi[a] = std::max(hi[a], c[a] + 1);
       return;
     }
-    const uint32_t mask = dag.words[w] & 0xFFu;
+    const uint32_t mask = layout::ChildMask::get(dag.words[w]);
     int j = 0;
     for (int c = 0; c < 8; ++c)
       if (mask & (1u << c))
