@@ -101,6 +101,11 @@ static_assert(fields_tile<ChildMask, HeaderReserved>());
 // Leaf-mask node (64 bits): byte c = the 2^3 sub-block in child slot c.
 using LeafMaskBytes = PackedFields<8, uint64_t>;
 static_assert(LeafMaskBytes::get(0x0100000000000000ull, 7) == 1);
+// A voxel's bit in its leaf-mask node is the low 6 bits of its Morton code;
+// the remaining bits are the code of the node's 4^3 block.
+using LeafMaskBit = BitField<0, 6, uint64_t>;
+using LeafBlockCode = BitField<6, 58, uint64_t>;
+static_assert(fields_tile<LeafMaskBit, LeafBlockCode>());
 }  // namespace layout
 inline constexpr uint32_t kReservedHeaderBits = layout::HeaderReserved::mask;
 
