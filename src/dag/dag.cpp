@@ -11,6 +11,7 @@
 #include <cmath>
 #include <string>
 
+#include "dag/attribute_sum.hpp"
 #include "esvo/compress.hpp"
 #include "voxcast/error.hpp"
 
@@ -25,59 +26,12 @@ inline uint64_t leaf_mask(const uint32_t* w) {
   return uint64_t(w[0]) | uint64_t(w[1]) << 32;
 }
 
-using AttributeSum = std::array<int64_t, 7>;
-
-// Fixed point, 2^24 = 1.0, rounded half away from zero (no libm call: this
-// runs for up to 126 voxels per LOD hit).
-inline int64_t to_fixed(float v) {
-  const double x = double(v) * SparseVoxelDag::kAttributeSumOne;
-  return int64_t(x + (x >= 0 ? 0.5 : -0.5));
-}
-
-// to_fixed of the decoded channels of a color byte: index c = linear value of
-// sRGB byte c (esvo::decode_color_abgr), 256 + c = alpha byte c.
-const std::array<int64_t, 512>& fixed_channel_table() {
-  static const std::array<int64_t, 512> table = [] {
-    std::array<int64_t, 512> t{};
-    for (uint32_t c = 0; c < 256; ++c) {
-      t[c] = to_fixed(esvo::decode_color_abgr(c).r);
-      t[256 + c] = to_fixed(esvo::decode_color_abgr(esvo::layout::ColorA::put(c)).a);
-    }
-    return t;
-  }();
-  return table;
-}
-
 // Fixed-point sums of linear r, g, b, a and normal x, y, z of voxels
 // [first, first + count): the per-voxel rounding is the only error, the sums
-// are exact (|value| <= 2^24, so up to 2^39 voxels fit in 63 bits).
-AttributeSum attribute_sum(const uint32_t* colors, const uint32_t* normals, size_t first,
-                           size_t count) {
-  const std::array<int64_t, 512>& ch = fixed_channel_table();
-  AttributeSum sum{};
-  for (size_t i = first; i < first + count; ++i) {
-    const uint32_t abgr = colors[i];
-    sum[0] += ch[esvo::layout::ColorR::get(abgr)];
-    sum[1] += ch[esvo::layout::ColorG::get(abgr)];
-    sum[2] += ch[esvo::layout::ColorB::get(abgr)];
-    sum[3] += ch[256 + esvo::layout::ColorA::get(abgr)];
-    // esvo::decode_normal_cube inlined (esvo.hpp cube-face encoding: face in
-    // bits 31..29, 14-bit u in 28..15, 15-bit v in 14..0): this loop is the
-    // per-voxel cost of LOD shading, and the call dominated it.
-    const uint32_t code = normals[i];
-    uint32_t face = esvo::layout::NormalFace::get(code);
-    if (face > 5) face = 4;
-    const uint32_t axis = face >> 1;
-    const float u = float(esvo::layout::NormalU::get(code)) * (2.f / 16383.f) - 1.f;
-    const float v = float(esvo::layout::NormalV::get(code)) * (2.f / 32767.f) - 1.f;
-    const float len = std::sqrt(1.f + u * u + v * v);
-    static constexpr uint32_t kNext[3] = {1, 2, 0};
-    sum[4 + axis] += to_fixed(((face & 1) ? -1.f : 1.f) / len);
-    sum[4 + kNext[axis]] += to_fixed(u / len);
-    sum[4 + kNext[kNext[axis]]] += to_fixed(v / len);
-  }
-  return sum;
-}
+// are exact (|value| <= 2^24, so up to 2^39 voxels fit in 63 bits). Raw
+// attributes: the runtime-dispatched kernel in attribute_sum_*.cpp.
+using detail::AttributeSum;
+using detail::to_fixed;
 
 // The same sums over compressed attributes (dag.hpp): of the decoded values,
 // so a LOD mean averages what the leaves show.
@@ -96,8 +50,9 @@ AttributeSum compressed_sum(const uint32_t* blocks, size_t first, size_t count) 
 }
 
 AttributeSum range_sum(const SparseVoxelDag& d, size_t first, size_t count) {
-  return d.compressed_attributes() ? compressed_sum(d.attribute_blocks.data(), first, count)
-                                   : attribute_sum(d.colors.data(), d.normals.data(), first, count);
+  return d.compressed_attributes()
+             ? compressed_sum(d.attribute_blocks.data(), first, count)
+             : detail::attribute_sum_kernel()(d.colors.data(), d.normals.data(), first, count);
 }
 
 // Blocked prefix sums of the attributes for LOD means (dag.hpp): each
@@ -324,7 +279,7 @@ std::vector<uint64_t> SparseVoxelDag::decode_leaves() const {
     if (level == L - 2) {
       uint64_t m = leaf_mask(&words[w]);
       while (m) {
-        out.push_back(code << 6 | uint64_t(std::countr_zero(m)));
+        out.push_back(layout::LeafBlockCode::put(code) | uint64_t(std::countr_zero(m)));
         m &= m - 1;
       }
       return;
@@ -378,7 +333,7 @@ std::vector<uint64_t> SparseVoxelDag::decode_cube(int level, uint64_t cube) cons
     // Inside one 4^3 mask: the cube's voxels are a run of 8^(L-level) bits.
     const int bits = 3 * (L - level);
     const uint64_t first = cube << bits;
-    uint64_t m = leaf_mask(&words[w]) >> (first & 63);
+    uint64_t m = leaf_mask(&words[w]) >> layout::LeafMaskBit::get(first);
     if (bits < 6) m &= (1ull << (1 << bits)) - 1;
     while (m) {
       out.push_back(first + uint64_t(std::countr_zero(m)));
@@ -390,7 +345,7 @@ std::vector<uint64_t> SparseVoxelDag::decode_cube(int level, uint64_t cube) cons
     if (k == L - 2) {
       uint64_t m = leaf_mask(&words[node]);
       while (m) {
-        out.push_back(code << 6 | uint64_t(std::countr_zero(m)));
+        out.push_back(layout::LeafBlockCode::put(code) | uint64_t(std::countr_zero(m)));
         m &= m - 1;
       }
       return;
@@ -421,7 +376,7 @@ uint64_t SparseVoxelDag::voxel_rank(uint64_t code) const {
     if (!((mask >> c) & 1u)) return rank;
     w = words[w + 1 + size_t(j)];
   }
-  const uint64_t below = (1ull << (code & 63)) - 1;
+  const uint64_t below = (1ull << layout::LeafMaskBit::get(code)) - 1;
   return rank + uint64_t(std::popcount(leaf_mask(&words[w]) & below));
 }
 
