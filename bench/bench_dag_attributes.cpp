@@ -15,8 +15,10 @@
 #include <string>
 #include <vector>
 
+#include "dag/attribute_sum.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/esvo.hpp"
+#include "voxcast/isa.hpp"
 #include "voxcast/morton.hpp"
 #include "voxcast/scene_file.hpp"
 
@@ -150,5 +152,28 @@ void BM_DagCompressionErrors(benchmark::State& state) {
   state.counters["voxels"] = double(raw.leaf_voxels);
 }
 BENCHMARK(BM_DagCompressionErrors)->Iterations(1)->Unit(benchmark::kMillisecond);
+// The runtime-dispatched attribute_sum kernel (voxcast/isa.hpp), each ISA
+// variant (arg 2 = AVX2, 512 = AVX-512) on 2^16 random voxels (512 KiB).
+void BM_AttributeSumKernel(benchmark::State& state) {
+  using namespace voxcast;
+  const bool avx512 = state.range(0) == 512;
+  if (avx512 && !cpu_supports(Isa::Avx512)) {
+    state.SkipWithError("no AVX-512");
+    return;
+  }
+  std::mt19937 rng(1);
+  std::uniform_real_distribution<float> u(-1, 1);
+  std::vector<uint32_t> colors(size_t(1) << 16), normals(colors.size());
+  for (size_t i = 0; i < colors.size(); ++i) {
+    colors[i] = uint32_t(rng());
+    normals[i] = esvo::encode_normal_cube({u(rng), u(rng), u(rng)});
+  }
+  const auto kernel =
+      avx512 ? &dag::detail::avx512::attribute_sum : &dag::detail::avx2::attribute_sum;
+  for (auto _ : state)
+    benchmark::DoNotOptimize(kernel(colors.data(), normals.data(), 0, colors.size()));
+  state.SetItemsProcessed(int64_t(state.iterations()) * int64_t(colors.size()));
+}
+BENCHMARK(BM_AttributeSumKernel)->Arg(2)->Arg(512)->Unit(benchmark::kMicrosecond);
 
 }  // namespace

@@ -36,6 +36,8 @@ using esvo::EsvoOctree;
 
 // ---- independent helpers (written from the esvo.hpp spec, not the codec) ----
 
+static_assert(esvo::layout::ColorG::lo == 8 && esvo::layout::ColorB::lo == 16 &&
+              esvo::layout::ColorA::mask == 0xFF000000u);  // the layout from8 writes by hand
 Color from8(int r, int g, int b) {
   return esvo::decode_color_abgr(uint32_t(r | g << 8 | b << 16) | 0xFF000000u);
 }
@@ -343,8 +345,8 @@ esvo::BuildOptions compressed_options(uint32_t max_slots = 1u << 20,
 
 uint32_t child_group_of(const EsvoOctree& o, uint32_t slot) {
   const uint32_t w0 = o.slot_ptr(slot)[0];
-  uint32_t p = slot + (w0 >> 17);
-  if (w0 & 0x10000u) p = uint32_t(int64_t(slot) + int32_t(o.slot_ptr(p)[0]));
+  uint32_t p = slot + esvo::layout::ChildPointer::get(w0);
+  if (esvo::layout::FarBit::test(w0)) p = uint32_t(int64_t(slot) + int32_t(o.slot_ptr(p)[0]));
   return p;
 }
 
@@ -360,7 +362,8 @@ void walk_pair(const EsvoOctree& raw, const EsvoOctree& cmp, uint32_t sr, uint32
                std::map<uint32_t, std::vector<VoxelPair>>& by_block) {
   const uint32_t wr = raw.slot_ptr(sr)[0], wc = cmp.slot_ptr(sc)[0];
   ASSERT_EQ(wr & 0xFFFF, wc & 0xFFFF);
-  const uint32_t valid = (wr >> 8) & 0xFF, nl = valid & ~(wr & 0xFF);
+  const uint32_t valid = esvo::layout::ValidMask::get(wr),
+                 nl = valid & ~esvo::layout::LeafMask::get(wr);
   for (int i = 0; i < 8; ++i) {
     if (!(valid >> i & 1)) continue;
     Color c0, c1;
@@ -538,9 +541,10 @@ TEST(CompressedOctree, PairsOnlyHoldSiblingsAndStatsAddUp) {
     const uint32_t s = stack.back();
     stack.pop_back();
     const uint32_t w0 = cmp.slot_ptr(s)[0];
-    const uint32_t nl = ((w0 >> 8) & 0xFF) & ~(w0 & 0xFF);
+    const uint32_t nl = esvo::layout::ValidMask::get(w0) & ~esvo::layout::LeafMask::get(w0);
     if (!nl) continue;
-    if (w0 & 0x10000u) far_slot[s + (w0 >> 17)] = true, ++far_slots;
+    if (esvo::layout::FarBit::test(w0))
+      far_slot[s + esvo::layout::ChildPointer::get(w0)] = true, ++far_slots;
     const uint32_t g = child_group_of(cmp, s);
     for (int i = 0; i < std::popcount(nl); ++i) {
       parent_of[g + uint32_t(i)] = s;
@@ -671,7 +675,8 @@ TEST(CompressedOctree, ValidateRejectsCorruptAttachments) {
   }
   {
     EsvoOctree o = good;
-    o.words[b.attach + 2 + 2] |= 7u << 29;  // root pair's base normal face 7
+    o.words[b.attach + 2 + 2] |=
+        esvo::layout::NormalFace::put(7);  // root pair's base normal face 7
     expect_rejected(o, "bad compressed base normal");
   }
   {
@@ -719,10 +724,10 @@ TEST(CompressedOctree, ValidateRejectsPairsMixingGroups) {
     const uint32_t s = stack.back();
     stack.pop_back();
     const uint32_t w0 = good.slot_ptr(s)[0];
-    const uint32_t nl = ((w0 >> 8) & 0xFF) & ~(w0 & 0xFF);
+    const uint32_t nl = esvo::layout::ValidMask::get(w0) & ~esvo::layout::LeafMask::get(w0);
     if (!nl) continue;
     const uint32_t g = child_group_of(good, s);
-    if (!(w0 & 0x10000u)) group_parent[g] = s;
+    if (!(esvo::layout::FarBit::test(w0))) group_parent[g] = s;
     for (int i = 0; i < std::popcount(nl); ++i)
       is_desc[g + uint32_t(i)] = true, stack.push_back(g + uint32_t(i));
   }
@@ -732,27 +737,27 @@ TEST(CompressedOctree, ValidateRejectsPairsMixingGroups) {
     if (!(p & 1) || is_desc.count(p) || !is_desc.count(p - 1)) continue;
     EsvoOctree o = good;
     uint32_t* w = o.words.data();
-    const uint32_t k = uint32_t(
-        std::popcount(((w[size_t(parent) * 2] >> 8) & 0xFF) & ~(w[size_t(parent) * 2] & 0xFF)));
+    const uint32_t k = uint32_t(std::popcount(esvo::layout::ValidMask::get(w[size_t(parent) * 2]) &
+                                              ~esvo::layout::LeafMask::get(w[size_t(parent) * 2])));
     bool ok = true;
     for (uint32_t i = 0; i < k && ok; ++i) {
       uint32_t w0 = w[size_t(g + i) * 2];
-      if (((w0 >> 8) & 0xFF) & ~(w0 & 0xFF)) {
-        if ((w0 >> 17) + 1 >= (1u << 15))
+      if (esvo::layout::ValidMask::get(w0) & ~esvo::layout::LeafMask::get(w0)) {
+        if (esvo::layout::ChildPointer::get(w0) + 1 > esvo::layout::ChildPointer::max)
           ok = false;
-        else if (w0 & 0x10000u) {
+        else if (esvo::layout::FarBit::test(w0)) {
           // far slot: its offset is relative to the descriptor, which moves back by one
-          const uint32_t f = g + i + (w0 >> 17);
+          const uint32_t f = g + i + esvo::layout::ChildPointer::get(w0);
           w[size_t(f) * 2] = uint32_t(int32_t(w[size_t(f) * 2]) + 1);
         }
-        w0 += 1u << 17;  // the group/far slot is one slot farther away
+        w0 += esvo::layout::ChildPointer::put(1);  // the group/far slot is one slot farther away
       }
       w[size_t(p + i) * 2] = w0;
       w[size_t(p + i) * 2 + 1] = w[size_t(g + i) * 2 + 1];
     }
     if (!ok) continue;
     w[size_t(p + k) * 2] = 0, w[size_t(p + k) * 2 + 1] = 0;
-    w[size_t(parent) * 2] -= 1u << 17;
+    w[size_t(parent) * 2] -= esvo::layout::ChildPointer::put(1);
     expect_rejected(o, "compression block shared by two child groups");
     // (Everything else about the edited tree is consistent, so the pairing
     // check is the one that must fire.)
@@ -806,7 +811,8 @@ TEST(CompressedOctree, RandomCorruptionsAreRejectedOrHarmless) {
       const int d = depth.back();
       stack.pop_back(), depth.pop_back();
       const uint32_t w0 = bad.slot_ptr(s)[0];
-      const uint32_t valid = (w0 >> 8) & 0xFF, nl = valid & ~(w0 & 0xFF);
+      const uint32_t valid = esvo::layout::ValidMask::get(w0),
+                     nl = valid & ~esvo::layout::LeafMask::get(w0);
       for (int i = 0; i < 8; ++i)
         if (valid >> i & 1) {
           Color c;

@@ -40,7 +40,13 @@ struct Plane2 {  // n . x in [lo, hi], octree space
 };
 
 /// The slab of contour `value` on the voxel [lo, lo + side]^3, from the
-/// documented fixed point: |n.(x - c) - 0.75 s p| <= 0.375 s t.
+/// documented fixed point: |n.(x - c) - 0.75 s p| <= 0.375 s t. Decodes the
+/// Figure 4 fields by hand (an oracle independent of esvo::layout, which the
+/// static_asserts below tie to the same positions).
+static_assert(esvo::layout::ContourThickness::lo == 25 && esvo::layout::ContourPosition::lo == 18 &&
+              esvo::layout::ContourNx::lo == 12 && esvo::layout::ContourNy::lo == 6 &&
+              esvo::layout::ContourNz::lo == 0 && esvo::layout::ContourPosition::width == 7 &&
+              esvo::layout::ContourNx::width == 6);
 Plane2 slab_of(uint32_t value, const double lo[3], double side) {
   const int t = int(value >> 25);
   auto sext = [](uint32_t v, int bits) {
@@ -57,16 +63,19 @@ Plane2 slab_of(uint32_t value, const double lo[3], double side) {
 
 uint32_t group_of(const uint32_t* w, uint32_t slot) {
   const uint32_t w0 = w[size_t(slot) * 2];
-  const uint32_t ptr = w0 >> 17;
-  if (w0 & 0x10000u) return uint32_t(int64_t(slot) + int32_t(w[size_t(slot + ptr) * 2]));
+  const uint32_t ptr = esvo::layout::ChildPointer::get(w0);
+  if (esvo::layout::FarBit::test(w0))
+    return uint32_t(int64_t(slot) + int32_t(w[size_t(slot + ptr) * 2]));
   return slot + ptr;
 }
 
 /// Contour of the voxel in child slot i of descriptor `slot`, or 0.
 uint32_t contour_of(const uint32_t* w, uint32_t slot, int i) {
   const uint32_t w1 = w[size_t(slot) * 2 + 1];
-  if (!(w1 >> i & 1)) return 0;
-  return w[size_t(slot) * 2 + (w1 >> 8) + uint32_t(std::popcount(w1 & 0xFFu & ((1u << i) - 1)))];
+  const uint32_t mask = esvo::layout::ContourMask::get(w1);
+  if (!(mask >> i & 1)) return 0;
+  return w[size_t(slot) * 2 + esvo::layout::ContourPointer::get(w1) +
+           uint32_t(std::popcount(mask & ((1u << i) - 1)))];
 }
 
 /// True if some leaf whose closed cube contains q (octree space) has q in its
@@ -75,7 +84,8 @@ bool in_final_shape(const esvo::EsvoOctree& o, const double q[3], uint32_t slot,
                     double side, int* depth_out, int depth = 0) {
   const uint32_t* w = o.words.data();
   const uint32_t w0 = w[size_t(slot) * 2];
-  const uint32_t valid = (w0 >> 8) & 0xFF, leaf = w0 & 0xFF, nl = valid & ~leaf;
+  const uint32_t valid = esvo::layout::ValidMask::get(w0), leaf = esvo::layout::LeafMask::get(w0),
+                 nl = valid & ~leaf;
   const double h = side / 2;
   const double eps = 1e-12;
   for (int i = 0; i < 8; ++i) {
@@ -182,7 +192,8 @@ TEST(ContourValue, BitLayoutAndRoundTrip) {
   EXPECT_EQ(esvo::encode_contour({0, 1, 0, 0, 0}), 1u << 6);
   EXPECT_EQ(esvo::encode_contour({0, 0, -1, 0, 0}), 0x3Fu);
   EXPECT_EQ(esvo::encode_contour({0, 0, 0, -64, 127}), 0xFF000000u | (0x40u << 18));
-  // The listing's shifts expose each field at the top of an int.
+  // The listing's shifts expose each field at the top of an int (literal
+  // shifts: an oracle independent of esvo::layout).
   const uint32_t v = esvo::encode_contour({-32, 31, -5, -17, 99});
   EXPECT_EQ(int32_t(v << 14) >> 26, -32);
   EXPECT_EQ(int32_t(v << 20) >> 26, 31);
@@ -237,9 +248,9 @@ TEST(Contours, NoHolesSphere) {
   size_t changed = 0;
   for (uint32_t s = 1; s < t.words.size() / 2 && changed < 50; ++s) {
     const uint32_t w1 = t.words[size_t(s) * 2 + 1];
-    if ((w1 & 0xFF) == 0 || s % 1024 == 0) continue;
-    uint32_t& v = t.words[size_t(s) * 2 + (w1 >> 8)];
-    v &= 0x01FFFFFFu;  // thickness 0
+    if (esvo::layout::ContourMask::get(w1) == 0 || s % 1024 == 0) continue;
+    uint32_t& v = t.words[size_t(s) * 2 + esvo::layout::ContourPointer::get(w1)];
+    v = esvo::layout::ContourThickness::set(v, 0);
     ++changed;
   }
   ASSERT_GT(changed, 0u);
@@ -297,7 +308,8 @@ void collect_leaves(const esvo::EsvoOctree& o, uint32_t slot, const double lo[3]
                     std::vector<Plane2> slabs, std::vector<LeafShape>& out) {
   const uint32_t* w = o.words.data();
   const uint32_t w0 = w[size_t(slot) * 2];
-  const uint32_t valid = (w0 >> 8) & 0xFF, leaf = w0 & 0xFF, nl = valid & ~leaf;
+  const uint32_t valid = esvo::layout::ValidMask::get(w0), leaf = esvo::layout::LeafMask::get(w0),
+                 nl = valid & ~leaf;
   const double h = side / 2;
   for (int i = 0; i < 8; ++i) {
     if (!(valid >> i & 1)) continue;
@@ -385,7 +397,7 @@ TEST(Contours, ValidateRejectsCorruptContours) {
   ASSERT_NO_THROW(good.validate());
   uint32_t slot = 0;
   for (uint32_t s = 1; s < good.words.size() / 2; ++s)
-    if (s % 1024 && (good.words[size_t(s) * 2 + 1] & 0xFF)) {
+    if (s % 1024 && esvo::layout::ContourMask::get(good.words[size_t(s) * 2 + 1])) {
       slot = s;
       break;
     }
@@ -395,9 +407,9 @@ TEST(Contours, ValidateRejectsCorruptContours) {
     mutate(bad.words[size_t(slot) * 2 + 1], bad);
     EXPECT_THROW(bad.validate(), Error) << what;
   };
-  expect_bad([](uint32_t& w1, esvo::EsvoOctree&) { w1 |= 0xFFFFFF00u; },
+  expect_bad([](uint32_t& w1, esvo::EsvoOctree&) { w1 |= esvo::layout::ContourPointer::mask; },
              "pointer far past the attachment");
-  expect_bad([](uint32_t& w1, esvo::EsvoOctree&) { w1 &= 0xFFu; },
+  expect_bad([](uint32_t& w1, esvo::EsvoOctree&) { w1 &= esvo::layout::ContourMask::mask; },
              "pointer at the descriptor itself");
   {
     esvo::EsvoOctree bad = good;
@@ -405,15 +417,16 @@ TEST(Contours, ValidateRejectsCorruptContours) {
     const uint64_t at = uint64_t(info + int32_t(bad.words[size_t(info) + 7]));
     const uint64_t last = at + bad.words[at];  // word of the last value
     uint32_t& w1 = bad.words[size_t(slot) * 2 + 1];
-    const uint32_t valid = (bad.words[size_t(slot) * 2] >> 8) & 0xFF;
+    const uint32_t valid = esvo::layout::ValidMask::get(bad.words[size_t(slot) * 2]);
     if (std::popcount(valid) >= 2) {
-      w1 = uint32_t(last - 2 * uint64_t(slot)) << 8 | valid;  // 2+ values from the last one
+      w1 = esvo::layout::ContourPointer::put(uint32_t(last - 2 * uint64_t(slot))) |
+           esvo::layout::ContourMask::put(valid);  // 2+ values from the last one
       EXPECT_THROW(bad.validate(), Error) << "popcount past the end";
     }
   }
   expect_bad(
       [&](uint32_t& w1, esvo::EsvoOctree& o) {
-        const uint32_t valid = (o.words[size_t(slot) * 2] >> 8) & 0xFF;
+        const uint32_t valid = esvo::layout::ValidMask::get(o.words[size_t(slot) * 2]);
         if (valid != 0xFF)
           w1 |= (~valid & 0xFF);  // contour for an empty slot
         else

@@ -445,7 +445,7 @@ TEST_F(DagScene, RoundTripsAndDispatches) {
 
 TEST_F(DagScene, RejectsCorruptWords) {
   const std::vector<uint32_t>& w0 = dag_.words;
-  const int k0 = std::popcount(w0[0] & 0xFFu);
+  const int k0 = std::popcount(dag::layout::ChildMask::get(w0[0]));
   ASSERT_GE(k0, 2);
   {
     auto w = w0;
@@ -461,7 +461,7 @@ TEST_F(DagScene, RejectsCorruptWords) {
     auto w = w0;
     // A level-1 node pointing back at the root: a cycle.
     const uint32_t child = w[1];
-    ASSERT_GT(std::popcount(w[child] & 0xFFu), 0);
+    ASSERT_GT(std::popcount(dag::layout::ChildMask::get(w[child])), 0);
     w[child + 1] = 0;
     expect_rejected(with_words(w), "pointer creating a cycle");
   }

@@ -39,6 +39,7 @@ using dag::SparseVoxelDag;
 
 // ---- independent helpers (from the esvo.hpp spec, not the codec) ----------
 
+static_assert(esvo::layout::ColorG::lo == 8 && esvo::layout::ColorB::lo == 16);  // raw8's layout
 Rgb8 raw8(uint32_t abgr) {
   return {{int(abgr & 0xFF), int(abgr >> 8 & 0xFF), int(abgr >> 16 & 0xFF)}};
 }

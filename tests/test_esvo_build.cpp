@@ -24,8 +24,8 @@ using testing::make_sphere_shell;
 
 uint32_t child_group_of(const EsvoOctree& o, uint32_t slot) {
   const uint32_t w0 = o.slot_ptr(slot)[0];
-  uint32_t p = slot + (w0 >> 17);
-  if (w0 & 0x10000u) p = uint32_t(int64_t(slot) + int32_t(o.slot_ptr(p)[0]));
+  uint32_t p = slot + esvo::layout::ChildPointer::get(w0);
+  if (esvo::layout::FarBit::test(w0)) p = uint32_t(int64_t(slot) + int32_t(o.slot_ptr(p)[0]));
   return p;
 }
 
@@ -35,7 +35,7 @@ uint32_t descriptor_of(const EsvoOctree& o, uint64_t code, int depth) {
   for (int t = 0; t < depth; ++t) {
     const int i = int(code >> (3 * (depth - 1 - t))) & 7;
     const uint32_t w0 = o.slot_ptr(slot)[0];
-    const uint32_t nl = ((w0 >> 8) & 0xFF) & ~(w0 & 0xFF);
+    const uint32_t nl = esvo::layout::ValidMask::get(w0) & ~esvo::layout::LeafMask::get(w0);
     EXPECT_TRUE(nl >> i & 1);
     slot = child_group_of(o, slot) + uint32_t(std::popcount(nl & ((1u << i) - 1)));
   }
@@ -304,10 +304,13 @@ TEST(EsvoValidate, DetectsCorruption) {
     mutate(o);
     EXPECT_THROW(o.validate(), Error) << what;
   };
-  expect_invalid([&](EsvoOctree& o) { o.words[root * 2] &= ~(0x7FFFu << 17); },
+  expect_invalid([&](EsvoOctree& o) { o.words[root * 2] &= ~esvo::layout::ChildPointer::mask; },
                  "zero child pointer");
-  expect_invalid([&](EsvoOctree& o) { o.words[root * 2] |= 0xFFFFu << 16; },
-                 "pointer out of range");
+  expect_invalid(
+      [&](EsvoOctree& o) {
+        o.words[root * 2] |= esvo::layout::ChildPointer::mask | esvo::layout::FarBit::mask;
+      },
+      "pointer out of range");
   expect_invalid([&](EsvoOctree& o) { o.words[0] += 2; }, "page header");
   expect_invalid([&](EsvoOctree& o) { o.words.resize(o.words.size() - esvo::kPageWords); },
                  "truncated");
@@ -318,19 +321,21 @@ TEST(EsvoValidate, DetectsCorruption) {
   expect_invalid(
       [&](EsvoOctree& o) {
         const uint32_t s = descriptor_of(o, v.codes[0] >> 3, 4);
-        const uint32_t valid = (o.words[s * 2] >> 8) & 0xFF;
-        o.words[s * 2] = (o.words[s * 2] & ~0xFFu) | 0xFFu;
-        if (valid == 0xFF) o.words[s * 2] &= ~(1u << 8);
+        const uint32_t valid = esvo::layout::ValidMask::get(o.words[s * 2]);
+        o.words[s * 2] = esvo::layout::LeafMask::set(o.words[s * 2], 0xFFu);
+        if (valid == 0xFF) o.words[s * 2] = esvo::layout::ValidMask::set(o.words[s * 2], 0xFEu);
       },
       "leaf mask");
   // Point two children at the same group: a descriptor reached twice.
   expect_invalid(
       [&](EsvoOctree& o) {
         const uint32_t g = child_group_of(o, root);
-        o.words[(g + 1) * 2] = (o.words[(g + 1) * 2] & 0xFFFFu) |
-                               ((o.words[g * 2] >> 17) + 1) << 17 | (o.words[g * 2] & 0x10000u);
-        if (o.words[g * 2] & 0x10000u)  // far: reuse the far pointer, corrected by one slot
-          o.words[(g + 1) * 2] = o.words[g * 2] - (1u << 17);
+        using esvo::layout::ChildPointer, esvo::layout::FarBit;
+        const uint32_t wg = o.words[g * 2];
+        o.words[(g + 1) * 2] = ChildPointer::set(o.words[(g + 1) * 2], ChildPointer::get(wg) + 1);
+        o.words[(g + 1) * 2] = FarBit::set(o.words[(g + 1) * 2], FarBit::get(wg));
+        if (FarBit::test(wg))  // far: reuse the far pointer, corrected by one slot
+          o.words[(g + 1) * 2] = ChildPointer::set(wg, ChildPointer::get(wg) - 1);
       },
       "shared descriptor");
   // Attribute value pointer past the value count.
@@ -338,7 +343,7 @@ TEST(EsvoValidate, DetectsCorruption) {
       [&](EsvoOctree& o) {
         const uint32_t info = o.words[0];
         const uint32_t attach = info + o.words[info + 5];
-        o.words[attach + 2 + root] |= 0xFFFFFFu << 8;
+        o.words[attach + 2 + root] |= esvo::layout::ValuePointer::mask;
       },
       "value pointer");
 }
@@ -370,6 +375,9 @@ TEST(EsvoEncoding, NormalErrorBound) {
   // from the origin, so the angular error is at most the hypotenuse of the
   // two half steps (~6.8e-5 rad = 0.0039 degrees), plus float rounding.
   const double bound = std::hypot(1.0 / 16383, 1.0 / 32767) + 2e-6;
+  // `code >> 29`: the face, written from the documented layout (an oracle
+  // independent of esvo::layout, pinned to it here).
+  static_assert(esvo::layout::NormalFace::lo == 29 && esvo::layout::NormalFace::width == 3);
   const auto check = [&](Vec3 n) {
     n = normalize(n);
     const uint32_t code = esvo::encode_normal_cube(n);

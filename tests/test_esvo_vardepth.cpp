@@ -37,8 +37,9 @@ const std::filesystem::path kMeshes = std::filesystem::path(VOXCAST_TEST_DATA_DI
 /// 17, far bit 16, far slot word 0 = signed slot offset).
 uint32_t group_of(const uint32_t* w, uint32_t slot) {
   const uint32_t w0 = w[size_t(slot) * 2];
-  const uint32_t ptr = w0 >> 17;
-  if (w0 & 0x10000u) return uint32_t(int64_t(slot) + int32_t(w[size_t(slot + ptr) * 2]));
+  const uint32_t ptr = esvo::layout::ChildPointer::get(w0);
+  if (esvo::layout::FarBit::test(w0))
+    return uint32_t(int64_t(slot) + int32_t(w[size_t(slot + ptr) * 2]));
   return slot + ptr;
 }
 
@@ -57,7 +58,7 @@ bool covering_leaf(const esvo::EsvoOctree& o, uint64_t code, Covering* out) {
   for (int d = 0; d < L; ++d) {
     const int i = int(code >> (3 * (L - 1 - d)) & 7);
     const uint32_t w0 = w[size_t(slot) * 2];
-    const uint32_t valid = w0 >> 8 & 0xFF, leaf = w0 & 0xFF;
+    const uint32_t valid = esvo::layout::ValidMask::get(w0), leaf = esvo::layout::LeafMask::get(w0);
     if (!(valid >> i & 1)) return false;
     if (leaf >> i & 1) {
       *out = {slot, i, d + 1};
@@ -98,9 +99,9 @@ Deviation deviation(const esvo::EsvoOctree& o, const VoxelSet& v, int lmax) {
     o.attributes(c.parent_slot, c.child, &dc, &dn);
     const uint32_t got = esvo::encode_color_abgr(dc);
     const uint32_t want = esvo::encode_color_abgr(v.colors[k]);
-    for (int ch = 0; ch < 3; ++ch)
-      r.color =
-          std::max(r.color, std::abs(int(got >> (8 * ch) & 0xFF) - int(want >> (8 * ch) & 0xFF)));
+    for (unsigned ch = 0; ch < 3; ++ch)
+      r.color = std::max(r.color, std::abs(int(esvo::layout::ColorChannels::get(got, ch)) -
+                                           int(esvo::layout::ColorChannels::get(want, ch))));
     const Vec3 wn = esvo::decode_normal_cube(esvo::encode_normal_cube(v.normals[k]));
     const double dot = (double(dn.x) * wn.x + double(dn.y) * wn.y + double(dn.z) * wn.z) /
                        std::sqrt((double(dn.x) * dn.x + double(dn.y) * dn.y + double(dn.z) * dn.z) *
@@ -120,7 +121,8 @@ TEST(VariableDepth, ColorCodesRoundTrip) {
   // The builder compares decoded colors as 8-bit codes: decoding then
   // re-encoding must give the code back (raw and §5.5 palettes are codes).
   for (uint32_t c = 0; c < 256; ++c) {
-    const uint32_t abgr = c | (255 - c) << 8 | (c * 7 & 0xFF) << 16 | 0xFF000000u;
+    const uint32_t abgr = esvo::layout::ColorR::put(c) | esvo::layout::ColorG::put(255 - c) |
+                          esvo::layout::ColorB::put(c * 7) | esvo::layout::ColorA::mask;
     EXPECT_EQ(esvo::encode_color_abgr(esvo::decode_color_abgr(abgr)), abgr);
   }
 }

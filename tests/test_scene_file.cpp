@@ -81,7 +81,8 @@ void use_everything(const EsvoOctree& o) {
     const auto [slot, depth] = stack.back();
     stack.pop_back();
     const uint32_t w0 = o.slot_ptr(slot)[0];
-    const uint32_t valid = (w0 >> 8) & 0xFF, nl = valid & ~(w0 & 0xFF);
+    const uint32_t valid = esvo::layout::ValidMask::get(w0),
+                   nl = valid & ~esvo::layout::LeafMask::get(w0);
     for (int i = 0; i < 8; ++i) {
       if (!(valid >> i & 1)) continue;
       Color c;
@@ -90,8 +91,8 @@ void use_everything(const EsvoOctree& o) {
       ASSERT_TRUE(std::isfinite(c.r) && std::isfinite(n.x));
     }
     if (!nl || depth + 1 >= o.levels()) continue;
-    uint32_t g = slot + (w0 >> 17);
-    if (w0 & 0x10000u) g = uint32_t(int64_t(slot) + int32_t(o.slot_ptr(g)[0]));
+    uint32_t g = slot + esvo::layout::ChildPointer::get(w0);
+    if (esvo::layout::FarBit::test(w0)) g = uint32_t(int64_t(slot) + int32_t(o.slot_ptr(g)[0]));
     for (int k = 0; k < std::popcount(nl); ++k) stack.push_back({g + uint32_t(k), depth + 1});
   }
 }
@@ -234,7 +235,8 @@ TEST_F(SceneFile, StructuralCorruptionBehindValidChecksum) {
           bad.words[wi] += uint32_t(rng() % 5) - 2;
           break;  // off by a little
         case 3:
-          bad.words[wi] ^= uint32_t(rng() % 0x7FFF) << 17;
+          bad.words[wi] ^=
+              esvo::layout::ChildPointer::put(uint32_t(rng() % esvo::layout::ChildPointer::max));
           break;  // child pointer field
       }
     }

@@ -1,4 +1,5 @@
 // voxcast: mesh -> sparse voxel structures -> CPU ray-cast images.
+#include <embree3/rtcore_config.h>
 #include <oneapi/tbb/global_control.h>
 
 #include <cmath>
@@ -10,6 +11,7 @@
 
 #include "commands.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/version.hpp"
 
 namespace voxcast::cli {
 
@@ -68,7 +70,12 @@ int main(int argc, char** argv) {
   CLI::App app{
       "voxcast: voxelize triangle meshes into sparse voxel octrees and ray cast them on the CPU"};
   app.require_subcommand(1);
-  app.set_version_flag("--version", "voxcast 0.1.0");
+  // Version, build type, ISA (baseline and the dispatched kernels') and the
+  // libraries linked in.
+  app.set_version_flag("--version", [] {
+    return voxcast::build_description() + voxcast::io_library_versions() + "Embree " +
+           RTC_VERSION_STRING + " (oracle: bench only)\nCLI11 " + CLI11_VERSION;
+  });
   app.get_formatter()->column_width(36);
   std::vector<std::pair<CLI::App*, Runner>> commands;
   auto add = [&](Runner (*fn)(CLI::App&)) {

@@ -83,6 +83,7 @@
 #include <memory>
 #include <vector>
 
+#include "voxcast/bitfield.hpp"
 #include "voxcast/esvo.hpp"
 #include "voxcast/math.hpp"
 #include "voxcast/structure.hpp"
@@ -90,7 +91,23 @@
 
 namespace voxcast::dag {
 
-inline constexpr uint32_t kReservedHeaderBits = 0xFFFFFF00u;
+/// Bit fields of the layout above (pinned to the documented masks).
+namespace layout {
+// Interior node header: | 31..8 reserved (0) | 7..0 child mask |
+using ChildMask = BitField<0, 8>;
+using HeaderReserved = BitField<8, 24>;
+static_assert(ChildMask::mask == 0xFFu && HeaderReserved::mask == 0xFFFFFF00u);
+static_assert(fields_tile<ChildMask, HeaderReserved>());
+// Leaf-mask node (64 bits): byte c = the 2^3 sub-block in child slot c.
+using LeafMaskBytes = PackedFields<8, uint64_t>;
+static_assert(LeafMaskBytes::get(0x0100000000000000ull, 7) == 1);
+// A voxel's bit in its leaf-mask node is the low 6 bits of its Morton code;
+// the remaining bits are the code of the node's 4^3 block.
+using LeafMaskBit = BitField<0, 6, uint64_t>;
+using LeafBlockCode = BitField<6, 58, uint64_t>;
+static_assert(fields_tile<LeafMaskBit, LeafBlockCode>());
+}  // namespace layout
+inline constexpr uint32_t kReservedHeaderBits = layout::HeaderReserved::mask;
 
 /// Per level l = 0 .. L: node counts of the DAG and of the plain SVO it was
 /// reduced from (svdag Table 2). Level L holds the leaf voxels (no nodes).

@@ -113,6 +113,7 @@
 #include <string>
 #include <vector>
 
+#include "voxcast/bitfield.hpp"
 #include "voxcast/math.hpp"
 #include "voxcast/voxelize.hpp"
 
@@ -125,6 +126,85 @@ inline constexpr uint32_t kInfoMagic = 0x4F464E49;  // "INFO"
 inline constexpr uint32_t kAttachRawColorNormal = 1;
 inline constexpr uint32_t kAttachCompressedColorNormal = 2;
 inline constexpr uint32_t kAttachContours = 3;
+
+/// The bit fields of the layout above, named once and pinned to the
+/// documented masks; every reader and writer of these words goes through them.
+namespace layout {
+// Child descriptor word 0: | 31..17 child pointer | 16 far | 15..8 valid | 7..0 leaf |
+using ChildPointer = BitField<17, 15>;
+using FarBit = BitField<16, 1>;
+using ValidMask = BitField<8, 8>;
+using LeafMask = BitField<0, 8>;
+static_assert(ChildPointer::mask == 0xFFFE0000u && FarBit::mask == 0x00010000u &&
+              ValidMask::mask == 0x0000FF00u && LeafMask::mask == 0x000000FFu);
+static_assert(fields_tile<ChildPointer, FarBit, ValidMask, LeafMask>());
+// Child descriptor word 1: | 31..8 contour pointer (words) | 7..0 contour mask |
+using ContourPointer = BitField<8, 24>;
+using ContourMask = BitField<0, 8>;
+static_assert(ContourPointer::mask == 0xFFFFFF00u && ContourMask::mask == 0xFFu);
+static_assert(fields_tile<ContourPointer, ContourMask>());
+// Raw attachment lookup entry: | 31..8 value pointer | 7..0 attribute mask |
+using ValuePointer = BitField<8, 24>;
+using AttributeMask = BitField<0, 8>;
+static_assert(ValuePointer::mask == 0xFFFFFF00u && AttributeMask::mask == 0xFFu);
+static_assert(fields_tile<ValuePointer, AttributeMask>());
+// Cube-face normal: | 31..29 face | 28..15 u | 14..0 v |
+using NormalFace = BitField<29, 3>;
+using NormalU = BitField<15, 14>;
+using NormalV = BitField<0, 15>;
+static_assert(NormalFace::mask == 0xE0000000u && NormalU::mask == 0x1FFF8000u &&
+              NormalV::mask == 0x00007FFFu);
+static_assert(fields_tile<NormalFace, NormalU, NormalV>());
+// ABGR color: R in the low byte.
+using ColorR = BitField<0, 8>;
+using ColorG = BitField<8, 8>;
+using ColorB = BitField<16, 8>;
+using ColorA = BitField<24, 8>;
+static_assert(ColorR::mask == 0xFFu && ColorA::mask == 0xFF000000u);
+static_assert(fields_tile<ColorR, ColorG, ColorB, ColorA>());
+using ColorChannels = PackedFields<8>;  // channel c = R, G, B, A for c = 0..3
+static_assert(ColorChannels::get(0x44332211u, 0) == ColorR::get(0x44332211u) &&
+              ColorChannels::get(0x44332211u, 2) == ColorB::get(0x44332211u));
+// Contour value (ContourValue below): | 31..25 t | 24..18 p | 17..12 nx | 11..6 ny | 5..0 nz |
+using ContourThickness = BitField<25, 7>;
+using ContourPosition = BitField<18, 7>;  // signed
+using ContourNx = BitField<12, 6>;        // signed
+using ContourNy = BitField<6, 6>;         // signed
+using ContourNz = BitField<0, 6>;         // signed
+static_assert(ContourThickness::mask == 0xFE000000u && ContourPosition::mask == 0x01FC0000u &&
+              ContourNx::mask == 0x0003F000u && ContourNy::mask == 0x00000FC0u &&
+              ContourNz::mask == 0x0000003Fu);
+static_assert(fields_tile<ContourThickness, ContourPosition, ContourNx, ContourNy, ContourNz>());
+// Compressed block (see "Compressed attribute attachment" above and
+// src/esvo/compress.cpp). Word 0: | 31..16 c1 | 15..0 c0 |, each RGB-565
+// | 15..11 R | 10..5 G | 4..0 B |.
+using Endpoint0 = BitField<0, 16>;
+using Endpoint1 = BitField<16, 16>;
+using Rgb565R = BitField<11, 5>;
+using Rgb565G = BitField<5, 6>;
+using Rgb565B = BitField<0, 5>;
+static_assert(fields_tile<Endpoint0, Endpoint1>());
+static_assert(Rgb565R::mask == 0xF800u && Rgb565G::mask == 0x07E0u && Rgb565B::mask == 0x001Fu);
+static_assert(fields_tile<Rgb565R, Rgb565G, Rgb565B>(0xFFFFu));
+// Word 1: 16 x 2-bit color indices, slot i at bits 2i+1..2i.
+using ColorIndices = PackedFields<2>;
+// Word 2: base normal n_b, the cube-normal fields above. Word 3:
+// | 31..16 axis n_u | 15..0 axis n_v |, each | 15..12 e | 11..8 z | 7..4 y | 3..0 x |
+// (signed 4-bit mantissas, 4-bit exponent).
+using AxisU = BitField<16, 16>;
+using AxisV = BitField<0, 16>;
+using AxisExponent = BitField<12, 4>;
+using AxisMantissas = PackedFields<4>;  // x, y, z = elements 0, 1, 2 (signed)
+static_assert(fields_tile<AxisU, AxisV>());
+static_assert(AxisExponent::mask == 0xF000u);
+// Words 4, 5: 16 x 4-bit normal indices, slot i at word 4 + (i >> 3), element
+// i & 7; each | 3..2 k_v | 1..0 k_u |.
+inline constexpr uint32_t kNormalIndexWord = 4;
+using NormalIndices = PackedFields<4>;
+using NormalIndexU = BitField<0, 2>;
+using NormalIndexV = BitField<2, 2>;
+static_assert(fields_tile<NormalIndexU, NormalIndexV>(0xFu));
+}  // namespace layout
 
 /// How a scene stores its colors and normals (§5.4 raw, §5.5 compressed).
 enum class AttributeFormat : uint32_t { Raw = 0, Compressed = 1 };

@@ -1,9 +1,11 @@
 #pragma once
 // Small value types shared by every module. Floats for geometry that reaches
-// the renderer; the voxelizer does its own arithmetic in double.
+// the renderer; the builders and generators do their arithmetic in double
+// (Vec3d, the same template).
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <type_traits>
 
 namespace voxcast {
 
@@ -11,64 +13,93 @@ struct Vec2 {
   float x = 0, y = 0;
 };
 
-struct Vec3 {
-  float x = 0, y = 0, z = 0;
-  constexpr Vec3() = default;
-  constexpr Vec3(float x_, float y_, float z_) : x(x_), y(y_), z(z_) {}
-  constexpr float operator[](int i) const { return i == 0 ? x : (i == 1 ? y : z); }
-  constexpr float& operator[](int i) { return i == 0 ? x : (i == 1 ? y : z); }
+/// A 3-vector of float (geometry that reaches the renderer: `Vec3`) or double
+/// (the builders' and generators' internal arithmetic: `Vec3d`). One template
+/// so that every module shares the same operators; the scalar argument of
+/// `v * s` and `v / s` is not deduced, so `Vec3 * 0.5` keeps converting the
+/// literal to float as the float-only type did.
+template <class T>
+struct Vec3T {
+  T x = 0, y = 0, z = 0;
+  constexpr Vec3T() = default;
+  constexpr Vec3T(T x_, T y_, T z_) : x(x_), y(y_), z(z_) {}
+  constexpr T operator[](int i) const { return i == 0 ? x : (i == 1 ? y : z); }
+  constexpr T& operator[](int i) { return i == 0 ? x : (i == 1 ? y : z); }
 };
+using Vec3 = Vec3T<float>;
+using Vec3d = Vec3T<double>;
 
-constexpr Vec3 operator+(Vec3 a, Vec3 b) {
+template <class T>
+using Scalar = std::type_identity_t<T>;
+
+template <class T>
+constexpr Vec3T<T> operator+(Vec3T<T> a, Vec3T<T> b) {
   return {a.x + b.x, a.y + b.y, a.z + b.z};
 }
-constexpr Vec3 operator-(Vec3 a, Vec3 b) {
+template <class T>
+constexpr Vec3T<T> operator-(Vec3T<T> a, Vec3T<T> b) {
   return {a.x - b.x, a.y - b.y, a.z - b.z};
 }
-constexpr Vec3 operator-(Vec3 a) {
+template <class T>
+constexpr Vec3T<T> operator-(Vec3T<T> a) {
   return {-a.x, -a.y, -a.z};
 }
-constexpr Vec3 operator*(Vec3 a, float s) {
+template <class T>
+constexpr Vec3T<T> operator*(Vec3T<T> a, Scalar<T> s) {
   return {a.x * s, a.y * s, a.z * s};
 }
-constexpr Vec3 operator*(float s, Vec3 a) {
+template <class T>
+constexpr Vec3T<T> operator*(Scalar<T> s, Vec3T<T> a) {
   return {a.x * s, a.y * s, a.z * s};
 }
-constexpr Vec3 operator*(Vec3 a, Vec3 b) {
+template <class T>
+constexpr Vec3T<T> operator*(Vec3T<T> a, Vec3T<T> b) {
   return {a.x * b.x, a.y * b.y, a.z * b.z};
 }
-constexpr Vec3 operator/(Vec3 a, float s) {
+template <class T>
+constexpr Vec3T<T> operator/(Vec3T<T> a, Scalar<T> s) {
   return {a.x / s, a.y / s, a.z / s};
 }
-constexpr Vec3& operator+=(Vec3& a, Vec3 b) {
+template <class T>
+constexpr Vec3T<T>& operator+=(Vec3T<T>& a, Vec3T<T> b) {
   return a = a + b;
 }
-constexpr Vec3& operator-=(Vec3& a, Vec3 b) {
+template <class T>
+constexpr Vec3T<T>& operator-=(Vec3T<T>& a, Vec3T<T> b) {
   return a = a - b;
 }
-constexpr Vec3& operator*=(Vec3& a, float s) {
+template <class T>
+constexpr Vec3T<T>& operator*=(Vec3T<T>& a, Scalar<T> s) {
   return a = a * s;
 }
-constexpr float dot(Vec3 a, Vec3 b) {
+template <class T>
+constexpr T dot(Vec3T<T> a, Vec3T<T> b) {
   return a.x * b.x + a.y * b.y + a.z * b.z;
 }
-constexpr Vec3 cross(Vec3 a, Vec3 b) {
+template <class T>
+constexpr Vec3T<T> cross(Vec3T<T> a, Vec3T<T> b) {
   return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
 }
-inline float length(Vec3 a) {
+template <class T>
+inline T length(Vec3T<T> a) {
   return std::sqrt(dot(a, a));
 }
-inline Vec3 normalize(Vec3 a) {
-  float l = length(a);
-  return l > 0 ? a / l : Vec3{0, 0, 0};
+/// a / |a|, or the zero vector for a zero (or non-finite-length) input.
+template <class T>
+inline Vec3T<T> normalize(Vec3T<T> a) {
+  T l = length(a);
+  return l > 0 ? a / l : Vec3T<T>{0, 0, 0};
 }
-constexpr Vec3 min(Vec3 a, Vec3 b) {
+template <class T>
+constexpr Vec3T<T> min(Vec3T<T> a, Vec3T<T> b) {
   return {std::min(a.x, b.x), std::min(a.y, b.y), std::min(a.z, b.z)};
 }
-constexpr Vec3 max(Vec3 a, Vec3 b) {
+template <class T>
+constexpr Vec3T<T> max(Vec3T<T> a, Vec3T<T> b) {
   return {std::max(a.x, b.x), std::max(a.y, b.y), std::max(a.z, b.z)};
 }
-inline bool is_finite(Vec3 a) {
+template <class T>
+inline bool is_finite(Vec3T<T> a) {
   return std::isfinite(a.x) && std::isfinite(a.y) && std::isfinite(a.z);
 }
 

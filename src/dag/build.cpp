@@ -82,12 +82,12 @@ SparseVoxelDag build_dag(const VoxelSet& voxels) {
   std::vector<uint64_t> masks;
   {
     for (uint64_t code : voxels.codes) {
-      const uint64_t k = code >> 6;
+      const uint64_t k = layout::LeafBlockCode::get(code);
       if (keys.empty() || keys.back() != k) {
         keys.push_back(k);
         masks.push_back(0);
       }
-      masks.back() |= 1ull << (code & 63);
+      masks.back() |= 1ull << layout::LeafMaskBit::get(code);
     }
   }
   // Node positions and ids are 32-bit (merge_identical); the voxel count

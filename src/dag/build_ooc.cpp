@@ -261,14 +261,14 @@ SparseVoxelDag build_dag_out_of_core(const Mesh& mesh, const GridTransform& grid
           ids.push_back(tables[size_t(L - 2)].intern(w, 2));
         };
         for (uint64_t code : vs.codes) {
-          const uint64_t k = code >> 6;
+          const uint64_t k = layout::LeafBlockCode::get(code);
           if (k != cur) {
             if (cur != ~0ull) flush();
             keys.push_back(k);
             cur = k;
             m = 0;
           }
-          m |= 1ull << (code & 63);
+          m |= 1ull << layout::LeafMaskBit::get(code);
         }
         flush();
       }

@@ -11,6 +11,7 @@
 #include <cmath>
 #include <string>
 
+#include "dag/attribute_sum.hpp"
 #include "esvo/compress.hpp"
 #include "voxcast/error.hpp"
 
@@ -25,59 +26,12 @@ inline uint64_t leaf_mask(const uint32_t* w) {
   return uint64_t(w[0]) | uint64_t(w[1]) << 32;
 }
 
-using AttributeSum = std::array<int64_t, 7>;
-
-// Fixed point, 2^24 = 1.0, rounded half away from zero (no libm call: this
-// runs for up to 126 voxels per LOD hit).
-inline int64_t to_fixed(float v) {
-  const double x = double(v) * SparseVoxelDag::kAttributeSumOne;
-  return int64_t(x + (x >= 0 ? 0.5 : -0.5));
-}
-
-// to_fixed of the decoded channels of a color byte: index c = linear value of
-// sRGB byte c (esvo::decode_color_abgr), 256 + c = alpha byte c.
-const std::array<int64_t, 512>& fixed_channel_table() {
-  static const std::array<int64_t, 512> table = [] {
-    std::array<int64_t, 512> t{};
-    for (uint32_t c = 0; c < 256; ++c) {
-      t[c] = to_fixed(esvo::decode_color_abgr(c).r);
-      t[256 + c] = to_fixed(esvo::decode_color_abgr(c << 24).a);
-    }
-    return t;
-  }();
-  return table;
-}
-
 // Fixed-point sums of linear r, g, b, a and normal x, y, z of voxels
 // [first, first + count): the per-voxel rounding is the only error, the sums
-// are exact (|value| <= 2^24, so up to 2^39 voxels fit in 63 bits).
-AttributeSum attribute_sum(const uint32_t* colors, const uint32_t* normals, size_t first,
-                           size_t count) {
-  const std::array<int64_t, 512>& ch = fixed_channel_table();
-  AttributeSum sum{};
-  for (size_t i = first; i < first + count; ++i) {
-    const uint32_t abgr = colors[i];
-    sum[0] += ch[abgr & 0xFF];
-    sum[1] += ch[(abgr >> 8) & 0xFF];
-    sum[2] += ch[(abgr >> 16) & 0xFF];
-    sum[3] += ch[256 + (abgr >> 24)];
-    // esvo::decode_normal_cube inlined (esvo.hpp cube-face encoding: face in
-    // bits 31..29, 14-bit u in 28..15, 15-bit v in 14..0): this loop is the
-    // per-voxel cost of LOD shading, and the call dominated it.
-    const uint32_t code = normals[i];
-    uint32_t face = code >> 29;
-    if (face > 5) face = 4;
-    const uint32_t axis = face >> 1;
-    const float u = float((code >> 15) & 0x3FFFu) * (2.f / 16383.f) - 1.f;
-    const float v = float(code & 0x7FFFu) * (2.f / 32767.f) - 1.f;
-    const float len = std::sqrt(1.f + u * u + v * v);
-    static constexpr uint32_t kNext[3] = {1, 2, 0};
-    sum[4 + axis] += to_fixed(((face & 1) ? -1.f : 1.f) / len);
-    sum[4 + kNext[axis]] += to_fixed(u / len);
-    sum[4 + kNext[kNext[axis]]] += to_fixed(v / len);
-  }
-  return sum;
-}
+// are exact (|value| <= 2^24, so up to 2^39 voxels fit in 63 bits). Raw
+// attributes: the runtime-dispatched kernel in attribute_sum_*.cpp.
+using detail::AttributeSum;
+using detail::to_fixed;
 
 // The same sums over compressed attributes (dag.hpp): of the decoded values,
 // so a LOD mean averages what the leaves show.
@@ -96,8 +50,9 @@ AttributeSum compressed_sum(const uint32_t* blocks, size_t first, size_t count) 
 }
 
 AttributeSum range_sum(const SparseVoxelDag& d, size_t first, size_t count) {
-  return d.compressed_attributes() ? compressed_sum(d.attribute_blocks.data(), first, count)
-                                   : attribute_sum(d.colors.data(), d.normals.data(), first, count);
+  return d.compressed_attributes()
+             ? compressed_sum(d.attribute_blocks.data(), first, count)
+             : detail::attribute_sum_kernel()(d.colors.data(), d.normals.data(), first, count);
 }
 
 // Blocked prefix sums of the attributes for LOD means (dag.hpp): each
@@ -148,7 +103,7 @@ void SparseVoxelDag::finalize() {
         corrupt("word " + std::to_string(s) + " of level " + std::to_string(l) +
                 " is not the start of a node referenced from the level above "
                 "(a gap, or a pointer into a node or to the wrong level)");
-      const size_t size = leaf ? 2 : 1 + size_t(std::popcount(words[s] & 0xFFu));
+      const size_t size = leaf ? 2 : 1 + size_t(std::popcount(layout::ChildMask::get(words[s])));
       if (s + size > n) corrupt("node at word " + std::to_string(s) + " is truncated");
       for (size_t j = 1; j < size; ++j)
         if (mark[s + j] != 0)
@@ -157,7 +112,8 @@ void SparseVoxelDag::finalize() {
         if (leaf_mask(&words[s]) == 0) corrupt("empty leaf mask at word " + std::to_string(s));
       } else {
         const uint32_t h = words[s];
-        if ((h & 0xFFu) == 0) corrupt("empty child mask at word " + std::to_string(s));
+        if (layout::ChildMask::get(h) == 0)
+          corrupt("empty child mask at word " + std::to_string(s));
         if (h & kReservedHeaderBits)
           corrupt("reserved header bits set at word " + std::to_string(s));
         for (size_t j = 1; j < size; ++j) {
@@ -204,7 +160,7 @@ void SparseVoxelDag::finalize() {
       // Does level l need 64-bit entries? Its children's counts are known.
       bool wide = false;
       for (size_t w = begin; w < end && !wide;) {
-        const int k = std::popcount(words[w] & 0xFFu);
+        const int k = std::popcount(layout::ChildMask::get(words[w]));
         uint64_t sum = 0;
         for (int j = 0; j < k; ++j) sum += count_of(words[w + 1 + size_t(j)], children_are_leaves);
         wide = sum > 0xFFFFFFFFull;
@@ -216,7 +172,7 @@ void SparseVoxelDag::finalize() {
       }
     }
     for (size_t w = begin; w < end;) {
-      const int k = std::popcount(words[w] & 0xFFu);
+      const int k = std::popcount(layout::ChildMask::get(words[w]));
       uint64_t sum = 0;
       auto store = [&](size_t at, uint64_t v) {
         if (at < wide_words)
@@ -289,12 +245,12 @@ DagStats SparseVoxelDag::stats() const {
       if (leaf) {
         const uint64_t m = leaf_mask(&words[w]);
         int blocks = 0;
-        for (int c = 0; c < 8; ++c) blocks += ((m >> (8 * c)) & 0xFF) != 0;
+        for (int c = 0; c < 8; ++c) blocks += layout::LeafMaskBytes::get(m, unsigned(c)) != 0;
         st.levels[size_t(L - 1)].svo_nodes += mult[w] * uint64_t(blocks);
         st.levels[size_t(L)].svo_nodes += mult[w] * uint64_t(std::popcount(m));
         w += 2;
       } else {
-        const int k = std::popcount(words[w] & 0xFFu);
+        const int k = std::popcount(layout::ChildMask::get(words[w]));
         for (int j = 0; j < k; ++j) mult[words[w + 1 + size_t(j)]] += mult[w];
         w += 1 + size_t(k);
       }
@@ -323,12 +279,12 @@ std::vector<uint64_t> SparseVoxelDag::decode_leaves() const {
     if (level == L - 2) {
       uint64_t m = leaf_mask(&words[w]);
       while (m) {
-        out.push_back(code << 6 | uint64_t(std::countr_zero(m)));
+        out.push_back(layout::LeafBlockCode::put(code) | uint64_t(std::countr_zero(m)));
         m &= m - 1;
       }
       return;
     }
-    const uint32_t mask = words[w] & 0xFFu;
+    const uint32_t mask = layout::ChildMask::get(words[w]);
     int j = 0;
     for (int c = 0; c < 8; ++c)
       if (mask & (1u << c))
@@ -369,7 +325,7 @@ std::vector<uint64_t> SparseVoxelDag::decode_cube(int level, uint64_t cube) cons
   uint32_t w = 0;
   for (int k = 0; k < node_level; ++k) {
     const uint32_t c = uint32_t(cube >> (3 * (level - 1 - k))) & 7u;
-    const uint32_t mask = words[w] & 0xFFu;
+    const uint32_t mask = layout::ChildMask::get(words[w]);
     if (!((mask >> c) & 1u)) return out;
     w = words[w + 1 + size_t(std::popcount(mask & ((1u << c) - 1)))];
   }
@@ -377,7 +333,7 @@ std::vector<uint64_t> SparseVoxelDag::decode_cube(int level, uint64_t cube) cons
     // Inside one 4^3 mask: the cube's voxels are a run of 8^(L-level) bits.
     const int bits = 3 * (L - level);
     const uint64_t first = cube << bits;
-    uint64_t m = leaf_mask(&words[w]) >> (first & 63);
+    uint64_t m = leaf_mask(&words[w]) >> layout::LeafMaskBit::get(first);
     if (bits < 6) m &= (1ull << (1 << bits)) - 1;
     while (m) {
       out.push_back(first + uint64_t(std::countr_zero(m)));
@@ -389,12 +345,12 @@ std::vector<uint64_t> SparseVoxelDag::decode_cube(int level, uint64_t cube) cons
     if (k == L - 2) {
       uint64_t m = leaf_mask(&words[node]);
       while (m) {
-        out.push_back(code << 6 | uint64_t(std::countr_zero(m)));
+        out.push_back(layout::LeafBlockCode::put(code) | uint64_t(std::countr_zero(m)));
         m &= m - 1;
       }
       return;
     }
-    const uint32_t mask = words[node] & 0xFFu;
+    const uint32_t mask = layout::ChildMask::get(words[node]);
     int j = 0;
     for (int c = 0; c < 8; ++c)
       if (mask & (1u << c))
@@ -411,7 +367,7 @@ uint64_t SparseVoxelDag::voxel_rank(uint64_t code) const {
   uint32_t w = 0;
   for (int k = 0; k < L - 2; ++k) {
     const uint32_t c = uint32_t(code >> (3 * (L - 1 - k))) & 7u;
-    const uint32_t mask = words[w] & 0xFFu;
+    const uint32_t mask = layout::ChildMask::get(words[w]);
     const int k_children = std::popcount(mask);
     const int j = std::popcount(mask & ((1u << c) - 1));
     // Voxels in the children before slot c: the prefix entry of the next
@@ -420,7 +376,7 @@ uint64_t SparseVoxelDag::voxel_rank(uint64_t code) const {
     if (!((mask >> c) & 1u)) return rank;
     w = words[w + 1 + size_t(j)];
   }
-  const uint64_t below = (1ull << (code & 63)) - 1;
+  const uint64_t below = (1ull << layout::LeafMaskBit::get(code)) - 1;
   return rank + uint64_t(std::popcount(leaf_mask(&words[w]) & below));
 }
 
@@ -439,7 +395,7 @@ VoxelRange SparseVoxelDag::cube_range(uint64_t voxel, int level) const {
   uint32_t w = 0;
   const int node_level = std::min(level, L - 2);
   for (int k = 0; k < node_level; ++k) {
-    int j = std::popcount(words[w] & 0xFFu) - 1;
+    int j = std::popcount(layout::ChildMask::get(words[w])) - 1;
     while (j > 0 && prefix_entry(w + 1 + uint32_t(j)) > rem) --j;
     const uint64_t before = prefix_entry(w + 1 + uint32_t(j));
     first += before;
@@ -511,7 +467,7 @@ Aabb occupied_bounds(const SparseVoxelDag& dag, int max_level) {
       for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], c[a]), hi[a] = std::max(hi[a], c[a] + 1);
       return;
     }
-    const uint32_t mask = dag.words[w] & 0xFFu;
+    const uint32_t mask = layout::ChildMask::get(dag.words[w]);
     int j = 0;
     for (int c = 0; c < 8; ++c)
       if (mask & (1u << c))

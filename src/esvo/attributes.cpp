@@ -27,8 +27,8 @@
 namespace voxcast::esvo {
 namespace {
 
-constexpr uint32_t kUMax = (1u << 14) - 1;
-constexpr uint32_t kVMax = (1u << 15) - 1;
+constexpr uint32_t kUMax = layout::NormalU::max;  // 2^14 - 1
+constexpr uint32_t kVMax = layout::NormalV::max;  // 2^15 - 1
 
 double linear_from_srgb(double c) {
   return c <= 0.04045 ? c / 12.92 : std::pow((c + 0.055) / 1.055, 2.4);
@@ -89,14 +89,14 @@ uint32_t quantize(float t, uint32_t max) {  // t in [-1, 1] -> [0, max], rounded
 }  // namespace
 
 uint32_t encode_color_abgr(const Color& linear) {
-  return encode_srgb8(linear.r) | encode_srgb8(linear.g) << 8 | encode_srgb8(linear.b) << 16 |
-         encode_unorm8(linear.a) << 24;
+  return layout::ColorR::put(encode_srgb8(linear.r)) | layout::ColorG::put(encode_srgb8(linear.g)) |
+         layout::ColorB::put(encode_srgb8(linear.b)) | layout::ColorA::put(encode_unorm8(linear.a));
 }
 
 Color decode_color_abgr(uint32_t abgr) {
   const auto& d = tables().decode;
-  return {d[abgr & 0xFF], d[(abgr >> 8) & 0xFF], d[(abgr >> 16) & 0xFF],
-          float(abgr >> 24) * (1.f / 255.f)};
+  return {d[layout::ColorR::get(abgr)], d[layout::ColorG::get(abgr)], d[layout::ColorB::get(abgr)],
+          float(layout::ColorA::get(abgr)) * (1.f / 255.f)};
 }
 
 uint32_t encode_normal_cube(Vec3 n) {
@@ -111,15 +111,16 @@ uint32_t encode_normal_cube(Vec3 n) {
   const bool negative = n[axis] < 0.f;
   const float u = n[(axis + 1) % 3] / major, v = n[(axis + 2) % 3] / major;
   const uint32_t face = uint32_t(axis * 2 + (negative ? 1 : 0));
-  return face << 29 | quantize(u, kUMax) << 15 | quantize(v, kVMax);
+  return layout::NormalFace::put(face) | layout::NormalU::put(quantize(u, kUMax)) |
+         layout::NormalV::put(quantize(v, kVMax));
 }
 
 Vec3 decode_normal_cube(uint32_t code) {
-  uint32_t face = code >> 29;
+  uint32_t face = layout::NormalFace::get(code);
   if (face > 5) face = 4;  // not produced by the encoder; keep decode total (+z)
   const int axis = int(face >> 1);
-  const float u = float((code >> 15) & kUMax) * (2.f / float(kUMax)) - 1.f;
-  const float v = float(code & kVMax) * (2.f / float(kVMax)) - 1.f;
+  const float u = float(layout::NormalU::get(code)) * (2.f / float(kUMax)) - 1.f;
+  const float v = float(layout::NormalV::get(code)) * (2.f / float(kVMax)) - 1.f;
   Vec3 r;
   r[axis] = (face & 1) ? -1.f : 1.f;
   r[(axis + 1) % 3] = u;
@@ -147,7 +148,8 @@ void EsvoOctree::attributes(uint32_t parent_slot, int child, Color* color, Vec3*
   const uint32_t slot_count = w[attach];
   const uint32_t entry = w[attach + 2 + rel];
   const uint32_t index =
-      (entry >> 8) + uint32_t(std::popcount(entry & 0xFFu & ((1u << child) - 1)));
+      layout::ValuePointer::get(entry) +
+      uint32_t(std::popcount(layout::AttributeMask::get(entry) & ((1u << child) - 1)));
   const uint32_t* value = w + attach + 2 + slot_count + size_t(index) * 2;
   if (color) *color = decode_color_abgr(value[0]);
   if (normal) *normal = decode_normal_cube(value[1]);

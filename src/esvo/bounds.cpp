@@ -26,10 +26,11 @@ Aabb occupied_bounds(const EsvoOctree& octree, int max_level) {
     Item it = stack.back();
     stack.pop_back();
     const uint32_t* d = octree.slot_ptr(it.slot);
-    uint32_t valid = (d[0] >> 8) & 0xFF, leaf = d[0] & 0xFF;
-    uint32_t ptr = d[0] >> 17;
+    uint32_t valid = layout::ValidMask::get(d[0]), leaf = layout::LeafMask::get(d[0]);
+    uint32_t ptr = layout::ChildPointer::get(d[0]);
     int64_t first = int64_t(it.slot) + ptr;
-    if (d[0] & 0x10000) first = int64_t(it.slot) + int32_t(octree.slot_ptr(uint32_t(first))[0]);
+    if (layout::FarBit::test(d[0]))
+      first = int64_t(it.slot) + int32_t(octree.slot_ptr(uint32_t(first))[0]);
     int nonleaf_rank = 0;
     for (int c = 0; c < 8; ++c) {
       if (!(valid & (1u << c))) continue;

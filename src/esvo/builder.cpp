@@ -74,9 +74,7 @@
 namespace voxcast::esvo {
 namespace {
 
-using detail::kFarBit;
 using detail::kMaxNearPointer;
-using detail::kPointerShift;
 
 // Without input attributes every voxel gets this (documented in esvo.hpp):
 // linear mid gray, normal +z, weight 1.
@@ -312,7 +310,8 @@ class Layout {
     const uint32_t valid = lv_[depth].mask[index];
     uint32_t leaf = depth + 1 == L_ ? valid : 0;  // all leaves sit at depth L
     out_[size_t(slot) * 2 + 1] = 0;               // no contour (§5.2)
-    lookup_[slot - block_start_] = uint32_t(values_.size()) << 8 | valid;
+    lookup_[slot - block_start_] =
+        layout::ValuePointer::put(uint32_t(values_.size())) | layout::AttributeMask::put(valid);
     const uint32_t first = lv_[depth].first_child[index];
     const int k = std::popcount(valid);
     for (int j = 0; j < k; ++j) values_.push_back(child_value(depth, first + uint32_t(j)));
@@ -328,11 +327,11 @@ class Layout {
         if (value != 0) cmask |= 1u << i, contours_.push_back(value);
       }
       if (cmask != 0) {
-        out_[size_t(slot) * 2 + 1] = cmask;
+        out_[size_t(slot) * 2 + 1] = layout::ContourMask::put(cmask);
         contour_desc_.push_back({slot, uint32_t(cstart)});
       }
     }
-    out_[size_t(slot) * 2] = valid << 8 | leaf;
+    out_[size_t(slot) * 2] = layout::ValidMask::put(valid) | layout::LeafMask::put(leaf);
   }
 
   void visit(const Node& n) {
@@ -394,11 +393,12 @@ class Layout {
     const uint64_t rel = group - n.slot;
     if (n.far_slot) {
       out_[size_t(n.far_slot) * 2] = uint32_t(int32_t(rel));  // < 2^31 (ensure_words)
-      out_[size_t(n.slot) * 2] |= (n.far_slot - n.slot) << kPointerShift | kFarBit;
+      out_[size_t(n.slot) * 2] |=
+          layout::ChildPointer::put(n.far_slot - n.slot) | layout::FarBit::put(1);
     } else {
       if (rel > kMaxNearPointer)  // the far-slot bound above is broken
         throw std::logic_error("esvo builder: near child pointer overflow");
-      out_[size_t(n.slot) * 2] |= uint32_t(rel) << kPointerShift;
+      out_[size_t(n.slot) * 2] |= layout::ChildPointer::put(uint32_t(rel));
     }
 
     uint32_t next_far = group + g;
@@ -457,7 +457,7 @@ class Layout {
         const uint64_t ptr = contour_at + 1 + r.first - uint64_t(r.slot) * 2;
         if (ptr > detail::kMaxContourPointer)  // the block break rule above is broken
           throw std::logic_error("esvo builder: contour pointer overflow");
-        out_[size_t(r.slot) * 2 + 1] |= uint32_t(ptr) << detail::kContourPointerShift;
+        out_[size_t(r.slot) * 2 + 1] |= layout::ContourPointer::put(uint32_t(ptr));
       }
     }
     uint32_t* a = out_.data() + attach;
@@ -480,10 +480,10 @@ class Layout {
                             int n = 0;
                             for (int half = 0; half < 2; ++half) {
                               const uint32_t e = lookup_[2 * k + size_t(half)];
-                              const uint32_t mask = e & 0xFFu;
+                              const uint32_t mask = layout::AttributeMask::get(e);
                               used |= mask << (8 * half);
                               for (int j = 0; j < std::popcount(mask); ++j)
-                                vals[n++] = values_[(e >> 8) + uint32_t(j)];
+                                vals[n++] = values_[layout::ValuePointer::get(e) + uint32_t(j)];
                             }
                             detail::encode_block_from_raw(
                                 vals, used, blocks + detail::kCompressedBlockWords * k);

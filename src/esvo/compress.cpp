@@ -60,55 +60,36 @@
 #include <cmath>
 
 #include "voxcast/esvo.hpp"
+#include "voxcast/math.hpp"
 
 namespace voxcast::esvo {
 namespace {
 
 // ---------------------------------------------------------------- common ----
 
-struct D3 {
-  double x = 0, y = 0, z = 0;
-  double& operator[](int i) { return i == 0 ? x : (i == 1 ? y : z); }
-  double operator[](int i) const { return i == 0 ? x : (i == 1 ? y : z); }
-};
-D3 operator+(D3 a, D3 b) {
-  return {a.x + b.x, a.y + b.y, a.z + b.z};
-}
-D3 operator-(D3 a, D3 b) {
-  return {a.x - b.x, a.y - b.y, a.z - b.z};
-}
-D3 operator*(D3 a, double s) {
-  return {a.x * s, a.y * s, a.z * s};
-}
-double dot(D3 a, D3 b) {
-  return a.x * b.x + a.y * b.y + a.z * b.z;
-}
-D3 cross(D3 a, D3 b) {
-  return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
-}
-double norm(D3 a) {
-  return std::sqrt(dot(a, a));
-}
-D3 unit(D3 a) {
-  const double l = norm(a);
-  return l > 0 ? a * (1.0 / l) : D3{0, 0, 1};
+// Double-precision vectors: voxcast::Vec3d (include/voxcast/math.hpp).
+// unit() multiplies by the reciprocal length and maps zero to +z; the encoded
+// normals' bytes depend on both, so it is not voxcast::normalize.
+Vec3d unit(Vec3d a) {
+  const double l = length(a);
+  return l > 0 ? a * (1.0 / l) : Vec3d{0, 0, 1};
 }
 
 /// Principal eigenvector of a symmetric 3x3 matrix by power iteration, started
 /// from its largest column (which lies in its range). Zero matrix -> zero.
-D3 principal_axis(const double m[3][3]) {
-  D3 v{};
+Vec3d principal_axis(const double m[3][3]) {
+  Vec3d v{};
   double best = 0;
   for (int c = 0; c < 3; ++c) {
-    const D3 col{m[0][c], m[1][c], m[2][c]};
+    const Vec3d col{m[0][c], m[1][c], m[2][c]};
     if (dot(col, col) > best) best = dot(col, col), v = col;
   }
   if (!(best > 1e-24)) return {};
   v = unit(v);
   for (int it = 0; it < 8; ++it) {
-    const D3 w{m[0][0] * v.x + m[0][1] * v.y + m[0][2] * v.z,
-               m[1][0] * v.x + m[1][1] * v.y + m[1][2] * v.z,
-               m[2][0] * v.x + m[2][1] * v.y + m[2][2] * v.z};
+    const Vec3d w{m[0][0] * v.x + m[0][1] * v.y + m[0][2] * v.z,
+                  m[1][0] * v.x + m[1][1] * v.y + m[1][2] * v.z,
+                  m[2][0] * v.x + m[2][1] * v.y + m[2][2] * v.z};
     if (!(dot(w, w) > 1e-30)) break;
     v = unit(w);
   }
@@ -129,8 +110,11 @@ struct Palette {
   int c[4][3];
 };
 Palette make_palette(uint32_t c0, uint32_t c1) {
-  const int e0[3] = {int(expand5(c0 >> 11)), int(expand6((c0 >> 5) & 63)), int(expand5(c0 & 31))};
-  const int e1[3] = {int(expand5(c1 >> 11)), int(expand6((c1 >> 5) & 63)), int(expand5(c1 & 31))};
+  using layout::Rgb565B, layout::Rgb565G, layout::Rgb565R;
+  const int e0[3] = {int(expand5(Rgb565R::get(c0))), int(expand6(Rgb565G::get(c0))),
+                     int(expand5(Rgb565B::get(c0)))};
+  const int e1[3] = {int(expand5(Rgb565R::get(c1))), int(expand6(Rgb565G::get(c1))),
+                     int(expand5(Rgb565B::get(c1)))};
   Palette p;
   for (int ch = 0; ch < 3; ++ch) {
     p.c[0][ch] = e0[ch];
@@ -142,7 +126,8 @@ Palette make_palette(uint32_t c0, uint32_t c1) {
 }
 
 uint32_t pack565(int r, int g, int b) {
-  return uint32_t(r) << 11 | uint32_t(g) << 5 | uint32_t(b);
+  return layout::Rgb565R::put(uint32_t(r)) | layout::Rgb565G::put(uint32_t(g)) |
+         layout::Rgb565B::put(uint32_t(b));
 }
 
 /// Optimal endpoints for a single 8-bit value with index 2 ((2a + b + 1) / 3):
@@ -242,7 +227,7 @@ class ColorEncoder {
     if (fit_.sse == 0) return fit_;
 
     // Principal axis seed: endpoints at the extreme projections.
-    const D3 axis = principal_axis(cov);
+    const Vec3d axis = principal_axis(cov);
     double tmin = 0, tmax = 0;
     for (int i = 0; i < n_; ++i) {
       const double t = (x_[i][0] - mean[0]) * axis.x + (x_[i][1] - mean[1]) * axis.y +
@@ -283,8 +268,10 @@ class ColorEncoder {
 
     // Local search on the quantized endpoints: +-1 on one channel of c0, of
     // c1, or of both (a shift of the whole segment).
-    static constexpr int kShift[3] = {11, 5, 0};
-    static constexpr int kMax[3] = {31, 63, 31};
+    static constexpr int kShift[3] = {layout::Rgb565R::lo, layout::Rgb565G::lo,
+                                      layout::Rgb565B::lo};
+    static constexpr int kMax[3] = {layout::Rgb565R::max, layout::Rgb565G::max,
+                                    layout::Rgb565B::max};
     for (int pass = 0; pass < 8 && fit_.sse > 0; ++pass) {
       bool improved = false;
       for (int which = 1; which <= 3; ++which)  // bit 0: c0, bit 1: c1
@@ -321,29 +308,29 @@ constexpr double kCoef[4] = {-1.0, -1.0 / 3.0, 1.0 / 3.0, 1.0};
 constexpr int kAxisExpBias = 15;
 
 /// Cube point (major component +-1) of a cube normal code; face > 5 -> +z.
-D3 cube_point(uint32_t code) {
+Vec3d cube_point(uint32_t code) {
   const Vec3 n = decode_normal_cube(code);  // normalized; rescale to the cube
   const double m =
       std::max({std::fabs(double(n.x)), std::fabs(double(n.y)), std::fabs(double(n.z))});
-  return D3{n.x / m, n.y / m, n.z / m};
+  return Vec3d{n.x / m, n.y / m, n.z / m};
 }
 
 /// Quantized axis: 4-bit exponent + three signed 4-bit mantissas (16 bits).
 struct QAxis {
   uint32_t bits = 0;
-  D3 value;
+  Vec3d value;
 };
-QAxis quantize_axis(D3 a) {
+QAxis quantize_axis(Vec3d a) {
   const double amax = std::max({std::fabs(a.x), std::fabs(a.y), std::fabs(a.z)});
   int e = 0;
   // Smallest exponent whose mantissa range covers the extent.
   while (e < 15 && amax > 7.5 * std::ldexp(1.0, e - kAxisExpBias)) ++e;
   const double step = std::ldexp(1.0, e - kAxisExpBias);
   QAxis q;
-  q.bits = uint32_t(e) << 12;
+  q.bits = layout::AxisExponent::put(uint32_t(e));
   for (int c = 0; c < 3; ++c) {
     const int m = std::clamp(int(std::lround(a[c] / step)), -8, 7);
-    q.bits |= (uint32_t(m) & 15u) << (4 * c);
+    q.bits |= layout::AxisMantissas::put(uint32_t(m), unsigned(c));
     q.value[c] = m * step;
   }
   return q;
@@ -353,17 +340,17 @@ struct NormalFit {
   uint32_t base = 0, axes = 0;
   uint8_t ku[16] = {}, kv[16] = {};
   double score = INFINITY;  // max + mean angle (radians)
-  D3 b, u, v;               // dequantized
+  Vec3d b, u, v;            // dequantized
 };
 
 class NormalEncoder {
  public:
-  NormalEncoder(const D3* n, int count) : n_(n), count_(count) {}
+  NormalEncoder(const Vec3d* n, int count) : n_(n), count_(count) {}
 
   /// Quantizes (b, u, v) (b is rescaled onto the cube together with u, v,
   /// which leaves every decoded direction unchanged), picks the best index
   /// pair per normal and scores the result. Returns the candidate.
-  NormalFit evaluate(D3 b, D3 u, D3 v) const {
+  NormalFit evaluate(Vec3d b, Vec3d u, Vec3d v) const {
     NormalFit f;
     const double m = std::max({std::fabs(b.x), std::fabs(b.y), std::fabs(b.z)});
     if (!(m > 1e-9) || !std::isfinite(m)) return f;
@@ -371,11 +358,11 @@ class NormalEncoder {
     f.base = encode_normal_cube(Vec3{float(b.x), float(b.y), float(b.z)});
     f.b = cube_point(f.base);
     const QAxis qu = quantize_axis(u), qv = quantize_axis(v);
-    f.axes = (qu.bits << 16) | qv.bits;
+    f.axes = layout::AxisU::put(qu.bits) | layout::AxisV::put(qv.bits);
     f.u = qu.value, f.v = qv.value;
-    D3 cand[16];
+    Vec3d cand[16];
     for (int k = 0; k < 16; ++k) {
-      const D3 p = f.b + f.u * kCoef[k & 3] + f.v * kCoef[k >> 2];
+      const Vec3d p = f.b + f.u * kCoef[k & 3] + f.v * kCoef[k >> 2];
       cand[k] = dot(p, p) > 1e-12 ? unit(p) : unit(f.b);
     }
     double sum = 0, worst = 0;
@@ -387,7 +374,7 @@ class NormalEncoder {
         if (c > best) best = c, bk = k;
       }
       f.ku[i] = uint8_t(bk & 3), f.kv[i] = uint8_t(bk >> 2);
-      const double ang = 2.0 * std::asin(std::min(1.0, 0.5 * norm(cand[bk] - n_[i])));
+      const double ang = 2.0 * std::asin(std::min(1.0, 0.5 * length(cand[bk] - n_[i])));
       sum += ang, worst = std::max(worst, ang);
     }
     f.score = worst + sum / count_;
@@ -403,11 +390,12 @@ class NormalEncoder {
   /// decoded grid n_b + c_u n_u + c_v n_v is an affine grid in such a plane).
   /// Normals (nearly) perpendicular to or behind the base go far out in their
   /// tangential direction instead.
-  static D3 project(D3 n, D3 bh, double bl) {
+  static Vec3d project(Vec3d n, Vec3d bh, double bl) {
     const double d = dot(n, bh);
     if (d > 0.05) return n * (bl / d);
-    D3 t = n - bh * d;
-    if (!(dot(t, t) > 1e-12)) t = cross(bh, std::fabs(bh.x) < 0.9 ? D3{1, 0, 0} : D3{0, 1, 0});
+    Vec3d t = n - bh * d;
+    if (!(dot(t, t) > 1e-12))
+      t = cross(bh, std::fabs(bh.x) < 0.9 ? Vec3d{1, 0, 0} : Vec3d{0, 1, 0});
     return bh * bl + unit(t) * (bl * 20.0);
   }
 
@@ -418,9 +406,9 @@ class NormalEncoder {
   /// base point perpendicular to it; evaluate() moves the base back onto the
   /// cube (rescaling the axes by ~1, which keeps their mantissas).
   NormalFit refit(const NormalFit& f) const {
-    const D3 bh = unit(f.b);
-    const double bl = norm(f.b);
-    D3 p[16];
+    const Vec3d bh = unit(f.b);
+    const double bl = length(f.b);
+    Vec3d p[16];
     double cu[16], cv[16];
     for (int i = 0; i < count_; ++i) {
       p[i] = project(n_[i], bh, bl);
@@ -431,7 +419,7 @@ class NormalEncoder {
     // normals on one index) solvable.
     const double lambda = 1e-6;
     double m[3][3] = {};
-    D3 rhs[3] = {f.b * lambda, f.u * lambda, f.v * lambda};
+    Vec3d rhs[3] = {f.b * lambda, f.u * lambda, f.v * lambda};
     for (int i = 0; i < count_; ++i) {
       const double w[3] = {1.0, cu[i], cv[i]};
       for (int r = 0; r < 3; ++r) {
@@ -451,9 +439,9 @@ class NormalEncoder {
     const QAxis qu = quantize_axis(rhs[0] * i10 + rhs[1] * i11 + rhs[2] * i12);
     // (b, v) for the quantized u: 2x2 system of rows [1, cv].
     double a00 = lambda, a01 = 0, a11 = lambda;
-    D3 r0 = f.b * lambda, r1 = f.v * lambda;
+    Vec3d r0 = f.b * lambda, r1 = f.v * lambda;
     for (int i = 0; i < count_; ++i) {
-      const D3 q = p[i] - qu.value * cu[i];
+      const Vec3d q = p[i] - qu.value * cu[i];
       a00 += 1, a01 += cv[i], a11 += cv[i] * cv[i];
       r0 = r0 + q, r1 = r1 + q * cv[i];
     }
@@ -461,37 +449,38 @@ class NormalEncoder {
     if (!(std::fabs(d2) > 1e-12)) return NormalFit{};
     const QAxis qv = quantize_axis((r1 * a00 - r0 * a01) * (1.0 / d2));
     // Base = mean residual for both quantized axes.
-    D3 base{};
+    Vec3d base{};
     for (int i = 0; i < count_; ++i) base = base + (p[i] - qu.value * cu[i] - qv.value * cv[i]);
     return evaluate(base * (1.0 / count_), qu.value, qv.value);
   }
 
   /// Principal-axis configuration around base direction `dir`.
-  void try_base(D3 dir) {
+  void try_base(Vec3d dir) {
     const double m = std::max({std::fabs(dir.x), std::fabs(dir.y), std::fabs(dir.z)});
     if (!(m > 0)) return;
-    const D3 b = dir * (1.0 / m);  // cube point
-    const D3 bh = unit(b);
-    const double bl = norm(b);
-    D3 r[16];
+    const Vec3d b = dir * (1.0 / m);  // cube point
+    const Vec3d bh = unit(b);
+    const double bl = length(b);
+    Vec3d r[16];
     double cov[3][3] = {};
     for (int i = 0; i < count_; ++i) {
       r[i] = project(n_[i], bh, bl) - b;  // in the tangent plane
       for (int a = 0; a < 3; ++a)
         for (int c = 0; c < 3; ++c) cov[a][c] += r[i][a] * r[i][c];
     }
-    D3 e1 = principal_axis(cov);
+    Vec3d e1 = principal_axis(cov);
     e1 = e1 - bh * dot(e1, bh);  // numerically in the plane
-    if (!(dot(e1, e1) > 1e-20)) e1 = cross(bh, std::fabs(bh.x) < 0.9 ? D3{1, 0, 0} : D3{0, 1, 0});
+    if (!(dot(e1, e1) > 1e-20))
+      e1 = cross(bh, std::fabs(bh.x) < 0.9 ? Vec3d{1, 0, 0} : Vec3d{0, 1, 0});
     e1 = unit(e1);
-    const D3 e2 = unit(cross(bh, e1));
+    const Vec3d e2 = unit(cross(bh, e1));
     double lo1 = 0, hi1 = 0, lo2 = 0, hi2 = 0;
     for (int i = 0; i < count_; ++i) {
       const double t1 = dot(r[i], e1), t2 = dot(r[i], e2);
       lo1 = std::min(lo1, t1), hi1 = std::max(hi1, t1);
       lo2 = std::min(lo2, t2), hi2 = std::max(hi2, t2);
     }
-    const D3 center = b + e1 * (0.5 * (lo1 + hi1)) + e2 * (0.5 * (lo2 + hi2));
+    const Vec3d center = b + e1 * (0.5 * (lo1 + hi1)) + e2 * (0.5 * (lo2 + hi2));
     const double h1 = 0.5 * (hi1 - lo1), h2 = 0.5 * (hi2 - lo2);
     // 2-D grid and 1-D (parallel axes 4:1 -> 16 even levels along e1).
     NormalFit cand[2] = {evaluate(center, e1 * h1, e2 * h2),
@@ -515,30 +504,30 @@ class NormalEncoder {
   /// and n_v to approximate two other directions"). No projection is needed,
   /// so normals behind the base are handled.
   void try_two_clusters() {
-    D3 mean{};
+    Vec3d mean{};
     for (int i = 0; i < count_; ++i) mean = mean + n_[i];
     mean = mean * (1.0 / count_);
     double cov[3][3] = {};
     for (int i = 0; i < count_; ++i) {
-      const D3 d = n_[i] - mean;
+      const Vec3d d = n_[i] - mean;
       for (int a = 0; a < 3; ++a)
         for (int c = 0; c < 3; ++c) cov[a][c] += d[a] * d[c];
     }
-    const D3 e = principal_axis(cov);
+    const Vec3d e = principal_axis(cov);
     if (dot(e, e) == 0) return;
-    D3 sa{}, sb{};
+    Vec3d sa{}, sb{};
     for (int i = 0; i < count_; ++i) {
-      D3& side = dot(n_[i] - mean, e) < 0 ? sa : sb;
+      Vec3d& side = dot(n_[i] - mean, e) < 0 ? sa : sb;
       side = side + n_[i];
     }
-    if (!(norm(sa) > 1e-9) || !(norm(sb) > 1e-9)) return;
-    const D3 a = unit(sa), b = unit(sb);
+    if (!(length(sa) > 1e-9) || !(length(sb) > 1e-9)) return;
+    const Vec3d a = unit(sa), b = unit(sb);
     for (int order = 0; order < 2; ++order) {
-      const D3 x = order ? b : a, y = order ? a : b;
+      const Vec3d x = order ? b : a, y = order ? a : b;
       for (double k : {1.0, 2.0}) {
-        const D3 base = (x + y * k) * 0.5, u = (y * k - x) * 0.5;
-        if (!(norm(base) > 1e-3)) continue;
-        NormalFit f = evaluate(base, u, D3{});
+        const Vec3d base = (x + y * k) * 0.5, u = (y * k - x) * 0.5;
+        if (!(length(base) > 1e-3)) continue;
+        NormalFit f = evaluate(base, u, Vec3d{});
         consider(f);
         // Refit only when every normal is in front of the base (projection).
         bool front = true;
@@ -558,7 +547,7 @@ class NormalEncoder {
   /// n_b - n_u - n_v = a, n_b + n_u - n_v = k1 b, n_b - n_u + n_v = k2 c
   /// (scales k1, k2 in {1, 2} keep n_b off zero when b and c are opposite).
   void try_three_clusters() {
-    D3 mean{};
+    Vec3d mean{};
     for (int i = 0; i < count_; ++i) mean = mean + n_[i];
     int s0 = 0;
     for (int i = 1; i < count_; ++i)
@@ -573,33 +562,33 @@ class NormalEncoder {
       if (c < best) best = c, s2 = i;
     }
     if (s1 == s0 || s2 == s0 || s2 == s1) return;
-    D3 sum[3] = {};
-    const D3 seed[3] = {n_[s0], n_[s1], n_[s2]};
+    Vec3d sum[3] = {};
+    const Vec3d seed[3] = {n_[s0], n_[s1], n_[s2]};
     for (int i = 0; i < count_; ++i) {
       int k = 0;
       for (int j = 1; j < 3; ++j)
         if (dot(n_[i], seed[j]) > dot(n_[i], seed[k])) k = j;
       sum[k] = sum[k] + n_[i];
     }
-    D3 c[3];
-    for (int j = 0; j < 3; ++j) c[j] = norm(sum[j]) > 1e-9 ? unit(sum[j]) : seed[j];
+    Vec3d c[3];
+    for (int j = 0; j < 3; ++j) c[j] = length(sum[j]) > 1e-9 ? unit(sum[j]) : seed[j];
     for (int corner = 0; corner < 3; ++corner) {
-      const D3 a = c[corner], b = c[(corner + 1) % 3], d = c[(corner + 2) % 3];
+      const Vec3d a = c[corner], b = c[(corner + 1) % 3], d = c[(corner + 2) % 3];
       for (const auto& [k1, k2] : {std::pair{1.0, 1.0}, std::pair{2.0, 1.0}, std::pair{1.0, 2.0}}) {
-        const D3 u = (b * k1 - a) * 0.5, v = (d * k2 - a) * 0.5;
-        const D3 base = a + u + v;
-        if (norm(base) > 1e-3) consider(evaluate(base, u, v));
+        const Vec3d u = (b * k1 - a) * 0.5, v = (d * k2 - a) * 0.5;
+        const Vec3d base = a + u + v;
+        if (length(base) > 1e-3) consider(evaluate(base, u, v));
       }
     }
   }
 
   NormalFit run() {
-    D3 mean{};
+    Vec3d mean{};
     for (int i = 0; i < count_; ++i) mean = mean + n_[i];
-    if (!(norm(mean) > 1e-9)) mean = n_[0];
+    if (!(length(mean) > 1e-9)) mean = n_[0];
     mean = unit(mean);
     // Constant configuration (guarantees: never worse than the mean normal).
-    consider(evaluate(mean, D3{}, D3{}));
+    consider(evaluate(mean, Vec3d{}, Vec3d{}));
     if (fit_.score < 1e-4) return fit_;
     try_base(mean);
     // Base at the normal farthest from the mean (handles widely spread sets).
@@ -613,7 +602,7 @@ class NormalEncoder {
   }
 
  private:
-  const D3* n_;
+  const Vec3d* n_;
   int count_;
   NormalFit fit_;
 };
@@ -626,21 +615,23 @@ double srgb_from_linear(double c) {
 
 /// Encodes one block from per-used-slot sRGB colors (0..255) and unit normals
 /// (both compacted in ascending slot order).
-void encode_core(const float (*srgb)[3], const D3* normals, uint32_t used, uint32_t out[6]) {
+void encode_core(const float (*srgb)[3], const Vec3d* normals, uint32_t used, uint32_t out[6]) {
   for (int i = 0; i < 6; ++i) out[i] = 0;
   used &= 0xFFFFu;
   const int n = std::popcount(used);
   if (n == 0) return;
   const ColorFit cf = ColorEncoder(srgb, n).run();
   const NormalFit nf = NormalEncoder(normals, n).run();
-  out[0] = cf.c0 | cf.c1 << 16;
+  out[0] = layout::Endpoint0::put(cf.c0) | layout::Endpoint1::put(cf.c1);
   out[2] = nf.base;
   out[3] = nf.axes;
   int j = 0;
   for (int slot = 0; slot < 16; ++slot) {
     if (!(used >> slot & 1)) continue;
-    out[1] |= uint32_t(cf.idx[j]) << (2 * slot);
-    out[4 + (slot >> 3)] |= (uint32_t(nf.ku[j]) | uint32_t(nf.kv[j]) << 2) << (4 * (slot & 7));
+    out[1] |= layout::ColorIndices::put(uint32_t(cf.idx[j]), unsigned(slot));
+    out[layout::kNormalIndexWord + (slot >> 3)] |= layout::NormalIndices::put(
+        layout::NormalIndexU::put(nf.ku[j]) | layout::NormalIndexV::put(nf.kv[j]),
+        unsigned(slot & 7));
     ++j;
   }
 }
@@ -650,15 +641,15 @@ void encode_core(const float (*srgb)[3], const D3* normals, uint32_t used, uint3
 void encode_compressed_block(const Color* colors, const Vec3* normals, uint32_t used,
                              uint32_t out[6]) {
   float x[16][3];
-  D3 n[16];
+  Vec3d n[16];
   int j = 0;
   for (int slot = 0; slot < 16; ++slot) {
     if (!(used >> slot & 1)) continue;
     x[j][0] = float(srgb_from_linear(colors[slot].r) * 255.0);
     x[j][1] = float(srgb_from_linear(colors[slot].g) * 255.0);
     x[j][2] = float(srgb_from_linear(colors[slot].b) * 255.0);
-    const D3 v{normals[slot].x, normals[slot].y, normals[slot].z};
-    n[j] = dot(v, v) > 0 && std::isfinite(dot(v, v)) ? unit(v) : D3{0, 0, 1};
+    const Vec3d v{normals[slot].x, normals[slot].y, normals[slot].z};
+    n[j] = dot(v, v) > 0 && std::isfinite(dot(v, v)) ? unit(v) : Vec3d{0, 0, 1};
     ++j;
   }
   encode_core(x, n, used, out);
@@ -666,26 +657,34 @@ void encode_compressed_block(const Color* colors, const Vec3* normals, uint32_t 
 
 void decode_compressed_slot(const uint32_t* block, int slot, Color* color, Vec3* normal) {
   if (color) {
-    const Palette p = make_palette(block[0] & 0xFFFFu, block[0] >> 16);
-    const int k = int(block[1] >> (2 * slot)) & 3;
-    *color = decode_color_abgr(uint32_t(p.c[k][0]) | uint32_t(p.c[k][1]) << 8 |
-                               uint32_t(p.c[k][2]) << 16 | 0xFF000000u);
+    const Palette p =
+        make_palette(layout::Endpoint0::get(block[0]), layout::Endpoint1::get(block[0]));
+    const int k = int(layout::ColorIndices::get(block[1], unsigned(slot)));
+    *color = decode_color_abgr(layout::ColorR::put(uint32_t(p.c[k][0])) |
+                               layout::ColorG::put(uint32_t(p.c[k][1])) |
+                               layout::ColorB::put(uint32_t(p.c[k][2])) | layout::ColorA::mask);
   }
   if (normal) {
     const Vec3 bn = decode_normal_cube(block[2]);
     const float m = std::max({std::fabs(bn.x), std::fabs(bn.y), std::fabs(bn.z)});
     const Vec3 b = bn / m;  // back onto the cube (m >= 1/sqrt(3))
     const uint32_t axes = block[3];
-    const uint32_t sel = block[4 + (slot >> 3)] >> (4 * (slot & 7));
+    const uint32_t sel = layout::NormalIndices::get(block[layout::kNormalIndexWord + (slot >> 3)],
+                                                    unsigned(slot & 7));
     static constexpr float kC[4] = {-1.f, -1.f / 3.f, 1.f / 3.f, 1.f};
     const auto axis = [](uint32_t bits, float c) {
       // 2^(e - 15) * c, built from the exponent bits (e in 0..15).
       const float scale =
-          std::bit_cast<float>(uint32_t(int(bits >> 12 & 15u) - kAxisExpBias + 127) << 23) * c;
-      const auto m4 = [](uint32_t v) { return float(int32_t(v << 28) >> 28); };
-      return Vec3{m4(bits) * scale, m4(bits >> 4) * scale, m4(bits >> 8) * scale};
+          std::bit_cast<float>(uint32_t(int(layout::AxisExponent::get(bits)) - kAxisExpBias + 127)
+                               << 23) *
+          c;
+      const auto m4 = [bits](unsigned i) {
+        return float(layout::AxisMantissas::get_signed(bits, i));
+      };
+      return Vec3{m4(0) * scale, m4(1) * scale, m4(2) * scale};
     };
-    const Vec3 p = b + axis(axes >> 16, kC[sel & 3]) + axis(axes & 0xFFFFu, kC[sel >> 2 & 3]);
+    const Vec3 p = b + axis(layout::AxisU::get(axes), kC[layout::NormalIndexU::get(sel)]) +
+                   axis(layout::AxisV::get(axes), kC[layout::NormalIndexV::get(sel)]);
     const float l2 = dot(p, p);
     *normal = l2 > 1e-12f ? p / std::sqrt(l2) : bn;
   }
@@ -695,13 +694,14 @@ namespace detail {
 
 void encode_block_from_raw(const uint64_t* values, uint32_t used, uint32_t out[6]) {
   float x[16][3];
-  D3 n[16];
+  Vec3d n[16];
   const int count = std::popcount(used & 0xFFFFu);
   for (int j = 0; j < count; ++j) {
     const uint32_t c = uint32_t(values[j]);
-    x[j][0] = float(c & 0xFF), x[j][1] = float(c >> 8 & 0xFF), x[j][2] = float(c >> 16 & 0xFF);
+    x[j][0] = float(layout::ColorR::get(c)), x[j][1] = float(layout::ColorG::get(c)),
+    x[j][2] = float(layout::ColorB::get(c));
     const Vec3 v = decode_normal_cube(uint32_t(values[j] >> 32));
-    n[j] = unit(D3{v.x, v.y, v.z});
+    n[j] = unit(Vec3d{v.x, v.y, v.z});
   }
   encode_core(x, n, used, out);
 }

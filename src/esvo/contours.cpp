@@ -59,26 +59,28 @@
 
 #include "esvo/layout_internal.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/math.hpp"
 
 namespace voxcast::esvo {
 
 // ---- Figure 4 bit fields (layout and fixed point: esvo.hpp, ContourValue) ----
 
 uint32_t encode_contour(const ContourValue& c) {
-  return (uint32_t(c.thickness) & 0x7Fu) << 25 | (uint32_t(c.position) & 0x7Fu) << 18 |
-         (uint32_t(c.nx) & 0x3Fu) << 12 | (uint32_t(c.ny) & 0x3Fu) << 6 | (uint32_t(c.nz) & 0x3Fu);
+  return layout::ContourThickness::put(c.thickness) |
+         layout::ContourPosition::put_signed(c.position) | layout::ContourNx::put_signed(c.nx) |
+         layout::ContourNy::put_signed(c.ny) | layout::ContourNz::put_signed(c.nz);
 }
 
 ContourValue decode_contour(uint32_t value) {
-  // The Appendix A shifts put each field at the top of an int; an arithmetic
-  // shift back down sign-extends it exactly (two's complement, C++20).
-  const int32_t v = int32_t(value);
+  // get_signed() is the Appendix A decode: shift the field to the top of an
+  // int, then an arithmetic shift back down sign-extends it exactly (two's
+  // complement, C++20).
   ContourValue c;
-  c.thickness = value >> 25;
-  c.position = int32_t(uint32_t(v) << 7) >> 25;
-  c.nx = int32_t(uint32_t(v) << 14) >> 26;
-  c.ny = int32_t(uint32_t(v) << 20) >> 26;
-  c.nz = int32_t(uint32_t(v) << 26) >> 26;
+  c.thickness = layout::ContourThickness::get(value);
+  c.position = layout::ContourPosition::get_signed(value);
+  c.nx = layout::ContourNx::get_signed(value);
+  c.ny = layout::ContourNy::get_signed(value);
+  c.nz = layout::ContourNz::get_signed(value);
   return c;
 }
 
@@ -111,27 +113,7 @@ Slab contour_slab(uint32_t value, const double lo[3], double side) {
 
 namespace {
 
-struct V3 {
-  double x = 0, y = 0, z = 0;
-};
-inline V3 operator+(V3 a, V3 b) {
-  return {a.x + b.x, a.y + b.y, a.z + b.z};
-}
-inline V3 operator-(V3 a, V3 b) {
-  return {a.x - b.x, a.y - b.y, a.z - b.z};
-}
-inline V3 operator*(V3 a, double s) {
-  return {a.x * s, a.y * s, a.z * s};
-}
-inline double dot(V3 a, V3 b) {
-  return a.x * b.x + a.y * b.y + a.z * b.z;
-}
-inline V3 cross(V3 a, V3 b) {
-  return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
-}
-inline double len(V3 a) {
-  return std::sqrt(dot(a, a));
-}
+// Grid-unit geometry in double: voxcast::Vec3d (include/voxcast/math.hpp).
 
 constexpr int kMaxAncestors = 6;       // ancestor slabs used for the polyhedron P
 constexpr size_t kMaxCandidates = 24;  // triangle normals tried per voxel (§7.2 "a small subset")
@@ -139,23 +121,23 @@ constexpr double kMinGain = 0.02;      // a contour must cut >= 2% of the side o
 constexpr double kDefaultContourTolerance = 0.25;  // finest voxels (BuildOptions::geometry_error)
 
 struct GridSlab {  // n . x in [lo, hi], x in grid units
-  V3 n;
+  Vec3d n;
   double lo, hi;
 };
 
 /// Squared distance from p to triangle abc (Ericson, Real-Time Collision
 /// Detection, 5.1.5: closest point by Voronoi regions).
-double dist2_point_triangle(V3 p, V3 a, V3 b, V3 c) {
-  const V3 ab = b - a, ac = c - a, ap = p - a;
+double dist2_point_triangle(Vec3d p, Vec3d a, Vec3d b, Vec3d c) {
+  const Vec3d ab = b - a, ac = c - a, ap = p - a;
   const double d1 = dot(ab, ap), d2 = dot(ac, ap);
-  auto d2of = [&](V3 q) { return dot(p - q, p - q); };
+  auto d2of = [&](Vec3d q) { return dot(p - q, p - q); };
   if (d1 <= 0 && d2 <= 0) return d2of(a);
-  const V3 bp = p - b;
+  const Vec3d bp = p - b;
   const double d3 = dot(ab, bp), d4 = dot(ac, bp);
   if (d3 >= 0 && d4 <= d3) return d2of(b);
   const double vc = d1 * d4 - d3 * d2;
   if (vc <= 0 && d1 >= 0 && d3 <= 0) return d2of(a + ab * (d1 / (d1 - d3)));
-  const V3 cp = p - c;
+  const Vec3d cp = p - c;
   const double d5 = dot(ab, cp), d6 = dot(ac, cp);
   if (d6 >= 0 && d5 <= d6) return d2of(c);
   const double vb = d5 * d2 - d1 * d6;
@@ -173,7 +155,7 @@ double dist2_point_triangle(V3 p, V3 a, V3 b, V3 c) {
 /// is exactly what the general loop produces (no crossing edges), found
 /// without the per-edge work -- most clips in the recursion are such no-ops.
 template <class Out>
-void clip_append(const V3* in, size_t k, V3 n, double off, Out& out) {
+void clip_append(const Vec3d* in, size_t k, Vec3d n, double off, Out& out) {
   bool any_out = false;
   for (size_t i = 0; i < k; ++i) any_out |= dot(n, in[i]) - off > 0;
   if (!any_out) {
@@ -181,7 +163,7 @@ void clip_append(const V3* in, size_t k, V3 n, double off, Out& out) {
     return;
   }
   for (size_t i = 0; i < k; ++i) {
-    const V3 a = in[i], b = in[i + 1 == k ? 0 : i + 1];
+    const Vec3d a = in[i], b = in[i + 1 == k ? 0 : i + 1];
     const double da = dot(n, a) - off, db = dot(n, b) - off;
     if (da <= 0) out.push_back(a);
     if ((da < 0 && db > 0) || (da > 0 && db < 0)) out.push_back(a + (b - a) * (da / (da - db)));
@@ -194,23 +176,23 @@ void clip_append(const V3* in, size_t k, V3 n, double off, Out& out) {
 /// recursion allocates only while the buffers grow.
 class Polyhedron {
  public:
-  void reset(V3 lo, double s) {
-    const V3 c[8] = {lo,
-                     lo + V3{s, 0, 0},
-                     lo + V3{0, s, 0},
-                     lo + V3{s, s, 0},
-                     lo + V3{0, 0, s},
-                     lo + V3{s, 0, s},
-                     lo + V3{0, s, s},
-                     lo + V3{s, s, s}};
+  void reset(Vec3d lo, double s) {
+    const Vec3d c[8] = {lo,
+                        lo + Vec3d{s, 0, 0},
+                        lo + Vec3d{0, s, 0},
+                        lo + Vec3d{s, s, 0},
+                        lo + Vec3d{0, 0, s},
+                        lo + Vec3d{s, 0, s},
+                        lo + Vec3d{0, s, s},
+                        lo + Vec3d{s, s, s}};
     v_ = {c[0], c[2], c[3], c[1], c[4], c[5], c[7], c[6], c[0], c[1], c[5], c[4],
           c[2], c[6], c[7], c[3], c[0], c[4], c[6], c[2], c[1], c[3], c[7], c[5]};
     end_ = {4, 8, 12, 16, 20, 24};
-    center_ = lo + V3{0.5 * s, 0.5 * s, 0.5 * s};
+    center_ = lo + Vec3d{0.5 * s, 0.5 * s, 0.5 * s};
     side_ = s;
   }
   /// Keeps n . x <= off; the cut adds a cap face.
-  void clip(V3 n, double off) {
+  void clip(Vec3d n, double off) {
     const double tol = 1e-12 * (std::fabs(off) + 1);
     // Plane beyond the whole cube (most ancestor slabs of a small voxel,
     // §7.2, are far thicker than it): every vertex of P lies in the cube
@@ -257,7 +239,7 @@ class Polyhedron {
           if (std::fabs(da) <= tol) cap_.push_back(v_[ia]);
         }
         if ((da < 0 && db > 0) || (da > 0 && db < 0)) {
-          const V3 a = v_[ia], x = a + (v_[ib] - a) * (da / (da - db));
+          const Vec3d a = v_[ia], x = a + (v_[ib] - a) * (da / (da - db));
           nv_.push_back(x);
           if (std::fabs(dot(n, x) - off) <= tol) cap_.push_back(x);
         }
@@ -270,11 +252,11 @@ class Polyhedron {
     }
     if (cap_.size() >= 3) {
       // Order the cap points by angle around their centroid in the plane.
-      V3 m{0, 0, 0};
-      for (const V3& p : cap_) m = m + p;
+      Vec3d m{0, 0, 0};
+      for (const Vec3d& p : cap_) m = m + p;
       m = m * (1.0 / double(cap_.size()));
-      const V3 a = std::fabs(n.x) < 0.9 * len(n) ? V3{1, 0, 0} : V3{0, 1, 0};
-      const V3 u = cross(n, a), v = cross(n, u);
+      const Vec3d a = std::fabs(n.x) < 0.9 * length(n) ? Vec3d{1, 0, 0} : Vec3d{0, 1, 0};
+      const Vec3d u = cross(n, a), v = cross(n, u);
       // The angle is computed once per point instead of twice per
       // comparison; std::sort sees the same comparison results, so the
       // permutation (ties included) is the one of the per-comparison form.
@@ -282,7 +264,7 @@ class Polyhedron {
       // intersection computed to the same bits from both faces of an edge)
       // reuses the angle of its first copy: same point, same key.
       keyed_.clear();
-      for (const V3& p : cap_) {
+      for (const Vec3d& p : cap_) {
         double key = 0;
         bool found = false;
         for (const auto& kp : keyed_)
@@ -294,7 +276,7 @@ class Polyhedron {
         keyed_.push_back({key, p});
       }
       std::sort(keyed_.begin(), keyed_.end(),
-                [](const std::pair<double, V3>& p, const std::pair<double, V3>& q) {
+                [](const std::pair<double, Vec3d>& p, const std::pair<double, Vec3d>& q) {
                   return p.first < q.first;
                 });
       for (const auto& kp : keyed_) nv_.push_back(kp.second);
@@ -313,12 +295,12 @@ class Polyhedron {
   /// range minima/maxima of ranges()) only depend on the set of points, so
   /// this gives the same results as sorting and std::unique did, without
   /// the sort (a quarter of the planning time).
-  void vertices(std::vector<V3>& v) const {
+  void vertices(std::vector<Vec3d>& v) const {
     v.clear();
     size_t cap = 64;
     while (cap < 2 * v_.size()) cap *= 2;
     table_.assign(cap, -1);
-    for (const V3& p : v_) {
+    for (const Vec3d& p : v_) {
       // +0.0 maps -0 to +0, which == treats as equal.
       const uint64_t hx = std::bit_cast<uint64_t>(p.x + 0.0),
                      hy = std::bit_cast<uint64_t>(p.y + 0.0),
@@ -333,19 +315,19 @@ class Polyhedron {
           v.push_back(p);
           break;
         }
-        const V3 q = v[size_t(j)];
+        const Vec3d q = v[size_t(j)];
         if (q.x == p.x && q.y == p.y && q.z == p.z) break;
       }
     }
   }
 
  private:
-  std::vector<V3> v_, nv_, cap_;
+  std::vector<Vec3d> v_, nv_, cap_;
   std::vector<double> d_;  // clip(): signed distance per entry of v_
-  V3 center_;              // the cube of reset()
+  Vec3d center_;           // the cube of reset()
   double side_ = 0;
   std::vector<uint32_t> end_, nend_;
-  std::vector<std::pair<double, V3>> keyed_;
+  std::vector<std::pair<double, Vec3d>> keyed_;
   mutable std::vector<int32_t> table_;  // vertices(): hash table of indices into v
 };
 
@@ -363,10 +345,10 @@ struct Candidate {
 /// build runs one planner per cell and must not redo the O(T) parts (the
 /// boundary-edge hash map) per cell.
 struct PlannerMesh {
-  std::vector<std::array<V3, 3>> tri;  // triangles in grid units
-  std::vector<V3> normal;              // unit normals (0 for degenerate triangles)
-  std::vector<V3> lo, hi;              // bounding boxes (both filters test them per voxel)
-  std::vector<uint8_t> boundary;       // bit k: edge k -> k+1 is a mesh boundary edge
+  std::vector<std::array<Vec3d, 3>> tri;  // triangles in grid units
+  std::vector<Vec3d> normal;              // unit normals (0 for degenerate triangles)
+  std::vector<Vec3d> lo, hi;              // bounding boxes (both filters test them per voxel)
+  std::vector<uint8_t> boundary;          // bit k: edge k -> k+1 is a mesh boundary edge
 };
 
 /// What child() hands down to a refined voxel's subtree (its node() call):
@@ -490,14 +472,14 @@ class Planner {
 
  private:
   /// True if every point is within `tol` (grid units) of some triangle of `tris`.
-  bool within(const std::vector<V3>& pts, const std::vector<uint32_t>& tris, double tol) const {
+  bool within(const std::vector<Vec3d>& pts, const std::vector<uint32_t>& tris, double tol) const {
     const double tol2 = tol * tol;
-    for (const V3& p : pts) {
+    for (const Vec3d& p : pts) {
       bool ok = false;
       for (uint32_t t : tris) {
         const auto& v = tri_[t];
         // Cheap reject by the triangle's bounding box (precomputed).
-        const V3 bl = tlo_[t], bh = thi_[t];
+        const Vec3d bl = tlo_[t], bh = thi_[t];
         const double bx = std::max(bl.x - p.x, p.x - bh.x);
         const double by = std::max(bl.y - p.y, p.y - bh.y);
         const double bz = std::max(bl.z - p.z, p.z - bh.z);
@@ -514,7 +496,7 @@ class Planner {
 
   /// Quantizes direction `dir` to the 6-bit contour normal; false for a zero
   /// direction.
-  static bool quantize(V3 dir, int n[3]) {
+  static bool quantize(Vec3d dir, int n[3]) {
     const double m = std::max({std::fabs(dir.x), std::fabs(dir.y), std::fabs(dir.z)});
     if (!(m > 0)) return false;
     n[0] = std::clamp(int(std::lround(dir.x * 31.0 / m)), -32, 31);
@@ -530,10 +512,10 @@ class Planner {
   /// vectorizes without reordering any reduction -- each mn[c] / mx[c] sees
   /// the points in the same order and the same dot() arithmetic as a
   /// per-candidate loop, hence bit-identical extrema.
-  static void ranges(const std::vector<V3>& pts, size_t C, const double* nx, const double* ny,
+  static void ranges(const std::vector<Vec3d>& pts, size_t C, const double* nx, const double* ny,
                      const double* nz, double* mn, double* mx) {
     for (size_t c = 0; c < C; ++c) mn[c] = INFINITY, mx[c] = -INFINITY;
-    for (const V3& p : pts)
+    for (const Vec3d& p : pts)
       for (size_t c = 0; c < C; ++c) {
         const double d = nx[c] * p.x + ny[c] * p.y + nz[c] * p.z;  // = dot(n, p)
         mn[c] = d < mn[c] ? d : mn[c];                             // = std::min(mn, d)
@@ -544,13 +526,13 @@ class Planner {
   /// Fits the slab of quantized normal n around the surface points' range
   /// [smin, smax] (§7.2) and scores it against P's range [pmin, pmax]
   /// (Figure 22).
-  bool fit(const int n_[3], double pmin, double pmax, double smin, double smax, V3 lo, double S,
+  bool fit(const int n_[3], double pmin, double pmax, double smin, double smax, Vec3d lo, double S,
            int depth, Candidate* out) const {
     Candidate c;
     c.n[0] = n_[0], c.n[1] = n_[1], c.n[2] = n_[2];
-    const V3 n{double(c.n[0]), double(c.n[1]), double(c.n[2])};
-    const double nl = len(n);
-    const V3 center = lo + V3{0.5 * S, 0.5 * S, 0.5 * S};
+    const Vec3d n{double(c.n[0]), double(c.n[1]), double(c.n[2])};
+    const double nl = length(n);
+    const Vec3d center = lo + Vec3d{0.5 * S, 0.5 * S, 0.5 * S};
     const double nc = dot(n, center);
     // Voxel-relative range of n . (x - c) / S, widened by the margin.
     const double margin = nl * (std::ldexp(1.0, depth - 21) + 1e-6);
@@ -610,8 +592,8 @@ class Planner {
     const uint32_t cx = 2 * px + uint32_t(i & 1), cy = 2 * py + uint32_t(i >> 1 & 1),
                    cz = 2 * pz + uint32_t(i >> 2 & 1);
     const double S = std::ldexp(1.0, L_ - cd);
-    const V3 lo{cx * S, cy * S, cz * S};
-    const V3 hi = lo + V3{S, S, S};
+    const Vec3d lo{cx * S, cy * S, cz * S};
+    const Vec3d hi = lo + Vec3d{S, S, S};
 
     // Per-thread scratch, reused across voxels (the recursion used to spend
     // a sixth of its time in malloc/free). Only used between here and the
@@ -619,27 +601,27 @@ class Planner {
     // so a task stolen by this thread cannot clobber it. ct is carried down
     // the recursion and stays a per-voxel vector.
     struct Scratch {
-      std::vector<V3> pts, poly, tmp, cand_dirs, pv;
+      std::vector<Vec3d> pts, poly, tmp, cand_dirs, pv;
       std::vector<std::array<int, 3>> qn;
       std::vector<double> f;
       Polyhedron P;
     };
     thread_local Scratch sc;
-    std::vector<V3>& pts = sc.pts;
-    std::vector<V3>& poly = sc.poly;
-    std::vector<V3>& tmp = sc.tmp;
-    std::vector<V3>& cand_dirs = sc.cand_dirs;
-    std::vector<V3>& pv = sc.pv;
+    std::vector<Vec3d>& pts = sc.pts;
+    std::vector<Vec3d>& poly = sc.poly;
+    std::vector<Vec3d>& tmp = sc.tmp;
+    std::vector<Vec3d>& cand_dirs = sc.cand_dirs;
+    std::vector<Vec3d>& pv = sc.pv;
     pts.clear();
     cand_dirs.clear();
 
     // 1. The surface inside the cube.
     std::vector<uint32_t> ct;
-    V3 mean{0, 0, 0};
-    const V3 planes[6] = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
+    Vec3d mean{0, 0, 0};
+    const Vec3d planes[6] = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
     const double offs[6] = {hi.x, -lo.x, hi.y, -lo.y, hi.z, -lo.z};
     for (uint32_t t : tris) {
-      const V3 bl = tlo_[t], bh = thi_[t];
+      const Vec3d bl = tlo_[t], bh = thi_[t];
       if (bh.x < lo.x || bl.x > hi.x || bh.y < lo.y || bl.y > hi.y || bh.z < lo.z || bl.z > hi.z)
         continue;
       const auto& v = tri_[t];
@@ -661,7 +643,7 @@ class Planner {
       if (poly.empty()) continue;
       ct.push_back(t);
       pts.insert(pts.end(), poly.begin(), poly.end());
-      const V3 an = cross(v[1] - v[0], v[2] - v[0]);  // 2 x area x normal
+      const Vec3d an = cross(v[1] - v[0], v[2] - v[0]);  // 2 x area x normal
       mean = mean + an;
     }
 
@@ -686,7 +668,7 @@ class Planner {
         if (boundary_[t])
           for (int e = 0; e < 3; ++e)
             if (boundary_[t] >> e & 1) {
-              const V3 ed = tri_[t][size_t((e + 1) % 3)] - tri_[t][size_t(e)];
+              const Vec3d ed = tri_[t][size_t((e + 1) % 3)] - tri_[t][size_t(e)];
               cand_dirs.push_back(cross(ed, normal_[t]));
             }
       }
@@ -697,7 +679,7 @@ class Planner {
       // alike). Scores in candidate order, as before.
       auto& qn = sc.qn;
       qn.clear();
-      for (const V3& d : cand_dirs) {
+      for (const Vec3d& d : cand_dirs) {
         std::array<int, 3> n;
         if (!quantize(d, n.data())) continue;
         if (std::find(qn.begin(), qn.end(), n) == qn.end()) qn.push_back(n);
@@ -776,9 +758,10 @@ class Planner {
   const BuildOptions& o_;
   const int L_, Lmax_;
   std::shared_ptr<const PlannerMesh> mesh_;
-  const std::vector<std::array<V3, 3>>& tri_;
-  const std::vector<V3>& normal_;
-  const std::vector<V3>&tlo_, &thi_;  // triangle bounding boxes (both filters test them per voxel)
+  const std::vector<std::array<Vec3d, 3>>& tri_;
+  const std::vector<Vec3d>& normal_;
+  const std::vector<Vec3d>&tlo_,
+      &thi_;  // triangle bounding boxes (both filters test them per voxel)
   const std::vector<uint8_t>& boundary_;
   // Cell-by-cell build (build_cells.cpp): see the constructor.
   const int stop_depth_;
@@ -824,9 +807,9 @@ std::shared_ptr<const PlannerMesh> make_planner_mesh(const GridTransform& g, con
                               (double(p.z) - g.origin.z) * inv};
     }
     const auto& v = m->tri[i];
-    const V3 n = cross(v[1] - v[0], v[2] - v[0]);
-    const double l = len(n);
-    m->normal[i] = l > 0 ? n * (1.0 / l) : V3{0, 0, 0};
+    const Vec3d n = cross(v[1] - v[0], v[2] - v[0]);
+    const double l = length(n);
+    m->normal[i] = l > 0 ? n * (1.0 / l) : Vec3d{0, 0, 0};
     m->lo[i] = {std::min({v[0].x, v[1].x, v[2].x}), std::min({v[0].y, v[1].y, v[2].y}),
                 std::min({v[0].z, v[1].z, v[2].z})};
     m->hi[i] = {std::max({v[0].x, v[1].x, v[2].x}), std::max({v[0].y, v[1].y, v[2].y}),
@@ -893,11 +876,14 @@ bool values_exceed(const uint64_t* v, size_t b, size_t e, uint32_t color_abgr, V
                    const BuildOptions& o) {
   if (o.color_error >= 0) {
     // 8-bit sRGB codes, max channel difference (alpha is not stored, §5.5).
-    const int c[3] = {int(color_abgr & 0xFF), int(color_abgr >> 8 & 0xFF),
-                      int(color_abgr >> 16 & 0xFF)};
-    for (size_t u = b; u < e; ++u)
-      for (int ch = 0; ch < 3; ++ch)
-        if (std::abs(int(v[u] >> (8 * ch) & 0xFF) - c[ch]) > o.color_error) return true;
+    using layout::ColorChannels;
+    const int c[3] = {int(ColorChannels::get(color_abgr, 0)),
+                      int(ColorChannels::get(color_abgr, 1)),
+                      int(ColorChannels::get(color_abgr, 2))};
+    for (size_t u = b; u < e; ++u)  // raw value: color in the low word
+      for (unsigned ch = 0; ch < 3; ++ch)
+        if (std::abs(int(ColorChannels::get(uint32_t(v[u]), ch)) - c[ch]) > o.color_error)
+          return true;
   }
   if (o.normal_error >= 0) {
     // angle > tolerance <=> cos(angle) < cos(tolerance), in double with the

@@ -9,28 +9,29 @@
 
 namespace voxcast::esvo::detail {
 
-// Child descriptor word 0 fields (§5.1, Figure 2).
-//   | 31..17 child pointer | 16 far | 15..8 valid mask | 7..0 leaf mask |
-inline constexpr uint32_t kPointerShift = 17;
-inline constexpr uint32_t kFarBit = 0x10000u;
-inline constexpr uint32_t kMaxNearPointer = (1u << 15) - 1;
+// Child descriptor fields: esvo::layout (include/voxcast/esvo.hpp).
+inline constexpr uint32_t kMaxNearPointer = layout::ChildPointer::max;
 inline uint32_t valid_mask(uint32_t w0) {
-  return (w0 >> 8) & 0xFFu;
+  return layout::ValidMask::get(w0);
 }
 inline uint32_t leaf_mask(uint32_t w0) {
-  return w0 & 0xFFu;
+  return layout::LeafMask::get(w0);
 }
 inline uint32_t non_leaf_mask(uint32_t w0) {
   return valid_mask(w0) & ~leaf_mask(w0);
 }
-// Child descriptor word 1 (§5.2): | 31..8 contour pointer | 7..0 contour mask |
-inline constexpr uint32_t kContourPointerShift = 8;
-inline constexpr uint32_t kMaxContourPointer = (1u << 24) - 1;
+inline uint32_t child_pointer(uint32_t w0) {
+  return layout::ChildPointer::get(w0);
+}
+inline bool is_far(uint32_t w0) {
+  return layout::FarBit::test(w0);
+}
+inline constexpr uint32_t kMaxContourPointer = layout::ContourPointer::max;
 inline uint32_t contour_mask(uint32_t w1) {
-  return w1 & 0xFFu;
+  return layout::ContourMask::get(w1);
 }
 inline uint32_t contour_pointer(uint32_t w1) {
-  return w1 >> kContourPointerShift;
+  return layout::ContourPointer::get(w1);
 }
 
 // Info section layout (word offsets from the info section).
@@ -68,8 +69,8 @@ inline size_t find_color_attachment(const uint32_t* w, size_t info, uint32_t* ty
 /// `slot` (follows a far pointer if the far bit is set). Unchecked.
 inline uint32_t child_group(const uint32_t* w, uint32_t slot) {
   const uint32_t w0 = w[size_t(slot) * 2];
-  const uint32_t p = slot + (w0 >> kPointerShift);
-  if (!(w0 & kFarBit)) return p;
+  const uint32_t p = slot + child_pointer(w0);
+  if (!is_far(w0)) return p;
   return uint32_t(int64_t(slot) + int32_t(w[size_t(p) * 2]));
 }
 

@@ -79,11 +79,11 @@ MemoryStats EsvoOctree::memory_stats() const {
   walk(*this, [&](uint32_t slot, int, uint64_t) {
     ++descriptors;
     const uint32_t w0 = w[size_t(slot) * 2];
-    const bool has_far = (w0 & detail::kFarBit) && detail::non_leaf_mask(w0);
+    const bool has_far = detail::is_far(w0) && detail::non_leaf_mask(w0);
     far += has_far ? 1 : 0;
     if (compressed) {
       used[slot] = 1;
-      if (has_far) used[slot + (w0 >> detail::kPointerShift)] = 2;
+      if (has_far) used[slot + detail::child_pointer(w0)] = 2;
     }
   });
   uint64_t pages = 0;

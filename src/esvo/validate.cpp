@@ -188,21 +188,23 @@ void EsvoOctree::validate() const {
     if (block->attach_type == kAttachRawColorNormal) {
       const uint32_t entry = w[block->attach + 2 + (s - block->first_slot)];
       if ((entry & valid) != valid) fail_at("missing attribute", s);
-      if (uint64_t(entry >> 8) + uint64_t(std::popcount(entry & 0xFFu)) > block->value_count)
+      if (uint64_t(layout::ValuePointer::get(entry)) +
+              uint64_t(std::popcount(layout::AttributeMask::get(entry))) >
+          block->value_count)
         fail_at("attribute pointer out of range", s);
     } else {
       // §5.5: the descriptor's pair must have a compression block.
       const uint64_t pair = (s - block->first_slot) >> 1;
       if (pair >= block->pair_count) fail_at("missing compression block", s);
       const uint32_t base = w[block->attach + 2 + kCompressedBlockWords * pair + 2];
-      if (base >> 29 > 5) fail_at("bad compressed base normal", s);
+      if (layout::NormalFace::get(base) > 5) fail_at("bad compressed base normal", s);
     }
 
     if (!nl) continue;
-    const uint32_t ptr = w0 >> kPointerShift;
+    const uint32_t ptr = child_pointer(w0);
     if (ptr == 0) fail_at("child pointer does not point forward", s);
     int64_t group = int64_t(s) + ptr;
-    if (w0 & kFarBit) {
+    if (is_far(w0)) {
       if (!block_of(group)) fail_at("far pointer out of range", s);
       const int32_t off = int32_t(w[size_t(group) * 2]);
       if (off <= 0) fail_at("far pointer does not point forward", s);

@@ -14,31 +14,15 @@
 
 #include "voxcast/error.hpp"
 #include "voxcast/image.hpp"
+#include "voxcast/math.hpp"
 
 namespace voxcast::generate {
 namespace {
 
-// Double-precision vector for the generators (positions are rounded to float
-// only when stored).
-struct Vec3d {
-  double x, y, z;
-};
-Vec3d operator+(Vec3d a, Vec3d b) {
-  return {a.x + b.x, a.y + b.y, a.z + b.z};
-}
-Vec3d operator-(Vec3d a, Vec3d b) {
-  return {a.x - b.x, a.y - b.y, a.z - b.z};
-}
-Vec3d operator*(Vec3d a, double s) {
-  return {a.x * s, a.y * s, a.z * s};
-}
-double dot(Vec3d a, Vec3d b) {
-  return a.x * b.x + a.y * b.y + a.z * b.z;
-}
-Vec3d cross(Vec3d a, Vec3d b) {
-  return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
-}
-Vec3d normalize(Vec3d a) {
+// The generators compute in double (voxcast::Vec3d); positions are rounded to
+// float only when stored. unit_of() multiplies by the reciprocal length (not
+// voxcast::normalize's division): the generated meshes' bytes depend on it.
+Vec3d unit_of(Vec3d a) {
   return a * (1.0 / std::sqrt(dot(a, a)));
 }
 
@@ -104,10 +88,10 @@ Mesh hairball(const HairballOptions& o) {
     Vec3d d = rng.unit();
     for (uint64_t i = 0; i < rings; ++i) {
       path[size_t(i)] = p;
-      d = normalize(d + rng.unit() * 0.35);
+      d = unit_of(d + rng.unit() * 0.35);
       Vec3d q = p + d * o.step;
       if (dot(q, q) > (1.0 - o.radius) * (1.0 - o.radius)) {
-        const Vec3d n = normalize(p);
+        const Vec3d n = unit_of(p);
         if (dot(d, n) > 0) d = d - n * (2 * dot(d, n));
         q = p + d * o.step;
         if (dot(q, q) > 1) q = p;  // cannot happen for step < 1, kept for safety
@@ -116,21 +100,21 @@ Mesh hairball(const HairballOptions& o) {
     }
     // Frame transported along the polyline (rotation-minimizing by projection).
     const uint32_t base = uint32_t(m.positions.size());
-    Vec3d tan = normalize(path[1] - path[0]);
+    Vec3d tan = unit_of(path[1] - path[0]);
     Vec3d a = std::fabs(tan.x) < 0.9 ? Vec3d{1, 0, 0} : Vec3d{0, 1, 0};
-    Vec3d u = normalize(cross(tan, a));
+    Vec3d u = unit_of(cross(tan, a));
     for (uint64_t i = 0; i < rings; ++i) {
       const Vec3d prev = path[size_t(i == 0 ? 0 : i - 1)];
       const Vec3d next = path[size_t(i + 1 == rings ? i : i + 1)];
       Vec3d tn = next - prev;
       if (dot(tn, tn) > 1e-24)
-        tn = normalize(tn);
+        tn = unit_of(tn);
       else
         tn = tan;
       Vec3d un = u - tn * dot(u, tn);
       if (dot(un, un) < 1e-12)
-        un = normalize(cross(tn, std::fabs(tn.x) < 0.9 ? Vec3d{1, 0, 0} : Vec3d{0, 1, 0}));
-      u = normalize(un);
+        un = unit_of(cross(tn, std::fabs(tn.x) < 0.9 ? Vec3d{1, 0, 0} : Vec3d{0, 1, 0}));
+      u = unit_of(un);
       tan = tn;
       const Vec3d v = cross(tan, u);
       for (int s = 0; s < o.sides; ++s) {

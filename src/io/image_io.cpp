@@ -123,16 +123,6 @@ std::string read_whole_file(const std::filesystem::path& path) {
 
 }  // namespace
 
-float srgb_to_linear(float c) {
-  if (c <= 0.04045f) return c / 12.92f;
-  return std::pow((c + 0.055f) / 1.055f, 2.4f);
-}
-
-float linear_to_srgb(float c) {
-  if (c <= 0.0031308f) return c * 12.92f;
-  return 1.055f * std::pow(c, 1.0f / 2.4f) - 0.055f;
-}
-
 void write_image(const std::filesystem::path& path, const Image& image, bool already_srgb) {
   std::string ext = lower_extension(path);
   if (ext != ".png" && ext != ".pfm")

@@ -150,7 +150,7 @@ bool query_leaf(const esvo::EsvoOctree& octree, uint32_t x, uint32_t y, uint32_t
     const int shift = levels - 1 - depth;
     const int i = int((x >> shift) & 1) | int((y >> shift) & 1) << 1 | int((z >> shift) & 1) << 2;
     const uint32_t w0 = octree.slot_ptr(slot)[0];
-    const uint32_t valid = (w0 >> 8) & 0xFF, leaf = w0 & 0xFF;
+    const uint32_t valid = esvo::layout::ValidMask::get(w0), leaf = esvo::layout::LeafMask::get(w0);
     if (!(valid & (1u << i))) return false;
     if (leaf & (1u << i)) {
       if (parent_slot) *parent_slot = slot;
@@ -158,14 +158,20 @@ bool query_leaf(const esvo::EsvoOctree& octree, uint32_t x, uint32_t y, uint32_t
       return depth == levels - 1;
     }
     // Non-leaf child: its descriptor is the popcount-th of the parent's group.
-    uint32_t first = slot + (w0 >> 17);
-    if (w0 & 0x10000u) first = uint32_t(int64_t(slot) + int32_t(octree.slot_ptr(first)[0]));
+    uint32_t first = slot + esvo::layout::ChildPointer::get(w0);
+    if (esvo::layout::FarBit::test(w0))
+      first = uint32_t(int64_t(slot) + int32_t(octree.slot_ptr(first)[0]));
     const uint32_t non_leaf = valid & ~leaf;
     slot = first + uint32_t(std::popcount(non_leaf & ((1u << i) - 1)));
   }
   return false;
 }
 
+// Hand-built from the documented layout (an oracle independent of
+// esvo::layout), pinned to it:
+static_assert((5u << 17 | 1u << 16 | 0xA5u << 8 | 0x21u) ==
+              (esvo::layout::ChildPointer::put(5) | esvo::layout::FarBit::put(1) |
+               esvo::layout::ValidMask::put(0xA5) | esvo::layout::LeafMask::put(0x21)));
 uint32_t desc(uint32_t child_ptr, bool far, uint32_t valid, uint32_t leaf) {
   return child_ptr << 17 | (far ? 1u : 0u) << 16 | valid << 8 | leaf;
 }

@@ -3,10 +3,15 @@
 #include <memory>
 #include <voxcast/esvo_structure.hpp>
 #include <voxcast/mesh.hpp>
+#include <voxcast/morton.hpp>
 #include <voxcast/voxelize.hpp>
 
 int main(int argc, char** argv) {
   if (argc < 2) return 2;
+  // Built without voxcast's -march (not propagated): the inline Morton
+  // helpers must work with the consumer's own ISA.
+  const voxcast::MortonCoord mc = voxcast::morton_decode(voxcast::morton_encode(1000, 2, 77777));
+  if (mc.x != 1000 || mc.y != 2 || mc.z != 77777) return 3;
   voxcast::Mesh mesh = voxcast::load_mesh(argv[1]);
   auto grid = voxcast::GridTransform::fit(mesh.bounds(), 64);
   voxcast::VoxelSet voxels = voxcast::voxelize(mesh, grid, {});
