@@ -4,6 +4,7 @@
 #include <filesystem>
 #include <memory>
 
+#include "cli_io.hpp"
 #include "commands.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/generate.hpp"
@@ -27,7 +28,9 @@ Runner add_generate(CLI::App& app) {
       "terrain (fBm height field)");
   cmd->add_option("KIND", args->kind, "hairball | menger | terrain")->required();
   cmd->add_option("-o,--output", args->output, "Output mesh (.obj or binary .ply)")->required();
-  cmd->add_option("--seed", args->seed, "Random seed (hairball, terrain)")->capture_default_str();
+  cmd->add_option("--seed", args->seed, "Random seed (hairball, terrain)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);  // an unsigned option would take "-1" as 2^64-1
   cmd->add_option("--tubes", args->tubes, "hairball: number of tubes")->capture_default_str();
   cmd->add_option("--segments", args->segments, "hairball: steps per tube")->capture_default_str();
   cmd->add_option("--sides", args->sides, "hairball: sides of the tube cross-section")
@@ -44,34 +47,44 @@ Runner add_generate(CLI::App& app) {
   cmd->add_option("--persistence", args->persistence, "terrain: amplitude factor per octave")
       ->capture_default_str();
   return [args]() {
-    if (std::filesystem::is_directory(args->output))
-      throw Error("output '" + args->output + "' is a directory");
+    if (args->kind != "hairball" && args->kind != "menger" && args->kind != "terrain")
+      throw UsageError("generate: '" + printable(args->kind) +
+                       "' is not hairball, menger or terrain");
+    OutputSet outputs({});
+    outputs.add("-o", args->output, {".obj", ".ply"});
     Mesh mesh;
-    if (args->kind == "hairball") {
-      generate::HairballOptions o;
-      o.seed = args->seed;
-      o.tubes = args->tubes;
-      o.segments = args->segments;
-      o.sides = args->sides;
-      o.radius = args->radius;
-      o.step = args->step;
-      mesh = generate::hairball(o);
-    } else if (args->kind == "menger") {
-      mesh = generate::menger(args->level);
-    } else if (args->kind == "terrain") {
-      generate::TerrainOptions o;
-      o.seed = args->seed;
-      o.size = args->size;
-      o.octaves = args->octaves;
-      o.height = args->height;
-      o.persistence = args->persistence;
-      mesh = generate::terrain(o);
-    } else {
-      throw Error("generate: '" + args->kind + "' is not hairball, menger or terrain");
+    try {
+      if (args->kind == "hairball") {
+        generate::HairballOptions o;
+        o.seed = args->seed;
+        o.tubes = args->tubes;
+        o.segments = args->segments;
+        o.sides = args->sides;
+        o.radius = args->radius;
+        o.step = args->step;
+        mesh = generate::hairball(o);
+      } else if (args->kind == "menger") {
+        mesh = generate::menger(args->level);
+      } else {
+        generate::TerrainOptions o;
+        o.seed = args->seed;
+        o.size = args->size;
+        o.octaves = args->octaves;
+        o.height = args->height;
+        o.persistence = args->persistence;
+        mesh = generate::terrain(o);
+      }
+    } catch (const Error& e) {
+      // The generators check their parameters (NaN-safe ranges, triangle
+      // counts that fit 32-bit indices) before building anything, and
+      // nothing else they do can fail with voxcast::Error: a bad option.
+      throw UsageError(e.what());
     }
-    generate::write_mesh(args->output, mesh);
-    std::printf("%s: %s, %zu triangles, %zu vertices\n", args->output.c_str(), args->kind.c_str(),
-                mesh.triangle_count(), mesh.positions.size());
+    outputs.write(args->output,
+                  [&](const std::filesystem::path& to) { generate::write_mesh(to, mesh); });
+    outputs.commit();
+    std::printf("%s: %s, %zu triangles, %zu vertices\n", printable(args->output).c_str(),
+                args->kind.c_str(), mesh.triangle_count(), mesh.positions.size());
     return 0;
   };
 }
