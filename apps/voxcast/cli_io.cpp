@@ -96,6 +96,18 @@ std::string in_quotes(const fs::path& path) {
 
 // ------------------------------------------------------------ numbers
 
+const CLI::Validator& not_negative() {
+  static const CLI::Validator v(
+      [](std::string& text) -> std::string {
+        const size_t first = text.find_first_not_of(" \t");
+        if (first != std::string::npos && text[first] == '-')
+          return printable(text) + " is negative; expected a whole number >= 0";
+        return {};
+      },
+      "", "NOT_NEGATIVE");
+  return v;
+}
+
 void require_range(const char* option, double value, double lo, double hi) {
   if (std::isfinite(value) && value >= lo && value <= hi) return;
   auto num = [](double v) {

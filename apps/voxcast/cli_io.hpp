@@ -5,6 +5,7 @@
 // data (OutputSet).
 #include <sys/types.h>
 
+#include <CLI/CLI.hpp>
 #include <cstdint>
 #include <filesystem>
 #include <initializer_list>
@@ -36,6 +37,9 @@ std::string in_quotes(const std::filesystem::path& path);
 /// regular file: opening a FIFO blocks until a writer appears, a device never
 /// ends, a directory is no file. Symlinks are followed.
 void require_regular_input(const std::string& path, const char* what);
+
+/// For unsigned options: CLI11 would read "-1" as 2^N-1.
+const CLI::Validator& not_negative();
 
 /// `value` must be finite and within [lo, hi]; else a UsageError naming
 /// `option` and the range. Integers are checked through double (exact to 2^53).

@@ -99,7 +99,7 @@ Runner add_bench(CLI::App& app) {
   cmd->add_option("MESH", args->input, "Input mesh")->required();
   cmd->add_option("--resolution", args->resolution, "Voxels per axis (power of two)")
       ->capture_default_str()
-      ->check(CLI::NonNegativeNumber);
+      ->check(not_negative());
   cmd->add_option("--size", args->size,
                   "Image size WxH, or a comma-separated list of sizes measured one after another")
       ->capture_default_str();

@@ -44,7 +44,7 @@ Runner add_build(CLI::App& app) {
   auto* res = cmd->add_option("--resolution", args->resolution,
                               "Voxels per axis: a power of two, 1..1048576 (default 1024)")
                   // Unsigned options would take "-1" as 2^32-1.
-                  ->check(CLI::NonNegativeNumber);
+                  ->check(not_negative());
   args->voxel_size_opt =
       cmd->add_option("--voxel-size", args->voxel_size,
                       "Largest voxel size in world units (resolution rounded up to a power of two)")
@@ -68,7 +68,7 @@ Runner add_build(CLI::App& app) {
       cmd->add_option(
              "--cell-size", args->cell_size,
              "Out-of-core: sub-volume side in voxels (power of two; default from the budget)")
-          ->check(CLI::NonNegativeNumber);
+          ->check(not_negative());
   cmd->add_flag("--no-attributes", args->no_attributes,
                 "DAG: geometry only (no colors/normals; needed at very high resolutions)");
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)");

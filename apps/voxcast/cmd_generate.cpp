@@ -30,7 +30,7 @@ Runner add_generate(CLI::App& app) {
   cmd->add_option("-o,--output", args->output, "Output mesh (.obj or binary .ply)")->required();
   cmd->add_option("--seed", args->seed, "Random seed (hairball, terrain)")
       ->capture_default_str()
-      ->check(CLI::NonNegativeNumber);  // an unsigned option would take "-1" as 2^64-1
+      ->check(not_negative());  // an unsigned option would take "-1" as 2^64-1
   cmd->add_option("--tubes", args->tubes, "hairball: number of tubes")->capture_default_str();
   cmd->add_option("--segments", args->segments, "hairball: steps per tube")->capture_default_str();
   cmd->add_option("--sides", args->sides, "hairball: sides of the tube cross-section")

@@ -121,7 +121,7 @@ Runner add_render(CLI::App& app) {
                   "Also write the AO term as an image (.png or .pfm)");
   cmd->add_option("--seed", args->seed, "Seed of the per-pixel effect samples")
       ->capture_default_str()
-      ->check(CLI::NonNegativeNumber);
+      ->check(not_negative());
   cmd->add_option("--memory-budget", args->memory_budget,
                   "Refuse renders estimated to need more (e.g. 2G; default 90% of free memory)");
   return [args]() {
