@@ -520,6 +520,8 @@ TEST(CliInputs, MessagesArePrintableUtf8WithoutJsonJargon) {
                                 (cmd == "render " ? " -o " + s.dir.file("m.png") : ""));
     expect_error(m, 1);
     EXPECT_EQ(m.errors.find("json.exception"), std::string::npos) << m.errors;
+    EXPECT_EQ(m.errors.find("last read"), std::string::npos) << m.errors;
+    EXPECT_NE(m.errors.find("line 1, column"), std::string::npos) << m.errors;
     EXPECT_TRUE(is_valid_utf8(m.errors)) << m.errors;
   }
 }

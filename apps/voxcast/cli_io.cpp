@@ -56,6 +56,16 @@ size_t utf8_sequence(std::string_view s, size_t i) {
 }  // namespace
 
 std::string printable(std::string_view s) {
+  // nlohmann::json parse errors go on, after "parse error at line L, column
+  // C:", in the parser's terms ("syntax error while parsing object key -
+  // invalid literal; last read: ..."): the position is what a user can use.
+  std::string trimmed;
+  if (const size_t at = s.find("parse error at line "); at != std::string_view::npos) {
+    if (const size_t colon = s.find(':', at); colon != std::string_view::npos) {
+      trimmed = std::string(s.substr(0, colon));
+      s = trimmed;
+    }
+  }
   std::string out;
   out.reserve(s.size());
   bool space = false;
