@@ -358,6 +358,7 @@ TEST(CliConvention, EveryNumericOptionIsRangeChecked) {
       {g + "terrain --octaves 17" + o, "octaves"},
       {g + "terrain --height nan" + o, "height"},
       {g + "terrain --persistence 2" + o, "persistence"},
+      {g + "menger --memory-budget " + twice_memory + o, "--memory-budget"},
   };
   for (const Case& c : cases) {
     SCOPED_TRACE(c.args);
@@ -540,8 +541,17 @@ TEST(CliResources, MemoryBudgetsAreCheckedBeforeAllocating) {
   expect_error(run_cli_split("build " + s.dir.file("big.obj") + " -o " + s.dir.file("a.vxc") +
                              " --resolution 1 --memory-budget 32K"),
                1, "memory budget");
+  // A generated mesh too large for the budget is refused before it is built.
+  expect_error(
+      run_cli_split("generate terrain --size 1024 --memory-budget 1M -o " + s.dir.file("t.ply")), 1,
+      "memory budget");
+  expect_error(run_cli_split("generate hairball --tubes 100000 --memory-budget 10M -o " +
+                             s.dir.file("h.obj")),
+               1, "memory budget");
   EXPECT_FALSE(std::filesystem::exists(s.dir.file("a.png")));
   EXPECT_FALSE(std::filesystem::exists(s.dir.file("a.vxc")));
+  EXPECT_FALSE(std::filesystem::exists(s.dir.file("t.ply")));
+  EXPECT_FALSE(std::filesystem::exists(s.dir.file("h.obj")));
 }
 
 // The build estimate (printed when it exceeds the budget) depends on the
