@@ -99,10 +99,9 @@ Runner add_build(CLI::App& app) {
     require_power_of_two("--resolution", args->resolution, 1, uint64_t(1) << 20);
     s.resolution = args->resolution;
     if (args->voxel_size_opt->count()) {
-      // Up to the finest grid of a unit-sized mesh; the mesh decides later
-      // whether the grid fits (GridTransform::fit_voxel_size).
+      // Finite and positive; whether the grid it implies fits the mesh is
+      // known once the mesh is read (GridTransform::fit_voxel_size).
       require_range("--voxel-size", args->voxel_size, 1e-30, 1e30);
-      if (!(args->voxel_size > 0)) throw UsageError("--voxel-size must be a positive number");
       s.voxel_size = args->voxel_size;
     }
     s.mode = parse_voxelization(args->voxelization);
