@@ -799,8 +799,7 @@ TEST(MeshImport, FifoIsRefusedNotHung) {
 // glTF whose buffer is missing or short: the message names the buffer and
 // the cause instead of Assimp's "No suitable reader found".
 TEST(MeshImport, GltfWithMissingOrShortBufferNamesIt) {
-  const fs::path box = kAssimpModels / "glTF2/BoxTextured-glTF";
-  REQUIRE_DIR(box);
+  const fs::path box = voxcast::testing::assimp_model("glTF2/BoxTextured-glTF");
   TempDir tmp;
   for (const auto& e : fs::directory_iterator(box))
     fs::copy_file(e.path(), tmp.path / e.path().filename());
@@ -817,26 +816,23 @@ TEST(MeshImport, GltfWithMissingOrShortBufferNamesIt) {
   EXPECT_NE(msg.find("BoxTextured0.bin"), std::string::npos) << msg;
   EXPECT_NE(msg.find("not next to the model"), std::string::npos) << msg;
   // glTF 1 (the truck): Assimp's answer to a short buffer is "No suitable reader found".
-  const fs::path truck = kShared / "CesiumMilkTruck";
-  if (fs::is_directory(truck)) {
-    for (const auto& e : fs::directory_iterator(truck))
-      fs::copy_file(e.path(), tmp.path / e.path().filename());
-    fs::resize_file(tmp.path / "CesiumMilkTruck.bin", 20000);
-    msg = load_error(tmp.path / "CesiumMilkTruck.gltf");
-    EXPECT_EQ(msg.find("No suitable reader"), std::string::npos) << msg;
-    EXPECT_NE(msg.find("CesiumMilkTruck.bin"), std::string::npos) << msg;
-  }
+  const fs::path truck = voxcast::testing::test_mesh("CesiumMilkTruck");
+  for (const auto& e : fs::directory_iterator(truck))
+    fs::copy_file(e.path(), tmp.path / e.path().filename());
+  fs::resize_file(tmp.path / "CesiumMilkTruck.bin", 20000);
+  msg = load_error(tmp.path / "CesiumMilkTruck.gltf");
+  EXPECT_EQ(msg.find("No suitable reader"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("CesiumMilkTruck.bin"), std::string::npos) << msg;
   // A truncated .glb.
-  const fs::path glb = kAssimpModels / "glTF2/BoxTextured-glTF-Binary/BoxTextured.glb";
-  if (fs::exists(glb)) {
-    std::ifstream in(glb, std::ios::binary);
-    std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-    const fs::path cut = tmp.write("cut.glb", bytes.substr(0, bytes.size() / 3));
-    msg = load_error(cut);
-    expect_one_line_naming(msg, cut);
-    EXPECT_NE(msg.find("truncated"), std::string::npos) << msg;
-    EXPECT_EQ(msg.find("No suitable reader"), std::string::npos) << msg;
-  }
+  const fs::path glb =
+      voxcast::testing::assimp_model("glTF2/BoxTextured-glTF-Binary/BoxTextured.glb");
+  std::ifstream in(glb, std::ios::binary);
+  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const fs::path cut = tmp.write("cut.glb", bytes.substr(0, bytes.size() / 3));
+  msg = load_error(cut);
+  expect_one_line_naming(msg, cut);
+  EXPECT_NE(msg.find("truncated"), std::string::npos) << msg;
+  EXPECT_EQ(msg.find("No suitable reader"), std::string::npos) << msg;
   // An extension no importer knows.
   const fs::path txt = tmp.write("notes.txt", "just text\n");
   msg = load_error(txt);
@@ -845,8 +841,7 @@ TEST(MeshImport, GltfWithMissingOrShortBufferNamesIt) {
 
 // Assimp drops glTF faces with out-of-range indices and only logs it.
 TEST(MeshImport, GltfWithOutOfRangeIndicesIsAnError) {
-  const fs::path dir = kAssimpModels / "glTF2/IndexOutOfRange";
-  REQUIRE_DIR(dir);
+  const fs::path dir = voxcast::testing::assimp_model("glTF2/IndexOutOfRange");
   for (const char* f : {"IndexOutOfRange.gltf", "AllIndicesOutOfRange.gltf"}) {
     const std::string msg = load_error(dir / f);
     expect_one_line_naming(msg, dir / f);
@@ -857,8 +852,7 @@ TEST(MeshImport, GltfWithOutOfRangeIndicesIsAnError) {
 // Nothing an importer prints reaches the user's terminal: OpenGEX's parser
 // prints "nullptr returned by creating DDLNode." on this file.
 TEST(MeshImport, ImporterOutputStaysOffTheTerminal) {
-  const fs::path p = kAssimpModels / "OpenGEX/empty_camera.ogex";
-  if (!fs::exists(p)) GTEST_SKIP() << p << " is not present";
+  const fs::path p = voxcast::testing::assimp_model("OpenGEX/empty_camera.ogex");
   ::testing::internal::CaptureStderr();
   ::testing::internal::CaptureStdout();
   const std::string msg = load_error(p);
