@@ -194,7 +194,7 @@ TEST(Generate, CliWritesAndRejectsBadInput) {
         Bad{"generate hairball --sides 2 -o " + dir.file("x.obj"), "sides 2"},
         Bad{"generate menger -o " + dir.file("x.stl"), "must end in .obj or .ply"}}) {
     r = testing::run_cli(b.args);
-    EXPECT_EQ(r.exit_code, 1) << b.args << "\n" << r.output;
+    EXPECT_EQ(r.exit_code, 2) << b.args << "\n" << r.output;  // usage errors
     EXPECT_NE(r.output.find("voxcast: error: "), std::string::npos) << r.output;
     EXPECT_NE(r.output.find(b.message), std::string::npos) << r.output;
   }

@@ -1,5 +1,6 @@
 // Mesh import (Assimp), Mesh helpers, Texture::sample and validate_mesh.
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cmath>
@@ -718,4 +719,146 @@ TEST(MeshImport, MalformedPlyHeaderIsRejectedNotHung) {
   EXPECT_NE(load_error(r).find("more than"), std::string::npos);
   fs::path t = tmp.write("magic.ply", "plyq3o\nformat ascii 1.0\nelement vertex 3\n");
   EXPECT_NE(load_error(t).find("PLY"), std::string::npos);
+}
+
+// ------------------------------------------- hardening (issue 15, item 5)
+
+// NaN/Inf positions are an error in every format, also where Assimp's
+// JoinIdenticalVertices would merge the NaN vertex with another one and the
+// triangle would then be dropped as "degenerate" (ASCII/binary PLY, OFF with
+// more than one face).
+TEST(MeshImport, NonFiniteCoordinatesAreAnErrorInEveryFormat) {
+  TempDir tmp;
+  const std::string ply_head =
+      "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+      "property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n";
+  std::string bin_ply =
+      "ply\nformat binary_little_endian 1.0\nelement vertex 4\nproperty float x\n"
+      "property float y\nproperty float z\nelement face 2\n"
+      "property list uchar int vertex_indices\nend_header\n";
+  const float verts[12] = {0, 0, 0, std::nanf(""), 0, 0, 0, 1, 0, 1, 1, 1};
+  bin_ply.append(reinterpret_cast<const char*>(verts), sizeof verts);
+  for (const int32_t face : {0, 1}) {
+    const int32_t idx[3] = {0, face ? 2 : 1, face ? 3 : 2};
+    bin_ply.push_back(3);
+    bin_ply.append(reinterpret_cast<const char*>(idx), sizeof idx);
+  }
+  std::vector<fs::path> files = {tmp.write("bin.ply", bin_ply)};
+  for (const char* bad : {"nan", "NaN", "-nan", "inf", "-Infinity", "1e999"}) {
+    const std::string b = bad;
+    files.push_back(tmp.write("a_" + std::to_string(files.size()) + ".ply",
+                              ply_head + "0 0 0\n" + b + " 0 0\n0 1 0\n1 1 1\n3 0 1 2\n3 0 2 3\n"));
+    files.push_back(
+        tmp.write("o_" + std::to_string(files.size()) + ".off",
+                  "OFF\n4 2 0\n0 0 0\n" + b + " 0 0\n0 1 0\n1 1 1\n3 0 1 2\n3 0 2 3\n"));
+    files.push_back(tmp.write("j_" + std::to_string(files.size()) + ".obj",
+                              "v 0 0 0\nv " + b + " 0 0\nv 0 1 0\nv 1 1 1\nf 1 2 3\nf 1 3 4\n"));
+    files.push_back(tmp.write(
+        "s_" + std::to_string(files.size()) + ".stl",
+        "solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex " + b +
+            " 0 0\nvertex 0 1 0\nendloop\nendfacet\nfacet normal 0 0 1\nouter loop\nvertex 0 0 "
+            "0\nvertex 1 1 1\nvertex 0 1 0\nendloop\nendfacet\nendsolid x\n"));
+  }
+  for (const fs::path& p : files) {
+    SCOPED_TRACE(p.string());
+    const std::string msg = load_error(p);
+    expect_one_line_naming(msg, p);
+    EXPECT_NE(msg.find("non-finite"), std::string::npos) << msg;
+  }
+}
+
+// When every triangle is dropped, the message says why, in correct English.
+TEST(MeshImport, AllDegenerateMessageGivesTheReason) {
+  TempDir tmp;
+  const std::string one_flat =
+      load_error(tmp.write("flat.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n2 0 0\n3 0 1 2\n"));
+  EXPECT_NE(one_flat.find("the only triangle is degenerate (zero area"), std::string::npos)
+      << one_flat;
+  EXPECT_EQ(one_flat.find("all 1"), std::string::npos) << one_flat;
+  const std::string one_repeat = load_error(tmp.write("rep.obj", "v 0 0 0\nv 1 0 0\nf 1 1 2\n"));
+  EXPECT_NE(one_repeat.find("the only triangle is degenerate (it uses one vertex twice)"),
+            std::string::npos)
+      << one_repeat;
+  const std::string mixed = load_error(
+      tmp.write("mixed.obj", "v 0 0 0\nv 1 0 0\nv 2 0 0\nv 3 0 0\nf 1 2 3\nf 2 3 4\nf 1 1 2\n"));
+  EXPECT_NE(mixed.find("all 3 triangles are degenerate (1 uses one vertex twice, 2 have zero "
+                       "area)"),
+            std::string::npos)
+      << mixed;
+}
+
+TEST(MeshImport, FifoIsRefusedNotHung) {
+  TempDir tmp;
+  const fs::path fifo = tmp.path / "pipe.obj";
+  ASSERT_EQ(mkfifo(fifo.c_str(), 0600), 0);
+  const std::string msg = load_error(fifo);  // would block in open() if it were opened
+  expect_one_line_naming(msg, fifo);
+  EXPECT_NE(msg.find("not a regular file"), std::string::npos) << msg;
+}
+
+// glTF whose buffer is missing or short: the message names the buffer and
+// the cause instead of Assimp's "No suitable reader found".
+TEST(MeshImport, GltfWithMissingOrShortBufferNamesIt) {
+  const fs::path box = voxcast::testing::assimp_model("glTF2/BoxTextured-glTF");
+  TempDir tmp;
+  for (const auto& e : fs::directory_iterator(box))
+    fs::copy_file(e.path(), tmp.path / e.path().filename());
+  const fs::path gltf = tmp.path / "BoxTextured.gltf", bin = tmp.path / "BoxTextured0.bin";
+  ASSERT_TRUE(fs::exists(bin));
+  EXPECT_NO_THROW(load_mesh(gltf));
+  fs::resize_file(bin, 100);
+  std::string msg = load_error(gltf);
+  expect_one_line_naming(msg, gltf);
+  EXPECT_NE(msg.find("BoxTextured0.bin"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("holds 100 bytes"), std::string::npos) << msg;
+  fs::remove(bin);
+  msg = load_error(gltf);
+  EXPECT_NE(msg.find("BoxTextured0.bin"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("not next to the model"), std::string::npos) << msg;
+  // glTF 1 (the truck): Assimp's answer to a short buffer is "No suitable reader found".
+  const fs::path truck = voxcast::testing::test_mesh("CesiumMilkTruck");
+  for (const auto& e : fs::directory_iterator(truck))
+    fs::copy_file(e.path(), tmp.path / e.path().filename());
+  fs::resize_file(tmp.path / "CesiumMilkTruck.bin", 20000);
+  msg = load_error(tmp.path / "CesiumMilkTruck.gltf");
+  EXPECT_EQ(msg.find("No suitable reader"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("CesiumMilkTruck.bin"), std::string::npos) << msg;
+  // A truncated .glb.
+  const fs::path glb =
+      voxcast::testing::assimp_model("glTF2/BoxTextured-glTF-Binary/BoxTextured.glb");
+  std::ifstream in(glb, std::ios::binary);
+  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const fs::path cut = tmp.write("cut.glb", bytes.substr(0, bytes.size() / 3));
+  msg = load_error(cut);
+  expect_one_line_naming(msg, cut);
+  EXPECT_NE(msg.find("truncated"), std::string::npos) << msg;
+  EXPECT_EQ(msg.find("No suitable reader"), std::string::npos) << msg;
+  // An extension no importer knows.
+  const fs::path txt = tmp.write("notes.txt", "just text\n");
+  msg = load_error(txt);
+  EXPECT_NE(msg.find("unknown mesh format"), std::string::npos) << msg;
+}
+
+// Assimp drops glTF faces with out-of-range indices and only logs it.
+TEST(MeshImport, GltfWithOutOfRangeIndicesIsAnError) {
+  const fs::path dir = voxcast::testing::assimp_model("glTF2/IndexOutOfRange");
+  for (const char* f : {"IndexOutOfRange.gltf", "AllIndicesOutOfRange.gltf"}) {
+    const std::string msg = load_error(dir / f);
+    expect_one_line_naming(msg, dir / f);
+    EXPECT_NE(msg.find("vertices that do not exist"), std::string::npos) << msg;
+  }
+}
+
+// Nothing an importer prints reaches the user's terminal: OpenGEX's parser
+// prints "nullptr returned by creating DDLNode." on this file.
+TEST(MeshImport, ImporterOutputStaysOffTheTerminal) {
+  const fs::path p = voxcast::testing::assimp_model("OpenGEX/empty_camera.ogex");
+  ::testing::internal::CaptureStderr();
+  ::testing::internal::CaptureStdout();
+  const std::string msg = load_error(p);
+  const std::string out = ::testing::internal::GetCapturedStdout();
+  const std::string err = ::testing::internal::GetCapturedStderr();
+  EXPECT_EQ(out, "");
+  EXPECT_EQ(err, "");
+  expect_one_line_naming(msg, p);
 }

@@ -13,6 +13,7 @@
 #include <thread>
 #include <vector>
 
+#include "cli_io.hpp"
 #include "commands.hpp"
 #include "pipeline.hpp"
 #include "voxcast/effects.hpp"
@@ -97,7 +98,8 @@ Runner add_bench(CLI::App& app) {
       "bench", "Build a mesh as voxels and as an Embree BVH, ray cast both, compare Mrays/s");
   cmd->add_option("MESH", args->input, "Input mesh")->required();
   cmd->add_option("--resolution", args->resolution, "Voxels per axis (power of two)")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(not_negative());
   cmd->add_option("--size", args->size,
                   "Image size WxH, or a comma-separated list of sizes measured one after another")
       ->capture_default_str();
@@ -142,16 +144,21 @@ Runner add_bench(CLI::App& app) {
         parse_size(one, &w, &h);
         sizes.emplace_back(w, h);
       }
-      if (sizes.empty()) throw Error("--size: no size given");
+      if (sizes.empty()) throw UsageError("--size: no size given");
     }
-    if (args->repeat < 1 || args->repeat > 1000) throw Error("--repeat must be in 1..1000");
+    require_power_of_two("--resolution", args->resolution, 1, uint64_t(1) << 20);
+    require_range("--lod", args->lod, 0, 1e6);
+    require_range("--repeat", args->repeat, 1, 1000);
     if (args->beam != 0 && args->beam != 4 && args->beam != 8)
-      throw Error("--beam must be 0, 4 or 8");
-    if (!(args->min_coverage >= 0 && args->min_coverage <= 0.95))
-      throw Error("--min-coverage must be in [0, 0.95]");
-    if (args->ao_rays < 1 || args->ao_rays > 4096) throw Error("--ao-rays must be in 1..4096");
-    if (!std::isfinite(args->ao_radius) || args->ao_radius < 0)
-      throw Error("--ao-radius must be >= 0");
+      throw UsageError("--beam must be 0, 4 or 8");
+    require_range("--min-coverage", args->min_coverage, 0, 0.95);
+    require_range("--ao-rays", args->ao_rays, 1, 4096);
+    require_range("--ao-radius", args->ao_radius, 0, 1e30);
+    Camera fixed_camera;
+    if (args->camera != "auto") {
+      fixed_camera = parse_camera_option(args->camera);
+    }
+    require_regular_input(args->input, "mesh");
 
     BuildSettings s;
     s.mesh_path = args->input;
@@ -186,7 +193,7 @@ Runner add_bench(CLI::App& app) {
           camera.fovy_degrees *= 0.85f;
         }
       } else {
-        camera = Camera::parse(args->camera);
+        camera = fixed_camera;
       }
 
       RenderOptions ro;
@@ -239,7 +246,7 @@ Runner add_bench(CLI::App& app) {
       }
       auto mem = octree->memory_stats();
       int threads = args->threads ? args->threads : int(std::thread::hardware_concurrency());
-      std::printf("mesh        %s: %zu triangles\n", args->input.c_str(),
+      std::printf("mesh        %s: %zu triangles\n", printable(args->input).c_str(),
                   built.mesh.triangle_count());
       std::printf("camera      %s\n", camera.to_string().c_str());
       std::printf("image       %dx%d, %.1f%% of pixels hit the mesh, %d threads, best of %d\n",

@@ -3,6 +3,7 @@
 #include <cstdio>
 #include <filesystem>
 
+#include "cli_io.hpp"
 #include "commands.hpp"
 #include "pipeline.hpp"
 #include "voxcast/error.hpp"
@@ -18,14 +19,18 @@ struct BuildArgs {
   std::string attributes = "raw";
   std::string format = "esvo";
   uint32_t resolution = 1024;
-  double voxel_size = std::nan("");
+  double voxel_size = 0;
   int threads = 0;
   bool verbose = false;
   bool contours = false;
   int max_level = 0;
-  double geometry_error = std::nan(""), color_error = std::nan(""), normal_error = std::nan("");
+  double geometry_error = 0, color_error = 0, normal_error = 0;
   bool out_of_core = false, no_attributes = false;
   uint32_t cell_size = 0;
+  // Presence, not a sentinel value: "--voxel-size nan" must be refused, not
+  // taken for "not given".
+  CLI::Option *voxel_size_opt = nullptr, *max_level_opt = nullptr, *geometry_error_opt = nullptr,
+              *color_error_opt = nullptr, *normal_error_opt = nullptr, *cell_size_opt = nullptr;
 };
 }  // namespace
 
@@ -37,10 +42,13 @@ Runner add_build(CLI::App& app) {
       ->required();
   cmd->add_option("-o,--output", args->output, "Output scene file (.vxc)")->required();
   auto* res = cmd->add_option("--resolution", args->resolution,
-                              "Voxels per axis: a power of two, 1..1048576 (default 1024)");
-  cmd->add_option("--voxel-size", args->voxel_size,
-                  "Largest voxel size in world units (resolution rounded up to a power of two)")
-      ->excludes(res);
+                              "Voxels per axis: a power of two, 1..1048576 (default 1024)")
+                  // Unsigned options would take "-1" as 2^32-1.
+                  ->check(not_negative());
+  args->voxel_size_opt =
+      cmd->add_option("--voxel-size", args->voxel_size,
+                      "Largest voxel size in world units (resolution rounded up to a power of two)")
+          ->excludes(res);
   cmd->add_option("--voxelization", args->voxelization, "conservative | 6-separating")
       ->capture_default_str();
   cmd->add_option("--attributes", args->attributes,
@@ -56,76 +64,91 @@ Runner add_build(CLI::App& app) {
                 "DAG or --contours: build sub-volume by sub-volume within --memory-budget "
                 "(svdag section 3, esvo 7.1; automatic when the in-core estimate exceeds the "
                 "budget)");
-  cmd->add_option("--cell-size", args->cell_size,
-                  "Out-of-core: sub-volume side in voxels (power of two; default from the budget)");
+  args->cell_size_opt =
+      cmd->add_option(
+             "--cell-size", args->cell_size,
+             "Out-of-core: sub-volume side in voxels (power of two; default from the budget)")
+          ->check(not_negative());
   cmd->add_flag("--no-attributes", args->no_attributes,
                 "DAG: geometry only (no colors/normals; needed at very high resolutions)");
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)");
   cmd->add_flag(
       "--contours", args->contours,
       "Build contours (esvo 5.2, 7.2): voxels shaped by slabs; enables the options below");
-  cmd->add_option("--max-level", args->max_level,
-                  "With --contours: deepest octree level (default: the grid's levels)");
-  cmd->add_option(
+  args->max_level_opt =
+      cmd->add_option("--max-level", args->max_level,
+                      "With --contours: deepest octree level (default: the grid's levels)");
+  args->geometry_error_opt = cmd->add_option(
       "--geometry-error", args->geometry_error,
       "With --contours: variable depth; refine where the contoured shape is farther than "
       "this from the surface, in finest-level voxels (esvo 7.1)");
-  cmd->add_option(
+  args->color_error_opt = cmd->add_option(
       "--color-error", args->color_error,
       "With --contours: variable depth; refine where a voxel's stored color, as decoded "
       "(after --attributes compression), differs from a finest-level voxel's below it by "
       "more (8-bit sRGB, 0-255) (esvo 7.3)");
-  cmd->add_option("--normal-error", args->normal_error,
-                  "With --contours: variable depth; the same for normals (degrees)");
+  args->normal_error_opt =
+      cmd->add_option("--normal-error", args->normal_error,
+                      "With --contours: variable depth; the same for normals (degrees)");
   cmd->add_flag("-v,--verbose", args->verbose, "Print timings per stage");
   return [args]() {
     ThreadLimit limit(args->threads);
+    // Every option value first (usage errors, exit 2), then the files.
     BuildSettings s;
     s.mesh_path = args->input;
+    require_power_of_two("--resolution", args->resolution, 1, uint64_t(1) << 20);
     s.resolution = args->resolution;
-    if (!std::isnan(args->voxel_size)) {
-      if (!(args->voxel_size > 0) || !std::isfinite(args->voxel_size))
-        throw Error("--voxel-size must be a positive number");
+    if (args->voxel_size_opt->count()) {
+      // Finite and positive; whether the grid it implies fits the mesh is
+      // known once the mesh is read (GridTransform::fit_voxel_size).
+      require_range("--voxel-size", args->voxel_size, 1e-30, 1e30);
       s.voxel_size = args->voxel_size;
     }
     s.mode = parse_voxelization(args->voxelization);
     s.attributes = parse_attribute_format(args->attributes);
-    if (!args->memory_budget.empty())
-      s.memory_budget = parse_byte_size(args->memory_budget.c_str());
+    if (!args->memory_budget.empty()) s.memory_budget = parse_memory_budget(args->memory_budget);
     s.verbose = args->verbose;
     if (args->format != "esvo" && args->format != "dag")
-      throw Error("--format: '" + args->format + "' is not esvo or dag");
+      throw UsageError("--format: '" + printable(args->format) + "' is not esvo or dag");
     s.dag = args->format == "dag";
-    const bool variable = args->max_level != 0 || !std::isnan(args->geometry_error) ||
-                          !std::isnan(args->color_error) || !std::isnan(args->normal_error);
-    if (variable && !args->contours) throw Error("--max-level and --*-error need --contours");
+    const bool variable = args->max_level_opt->count() || args->geometry_error_opt->count() ||
+                          args->color_error_opt->count() || args->normal_error_opt->count();
+    if (variable && !args->contours) throw UsageError("--max-level and --*-error need --contours");
     if (args->contours) {
-      if (s.dag) throw Error("--contours applies to --format esvo only");
-      if (args->max_level < 0) throw Error("--max-level must be positive");
-      auto tolerance = [](double v, const char* name, double hi) {
-        if (std::isnan(v)) return -1.0;
-        if (!(v >= 0) || !(v <= hi))
-          throw Error(std::string(name) + " must be in 0.." + std::to_string(int(hi)));
+      if (s.dag) throw UsageError("--contours applies to --format esvo only");
+      if (args->max_level_opt->count()) require_range("--max-level", args->max_level, 0, 20);
+      auto tolerance = [](CLI::Option* opt, double v, const char* name, double lo, double hi) {
+        if (!opt->count()) return -1.0;
+        require_range(name, v, lo, hi);
         return v;
       };
-      const double ge = tolerance(args->geometry_error, "--geometry-error", 1e6);
-      if (ge == 0) throw Error("--geometry-error must be positive");
+      // 0 would refine everywhere: the full-depth build, asked for by
+      // leaving the option out.
+      const double ge =
+          tolerance(args->geometry_error_opt, args->geometry_error, "--geometry-error", 1e-6, 1e6);
       s.contours = true;
       s.max_level = args->max_level;
       s.geometry_error = ge > 0 ? ge : 0;
-      s.color_error = tolerance(args->color_error, "--color-error", 255);
-      s.normal_error = tolerance(args->normal_error, "--normal-error", 180);
+      s.color_error = tolerance(args->color_error_opt, args->color_error, "--color-error", 0, 255);
+      s.normal_error =
+          tolerance(args->normal_error_opt, args->normal_error, "--normal-error", 0, 180);
     }
     if (s.dag && s.attributes != esvo::AttributeFormat::Raw && args->no_attributes)
-      throw Error("--attributes compressed and --no-attributes exclude each other");
-    if (!s.dag && args->no_attributes) throw Error("--no-attributes applies to --format dag only");
-    if (!s.dag && !s.contours && (args->out_of_core || args->cell_size))
-      throw Error("--out-of-core and --cell-size apply to --format dag or --contours");
+      throw UsageError("--attributes compressed and --no-attributes exclude each other");
+    if (!s.dag && args->no_attributes)
+      throw UsageError("--no-attributes applies to --format dag only");
+    if (!s.dag && !s.contours && (args->out_of_core || args->cell_size_opt->count()))
+      throw UsageError("--out-of-core and --cell-size apply to --format dag or --contours");
+    // The grid decides the upper bound (the library checks it against the
+    // resolution); a non-power of two or a cell below 4^3 is never valid.
+    if (args->cell_size_opt->count())
+      require_power_of_two("--cell-size", args->cell_size, 4, uint64_t(1) << 20);
     s.out_of_core = args->out_of_core || args->cell_size != 0;
     s.cell_size = args->cell_size;
     s.dag_attributes = !args->no_attributes;
-    if (std::filesystem::is_directory(args->output))
-      throw Error("output '" + args->output + "' is a directory");
+    OutputSet outputs({args->input});
+    outputs.add("-o", args->output, {".vxc"});
+    require_regular_input(args->input, "mesh");
     StageTimer total(false);
     BuiltScene built = build_scene(s);
     StageTimer timer(args->verbose);
@@ -135,7 +158,9 @@ Runner add_build(CLI::App& app) {
     info.source_triangles = built.mesh.triangle_count();
     info.leaf_voxels = built.leaf_voxels;
     if (s.dag) {
-      save_dag_scene(args->output, built.dag, info);
+      outputs.write(args->output,
+                    [&](const std::filesystem::path& to) { save_dag_scene(to, built.dag, info); });
+      outputs.commit();
       timer.mark("write scene");
       const dag::DagStats st = built.dag.stats();
       if (built.out_of_core)
@@ -145,13 +170,16 @@ Runner add_build(CLI::App& app) {
       std::printf(
           "%s: %u^3 grid (%d levels), %llu leaf voxels, DAG %s (%.3f bits/leaf voxel, "
           "%llu nodes vs %llu SVO nodes), %.2f s\n",
-          args->output.c_str(), built.dag.grid.resolution, built.dag.levels(),
+          printable(args->output).c_str(), built.dag.grid.resolution, built.dag.levels(),
           (unsigned long long)built.leaf_voxels, format_bytes(double(st.dag_bytes)).c_str(),
           st.bits_per_voxel, (unsigned long long)st.dag_nodes, (unsigned long long)st.svo_nodes,
           total.mark("total"));
       return 0;
     }
-    save_esvo_scene(args->output, built.octree, info);
+    outputs.write(args->output, [&](const std::filesystem::path& to) {
+      save_esvo_scene(to, built.octree, info);
+    });
+    outputs.commit();
     timer.mark("write scene");
     if (built.out_of_core && !built.esvo_cells.in_core)
       std::printf("out-of-core: %llu cells of %u^3 (%llu planned below their root), %.2f s\n",
@@ -159,8 +187,8 @@ Runner add_build(CLI::App& app) {
                   (unsigned long long)built.esvo_cells.refined_cells, built.octree_seconds);
     auto mem = built.octree.memory_stats();
     std::printf("%s: %u^3 grid (%d levels), %llu leaf voxels, %s (%.2f bytes/leaf voxel), %.2f s\n",
-                args->output.c_str(), built.octree.grid.resolution, built.octree.levels(),
-                (unsigned long long)built.leaf_voxels,
+                printable(args->output).c_str(), built.octree.grid.resolution,
+                built.octree.levels(), (unsigned long long)built.leaf_voxels,
                 format_bytes(double(mem.total_bytes)).c_str(),
                 double(mem.total_bytes) / double(built.leaf_voxels), total.mark("total"));
     return 0;

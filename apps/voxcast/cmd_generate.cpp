@@ -4,9 +4,11 @@
 #include <filesystem>
 #include <memory>
 
+#include "cli_io.hpp"
 #include "commands.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/generate.hpp"
+#include "voxcast/system.hpp"
 
 namespace voxcast::cli {
 
@@ -16,7 +18,31 @@ struct GenerateArgs {
   uint64_t seed = 1;
   int tubes = 200, segments = 64, sides = 6, level = 3, size = 256, octaves = 6;
   double radius = 0.004, step = 0.04, height = 0.25, persistence = 0.5;
+  std::string memory_budget;
 };
+
+// Bytes the mesh and its file text take, from the vertex and triangle counts
+// generate.hpp documents; 0 while the parameters are outside the documented
+// ranges (the generator refuses those itself, as usage errors).
+double estimated_bytes(const GenerateArgs& a, bool obj) {
+  double verts = 0, tris = 0;
+  if (a.kind == "hairball") {
+    if (a.tubes < 1 || a.tubes > 1000000 || a.segments < 1 || a.segments > 100000 || a.sides < 3 ||
+        a.sides > 64)
+      return 0;
+    verts = double(a.tubes) * ((double(a.segments) + 1) * a.sides + 2);
+    tris = double(a.tubes) * (2.0 * a.segments + 2) * a.sides;
+  } else if (a.kind == "terrain") {
+    if (a.size < 2 || a.size > 8192) return 0;
+    verts = double(a.size) * a.size;
+    tris = 2.0 * (a.size - 1.0) * (a.size - 1.0);
+  } else {
+    return 0;  // menger: at most 13 M triangles (level 5)
+  }
+  // Positions and indices, then the file: OBJ lines of up to ~40 bytes,
+  // PLY 12 bytes per vertex and 13 per triangle.
+  return 12 * verts + 12 * tris + (obj ? 40 * (verts + tris) : 12 * verts + 13 * tris);
+}
 }  // namespace
 
 Runner add_generate(CLI::App& app) {
@@ -27,7 +53,9 @@ Runner add_generate(CLI::App& app) {
       "terrain (fBm height field)");
   cmd->add_option("KIND", args->kind, "hairball | menger | terrain")->required();
   cmd->add_option("-o,--output", args->output, "Output mesh (.obj or binary .ply)")->required();
-  cmd->add_option("--seed", args->seed, "Random seed (hairball, terrain)")->capture_default_str();
+  cmd->add_option("--seed", args->seed, "Random seed (hairball, terrain)")
+      ->capture_default_str()
+      ->check(not_negative());  // an unsigned option would take "-1" as 2^64-1
   cmd->add_option("--tubes", args->tubes, "hairball: number of tubes")->capture_default_str();
   cmd->add_option("--segments", args->segments, "hairball: steps per tube")->capture_default_str();
   cmd->add_option("--sides", args->sides, "hairball: sides of the tube cross-section")
@@ -43,35 +71,59 @@ Runner add_generate(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--persistence", args->persistence, "terrain: amplitude factor per octave")
       ->capture_default_str();
+  cmd->add_option("--memory-budget", args->memory_budget,
+                  "Refuse meshes estimated to need more (e.g. 2G; default 90% of free memory)");
   return [args]() {
-    if (std::filesystem::is_directory(args->output))
-      throw Error("output '" + args->output + "' is a directory");
-    Mesh mesh;
-    if (args->kind == "hairball") {
-      generate::HairballOptions o;
-      o.seed = args->seed;
-      o.tubes = args->tubes;
-      o.segments = args->segments;
-      o.sides = args->sides;
-      o.radius = args->radius;
-      o.step = args->step;
-      mesh = generate::hairball(o);
-    } else if (args->kind == "menger") {
-      mesh = generate::menger(args->level);
-    } else if (args->kind == "terrain") {
-      generate::TerrainOptions o;
-      o.seed = args->seed;
-      o.size = args->size;
-      o.octaves = args->octaves;
-      o.height = args->height;
-      o.persistence = args->persistence;
-      mesh = generate::terrain(o);
-    } else {
-      throw Error("generate: '" + args->kind + "' is not hairball, menger or terrain");
+    if (args->kind != "hairball" && args->kind != "menger" && args->kind != "terrain")
+      throw UsageError("generate: '" + printable(args->kind) +
+                       "' is not hairball, menger or terrain");
+    uint64_t budget = 0;
+    if (!args->memory_budget.empty()) budget = parse_memory_budget(args->memory_budget);
+    OutputSet outputs({});
+    outputs.add("-o", args->output, {".obj", ".ply"});
+    {
+      if (budget == 0) budget = uint64_t(double(available_memory_bytes()) * 0.9);
+      const bool obj = std::filesystem::path(args->output).extension() != ".ply" &&
+                       std::filesystem::path(args->output).extension() != ".PLY";
+      const double need = estimated_bytes(*args, obj);
+      if (budget && need > double(budget))
+        throw Error("this " + args->kind + " needs an estimated " + format_bytes(need) +
+                    ", more than the " + format_bytes(double(budget)) +
+                    " memory budget; use fewer or smaller parts or raise --memory-budget");
     }
-    generate::write_mesh(args->output, mesh);
-    std::printf("%s: %s, %zu triangles, %zu vertices\n", args->output.c_str(), args->kind.c_str(),
-                mesh.triangle_count(), mesh.positions.size());
+    Mesh mesh;
+    try {
+      if (args->kind == "hairball") {
+        generate::HairballOptions o;
+        o.seed = args->seed;
+        o.tubes = args->tubes;
+        o.segments = args->segments;
+        o.sides = args->sides;
+        o.radius = args->radius;
+        o.step = args->step;
+        mesh = generate::hairball(o);
+      } else if (args->kind == "menger") {
+        mesh = generate::menger(args->level);
+      } else {
+        generate::TerrainOptions o;
+        o.seed = args->seed;
+        o.size = args->size;
+        o.octaves = args->octaves;
+        o.height = args->height;
+        o.persistence = args->persistence;
+        mesh = generate::terrain(o);
+      }
+    } catch (const Error& e) {
+      // The generators check their parameters (NaN-safe ranges, triangle
+      // counts that fit 32-bit indices) before building anything, and
+      // nothing else they do can fail with voxcast::Error: a bad option.
+      throw UsageError(e.what());
+    }
+    outputs.write(args->output,
+                  [&](const std::filesystem::path& to) { generate::write_mesh(to, mesh); });
+    outputs.commit();
+    std::printf("%s: %s, %zu triangles, %zu vertices\n", printable(args->output).c_str(),
+                args->kind.c_str(), mesh.triangle_count(), mesh.positions.size());
     return 0;
   };
 }

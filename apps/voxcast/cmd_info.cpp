@@ -4,6 +4,7 @@
 #include <filesystem>
 #include <nlohmann/json.hpp>
 
+#include "cli_io.hpp"
 #include "commands.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/scene_file.hpp"
@@ -30,13 +31,13 @@ nlohmann::json scene_json(const std::string& path, uint64_t file_bytes, const ch
                           const Container& container, const SceneInfo& info,
                           const GridTransform& grid) {
   nlohmann::json j;
-  j["file"] = path;
+  j["file"] = printable(path);
   j["file_bytes"] = file_bytes;
   j["format"] = format;
   std::vector<std::string> sections;
   for (uint32_t id : container.section_ids()) sections.push_back(fourcc_name(id));
   j["sections"] = sections;
-  j["source"] = info.source;
+  j["source"] = printable(info.source);
   j["source_triangles"] = info.source_triangles;
   j["voxelization"] = info.voxelization;
   j["resolution"] = grid.resolution;
@@ -81,17 +82,17 @@ int print_dag_info(const InfoArgs& args, const Container& container) {
   // >= 2^32 voxels carry 64-bit prefix entries (0 below 2^32 voxels).
   j["voxel_index_wide_words"] = d.wide_words;
   if (args.json) {
-    std::printf("%s\n", j.dump(2).c_str());
+    std::printf("%s\n", j.dump(2, ' ', false, nlohmann::json::error_handler_t::replace).c_str());
     return 0;
   }
-  std::printf("scene       %s (%s)\n", args.input.c_str(),
+  std::printf("scene       %s (%s)\n", printable(args.input).c_str(),
               format_bytes(double(file_bytes)).c_str());
   std::printf("sections    ");
   for (const auto& s : j["sections"]) std::printf("%s ", s.get<std::string>().c_str());
   std::printf("\nstructure   sparse voxel DAG (svdag), 4^3 leaf masks, %s\n",
               d.has_attributes() ? "colors + normals per voxel (Morton-rank index)"
                                  : "geometry only (gray, face normals)");
-  std::printf("source      %s, %llu triangles, %s voxelization\n", info.source.c_str(),
+  std::printf("source      %s, %llu triangles, %s voxelization\n", printable(info.source).c_str(),
               (unsigned long long)info.source_triangles, info.voxelization.c_str());
   std::printf("grid        %u^3 (%d levels), voxel size %.6g, origin %.6g,%.6g,%.6g\n",
               d.grid.resolution, L, d.grid.voxel_size, d.grid.origin.x, d.grid.origin.y,
@@ -140,6 +141,7 @@ Runner add_info(CLI::App& app) {
   cmd->add_option("SCENE", args->input, "Scene file")->required();
   cmd->add_flag("--json", args->json, "Print the same facts as JSON");
   return [args]() {
+    require_regular_input(args->input, "scene");
     Container container = Container::read(args->input);
     if (scene_format(container) == "dag") return print_dag_info(*args, container);
     SceneInfo info;
@@ -189,11 +191,11 @@ Runner add_info(CLI::App& app) {
     const bool compressed = mem.attribute_format == esvo::AttributeFormat::Compressed;
     j["attributes"] = compressed ? "compressed" : "raw";
     if (args->json) {
-      std::printf("%s\n", j.dump(2).c_str());
+      std::printf("%s\n", j.dump(2, ' ', false, nlohmann::json::error_handler_t::replace).c_str());
       return 0;
     }
 
-    std::printf("scene       %s (%s)\n", args->input.c_str(),
+    std::printf("scene       %s (%s)\n", printable(args->input).c_str(),
                 format_bytes(double(file_bytes)).c_str());
     std::printf("sections    ");
     for (const auto& s : j["sections"]) std::printf("%s ", s.get<std::string>().c_str());
@@ -206,7 +208,7 @@ Runner add_info(CLI::App& app) {
                                            " contour values (esvo 5.2, variable depth)")
                                               .c_str()
                                         : "no");
-    std::printf("source      %s, %llu triangles, %s voxelization\n", info.source.c_str(),
+    std::printf("source      %s, %llu triangles, %s voxelization\n", printable(info.source).c_str(),
                 (unsigned long long)info.source_triangles, info.voxelization.c_str());
     std::printf("grid        %u^3 (%d levels), voxel size %.6g, origin %.6g,%.6g,%.6g\n",
                 octree.grid.resolution, octree.levels(), octree.grid.voxel_size,

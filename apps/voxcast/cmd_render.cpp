@@ -6,12 +6,14 @@
 #include <string>
 #include <vector>
 
+#include "cli_io.hpp"
 #include "commands.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/progress.hpp"
 #include "voxcast/render.hpp"
 #include "voxcast/scene_file.hpp"
+#include "voxcast/system.hpp"
 
 namespace voxcast::cli {
 
@@ -31,13 +33,9 @@ struct RenderArgs {
   int shadow_rays = 16, ao = 0;
   float ao_radius = 0.f, ao_cone_angle = 0.f;
   uint32_t seed = 0;
+  std::string memory_budget;
 };
 
-std::string lower_extension(const std::string& path) {
-  std::string ext = std::filesystem::path(path).extension().string();
-  for (auto& c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
-  return ext;
-}
 // Table 6 style block (esvo §8.5): per-ray averages over the full-resolution
 // rays; with the beam, the coarse pass is listed and added like in the paper.
 void print_stats(const RenderResult& r, int beam) {
@@ -122,32 +120,26 @@ Runner add_render(CLI::App& app) {
   cmd->add_option("--ao-output", args->ao_output,
                   "Also write the AO term as an image (.png or .pfm)");
   cmd->add_option("--seed", args->seed, "Seed of the per-pixel effect samples")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(not_negative());
+  cmd->add_option("--memory-budget", args->memory_budget,
+                  "Refuse renders estimated to need more (e.g. 2G; default 90% of free memory)");
   return [args]() {
     ThreadLimit limit(args->threads);
+    // Every option value first (usage errors, exit 2), then the files.
     RenderOptions opt;
     parse_size(args->size, &opt.width, &opt.height);
-    if (!std::isfinite(args->lod) || args->lod < 0) throw Error("--lod must be >= 0");
+    require_range("--lod", args->lod, 0, 1e6);
     opt.lod_pixels = args->lod;
     if (args->beam != 0 && (args->beam < 2 || args->beam > 64))
-      throw Error("--beam must be 0 (off) or a block size in 2..64");
+      throw UsageError("--beam must be 0 (off) or a block size in 2..64");
     opt.beam = args->beam;
-    if (!args->heatmap.empty() && lower_extension(args->heatmap) != ".png")
-      throw Error("--heatmap must be a .png file");
-    if (!std::isfinite(args->heatmap_max) || !(args->heatmap_max > 0))
-      throw Error("--heatmap-max must be a positive number");
+    require_range("--heatmap-max", args->heatmap_max, 1e-6, 1e9);
     opt.collect_stats = args->stats || !args->heatmap.empty();
-    for (const std::string* path : {&args->output, &args->depth, &args->normal, &args->ao_output}) {
-      if (path->empty()) continue;
-      std::string ext = lower_extension(*path);
-      if (ext != ".png" && ext != ".pfm")
-        throw Error("'" + *path + "': unsupported image format (use .png or .pfm)");
-    }
-    if (!args->depth.empty() && lower_extension(args->depth) != ".pfm")
-      throw Error("--depth must be a .pfm file");
     if (!args->light.empty()) {
       Vec3 l = parse_vec3(args->light, "--light");
-      if (length(l) == 0) throw Error("--light must not be the zero vector");
+      if (!(length(l) > 0) || !std::isfinite(length(l)))
+        throw UsageError("--light must be a non-zero, finite vector");
       opt.light_dir = normalize(l);
     }
     // ---- effects (svdag §4) ----
@@ -155,7 +147,7 @@ Runner add_render(CLI::App& app) {
     if (int(!args->light.empty()) + int(!args->point_light.empty()) +
             int(!args->area_light.empty()) >
         1)
-      throw Error("--light, --point-light and --area-light are mutually exclusive");
+      throw UsageError("--light, --point-light and --area-light are mutually exclusive");
     if (!args->point_light.empty()) {
       fx.light = LightKind::Point;
       fx.light_position = parse_vec3(args->point_light, "--point-light");
@@ -167,13 +159,16 @@ Runner add_render(CLI::App& app) {
         parts.push_back(rest.substr(0, pos));
       parts.push_back(rest);
       if (parts.size() != 9)
-        throw Error("--area-light: '" + args->area_light + "' is not cx,cy,cz,ux,uy,uz,vx,vy,vz");
+        throw UsageError("--area-light: '" + printable(args->area_light) +
+                         "' is not cx,cy,cz,ux,uy,uz,vx,vy,vz");
       fx.light = LightKind::Area;
       fx.light_position = parse_vec3(parts[0] + "," + parts[1] + "," + parts[2], "--area-light");
       fx.area_u = parse_vec3(parts[3] + "," + parts[4] + "," + parts[5], "--area-light");
       fx.area_v = parse_vec3(parts[6] + "," + parts[7] + "," + parts[8], "--area-light");
-      if (!(length(cross(fx.area_u, fx.area_v)) > 0))
-        throw Error("--area-light: the half-edge vectors must be non-zero and not parallel");
+      const float area = length(cross(fx.area_u, fx.area_v));
+      if (!(area > 0) || !std::isfinite(area))
+        throw UsageError(
+            "--area-light: the half-edge vectors must be non-zero, finite and not parallel");
     }
     if (args->shadows == "none")
       fx.shadows = ShadowMode::None;
@@ -182,11 +177,10 @@ Runner add_render(CLI::App& app) {
     else if (args->shadows == "soft")
       fx.shadows = ShadowMode::Soft;
     else
-      throw Error("--shadows must be none, hard or soft");
+      throw UsageError("--shadows must be none, hard or soft");
     if (fx.shadows == ShadowMode::Soft && fx.light != LightKind::Area)
-      throw Error("--shadows soft needs --area-light");
-    if (args->shadow_rays < 1 || args->shadow_rays > 4096)
-      throw Error("--shadow-rays must be in 1..4096");
+      throw UsageError("--shadows soft needs --area-light");
+    require_range("--shadow-rays", args->shadow_rays, 1, 4096);
     fx.shadow_rays = args->shadow_rays;
     if (args->shadow_beam == "conservative")
       fx.shadow_beam = ShadowBeam::Conservative;
@@ -195,17 +189,49 @@ Runner add_render(CLI::App& app) {
     else if (args->shadow_beam == "off")
       fx.shadow_beam = ShadowBeam::Off;
     else
-      throw Error("--shadow-beam must be conservative, corners or off");
-    if (args->ao < 0 || args->ao > 4096) throw Error("--ao must be in 0..4096");
+      throw UsageError("--shadow-beam must be conservative, corners or off");
+    require_range("--ao", args->ao, 0, 4096);
     fx.ao_rays = args->ao;
-    if (!std::isfinite(args->ao_radius) || args->ao_radius < 0)
-      throw Error("--ao-radius must be >= 0");
+    require_range("--ao-radius", args->ao_radius, 0, 1e30);
     if (!(args->ao_cone_angle >= 0 && args->ao_cone_angle < 90))
-      throw Error("--ao-cone-angle must be in [0, 90) degrees");
+      throw UsageError("--ao-cone-angle must be in [0, 90) degrees");
     fx.ao_cone_angle_deg = args->ao_cone_angle;
     fx.seed = args->seed;
     if (!args->ao_output.empty() && fx.ao_rays == 0)
-      throw Error("--ao-output needs --ao N (N > 0)");
+      throw UsageError("--ao-output needs --ao N (N > 0)");
+    if (args->camera != "auto") {
+      opt.camera = parse_camera_option(args->camera);
+    }
+    uint64_t budget = 0;
+    if (!args->memory_budget.empty()) budget = parse_memory_budget(args->memory_budget);
+    // All outputs are checked before the scene is read, and written together
+    // at the end (OutputSet): a failure leaves every one of them untouched.
+    OutputSet outputs({args->input});
+    outputs.add("-o", args->output, {".png", ".pfm"});
+    if (!args->depth.empty()) outputs.add("--depth", args->depth, {".pfm"});
+    if (!args->normal.empty()) outputs.add("--normals", args->normal, {".png", ".pfm"});
+    if (!args->heatmap.empty()) outputs.add("--heatmap", args->heatmap, {".png"});
+    if (!args->ao_output.empty()) outputs.add("--ao-output", args->ao_output, {".png", ".pfm"});
+    require_regular_input(args->input, "scene");
+    {
+      // Checked before anything large is allocated: the file as read, its
+      // parsed copy, and per pixel the float buffers the renderer fills plus
+      // the encoded images.
+      if (budget == 0) budget = uint64_t(double(available_memory_bytes()) * 0.9);
+      std::error_code ec;
+      const double scene_bytes = 2.0 * double(std::filesystem::file_size(args->input, ec));
+      double per_pixel = 12 + 12;  // color floats, 8-bit copy + PNG bytes
+      if (!args->depth.empty()) per_pixel += 4 + 4;
+      if (!args->normal.empty()) per_pixel += 12 + 12;
+      if (opt.collect_stats) per_pixel += 4 + 12 + 12;  // iterations, heat map, PNG
+      if (fx.ao_rays > 0) per_pixel += 4 + 4;
+      const double need = scene_bytes + per_pixel * double(opt.width) * double(opt.height);
+      if (budget && need > double(budget))
+        throw Error("rendering " + std::to_string(opt.width) + "x" + std::to_string(opt.height) +
+                    " needs an estimated " + format_bytes(need) + ", more than the " +
+                    format_bytes(double(budget)) +
+                    " memory budget; lower --size or raise --memory-budget");
+    }
     StageTimer timer(args->verbose);
     LoadedScene scene = load_scene(args->input);  // esvo or dag, by META "format"
     timer.mark("load scene");
@@ -216,8 +242,6 @@ Runner add_render(CLI::App& app) {
     if (args->camera == "auto") {
       opt.camera = Camera::frame(scene.occupied, opt.width, opt.height);
       std::printf("camera: %s\n", opt.camera.to_string().c_str());
-    } else {
-      opt.camera = Camera::parse(args->camera);
     }
     opt.want_depth = !args->depth.empty();
     opt.want_normal = !args->normal.empty();
@@ -226,19 +250,23 @@ Runner add_render(CLI::App& app) {
     timer.mark("ray cast");
     if (args->verbose && opt.filter)
       std::fprintf(stderr, "  %-22s %9.1f ms\n", "  of which filter", result.filter_seconds * 1e3);
-    write_image(args->output, result.color);
-    if (opt.want_depth) write_image(args->depth, result.depth);
-    if (opt.want_normal) write_image(args->normal, result.normal, true);
-    if (!args->ao_output.empty())
-      write_image(args->ao_output, result.ao, true);  // AO as stored, not sRGB-encoded
-    if (!args->heatmap.empty()) {
-      write_image(args->heatmap, iteration_heatmap(result.iterations, args->heatmap_max));
-      std::printf("heatmap: %s, inferno ramp, black = 0, pale yellow = %g iterations\n",
-                  args->heatmap.c_str(), double(args->heatmap_max));
-    }
+    auto image = [&](const std::string& path, const Image& im, bool already_srgb = false) {
+      outputs.write(path,
+                    [&](const std::filesystem::path& to) { write_image(to, im, already_srgb); });
+    };
+    image(args->output, result.color);
+    if (opt.want_depth) image(args->depth, result.depth);
+    if (opt.want_normal) image(args->normal, result.normal, true);
+    if (!args->ao_output.empty()) image(args->ao_output, result.ao, true);  // as stored, linear
+    if (!args->heatmap.empty())
+      image(args->heatmap, iteration_heatmap(result.iterations, args->heatmap_max));
+    outputs.commit();
     timer.mark("write images");
-    std::printf("%s: %dx%d, %.1f%% of pixels hit, %.2f Mrays/s\n", args->output.c_str(), opt.width,
-                opt.height, 100.0 * double(result.hits) / double(result.rays),
+    if (!args->heatmap.empty())
+      std::printf("heatmap: %s, inferno ramp, black = 0, pale yellow = %g iterations\n",
+                  printable(args->heatmap).c_str(), double(args->heatmap_max));
+    std::printf("%s: %dx%d, %.1f%% of pixels hit, %.2f Mrays/s\n", printable(args->output).c_str(),
+                opt.width, opt.height, 100.0 * double(result.hits) / double(result.rays),
                 double(result.rays) / result.seconds * 1e-6);
     if (fx.active()) {
       const EffectCounters& ec = result.effect_counters;

@@ -9,6 +9,7 @@
 #include <sstream>
 #include <vector>
 
+#include "cli_io.hpp"
 #include "commands.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/version.hpp"
@@ -23,11 +24,13 @@ Vec3 parse_vec3(const std::string& text, const char* what) {
     char* end = nullptr;
     float f = std::strtof(item.c_str(), &end);
     if (item.empty() || end == item.c_str() || *end != 0 || !std::isfinite(f))
-      throw Error(std::string(what) + ": '" + text + "' is not x,y,z (three finite numbers)");
+      throw UsageError(std::string(what) + ": '" + printable(text) +
+                       "' is not x,y,z (three finite numbers)");
     v.push_back(f);
   }
   if (v.size() != 3 || (!text.empty() && text.back() == ','))
-    throw Error(std::string(what) + ": '" + text + "' is not x,y,z (three finite numbers)");
+    throw UsageError(std::string(what) + ": '" + printable(text) +
+                     "' is not x,y,z (three finite numbers)");
   return {v[0], v[1], v[2]};
 }
 
@@ -37,7 +40,7 @@ void parse_size(const std::string& text, int* width, int* height) {
   char rest = 0;
   if (std::sscanf(text.c_str(), "%d%c%d%c", &w, &x, &h, &rest) != 3 || (x != 'x' && x != 'X') ||
       w < 1 || h < 1 || w > 16384 || h > 16384)
-    throw Error("--size: '" + text + "' is not WxH with 1 <= W, H <= 16384");
+    throw UsageError("--size: '" + printable(text) + "' is not WxH with 1 <= W, H <= 16384");
   *width = w;
   *height = h;
 }
@@ -55,7 +58,7 @@ struct ThreadLimit::Impl {
   tbb::global_control control;
 };
 ThreadLimit::ThreadLimit(int threads) {
-  if (threads < 0) throw Error("--threads must be >= 0");
+  require_range("--threads", threads, 0, 4096);
   if (threads > 0)
     impl = new Impl{tbb::global_control(tbb::global_control::max_allowed_parallelism, threads)};
 }
@@ -88,6 +91,11 @@ int main(int argc, char** argv) {
   add(add_info);
   add(add_bench);
   add(add_generate);
+  // One convention (README "Command line"): a usage error is one line and
+  // exit 2, a runtime error one line and exit 1; --help prints the help.
+  auto error_line = [](const std::string& message) {
+    std::fprintf(stderr, "voxcast: error: %s\n", printable(message).c_str());
+  };
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
@@ -95,25 +103,32 @@ int main(int argc, char** argv) {
   } catch (const CLI::CallForVersion& e) {
     return app.exit(e);
   } catch (const CLI::ParseError& e) {
-    // Usage errors: the message, then the usage of the (sub)command involved.
-    std::fprintf(stderr, "voxcast: error: %s\n", e.what());
-    CLI::App* which = &app;
+    // The message and where to read more, not the whole help text: the
+    // mistake would scroll out of sight.
+    CLI::App* which = nullptr;
     for (auto& [sub, run] : commands)
       if (sub->parsed()) which = sub;
-    std::fprintf(stderr, "%s", which->help().c_str());
+    std::string message = e.what();
+    if (!which && app.get_subcommands().empty() && message.find("subcommand") != std::string::npos)
+      message = "a subcommand is required: build, render, info, bench or generate";
+    error_line(message + " (see 'voxcast" + (which ? " " + which->get_name() : std::string()) +
+               " --help')");
     return 2;
   }
   try {
     for (auto& [sub, run] : commands)
       if (sub->parsed()) return run();
+  } catch (const UsageError& e) {
+    error_line(e.what());
+    return 2;
   } catch (const voxcast::Error& e) {
-    std::fprintf(stderr, "voxcast: error: %s\n", e.what());
+    error_line(e.what());
     return 1;
   } catch (const std::bad_alloc&) {
-    std::fprintf(stderr, "voxcast: error: out of memory (lower --resolution)\n");
+    error_line("out of memory (lower --resolution or --size)");
     return 1;
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "voxcast: error: %s\n", e.what());
+    error_line(e.what());
     return 1;
   }
   return 2;

@@ -1,9 +1,12 @@
 #include "pipeline.hpp"
 
+#include <array>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <string>
 
+#include "cli_io.hpp"
 #include "commands.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/progress.hpp"
@@ -14,7 +17,7 @@ namespace voxcast::cli {
 VoxelizationMode parse_voxelization(const std::string& name) {
   if (name == "conservative") return VoxelizationMode::Conservative;
   if (name == "6-separating" || name == "six-separating") return VoxelizationMode::SixSeparating;
-  throw Error("--voxelization: '" + name + "' is not conservative or 6-separating");
+  throw UsageError("--voxelization: '" + printable(name) + "' is not conservative or 6-separating");
 }
 
 const char* voxelization_name(VoxelizationMode mode) {
@@ -24,7 +27,7 @@ const char* voxelization_name(VoxelizationMode mode) {
 esvo::AttributeFormat parse_attribute_format(const std::string& name) {
   if (name == "raw") return esvo::AttributeFormat::Raw;
   if (name == "compressed") return esvo::AttributeFormat::Compressed;
-  throw Error("--attributes: '" + name + "' is not raw or compressed");
+  throw UsageError("--attributes: '" + printable(name) + "' is not raw or compressed");
 }
 
 const char* attribute_format_name(esvo::AttributeFormat format) {
@@ -35,15 +38,30 @@ uint64_t estimate_build_bytes(const Mesh& mesh, const GridTransform& grid) {
   // A conservatively voxelized plane of area A (in voxel units) with unit
   // normal n covers about A * (|nx|+|ny|+|nz|) voxels, plus a band along its
   // edges; every voxel also appears once per extra triangle sharing it.
-  double inv = 1.0 / grid.voxel_size;
+  // Edges in double, in voxel units: the estimate depends on the triangles'
+  // shape only, not on how far the mesh lies from the origin.
+  const double inv = 1.0 / grid.voxel_size;
+  auto at = [&](uint32_t i) {
+    const Vec3& p = mesh.positions[i];
+    return std::array<double, 3>{double(p.x), double(p.y), double(p.z)};
+  };
+  auto sub = [&](const std::array<double, 3>& a, const std::array<double, 3>& b) {
+    return std::array<double, 3>{(a[0] - b[0]) * inv, (a[1] - b[1]) * inv, (a[2] - b[2]) * inv};
+  };
+  auto len = [](const std::array<double, 3>& v) {
+    return std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+  };
   double pairs = 0;
   for (size_t t = 0; t < mesh.triangle_count(); ++t) {
-    Vec3 a = mesh.positions[mesh.indices[3 * t]], b = mesh.positions[mesh.indices[3 * t + 1]],
-         c = mesh.positions[mesh.indices[3 * t + 2]];
-    Vec3 n = cross(b - a, c - a);
-    double area = 0.5 * length(n) * inv * inv;
-    double l1 = length(n) > 0 ? (std::fabs(n.x) + std::fabs(n.y) + std::fabs(n.z)) / length(n) : 1;
-    double perim = (length(b - a) + length(c - b) + length(a - c)) * inv;
+    const auto a = at(mesh.indices[3 * t]), b = at(mesh.indices[3 * t + 1]),
+               c = at(mesh.indices[3 * t + 2]);
+    const auto e1 = sub(b, a), e2 = sub(c, a), e3 = sub(c, b);
+    const std::array<double, 3> n{e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                                  e1[0] * e2[1] - e1[1] * e2[0]};
+    const double nl = len(n);
+    const double area = 0.5 * nl;
+    const double l1 = nl > 0 ? (std::fabs(n[0]) + std::fabs(n[1]) + std::fabs(n[2])) / nl : 1;
+    const double perim = len(e1) + len(e2) + len(e3);
     pairs += area * l1 + 2.0 * perim + 4.0;
   }
   // Per pair: 16-byte record + sort scratch; per voxel (~pairs/2): attributes
@@ -51,17 +69,46 @@ uint64_t estimate_build_bytes(const Mesh& mesh, const GridTransform& grid) {
   return uint64_t(pairs * 32.0 + pairs * 0.5 * 80.0);
 }
 
+uint64_t mesh_bytes(const Mesh& m) {
+  uint64_t bytes = m.positions.size() * sizeof(Vec3) + m.normals.size() * sizeof(Vec3) +
+                   m.colors.size() * sizeof(Color) + m.uvs.size() * sizeof(Vec2) +
+                   m.indices.size() * sizeof(uint32_t) + m.triangle_material.size() * 4 +
+                   m.materials.size() * sizeof(Material);
+  for (const Texture& t : m.textures) bytes += t.rgba.size();
+  return bytes;
+}
+
+namespace {
+std::string count_of(size_t n, const char* one, const char* many) {
+  return std::to_string(n) + " " + (n == 1 ? one : many);
+}
+}  // namespace
+
 BuiltScene build_scene(const BuildSettings& s) {
   BuiltScene out;
   StageTimer timer(s.verbose);
+  uint64_t budget = s.memory_budget;
+  if (budget == 0) budget = uint64_t(double(available_memory_bytes()) * 0.9);
+  {
+    // The importer holds at least the whole file: refuse before reading it.
+    std::error_code ec;
+    const uint64_t file_bytes = std::filesystem::file_size(s.mesh_path, ec);
+    if (!ec && budget && file_bytes > budget)
+      throw Error(in_quotes(s.mesh_path) + " is " + format_bytes(double(file_bytes)) +
+                  ", more than the " + format_bytes(double(budget)) +
+                  " memory budget; raise --memory-budget");
+  }
   out.mesh = load_mesh(s.mesh_path, &out.mesh_stats);
   out.load_seconds = timer.mark("load mesh");
   for (const std::string& w : out.mesh_stats.warnings)
-    std::fprintf(stderr, "voxcast: warning: %s\n", w.c_str());
+    std::fprintf(stderr, "voxcast: warning: %s\n", printable(w).c_str());
   if (s.verbose || out.mesh_stats.degenerate_dropped)
-    std::fprintf(stderr, "mesh: %zu triangles, %zu vertices (%zu degenerate triangles dropped)\n",
-                 out.mesh.triangle_count(), out.mesh.positions.size(),
-                 out.mesh_stats.degenerate_dropped);
+    std::fprintf(
+        stderr, "mesh: %s, %s (%s dropped)\n",
+        count_of(out.mesh.triangle_count(), "triangle", "triangles").c_str(),
+        count_of(out.mesh.positions.size(), "vertex", "vertices").c_str(),
+        count_of(out.mesh_stats.degenerate_dropped, "degenerate triangle", "degenerate triangles")
+            .c_str());
 
   Aabb bounds = out.mesh.bounds();
   GridTransform grid;
@@ -70,9 +117,8 @@ BuiltScene build_scene(const BuildSettings& s) {
   else
     grid = GridTransform::fit(bounds, s.resolution);
 
-  uint64_t budget = s.memory_budget;
-  if (budget == 0) budget = uint64_t(double(available_memory_bytes()) * 0.9);
-  uint64_t need = estimate_build_bytes(out.mesh, grid);
+  // The mesh stays in memory for the whole build.
+  const uint64_t need = estimate_build_bytes(out.mesh, grid) + mesh_bytes(out.mesh);
   if (s.dag && (s.out_of_core || (budget && need > budget))) {
     // svdag §3 "Implementation details": sub-volumes voxelized and reduced
     // one at a time, peak memory bounded by the budget.

@@ -50,6 +50,9 @@ struct BuiltScene {
 /// voxelizer and builder hold per voxel).
 uint64_t estimate_build_bytes(const Mesh& mesh, const GridTransform& grid);
 
+/// Bytes the mesh's arrays and textures hold.
+uint64_t mesh_bytes(const Mesh& mesh);
+
 BuiltScene build_scene(const BuildSettings& settings);
 
 VoxelizationMode parse_voxelization(const std::string& name);

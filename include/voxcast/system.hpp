@@ -6,6 +6,9 @@ namespace voxcast {
 
 /// Memory the kernel reports as available (MemAvailable), in bytes; 0 if unknown.
 uint64_t available_memory_bytes();
+/// Physical memory the process may use, in bytes: MemTotal, lowered to the
+/// cgroup's memory limit when one is set (containers); 0 if unknown.
+uint64_t physical_memory_bytes();
 /// Parses "512M", "8G", "1.5GiB", "123456" (bytes) into bytes; throws voxcast::Error.
 uint64_t parse_byte_size(const char* text);
 

@@ -11,20 +11,51 @@
 
 namespace voxcast {
 
-uint64_t available_memory_bytes() {
+namespace {
+
+// First "Key: N kB" value of /proc/meminfo, in bytes; 0 if absent.
+uint64_t meminfo_bytes(const char* key) {
   FILE* f = std::fopen("/proc/meminfo", "r");
   if (!f) return 0;
   char line[256];
-  uint64_t kib = 0;
+  uint64_t bytes = 0;
+  const size_t key_len = std::strlen(key);
   while (std::fgets(line, sizeof line, f)) {
     unsigned long long v = 0;
-    if (std::sscanf(line, "MemAvailable: %llu kB", &v) == 1) {
-      kib = v;
+    if (std::strncmp(line, key, key_len) == 0 && line[key_len] == ':' &&
+        std::sscanf(line + key_len + 1, "%llu kB", &v) == 1) {
+      bytes = uint64_t(v) * 1024;
       break;
     }
   }
   std::fclose(f);
-  return kib * 1024;
+  return bytes;
+}
+
+// A cgroup memory limit file holding a byte count ("max" or absent: 0).
+uint64_t cgroup_limit(const char* path) {
+  FILE* f = std::fopen(path, "r");
+  if (!f) return 0;
+  unsigned long long v = 0;
+  const bool ok = std::fscanf(f, "%llu", &v) == 1;
+  std::fclose(f);
+  return ok ? uint64_t(v) : 0;
+}
+
+}  // namespace
+
+uint64_t available_memory_bytes() {
+  return meminfo_bytes("MemAvailable");
+}
+
+uint64_t physical_memory_bytes() {
+  uint64_t total = meminfo_bytes("MemTotal");
+  for (const char* path :
+       {"/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"}) {
+    const uint64_t limit = cgroup_limit(path);
+    if (limit > 0 && (total == 0 || limit < total)) total = limit;
+  }
+  return total;
 }
 
 uint64_t parse_byte_size(const char* text) {

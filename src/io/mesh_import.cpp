@@ -21,16 +21,23 @@
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
 #include <assimp/texture.h>
+#include <fcntl.h>
 #include <fmt/format.h>
 #include <stb_image.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include <algorithm>
+#include <assimp/DefaultLogger.hpp>
 #include <assimp/Importer.hpp>
+#include <assimp/LogStream.hpp>
 #include <cmath>
 #include <cstring>
 #include <fstream>
 #include <iterator>
 #include <map>
+#include <mutex>
+#include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
 #include <string_view>
@@ -94,6 +101,20 @@ Texture decode_image(const uint8_t* data, size_t size, const std::string& what) 
 
 // ------------------------------------------------------------ scene walking
 
+// Non-finite positions would corrupt the voxel grid. Checked on the file's
+// data as imported (before JoinIdenticalVertices, which merges a NaN vertex
+// with an arbitrary other one and so turns it into a "degenerate" triangle)
+// and again after the node transforms are applied.
+void require_finite_positions(const aiMesh& am, unsigned mesh_index, const std::string& name) {
+  if (!am.mVertices) return;
+  for (unsigned i = 0; i < am.mNumVertices; ++i) {
+    const aiVector3D& p = am.mVertices[i];
+    if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z))
+      throw Error(fmt::format("{}: vertex {} of mesh {} has a non-finite coordinate ({}, {}, {})",
+                              name, i, mesh_index, p.x, p.y, p.z));
+  }
+}
+
 class SceneConverter {
  public:
   SceneConverter(const aiScene& scene, const fs::path& path)
@@ -129,7 +150,7 @@ class SceneConverter {
     if (out.indices.empty()) {
       if (stats.input_triangles > 0)
         throw Error(
-            fmt::format("{}: all {} triangles are degenerate", name_, stats.input_triangles));
+            fmt::format("{}: {}", name_, all_degenerate(stats.input_triangles, repeated_vertex_)));
       throw Error(fmt::format("{}: contains no triangles", name_));
     }
     compact_vertices(out);
@@ -146,13 +167,10 @@ class SceneConverter {
     if (base + nv > size_t(UINT32_MAX))
       throw Error(fmt::format("{}: more than 2^32 vertices", name_));
 
+    require_finite_positions(am, mesh_index, name_);
     for (unsigned i = 0; i < nv; ++i) {
       const aiVector3D& p = am.mVertices[i];
-      Vec3 v{p.x, p.y, p.z};
-      if (!is_finite(v))
-        throw Error(fmt::format("{}: vertex {} of mesh {} has a non-finite coordinate ({}, {}, {})",
-                                name_, i, mesh_index, p.x, p.y, p.z));
-      out.positions.push_back(v);
+      out.positions.push_back(Vec3{p.x, p.y, p.z});
     }
 
     // Triangles first: normals are computed from the surviving ones.
@@ -167,8 +185,12 @@ class SceneConverter {
       if (a >= nv || b >= nv || c >= nv)
         throw Error(fmt::format("{}: face {} of mesh {} references vertex {} but the mesh has {}",
                                 name_, f, mesh_index, std::max({a, b, c}), nv));
-      if (a == b || b == c || a == c ||
-          area2(am.mVertices[a], am.mVertices[b], am.mVertices[c]) == 0) {
+      if (a == b || b == c || a == c) {
+        ++stats.degenerate_dropped;
+        ++repeated_vertex_;
+        continue;
+      }
+      if (area2(am.mVertices[a], am.mVertices[b], am.mVertices[c]) == 0) {
         ++stats.degenerate_dropped;
         continue;
       }
@@ -424,7 +446,25 @@ class SceneConverter {
     m.textures = std::move(textures_);
   }
 
+  // Why every triangle went: "the only triangle has zero area", "all 5
+  // triangles are degenerate (3 repeat a vertex, 2 have zero area)".
+  static std::string all_degenerate(size_t total, size_t repeated) {
+    const size_t flat = total - repeated;
+    if (total == 1)
+      return repeated ? "the only triangle is degenerate (it uses one vertex twice)"
+                      : "the only triangle is degenerate (zero area: its corners are collinear)";
+    if (repeated == total)
+      return fmt::format("all {} triangles are degenerate (each uses one vertex twice)", total);
+    if (repeated == 0)
+      return fmt::format("all {} triangles are degenerate (zero area: their corners are collinear)",
+                         total);
+    return fmt::format("all {} triangles are degenerate ({} {} one vertex twice, {} {} zero area)",
+                       total, repeated, repeated == 1 ? "uses" : "use", flat,
+                       flat == 1 ? "has" : "have");
+  }
+
   const aiScene& scene_;
+  size_t repeated_vertex_ = 0;
   fs::path path_;
   std::string name_;
   bool colors_are_linear_ = false;
@@ -571,6 +611,173 @@ void precheck_ply(const fs::path& path, const std::string& name, bool ply_extens
   throw Error(fmt::format("{}: malformed PLY header (no end_header)", name));
 }
 
+// glTF keeps its geometry in buffers: external .bin files or, in a .glb, the
+// BIN chunk. A missing or short buffer makes Assimp answer "No suitable
+// reader found" or "byteLength exceeds size", which names neither the buffer
+// nor the cause; checked here first, with both in the message.
+std::string percent_decode(const std::string& uri) {
+  std::string out;
+  for (size_t i = 0; i < uri.size(); ++i) {
+    if (uri[i] == '%' && i + 2 < uri.size() &&
+        std::isxdigit(static_cast<unsigned char>(uri[i + 1])) &&
+        std::isxdigit(static_cast<unsigned char>(uri[i + 2]))) {
+      out.push_back(char(std::stoi(uri.substr(i + 1, 2), nullptr, 16)));
+      i += 2;
+    } else {
+      out.push_back(uri[i]);
+    }
+  }
+  return out;
+}
+
+void check_gltf_buffers(const nlohmann::json& doc, const fs::path& dir, const std::string& name,
+                        int64_t bin_chunk_bytes) {
+  if (!doc.is_object() || !doc.contains("buffers")) return;
+  const nlohmann::json& buffers = doc["buffers"];  // glTF 2: array; glTF 1: object by id
+  if (!buffers.is_array() && !buffers.is_object()) return;
+  size_t index = 0;
+  for (const auto& [key, buf] : buffers.items()) {
+    const std::string id = buffers.is_array() ? std::to_string(index) : one_line(key, 60);
+    ++index;
+    if (!buf.is_object() || !buf.contains("byteLength") || !buf["byteLength"].is_number()) continue;
+    const double declared = buf["byteLength"].get<double>();
+    if (!buf.contains("uri")) {  // the GLB's BIN chunk
+      if (bin_chunk_bytes >= 0 && declared > double(bin_chunk_bytes))
+        throw Error(fmt::format(
+            "{}: buffer {} declares {} bytes but the GLB's binary chunk holds {} (truncated file?)",
+            name, id, declared, bin_chunk_bytes));
+      continue;
+    }
+    if (!buf["uri"].is_string()) continue;
+    const std::string uri = buf["uri"].get<std::string>();
+    if (uri.rfind("data:", 0) == 0) continue;  // embedded base64: Assimp reports it
+    const fs::path file = dir / percent_decode(uri);
+    struct stat st;
+    if (::stat(file.c_str(), &st) != 0)
+      throw Error(fmt::format("{}: buffer {} refers to '{}', which is not next to the model", name,
+                              id, one_line(uri, 120)));
+    if (!S_ISREG(st.st_mode))
+      throw Error(fmt::format("{}: buffer {} file '{}' is not a regular file", name, id,
+                              one_line(uri, 120)));
+    if (declared > double(st.st_size))
+      throw Error(fmt::format(
+          "{}: buffer '{}' holds {} bytes but the model declares {} (truncated, or from another "
+          "version of the model?)",
+          name, one_line(uri, 120), uint64_t(st.st_size), declared));
+  }
+}
+
+void precheck_gltf(const fs::path& path, const std::string& name, bool binary) {
+  std::ifstream in(path, std::ios::binary);
+  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  nlohmann::json doc;
+  int64_t bin_chunk = -1;
+  auto u32 = [&](size_t at) {
+    uint32_t v = 0;
+    std::memcpy(&v, bytes.data() + at, 4);
+    return v;
+  };
+  if (binary) {
+    // Header: magic "glTF", version, total length; glTF 2 then has chunks
+    // of {length, type, data}: JSON first, then optionally BIN.
+    if (bytes.size() < 12 || bytes.compare(0, 4, "glTF") != 0) return;
+    if (u32(8) > bytes.size())
+      throw Error(
+          fmt::format("{}: the GLB header declares {} bytes but the file has {} (truncated)", name,
+                      u32(8), bytes.size()));
+    if (u32(4) != 2 || bytes.size() < 20) return;
+    const uint64_t json_len = u32(12);
+    if (u32(16) != 0x4E4F534Au || 20 + json_len > bytes.size()) return;
+    const uint64_t bin_at = 20 + ((json_len + 3) & ~uint64_t(3));
+    if (bin_at + 8 <= bytes.size() && u32(size_t(bin_at) + 4) == 0x004E4942u)
+      bin_chunk = int64_t(std::min<uint64_t>(u32(size_t(bin_at)), bytes.size() - bin_at - 8));
+    doc = nlohmann::json::parse(bytes.begin() + 20, bytes.begin() + 20 + int64_t(json_len), nullptr,
+                                false);
+  } else {
+    doc = nlohmann::json::parse(bytes, nullptr, false);
+  }
+  if (doc.is_discarded()) return;  // not JSON: Assimp's message says where
+  check_gltf_buffers(doc, path.parent_path(), name, bin_chunk);
+}
+
+// Assimp reports through its DefaultLogger (silent unless one is created),
+// and a few importers print to stdout/stderr directly (e.g. OpenGEX's DDL
+// parser). During an import both are captured: the log, because some
+// warnings mean lost geometry (ImportLog::dropped_geometry), the streams so
+// that nothing stray reaches the user's terminal. Both are process-wide, so
+// imports run one at a time.
+class ImportLog : public Assimp::LogStream {
+ public:
+  void write(const char* message) override {
+    std::string line = one_line(message, 300);
+    // Drop the "Warn,  T0: " severity and thread tag.
+    if (const size_t tag = line.find(": "); tag != std::string::npos && tag < 20)
+      line.erase(0, tag + 2);
+    lines.push_back(std::move(line));
+  }
+  // Importers that drop faces or vertices with out-of-range indices and only
+  // warn about it; a model silently missing faces is worse than an error.
+  const std::string* dropped_geometry() const {
+    static const char* const kDropped[] = {
+        "out-of-range indices",        "vertex index is out of range",
+        "vertex index out of range",   "polygon index is out of range",
+        "Face has an invalid index",   "Position index out of range",
+        "face index is out of range",  "Failure evaluating face record",
+        "IRRMESH: Index out of range", "Coordinate idx is out of range",
+        "GLTF: Invalid index",         "not compatible with the TRIANGLES mode"};
+    for (const std::string& l : lines)
+      for (const char* k : kDropped)
+        if (l.find(k) != std::string::npos) return &l;
+    return nullptr;
+  }
+  std::vector<std::string> lines;
+};
+
+class QuietImport {
+ public:
+  QuietImport() : lock_(mutex()) {
+    if (Assimp::DefaultLogger::isNullLogger()) {
+      Assimp::DefaultLogger::create("", Assimp::Logger::NORMAL, 0);
+      created_ = true;
+    }
+    Assimp::DefaultLogger::get()->attachStream(&log_, kSeverity);
+    std::fflush(stdout);
+    std::fflush(stderr);
+    capture_ = std::tmpfile();
+    for (int k = 0; k < 2 && capture_; ++k) {
+      saved_[k] = ::dup(k + 1);
+      if (saved_[k] >= 0) ::dup2(::fileno(capture_), k + 1);
+    }
+  }
+  ~QuietImport() {
+    std::fflush(stdout);
+    std::fflush(stderr);
+    for (int k = 0; k < 2; ++k)
+      if (saved_[k] >= 0) {
+        ::dup2(saved_[k], k + 1);
+        ::close(saved_[k]);
+      }
+    if (capture_) std::fclose(capture_);
+    Assimp::DefaultLogger::get()->detachStream(&log_, kSeverity);
+    if (created_) Assimp::DefaultLogger::kill();
+  }
+  QuietImport(const QuietImport&) = delete;
+  QuietImport& operator=(const QuietImport&) = delete;
+  const ImportLog& log() const { return log_; }
+
+ private:
+  static std::mutex& mutex() {
+    static std::mutex m;
+    return m;
+  }
+  static constexpr unsigned kSeverity = Assimp::Logger::Warn | Assimp::Logger::Err;
+  std::lock_guard<std::mutex> lock_;
+  ImportLog log_;
+  bool created_ = false;
+  std::FILE* capture_ = nullptr;
+  int saved_[2] = {-1, -1};
+};
+
 }  // namespace
 
 Mesh load_mesh(const std::filesystem::path& path, MeshLoadStats* stats_out) {
@@ -586,28 +793,55 @@ Mesh load_mesh(const std::filesystem::path& path, MeshLoadStats* stats_out) {
                    [](unsigned char c) { return char(std::tolower(c)); });
     if (ext == ".off") precheck_off(path, name);
     precheck_ply(path, name, ext == ".ply");
+    if (ext == ".gltf" || ext == ".glb") precheck_gltf(path, name, ext == ".glb");
   }
 
   Assimp::Importer importer;
   // Points and lines are removed by SortByPType instead of reaching us.
   importer.SetPropertyInteger(AI_CONFIG_PP_SBP_REMOVE,
                               aiPrimitiveType_POINT | aiPrimitiveType_LINE);
-  // ValidateDataStructure runs first and rejects out-of-range indices before
-  // JoinIdenticalVertices would index with them. No GenNormals: we compute
-  // missing normals ourselves, area-weighted, and only where missing.
-  const unsigned flags = aiProcess_ValidateDataStructure | aiProcess_Triangulate |
-                         aiProcess_JoinIdenticalVertices | aiProcess_SortByPType |
-                         aiProcess_PreTransformVertices | aiProcess_FlipUVs;
+  // Two steps: the file as read (ValidateDataStructure rejects out-of-range
+  // indices before JoinIdenticalVertices would index with them), checked for
+  // non-finite positions; then the rest. No GenNormals: we compute missing
+  // normals ourselves, area-weighted, and only where missing.
+  const unsigned read_flags = aiProcess_ValidateDataStructure;
+  const unsigned post_flags = aiProcess_Triangulate | aiProcess_JoinIdenticalVertices |
+                              aiProcess_SortByPType | aiProcess_PreTransformVertices |
+                              aiProcess_FlipUVs;
+  QuietImport quiet;
   const aiScene* scene = nullptr;
   try {
-    scene = importer.ReadFile(path.string(), flags);
+    scene = importer.ReadFile(path.string(), read_flags);
+    if (scene) {
+      for (unsigned m = 0; m < scene->mNumMeshes; ++m)
+        if (scene->mMeshes && scene->mMeshes[m])
+          require_finite_positions(*scene->mMeshes[m], m, name);
+      scene = importer.ApplyPostProcessing(post_flags);
+    }
+  } catch (const Error&) {
+    throw;
   } catch (const std::bad_alloc&) {
     throw Error(fmt::format("{}: out of memory while importing (corrupt element counts?)", name));
   } catch (const std::exception& e) {
     throw Error(fmt::format("{}: cannot import: {}", name, one_line(e.what())));
   }
+  if (const std::string* dropped = quiet.log().dropped_geometry())
+    throw Error(fmt::format(
+        "{}: the file references vertices that do not exist ({}); damaged file?", name, *dropped));
   if (!scene) {
     std::string err = one_line(importer.GetErrorString());
+    if (err.find("No suitable reader found") != std::string::npos) {
+      const std::string ext = path.extension().string();
+      if (!ext.empty() && importer.IsExtensionSupported(ext.c_str()))
+        throw Error(fmt::format(
+            "{}: not a valid {} file (Assimp's {} importer did not accept its contents; "
+            "damaged, truncated, or missing a file it references?)",
+            name, one_line(ext.substr(1), 20), one_line(ext.substr(1), 20)));
+      throw Error(fmt::format(
+          "{}: unknown mesh format{} (voxcast reads what Assimp reads: OBJ, PLY, OFF, STL, "
+          "glTF/GLB, FBX, DAE, 3DS, ...)",
+          name, ext.empty() ? std::string() : " '" + one_line(ext, 20) + "'"));
+    }
     throw Error(fmt::format("{}: cannot import: {}", name, err.empty() ? "unknown error" : err));
   }
   if (scene->mNumMeshes == 0 || !scene->mMeshes)

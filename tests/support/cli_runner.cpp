@@ -12,8 +12,8 @@
 
 namespace voxcast::testing {
 
-CliResult run_cli(const std::string& args) {
-  std::string cmd = std::string("'") + VOXCAST_CLI_PATH + "' " + args + " 2>&1 </dev/null";
+namespace {
+CliResult run_command(const std::string& cmd) {
   CliResult r;
   FILE* p = popen(cmd.c_str(), "r");
   if (!p) throw std::runtime_error("popen failed");
@@ -22,6 +22,20 @@ CliResult run_cli(const std::string& args) {
   while ((n = fread(buf, 1, sizeof buf, p)) > 0) r.output.append(buf, n);
   int status = pclose(p);
   r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+  return r;
+}
+}  // namespace
+
+CliResult run_cli(const std::string& args) {
+  return run_command(std::string("'") + VOXCAST_CLI_PATH + "' " + args + " 2>&1 </dev/null");
+}
+
+CliResult run_cli_split(const std::string& args, int timeout_seconds) {
+  TempDir dir;
+  const std::string err = dir.file("stderr");
+  CliResult r = run_command("timeout -k 5 " + std::to_string(timeout_seconds) + " '" +
+                            VOXCAST_CLI_PATH + "' " + args + " 2>'" + err + "' </dev/null");
+  r.errors = read_text(err);
   return r;
 }
 
