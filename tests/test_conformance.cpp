@@ -630,9 +630,9 @@ std::vector<size_t> voxels_in_cube(const VoxelSet& v, int level, int x, int y, i
   return out;
 }
 
-// The linear color the structure shows for leaf voxel `i` at LOD 0: a ray
-// starting at its center hits it at t = 0.
-Color leaf_color(const VoxelStructure& s, const VoxelSet& v, size_t i) {
+// The linear color and normal the structure shows for leaf voxel `i` at LOD
+// 0: a ray starting at its center hits it at t = 0.
+void leaf_attributes(const VoxelStructure& s, const VoxelSet& v, size_t i, Color* col, Vec3* nrm) {
   const MortonCoord c = morton_decode(v.codes[i]);
   const float n = float(v.grid.resolution);
   const Ray ray{{(float(c.x) + 0.5f) / n, (float(c.y) + 0.5f) / n, (float(c.z) + 0.5f) / n},
@@ -641,10 +641,7 @@ Color leaf_color(const VoxelStructure& s, const VoxelSet& v, size_t i) {
   SurfaceHit h;
   EXPECT_TRUE(s.trace(ray, LodFootprint{}, &h));
   EXPECT_EQ(h.t, 0.f);
-  Color col;
-  Vec3 nrm;
-  s.attributes(h, &col, &nrm);
-  return col;
+  s.attributes(h, col, nrm);
 }
 
 // The color promise of an LOD hit cube (StructureFactory::lod_colors).
@@ -658,15 +655,18 @@ void check_lod_color(const StructureFactory& f, const VoxelStructure& s, const V
   Color shown;
   Vec3 normal;
   s.attributes(h, &shown, &normal);
-  double e[3] = {0, 0, 0}, wsum = 0;
+  double e[3] = {0, 0, 0}, wsum = 0, nsum[3] = {0, 0, 0};
   for (size_t i : inside) {
     if (f.lod_colors == testing::LodColors::AreaWeightedMean) {
       const double w = v.weights.empty() ? 1.0 : v.weights[i];
       e[0] += w * v.colors[i].r, e[1] += w * v.colors[i].g, e[2] += w * v.colors[i].b;
       wsum += w;
     } else {
-      const Color c = leaf_color(s, v, i);
+      Color c;
+      Vec3 n;
+      leaf_attributes(s, v, i, &c, &n);
       e[0] += c.r, e[1] += c.g, e[2] += c.b;
+      nsum[0] += n.x, nsum[1] += n.y, nsum[2] += n.z;
       wsum += 1;
     }
   }
@@ -681,6 +681,14 @@ void check_lod_color(const StructureFactory& f, const VoxelStructure& s, const V
       // dag.hpp: exact fixed-point sums (2^-24) of the leaves' linear values.
       EXPECT_NEAR(got[k], want, 1e-5)
           << "channel " << k << " of a level-" << h.level << " cube of " << inside.size();
+    }
+  }
+  if (f.lod_colors == testing::LodColors::MeanOfLeaves) {
+    // ... and the normalized mean of the leaves' normals (where it is defined).
+    const double len = std::sqrt(nsum[0] * nsum[0] + nsum[1] * nsum[1] + nsum[2] * nsum[2]);
+    if (len > 1e-3 * double(inside.size())) {
+      const double cosine = (normal.x * nsum[0] + normal.y * nsum[1] + normal.z * nsum[2]) / len;
+      EXPECT_GT(cosine, std::cos(1e-3)) << "normal of a level-" << h.level << " cube";
     }
   }
   ++*checked;

@@ -49,7 +49,8 @@ enum class LodColors {
   AreaWeightedMean,  // mean of the input colors of its voxels weighted by
                      // VoxelSet::weights, 8-bit sRGB rounded (esvo §5.4, §7.1)
   MeanOfLeaves,      // unweighted mean of the linear colors its leaf voxels
-                     // show at LOD 0 (dag.hpp "Attributes")
+                     // show at LOD 0, and the normalized mean of their
+                     // normals (dag.hpp "Attributes")
 };
 
 struct StructureFactory {
