@@ -65,7 +65,7 @@ struct VoxelCase {
   std::function<VoxelSet()> make = nullptr;  // code-generated set (mesh == null)
 };
 
-VoxelSet slab_shell(int levels) {
+VoxelSet plates(int levels) {
   // A one-voxel-thick axis-aligned plate and a plate along a diagonal plane:
   // rays graze their faces and run inside their grid planes.
   const uint32_t n = 1u << levels;
@@ -76,15 +76,10 @@ VoxelSet slab_shell(int levels) {
   return v;
 }
 
-VoxelSet single_voxel(int levels) {
-  VoxelSet v = testing::make_random_voxels(levels, 1, 5);
-  return v;
-}
-
 const std::vector<VoxelCase>& voxel_cases() {
   static const std::vector<VoxelCase> cases = {
       {"empty", 4, nullptr, [] { return testing::make_random_voxels(4, 0, 1); }},
-      {"single_voxel", 5, nullptr, [] { return single_voxel(5); }},
+      {"single_voxel", 5, nullptr, [] { return testing::make_random_voxels(5, 1, 5); }},
       {"sparse", 6, nullptr, [] { return testing::make_random_voxels(6, 60, 2); }},
       {"half_dense", 5, nullptr, [] { return testing::make_random_voxels(5, 16384, 3); }},
       {"nearly_full", 4, nullptr, [] { return testing::make_random_voxels(4, 3900, 4); }},
@@ -95,7 +90,7 @@ const std::vector<VoxelCase>& voxel_cases() {
          return v;
        }},
       {"sphere_shell", 6, nullptr, [] { return testing::make_sphere_shell(6); }},
-      {"plates", 6, nullptr, [] { return slab_shell(6); }},
+      {"plates", 6, nullptr, [] { return plates(6); }},
       {"spot_mesh", 6, "spot.obj", nullptr},
       {"teapot_mesh", 5, "teapot.obj", nullptr},
   };
