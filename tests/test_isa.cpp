@@ -1,10 +1,10 @@
 // Runtime ISA dispatch (voxcast/isa.hpp): every kernel variant computes the
 // same bits, scene files are byte-identical whichever variant runs, and
 // `voxcast --version` reports the variant in use.
-#include <cstdio>
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <limits>
