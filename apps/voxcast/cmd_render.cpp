@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "camera_options.hpp"
 #include "commands.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_structure.hpp"
@@ -17,7 +18,8 @@ namespace voxcast::cli {
 
 namespace {
 struct RenderArgs {
-  std::string input, output, size = "1024x768", camera = "auto", depth, normal, light;
+  std::string input, output, size = "1024x768", depth, normal, light;
+  CameraArgs camera;
   float lod = 1.f;
   int threads = 0;
   bool verbose = false;
@@ -75,10 +77,7 @@ Runner add_render(CLI::App& app) {
   cmd->add_option("SCENE", args->input, "Scene file written by `voxcast build`")->required();
   cmd->add_option("-o,--output", args->output, "Output image (.png or .pfm)")->required();
   cmd->add_option("--size", args->size, "Image size WxH")->capture_default_str();
-  cmd->add_option("--camera", args->camera,
-                  "ex,ey,ez,tx,ty,tz,ux,uy,uz,fovy (eye, target, up, vertical fov in degrees) "
-                  "or auto")
-      ->capture_default_str();
+  add_camera_options(cmd, args->camera);
   cmd->add_option("--lod", args->lod,
                   "Stop at voxels projecting to at most this many pixels (0 = finest level)")
       ->capture_default_str();
@@ -213,12 +212,10 @@ Runner add_render(CLI::App& app) {
       fx.ao_radius =
           args->ao_radius > 0 ? args->ao_radius : 0.05f * length(scene.occupied.extent());
     const VoxelStructure& structure = *scene.structure;
-    if (args->camera == "auto") {
-      opt.camera = Camera::frame(scene.occupied, opt.width, opt.height);
-      std::printf("camera: %s\n", opt.camera.to_string().c_str());
-    } else {
-      opt.camera = Camera::parse(args->camera);
-    }
+    bool derived_camera = false;
+    opt.camera =
+        resolve_camera(args->camera, scene.occupied, opt.width, opt.height, &derived_camera);
+    if (derived_camera) std::printf("camera: %s\n", opt.camera.to_string().c_str());
     opt.want_depth = !args->depth.empty();
     opt.want_normal = !args->normal.empty();
     opt.filter = args->filter;
