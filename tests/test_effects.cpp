@@ -183,7 +183,8 @@ TEST_P(EffectsOracle, OcclusionMatchesEmbree) {
       "R = 10%% diag) mean |diff| %.4f; corner-ray beam vs exact mean |diff| %.4f\n",
       GetParam(), a.pixels, 100.0 * double(a.shadowed) / double(a.pixels), a.mean_ao, 100.0 * hard,
       a.soft_diff, a.ao_diff, a.corners_diff);
-  ASSERT_GT(a.pixels, 3000u);
+  // The automatic camera keeps the whole mesh in view: spot covers ~2600 pixels.
+  ASSERT_GT(a.pixels, 2000u);
   // Not a trivial agreement: some pixels are in cast shadow, AO is not all 1
   // (measured: bunny 11.0% / 0.966, spot 1.1% / 0.981).
   EXPECT_GT(a.shadowed, a.pixels / 100);
