@@ -203,7 +203,8 @@ EmbreeScene::DepthRender EmbreeScene::render_depth(const Camera& camera, int wid
             const int x = x0 + i;
             valid[i] = x < tile.x1 ? -1 : 0;
             const Vec3 d = cam.direction(valid[i] ? x : x0, y);
-            rh.ray.org_x[i] = cam.eye.x, rh.ray.org_y[i] = cam.eye.y, rh.ray.org_z[i] = cam.eye.z;
+            const Vec3 o = cam.origin(valid[i] ? x : x0, y);  // the eye unless orthographic
+            rh.ray.org_x[i] = o.x, rh.ray.org_y[i] = o.y, rh.ray.org_z[i] = o.z;
             rh.ray.dir_x[i] = d.x, rh.ray.dir_y[i] = d.y, rh.ray.dir_z[i] = d.z;
             rh.ray.tnear[i] = 0.f;
             rh.ray.tfar[i] = INFINITY;
