@@ -8,7 +8,8 @@
 //   * every descriptor reachable from the root lies in a descriptor area, not
 //     on a page header, is reached exactly once (so traversal work is bounded
 //     by the array size), and its child group lies strictly after it, inside
-//     one page of one block's descriptor area;
+//     one page of one block's descriptor area; a descriptor without
+//     subdivided children has a zero pointer field (no far bit);
 //   * masks are consistent with the depth (leaves exactly at depth `levels`,
 //     or at most there in octrees with contours: variable depth, §7.1);
 //   * every contour mask is within the valid mask and its contour pointer +
@@ -198,7 +199,15 @@ void EsvoOctree::validate() const {
       if (base >> 29 > 5) fail_at("bad compressed base normal", s);
     }
 
-    if (!nl) continue;
+    // A descriptor without subdivided children has no child group, and the
+    // builder leaves its pointer field zero. Readers that fetch the pointer
+    // before looking at the masks (the beam's coarse pass, esvo §6.2) would
+    // otherwise follow a far bit into arbitrary memory: the field must be
+    // zero, so no reader can see a pointer this walk has not checked.
+    if (!nl) {
+      if (w0 >> kPointerShift || (w0 & kFarBit)) fail_at("child pointer without children", s);
+      continue;
+    }
     const uint32_t ptr = w0 >> kPointerShift;
     if (ptr == 0) fail_at("child pointer does not point forward", s);
     int64_t group = int64_t(s) + ptr;
