@@ -7,6 +7,8 @@
 #include <gtest/gtest.h>
 
 #include <bit>
+#include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -33,6 +35,13 @@ bool is_esvo(SceneKind k) {
 void write_file(const fs::path& p, const std::vector<uint8_t>& b) {
   std::ofstream out(p, std::ios::binary | std::ios::trunc);
   out.write(reinterpret_cast<const char*>(b.data()), std::streamsize(b.size()));
+}
+
+// The ctest sweep size; the long sweep (README "Reliability") raises it:
+// VOXCAST_DAMAGE_POSITIONS=N word positions per section, VOXCAST_DAMAGE_SEED.
+uint64_t env_or(const char* name, uint64_t fallback) {
+  const char* v = std::getenv(name);
+  return v && *v ? std::strtoull(v, nullptr, 10) : fallback;
 }
 
 class SceneDamage : public ::testing::TestWithParam<SceneKind> {};
@@ -78,7 +87,8 @@ TEST_P(SceneDamage, SampleHasTheFormatsFeatures) {
 TEST_P(SceneDamage, EveryWordEditIsAcceptedOrRefusedInOneLine) {
   const SceneKind kind = GetParam();
   const std::vector<uint8_t>& good = damage_sample(kind);
-  const std::vector<testing::Mutation> mutations = testing::sweep_mutations(good, 150, 15);
+  const std::vector<testing::Mutation> mutations = testing::sweep_mutations(
+      good, env_or("VOXCAST_DAMAGE_POSITIONS", 150), env_or("VOXCAST_DAMAGE_SEED", 15));
   ASSERT_GT(mutations.size(), 1500u);
   size_t accepted = 0, refused = 0;
   for (const testing::Mutation& m : mutations) {
@@ -88,6 +98,7 @@ TEST_P(SceneDamage, EveryWordEditIsAcceptedOrRefusedInOneLine) {
     const testing::Verdict v = testing::check_scene(bad);
     if (v.accepted) {
       ++accepted;
+      EXPECT_EQ(v.use_error, "") << testing::describe(m);
       continue;
     }
     ++refused;
@@ -98,6 +109,8 @@ TEST_P(SceneDamage, EveryWordEditIsAcceptedOrRefusedInOneLine) {
   // bits are harmless by design.
   EXPECT_GT(refused, mutations.size() / 10) << accepted << " accepted";
   EXPECT_GT(accepted, mutations.size() / 20) << refused << " refused";
+  std::printf("%s: %zu damaged files, %zu accepted, %zu refused\n", testing::scene_kind_name(kind),
+              mutations.size(), accepted, refused);
 }
 
 // Through the CLI binary: for a sample of damaged files, `info` and `render`

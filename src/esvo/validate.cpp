@@ -132,8 +132,8 @@ void EsvoOctree::validate() const {
   const int L = grid.levels;
   if (L < 1 || L > kMaxGridLevels) fail("levels " + std::to_string(L) + " outside 1..20");
   if (grid.resolution != (1u << L)) fail("resolution is not 2^levels");
-  if (!(grid.voxel_size > 0) || !std::isfinite(grid.voxel_size) || !is_finite(grid.origin))
-    fail("bad grid placement");
+  if (!grid.placement_is_valid())
+    fail("bad grid placement (the world cube is not a box of float coordinates within 1e18)");
   const std::vector<BlockInfo> blocks = parse_blocks(*this);
   const uint32_t* w = words.data();
   const uint64_t total_slots = words.size() / 2;

@@ -197,8 +197,18 @@ std::vector<Mutation> sweep_mutations(const std::vector<uint8_t>& file, size_t p
 
 Verdict check_scene(const std::vector<uint8_t>& file) {
   Verdict v;
+  LoadedScene scene;
   try {
-    const LoadedScene scene = load_scene(Container::parse(file.data(), file.size()));
+    scene = load_scene(Container::parse(file.data(), file.size()));
+  } catch (const Error& e) {
+    v.error = e.what();
+    return v;
+  }
+  v.accepted = true;
+  // An accepted scene must work for every subcommand: an error from here on
+  // means the loader let through something a reader cannot use (info would
+  // accept the file and render refuse it).
+  try {
     // What `info` computes from the loaded structure.
     if (const auto* e = dynamic_cast<const esvo::EsvoStructure*>(scene.structure.get())) {
       for (const esvo::LevelStats& l : e->octree().level_stats()) v.voxels += l.voxels - l.non_leaf;
@@ -218,9 +228,8 @@ Verdict check_scene(const std::vector<uint8_t>& file) {
     ro.effects.ao_rays = 2;  // radius 0: 5% of the bounds' diagonal
     const RenderResult r = render(*scene.structure, ro);
     v.hits = r.hits;
-    v.accepted = true;
   } catch (const Error& e) {
-    v.error = e.what();
+    v.use_error = e.what();
   }
   return v;
 }

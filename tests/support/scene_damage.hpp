@@ -61,17 +61,19 @@ std::vector<Mutation> sweep_mutations(const std::vector<uint8_t>& file, size_t p
 
 /// What the readers make of a file, in process.
 struct Verdict {
-  bool accepted = false;
-  std::string error;    // the one-line voxcast::Error message when refused
-  uint64_t hits = 0;    // pixels of the small render that hit
-  uint64_t voxels = 0;  // leaves counted by the info statistics
+  bool accepted = false;  // by the loader (load_scene)
+  std::string error;      // the one-line voxcast::Error message when refused
+  std::string use_error;  // accepted, but info or render failed: always a bug
+  uint64_t hits = 0;      // pixels of the small render that hit
+  uint64_t voxels = 0;    // leaves counted by the info statistics
 };
 /// Everything a subcommand does with a scene, through the one loader:
 /// Container::parse, load_scene (validation, occupied bounds), the `info`
 /// statistics of the loaded structure, then a 16 x 12 render with the auto
 /// camera, the beam, hard shadows and AO (every hit shades and fetches its
-/// attributes). Throws nothing for a voxcast::Error (accepted = false); any
-/// other failure is a bug the caller sees (a crash under the sanitizers).
+/// attributes). Throws nothing for a voxcast::Error (from the loader:
+/// accepted = false; after it: use_error); any other failure is a bug the
+/// caller sees (a crash under the sanitizers).
 Verdict check_scene(const std::vector<uint8_t>& file);
 
 }  // namespace voxcast::testing
