@@ -169,7 +169,7 @@ LoadedScene load_scene(const std::filesystem::path& path) {
 }
 
 LoadedScene load_scene(const Container& c) {
-  // The one gate between a file and every reader (render, info, bench):
+  // The one gate between a file and every reader (render, info):
   // the format's full validator, then the walks done here, so every
   // subcommand accepts or refuses exactly the same files.
   const std::string format = scene_format(c);
