@@ -11,7 +11,8 @@
 // the info statistics, a small render with beam, shadows and AO).
 //
 // Seeds: the seven formats of testing::kAllSceneKinds. An input that is not
-// a container (e.g. the empty start input) is replaced by one of them, and
+// a container is replaced by one of them when -max_len allows (libFuzzer
+// takes it from the largest corpus file, so start from the seeds), and
 //   VOXCAST_WRITE_SEEDS=DIR ./fuzz_scene_sections
 // writes them to DIR and exits (README "Reliability" has the full recipe).
 #include <tbb/global_control.h>
