@@ -583,6 +583,8 @@ TEST(CliResources, MemoryEstimateIsTheSameFarFromTheOrigin) {
   const double near = estimate_mib(0), far = estimate_mib(16777216.0);
   EXPECT_GT(near, 1.0);
   EXPECT_NEAR(far / near, 1.0, 0.02) << near << " MiB vs " << far << " MiB";
+}
+
 namespace {
 // The "camera: ..." line `render` prints (empty if none).
 std::string printed_camera(const std::string& output, const char* prefix = "camera: ") {
