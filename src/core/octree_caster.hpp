@@ -542,10 +542,16 @@ struct OctreeWorld {
   }
 
   /// VoxelStructure::occluded: any hit within [0, ray.tmax].
+  /// The any-hit instantiation only where it skips work in the loop (a
+  /// payload to carry, the entered face); otherwise it would differ from the
+  /// closest-hit one by the final unmirroring alone, and primary and
+  /// secondary rays share one copy of the loop (docs/BENCHMARKS.md "One
+  /// octree caster": the ESVO's AO rays measured slower with their own).
   bool occluded(const Ray& ray, const LodFootprint& lod) const {
-    return cast_octree<P, false, true>(source, frame.point(ray.origin), frame.direction(ray.dir),
-                                       ray.tmax, frame.length(lod.size_per_t),
-                                       frame.length(lod.size_at_origin), nullptr, nullptr)
+    constexpr bool kAnyHit = !std::is_same_v<typename P::Index, NoIndex> || P::kEnteredFace;
+    return cast_octree<P, false, kAnyHit>(source, frame.point(ray.origin), frame.direction(ray.dir),
+                                          ray.tmax, frame.length(lod.size_per_t),
+                                          frame.length(lod.size_at_origin), nullptr, nullptr)
         .hit;
   }
 
