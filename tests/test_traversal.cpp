@@ -10,6 +10,7 @@
 
 #include "support/dda_oracle.hpp"
 #include "support/esvo_testing.hpp"
+#include "support/octree_rays.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/morton.hpp"

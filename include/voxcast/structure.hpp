@@ -1,7 +1,9 @@
 #pragma once
-// The one small interface the renderer uses for every voxel structure
-// (ESVO today; DAG, brickmap, GigaVoxels later): trace a ray to a hit or a
-// miss with a level-of-detail footprint, then fetch attributes at the hit.
+// The one small interface the renderer uses for every voxel structure (the
+// ESVO octree and the sparse voxel DAG today, both through the one octree
+// caster of octree_structure.hpp; brickmap, GigaVoxels later): trace a ray to
+// a hit or a miss with a level-of-detail footprint, then fetch attributes at
+// the hit.
 #include <cstdint>
 #include <string>
 

@@ -1,9 +1,10 @@
 #pragma once
 // Coarse pass of the beam optimization (esvo §6.2), structure-independent
-// part, shared by the ESVO octree and the sparse voxel DAG: the beam's
-// pyramid in octree space ([1,2]^3, esvo §6.1), the conservative cube test
-// and the start region it accumulates. Only the node iteration differs
-// between the structures (esvo/traverse.cpp, dag/beam.cpp).
+// part, shared by the octree family (ESVO octree, sparse voxel DAG): the
+// beam's pyramid in octree space ([1,2]^3, esvo §6.1), the conservative cube
+// test and the start region it accumulates. The node walk is
+// detail::beam_walk (core/octree_caster.hpp) over each structure's node
+// policy.
 //
 // The paper casts distance rays through the block corners and stops "as soon
 // as we encounter a voxel that is not large enough to certainly cover at
@@ -19,13 +20,13 @@
 // bounding box R of the kept cubes. Every voxel a ray of the beam can hit
 // lies in the pyramid, so R contains it (its cube or an ancestor's was kept),
 // and the caster started at R's entry planes returns the same hit bit for bit
-// (see the proof at the top of esvo/traverse.cpp). R's near faces are set by
+// (see the proof at detail::cast_octree, core/octree_caster.hpp). R's near faces are set by
 // the nearest surface in the beam, which is where the paper's conservative
 // distance would start.
 //
 // Contours (§6.2: "contour tests must be disabled in the coarse pass"): the
 // pass only looks at whole cubes, which contain their contour-clipped
-// volume, so it stays conservative once contours exist; the fine rays may
+// volume, so it stays conservative with contours; the fine rays may
 // then use contours, since a contour only narrows a voxel's span.
 //
 // Widening: the rays of a beam are at least one pixel inside the four edge
@@ -48,10 +49,11 @@ class BeamClassifier {
 
   /// `grid`: the structure's grid (octree space p' = (p - origin)/side + 1).
   BeamClassifier(const BeamFrustum& beam, const GridTransform& grid) {
-    const float inv_side = float(1.0 / grid.side());
+    const OctreeFrame frame(grid);
+    const float inv_side = frame.inv_side;
     // Eye in octree space, the same float the caster starts from (for a
     // parallel beam: a reference point on the origins' plane).
-    const Vec3 pf = (beam.eye - grid.origin) * inv_side + Vec3{1, 1, 1};
+    const Vec3 pf = frame.point(beam.eye);
     if (!is_finite(pf)) return;  // no information
     const double e[3] = {pf.x, pf.y, pf.z};
     // Pinhole: four planes through the eye, each spanned by two adjacent

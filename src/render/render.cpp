@@ -173,7 +173,8 @@ RenderResult render(const VoxelStructure& structure, const RenderOptions& option
     } else {
       // §6.2: per K x K block (clipped to the tile), a coarse pass computes a
       // conservative start region shared by the block's rays. It runs inside
-      // the timed loop. (Contours, once they exist, must stay off in it.)
+      // the timed loop and ignores contours (§6.2: whole cubes contain their
+      // contour-clipped shape; core/beam_frustum.hpp).
       for (int by = tile.y0; by < tile.y1; by += beam_k) {
         for (int bx = tile.x0; bx < tile.x1; bx += beam_k) {
           const int bx1 = std::min(bx + beam_k, tile.x1), by1 = std::min(by + beam_k, tile.y1);
