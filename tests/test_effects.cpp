@@ -333,8 +333,17 @@ TEST_P(EffectsOracle, OcclusionMatchesEmbree) {
   const float diag = length(framed.extent());
   if (param.ground) mesh = with_ground_plane(std::move(mesh), 0.02f * diag, 0.25f * diag);
   const Scene s = make_scene(std::move(mesh), 1024);
-  const int W = 160, H = 120;
-  const Camera camera = Camera::frame(framed, W, H);
+  // 200x150: the automatic camera keeps the whole mesh in view, and the
+  // thinnest mesh (armadillo) still gives > 3000 shading points.
+  const int W = 200, H = 150;
+  // The view frames the central 80 % of the mesh's box: occlusion is what is
+  // compared here, and the closer view puts more of the shading points on the
+  // mesh and its cast shadow (camel: 4.9 % in cast shadow with the whole box).
+  const Vec3 c = framed.center(), half = framed.extent() * 0.4f;
+  Aabb view;
+  view.extend(c - half);
+  view.extend(c + half);
+  const Camera camera = Camera::frame(view, W, H);
   const EmbreeScene embree(s.mesh);
   const std::vector<ShadePoint> pts = shading_points(s, embree, camera, W, H);
   const OcclusionSetup o = occlusion_setup(framed);

@@ -16,6 +16,21 @@ namespace voxcast::meta {
 
 inline constexpr uint32_t kSection = fourcc("META");
 
+/// An nlohmann::json error as a user reads it: without the library's
+/// "[json.exception.parse_error.101] " tag, and for a parse error only its
+/// position ("parse error at line L, column C"), not the parser's terms and
+/// the raw bytes it last read.
+inline std::string json_error_text(const nlohmann::json::exception& e) {
+  std::string s = e.what();
+  if (s.rfind("[json.exception.", 0) == 0) {
+    const size_t close = s.find("] ");
+    if (close != std::string::npos) s.erase(0, close + 2);
+  }
+  if (const size_t at = s.find("parse error at line "); at != std::string::npos)
+    if (const size_t colon = s.find(':', at); colon != std::string::npos) s.resize(colon);
+  return s;
+}
+
 [[noreturn]] inline void bad(const std::string& what) {
   throw Error("corrupt scene: META section " + what);
 }
@@ -55,7 +70,7 @@ inline nlohmann::json parse(const Container& c) {
   try {
     return nlohmann::json::parse(bytes.begin(), bytes.end());
   } catch (const nlohmann::json::exception& e) {
-    throw Error(std::string("corrupt scene: META section is not valid JSON: ") + e.what());
+    throw Error("corrupt scene: META section is not valid JSON: " + json_error_text(e));
   }
 }
 

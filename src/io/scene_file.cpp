@@ -75,8 +75,7 @@ esvo::EsvoOctree esvo_scene_from_container(const Container& c, SceneInfo* info) 
       meta_contours = meta["contours"].get<bool>() ? 1 : 0;
     }
   } catch (const nlohmann::json::exception& e) {
-    // nlohmann messages are one line: "[json.exception.parse_error.101] ...".
-    throw Error(std::string("corrupt scene: META section is not valid JSON: ") + e.what());
+    throw Error("corrupt scene: META section is not valid JSON: " + meta::json_error_text(e));
   }
   const std::vector<uint8_t>& esvo_bytes = c.get(kEsvo);
   if (esvo_bytes.size() % 8 != 0 || esvo_bytes.size() < esvo::kPageWords * 4)
