@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <functional>
 #include <iterator>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -49,24 +50,29 @@ struct BenchArgs {
   std::string json;  // --json FILE: every figure
 };
 
-// One timing harness for every caster, voxel or Embree: a warm-up frame
-// (pages the structure in, spins up the TBB workers), then the best wall time
-// of `repeat` frames. frame() returns the seconds of its timed loop only.
+// One timing harness for every caster, voxel or Embree. Each row has a
+// frame() that runs one frame and returns the seconds of its timed loop only
+// (setup and allocation outside). Every row gets a warm-up frame (pages its
+// structure in, spins up the TBB workers), then `repeat` rounds run every
+// row once each, in turn, so that a load change on the (shared) machine hits
+// all casters alike; each row keeps its best frame.
 struct Timed {
   double seconds = 1e30;
   uint64_t rays = 0, hits = 0;  // hits: primary hits, or occluded rays
   double mrays() const { return double(rays) / seconds * 1e-6; }
   double mhits() const { return double(hits) / seconds * 1e-6; }
 };
-template <class Frame>
-Timed best_of(int repeat, const Frame& frame) {
-  Timed best = frame();
-  best.seconds = 1e30;
-  for (int r = 0; r < repeat; ++r) {
-    const Timed t = frame();
-    if (t.seconds < best.seconds) best = t;
+template <class Row>
+void measure_interleaved(std::vector<Row>& rows, int repeat) {
+  for (Row& r : rows) {
+    r.t = r.frame();  // warm-up
+    r.t.seconds = 1e30;
   }
-  return best;
+  for (int k = 0; k < repeat; ++k)
+    for (Row& r : rows) {
+      const Timed t = r.frame();
+      if (t.seconds < r.t.seconds) r.t = t;
+    }
 }
 
 Timed timed(const RenderResult& r) {
@@ -348,42 +354,65 @@ Runner add_bench(CLI::App& app) {
         std::string caster, call;
         float lod;  // < 0: not a voxel caster
         bool shaded;
+        std::function<Timed()> frame;
         Timed t;
       };
       std::vector<PrimaryRow> primary;
       EmbreeScene::DepthRender e1;  // rtcIntersect1 depth: coverage and agreement
       for (const EmbreeScene::Mode m : EmbreeScene::kModes) {
         const std::string name = std::string("embree ") + EmbreeScene::mode_name(m);
-        primary.push_back({name, EmbreeScene::mode_call(m), -1.f, false, best_of(args->repeat, [&] {
+        primary.push_back({name,
+                           EmbreeScene::mode_call(m),
+                           -1.f,
+                           false,
+                           [&, m] {
                              auto r = embree.render_depth(camera, width, height, m);
                              if (m == EmbreeScene::Mode::Single) e1 = std::move(r);
                              return timed(m == EmbreeScene::Mode::Single ? e1 : r);
-                           })});
-        primary.push_back({name, std::string(EmbreeScene::mode_call(m)) + ", normals + Phong", -1.f,
-                           true, best_of(args->repeat, [&] {
-                             return timed(
-                                 embree.render_shaded(camera, width, height, m, ro.light_dir));
-                           })});
+                           },
+                           {}});
+        primary.push_back(
+            {name,
+             std::string(EmbreeScene::mode_call(m)) + ", normals + Phong",
+             -1.f,
+             true,
+             [&, m] { return timed(embree.render_shaded(camera, width, height, m, ro.light_dir)); },
+             {}});
       }
-      const double cov = double(primary[0].t.hits) / rays;
       // LOD 0 (finest level) and --lod: trace only and render() (attributes + shading).
       std::vector<float> lods{0.f};
       if (args->lod != 0.f) lods.push_back(args->lod);
       RenderResult vox_result;  // at --lod, for the agreement line
       std::unique_ptr<esvo::EsvoStructure> contour_voxels;
       if (contoured) contour_voxels = std::make_unique<esvo::EsvoStructure>(contoured);
-      for (float lod : lods) {
-        RenderOptions rl = ro;
-        rl.lod_pixels = lod;
-        Image depth;
-        primary.push_back({"voxcast esvo", "trace, depth only", lod, false,
-                           best_of(args->repeat, [&] { return trace_depth(voxels, rl, &depth); })});
-        primary.push_back(
-            {"voxcast esvo", "render(): attributes + Phong", lod, true, best_of(args->repeat, [&] {
-               vox_result = render(voxels, rl);
-               return timed(vox_result);
-             })});
-      }
+      // Trace-only and render() rows of one voxel structure at every LOD.
+      auto add_voxel_rows = [&](const std::string& caster, const auto& structure) {
+        for (float lod : lods) {
+          RenderOptions rl = ro;
+          rl.lod_pixels = lod;
+          primary.push_back({caster,
+                             "trace, depth only",
+                             lod,
+                             false,
+                             [&structure, rl] {
+                               Image depth;
+                               return trace_depth(structure, rl, &depth);
+                             },
+                             {}});
+          primary.push_back(
+              {caster,
+               "render(): attributes + Phong",
+               lod,
+               true,
+               [&, rl, keep = static_cast<const void*>(&structure) == &voxels && lod == args->lod] {
+                 if (!keep) return timed(render(structure, rl));
+                 vox_result = render(structure, rl);
+                 return timed(vox_result);
+               },
+               {}});
+        }
+      };
+      add_voxel_rows("voxcast esvo", voxels);
       // The existing variants at --lod, rendered (attributes + shading).
       RenderOptions ro_beam = ro;
       ro_beam.beam = args->beam;
@@ -391,19 +420,29 @@ Runner add_bench(CLI::App& app) {
         primary.push_back({"voxcast esvo+beam",
                            "render(), beam " + std::to_string(args->beam) + "x" +
                                std::to_string(args->beam) + " (coarse pass included)",
-                           args->lod, true,
-                           best_of(args->repeat, [&] { return timed(render(voxels, ro_beam)); })});
+                           args->lod,
+                           true,
+                           [&] { return timed(render(voxels, ro_beam)); },
+                           {}});
       if (contour_voxels) {
-        primary.push_back(
-            {"voxcast contours", "render()", args->lod, true,
-             best_of(args->repeat, [&] { return timed(render(*contour_voxels, ro)); })});
+        primary.push_back({"voxcast contours",
+                           "render()",
+                           args->lod,
+                           true,
+                           [&] { return timed(render(*contour_voxels, ro)); },
+                           {}});
         if (args->beam)
-          primary.push_back(
-              {"voxcast contours+beam", "render(), beam", args->lod, true,
-               best_of(args->repeat, [&] { return timed(render(*contour_voxels, ro_beam)); })});
+          primary.push_back({"voxcast contours+beam",
+                             "render(), beam",
+                             args->lod,
+                             true,
+                             [&] { return timed(render(*contour_voxels, ro_beam)); },
+                             {}});
       }
       // With --effects: the DAG of the same voxels (svdag §4), same camera.
       std::unique_ptr<dag::DagStructure> dag_voxels;
+      RenderOptions dag_beam = ro;
+      dag_beam.beam = 8;
       if (args->effects && size_index == 0) {
         BuildSettings ds = s;
         ds.dag = true;
@@ -411,23 +450,16 @@ Runner add_bench(CLI::App& app) {
         BuiltScene dag_built = build_scene(ds);  // the same mesh, grid and voxelization
         dag_voxels = std::make_unique<dag::DagStructure>(
             std::make_shared<dag::SparseVoxelDag>(std::move(dag_built.dag)));
-        for (float lod : lods) {
-          RenderOptions rl = ro;
-          rl.lod_pixels = lod;
-          Image depth;
-          primary.push_back(
-              {"voxcast dag", "trace, depth only", lod, false,
-               best_of(args->repeat, [&] { return trace_depth(*dag_voxels, rl, &depth); })});
-          primary.push_back(
-              {"voxcast dag", "render(): attributes + Phong", lod, true,
-               best_of(args->repeat, [&] { return timed(render(*dag_voxels, rl)); })});
-        }
-        RenderOptions dag_beam = ro;
-        dag_beam.beam = 8;
-        primary.push_back(
-            {"voxcast dag+beam", "render(), beam 8x8", args->lod, true,
-             best_of(args->repeat, [&] { return timed(render(*dag_voxels, dag_beam)); })});
+        add_voxel_rows("voxcast dag", *dag_voxels);
+        primary.push_back({"voxcast dag+beam",
+                           "render(), beam 8x8",
+                           args->lod,
+                           true,
+                           [&] { return timed(render(*dag_voxels, dag_beam)); },
+                           {}});
       }
+      measure_interleaved(primary, args->repeat);
+      const double cov = double(primary[0].t.hits) / rays;
       // Ratios against the fastest Embree mode of the same comparison.
       double fastest[2] = {0, 0};
       std::string fastest_name[2];
@@ -476,8 +508,8 @@ Runner add_bench(CLI::App& app) {
           std::printf("  %-22s %4s %9.2f %9.2f %7.3f  %s\n", r.caster.c_str(), lod, r.t.mrays(),
                       r.t.mhits(), r.t.mrays() / fastest[shaded], r.call.c_str());
         }
-        std::printf("\n");
       }
+      std::printf("\n");
       // The one-line summary (bench/*.sh read these lines): voxcast render()
       // at --lod against Embree trace only, as before, now with every mode.
       auto find = [&](const std::string& caster, bool shaded, float lod) -> const Timed* {
@@ -540,15 +572,30 @@ Runner add_bench(CLI::App& app) {
           EmbreeScene::StageTicks st;
         };
         std::vector<ProfileRow> prof;
-        embree.profile_single(camera, width, height, ro.light_dir);  // warm-up
-        prof.push_back(
-            {"embree x1", -1.f, embree.profile_single(camera, width, height, ro.light_dir)});
+        // Timestamps count wall time: a pass that another process preempted
+        // reads high. The pass with the lowest total of a few (after a warm-up
+        // pass) is the one least disturbed.
+        const int passes = std::min(args->repeat, 3);
+        auto least_disturbed = [&](const auto& pass) {
+          pass();  // warm-up
+          EmbreeScene::StageTicks best = pass();
+          for (int k = 1; k < passes; ++k) {
+            const EmbreeScene::StageTicks st = pass();
+            if (st.total() < best.total()) best = st;
+          }
+          return best;
+        };
+        prof.push_back({"embree x1", -1.f, least_disturbed([&] {
+                          return embree.profile_single(camera, width, height, ro.light_dir);
+                        })});
         for (float lod : lods) {
           RenderOptions rl = ro;
           rl.lod_pixels = lod;
-          profile_voxels(voxels, rl);  // warm-up
-          prof.push_back({"voxcast esvo", lod, profile_voxels(voxels, rl)});
-          if (dag_voxels) prof.push_back({"voxcast dag", lod, profile_voxels(*dag_voxels, rl)});
+          prof.push_back(
+              {"voxcast esvo", lod, least_disturbed([&] { return profile_voxels(voxels, rl); })});
+          if (dag_voxels)
+            prof.push_back({"voxcast dag", lod,
+                            least_disturbed([&] { return profile_voxels(*dag_voxels, rl); })});
         }
         std::printf(
             "cycles per ray (TSC ticks at %.2f GHz, 1 thread, instrumented pass; per primary ray,\n"
@@ -558,8 +605,7 @@ Runner add_bench(CLI::App& app) {
                     "attributes", "shading", "total");
         for (const ProfileRow& p : prof) {
           const double n = double(std::max<uint64_t>(p.st.rays, 1));
-          const double total =
-              double(p.st.ray_generation + p.st.traversal + p.st.attributes + p.st.shading) / n;
+          const double total = double(p.st.total()) / n;
           char lod[16] = "-";
           if (p.lod >= 0) std::snprintf(lod, sizeof lod, "%g", double(p.lod));
           std::printf("  %-14s %4s %9.1f %9.1f %10.1f %8.1f %8.1f\n", p.caster.c_str(), lod,
@@ -628,6 +674,7 @@ Runner add_bench(CLI::App& app) {
         struct OccRow {
           std::string caster, how;
           bool embree;
+          std::function<Timed()> frame;
           Timed t;
           std::vector<uint8_t> answers;
         };
@@ -635,28 +682,41 @@ Runner add_bench(CLI::App& app) {
         for (int kind = 0; kind < 2; ++kind) {
           const std::vector<Ray>& rs = kind == 0 ? shadow_rec.rays : ao_rays;
           const char* kind_name = kind == 0 ? "shadow" : "ao";
+          // Every row answers into its own array (frames capture the row's
+          // index: the vector may move while rows are added).
           std::vector<OccRow> rows;
-          const int rep = kind == 0 ? args->repeat : std::min(args->repeat, 3);
-          rows.push_back({"voxcast esvo", "any hit (trace)", false, {}, {}});
-          rows.back().t =
-              best_of(rep, [&] { return occluded_all(voxels, rs, &rows.back().answers); });
-          rows.push_back({"voxcast dag", "any hit (cast_occluded)", false, {}, {}});
-          rows.back().t =
-              best_of(rep, [&] { return occluded_all(*dag_voxels, rs, &rows.back().answers); });
+          rows.push_back(
+              {"voxcast esvo",
+               "any hit (trace)",
+               false,
+               [&, i = rows.size()] { return occluded_all(voxels, rs, &rows[i].answers); },
+               {},
+               {}});
+          rows.push_back(
+              {"voxcast dag",
+               "any hit (cast_occluded)",
+               false,
+               [&, i = rows.size()] { return occluded_all(*dag_voxels, rs, &rows[i].answers); },
+               {},
+               {}});
           for (const EmbreeScene::Mode m : EmbreeScene::kOcclusionModes) {
             static const char* const calls[] = {"rtcOccluded1", "", "rtcOccluded8 coherent",
                                                 "rtcOccluded16 coherent", "rtcOccluded1M coherent"};
-            rows.push_back(
-                {std::string("embree ") + EmbreeScene::mode_name(m), calls[int(m)], true, {}, {}});
-            OccRow& row = rows.back();
-            row.t = best_of(rep, [&] {
-              Timed t;
-              t.rays = rs.size();
-              t.seconds = embree.occluded_all(rs, m, &row.answers);
-              for (uint8_t v : row.answers) t.hits += v;
-              return t;
-            });
+            rows.push_back({std::string("embree ") + EmbreeScene::mode_name(m),
+                            calls[int(m)],
+                            true,
+                            [&, m, i = rows.size()] {
+                              Timed t;
+                              t.rays = rs.size();
+                              t.seconds = embree.occluded_all(rs, m, &rows[i].answers);
+                              for (uint8_t v : rows[i].answers) t.hits += v;
+                              return t;
+                            },
+                            {},
+                            {}});
           }
+          // AO has ~16x the rays of the shadows: fewer rounds.
+          measure_interleaved(rows, kind == 0 ? args->repeat : std::min(args->repeat, 3));
           double fastest_occ = 0;
           std::string fastest_occ_name;
           for (const OccRow& r : rows)

@@ -87,6 +87,7 @@ class EmbreeScene {
   struct StageTicks {
     uint64_t ray_generation = 0, traversal = 0, attributes = 0, shading = 0;
     uint64_t rays = 0;
+    uint64_t total() const { return ray_generation + traversal + attributes + shading; }
   };
   StageTicks profile_single(const Camera& camera, int width, int height, Vec3 light_dir) const;
 
