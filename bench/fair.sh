@@ -4,7 +4,8 @@
 # per mesh (its full readable tables go to stderr), then prints the Markdown
 # tables of docs/BENCHMARKS.md "Fair benchmark (issue 10)" from the JSON.
 # Usage: bench/fair.sh [RESOLUTION] [WxH] [extra voxcast bench options...]
-#   THREADS (default 1), MESHES (directory), MESH_LIST (names), VOXCAST (binary).
+#   THREADS (default 1), MESHES (directory), MESH_LIST (names), VOXCAST (binary),
+#   JSON_DIR (keep the JSON files).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 RES=${1:-2048}
@@ -14,8 +15,14 @@ THREADS=${THREADS:-1}
 MESHES=${MESHES:-tests/data/meshes}
 BIN=${VOXCAST:-build/voxcast}
 MESH_LIST=${MESH_LIST:-"stanford-bunny.obj armadillo.off refined_elephant.off camel.off fandisk_large.off spot.obj teapot.obj CesiumMilkTruck/CesiumMilkTruck.gltf"}
-tmp=$(mktemp -d)
-trap 'rm -rf "$tmp"' EXIT
+# JSON_DIR: keep the per-mesh JSON files there (default: a temporary directory).
+if [[ -n ${JSON_DIR:-} ]]; then
+  mkdir -p "$JSON_DIR"
+  tmp=$JSON_DIR
+else
+  tmp=$(mktemp -d)
+  trap 'rm -rf "$tmp"' EXIT
+fi
 echo "load before: $(cut -d' ' -f1-3 /proc/loadavg)"
 files=()
 for m in $MESH_LIST; do
@@ -79,6 +86,24 @@ for j in runs:
                   f"{c['voxcast esvo']['mrays_per_s'] / best:.3f}", f"{c['voxcast dag']['mrays_per_s'] / best:.3f}",
                   f"{100 * c['voxcast esvo']['same_as_embree_x1'] / n:.2f} %"]
         print("| " + " | ".join(cells) + " |")
+print()
+
+# Same rays -> same answers: every Embree mode against rtcIntersect1 / rtcOccluded1, exactly.
+bad = []
+for j in runs:
+    r = j["runs"][0]
+    for shaded in (False, True):
+        hits = {row(r, "embree " + m, shaded)["hits"] for m in modes}
+        if len(hits) != 1:
+            bad.append(f"{os.path.basename(j['mesh'])} primary{' shaded' if shaded else ''}: {sorted(hits)}")
+    for kind in ("shadow", "ao"):
+        o = r["occlusion"][kind]
+        for c in o["casters"]:
+            if c["caster"].startswith("embree") and c["same_as_embree_x1"] != o["rays"]:
+                bad.append(f"{os.path.basename(j['mesh'])} {kind} {c['caster']}: "
+                           f"{o['rays'] - c['same_as_embree_x1']} answers differ")
+print("Embree modes agree exactly (primary hits, occlusion answers):",
+      "yes" if not bad else "NO: " + "; ".join(bad))
 print()
 
 print("Cycles per primary ray (TSC ticks, single-threaded instrumented pass)\n")

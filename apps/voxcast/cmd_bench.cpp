@@ -1,7 +1,9 @@
-// voxcast bench MESH: the voxel ray caster against Embree on the same mesh,
-// camera, image size, tiles and threads, measured in one run.
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
+// voxcast bench MESH: the voxel ray casters against Embree on the same mesh,
+// camera, image size, tiles and threads, measured in one run (issue 10, the
+// fair benchmark): Embree in every primary mode (x1, 2x2/4x2/4x4 packets,
+// stream), trace only and with the same shading, voxel casters at LOD 0 and
+// --lod, occlusion rays generated once for every caster, and an instrumented
+// single-threaded cycles-per-ray profile. docs/BENCHMARKS.md shows the output.
 
 #include <algorithm>
 #include <atomic>
@@ -249,9 +251,10 @@ Runner add_bench(CLI::App& app) {
       "--contours", args->contours,
       "Also build the same voxels with contours (esvo section 5.2) and measure them, with "
       "and without the beam (the shape of esvo Table 4)");
-  cmd->add_flag("--effects", args->effects,
-                "Also measure shadow and AO rays (svdag section 4) on the ESVO, a DAG of the same "
-                "voxels and Embree rtcOccluded1");
+  cmd->add_flag(
+      "--effects", args->effects,
+      "Also measure the DAG of the same voxels, and shadow and AO rays (svdag section 4), "
+      "generated once, on the ESVO, the DAG and Embree rtcOccluded1/8/16/1M");
   cmd->add_option("--ao-rays", args->ao_rays, "AO rays per hit pixel for --effects")
       ->capture_default_str();
   cmd->add_option("--ao-radius", args->ao_radius,

@@ -35,6 +35,10 @@ double for_each_chunk(size_t n, size_t chunk, const Body& body) {
 
 /// Timestamp counter (constant rate on current x86; not core cycles when the
 /// core clock differs from the TSC rate, see tsc_hz()). 0 elsewhere.
+/// Deliberately without lfence: fenced reads drain the pipeline at every
+/// stage boundary and inflate short stages (ray generation read ~90-180 ticks
+/// fenced vs ~25 unfenced on the bunny), while the unfenced stage sums match
+/// the single-threaded throughput (ticks per ray = TSC rate / rays per second).
 inline uint64_t ticks() {
 #if defined(__x86_64__) || defined(__i386__)
   return __rdtsc();
