@@ -27,7 +27,7 @@ echo "load before: $(cut -d' ' -f1-3 /proc/loadavg)"
 files=()
 for m in $MESH_LIST; do
   f="$tmp/$(basename "$m").json"
-  "$BIN" bench "$MESHES/$m" --resolution "$RES" --size "$SIZE" --threads "$THREADS" --effects \
+  "$BIN" bench "$MESHES/$m" --resolution "$RES" --size "$SIZE" --threads "$THREADS" --effects --min-coverage 0.3 \
     --ao-rays 16 --beam 8 --json "$f" "$@" >&2
   files+=("$f")
 done

@@ -57,7 +57,8 @@ bool same_hit(bool a_hit, const SurfaceHit& a, bool b_hit, const SurfaceHit& b) 
 BeamDiff compare_beam(const VoxelStructure& s, const Camera& camera, int W, int H, int K,
                       float lod_pixels, const std::function<void(BeamStart&)>& tamper = {}) {
   const CameraRays cam(camera, W, H);
-  LodFootprint lod;
+  LodFootprint lod;  // as render() sets it: orthographic pixels have a constant footprint
+  lod.size_at_origin = lod_pixels * cam.pixel_size();
   lod.size_per_t = lod_pixels * cam.pixel_angle();
   BeamDiff diff;
   for (int by = 0; by < H; by += K) {
@@ -210,7 +211,7 @@ TEST(Beam, RandomOctreesAndCameras) {
   add(testing::make_sphere_shell(7));
   add(testing::make_random_voxels(6, 5000, 3), 64);
   add(testing::make_random_voxels(2, 20, 4));  // the smallest DAG: the root is a 4^3 leaf mask
-  size_t total_rays = 0, total_hits = 0, inside_eyes = 0;
+  size_t total_rays = 0, total_hits = 0, inside_eyes = 0, ortho_rays = 0, ortho_hits = 0;
   for (size_t si = 0; si < structures.size(); ++si) {
     const VoxelStructure& s = *structures[si];
     const size_t oi = si / 2;
@@ -240,11 +241,23 @@ TEST(Beam, RandomOctreesAndCameras) {
                                   << cam.to_string() << ": " << d.first;
       total_rays += d.rays;
       total_hits += d.hits;
+      // The same view with parallel rays (the beam is then a prism), from
+      // narrow to wider than the root cube.
+      Camera ortho = cam;
+      ortho.projection = Projection::Orthographic;
+      ortho.ortho_width = 0.05f + 0.6f * float(trial % 5);
+      const BeamDiff o = compare_beam(s, ortho, W, H, K, lod);
+      EXPECT_EQ(o.mismatches, 0u) << s.name() << " " << oi << " trial " << trial << " ortho "
+                                  << ortho.to_string() << ": " << o.first;
+      ortho_rays += o.rays;
+      ortho_hits += o.hits;
     }
   }
   EXPECT_GT(inside_eyes, 10u);
   EXPECT_GT(total_hits, total_rays / 10);
   EXPECT_LT(total_hits, total_rays);
+  EXPECT_GT(ortho_hits, ortho_rays / 10);
+  EXPECT_LT(ortho_hits, ortho_rays);
 }
 
 // The renderer with the beam produces the same images; the timed frame

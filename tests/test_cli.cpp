@@ -584,3 +584,97 @@ TEST(CliResources, MemoryEstimateIsTheSameFarFromTheOrigin) {
   EXPECT_GT(near, 1.0);
   EXPECT_NEAR(far / near, 1.0, 0.02) << near << " MiB vs " << far << " MiB";
 }
+
+namespace {
+// The "camera: ..." line `render` prints (empty if none).
+std::string printed_camera(const std::string& output, const char* prefix = "camera: ") {
+  const auto pos = output.find(prefix);
+  if (pos == std::string::npos) return "";
+  const size_t start = pos + std::string(prefix).size();
+  return output.substr(start, output.find('\n', pos) - start);
+}
+}  // namespace
+
+// --camera auto|ortho, --orbit, --look-at and --ortho (README "Camera
+// contract"): each prints the camera it made in the --camera form, which
+// renders the same image when passed back; bench frames like render.
+TEST(Cli, CameraOptions) {
+  TempDir dir;
+  write_text(dir.file("t.obj"), tetra_obj());
+  const CliResult built =
+      run_cli("build " + dir.file("t.obj") + " -o " + dir.file("t.vxc") + " --resolution 64");
+  ASSERT_EQ(built.exit_code, 0) << built.output;
+  const std::string render = "render " + dir.file("t.vxc") + " --size 64x48 -o ";
+  struct Case {
+    const char* options;
+    const char* expect_prefix;  // of the printed camera
+  };
+  const Case cases[] = {
+      {"--camera auto", ""},
+      {"--camera ortho", "ortho,"},
+      {"--ortho", "ortho,"},
+      {"--orbit 30,20 --ortho 3", "ortho,"},
+      {"--orbit 0,0,4", ""},
+      {"--look-at 2,1.5,3,0.5,0.5,0.5", "2,1.5,3,0.5,0.5,0.5,0,1,0,40"},
+      {"--look-at 2,1.5,3,0.5,0.5,0.5,0,0,1,30 --ortho 2.5", "ortho,2,1.5,3,0.5,0.5,0.5,0,0,1,2.5"},
+      {"--camera 3,3,3,0.5,0.5,0.5,0,1,0,35 --ortho", "ortho,3,3,3,0.5,0.5,0.5,0,1,0,"},
+  };
+  int i = 0;
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.options);
+    const std::string a = dir.file("a" + std::to_string(i) + ".png"),
+                      b = dir.file("b" + std::to_string(i) + ".png");
+    ++i;
+    const CliResult r = run_cli(render + a + " " + c.options);
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    const std::string cam = printed_camera(r.output);
+    ASSERT_FALSE(cam.empty()) << r.output;
+    EXPECT_EQ(cam.rfind(c.expect_prefix, 0), 0u) << cam;
+    const CliResult again = run_cli(render + b + " --camera " + cam);
+    ASSERT_EQ(again.exit_code, 0) << again.output;
+    EXPECT_TRUE(read_text(a) == read_text(b)) << "the printed camera renders differently";
+    EXPECT_EQ(printed_camera(again.output), "") << "an explicit camera is not re-printed";
+  }
+  // --orbit 0,0,4: eye 4 in front (+z) of the model's center, looking at it.
+  {
+    const CliResult r = run_cli(render + dir.file("o.png") + " --orbit 0,0,4");
+    float e[3], t[3], u[3], fovy;
+    ASSERT_EQ(std::sscanf(printed_camera(r.output).c_str(), "%f,%f,%f,%f,%f,%f,%f,%f,%f,%f", &e[0],
+                          &e[1], &e[2], &t[0], &t[1], &t[2], &u[0], &u[1], &u[2], &fovy),
+              10)
+        << r.output;
+    EXPECT_NEAR(e[0], t[0], 1e-5f);
+    EXPECT_NEAR(e[1], t[1], 1e-5f);
+    EXPECT_NEAR(e[2], t[2] + 4.f, 1e-5f);
+    EXPECT_NEAR(u[1], 1.f, 1e-6f);
+    EXPECT_EQ(fovy, 40.f);
+  }
+  // The orthographic renders of both casters agree with and without the beam.
+  {
+    const CliResult a = run_cli(render + dir.file("p.png") + " --ortho --depth " +
+                                dir.file("p.pfm") + " --normals " + dir.file("pn.png"));
+    const CliResult b = run_cli(render + dir.file("q.png") + " --ortho --beam 8 --depth " +
+                                dir.file("q.pfm") + " --normals " + dir.file("qn.png"));
+    ASSERT_EQ(a.exit_code, 0) << a.output;
+    ASSERT_EQ(b.exit_code, 0) << b.output;
+    EXPECT_TRUE(read_text(dir.file("p.png")) == read_text(dir.file("q.png")));
+    EXPECT_TRUE(read_text(dir.file("p.pfm")) == read_text(dir.file("q.pfm")));
+    EXPECT_TRUE(read_text(dir.file("pn.png")) == read_text(dir.file("qn.png")));
+  }
+  // Bad values and conflicting options are one-line errors.
+  for (const char* bad :
+       {"--orbit 1", "--orbit 0,95", "--orbit 0,0,-2", "--orbit a,b", "--look-at 1,2,3",
+        "--look-at 0,0,0,0,5,0", "--ortho 0", "--ortho -1", "--ortho abc", "--ortho nan",
+        "--camera auto --orbit 0,0", "--orbit 0,0 --look-at 1,2,3,0,0,0",
+        "--camera ortho,0,0,5,0,0,0,0,1,0,0"})
+    expect_one_line_error(run_cli(render + dir.file("x.png") + " " + bad));
+  EXPECT_FALSE(std::filesystem::exists(dir.file("x.png")));
+  // bench frames the same voxels exactly like render (one framing function).
+  const CliResult bench =
+      run_cli("bench " + dir.file("t.obj") + " --resolution 64 --size 64x48 --repeat 1 --beam 0");
+  ASSERT_EQ(bench.exit_code, 0) << bench.output;
+  const CliResult r = run_cli(render + dir.file("auto.png"));
+  const std::string bench_camera = printed_camera(bench.output, "camera      ");
+  EXPECT_FALSE(bench_camera.empty()) << bench.output;
+  EXPECT_EQ(bench_camera, printed_camera(r.output));
+}

@@ -17,6 +17,7 @@
 #include <string>
 #include <vector>
 
+#include "support/render_testing.hpp"
 #include "support/shared_meshes.hpp"
 #include "support/test_data.hpp"
 #include "voxcast/embree_reference.hpp"
@@ -492,13 +493,7 @@ struct Agreement {
 
 Agreement compare(const VoxelStructure& s, const EmbreeScene& e, const Camera& cam, int W, int H,
                   double voxel) {
-  RenderOptions ro;
-  ro.width = W;
-  ro.height = H;
-  ro.camera = cam;
-  ro.lod_pixels = 0.f;
-  ro.want_depth = true;
-  const RenderResult vr = render(s, ro);
+  const RenderResult vr = render(s, testing::depth_render_options(cam, W, H));
   const auto er = e.render_depth(cam, W, H, EmbreeScene::Mode::Single);
   size_t inter = 0, uni = 0, both = 0;
   double err = 0;

@@ -17,6 +17,7 @@
 
 #include "support/cli_runner.hpp"
 #include "support/esvo_testing.hpp"
+#include "support/octree_rays.hpp"
 #include "support/shared_meshes.hpp"
 #include "support/test_data.hpp"
 #include "voxcast/dag.hpp"
@@ -163,19 +164,10 @@ TEST(DagBuild, TiledPatternSharesEverythingAboveTheTile) {
 // ---------------------------------------------------------------------------
 // Ray casting against the ESVO caster.
 
-class RayGen {
+class RayGen : public testing::OctreeRayRng {
  public:
-  RayGen(uint64_t seed, int levels) : rng_(seed), n_(1u << levels) {}
-  float uni(float a, float b) { return std::uniform_real_distribution<float>(a, b)(rng_); }
-  int pick(int k) { return std::uniform_int_distribution<int>(0, k - 1)(rng_); }
-  Vec3 sphere() {
-    Vec3 v;
-    do v = {uni(-1, 1), uni(-1, 1), uni(-1, 1)};
-    while (dot(v, v) > 1 || dot(v, v) < 1e-4f);
-    return normalize(v);
-  }
-  float grid_line() { return 1.f + float(pick(int(n_) + 1)) / float(n_); }
-  float signed_zero() { return pick(2) ? 0.f : -0.f; }
+  using OctreeRayRng::OctreeRayRng;
+
   void next(Vec3* p, Vec3* d) {
     const int kind = pick(10);
     if (kind < 4) {
@@ -205,10 +197,6 @@ class RayGen {
       *p = q - *d * uni(0.f, 2.f);
     }
   }
-
- private:
-  std::mt19937_64 rng_;
-  uint32_t n_;
 };
 
 struct Tally {

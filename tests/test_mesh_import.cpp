@@ -386,7 +386,7 @@ TEST(MeshImport, FilesWithoutTrianglesThrow) {
   expect_one_line_naming(load_error(lines), lines);
   fs::path degen = tmp.write("degen.obj", "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n");
   expect_one_line_naming(load_error(degen), degen);
-  fs::path garbage = tmp.write("garbage.stl", std::string("\x01\x02 this is not a mesh \xff", 25));
+  fs::path garbage = tmp.write("garbage.stl", std::string("\x01\x02 this is not a mesh \xff"));
   expect_one_line_naming(load_error(garbage), garbage);
 }
 

@@ -277,7 +277,8 @@ class PostFilterRender : public ::testing::Test {
     options.width = 96, options.height = 72;
     options.lod_pixels = 0.f;
     options.want_depth = true;
-    options.camera = Camera::frame(structure->bounds(), options.width, options.height);
+    // Framed like the CLI frames a scene: the occupied voxels' bounds.
+    options.camera = Camera::frame(esvo::occupied_bounds(*octree), options.width, options.height);
   }
   std::unique_ptr<esvo::EsvoStructure> structure;
   RenderOptions options;

@@ -284,6 +284,9 @@ TEST_F(SceneFile, BadMetadataIsRejected) {
     return m.replace(at, from.size(), to);
   };
   EXPECT_EQ(with_meta(meta), "<no error>");
+  // (voxel_size 1e300 and 1e38 are finite, but the world cube is not in
+  // float, so no camera could frame it, and 1e-300 collapses it to a point:
+  // refused, or info would accept what render refuses.)
   for (const std::string& m : {std::string("{"),
                                std::string("[]"),
                                std::string("not json"),
@@ -297,6 +300,9 @@ TEST_F(SceneFile, BadMetadataIsRejected) {
                                replaced("\"voxel_size\": 0.125", "\"voxel_size\": -0.125"),
                                replaced("\"voxel_size\": 0.125", "\"voxel_size\": 0"),
                                replaced("\"voxel_size\": 0.125", "\"voxel_size\": 1e400"),
+                               replaced("\"voxel_size\": 0.125", "\"voxel_size\": 1e300"),
+                               replaced("\"voxel_size\": 0.125", "\"voxel_size\": 1e38"),
+                               replaced("\"voxel_size\": 0.125", "\"voxel_size\": 1e-300"),
                                replaced("\"format\": \"esvo\"", "\"format\": \"dag\""),
                                replaced("\"block_count\": 1", "\"block_count\": 0"),
                                replaced("\"block_count\": 1", "\"block_count\": 2"),

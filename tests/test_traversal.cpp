@@ -10,6 +10,7 @@
 
 #include "support/dda_oracle.hpp"
 #include "support/esvo_testing.hpp"
+#include "support/octree_rays.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/morton.hpp"
@@ -233,13 +234,7 @@ TEST(TraversalOracle, MultiBlockFarPointersGiveSameHits) {
 
 // Coarse occupancy: voxel at level l is occupied if any leaf below is.
 DenseGrid coarsen(const VoxelSet& set, int level) {
-  DenseGrid g(level);
-  const int shift = set.grid.levels - level;
-  for (uint64_t code : set.codes) {
-    const MortonCoord c = morton_decode(code >> (3 * shift));
-    g.set(c.x, c.y, c.z);
-  }
-  return g;
+  return DenseGrid::from_voxels(set, level);
 }
 
 TEST(TraversalLod, ConstantFootprintStopsAtThatLevel) {
@@ -412,7 +407,7 @@ TEST(Render, ImagesCountsAndLod) {
       EXPECT_LE(dot(Vec3{n[0] * 2 - 1, n[1] * 2 - 1, n[2] * 2 - 1}, rays.direction(x, y)), 1e-4f);
     }
   EXPECT_EQ(r.hits, finite);
-  EXPECT_GT(finite, r.rays / 5);
+  EXPECT_GT(finite, r.rays / 20);  // the automatic camera keeps the whole root cube in view
   // A footprint of many pixels stops at coarser voxels, entered earlier.
   ro.lod_pixels = 16.f;
   const RenderResult coarse = render(s, ro);

@@ -20,6 +20,7 @@
 #include <thread>
 #include <vector>
 
+#include "camera_options.hpp"
 #include "cli_io.hpp"
 #include "commands.hpp"
 #include "pipeline.hpp"
@@ -37,12 +38,12 @@ namespace voxcast::cli {
 
 namespace {
 struct BenchArgs {
-  std::string input, size = "1024x768", camera = "auto", voxelization = "conservative",
-                     attributes = "raw";
+  std::string input, size = "1024x768", voxelization = "conservative", attributes = "raw";
+  CameraArgs camera;
   uint32_t resolution = 2048;
   float lod = 1.f;
   int repeat = 5, threads = 0, beam = 8;
-  double min_coverage = 0.3;
+  double min_coverage = 0;  // > 0: zoom the automatic camera in (crops the model)
   bool verbose = false;
   bool contours = false;
   // --effects (svdag §4): shadow and AO occlusion rays
@@ -229,11 +230,10 @@ Runner add_bench(CLI::App& app) {
   cmd->add_option("--size", args->size,
                   "Image size WxH, or a comma-separated list of sizes measured one after another")
       ->capture_default_str();
-  cmd->add_option("--camera", args->camera,
-                  "ex,ey,ez,tx,ty,tz,ux,uy,uz,fovy or auto (frames the mesh so that at least "
-                  "--min-coverage of the pixels hit it)")
-      ->capture_default_str();
-  cmd->add_option("--min-coverage", args->min_coverage, "Pixel coverage the auto camera aims at")
+  add_camera_options(cmd, args->camera);
+  cmd->add_option("--min-coverage", args->min_coverage,
+                  "Zoom the automatic camera in until this share of the pixels hits the mesh "
+                  "(0 = off; crops the model; older BENCHMARKS rows used 0.3)")
       ->capture_default_str();
   cmd->add_option("--lod", args->lod, "Voxel LOD in pixels (0 = finest level)")
       ->capture_default_str();
@@ -282,10 +282,7 @@ Runner add_bench(CLI::App& app) {
     require_range("--min-coverage", args->min_coverage, 0, 0.95);
     require_range("--ao-rays", args->ao_rays, 1, 4096);
     require_range("--ao-radius", args->ao_radius, 0, 1e30);
-    Camera fixed_camera;
-    if (args->camera != "auto") {
-      fixed_camera = parse_camera_option(args->camera);
-    }
+    check_camera_options(args->camera, 64, 64);
     require_regular_input(args->input, "mesh");
 
     BuildSettings s;
@@ -297,6 +294,7 @@ Runner add_bench(CLI::App& app) {
     BuiltScene built = build_scene(s);
     auto octree = std::make_shared<esvo::EsvoOctree>(std::move(built.octree));
     esvo::EsvoStructure voxels(octree);
+    const Aabb occupied = esvo::occupied_bounds(*octree);
     EmbreeScene embree(built.mesh);
     std::shared_ptr<esvo::EsvoOctree> contoured;
     double contour_build_seconds = 0;
@@ -325,18 +323,22 @@ Runner add_bench(CLI::App& app) {
     nlohmann::json json_runs = nlohmann::json::array();
     for (size_t size_index = 0; size_index < sizes.size(); ++size_index) {
       const int width = sizes[size_index].first, height = sizes[size_index].second;
-      Camera camera;
-      if (args->camera == "auto") {
-        camera = Camera::frame(built.mesh.bounds(), width, height);
-        // Misses flatter every ray caster: zoom in until the mesh covers enough pixels.
+      // The same framing as `render` of a scene of these voxels: the occupied
+      // voxel bounds the scene loader computes.
+      bool derived_camera = false;
+      Camera camera = resolve_camera(args->camera, occupied, width, height, &derived_camera);
+      if (derived_camera && args->min_coverage > 0) {
+        // Misses flatter every ray caster: optionally zoom in until the mesh
+        // covers enough pixels (this crops the model).
         for (int i = 0; i < 12; ++i) {
           double c =
               coverage(embree.render_depth(camera, width, height, EmbreeScene::Mode::Single).depth);
           if (c >= args->min_coverage) break;
-          camera.fovy_degrees *= 0.85f;
+          if (camera.projection == Projection::Orthographic)
+            camera.ortho_width *= 0.85f;
+          else
+            camera.fovy_degrees *= 0.85f;
         }
-      } else {
-        camera = fixed_camera;
       }
 
       RenderOptions ro;

@@ -7,6 +7,7 @@
 #include "cli_io.hpp"
 #include "commands.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/esvo_structure.hpp"
 #include "voxcast/scene_file.hpp"
 
 namespace voxcast::cli {
@@ -17,25 +18,16 @@ struct InfoArgs {
   bool json = false;
 };
 
-std::string fourcc_name(uint32_t id) {
-  std::string s(4, ' ');
-  for (int i = 0; i < 4; ++i) {
-    char c = char((id >> (8 * i)) & 0xFF);
-    s[i] = (c >= 32 && c < 127) ? c : '?';
-  }
-  return s;
-}
-
 // The facts every scene format shares, as JSON.
 nlohmann::json scene_json(const std::string& path, uint64_t file_bytes, const char* format,
-                          const Container& container, const SceneInfo& info,
-                          const GridTransform& grid) {
+                          const LoadedScene& scene, const GridTransform& grid) {
+  const SceneInfo& info = scene.info;
   nlohmann::json j;
   j["file"] = printable(path);
   j["file_bytes"] = file_bytes;
   j["format"] = format;
   std::vector<std::string> sections;
-  for (uint32_t id : container.section_ids()) sections.push_back(fourcc_name(id));
+  for (uint32_t id : scene.sections) sections.push_back(fourcc_name(id));
   j["sections"] = sections;
   j["source"] = printable(info.source);
   j["source_triangles"] = info.source_triangles;
@@ -49,13 +41,13 @@ nlohmann::json scene_json(const std::string& path, uint64_t file_bytes, const ch
 
 // DAG scenes: nodes per level DAG vs SVO and memory DAG vs pointer-less SVO
 // (1 B/node) vs ESVO (8 B/node), bits per voxel: the shape of svdag Table 2.
-int print_dag_info(const InfoArgs& args, const Container& container) {
-  SceneInfo info;
-  const dag::SparseVoxelDag d = dag_scene_from_container(container, &info);
+int print_dag_info(const InfoArgs& args, const LoadedScene& scene) {
+  const SceneInfo& info = scene.info;
+  const dag::SparseVoxelDag& d = dynamic_cast<const dag::DagStructure&>(*scene.structure).dag();
   const dag::DagStats st = d.stats();
   const uint64_t file_bytes = std::filesystem::file_size(args.input);
   const int L = d.levels();
-  nlohmann::json j = scene_json(args.input, file_bytes, "dag", container, info, d.grid);
+  nlohmann::json j = scene_json(args.input, file_bytes, "dag", scene, d.grid);
   j["leaf_voxels"] = st.leaf_voxels;
   j["attributes"] = d.has_attributes();
   for (int l = 0; l <= L; ++l) {
@@ -142,10 +134,13 @@ Runner add_info(CLI::App& app) {
   cmd->add_flag("--json", args->json, "Print the same facts as JSON");
   return [args]() {
     require_regular_input(args->input, "scene");
-    Container container = Container::read(args->input);
-    if (scene_format(container) == "dag") return print_dag_info(*args, container);
-    SceneInfo info;
-    esvo::EsvoOctree octree = load_esvo_scene(args->input, &info);
+    // The same loader (and so the same validator) as render: both accept or
+    // refuse a file alike, and the file is read once.
+    const LoadedScene scene = load_scene(args->input);
+    if (scene.format == "dag") return print_dag_info(*args, scene);
+    const SceneInfo& info = scene.info;
+    const esvo::EsvoOctree& octree =
+        dynamic_cast<const esvo::EsvoStructure&>(*scene.structure).octree();
     auto levels = octree.level_stats();
     auto mem = octree.memory_stats();
     uint64_t total_voxels = 0;
@@ -160,7 +155,7 @@ Runner add_info(CLI::App& app) {
     double attributes = double(mem.attribute_lookup_bytes + mem.attribute_value_bytes);
     double overhead = double(mem.padding_bytes);
 
-    nlohmann::json j = scene_json(args->input, file_bytes, "esvo", container, info, octree.grid);
+    nlohmann::json j = scene_json(args->input, file_bytes, "esvo", scene, octree.grid);
     j["blocks"] = octree.block_count;
     j["voxels_total"] = total_voxels;
     j["leaf_voxels"] = leaves;

@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "camera_options.hpp"
 #include "cli_io.hpp"
 #include "commands.hpp"
 #include "voxcast/error.hpp"
@@ -19,7 +20,8 @@ namespace voxcast::cli {
 
 namespace {
 struct RenderArgs {
-  std::string input, output, size = "1024x768", camera = "auto", depth, normal, light;
+  std::string input, output, size = "1024x768", depth, normal, light;
+  CameraArgs camera;
   float lod = 1.f;
   int threads = 0;
   bool verbose = false;
@@ -73,10 +75,7 @@ Runner add_render(CLI::App& app) {
   cmd->add_option("SCENE", args->input, "Scene file written by `voxcast build`")->required();
   cmd->add_option("-o,--output", args->output, "Output image (.png or .pfm)")->required();
   cmd->add_option("--size", args->size, "Image size WxH")->capture_default_str();
-  cmd->add_option("--camera", args->camera,
-                  "ex,ey,ez,tx,ty,tz,ux,uy,uz,fovy (eye, target, up, vertical fov in degrees) "
-                  "or auto")
-      ->capture_default_str();
+  add_camera_options(cmd, args->camera);
   cmd->add_option("--lod", args->lod,
                   "Stop at voxels projecting to at most this many pixels (0 = finest level)")
       ->capture_default_str();
@@ -199,9 +198,7 @@ Runner add_render(CLI::App& app) {
     fx.seed = args->seed;
     if (!args->ao_output.empty() && fx.ao_rays == 0)
       throw UsageError("--ao-output needs --ao N (N > 0)");
-    if (args->camera != "auto") {
-      opt.camera = parse_camera_option(args->camera);
-    }
+    check_camera_options(args->camera, opt.width, opt.height);
     uint64_t budget = 0;
     if (!args->memory_budget.empty()) budget = parse_memory_budget(args->memory_budget);
     // All outputs are checked before the scene is read, and written together
@@ -239,10 +236,10 @@ Runner add_render(CLI::App& app) {
       fx.ao_radius =
           args->ao_radius > 0 ? args->ao_radius : 0.05f * length(scene.occupied.extent());
     const VoxelStructure& structure = *scene.structure;
-    if (args->camera == "auto") {
-      opt.camera = Camera::frame(scene.occupied, opt.width, opt.height);
-      std::printf("camera: %s\n", opt.camera.to_string().c_str());
-    }
+    bool derived_camera = false;
+    opt.camera =
+        resolve_camera(args->camera, scene.occupied, opt.width, opt.height, &derived_camera);
+    if (derived_camera) std::printf("camera: %s\n", opt.camera.to_string().c_str());
     opt.want_depth = !args->depth.empty();
     opt.want_normal = !args->normal.empty();
     opt.filter = args->filter;

@@ -86,8 +86,13 @@
 #include "voxcast/bitfield.hpp"
 #include "voxcast/esvo.hpp"
 #include "voxcast/math.hpp"
+#include "voxcast/octree_structure.hpp"
 #include "voxcast/structure.hpp"
 #include "voxcast/voxelize.hpp"
+
+namespace voxcast::detail {
+struct DagNodes;  // its node-access policy, src/dag/octree_nodes.hpp
+}  // namespace voxcast::detail
 
 namespace voxcast::dag {
 
@@ -250,9 +255,10 @@ struct CastResult {
   bool hit;
 };
 
-/// The ESVO loop (esvo Appendix A, as in esvo::cast_ray, same arithmetic so
-/// the hits are bit-identical) over the DAG (svdag §4): octant mirroring,
-/// float-bit POP, a stack per scale holding node, t_max and voxel-index base.
+/// The ESVO loop (esvo Appendix A: the one caster of the octree family,
+/// src/core/octree_caster.hpp, that esvo::cast_ray also runs, so the hits are
+/// bit-identical) over the DAG (svdag §4): octant mirroring, float-bit POP, a
+/// stack per scale holding node, t_max and voxel-index base.
 /// LOD terminates like esvo::cast_ray. cast_occluded (any hit): stop at the
 /// first leaf without accumulating the voxel index (shadow rays). `dag` must be
 /// finalized (build_dag and the scene loaders do it).
@@ -261,28 +267,24 @@ CastResult cast_ray(const SparseVoxelDag& dag, Vec3 origin, Vec3 dir, float tmax
 bool cast_occluded(const SparseVoxelDag& dag, Vec3 origin, Vec3 dir, float tmax, float size_coef,
                    float size_bias);
 
-class DagStructure final : public VoxelStructure {
+class DagStructure final : public OctreeStructure<DagStructure> {
  public:
   explicit DagStructure(std::shared_ptr<const SparseVoxelDag> dag);
-  Aabb bounds() const override;
-  /// voxel_ref = Morton rank of the hit voxel (its first leaf for LOD hits),
-  /// child = entered face (see CastResult::face).
-  bool trace(const Ray& ray, const LodFootprint& lod, SurfaceHit* hit) const override;
-  /// trace() started at the beam's region (esvo §6.2; bit-identical hits), with counters.
-  bool trace_hinted(const Ray& ray, const LodFootprint& lod, const TraceHints& hints,
-                    SurfaceHit* hit) const override;
-  /// Coarse pass of the beam optimization (src/dag/beam.cpp, core/beam_frustum.hpp).
-  void beam_start(const BeamFrustum& beam, BeamStart* start, RayCounters* counters) const override;
+  // bounds, trace, trace_hinted, occluded, beam_start: the octree family's
+  // (octree_structure.hpp), the ESVO's caster and beam walk over the DAG's
+  // nodes (svdag §4). SurfaceHit::voxel_ref = Morton rank of the hit voxel
+  // (its first leaf for LOD hits), child = entered face (see CastResult::face).
   /// attributes() + 8 bytes (color and normal words) when the DAG has attributes.
   void attributes_counted(const SurfaceHit& hit, Color* color, Vec3* normal,
                           RayCounters* counters) const override;
-  /// Any hit within [0, ray.tmax] (stops at the first leaf; for shadow rays).
-  bool occluded(const Ray& ray, const LodFootprint& lod = {}) const override;
   void attributes(const SurfaceHit& hit, Color* color, Vec3* normal) const override;
   std::string name() const override { return "dag"; }
   const SparseVoxelDag& dag() const { return *dag_; }
 
  private:
+  friend class OctreeStructure<DagStructure>;
+  ::voxcast::detail::OctreeWorld<::voxcast::detail::DagNodes> world() const;
+
   std::shared_ptr<const SparseVoxelDag> dag_;
 };
 

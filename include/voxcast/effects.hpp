@@ -26,7 +26,8 @@ enum class ShadowMode { None, Hard, Soft };
 ///     every shadow ray is clipped to the box the coarse pass proved to hold
 ///     every voxel any ray of the beam can hit (both ends: "from the view
 ///     sample" and "from the light", svdag §4). Exact: the answers equal those
-///     without the beam. Structures without beam_start (DAG) trace all rays.
+///     without the beam. The ESVO octree and the DAG share the coarse pass
+///     (octree_structure.hpp); structures without beam_start trace all rays.
 ///   Corners: the literal four corner rays; all four unoccluded -> the pixel
 ///     counts as fully lit. NOT conservative (an occluder that fits between the
 ///     corner rays is missed), and four point rays give no provable interval,

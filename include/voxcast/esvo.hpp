@@ -102,7 +102,8 @@
 // are at depth `levels` (the finest level) -- except in octrees carrying a
 // contour attachment, whose variable-depth build (§7.1, §7.3:
 // BuildOptions::max_level / *_error) may stop at any depth -- every descriptor has a non-empty
-// valid mask, and every descriptor is reachable exactly once. The array ends
+// valid mask, a descriptor without subdivided children has child pointer 0
+// and no far bit, and every descriptor is reachable exactly once. The array ends
 // padded with zeros to a whole number of pages. Voxels built without input
 // attributes get linear gray (0.5, 0.5, 0.5, 1) and the normal (0, 0, 1).
 //

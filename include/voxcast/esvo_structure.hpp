@@ -3,7 +3,12 @@
 #include <memory>
 
 #include "voxcast/esvo.hpp"
+#include "voxcast/octree_structure.hpp"
 #include "voxcast/structure.hpp"
+
+namespace voxcast::detail {
+struct EsvoNodes;  // its node-access policy, src/esvo/octree_nodes.hpp
+}  // namespace voxcast::detail
 
 namespace voxcast::esvo {
 
@@ -17,7 +22,8 @@ struct CastResult {
   bool hit;              // authoritative hit flag (t of a hit can be any value in [0, tmax])
 };
 
-/// Appendix A, ported: `origin`/`dir` in octree space, t in [0, tmax].
+/// Appendix A, ported (the octree family's loop, src/core/octree_caster.hpp,
+/// over the ESVO's descriptors): `origin`/`dir` in octree space, t in [0, tmax].
 /// LOD: terminate at a voxel whose side (octree units) <= size_coef * t + size_bias
 /// (t = the voxel's exit t, as in the listing); 0, 0 = always the finest level.
 /// Non-finite origin/direction: miss. Direction components below 2^-23 are
@@ -34,21 +40,22 @@ CastResult cast_ray(const EsvoOctree& octree, Vec3 origin, Vec3 dir, float tmax,
 CastResult cast_ray(const EsvoOctree& octree, Vec3 origin, Vec3 dir, float tmax, float size_coef,
                     float size_bias, const Aabb* region, RayCounters* counters);
 
-class EsvoStructure final : public VoxelStructure {
+class EsvoStructure final : public OctreeStructure<EsvoStructure> {
  public:
   explicit EsvoStructure(std::shared_ptr<const EsvoOctree> octree);
-  Aabb bounds() const override;
-  bool trace(const Ray& ray, const LodFootprint& lod, SurfaceHit* hit) const override;
+  // bounds, trace, trace_hinted, occluded, beam_start: the octree family's
+  // (octree_structure.hpp); SurfaceHit::voxel_ref = the parent's descriptor
+  // slot, child = the slot in it.
   void attributes(const SurfaceHit& hit, Color* color, Vec3* normal) const override;
   std::string name() const override { return "esvo"; }
-  bool trace_hinted(const Ray& ray, const LodFootprint& lod, const TraceHints& hints,
-                    SurfaceHit* hit) const override;
-  void beam_start(const BeamFrustum& beam, BeamStart* start, RayCounters* counters) const override;
   void attributes_counted(const SurfaceHit& hit, Color* color, Vec3* normal,
                           RayCounters* counters) const override;
   const EsvoOctree& octree() const { return *octree_; }
 
  private:
+  friend class OctreeStructure<EsvoStructure>;
+  ::voxcast::detail::OctreeWorld<::voxcast::detail::EsvoNodes> world() const;
+
   std::shared_ptr<const EsvoOctree> octree_;
 };
 

@@ -25,6 +25,9 @@ constexpr uint32_t fourcc(const char (&s)[5]) {
          uint32_t(uint8_t(s[3])) << 24;
 }
 
+/// The four characters of a section id ('?' for unprintable bytes).
+std::string fourcc_name(uint32_t fourcc);
+
 /// Generic section container.
 class Container {
  public:
@@ -76,7 +79,11 @@ struct LoadedScene {
   std::unique_ptr<VoxelStructure> structure;  // EsvoStructure or DagStructure
   Aabb occupied;                              // occupied bounds for automatic cameras
   SceneInfo info;
+  std::vector<uint32_t> sections;  // fourccs of the file's sections, ascending
 };
+/// Every subcommand reads scenes through this (one validator: a file is
+/// accepted by all of them or refused by all with the same one-line error,
+/// which names the file).
 LoadedScene load_scene(const std::filesystem::path& path);
 /// The same from an already parsed container (e.g. bytes in memory).
 LoadedScene load_scene(const Container& container);

@@ -1,7 +1,9 @@
 #pragma once
-// The one small interface the renderer uses for every voxel structure
-// (ESVO today; DAG, brickmap, GigaVoxels later): trace a ray to a hit or a
-// miss with a level-of-detail footprint, then fetch attributes at the hit.
+// The one small interface the renderer uses for every voxel structure (the
+// ESVO octree and the sparse voxel DAG today, both through the one octree
+// caster of octree_structure.hpp; brickmap, GigaVoxels later): trace a ray to
+// a hit or a miss with a level-of-detail footprint, then fetch attributes at
+// the hit.
 #include <cstdint>
 #include <string>
 
@@ -40,14 +42,21 @@ struct RayCounters {
   }
 };
 
-/// A beam of primary rays for the beam optimization (esvo §6.2): every ray it
-/// stands for starts at `eye` and has a unit direction inside the convex cone
-/// spanned by the four edge directions (consecutive entries adjacent).
+/// A beam of rays for the beam optimization (esvo §6.2), of one of two kinds:
+///  * pinhole (every edge_origin zero): every ray it stands for starts at
+///    `eye` and has a unit direction inside the convex cone spanned by the
+///    four edge directions (consecutive entries adjacent);
+///  * parallel (all four edges the same direction, orthographic cameras):
+///    every ray has that direction and starts inside the convex quadrilateral
+///    eye + edge_origin[0..3] (consecutive corners adjacent).
+/// Any other combination carries no information (the structures ignore it).
 struct BeamFrustum {
   Vec3 eye;
   Vec3 edge[4];
   float angular_width = 0.f;  // >= the angle between any two directions of the cone (radians)
   LodFootprint lod;           // the footprint the beam's rays are traced with
+  Vec3 edge_origin[4] = {};   // parallel beams: the corners of the origin quadrilateral - eye
+  float width = 0.f;          // >= the distance between any two ray origins (world units)
 };
 
 /// Result of the coarse pass for one beam (esvo §6.2). The region is

@@ -14,6 +14,10 @@ class Progress;
 
 inline constexpr int kMaxGridLevels = 20;  // grids up to 2^20 voxels per axis
 
+/// Largest world coordinate of a scene's root cube (see placement_is_valid):
+/// 1e18, well below sqrt(FLT_MAX) ~ 1.8e19.
+inline constexpr double kMaxWorldCoordinate = 1e18;
+
 /// Placement of an N^3 voxel grid in world space. Voxel (i,j,k) covers
 /// [origin + i*voxel_size, origin + (i+1)*voxel_size) per axis. The grid is
 /// also the octree root cube: side = resolution * voxel_size.
@@ -24,6 +28,14 @@ struct GridTransform {
   int levels = 0;
 
   double side() const { return voxel_size * resolution; }
+  /// True if the root cube is a non-degenerate box in float world
+  /// coordinates (what cameras and rays work in): positive finite voxel
+  /// size, origin + side above the origin on every axis, and every corner
+  /// coordinate within +-kMaxWorldCoordinate, so that distances, their
+  /// squares and a camera a few extents away stay finite in float. Scene
+  /// validators refuse any other placement, so a loaded scene can always be
+  /// framed (README "Reliability").
+  bool placement_is_valid() const;
   /// Smallest power-of-two grid of `resolution` voxels per axis whose cube
   /// contains `bounds` with a small margin, the mesh centered in it.
   static GridTransform fit(const Aabb& bounds, uint32_t resolution);

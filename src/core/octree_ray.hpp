@@ -1,16 +1,22 @@
 #pragma once
-// Ray set-up shared by the casters of the octree family (ESVO octree, sparse
-// voxel DAG): the structure occupies [1,2]^3 and the coordinate system is
-// mirrored so that every direction component is negative (esvo §6.1
-// "Alternate coordinate system", Appendix A). Sharing it keeps the DAG's hits
-// bit-identical to the octree's: both evaluate the same floats the same way.
+// Ray set-up of the octree-family caster (core/octree_caster.hpp; ESVO
+// octree, sparse voxel DAG): the structure occupies [1,2]^3 (OctreeFrame maps
+// world space there) and the coordinate system is mirrored so that every
+// direction component is negative (esvo §6.1 "Alternate coordinate system",
+// Appendix A).
 #include <bit>
 #include <cmath>
 #include <cstdint>
 
 #include "voxcast/math.hpp"
+#include "voxcast/structure.hpp"
+#include "voxcast/voxelize.hpp"
 
 namespace voxcast::detail {
+
+/// s_max of Appendix A (float mantissa bits): the root cube [1,2]^3 has scale
+/// 23, a cube at scale s has side 2^(s - 23) (esvo::kMaxScale).
+inline constexpr int kOctreeMaxScale = 23;
 
 // min/max that compile to one minss/maxss: std::fmin/fmax must honour NaN
 // operands and end up as libm calls that spill the loop's registers (they
@@ -68,7 +74,7 @@ struct MirroredRay {
   /// the entry and exit planes of `region` (octree space). In the mirrored
   /// frame the entry corner of [lo, hi] is hi on an unmirrored axis and
   /// 3 - lo on a mirrored one (exact for dyadic coordinates in [1, 2]).
-  /// Why this keeps the hits bit-identical: src/esvo/traverse.cpp.
+  /// Why this keeps the hits bit-identical: detail::cast_octree.
   void clip_to_region(const Aabb& region, float* t_min, float* t_max) const {
     const bool mx = (octant_mask & 1) == 0, my = (octant_mask & 2) == 0,
                mz = (octant_mask & 4) == 0;
@@ -81,6 +87,42 @@ struct MirroredRay {
     *t_min = vmax(*t_min, vmax(vmax(tx(in_x), ty(in_y)), tz(in_z)));
     *t_max = vmin(*t_max, vmin(vmin(tx(out_x), ty(out_y)), tz(out_z)));
   }
+};
+
+/// World <-> octree space of a structure on `grid` (esvo §6.1): the grid's
+/// cube maps to [1,2]^3, p' = (p - origin)/side + 1, d' = d/side, so t stays
+/// the world distance along a unit world direction. The one place this
+/// mapping is written: the casters and the beam pass must agree on every float.
+struct OctreeFrame {
+  explicit OctreeFrame(const GridTransform& grid)
+      : origin(grid.origin), side(float(grid.side())), inv_side(float(1.0 / grid.side())) {}
+
+  Vec3 point(Vec3 p) const { return (p - origin) * inv_side + Vec3{1, 1, 1}; }
+  Vec3 direction(Vec3 d) const { return d * inv_side; }
+  /// A world length (LOD footprint terms) in octree units.
+  float length(float l) const { return l * inv_side; }
+  /// World bounds of the root cube.
+  Aabb bounds() const { return {origin, origin + Vec3{side, side, side}}; }
+
+  /// Fills the geometric part of *hit (t, position, voxel_size, level) from a
+  /// cast of the octree-space ray p + t d that hit the cube at `pos` (min
+  /// corner) of side 2^(scale - 23).
+  void hit_to_world(Vec3 p, Vec3 d, float t, Vec3 pos, int scale, SurfaceHit* hit) const {
+    const float cube = bits_float(uint32_t(scale - kOctreeMaxScale + 127) << 23);
+    // p + t d can leave the cube by rounding (§6.1 "Hit position"): clamp.
+    const float eps = 0x1p-23f;
+    Vec3 q = p + d * t;
+    q.x = vmin(vmax(q.x, pos.x + eps), pos.x + cube - eps);
+    q.y = vmin(vmax(q.y, pos.y + eps), pos.y + cube - eps);
+    q.z = vmin(vmax(q.z, pos.z + eps), pos.z + cube - eps);
+    hit->t = t;
+    hit->position = origin + (q - Vec3{1, 1, 1}) * side;
+    hit->voxel_size = cube * side;
+    hit->level = kOctreeMaxScale - scale;  // root cube is scale 23, level 0
+  }
+
+  Vec3 origin;
+  float side, inv_side;
 };
 
 }  // namespace voxcast::detail

@@ -78,8 +78,8 @@ void SparseVoxelDag::finalize() {
   if (L < 2 || L > kMaxGridLevels)
     corrupt("depth " + std::to_string(L) + " is outside 2.." + std::to_string(kMaxGridLevels));
   if (grid.resolution != (1u << L)) corrupt("resolution is not 2^levels");
-  if (!(grid.voxel_size > 0) || !std::isfinite(grid.voxel_size) || !is_finite(grid.origin))
-    corrupt("bad grid placement");
+  if (!grid.placement_is_valid())
+    corrupt("bad grid placement (the world cube is not a box of float coordinates within 1e18)");
   const size_t n = words.size();
   if (n == 0) corrupt("no nodes");
   if (n > 0xFFFFFFFFull) corrupt("more than 2^32 words");

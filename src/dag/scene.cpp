@@ -160,17 +160,22 @@ LoadedScene load_scene(const std::filesystem::path& path) {
   try {
     return load_scene(Container::read(path));
   } catch (const Error& e) {
-    const std::string what = e.what();
-    if (what.rfind("unknown scene format", 0) == 0)
-      throw Error("scene '" + path.string() + "' has an " + what);
-    throw;
+    // One line naming the file and what is wrong (the container's own
+    // open/read errors already name it).
+    const std::string what = e.what(), name = "'" + path.string() + "'";
+    if (what.find(name) != std::string::npos) throw;
+    throw Error("scene " + name + ": " + what);
   }
 }
 
 LoadedScene load_scene(const Container& c) {
+  // The one gate between a file and every reader (render, info):
+  // the format's full validator, then the walks done here, so every
+  // subcommand accepts or refuses exactly the same files.
   const std::string format = scene_format(c);
   LoadedScene out;
   out.format = format;
+  out.sections = c.section_ids();
   if (format == "esvo") {
     auto octree = std::make_shared<esvo::EsvoOctree>(esvo_scene_from_container(c, &out.info));
     out.occupied = esvo::occupied_bounds(*octree);

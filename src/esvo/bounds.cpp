@@ -2,6 +2,7 @@
 // the top levels of the hierarchy, cheap even for very large octrees.
 #include <vector>
 
+#include "esvo/layout_internal.hpp"
 #include "voxcast/esvo.hpp"
 
 namespace voxcast::esvo {
@@ -27,10 +28,10 @@ Aabb occupied_bounds(const EsvoOctree& octree, int max_level) {
     stack.pop_back();
     const uint32_t* d = octree.slot_ptr(it.slot);
     uint32_t valid = layout::ValidMask::get(d[0]), leaf = layout::LeafMask::get(d[0]);
-    uint32_t ptr = layout::ChildPointer::get(d[0]);
-    int64_t first = int64_t(it.slot) + ptr;
-    if (layout::FarBit::test(d[0]))
-      first = int64_t(it.slot) + int32_t(octree.slot_ptr(uint32_t(first))[0]);
+    // The child group is only looked up when a subdivided child is pushed
+    // (validate() checks the pointer exactly then).
+    const bool descend = (valid & ~leaf) != 0 && it.level + 1 < max_level;
+    const int64_t first = descend ? int64_t(detail::child_group(octree.words.data(), it.slot)) : 0;
     int nonleaf_rank = 0;
     for (int c = 0; c < 8; ++c) {
       if (!(valid & (1u << c))) continue;

@@ -8,7 +8,8 @@
 //   * every descriptor reachable from the root lies in a descriptor area, not
 //     on a page header, is reached exactly once (so traversal work is bounded
 //     by the array size), and its child group lies strictly after it, inside
-//     one page of one block's descriptor area;
+//     one page of one block's descriptor area; a descriptor without
+//     subdivided children has a zero pointer field (no far bit);
 //   * masks are consistent with the depth (leaves exactly at depth `levels`,
 //     or at most there in octrees with contours: variable depth, §7.1);
 //   * every contour mask is within the valid mask and its contour pointer +
@@ -131,8 +132,8 @@ void EsvoOctree::validate() const {
   const int L = grid.levels;
   if (L < 1 || L > kMaxGridLevels) fail("levels " + std::to_string(L) + " outside 1..20");
   if (grid.resolution != (1u << L)) fail("resolution is not 2^levels");
-  if (!(grid.voxel_size > 0) || !std::isfinite(grid.voxel_size) || !is_finite(grid.origin))
-    fail("bad grid placement");
+  if (!grid.placement_is_valid())
+    fail("bad grid placement (the world cube is not a box of float coordinates within 1e18)");
   const std::vector<BlockInfo> blocks = parse_blocks(*this);
   const uint32_t* w = words.data();
   const uint64_t total_slots = words.size() / 2;
@@ -200,7 +201,15 @@ void EsvoOctree::validate() const {
       if (layout::NormalFace::get(base) > 5) fail_at("bad compressed base normal", s);
     }
 
-    if (!nl) continue;
+    // A descriptor without subdivided children has no child group, and the
+    // builder leaves its pointer field zero. Readers that fetch the pointer
+    // before looking at the masks (the beam's coarse pass, esvo §6.2) would
+    // otherwise follow a far bit into arbitrary memory: the field must be
+    // zero, so no reader can see a pointer this walk has not checked.
+    if (!nl) {
+      if (child_pointer(w0) != 0 || is_far(w0)) fail_at("child pointer without children", s);
+      continue;
+    }
     const uint32_t ptr = child_pointer(w0);
     if (ptr == 0) fail_at("child pointer does not point forward", s);
     int64_t group = int64_t(s) + ptr;

@@ -47,6 +47,12 @@ void store_le(uint8_t* p, T v) {
   std::memcpy(p, &v, sizeof(T));
 }
 
+[[noreturn]] void corrupt(const std::string& what) {
+  throw Error("corrupt scene: " + what);
+}
+
+}  // namespace
+
 std::string fourcc_name(uint32_t id) {
   std::string s;
   for (int i = 0; i < 4; ++i) {
@@ -55,12 +61,6 @@ std::string fourcc_name(uint32_t id) {
   }
   return s;
 }
-
-[[noreturn]] void corrupt(const std::string& what) {
-  throw Error("corrupt scene: " + what);
-}
-
-}  // namespace
 
 void Container::add(uint32_t id, std::vector<uint8_t> bytes) {
   sections_[id] = std::move(bytes);

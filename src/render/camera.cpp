@@ -1,5 +1,5 @@
-// Pinhole camera: parsing, printing, automatic framing and primary rays
-// (the camera contract is spelled out in camera.hpp).
+// Pinhole and orthographic cameras: parsing, printing, framing and primary
+// rays (the camera contract is spelled out in camera.hpp).
 #include "voxcast/camera.hpp"
 
 #include <cerrno>
@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <numbers>
+#include <vector>
 
 #include "voxcast/error.hpp"
 
@@ -22,119 +23,263 @@ bool nearly_parallel(Vec3 forward_unit, Vec3 up) {
   return length(cross(forward_unit, up / lu)) < 1e-6f;
 }
 
-void check_camera(const Camera& c) {
-  if (!is_finite(c.eye) || !is_finite(c.target) || !is_finite(c.up) ||
-      !std::isfinite(c.fovy_degrees))
-    throw Error("camera: non-finite value");
-  if (!(c.fovy_degrees > 0.f && c.fovy_degrees < 180.f))
-    throw Error("camera: fovy must be in (0, 180) degrees");
-  const Vec3 f = c.target - c.eye;
-  if (!(length(f) > 0)) throw Error("camera: eye and target coincide");
-  if (nearly_parallel(normalize(f), c.up))
-    throw Error("camera: up is parallel to the view direction");
-}
-
-}  // namespace
-
-Camera Camera::parse(const std::string& text) {
-  float v[10];
+// Comma-separated finite floats; `what` names the form in messages.
+std::vector<float> parse_numbers(const std::string& text, const char* what) {
+  std::vector<float> v;
   const char* s = text.c_str();
-  int n = 0;
   while (true) {
-    if (n == 10)
-      throw Error(
-          "camera: expected exactly 10 numbers 'ex,ey,ez,tx,ty,tz,ux,uy,uz,fovy', got more");
+    if (v.size() == 32) throw Error(std::string(what) + ": too many numbers in '" + text + "'");
     char* end = nullptr;
     errno = 0;
     const float x = std::strtof(s, &end);
     if (end == s)
-      throw Error("camera: expected a number at '" + std::string(s) + "' in '" + text + "'");
+      throw Error(std::string(what) + ": expected a number at '" + std::string(s) + "' in '" +
+                  text + "'");
     if (errno == ERANGE || !std::isfinite(x))
-      throw Error("camera: number out of range in '" + text + "'");
-    v[n++] = x;
+      throw Error(std::string(what) + ": number out of range in '" + text + "'");
+    v.push_back(x);
     while (*end == ' ') ++end;
     if (*end == '\0') break;
-    if (*end != ',') throw Error("camera: expected ',' in '" + text + "'");
+    if (*end != ',') throw Error(std::string(what) + ": expected ',' in '" + text + "'");
     s = end + 1;
   }
-  if (n != 10)
-    throw Error("camera: expected exactly 10 numbers 'ex,ey,ez,tx,ty,tz,ux,uy,uz,fovy', got " +
-                std::to_string(n));
+  return v;
+}
+
+void check_size(int width, int height) {
+  if (width <= 0 || height <= 0) throw Error("camera: image size must be positive");
+}
+
+void check_bounds(const Aabb& bounds) {
+  if (bounds.empty() || !is_finite(bounds.lo) || !is_finite(bounds.hi))
+    throw Error("camera: cannot frame empty or non-finite bounds");
+}
+
+// The view basis of the camera contract.
+struct Basis {
+  Vec3 forward, right, true_up;
+  Basis(Vec3 eye, Vec3 target, Vec3 up) : Basis(normalize(target - eye), up) {}
+  Basis(Vec3 forward_unit, Vec3 up)
+      : forward(forward_unit),
+        right(normalize(cross(forward_unit, up))),
+        true_up(cross(right, forward_unit)) {}
+};
+
+// The box corners relative to `origin` in the view basis: a = along right,
+// b = along true_up, z = along forward. The framing below works on these
+// points only, so a tighter point set (e.g. a convex hull) could replace them.
+struct ViewPoint {
+  double a, b, z;
+};
+std::vector<ViewPoint> corners_in_view(const Aabb& bounds, Vec3 origin, const Basis& basis) {
+  std::vector<ViewPoint> out;
+  for (int i = 0; i < 8; ++i) {
+    const Vec3 p{(i & 1) ? bounds.hi.x : bounds.lo.x, (i & 2) ? bounds.hi.y : bounds.lo.y,
+                 (i & 4) ? bounds.hi.z : bounds.lo.z};
+    const Vec3 v = p - origin;
+    out.push_back({double(dot(v, basis.right)), double(dot(v, basis.true_up)),
+                   double(dot(v, basis.forward))});
+  }
+  return out;
+}
+
+// Distance from `target` (backwards along the view) at which a pinhole
+// camera with this basis sees every corner at |sx|, |sy| <= kFrameFill:
+// a corner at depth z0 relative to the target is at depth z0 + D from the
+// eye, and |a| <= fill tan_h (z0 + D) <=> D >= |a| / (fill tan_h) - z0. The
+// exact maximum over the corners, so the tightest corner touches the margin.
+// The eye also stays in front of every corner by 5% of the box radius (so
+// it is outside the box and no corner is at the eye plane), and a single
+// point is framed from its own size (or 1) away.
+double framing_distance(const Aabb& bounds, Vec3 target, const Basis& basis, float fovy_degrees,
+                        int width, int height) {
+  const double tan_v = std::tan(0.5 * double(fovy_degrees) * double(kDegToRad));
+  const double tan_h = tan_v * double(width) / double(height);
+  const double fill = Camera::kFrameFill;
+  const double radius = 0.5 * double(length(bounds.extent()));
+  double dist = 0;
+  for (const ViewPoint& p : corners_in_view(bounds, target, basis)) {
+    dist = std::fmax(dist, std::fabs(p.a) / (fill * tan_h) - p.z);
+    dist = std::fmax(dist, std::fabs(p.b) / (fill * tan_v) - p.z);
+    dist = std::fmax(dist, -p.z + 0.05 * radius);
+  }
+  if (!(dist > 0)) dist = radius > 0 ? radius : 1.0;
+  // Round up to float so that the float eye is not closer than computed.
+  return dist * (1.0 + 1e-6);
+}
+
+// Smallest orthographic width for which every corner projects to
+// |sx|, |sy| <= kFrameFill around the view axis through `eye`.
+double framing_ortho_width(const Aabb& bounds, Vec3 eye, const Basis& basis, int width,
+                           int height) {
+  double half_w = 0;
+  for (const ViewPoint& p : corners_in_view(bounds, eye, basis)) {
+    half_w = std::fmax(half_w, std::fabs(p.a) / Camera::kFrameFill);
+    half_w = std::fmax(half_w, std::fabs(p.b) / Camera::kFrameFill * double(width) / height);
+  }
+  if (!(half_w > 0)) half_w = 0.5;  // a point on the axis: any width shows it
+  return 2.0 * half_w * (1.0 + 1e-6);
+}
+
+// Eye at `dist` from the center of `bounds` in direction `back`; for an
+// orthographic camera also the framing width.
+Camera place(const Aabb& bounds, int width, int height, Vec3 back, Vec3 up, float dist,
+             Projection projection) {
+  check_bounds(bounds);
+  check_size(width, height);
   Camera c;
+  c.fovy_degrees = Camera::kDefaultFovy;
+  c.up = up;
+  c.target = bounds.center();
+  const Basis basis(-back, c.up);
+  if (!(dist > 0))
+    dist = float(framing_distance(bounds, c.target, basis, c.fovy_degrees, width, height));
+  c.eye = c.target + back * dist;
+  // A distance lost in the target's float spacing: step out by the
+  // coordinates' magnitude, which float can represent.
+  if (c.eye.x == c.target.x && c.eye.y == c.target.y && c.eye.z == c.target.z)
+    c.eye = c.target +
+            back * (std::fabs(c.target.x) + std::fabs(c.target.y) + std::fabs(c.target.z) + 1.f);
+  if (projection == Projection::Orthographic) c = c.orthographic(bounds, width, height);
+  c.validate();
+  return c;
+}
+
+}  // namespace
+
+void Camera::validate() const {
+  if (!is_finite(eye) || !is_finite(target) || !is_finite(up) || !std::isfinite(fovy_degrees) ||
+      !std::isfinite(ortho_width))
+    throw Error("camera: non-finite value");
+  if (projection == Projection::Perspective) {
+    if (!(fovy_degrees > 0.f && fovy_degrees < 180.f))
+      throw Error("camera: fovy must be in (0, 180) degrees");
+  } else if (!(ortho_width > 0.f)) {
+    throw Error("camera: orthographic width must be > 0");
+  }
+  const Vec3 f = target - eye;
+  if (!(length(f) > 0)) throw Error("camera: eye and target coincide");
+  if (nearly_parallel(normalize(f), up))
+    throw Error("camera: up is parallel to the view direction");
+}
+
+Camera Camera::parse(const std::string& text) {
+  Camera c;
+  std::string numbers = text;
+  const char* form = "ex,ey,ez,tx,ty,tz,ux,uy,uz,fovy";
+  if (text.rfind("ortho,", 0) == 0) {
+    c.projection = Projection::Orthographic;
+    numbers = text.substr(6);
+    form = "ortho,ex,ey,ez,tx,ty,tz,ux,uy,uz,width";
+  }
+  const std::vector<float> v = parse_numbers(numbers, "camera");
+  if (v.size() != 10)
+    throw Error(std::string("camera: expected exactly 10 numbers '") + form + "', got " +
+                std::to_string(v.size()));
   c.eye = {v[0], v[1], v[2]};
   c.target = {v[3], v[4], v[5]};
   c.up = {v[6], v[7], v[8]};
-  c.fovy_degrees = v[9];
-  check_camera(c);
+  if (c.projection == Projection::Orthographic)
+    c.ortho_width = v[9];
+  else
+    c.fovy_degrees = v[9];
+  c.validate();
   return c;
 }
 
 std::string Camera::to_string() const {
   // %.9g: nine significant digits round-trip every float exactly.
   char buf[512];
-  std::snprintf(buf, sizeof buf, "%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g", eye.x, eye.y,
-                eye.z, target.x, target.y, target.z, up.x, up.y, up.z, fovy_degrees);
+  const bool ortho = projection == Projection::Orthographic;
+  std::snprintf(buf, sizeof buf, "%s%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g",
+                ortho ? "ortho," : "", eye.x, eye.y, eye.z, target.x, target.y, target.z, up.x,
+                up.y, up.z, ortho ? ortho_width : fovy_degrees);
   return buf;
 }
 
-Camera Camera::frame(const Aabb& bounds, int width, int height) {
-  if (bounds.empty() || !is_finite(bounds.lo) || !is_finite(bounds.hi))
-    throw Error("camera: cannot frame empty or non-finite bounds");
-  if (width <= 0 || height <= 0) throw Error("camera: image size must be positive");
-  Camera c;
-  c.fovy_degrees = 40.f;
-  c.up = {0, 1, 0};
-  c.target = bounds.center();
+Vec3 Camera::auto_view_direction() {
   // Front-right-above: the usual three-quarter view of a +y-up model.
-  const Vec3 back = normalize(Vec3{1.0f, 0.6f, 1.4f});  // from target towards the eye
-  const Vec3 forward = -back;
-  const Vec3 right = normalize(cross(forward, c.up));
-  const Vec3 true_up = cross(right, forward);
-  const float tan_v = std::tan(0.5f * c.fovy_degrees * kDegToRad);
-  const float tan_h = tan_v * float(width) / float(height);
-  // Fit the ellipsoid inscribed in the box (semi-axes = half extents) with a
-  // 5% margin. Fitting the box corners or the bounding sphere leaves most of
-  // the frame empty for real models, which seldom reach their box corners
-  // (the bunny covered 17% of the image with a corner fit, ~35% like this).
-  // The ellipsoid's half width along a unit screen axis u is
-  // sqrt(sum (e_i u_i)^2); a sphere of radius r fits a cone of half angle a
-  // at distance r / sin(a), which we use per screen axis.
-  const Vec3 e = bounds.extent() * 0.5f;
-  // The ellipsoid is grown by 12%: real shapes poke out of it near the box
-  // edges (bunny ears, truck corners) and should not be clipped much.
-  auto half_width = [&](Vec3 u) { return 1.12f * length(e * u); };
-  auto dist_for = [](float r, float tan_half) {
-    const float t = tan_half * 0.95f;
-    return r * std::sqrt(1.f + 1.f / (t * t));  // r / sin(atan(t))
-  };
-  float dist = std::fmax(dist_for(half_width(right), tan_h), dist_for(half_width(true_up), tan_v));
-  // Keep the eye outside the ellipsoid along the view direction.
-  dist = std::fmax(dist, 1.05f * half_width(forward));
-  const float radius = length(e);
-  if (!(dist > 0)) dist = radius > 0 ? radius : 1.f;  // a point: any distance works
-  c.eye = c.target + back * dist;
-  if (c.eye.x == c.target.x && c.eye.y == c.target.y && c.eye.z == c.target.z)
-    c.eye = c.target +
-            back * (std::fabs(c.target.x) + std::fabs(c.target.y) + std::fabs(c.target.z) + 1.f);
+  return normalize(Vec3{1.0f, 0.6f, 1.4f});
+}
+
+Camera Camera::frame(const Aabb& bounds, int width, int height, Projection projection) {
+  return place(bounds, width, height, auto_view_direction(), {0, 1, 0}, 0.f, projection);
+}
+
+Camera Camera::orbit(const Aabb& bounds, int width, int height, float azimuth_degrees,
+                     float elevation_degrees, float distance, Projection projection) {
+  if (!std::isfinite(azimuth_degrees) || !std::isfinite(elevation_degrees) ||
+      !std::isfinite(distance))
+    throw Error("orbit: non-finite value");
+  if (!(elevation_degrees >= -90.f && elevation_degrees <= 90.f))
+    throw Error("orbit: elevation must be in [-90, 90] degrees");
+  const double az = double(azimuth_degrees) * std::numbers::pi / 180.0;
+  const double el = double(elevation_degrees) * std::numbers::pi / 180.0;
+  const Vec3 back{float(std::sin(az) * std::cos(el)), float(std::sin(el)),
+                  float(std::cos(az) * std::cos(el))};
+  // d(back)/d(el): perpendicular to the view, in the plane of +y whenever
+  // |el| < 90 (so the same image as up = +y), and defined at the poles.
+  const Vec3 up{float(-std::sin(az) * std::sin(el)), float(std::cos(el)),
+                float(-std::cos(az) * std::sin(el))};
+  return place(bounds, width, height, back, up, distance, projection);
+}
+
+Camera Camera::parse_orbit(const std::string& text, const Aabb& bounds, int width, int height,
+                           Projection projection) {
+  const std::vector<float> v = parse_numbers(text, "orbit");
+  if (v.size() != 2 && v.size() != 3)
+    throw Error("orbit: expected 'AZ,EL[,DIST]' (degrees, distance), got " +
+                std::to_string(v.size()) + " numbers");
+  if (v.size() == 3 && !(v[2] > 0)) throw Error("orbit: DIST must be > 0");
+  return orbit(bounds, width, height, v[0], v[1], v.size() == 3 ? v[2] : 0.f, projection);
+}
+
+Camera Camera::parse_look_at(const std::string& text) {
+  const std::vector<float> v = parse_numbers(text, "look-at");
+  if (v.size() != 6 && v.size() != 9 && v.size() != 10)
+    throw Error("look-at: expected 'ex,ey,ez,tx,ty,tz[,ux,uy,uz[,fovy]]', got " +
+                std::to_string(v.size()) + " numbers");
+  Camera c;
+  c.eye = {v[0], v[1], v[2]};
+  c.target = {v[3], v[4], v[5]};
+  c.up = v.size() >= 9 ? Vec3{v[6], v[7], v[8]} : Vec3{0, 1, 0};
+  c.fovy_degrees = v.size() == 10 ? v[9] : kDefaultFovy;
+  c.validate();
+  return c;
+}
+
+Camera Camera::orthographic(const Aabb& bounds, int width, int height, float width_world) const {
+  Camera c = *this;
+  c.projection = Projection::Orthographic;
+  if (width_world > 0) {
+    c.ortho_width = width_world;
+  } else {
+    check_bounds(bounds);
+    check_size(width, height);
+    validate();  // the basis below needs a usable eye, target and up
+    c.ortho_width = float(framing_ortho_width(bounds, eye, Basis(eye, target, up), width, height));
+  }
+  c.validate();
   return c;
 }
 
 CameraRays::CameraRays(const Camera& camera, int width_, int height_)
     : width(width_), height(height_) {
-  check_camera(camera);
-  if (width_ <= 0 || height_ <= 0) throw Error("camera: image size must be positive");
+  camera.validate();
+  check_size(width_, height_);
   eye = camera.eye;
-  forward = normalize(camera.target - camera.eye);
-  right = normalize(cross(forward, camera.up));
-  true_up = cross(right, forward);
-  tan_half = std::tan(0.5f * camera.fovy_degrees * kDegToRad);
+  const Basis basis(camera.eye, camera.target, camera.up);
+  forward = basis.forward;
+  right = basis.right;
+  true_up = basis.true_up;
   aspect = float(width_) / float(height_);
-}
-
-Vec3 CameraRays::direction(int x, int y) const {
-  const float sx = (2.f * (float(x) + 0.5f) / float(width) - 1.f) * tan_half * aspect;
-  const float sy = (1.f - 2.f * (float(y) + 0.5f) / float(height)) * tan_half;
-  return normalize(forward + right * sx + true_up * sy);
+  if (camera.projection == Projection::Orthographic) {
+    ortho = true;
+    half_width = 0.5f * camera.ortho_width;
+    half_height = half_width / aspect;  // square pixels
+  } else {
+    tan_half = std::tan(0.5f * camera.fovy_degrees * kDegToRad);
+  }
 }
 
 }  // namespace voxcast

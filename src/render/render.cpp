@@ -31,9 +31,10 @@ RenderResult render(const VoxelStructure& structure, const RenderOptions& option
   if (options.want_normal) result.normal = Image(W, H, 3);
 
   // Pixel cone (esvo §6.1 ray_size_coef/bias): a voxel may stand for the
-  // surface once it projects to <= lod_pixels pixels; 0 keeps the finest level.
+  // surface once it projects to <= lod_pixels pixels; 0 keeps the finest
+  // level. Perspective: the footprint grows with t; orthographic: constant.
   LodFootprint lod;
-  lod.size_at_origin = 0.f;
+  lod.size_at_origin = options.lod_pixels * cam.pixel_size();
   lod.size_per_t = options.lod_pixels * cam.pixel_angle();
 
   Vec3 to_light = normalize(-options.light_dir);
@@ -58,7 +59,7 @@ RenderResult render(const VoxelStructure& structure, const RenderOptions& option
   // point (the paper's alpha channel); misses keep 0 = radius 1 = no blur.
   std::vector<uint8_t> filter_radius;
   if (options.filter) filter_radius.assign(size_t(W) * size_t(H), 0);
-  const float pixel_angle = cam.pixel_angle();
+  const float pixel_angle = cam.pixel_angle(), pixel_size = cam.pixel_size();
 
   std::atomic<uint64_t> total_hits{0};
   // Profiling (esvo §8.5) and beam optimization (§6.2) state.
@@ -123,8 +124,8 @@ RenderResult render(const VoxelStructure& structure, const RenderOptions& option
         if (want_depth) *result.depth.at(x, y) = hit.t;
         if (!filter_radius.empty()) {
           // Voxel side over the pixel footprint at distance t; t ~ 0 (eye in
-          // the voxel) gives +inf or a huge size -> the largest code.
-          const float footprint = hit.t * pixel_angle;
+          // the voxel, perspective) gives +inf or a huge size -> the largest code.
+          const float footprint = pixel_size + hit.t * pixel_angle;
           filter_radius[size_t(y) * W + x] =
               footprint > 0.f ? encode_filter_radius(hit.voxel_size / footprint) : uint8_t(255);
         }
@@ -172,7 +173,8 @@ RenderResult render(const VoxelStructure& structure, const RenderOptions& option
     } else {
       // §6.2: per K x K block (clipped to the tile), a coarse pass computes a
       // conservative start region shared by the block's rays. It runs inside
-      // the timed loop. (Contours, once they exist, must stay off in it.)
+      // the timed loop and ignores contours (§6.2: whole cubes contain their
+      // contour-clipped shape; core/beam_frustum.hpp).
       for (int by = tile.y0; by < tile.y1; by += beam_k) {
         for (int bx = tile.x0; bx < tile.x1; bx += beam_k) {
           const int bx1 = std::min(bx + beam_k, tile.x1), by1 = std::min(by + beam_k, tile.y1);

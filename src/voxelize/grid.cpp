@@ -28,6 +28,18 @@ double max_extent(const Aabb& b) {
 
 }  // namespace
 
+bool GridTransform::placement_is_valid() const {
+  if (!(voxel_size > 0) || !std::isfinite(voxel_size) || !is_finite(origin)) return false;
+  const double s = side();
+  for (int a = 0; a < 3; ++a) {
+    const float hi = float(double(origin[a]) + s);
+    if (!(std::fabs(origin[a]) <= kMaxWorldCoordinate) || !(hi <= kMaxWorldCoordinate) ||
+        !(hi > origin[a]))
+      return false;
+  }
+  return true;
+}
+
 GridTransform GridTransform::fit(const Aabb& bounds, uint32_t resolution) {
   if (resolution == 0 || !std::has_single_bit(resolution) || resolution > (1u << kMaxGridLevels))
     throw Error(fmt::format("grid resolution {} is not a power of two between 1 and {}", resolution,

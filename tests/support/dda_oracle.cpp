@@ -18,10 +18,12 @@ DenseGrid::DenseGrid(int levels) : levels_(levels), n_(1u << levels) {
   bits_.assign((size_t(n_) * n_ * n_ + 63) / 64, 0);
 }
 
-DenseGrid DenseGrid::from_voxels(const VoxelSet& set) {
-  DenseGrid g(set.grid.levels);
+DenseGrid DenseGrid::from_voxels(const VoxelSet& set, int level) {
+  if (level < 0) level = set.grid.levels;
+  DenseGrid g(level);
+  const int shift = set.grid.levels - level;
   for (uint64_t code : set.codes) {
-    const MortonCoord c = morton_decode(code);
+    const MortonCoord c = morton_decode(code >> (3 * shift));
     g.set(c.x, c.y, c.z);
   }
   return g;

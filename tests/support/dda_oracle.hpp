@@ -28,8 +28,10 @@ struct DdaHit {
 class DenseGrid {
  public:
   explicit DenseGrid(int levels);
-  /// Occupancy from a VoxelSet's Morton codes (its grid must have `levels`).
-  static DenseGrid from_voxels(const VoxelSet& set);
+  /// Occupancy from a VoxelSet's Morton codes at the set's finest level, or
+  /// (level >= 0) coarsened to `level`: a cube there is occupied if any leaf
+  /// below it is.
+  static DenseGrid from_voxels(const VoxelSet& set, int level = -1);
 
   int levels() const { return levels_; }
   uint32_t resolution() const { return n_; }
