@@ -1,15 +1,22 @@
-// voxcast bench MESH: the voxel ray caster against Embree on the same mesh,
-// camera, image size, tiles and threads, measured in one run.
-#include <tbb/blocked_range.h>
-#include <tbb/combinable.h>
-#include <tbb/parallel_for.h>
+// voxcast bench MESH: the voxel ray casters against Embree on the same mesh,
+// camera, image size, tiles and threads, measured in one run (issue 10, the
+// fair benchmark): Embree in every primary mode (x1, 2x2/4x2/4x4 packets,
+// stream), trace only and with the same shading, voxel casters at LOD 0 and
+// --lod, occlusion rays generated once for every caster, and an instrumented
+// single-threaded cycles-per-ray profile. docs/BENCHMARKS.md shows the output.
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <fstream>
+#include <functional>
+#include <iterator>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <sstream>
+#include <string>
 #include <thread>
 #include <vector>
 
@@ -17,6 +24,9 @@
 #include "cli_io.hpp"
 #include "commands.hpp"
 #include "pipeline.hpp"
+#include "render/bench_timing.hpp"
+#include "render/tiling.hpp"
+#include "voxcast/dag.hpp"
 #include "voxcast/effects.hpp"
 #include "voxcast/embree_reference.hpp"
 #include "voxcast/error.hpp"
@@ -40,50 +50,166 @@ struct BenchArgs {
   bool effects = false;
   int ao_rays = 64;
   float ao_radius = 0.f;
+  std::string json;  // --json FILE: every figure
 };
 
-class EmbreeOccluder final : public Occluder {
- public:
-  explicit EmbreeOccluder(const EmbreeScene& s) : s_(s) {}
-  bool occluded(const Ray& ray, const LodFootprint&) const override { return s_.occluded(ray); }
-
- private:
-  const EmbreeScene& s_;
+// One timing harness for every caster, voxel or Embree. Each row has a
+// frame() that runs one frame and returns the seconds of its timed loop only
+// (setup and allocation outside). Every row gets a warm-up frame (pages its
+// structure in, spins up the TBB workers), then `repeat` rounds run every
+// row once each, in turn, so that a load change on the (shared) machine hits
+// all casters alike; each row keeps its best frame.
+struct Timed {
+  double seconds = 1e30;
+  uint64_t rays = 0, hits = 0;  // hits: primary hits, or occluded rays
+  double mrays() const { return double(rays) / seconds * 1e-6; }
+  double mhits() const { return double(hits) / seconds * 1e-6; }
 };
-
-struct EffectRun {
-  double seconds = 1e30;  // best wall time
-  uint64_t rays = 0;
-  std::vector<float> values;  // per shading point
-};
-
-// Shadow (ao_rays == 0: one directional ray per point) or AO rays for every
-// point, in parallel chunks; best wall time of `repeat` runs.
-EffectRun run_effect_rays(const Occluder& occ, const std::vector<ShadingPoint>& points,
-                          const EffectOptions& fx, Vec3 light_dir, int repeat) {
-  EffectRun run;
-  run.values.assign(points.size(), 0.f);
-  for (int r = 0; r < repeat; ++r) {
-    tbb::combinable<EffectCounters> counters;
-    const auto t0 = std::chrono::steady_clock::now();
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 256),
-                      [&](const tbb::blocked_range<size_t>& b) {
-                        EffectCounters& c = counters.local();
-                        for (size_t i = b.begin(); i != b.end(); ++i) {
-                          const uint32_t seed = pixel_seed(int(i), 0, fx.seed);
-                          run.values[i] =
-                              fx.ao_rays > 0
-                                  ? ambient_occlusion(occ, points[i], fx, fx.ao_radius, seed, &c)
-                                  : shadow_visibility(occ, points[i], fx, light_dir, seed, &c);
-                        }
-                      });
-    run.seconds = std::min(
-        run.seconds, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
-    EffectCounters total;
-    counters.combine_each([&](const EffectCounters& c) { total += c; });
-    run.rays = total.shadow_rays + total.ao_rays;
+template <class Row>
+void measure_interleaved(std::vector<Row>& rows, int repeat) {
+  for (Row& r : rows) {
+    r.t = r.frame();  // warm-up
+    r.t.seconds = 1e30;
   }
-  return run;
+  for (int k = 0; k < repeat; ++k)
+    for (Row& r : rows) {
+      const Timed t = r.frame();
+      if (t.seconds < r.t.seconds) r.t = t;
+    }
+}
+
+Timed timed(const RenderResult& r) {
+  return {r.seconds, r.rays, r.hits};
+}
+Timed timed(const EmbreeScene::DepthRender& r) {
+  return {r.seconds, r.rays, r.hits};
+}
+
+// The pixel cone of render() (esvo §6.1): lod_pixels pixels per unit distance.
+LodFootprint pixel_lod(const CameraRays& cam, float lod_pixels) {
+  LodFootprint lod;
+  lod.size_per_t = lod_pixels * cam.pixel_angle();
+  return lod;
+}
+
+// Trace only, the voxel side of the trace-only comparison: the same tiles and
+// threads as render(), primary rays generated in the loop as render() does,
+// depth written, no attributes and no shading. S is a final class, so the
+// trace() call is direct, not virtual.
+template <class S>
+Timed trace_depth(const S& s, const RenderOptions& ro, Image* depth) {
+  const CameraRays cam(ro.camera, ro.width, ro.height);
+  const LodFootprint lod = pixel_lod(cam, ro.lod_pixels);
+  *depth = Image(ro.width, ro.height, 1);
+  std::atomic<uint64_t> hits{0};
+  Timed t;
+  t.rays = uint64_t(ro.width) * uint64_t(ro.height);
+  t.seconds =
+      detail::for_each_tile(ro.width, ro.height, ro.tile_size, [&](const detail::Tile& tile) {
+        uint64_t h = 0;
+        for (int y = tile.y0; y < tile.y1; ++y)
+          for (int x = tile.x0; x < tile.x1; ++x) {
+            SurfaceHit hit;
+            const bool found = s.trace(cam.ray(x, y), lod, &hit);
+            h += found;
+            *depth->at(x, y) = found ? hit.t : INFINITY;
+          }
+        hits.fetch_add(h, std::memory_order_relaxed);
+      });
+  t.hits = hits.load();
+  return t;
+}
+
+// Any-hit answers of a voxel structure for pre-generated rays, in the same
+// chunks as EmbreeScene::occluded_all (finest level, as the effects trace).
+template <class S>
+Timed occluded_all(const S& s, const std::vector<Ray>& rays, std::vector<uint8_t>* occ) {
+  occ->assign(rays.size(), 0);
+  uint8_t* o = occ->data();
+  Timed t;
+  t.rays = rays.size();
+  t.seconds =
+      detail::for_each_chunk(rays.size(), EmbreeScene::kOcclusionChunk, [&](size_t b, size_t e) {
+        for (size_t i = b; i < e; ++i) o[i] = s.occluded(rays[i], LodFootprint{});
+      });
+  for (uint8_t v : *occ) t.hits += v;
+  return t;
+}
+
+// Records the rays shadow_visibility() / ambient_occlusion() would trace
+// (answering "open"), so that the occlusion rays are generated once, with
+// the renderer's very sampling, and every caster gets the same array.
+class RayRecorder final : public Occluder {
+ public:
+  bool occluded(const Ray& ray, const LodFootprint&) const override {
+    rays.push_back(ray);
+    return false;
+  }
+  mutable std::vector<Ray> rays;
+};
+
+// Stage ticks of the instrumented single-threaded voxel pass: what render()
+// does per pixel (ray generation, trace, attributes, shading without
+// effects), with timestamp reads between the stages.
+template <class S>
+EmbreeScene::StageTicks profile_voxels(const S& s, const RenderOptions& ro) {
+  const CameraRays cam(ro.camera, ro.width, ro.height);
+  const LodFootprint lod = pixel_lod(cam, ro.lod_pixels);
+  const Vec3 to_light = normalize(-ro.light_dir);
+  const uint64_t overhead = detail::tick_overhead();
+  auto since = [overhead](uint64_t a, uint64_t b) {
+    return b - a > overhead ? b - a - overhead : 0;
+  };
+  EmbreeScene::StageTicks st;
+  Image color(ro.width, ro.height, 3);
+  for (int y = 0; y < ro.height; ++y)
+    for (int x = 0; x < ro.width; ++x) {
+      const uint64_t t0 = detail::ticks();
+      const Ray ray = cam.ray(x, y);
+      const uint64_t t1 = detail::ticks();
+      SurfaceHit hit;
+      const bool found = s.trace(ray, lod, &hit);
+      const uint64_t t2 = detail::ticks();
+      st.ray_generation += since(t0, t1);
+      st.traversal += since(t1, t2);
+      if (!found) continue;
+      Color c;
+      Vec3 n;
+      s.attributes(hit, &c, &n);
+      const uint64_t t3 = detail::ticks();
+      const Color sh = surface_phong(c, n, ray.dir, to_light);
+      float* o = color.at(x, y);
+      o[0] = sh.r, o[1] = sh.g, o[2] = sh.b;
+      const uint64_t t4 = detail::ticks();
+      st.attributes += since(t2, t3);
+      st.shading += since(t3, t4);
+    }
+  st.rays = uint64_t(ro.width) * uint64_t(ro.height);
+  return st;
+}
+
+// The value of the first line of a /proc file that starts with `key`
+// ("key<TAB>: value"), or the whole first line for an empty key.
+std::string first_line_of(const char* path, const std::string& key) {
+  std::ifstream in(path);
+  std::string line;
+  while (std::getline(in, line)) {
+    if (key.empty()) return line;
+    if (line.rfind(key, 0) != 0) continue;
+    const size_t colon = line.find(':');
+    const size_t v = colon == std::string::npos ? colon : line.find_first_not_of(" \t", colon + 1);
+    return v == std::string::npos ? std::string() : line.substr(v);
+  }
+  return "unknown";
+}
+
+// The command line as the kernel has it (arguments NUL-separated).
+std::string command_line() {
+  std::ifstream in("/proc/self/cmdline", std::ios::binary);
+  std::string all((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>()), out;
+  for (char c : all) out += c ? c : ' ';
+  while (!out.empty() && out.back() == ' ') out.pop_back();
+  return out;
 }
 
 double coverage(const Image& depth) {
@@ -125,14 +251,16 @@ Runner add_bench(CLI::App& app) {
       "--contours", args->contours,
       "Also build the same voxels with contours (esvo section 5.2) and measure them, with "
       "and without the beam (the shape of esvo Table 4)");
-  cmd->add_flag("--effects", args->effects,
-                "Also measure shadow and AO rays (svdag section 4) on the ESVO, a DAG of the same "
-                "voxels and Embree rtcOccluded1");
+  cmd->add_flag(
+      "--effects", args->effects,
+      "Also measure the DAG of the same voxels, and shadow and AO rays (svdag section 4), "
+      "generated once, on the ESVO, the DAG and Embree rtcOccluded1/8/16/1M");
   cmd->add_option("--ao-rays", args->ao_rays, "AO rays per hit pixel for --effects")
       ->capture_default_str();
   cmd->add_option("--ao-radius", args->ao_radius,
                   "AO ray length for --effects (0 = 5% of the mesh bounds diagonal)")
       ->capture_default_str();
+  cmd->add_option("--json", args->json, "Also write every figure as JSON to this file");
   return [args]() {
     ThreadLimit limit(args->threads);
     std::vector<std::pair<int, int>> sizes;
@@ -178,6 +306,21 @@ Runner add_bench(CLI::App& app) {
       contoured = std::make_shared<esvo::EsvoOctree>(std::move(cb.octree));
     }
 
+    // Machine and command line first: every figure below depends on them.
+    // "AMD EPYC" alone does not tell Zen generations apart: add family/model.
+    const std::string cpu = first_line_of("/proc/cpuinfo", "model name") + " (family " +
+                            first_line_of("/proc/cpuinfo", "cpu family") + ", model " +
+                            first_line_of("/proc/cpuinfo", "model\t") + ")";
+    const std::string isa = EmbreeScene::probe_isa();
+    std::string load = first_line_of("/proc/loadavg", "");  // the 1, 5, 15 min averages
+    for (int spaces = 0, i = 0; i < int(load.size()); ++i)
+      if (load[size_t(i)] == ' ' && ++spaces == 3) load.resize(size_t(i));
+    const std::string cmdline = command_line();
+    std::printf("command     %s\n", printable(cmdline).c_str());
+    std::printf("machine     %s, %u logical CPUs, load average %s\n", cpu.c_str(),
+                std::thread::hardware_concurrency(), load.c_str());
+    std::printf("embree      %s\n", isa.c_str());
+    nlohmann::json json_runs = nlohmann::json::array();
     for (size_t size_index = 0; size_index < sizes.size(); ++size_index) {
       const int width = sizes[size_index].first, height = sizes[size_index].second;
       // The same framing as `render` of a scene of these voxels: the occupied
@@ -205,35 +348,129 @@ Runner add_bench(CLI::App& app) {
       ro.lod_pixels = args->lod;
       ro.want_depth = true;
 
-      RenderOptions ro_beam = ro;
-      ro_beam.beam = args->beam;
+      const int threads = args->threads ? args->threads : int(std::thread::hardware_concurrency());
+      const double rays = double(width) * height;
+      nlohmann::json run;
+      run["image"] = {{"width", width}, {"height", height}};
+      run["camera"] = camera.to_string();
 
-      double best_vox = 1e30, best_beam = 1e30, best_e1 = 1e30, best_e8 = 1e30;
-      double best_cont = 1e30, best_cont_beam = 1e30;
-      RenderResult vox_result;
-      EmbreeScene::DepthRender e1;
+      // ---- Primary rays: Embree in every mode, then the voxel casters. ----
+      struct PrimaryRow {
+        std::string caster, call;
+        float lod;  // < 0: not a voxel caster
+        bool shaded;
+        std::function<Timed()> frame;
+        Timed t;
+      };
+      std::vector<PrimaryRow> primary;
+      EmbreeScene::DepthRender e1;  // rtcIntersect1 depth: coverage and agreement
+      for (const EmbreeScene::Mode m : EmbreeScene::kModes) {
+        const std::string name = std::string("embree ") + EmbreeScene::mode_name(m);
+        primary.push_back({name,
+                           EmbreeScene::mode_call(m),
+                           -1.f,
+                           false,
+                           [&, m] {
+                             auto r = embree.render_depth(camera, width, height, m);
+                             if (m == EmbreeScene::Mode::Single) e1 = std::move(r);
+                             return timed(m == EmbreeScene::Mode::Single ? e1 : r);
+                           },
+                           {}});
+        primary.push_back(
+            {name,
+             std::string(EmbreeScene::mode_call(m)) + ", normals + Phong",
+             -1.f,
+             true,
+             [&, m] { return timed(embree.render_shaded(camera, width, height, m, ro.light_dir)); },
+             {}});
+      }
+      // LOD 0 (finest level) and --lod: trace only and render() (attributes + shading).
+      std::vector<float> lods{0.f};
+      if (args->lod != 0.f) lods.push_back(args->lod);
+      RenderResult vox_result;  // at --lod, for the agreement line
       std::unique_ptr<esvo::EsvoStructure> contour_voxels;
       if (contoured) contour_voxels = std::make_unique<esvo::EsvoStructure>(contoured);
-      render(voxels, ro);  // warm-up: page in the octree, spin up the TBB workers
-      if (contour_voxels) render(*contour_voxels, ro);
-      for (int r = 0; r < args->repeat; ++r) {
-        vox_result = render(voxels, ro);
-        best_vox = std::min(best_vox, vox_result.seconds);
-        if (args->beam) best_beam = std::min(best_beam, render(voxels, ro_beam).seconds);
-        if (contour_voxels) {
-          best_cont = std::min(best_cont, render(*contour_voxels, ro).seconds);
-          if (args->beam)
-            best_cont_beam = std::min(best_cont_beam, render(*contour_voxels, ro_beam).seconds);
+      // Trace-only and render() rows of one voxel structure at every LOD.
+      auto add_voxel_rows = [&](const std::string& caster, const auto& structure) {
+        for (float lod : lods) {
+          RenderOptions rl = ro;
+          rl.lod_pixels = lod;
+          primary.push_back({caster,
+                             "trace, depth only",
+                             lod,
+                             false,
+                             [&structure, rl] {
+                               Image depth;
+                               return trace_depth(structure, rl, &depth);
+                             },
+                             {}});
+          primary.push_back(
+              {caster,
+               "render(): attributes + Phong",
+               lod,
+               true,
+               [&, rl, keep = static_cast<const void*>(&structure) == &voxels && lod == args->lod] {
+                 if (!keep) return timed(render(structure, rl));
+                 vox_result = render(structure, rl);
+                 return timed(vox_result);
+               },
+               {}});
         }
-        e1 = embree.render_depth(camera, width, height, EmbreeScene::Mode::Single);
-        best_e1 = std::min(best_e1, e1.seconds);
-        auto e8 = embree.render_depth(camera, width, height, EmbreeScene::Mode::Packet8);
-        best_e8 = std::min(best_e8, e8.seconds);
+      };
+      add_voxel_rows("voxcast esvo", voxels);
+      // The existing variants at --lod, rendered (attributes + shading).
+      RenderOptions ro_beam = ro;
+      ro_beam.beam = args->beam;
+      if (args->beam)
+        primary.push_back({"voxcast esvo+beam",
+                           "render(), beam " + std::to_string(args->beam) + "x" +
+                               std::to_string(args->beam) + " (coarse pass included)",
+                           args->lod,
+                           true,
+                           [&] { return timed(render(voxels, ro_beam)); },
+                           {}});
+      if (contour_voxels) {
+        primary.push_back({"voxcast contours",
+                           "render()",
+                           args->lod,
+                           true,
+                           [&] { return timed(render(*contour_voxels, ro)); },
+                           {}});
+        if (args->beam)
+          primary.push_back({"voxcast contours+beam",
+                             "render(), beam",
+                             args->lod,
+                             true,
+                             [&] { return timed(render(*contour_voxels, ro_beam)); },
+                             {}});
       }
-      double rays = double(width) * height;
-      double m_cont = rays / best_cont * 1e-6, m_cont_beam = rays / best_cont_beam * 1e-6;
-      double m_vox = rays / best_vox * 1e-6, m_beam = rays / best_beam * 1e-6,
-             m_e1 = rays / best_e1 * 1e-6, m_e8 = rays / best_e8 * 1e-6;
+      // With --effects: the DAG of the same voxels (svdag §4), same camera.
+      std::unique_ptr<dag::DagStructure> dag_voxels;
+      RenderOptions dag_beam = ro;
+      dag_beam.beam = 8;
+      if (args->effects && size_index == 0) {
+        BuildSettings ds = s;
+        ds.dag = true;
+        ds.verbose = false;
+        BuiltScene dag_built = build_scene(ds);  // the same mesh, grid and voxelization
+        dag_voxels = std::make_unique<dag::DagStructure>(
+            std::make_shared<dag::SparseVoxelDag>(std::move(dag_built.dag)));
+        add_voxel_rows("voxcast dag", *dag_voxels);
+        primary.push_back({"voxcast dag+beam",
+                           "render(), beam 8x8",
+                           args->lod,
+                           true,
+                           [&] { return timed(render(*dag_voxels, dag_beam)); },
+                           {}});
+      }
+      measure_interleaved(primary, args->repeat);
+      const double cov = double(primary[0].t.hits) / rays;
+      // Ratios against the fastest Embree mode of the same comparison.
+      double fastest[2] = {0, 0};
+      std::string fastest_name[2];
+      for (const PrimaryRow& r : primary)
+        if (r.lod < 0 && r.t.mrays() > fastest[r.shaded])
+          fastest[r.shaded] = r.t.mrays(), fastest_name[r.shaded] = r.caster;
 
       // How well the voxels reproduce the mesh in this very frame.
       size_t agree = 0, both = 0, close = 0;
@@ -247,12 +484,11 @@ Runner add_bench(CLI::App& app) {
         }
       }
       auto mem = octree->memory_stats();
-      int threads = args->threads ? args->threads : int(std::thread::hardware_concurrency());
       std::printf("mesh        %s: %zu triangles\n", printable(args->input).c_str(),
                   built.mesh.triangle_count());
       std::printf("camera      %s\n", camera.to_string().c_str());
       std::printf("image       %dx%d, %.1f%% of pixels hit the mesh, %d threads, best of %d\n",
-                  width, height, 100.0 * coverage(e1.depth), threads, args->repeat);
+                  width, height, 100.0 * cov, threads, args->repeat);
       std::printf("voxels      %u^3 %s, %llu leaf voxels, lod %.2g px\n", octree->grid.resolution,
                   voxelization_name(s.mode), (unsigned long long)built.leaf_voxels, args->lod);
       std::printf("agreement   hit/miss %.3f%%, depth within 2 leaf voxel diagonals %.3f%%\n",
@@ -264,29 +500,142 @@ Runner add_bench(CLI::App& app) {
                   format_bytes(double(mem.total_bytes)).c_str(),
                   double(mem.total_bytes) / double(built.leaf_voxels),
                   format_bytes(double(embree.memory_bytes())).c_str());
-      std::printf("voxcast     %8.2f Mrays/s\n", m_vox);
-      if (args->beam)
-        std::printf("voxcast+beam%8.2f Mrays/s (beam %dx%d, coarse pass included)\n", m_beam,
-                    args->beam, args->beam);
-      if (contour_voxels) {
-        std::printf("contours    %8.2f Mrays/s (build %.2f s, %s)\n", m_cont, contour_build_seconds,
-                    format_bytes(double(contoured->memory_stats().total_bytes)).c_str());
-        if (args->beam)
-          std::printf("contours+beam%7.2f Mrays/s (beam %dx%d)\n", m_cont_beam, args->beam,
-                      args->beam);
+      for (int shaded = 0; shaded < 2; ++shaded) {
+        std::printf("\n%s (ratio: Mrays/s over %s, the fastest Embree mode here)\n",
+                    shaded ? "trace + the same shading" : "trace only (depth written)",
+                    fastest_name[shaded].c_str());
+        std::printf("  %-22s %4s %9s %9s %7s  %s\n", "caster", "lod", "Mrays/s", "Mhits/s", "ratio",
+                    "how");
+        for (const PrimaryRow& r : primary) {
+          if (r.shaded != bool(shaded)) continue;
+          char lod[16] = "-";
+          if (r.lod >= 0) std::snprintf(lod, sizeof lod, "%g", double(r.lod));
+          std::printf("  %-22s %4s %9.2f %9.2f %7.3f  %s\n", r.caster.c_str(), lod, r.t.mrays(),
+                      r.t.mhits(), r.t.mrays() / fastest[shaded], r.call.c_str());
+        }
       }
-      std::printf("embree x1   %8.2f Mrays/s (rtcIntersect1)\n", m_e1);
-      std::printf("embree x8   %8.2f Mrays/s (rtcIntersect8)\n", m_e8);
-      double best_voxcast = std::max(m_vox, args->beam ? m_beam : 0.0);
-      if (contour_voxels)
-        best_voxcast = std::max({best_voxcast, m_cont, args->beam ? m_cont_beam : 0.0});
-      std::printf("ratio voxcast/embree: %.3f\n", best_voxcast / std::max(m_e1, m_e8));
+      std::printf("\n");
+      // The one-line summary (bench/*.sh read these lines): voxcast render()
+      // at --lod against Embree trace only, as before, now with every mode.
+      auto find = [&](const std::string& caster, bool shaded, float lod) -> const Timed* {
+        for (const PrimaryRow& r : primary)
+          if (r.caster == caster && r.shaded == shaded && (r.lod < 0 || r.lod == lod)) return &r.t;
+        return nullptr;
+      };
+      const double m_vox = find("voxcast esvo", true, args->lod)->mrays();
+      std::printf("voxcast     %8.2f Mrays/s\n", m_vox);
+      double best_voxcast = m_vox;
+      if (const Timed* t = find("voxcast esvo+beam", true, args->lod)) {
+        std::printf("voxcast+beam%8.2f Mrays/s (beam %dx%d, coarse pass included)\n", t->mrays(),
+                    args->beam, args->beam);
+        best_voxcast = std::max(best_voxcast, t->mrays());
+      }
+      if (const Timed* t = find("voxcast contours", true, args->lod)) {
+        std::printf("contours    %8.2f Mrays/s (build %.2f s, %s)\n", t->mrays(),
+                    contour_build_seconds,
+                    format_bytes(double(contoured->memory_stats().total_bytes)).c_str());
+        best_voxcast = std::max(best_voxcast, t->mrays());
+      }
+      if (const Timed* t = find("voxcast contours+beam", true, args->lod)) {
+        std::printf("contours+beam%7.2f Mrays/s (beam %dx%d)\n", t->mrays(), args->beam,
+                    args->beam);
+        best_voxcast = std::max(best_voxcast, t->mrays());
+      }
+      for (const EmbreeScene::Mode m : EmbreeScene::kModes) {
+        const std::string name = std::string("embree ") + EmbreeScene::mode_name(m);
+        std::printf("%-12s%8.2f Mrays/s (%s)\n", name.c_str(), find(name, false, 0)->mrays(),
+                    EmbreeScene::mode_call(m));
+      }
+      if (const Timed* t = find("voxcast dag", true, args->lod))
+        std::printf("primary dag %8.2f Mrays/s, with beam 8x8 %.2f Mrays/s (%s DAG)\n", t->mrays(),
+                    find("voxcast dag+beam", true, args->lod)->mrays(),
+                    format_bytes(double(dag_voxels->dag().stats().dag_bytes)).c_str());
+      std::printf("ratio voxcast/embree: %.3f\n", best_voxcast / fastest[0]);
+
+      run["coverage"] = cov;
+      run["agreement"] = {{"hit_miss", double(agree) / rays},
+                          {"depth_within_2_diagonals", both ? double(close) / double(both) : 0.0}};
+      run["fastest_embree"] = {{"trace", fastest_name[0]}, {"shaded", fastest_name[1]}};
+      for (const PrimaryRow& r : primary)
+        run["primary"].push_back({{"caster", r.caster},
+                                  {"how", r.call},
+                                  {"lod", r.lod >= 0 ? nlohmann::json(r.lod) : nlohmann::json()},
+                                  {"shaded", r.shaded},
+                                  {"seconds", r.t.seconds},
+                                  {"rays", r.t.rays},
+                                  {"hits", r.t.hits},
+                                  {"mrays_per_s", r.t.mrays()},
+                                  {"mhits_per_s", r.t.mhits()},
+                                  {"ratio", r.t.mrays() / fastest[r.shaded]}});
+
+      // ---- Cycles per ray: one instrumented single-threaded pass each. ----
+      {
+        const double hz = detail::tsc_hz();
+        struct ProfileRow {
+          std::string caster;
+          float lod;
+          EmbreeScene::StageTicks st;
+        };
+        std::vector<ProfileRow> prof;
+        // Timestamps count wall time: a pass that another process preempted
+        // reads high. The pass with the lowest total of a few (after a warm-up
+        // pass) is the one least disturbed.
+        const int passes = std::min(args->repeat, 3);
+        auto least_disturbed = [&](const auto& pass) {
+          pass();  // warm-up
+          EmbreeScene::StageTicks best = pass();
+          for (int k = 1; k < passes; ++k) {
+            const EmbreeScene::StageTicks st = pass();
+            if (st.total() < best.total()) best = st;
+          }
+          return best;
+        };
+        prof.push_back({"embree x1", -1.f, least_disturbed([&] {
+                          return embree.profile_single(camera, width, height, ro.light_dir);
+                        })});
+        for (float lod : lods) {
+          RenderOptions rl = ro;
+          rl.lod_pixels = lod;
+          prof.push_back(
+              {"voxcast esvo", lod, least_disturbed([&] { return profile_voxels(voxels, rl); })});
+          if (dag_voxels)
+            prof.push_back({"voxcast dag", lod,
+                            least_disturbed([&] { return profile_voxels(*dag_voxels, rl); })});
+        }
+        std::printf(
+            "cycles per ray (TSC ticks at %.2f GHz, 1 thread, instrumented pass; per primary ray,\n"
+            "attributes and shading only on hits)\n",
+            hz * 1e-9);
+        std::printf("  %-14s %4s %9s %9s %10s %8s %8s\n", "caster", "lod", "ray gen", "traversal",
+                    "attributes", "shading", "total");
+        for (const ProfileRow& p : prof) {
+          const double n = double(std::max<uint64_t>(p.st.rays, 1));
+          const double total = double(p.st.total()) / n;
+          char lod[16] = "-";
+          if (p.lod >= 0) std::snprintf(lod, sizeof lod, "%g", double(p.lod));
+          std::printf("  %-14s %4s %9.1f %9.1f %10.1f %8.1f %8.1f\n", p.caster.c_str(), lod,
+                      double(p.st.ray_generation) / n, double(p.st.traversal) / n,
+                      double(p.st.attributes) / n, double(p.st.shading) / n, total);
+          run["cycles_per_ray"].push_back(
+              {{"caster", p.caster},
+               {"lod", p.lod >= 0 ? nlohmann::json(p.lod) : nlohmann::json()},
+               {"ray_generation", double(p.st.ray_generation) / n},
+               {"traversal", double(p.st.traversal) / n},
+               {"attributes", double(p.st.attributes) / n},
+               {"shading", double(p.st.shading) / n},
+               {"total", total}});
+        }
+        run["tsc_hz"] = hz;
+        std::printf("\n");
+      }
+
       if (args->effects && size_index == 0) {
         // Shading points: the ESVO's primary hits of this frame (finest level,
-        // voxel normals), offset once (effects.hpp); every caster gets the
-        // very same occlusion rays.
+        // voxel normals), offset once (effects.hpp). Their shadow and AO rays
+        // are generated once, here, and every caster traces the same arrays.
         const CameraRays cam(camera, width, height);
         std::vector<ShadingPoint> points;
+        std::vector<uint32_t> seeds;
         for (int y = 0; y < height; ++y)
           for (int x = 0; x < width; ++x) {
             const Ray ray = cam.ray(x, y);
@@ -297,79 +646,144 @@ Runner add_bench(CLI::App& app) {
             voxels.attributes(hit, &c, &n);
             if (dot(n, ray.dir) > 0.f) n = -n;
             points.push_back({hit.position, n, ray.dir, hit.voxel_size});
+            seeds.push_back(pixel_seed(x, y, 0));
           }
-        BuildSettings ds = s;
-        ds.dag = true;
-        ds.verbose = false;
-        BuiltScene dag_built = build_scene(ds);  // the same mesh, grid and voxelization
-        const dag::DagStructure dag_voxels(
-            std::make_shared<dag::SparseVoxelDag>(std::move(dag_built.dag)));
-        // Primary rays on the DAG of the same voxels, same camera (svdag §4),
-        // against the ESVO and Embree numbers printed above.
-        {
-          render(dag_voxels, ro);  // warm-up
-          RenderOptions dag_beam = ro;
-          dag_beam.beam = 8;
-          double best_dag = 1e30, best_dag_beam = 1e30;
-          for (int r = 0; r < args->repeat; ++r) {
-            best_dag = std::min(best_dag, render(dag_voxels, ro).seconds);
-            best_dag_beam = std::min(best_dag_beam, render(dag_voxels, dag_beam).seconds);
-          }
-          std::printf("primary dag %8.2f Mrays/s, with beam 8x8 %.2f Mrays/s (%s DAG)\n",
-                      rays / best_dag * 1e-6, rays / best_dag_beam * 1e-6,
-                      format_bytes(double(dag_voxels.dag().stats().dag_bytes)).c_str());
-        }
-        const StructureOccluder esvo_occ(voxels), dag_occ(dag_voxels);
-        const EmbreeOccluder embree_occ(embree);
         EffectOptions shadow_fx;
         shadow_fx.shadows = ShadowMode::Hard;
         EffectOptions ao_fx;
         ao_fx.ao_rays = args->ao_rays;
         ao_fx.ao_radius =
             args->ao_radius > 0 ? args->ao_radius : 0.05f * length(built.mesh.bounds().extent());
-        const Vec3 light_dir = ro.light_dir;
-        std::printf(
-            "effects     %zu shading points (ESVO primary hits, offset 2 voxels along the normal + "
-            "1 back)\n",
-            points.size());
-        struct Row {
-          const char* name;
-          const Occluder* occ;
-        };
-        const Row rows[] = {{"esvo", &esvo_occ}, {"dag", &dag_occ}, {"embree x1", &embree_occ}};
-        EffectRun shadow_runs[3], ao_runs[3];
-        for (int k = 0; k < 3; ++k) {
-          run_effect_rays(*rows[k].occ, points, shadow_fx, light_dir, 1);  // warm-up
-          shadow_runs[k] =
-              run_effect_rays(*rows[k].occ, points, shadow_fx, light_dir, args->repeat);
-          ao_runs[k] =
-              run_effect_rays(*rows[k].occ, points, ao_fx, light_dir, std::min(args->repeat, 3));
-        }
-        for (int k = 0; k < 3; ++k)
-          std::printf("shadow %-9s %8.2f Mrays/s (directional, 1 ray per hit pixel, %llu rays%s)\n",
-                      rows[k].name, double(shadow_runs[k].rays) / shadow_runs[k].seconds * 1e-6,
-                      (unsigned long long)shadow_runs[k].rays,
-                      k == 2 ? ", rtcOccluded1" : ", any hit");
-        for (int k = 0; k < 3; ++k)
-          std::printf("ao     %-9s %8.2f Mrays/s (%d rays per hit pixel, radius %g, %llu rays%s)\n",
-                      rows[k].name, double(ao_runs[k].rays) / ao_runs[k].seconds * 1e-6,
-                      args->ao_rays, double(ao_fx.ao_radius), (unsigned long long)ao_runs[k].rays,
-                      k == 2 ? ", rtcOccluded1" : ", any hit");
-        size_t same_shadow = 0, same_dag = 0;
-        double ao_diff = 0;
+        RayRecorder shadow_rec, ao_rec;
+        bool ao_uniform = true;
         for (size_t i = 0; i < points.size(); ++i) {
-          same_shadow += shadow_runs[0].values[i] == shadow_runs[2].values[i];
-          same_dag += shadow_runs[0].values[i] == shadow_runs[1].values[i] &&
-                      ao_runs[0].values[i] == ao_runs[1].values[i];
-          ao_diff += std::fabs(ao_runs[0].values[i] - ao_runs[2].values[i]);
+          shadow_visibility(shadow_rec, points[i], shadow_fx, ro.light_dir, seeds[i], nullptr);
+          const size_t before = ao_rec.rays.size();
+          ambient_occlusion(ao_rec, points[i], ao_fx, ao_fx.ao_radius, seeds[i], nullptr);
+          ao_uniform &= ao_rec.rays.size() - before == size_t(args->ao_rays);
         }
-        const double np = double(std::max<size_t>(points.size(), 1));
+        // AO rays sample-major (ray k of consecutive points next to each
+        // other), so a packet holds the same sample of neighbouring pixels.
+        std::vector<Ray> ao_rays = ao_rec.rays;
+        if (ao_uniform) {
+          const size_t np = points.size(), k = size_t(args->ao_rays);
+          for (size_t p = 0; p < np; ++p)
+            for (size_t j = 0; j < k; ++j) ao_rays[j * np + p] = ao_rec.rays[p * k + j];
+        }
         std::printf(
-            "effects agreement: shadow mask esvo/embree %.3f%%, mean |AO esvo - AO embree| %.4f, "
-            "esvo == dag on %.3f%% of points\n",
-            100.0 * double(same_shadow) / np, ao_diff / np, 100.0 * double(same_dag) / np);
+            "occlusion   %zu shading points (ESVO primary hits, offset 2 voxels along the normal + "
+            "1 back); %zu shadow rays (directional), %zu AO rays (%d per point, radius %g), "
+            "generated once\n",
+            points.size(), shadow_rec.rays.size(), ao_rays.size(), args->ao_rays,
+            double(ao_fx.ao_radius));
+        struct OccRow {
+          std::string caster, how;
+          bool embree;
+          std::function<Timed()> frame;
+          Timed t;
+          std::vector<uint8_t> answers;
+        };
+        nlohmann::json occ_json;
+        for (int kind = 0; kind < 2; ++kind) {
+          const std::vector<Ray>& rs = kind == 0 ? shadow_rec.rays : ao_rays;
+          const char* kind_name = kind == 0 ? "shadow" : "ao";
+          // Every row answers into its own array (frames capture the row's
+          // index: the vector may move while rows are added).
+          std::vector<OccRow> rows;
+          rows.push_back(
+              {"voxcast esvo",
+               "any hit (trace)",
+               false,
+               [&, i = rows.size()] { return occluded_all(voxels, rs, &rows[i].answers); },
+               {},
+               {}});
+          rows.push_back(
+              {"voxcast dag",
+               "any hit (cast_occluded)",
+               false,
+               [&, i = rows.size()] { return occluded_all(*dag_voxels, rs, &rows[i].answers); },
+               {},
+               {}});
+          for (const EmbreeScene::Mode m : EmbreeScene::kOcclusionModes) {
+            static const char* const calls[] = {"rtcOccluded1", "", "rtcOccluded8 coherent",
+                                                "rtcOccluded16 coherent", "rtcOccluded1M coherent"};
+            rows.push_back({std::string("embree ") + EmbreeScene::mode_name(m),
+                            calls[int(m)],
+                            true,
+                            [&, m, i = rows.size()] {
+                              Timed t;
+                              t.rays = rs.size();
+                              t.seconds = embree.occluded_all(rs, m, &rows[i].answers);
+                              for (uint8_t v : rows[i].answers) t.hits += v;
+                              return t;
+                            },
+                            {},
+                            {}});
+          }
+          // AO has ~16x the rays of the shadows: fewer rounds.
+          measure_interleaved(rows, kind == 0 ? args->repeat : std::min(args->repeat, 3));
+          double fastest_occ = 0;
+          std::string fastest_occ_name;
+          for (const OccRow& r : rows)
+            if (r.embree && r.t.mrays() > fastest_occ)
+              fastest_occ = r.t.mrays(), fastest_occ_name = r.caster;
+          std::printf("%s rays (ratio over %s; 'same' = answers equal to embree x1)\n", kind_name,
+                      fastest_occ_name.c_str());
+          std::printf("  %-14s %9s %9s %7s %9s  %s\n", "caster", "Mrays/s", "occluded", "ratio",
+                      "same", "how");
+          const std::vector<uint8_t>& ref = rows[2].answers;  // embree x1
+          nlohmann::json kj;
+          for (const OccRow& r : rows) {
+            size_t same = 0;
+            for (size_t i = 0; i < ref.size(); ++i) same += r.answers[i] == ref[i];
+            const double nr = double(std::max<size_t>(rs.size(), 1));
+            std::printf("  %-14s %9.2f %8.2f%% %7.3f %8.3f%%  %s\n", r.caster.c_str(), r.t.mrays(),
+                        100.0 * double(r.t.hits) / nr, r.t.mrays() / fastest_occ,
+                        100.0 * double(same) / nr, r.how.c_str());
+            kj.push_back({{"caster", r.caster},
+                          {"how", r.how},
+                          {"seconds", r.t.seconds},
+                          {"rays", r.t.rays},
+                          {"occluded", r.t.hits},
+                          {"same_as_embree_x1", same},
+                          {"mrays_per_s", r.t.mrays()},
+                          {"ratio", r.t.mrays() / fastest_occ}});
+          }
+          size_t esvo_dag = 0;
+          for (size_t i = 0; i < rs.size(); ++i)
+            esvo_dag += rows[0].answers[i] == rows[1].answers[i];
+          std::printf("  esvo == dag on %.3f%% of the rays\n\n",
+                      100.0 * double(esvo_dag) / double(std::max<size_t>(rs.size(), 1)));
+          occ_json[kind_name] = {{"rays", rs.size()},
+                                 {"fastest_embree", fastest_occ_name},
+                                 {"esvo_equals_dag", esvo_dag},
+                                 {"casters", kj}};
+        }
+        occ_json["points"] = points.size();
+        occ_json["ao_rays_per_point"] = args->ao_rays;
+        occ_json["ao_radius"] = ao_fx.ao_radius;
+        run["occlusion"] = occ_json;
       }
+      json_runs.push_back(run);
     }  // sizes
+    if (!args->json.empty()) {
+      const nlohmann::json j = {
+          {"command", cmdline},
+          {"machine",
+           {{"cpu", cpu},
+            {"logical_cpus", std::thread::hardware_concurrency()},
+            {"loadavg", load},
+            {"embree_isa", isa},
+            {"threads", args->threads ? args->threads : int(std::thread::hardware_concurrency())}}},
+          {"mesh", args->input},
+          {"triangles", built.mesh.triangle_count()},
+          {"resolution", octree->grid.resolution},
+          {"repeat", args->repeat},
+          {"runs", json_runs}};
+      std::ofstream out(args->json);
+      out << j.dump(2) << "\n";
+      if (!out) throw Error("bench: cannot write --json file " + printable(args->json));
+    }
     return 0;
   };
 }
