@@ -130,9 +130,18 @@ def run(cmd, log, timeout=None):
 
 
 def failed_tests(ctest_output):
-    """Names listed under ctest's 'The following tests FAILED:'."""
+    """Names listed under ctest's 'The following tests FAILED:' (a value-
+    parameterized test's line carries '  # GetParam() = ...' before its
+    status), with the instances of one parameterized test folded into
+    'Suite/Test.Name/* (n)' to keep the report readable."""
     _, _, tail = ctest_output.partition("The following tests FAILED:")
-    return re.findall(r"^\s*\d+ - (\S+) \(", tail, re.M)
+    names = re.findall(r"^\s*\d+ - (\S+)(?:\s+#[^\n]*?)? \(", tail, re.M)
+    groups = {}
+    for n in names:
+        head, sep, _ = n.rpartition("/")
+        key = head + "/*" if sep and "." in head else n
+        groups[key] = groups.get(key, 0) + 1
+    return [f"{k} ({c})" if k.endswith("/*") else k for k, c in groups.items()]
 
 
 def main():
