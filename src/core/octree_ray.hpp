@@ -37,8 +37,16 @@ inline float bits_float(uint32_t u) {
 /// Replaces direction components smaller than 2^-23 by ±2^-23 (Appendix A) to
 /// avoid division by zero. The sign of a zero is kept (copysign), which picks
 /// the side a ray lying exactly in a grid plane is considered to be on.
+/// The threshold is relative to the largest component: octree-space
+/// directions have length 1/side (OctreeFrame), and an absolute 2^-23 would
+/// tilt an axis-parallel ray of a large scene by up to 2^-23 * side radians
+/// (a wrong voxel on a 151-unit mesh; DagOracle.WorldScaleDoesNotTiltAxisRays).
+/// Relative, the tilt stays below 2^-23 rad at every scale.
 inline Vec3 avoid_tiny_components(Vec3 d) {
-  constexpr float epsilon = 0x1p-23f;
+  const float largest = std::fmax(std::fabs(d.x), std::fmax(std::fabs(d.y), std::fabs(d.z)));
+  float epsilon = 0x1p-23f * largest;
+  // A zero (or denormal-tiny) direction keeps the listing's absolute epsilon.
+  if (!(epsilon >= 0x1p-126f)) epsilon = 0x1p-23f;
   if (std::fabs(d.x) < epsilon) d.x = std::copysign(epsilon, d.x);
   if (std::fabs(d.y) < epsilon) d.y = std::copysign(epsilon, d.y);
   if (std::fabs(d.z) < epsilon) d.z = std::copysign(epsilon, d.z);
