@@ -1,86 +1,62 @@
 #pragma once
-// The one small interface the renderer uses for every voxel structure (the
-// ESVO octree and the sparse voxel DAG today, both through the one octree
-// caster of octree_structure.hpp; brickmap, GigaVoxels later): trace a ray to
-// a hit or a miss with a level-of-detail footprint, then fetch attributes at
-// the hit.
+// What every voxel structure is to the rest of the engine
+// (docs/ARCHITECTURE.md): a Structure names itself, has bounds, offers its
+// queries by capability (surface_query.hpp, volume_query.hpp) and takes part
+// in the frame loop of integrator.hpp (begin_frame -> passes -> end_frame),
+// serving between passes the requests its queries pushed into the trace
+// contexts. A static, in-core structure ignores the loop.
 #include <cstdint>
+#include <span>
 #include <string>
 
 #include "voxcast/math.hpp"
+#include "voxcast/surface_query.hpp"
+#include "voxcast/trace_context.hpp"
+#include "voxcast/volume_query.hpp"
 
 namespace voxcast {
 
-/// Pixel-cone footprint: a voxel is small enough to stop at when its side is
-/// <= size_at_origin + size_per_t * t (world units; esvo §6.1 ray_size_coef/bias).
-struct LodFootprint {
-  float size_at_origin = 0.f;
-  float size_per_t = 0.f;
+struct FrameView;  // integrator.hpp
+
+/// What serving one pass's requests did.
+struct PassOutcome {
+  /// Something the pass's rays asked for became available: the tiles that
+  /// pushed requests are worth tracing again (the multi-pass exact mode of
+  /// gigavoxels §3.6.8 stops when a pass changes nothing).
+  bool changed = false;
+  uint64_t served = 0;   // requests served
+  uint64_t pending = 0;  // requests left for later passes (budget, worker queues)
 };
 
-/// Profiling counters of the ray caster (esvo §8.5, Table 6), summed over one
-/// or more rays. Only filled by the counting path (VoxelStructure::trace_hinted
-/// with TraceHints::counters set); the plain trace() never touches them.
-struct RayCounters {
-  uint64_t iterations = 0;          // main-loop iterations
-  uint64_t intersects = 0;          // voxels processed by INTERSECT (Figure 15)
-  uint64_t pushes = 0;              // PUSH executed (descend into a child)
-  uint64_t stores = 0;              // actual stack writes by PUSH
-  uint64_t advances = 0;            // ADVANCE executed
-  uint64_t pops = 0;                // POP executed (incl. the one that leaves the root)
-  uint64_t descriptor_fetches = 0;  // child descriptors read (8 bytes each)
-  uint64_t far_reads = 0;           // far pointers read (4 bytes each)
-  uint64_t attribute_bytes = 0;     // bytes read to fetch the hit's attributes
-  /// "glob bytes" of Table 6: descriptor fetches x 8 + far pointers x 4 + attributes.
-  uint64_t bytes() const { return descriptor_fetches * 8 + far_reads * 4 + attribute_bytes; }
-  RayCounters& operator+=(const RayCounters& o) {
-    iterations += o.iterations, intersects += o.intersects, pushes += o.pushes;
-    stores += o.stores, advances += o.advances, pops += o.pops;
-    descriptor_fetches += o.descriptor_fetches, far_reads += o.far_reads;
-    attribute_bytes += o.attribute_bytes;
-    return *this;
+class Structure {
+ public:
+  virtual ~Structure() = default;
+  virtual std::string name() const = 0;
+  /// World-space bounds of everything the structure can return.
+  virtual Aabb bounds() const = 0;
+  /// The structure's queries, or null when it has no such capability.
+  virtual const SurfaceQuery* surface() const { return nullptr; }
+  virtual const VolumeQuery* volume() const { return nullptr; }
+
+  // ---- The frame loop (integrator.hpp). Never called while a pass traces. ----
+  /// Before the first pass of a frame (a streaming structure may prefetch
+  /// for the view, esvo §7.4 scores).
+  virtual void begin_frame(const FrameView& view) { (void)view; }
+  /// After each pass: the pass's requests, merged from every thread, sorted by
+  /// (kind, key) and deduplicated (largest priority kept). The only place a
+  /// structure may change what is resident (the pinning rule).
+  virtual PassOutcome end_pass(std::span<const Request> requests) {
+    (void)requests;
+    return {};
   }
+  virtual void end_frame() {}
 };
 
-/// A beam of rays for the beam optimization (esvo §6.2), of one of two kinds:
-///  * pinhole (every edge_origin zero): every ray it stands for starts at
-///    `eye` and has a unit direction inside the convex cone spanned by the
-///    four edge directions (consecutive entries adjacent);
-///  * parallel (all four edges the same direction, orthographic cameras):
-///    every ray has that direction and starts inside the convex quadrilateral
-///    eye + edge_origin[0..3] (consecutive corners adjacent).
-/// Any other combination carries no information (the structures ignore it).
-struct BeamFrustum {
-  Vec3 eye;
-  Vec3 edge[4];
-  float angular_width = 0.f;  // >= the angle between any two directions of the cone (radians)
-  LodFootprint lod;           // the footprint the beam's rays are traced with
-  Vec3 edge_origin[4] = {};   // parallel beams: the corners of the origin quadrilateral - eye
-  float width = 0.f;          // >= the distance between any two ray origins (world units)
-};
-
-/// Result of the coarse pass for one beam (esvo §6.2). The region is
-/// structure-specific (ESVO: a box in octree space) and only meaningful to the
-/// structure that produced it, for rays of the beam it was computed for.
-struct BeamStart {
-  bool valid = false;  // false: no information, rays are traced from their start
-  bool empty = false;  // no ray of the beam can hit anything
-  Aabb region;         // structure space; every voxel a ray of the beam can hit lies inside
-};
-
+// ---- Being replaced by Structure + SurfaceQuery (issue 9 item 1). ----
 /// Optional inputs/outputs of VoxelStructure::trace_hinted.
 struct TraceHints {
   const BeamStart* beam = nullptr;  // from beam_start() for a beam containing the ray
   RayCounters* counters = nullptr;  // accumulates the ray's counters when set
-};
-
-struct SurfaceHit {
-  float t = INFINITY;      // world distance along the ray's unit direction
-  Vec3 position;           // world hit position, clamped into the voxel
-  float voxel_size = 0.f;  // world side length of the voxel that was hit
-  uint64_t voxel_ref = 0;  // structure-specific handle for attributes()
-  uint32_t child = 0;      // structure-specific
-  int level = 0;           // octree level of the hit voxel (root = 0)
 };
 
 class VoxelStructure {

@@ -1,0 +1,92 @@
+#pragma once
+// Surface queries (docs/ARCHITECTURE.md): what a structure that stores an
+// opaque surface answers. The split follows pbrt-v4's Shape/Medium: a
+// structure offers a SurfaceQuery, a VolumeQuery (volume_query.hpp), or both,
+// through Structure::surface() / volume() (structure.hpp). Every call takes
+// the caller's per-thread TraceContext (trace_context.hpp): counters, the
+// request sink of streaming structures, accessor caches.
+#include <cmath>
+#include <cstdint>
+
+#include "voxcast/math.hpp"
+#include "voxcast/trace_context.hpp"
+
+namespace voxcast {
+
+/// A beam of rays for the beam optimization (esvo §6.2), of one of two kinds:
+///  * pinhole (every edge_origin zero): every ray it stands for starts at
+///    `eye` and has a unit direction inside the convex cone spanned by the
+///    four edge directions (consecutive entries adjacent);
+///  * parallel (all four edges the same direction, orthographic cameras):
+///    every ray has that direction and starts inside the convex quadrilateral
+///    eye + edge_origin[0..3] (consecutive corners adjacent).
+/// Any other combination carries no information (the structures ignore it).
+struct BeamFrustum {
+  Vec3 eye;
+  Vec3 edge[4];
+  float angular_width = 0.f;  // >= the angle between any two directions of the cone (radians)
+  LodFootprint lod;           // the footprint the beam's rays are traced with
+  Vec3 edge_origin[4] = {};   // parallel beams: the corners of the origin quadrilateral - eye
+  float width = 0.f;          // >= the distance between any two ray origins (world units)
+};
+
+/// Result of the coarse pass for one beam (esvo §6.2). The region is
+/// structure-specific (ESVO: a box in octree space) and only meaningful to the
+/// structure that produced it, for rays of the beam it was computed for.
+struct BeamStart {
+  bool valid = false;  // false: no information, rays are traced from their start
+  bool empty = false;  // no ray of the beam can hit anything
+  Aabb region;         // structure space; every voxel a ray of the beam can hit lies inside
+};
+
+/// A first hit. Valid until the end of the pass it was traced in (the
+/// pinning rule of trace_context.hpp), so attributes() may dereference it.
+struct SurfaceHit {
+  float t = INFINITY;      // world distance along the ray's unit direction
+  Vec3 position;           // world hit position, clamped into the voxel
+  float voxel_size = 0.f;  // world side length of the voxel that was hit
+  uint64_t voxel_ref = 0;  // structure-specific handle for attributes()
+  uint32_t child = 0;      // structure-specific
+  int level = 0;           // octree level of the hit voxel (root = 0)
+};
+
+class SurfaceQuery {
+ public:
+  virtual ~SurfaceQuery() = default;
+
+  /// First hit along `ray` (unit direction) within [0, ray.tmax], stopping at
+  /// the LOD footprint. `beam` (may be null): the result of beam_start() for
+  /// a beam that contains the ray; it only skips work, the hit is bit-identical.
+  /// A streaming structure that lacks data answers from what is resident
+  /// (coarser) and pushes a request into ctx.requests.
+  virtual bool trace(const Ray& ray, const LodFootprint& lod, TraceContext& ctx, SurfaceHit* hit,
+                     const BeamStart* beam = nullptr) const = 0;
+
+  /// Fraction of light passing along the ray within [0, ray.tmax] (shadow and
+  /// AO rays, svdag §4): 0 or 1 for an opaque surface. The default runs
+  /// trace(); structures with a cheaper any-hit loop override it.
+  virtual float transmittance(const Ray& ray, const LodFootprint& lod, TraceContext& ctx,
+                              const BeamStart* beam = nullptr) const {
+    SurfaceHit hit;
+    return trace(ray, lod, ctx, &hit, beam) ? 0.f : 1.f;
+  }
+  bool occluded(const Ray& ray, const LodFootprint& lod, TraceContext& ctx,
+                const BeamStart* beam = nullptr) const {
+    return transmittance(ray, lod, ctx, beam) < 1.f;
+  }
+
+  /// Linear color and unit normal of the hit voxel; adds the bytes read to
+  /// ctx.counters.attribute_bytes while counting.
+  virtual void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
+                          Vec3* normal) const = 0;
+
+  /// Coarse pass of the beam optimization for one beam (esvo §6.2). Default:
+  /// no information. While counting, ctx.counters receives the pass's own work
+  /// (iterations = nodes visited).
+  virtual void beam_start(const BeamFrustum& beam, TraceContext& ctx, BeamStart* start) const {
+    (void)beam, (void)ctx;
+    *start = BeamStart{};
+  }
+};
+
+}  // namespace voxcast
