@@ -24,6 +24,7 @@
 #include "cli_io.hpp"
 #include "commands.hpp"
 #include "pipeline.hpp"
+#include "render/beam.hpp"
 #include "render/bench_timing.hpp"
 #include "render/tiling.hpp"
 #include "voxcast/dag.hpp"
@@ -31,6 +32,7 @@
 #include "voxcast/embree_reference.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_structure.hpp"
+#include "voxcast/packet_caster.hpp"
 #include "voxcast/progress.hpp"
 #include "voxcast/render.hpp"
 
@@ -92,12 +94,11 @@ LodFootprint pixel_lod(const CameraRays& cam, float lod_pixels) {
   return lod;
 }
 
-// Trace only, the voxel side of the trace-only comparison: the same tiles and
-// threads as render(), primary rays generated in the loop as render() does,
-// depth written, no attributes and no shading. S is a final class, so the
-// trace() call is direct, not virtual.
-template <class S>
-Timed trace_depth(const S& s, const RenderOptions& ro, Image* depth) {
+// One trace-only frame: the same tiles and threads as render(), depth
+// written. trace_tile(tile, cam, lod) traces a tile's primary rays (generated
+// in the loop, as render() does), writes their depth and returns its hits.
+template <class TraceTile>
+Timed depth_frame(const RenderOptions& ro, Image* depth, const TraceTile& trace_tile) {
   const CameraRays cam(ro.camera, ro.width, ro.height);
   const LodFootprint lod = pixel_lod(cam, ro.lod_pixels);
   *depth = Image(ro.width, ro.height, 1);
@@ -106,34 +107,110 @@ Timed trace_depth(const S& s, const RenderOptions& ro, Image* depth) {
   t.rays = uint64_t(ro.width) * uint64_t(ro.height);
   t.seconds =
       detail::for_each_tile(ro.width, ro.height, ro.tile_size, [&](const detail::Tile& tile) {
-        uint64_t h = 0;
-        for (int y = tile.y0; y < tile.y1; ++y)
-          for (int x = tile.x0; x < tile.x1; ++x) {
-            SurfaceHit hit;
-            const bool found = s.trace(cam.ray(x, y), lod, &hit);
-            h += found;
-            *depth->at(x, y) = found ? hit.t : INFINITY;
-          }
-        hits.fetch_add(h, std::memory_order_relaxed);
+        hits.fetch_add(trace_tile(tile, cam, lod), std::memory_order_relaxed);
       });
   t.hits = hits.load();
   return t;
 }
 
-// Any-hit answers of a voxel structure for pre-generated rays, in the same
-// chunks as EmbreeScene::occluded_all (finest level, as the effects trace).
+// Trace only, the voxel side of the trace-only comparison: no attributes and
+// no shading. S is a final class, so the trace() call is direct, not virtual.
 template <class S>
-Timed occluded_all(const S& s, const std::vector<Ray>& rays, std::vector<uint8_t>* occ) {
+Timed trace_depth(const S& s, const RenderOptions& ro, Image* depth) {
+  return depth_frame(ro, depth,
+                     [&](const detail::Tile& tile, const CameraRays& cam, const LodFootprint& lod) {
+                       uint64_t h = 0;
+                       for (int y = tile.y0; y < tile.y1; ++y)
+                         for (int x = tile.x0; x < tile.x1; ++x) {
+                           SurfaceHit hit;
+                           const bool found = s.trace(cam.ray(x, y), lod, &hit);
+                           h += found;
+                           *depth->at(x, y) = found ? hit.t : INFINITY;
+                         }
+                       return h;
+                     });
+}
+
+// trace_depth through the packet caster (voxcast/packet_caster.hpp): each
+// tile's rays generated in 4x4 block order and traced as one queue.
+// beam > 0: the coarse pass (esvo §6.2) per beam x beam block first, inside
+// the timed loop; each ray starts at its block's region, rays of empty
+// blocks are not traced.
+template <class S>
+Timed trace_depth_packets(const S& s, const RenderOptions& ro, int beam, Image* depth) {
+  return depth_frame(
+      ro, depth, [&](const detail::Tile& tile, const CameraRays& cam, const LodFootprint& lod) {
+        thread_local std::vector<uint32_t> order;
+        thread_local std::vector<Ray> rays;
+        thread_local std::vector<SurfaceHit> out;
+        thread_local std::vector<uint8_t> found;
+        thread_local std::vector<BeamStart> starts;
+        thread_local std::vector<const BeamStart*> beams;
+        order.clear();
+        block_order(tile.x0, tile.y0, tile.x1 - tile.x0, tile.y1 - tile.y0, &order);
+        rays.resize(order.size());
+        out.resize(order.size());
+        found.resize(order.size());
+        for (size_t i = 0; i < order.size(); ++i)
+          rays[i] = cam.ray(int(order[i] & 0xFFFF), int(order[i] >> 16));
+        if (beam > 0) {
+          const int bw = (tile.x1 - tile.x0 + beam - 1) / beam;
+          const int bh = (tile.y1 - tile.y0 + beam - 1) / beam;
+          starts.resize(size_t(bw * bh));
+          for (int by = 0; by < bh; ++by)
+            for (int bx = 0; bx < bw; ++bx) {
+              const int x0 = tile.x0 + bx * beam, y0 = tile.y0 + by * beam;
+              s.beam_start(detail::block_beam(cam, x0, y0, std::min(x0 + beam, tile.x1),
+                                              std::min(y0 + beam, tile.y1), lod),
+                           &starts[size_t(by * bw + bx)], nullptr);
+            }
+          beams.resize(order.size());
+          for (size_t i = 0; i < order.size(); ++i) {
+            const int bx = (int(order[i] & 0xFFFF) - tile.x0) / beam;
+            const int by = (int(order[i] >> 16) - tile.y0) / beam;
+            beams[i] = &starts[size_t(by * bw + bx)];
+          }
+        }
+        trace_packets(s, rays.data(), rays.size(), lod, out.data(), found.data(), active_isa(),
+                      beam > 0 ? beams.data() : nullptr);
+        uint64_t h = 0;
+        for (size_t i = 0; i < order.size(); ++i) {
+          h += found[i];
+          *depth->at(int(order[i] & 0xFFFF), int(order[i] >> 16)) = found[i] ? out[i].t : INFINITY;
+        }
+        return h;
+      });
+}
+
+// Any-hit answers for pre-generated rays, in the same chunks as
+// EmbreeScene::occluded_all (finest level, as the effects trace): chunk(b, e,
+// o) answers rays [b, e) into o[b, e).
+template <class Chunk>
+Timed occluded_frame(const std::vector<Ray>& rays, std::vector<uint8_t>* occ, const Chunk& chunk) {
   occ->assign(rays.size(), 0);
   uint8_t* o = occ->data();
   Timed t;
   t.rays = rays.size();
-  t.seconds =
-      detail::for_each_chunk(rays.size(), EmbreeScene::kOcclusionChunk, [&](size_t b, size_t e) {
-        for (size_t i = b; i < e; ++i) o[i] = s.occluded(rays[i], LodFootprint{});
-      });
+  t.seconds = detail::for_each_chunk(rays.size(), EmbreeScene::kOcclusionChunk,
+                                     [&](size_t b, size_t e) { chunk(b, e, o); });
   for (uint8_t v : *occ) t.hits += v;
   return t;
+}
+
+// A voxel structure's occluded(), ray by ray.
+template <class S>
+Timed occluded_all(const S& s, const std::vector<Ray>& rays, std::vector<uint8_t>* occ) {
+  return occluded_frame(rays, occ, [&](size_t b, size_t e, uint8_t* o) {
+    for (size_t i = b; i < e; ++i) o[i] = s.occluded(rays[i], LodFootprint{});
+  });
+}
+
+// The packet caster's occluded_packets: each chunk as one queue.
+template <class S>
+Timed occluded_all_packets(const S& s, const std::vector<Ray>& rays, std::vector<uint8_t>* occ) {
+  return occluded_frame(rays, occ, [&](size_t b, size_t e, uint8_t* o) {
+    occluded_packets(s, rays.data() + b, e - b, LodFootprint{}, o + b);
+  });
 }
 
 // Records the rays shadow_visibility() / ambient_occlusion() would trace
@@ -404,6 +481,28 @@ Runner add_bench(CLI::App& app) {
                                return trace_depth(structure, rl, &depth);
                              },
                              {}});
+          primary.push_back({caster + " packet",
+                             std::string("trace_packets ") + isa_name(active_isa()) + " x" +
+                                 std::to_string(packet_width(active_isa())) + ", depth only",
+                             lod,
+                             false,
+                             [&structure, rl] {
+                               Image depth;
+                               return trace_depth_packets(structure, rl, 0, &depth);
+                             },
+                             {}});
+          if (args->beam)
+            primary.push_back({caster + " packet+beam",
+                               std::string("trace_packets, beam ") + std::to_string(args->beam) +
+                                   "x" + std::to_string(args->beam) +
+                                   " (coarse pass included), depth only",
+                               lod,
+                               false,
+                               [&structure, rl, k = args->beam] {
+                                 Image depth;
+                                 return trace_depth_packets(structure, rl, k, &depth);
+                               },
+                               {}});
           primary.push_back(
               {caster,
                "render(): attributes + Phong",
@@ -704,6 +803,23 @@ Runner add_bench(CLI::App& app) {
                [&, i = rows.size()] { return occluded_all(*dag_voxels, rs, &rows[i].answers); },
                {},
                {}});
+          const std::string occ_how = std::string("occluded_packets ") + isa_name(active_isa()) +
+                                      " x" + std::to_string(packet_width(active_isa()));
+          rows.push_back(
+              {"voxcast esvo packet",
+               occ_how,
+               false,
+               [&, i = rows.size()] { return occluded_all_packets(voxels, rs, &rows[i].answers); },
+               {},
+               {}});
+          rows.push_back({"voxcast dag packet",
+                          occ_how,
+                          false,
+                          [&, i = rows.size()] {
+                            return occluded_all_packets(*dag_voxels, rs, &rows[i].answers);
+                          },
+                          {},
+                          {}});
           for (const EmbreeScene::Mode m : EmbreeScene::kOcclusionModes) {
             static const char* const calls[] = {"rtcOccluded1", "", "rtcOccluded8 coherent",
                                                 "rtcOccluded16 coherent", "rtcOccluded1M coherent"};
@@ -731,7 +847,7 @@ Runner add_bench(CLI::App& app) {
                       fastest_occ_name.c_str());
           std::printf("  %-14s %9s %9s %7s %9s  %s\n", "caster", "Mrays/s", "occluded", "ratio",
                       "same", "how");
-          const std::vector<uint8_t>& ref = rows[2].answers;  // embree x1
+          const std::vector<uint8_t>& ref = rows[4].answers;  // embree x1
           nlohmann::json kj;
           for (const OccRow& r : rows) {
             size_t same = 0;
@@ -749,14 +865,20 @@ Runner add_bench(CLI::App& app) {
                           {"mrays_per_s", r.t.mrays()},
                           {"ratio", r.t.mrays() / fastest_occ}});
           }
-          size_t esvo_dag = 0;
-          for (size_t i = 0; i < rs.size(); ++i)
+          // Rows 0, 1: the scalar casters; 2, 3: their packet casters.
+          size_t esvo_dag = 0, packet_same = 0;
+          for (size_t i = 0; i < rs.size(); ++i) {
             esvo_dag += rows[0].answers[i] == rows[1].answers[i];
-          std::printf("  esvo == dag on %.3f%% of the rays\n\n",
-                      100.0 * double(esvo_dag) / double(std::max<size_t>(rs.size(), 1)));
+            packet_same += rows[0].answers[i] == rows[2].answers[i] &&
+                           rows[1].answers[i] == rows[3].answers[i];
+          }
+          std::printf("  esvo == dag on %.3f%% of the rays, packet == scalar on %.3f%%\n\n",
+                      100.0 * double(esvo_dag) / double(std::max<size_t>(rs.size(), 1)),
+                      100.0 * double(packet_same) / double(std::max<size_t>(rs.size(), 1)));
           occ_json[kind_name] = {{"rays", rs.size()},
                                  {"fastest_embree", fastest_occ_name},
                                  {"esvo_equals_dag", esvo_dag},
+                                 {"packet_equals_scalar", packet_same},
                                  {"casters", kj}};
         }
         occ_json["points"] = points.size();

@@ -93,6 +93,104 @@ struct CounterFlush {
 
 // ---- The Appendix A loop ----------------------------------------------------
 
+/// Where a ray starts in the root cube (the loop's set-up, shared with the
+/// packet caster, core/octree_packet_caster.hpp, so that both start from the
+/// same floats): the active span, the stack-write threshold h and the first
+/// child (mirrored slot idx, min corner pos).
+struct CastEntry {
+  float t_min, t_max, h;
+  int idx;
+  float pos_x, pos_y, pos_z;
+};
+
+/// Fills *e for `ray` (mirrored frame) clipped to [0, tmax] and `region` (may
+/// be null); false if the span is empty: the t-span only shrinks during
+/// traversal, so a ray missing the root cube (or starting past tmax) stops
+/// here; the listing would step through the root's children to find out.
+[[gnu::always_inline]] inline bool enter_root(const MirroredRay& ray, float tmax,
+                                              const Aabb* region, CastEntry* e) {
+  // Active t-span: the root cube [1,2]^3 clipped to [0, tmax].
+  float t_min = vmax(vmax(ray.tx(2.0f), ray.ty(2.0f)), ray.tz(2.0f));
+  float t_max = vmin(vmin(ray.tx(1.0f), ray.ty(1.0f)), ray.tz(1.0f));
+  e->h = t_max;  // stays the root's exit: it only gates stack writes
+  // Beam optimization (§6.2): start at the entry planes of the region and
+  // end at its exit planes (see "Why a start region gives bit-identical hits").
+  if (region != nullptr) ray.clip_to_region(*region, &t_min, &t_max);
+  t_min = vmax(t_min, 0.0f);
+  t_max = vmin(t_max, tmax);
+  if (!(t_min <= t_max)) return false;
+  e->t_min = t_min;
+  e->t_max = t_max;
+  e->idx = 0;
+  e->pos_x = e->pos_y = e->pos_z = 1.0f;
+  if (ray.tx(1.5f) > t_min) e->idx ^= 1, e->pos_x = 1.5f;
+  if (ray.ty(1.5f) > t_min) e->idx ^= 2, e->pos_y = 1.5f;
+  if (ray.tz(1.5f) > t_min) e->idx ^= 4, e->pos_z = 1.5f;
+  return true;
+}
+
+/// Contour (§5.2, §6.1, Appendix A): the slab |n.(x - c) - cpos| <= cthick of
+/// the voxel (center c, side scale_exp2; n = integer normal) narrows
+/// [*t_min, *tv_max]. With x = p + t d: t = (n.(c - p) + cpos +- cthick) /
+/// n.d, and tx_mid * n.x * d.x = n.x (c.x - p.x) in the unmirrored frame
+/// (tx_mid is where the ray crosses the center plane, whatever the
+/// mirroring), hence the products with the UNMIRRORED d (after
+/// avoid_tiny_components). The slab uses the listing's incremental center t,
+/// t(corner) + half * coef: any function of the voxel alone keeps the
+/// start-region argument, and this one keeps contour images bit-identical to
+/// those rendered before the descent switched to t(pos + half).
+/// `coef`: the MirroredRay's tx/ty/tz_coef. Always inlined: the packet
+/// kernels call it from their own ISA's translation units.
+[[gnu::always_inline]] inline void contour_span(uint32_t value, Vec3 coef, Vec3 d, float tx_corner,
+                                                float ty_corner, float tz_corner, float scale_exp2,
+                                                float* t_min, float* tv_max) {
+  const float half = scale_exp2 * 0.5f;
+  const float tx_mid = std::fma(half, coef.x, tx_corner);
+  const float ty_mid = std::fma(half, coef.y, ty_corner);
+  const float tz_mid = std::fma(half, coef.z, tz_corner);
+  const int32_t v = int32_t(value);
+  const float cthick = float(value >> 25) * scale_exp2 * 0.375f;
+  const float cpos = float(int32_t(uint32_t(v) << 7) >> 25) * scale_exp2 * 0.75f;
+  const float cdirx = float(int32_t(uint32_t(v) << 14) >> 26) * d.x;
+  const float cdiry = float(int32_t(uint32_t(v) << 20) >> 26) * d.y;
+  const float cdirz = float(int32_t(uint32_t(v) << 26) >> 26) * d.z;
+  float den = cdirx + cdiry + cdirz;
+  // A ray parallel to the slab: a tiny denominator keeps the span
+  // finite (everything or nothing of the ray's [0, tmax]) and NaN-free.
+  if (std::fabs(den) < 1e-30f) den = 1e-30f;
+  const float tcoef = 1.0f / den;
+  const float tavg = tx_mid * cdirx + ty_mid * cdiry + tz_mid * cdirz + cpos;
+  const float tdiff = std::fabs(cthick * tcoef);
+  *t_min = vmax(*t_min, tcoef * tavg - tdiff);  // override t_min with tv_min
+  *tv_max = vmin(*tv_max, tcoef * tavg + tdiff);
+}
+
+/// Side of a cube at `scale`: exp2f(scale - s_max), exact.
+inline float scale_side(int scale) {
+  return bits_float(uint32_t(scale - kOctreeMaxScale + 127) << 23);
+}
+
+/// kEnteredFace: the face through which the ray (mirrored `ray`, direction
+/// `d` after avoid_tiny_components) entered the cube at mirrored min corner
+/// `mpos`: the axis whose entry plane (the mirrored cube's upper corner) is
+/// crossed last. Entering a cube while moving +x means its -x face.
+inline int entered_face(const MirroredRay& ray, Vec3 d, Vec3 mpos, int scale) {
+  const float s = scale_side(scale);
+  const float ex = ray.tx(mpos.x + s), ey = ray.ty(mpos.y + s), ez = ray.tz(mpos.z + s);
+  const int axis = (ex >= ey && ex >= ez) ? 0 : (ey >= ez ? 1 : 2);
+  return axis * 2 + (d[axis] > 0.0f ? 1 : 0);
+}
+
+/// Undoes the mirroring of a cube's min corner: the cube [x, x+s] mirrored is
+/// [3-s-x, 3-x] (exact).
+inline Vec3 unmirror(int octant_mask, Vec3 mpos, int scale) {
+  const float s = scale_side(scale);
+  if ((octant_mask & 1) == 0) mpos.x = 3.0f - s - mpos.x;
+  if ((octant_mask & 2) == 0) mpos.y = 3.0f - s - mpos.y;
+  if ((octant_mask & 4) == 0) mpos.z = 3.0f - s - mpos.z;
+  return mpos;
+}
+
 /// Index type of policies without a per-level payload.
 struct NoIndex {
   bool operator==(const NoIndex&) const = default;
@@ -206,33 +304,18 @@ auto cast_octree(const typename P::Source& source, Vec3 p, Vec3 d, float tmax, f
   const int octant_mask = ray.octant_mask;
   const int slot_flip = octant_mask ^ 7;  // mirrored idx -> unmirrored slot
 
-  // Active t-span: the root cube [1,2]^3 clipped to [0, tmax].
-  float t_min = vmax(vmax(ray.tx(2.0f), ray.ty(2.0f)), ray.tz(2.0f));
-  float t_max = vmin(vmin(ray.tx(1.0f), ray.ty(1.0f)), ray.tz(1.0f));
-  float h = t_max;  // stays the root's exit: it only gates stack writes
-  // Beam optimization (§6.2): start at the entry planes of the region and
-  // end at its exit planes (see "Why a start region gives bit-identical hits").
-  if (region != nullptr) ray.clip_to_region(*region, &t_min, &t_max);
-  t_min = vmax(t_min, 0.0f);
-  t_max = vmin(t_max, tmax);
-
-  // The t-span only shrinks during traversal, so a ray missing the root cube
-  // (or starting past tmax) can stop here; the listing would step through the
-  // root's children to find out.
-  if (!(t_min <= t_max)) return result;
+  CastEntry entry;
+  if (!enter_root(ray, tmax, region, &entry)) return result;
+  float t_min = entry.t_min, t_max = entry.t_max, h = entry.h;
 
   uint32_t parent = nodes.root();
   Desc desc{};  // P::fetched(desc) == false: fetch at the next iteration
   [[maybe_unused]] Index index{};
-  int idx = 0;
-  float pos_x = 1.0f, pos_y = 1.0f, pos_z = 1.0f;
+  int idx = entry.idx;
+  float pos_x = entry.pos_x, pos_y = entry.pos_y, pos_z = entry.pos_z;
   int scale = s_max - 1;
   float scale_exp2 = 0.5f;  // exp2f(scale - s_max)
   CastStop stop = CastStop::kMiss;
-
-  if (ray.tx(1.5f) > t_min) idx ^= 1, pos_x = 1.5f;
-  if (ray.ty(1.5f) > t_min) idx ^= 2, pos_y = 1.5f;
-  if (ray.tz(1.5f) > t_min) idx ^= 4, pos_z = 1.5f;
 
   while (scale < s_max) {
     if constexpr (kCount) ++cnt.iterations;
@@ -260,36 +343,11 @@ auto cast_octree(const typename P::Source& source, Vec3 p, Vec3 d, float tmax, f
       const float half = scale_exp2 * 0.5f;
 
       if constexpr (P::kContours) {
-        // Contour (§5.2, §6.1, Appendix A): the slab |n.(x - c) - cpos| <=
-        // cthick of the voxel (center c, side scale_exp2; n = integer normal).
-        // With x = p + t d: t = (n.(c - p) + cpos +- cthick) / n.d, and
-        // tx_mid * n.x * d.x = n.x (c.x - p.x) in the unmirrored frame
-        // (tx_mid is where the ray crosses the center plane, whatever the
-        // mirroring), hence the products with the UNMIRRORED d below.
+        // Contour (§5.2, §6.1, Appendix A): contour_span, above.
         uint32_t value;
         if (nodes.contour(desc, parent, c, &value)) {
-          // The slab uses the listing's incremental center t, t(corner) +
-          // half * coef: any function of the voxel alone keeps the argument
-          // below, and this one keeps contour images bit-identical to those
-          // rendered before the descent switched to t(pos + half).
-          const float tx_mid = std::fma(half, ray.tx_coef, tx_corner);
-          const float ty_mid = std::fma(half, ray.ty_coef, ty_corner);
-          const float tz_mid = std::fma(half, ray.tz_coef, tz_corner);
-          const int32_t v = int32_t(value);
-          const float cthick = float(value >> 25) * scale_exp2 * 0.375f;
-          const float cpos = float(int32_t(uint32_t(v) << 7) >> 25) * scale_exp2 * 0.75f;
-          const float cdirx = float(int32_t(uint32_t(v) << 14) >> 26) * d.x;
-          const float cdiry = float(int32_t(uint32_t(v) << 20) >> 26) * d.y;
-          const float cdirz = float(int32_t(uint32_t(v) << 26) >> 26) * d.z;
-          float den = cdirx + cdiry + cdirz;
-          // A ray parallel to the slab: a tiny denominator keeps the span
-          // finite (everything or nothing of the ray's [0, tmax]) and NaN-free.
-          if (std::fabs(den) < 1e-30f) den = 1e-30f;
-          const float tcoef = 1.0f / den;
-          const float tavg = tx_mid * cdirx + ty_mid * cdiry + tz_mid * cdirz + cpos;
-          const float tdiff = std::fabs(cthick * tcoef);
-          t_min = vmax(t_min, tcoef * tavg - tdiff);  // override t_min with tv_min
-          tv_max = vmin(tv_max, tcoef * tavg + tdiff);
+          contour_span(value, {ray.tx_coef, ray.ty_coef, ray.tz_coef}, d, tx_corner, ty_corner,
+                       tz_corner, scale_exp2, &t_min, &tv_max);
         }
       }
 
@@ -411,19 +469,8 @@ auto cast_octree(const typename P::Source& source, Vec3 p, Vec3 d, float tmax, f
     result.node = parent;
     result.child = c;
     if constexpr (kIndexed) result.index = nodes.hit_index(index, desc, parent, c, scale);
-    if constexpr (P::kEnteredFace) {
-      // The axis whose entry plane (the mirrored cube's upper corner) is
-      // crossed last. Entering a cube while moving +x means its -x face.
-      const float ex = ray.tx(pos_x + scale_exp2), ey = ray.ty(pos_y + scale_exp2),
-                  ez = ray.tz(pos_z + scale_exp2);
-      const int axis = (ex >= ey && ex >= ez) ? 0 : (ey >= ez ? 1 : 2);
-      result.face = axis * 2 + (d[axis] > 0.0f ? 1 : 0);
-    }
-    // Undo the mirroring: the cube [x, x+s] mirrored is [3-s-x, 3-x] (exact).
-    if ((octant_mask & 1) == 0) pos_x = 3.0f - scale_exp2 - pos_x;
-    if ((octant_mask & 2) == 0) pos_y = 3.0f - scale_exp2 - pos_y;
-    if ((octant_mask & 4) == 0) pos_z = 3.0f - scale_exp2 - pos_z;
-    result.pos = {pos_x, pos_y, pos_z};
+    if constexpr (P::kEnteredFace) result.face = entered_face(ray, d, {pos_x, pos_y, pos_z}, scale);
+    result.pos = unmirror(octant_mask, {pos_x, pos_y, pos_z}, scale);
   }
   return result;
 }

@@ -47,8 +47,10 @@ struct EsvoNodes {
   static bool leaf(const Desc& d, int c, int) { return (d.w0 >> c & 1u) != 0; }
 
   /// The contour value of child c (§5.2: the c-th bit of the contour mask,
-  /// values packed in slot order behind the contour pointer).
-  bool contour(const Desc& d, uint32_t slot, int c, uint32_t* value) const {
+  /// values packed in slot order behind the contour pointer). Always inlined:
+  /// the packet kernels (esvo/packet_nodes.hpp) call it from their own ISA's
+  /// translation units, which must not emit a copy the baseline code links.
+  [[gnu::always_inline]] bool contour(const Desc& d, uint32_t slot, int c, uint32_t* value) const {
     const uint32_t m = esvo::detail::contour_mask(d.w1);
     if ((m >> c & 1u) == 0) return false;
     *value = words[size_t(slot) * 2 + esvo::detail::contour_pointer(d.w1) +

@@ -1,0 +1,335 @@
+// The packet casters (voxcast/packet_caster.hpp) against the scalar caster
+// they must reproduce bit for bit: trace_packets == trace() in every
+// SurfaceHit field and occluded_packets == occluded(), for the ESVO (plain,
+// with far pointers, with contours) and the DAG built from shipped meshes,
+// on camera rays in 4x4 block order at LOD 0 and at a 1-pixel footprint, and
+// on random rays (outside and inside the root cube, along grid planes and
+// axes, short tmax, tiny and zero direction components, non-finite input),
+// with and without the coarse beam pass's start regions, for every kernel
+// ISA this CPU runs.
+#include <gtest/gtest.h>
+
+#include <bit>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <memory>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "render/beam.hpp"
+#include "support/esvo_testing.hpp"
+#include "support/test_data.hpp"
+#include "voxcast/camera.hpp"
+#include "voxcast/dag.hpp"
+#include "voxcast/esvo.hpp"
+#include "voxcast/esvo_structure.hpp"
+#include "voxcast/mesh.hpp"
+#include "voxcast/packet_caster.hpp"
+#include "voxcast/voxelize.hpp"
+
+namespace voxcast {
+namespace {
+
+uint32_t bits(float f) {
+  return std::bit_cast<uint32_t>(f);
+}
+
+bool same_hit(const SurfaceHit& a, const SurfaceHit& b) {
+  return bits(a.t) == bits(b.t) && bits(a.position.x) == bits(b.position.x) &&
+         bits(a.position.y) == bits(b.position.y) && bits(a.position.z) == bits(b.position.z) &&
+         bits(a.voxel_size) == bits(b.voxel_size) && a.voxel_ref == b.voxel_ref &&
+         a.child == b.child && a.level == b.level;
+}
+
+std::vector<Isa> isas() {
+  std::vector<Isa> v{Isa::Avx2};
+  if (cpu_supports(Isa::Avx512))
+    v.push_back(Isa::Avx512);
+  else
+    std::printf("CPU without AVX-512: AVX2 kernels only\n");
+  return v;
+}
+
+struct Scenes {
+  Mesh mesh;
+  GridTransform grid;
+  std::unique_ptr<esvo::EsvoStructure> esvo, esvo_far, esvo_contours;
+  std::unique_ptr<dag::DagStructure> dag;
+};
+
+const Scenes& scenes() {
+  static const Scenes s = [] {
+    Scenes s;
+    s.mesh = load_mesh(testing::test_mesh("spot.obj"));
+    s.grid = GridTransform::fit(s.mesh.bounds(), 256);
+    const VoxelSet v = voxelize(s.mesh, s.grid, {});
+    s.esvo = std::make_unique<esvo::EsvoStructure>(
+        std::make_shared<const esvo::EsvoOctree>(esvo::build_octree(v)));
+    esvo::BuildOptions small;  // many blocks: far pointers between them
+    small.max_block_slots = 64;
+    s.esvo_far = std::make_unique<esvo::EsvoStructure>(
+        std::make_shared<const esvo::EsvoOctree>(esvo::build_octree(v, small)));
+    esvo::BuildOptions contours;
+    contours.contours = true;
+    s.esvo_contours = std::make_unique<esvo::EsvoStructure>(
+        std::make_shared<const esvo::EsvoOctree>(esvo::build_octree(v, s.mesh, contours)));
+    s.dag = std::make_unique<dag::DagStructure>(
+        std::make_shared<const dag::SparseVoxelDag>(dag::build_dag(v)));
+    return s;
+  }();
+  return s;
+}
+
+// Camera rays of a w x h image in 4x4 block order, from two views.
+std::vector<Ray> camera_rays(const Aabb& bounds, int w, int h, float* pixel_angle) {
+  std::vector<Ray> rays;
+  for (const Camera& cam :
+       {Camera::frame(bounds, w, h), Camera::orbit(bounds, w, h, 200.f, -30.f),
+        Camera::orbit(bounds, w, h, 90.f, 0.f, 0.f, Projection::Orthographic)}) {
+    const CameraRays cr(cam, w, h);
+    *pixel_angle = cr.pixel_angle();
+    std::vector<uint32_t> order;
+    block_order(0, 0, w, h, &order);
+    for (uint32_t xy : order) rays.push_back(cr.ray(int(xy & 0xFFFF), int(xy >> 16)));
+  }
+  return rays;
+}
+
+// Random world rays around the grid's cube (see the file comment).
+std::vector<Ray> random_rays(const GridTransform& grid, size_t n, uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  const float side = float(grid.side());
+  const Vec3 lo = grid.origin;
+  auto uni = [&](float a, float b) { return std::uniform_real_distribution<float>(a, b)(rng); };
+  auto pick = [&](int k) { return std::uniform_int_distribution<int>(0, k - 1)(rng); };
+  auto plane = [&] {  // a grid plane of the 256^3 grid, exact in float
+    return float(pick(257)) / 256.f;
+  };
+  std::vector<Ray> rays;
+  for (size_t i = 0; i < n; ++i) {
+    Vec3 o{uni(-0.5f, 1.5f), uni(-0.5f, 1.5f), uni(-0.5f, 1.5f)};  // in units of the side
+    Vec3 d;
+    do d = {uni(-1, 1), uni(-1, 1), uni(-1, 1)};
+    while (dot(d, d) > 1 || dot(d, d) < 1e-4f);
+    d = normalize(d);
+    switch (pick(6)) {
+      case 0:  // aimed at a point inside
+        d = normalize(Vec3{uni(0.2f, 0.8f), uni(0.2f, 0.8f), uni(0.2f, 0.8f)} - o);
+        break;
+      case 1: {  // along an axis, on grid planes
+        const int a = pick(3);
+        d = {0, 0, 0};
+        d[a] = pick(2) ? 1.f : -1.f;
+        o[(a + 1) % 3] = plane(), o[(a + 2) % 3] = plane();
+        if (pick(2)) d[(a + 1) % 3] = pick(2) ? 0.f : -0.f;
+        break;
+      }
+      case 2:  // in a grid plane
+        o[pick(3)] = plane();
+        d = normalize(Vec3{uni(0.2f, 0.8f), uni(0.2f, 0.8f), uni(0.2f, 0.8f)} - o);
+        break;
+      case 3:  // a tiny component
+        d[pick(3)] = uni(-1e-9f, 1e-9f);
+        d = normalize(d);
+        break;
+      default:
+        break;
+    }
+    Ray r{lo + o * side, d, INFINITY};
+    if (pick(3) == 0) r.tmax = uni(0.f, 0.5f) * side;  // short (shadow/AO-like)
+    if (i % 997 == 5) r.origin.x = NAN;
+    if (i % 991 == 7) r.dir.y = INFINITY;
+    rays.push_back(r);
+  }
+  return rays;
+}
+
+template <class S>
+void expect_same(const S& s, const std::vector<Ray>& rays, const LodFootprint& lod,
+                 const std::string& what, size_t* hits_out) {
+  std::vector<SurfaceHit> want(rays.size());
+  std::vector<uint8_t> want_found(rays.size()), want_occ(rays.size());
+  for (size_t i = 0; i < rays.size(); ++i) {
+    want_found[i] = s.trace(rays[i], lod, &want[i]);
+    want_occ[i] = s.occluded(rays[i], lod);
+  }
+  size_t hits = 0;
+  for (uint8_t f : want_found) hits += f;
+  *hits_out = hits;
+  for (const Isa isa : isas()) {
+    std::vector<SurfaceHit> got(rays.size());
+    std::vector<uint8_t> found(rays.size(), 7), occ(rays.size(), 7);
+    trace_packets(s, rays.data(), rays.size(), lod, got.data(), found.data(), isa);
+    occluded_packets(s, rays.data(), rays.size(), lod, occ.data(), isa);
+    size_t bad = 0;
+    for (size_t i = 0; i < rays.size(); ++i) {
+      const bool ok = found[i] == want_found[i] && (!found[i] || same_hit(got[i], want[i])) &&
+                      occ[i] == want_occ[i];
+      if (!ok && ++bad <= 5)
+        ADD_FAILURE() << what << " " << isa_name(isa) << " ray " << i << ": found " << int(found[i])
+                      << " want " << int(want_found[i]) << ", t " << got[i].t << " want "
+                      << want[i].t << ", ref " << got[i].voxel_ref << " want " << want[i].voxel_ref
+                      << ", child " << got[i].child << " want " << want[i].child << ", level "
+                      << got[i].level << " want " << want[i].level << ", occluded " << int(occ[i])
+                      << " want " << int(want_occ[i]);
+    }
+    EXPECT_EQ(bad, 0u) << what << " " << isa_name(isa);
+  }
+}
+
+template <class S>
+void check_structure(const S& s, const char* name) {
+  const Scenes& sc = scenes();
+  float pixel_angle = 0;
+  const std::vector<Ray> cam = camera_rays(s.bounds(), 96, 72, &pixel_angle);
+  size_t hits = 0;
+  expect_same(s, cam, LodFootprint{}, std::string(name) + " camera lod 0", &hits);
+  // The rays must exercise the hit path: the mesh covers a good part of
+  // every view (18 % of these pixels on spot).
+  EXPECT_GT(hits, cam.size() / 8) << name;
+  LodFootprint lod;
+  lod.size_per_t = 4.f * pixel_angle;  // a coarse footprint: LOD stops at several levels
+  expect_same(s, cam, lod, std::string(name) + " camera lod 4 px", &hits);
+  const std::vector<Ray> rnd = random_rays(sc.grid, 20000, 11);
+  expect_same(s, rnd, LodFootprint{}, std::string(name) + " random", &hits);
+  EXPECT_GT(hits, rnd.size() / 20) << name;
+  lod.size_at_origin = float(sc.grid.voxel_size) * 3.f;
+  lod.size_per_t = 0.01f;
+  expect_same(s, rnd, lod, std::string(name) + " random lod", &hits);
+}
+
+// Camera rays with the coarse pass of their 8x8 pixel block (esvo §6.2):
+// trace_packets with the blocks' beams == trace_hinted with the same beam.
+template <class S>
+void check_beams(const S& s, const char* name) {
+  constexpr int w = 96, h = 72, k = 8;
+  const Camera cam =
+      Camera::orbit(s.bounds(), w, h, 30.f, 20.f, 0.6f * length(s.bounds().extent()));
+  const CameraRays cr(cam, w, h);
+  for (const float lod_pixels : {0.f, 2.f}) {
+    LodFootprint lod;
+    lod.size_per_t = lod_pixels * cr.pixel_angle();
+    std::vector<BeamStart> starts((w / k) * (h / k));
+    size_t empty = 0, regions = 0;
+    for (int by = 0; by < h / k; ++by)
+      for (int bx = 0; bx < w / k; ++bx) {
+        BeamStart& st = starts[size_t(by * (w / k) + bx)];
+        s.beam_start(detail::block_beam(cr, bx * k, by * k, bx * k + k, by * k + k, lod), &st,
+                     nullptr);
+        empty += st.valid && st.empty;
+        regions += st.valid && !st.empty;
+      }
+    EXPECT_GT(empty, 0u) << name;  // the view shows both empty and occupied blocks
+    EXPECT_GT(regions, 0u) << name;
+    std::vector<uint32_t> order;
+    block_order(0, 0, w, h, &order);
+    std::vector<Ray> rays;
+    std::vector<const BeamStart*> beams;
+    for (uint32_t xy : order) {
+      const int x = int(xy & 0xFFFF), y = int(xy >> 16);
+      rays.push_back(cr.ray(x, y));
+      beams.push_back(&starts[size_t((y / k) * (w / k) + x / k)]);
+    }
+    std::vector<SurfaceHit> want(rays.size()), got(rays.size());
+    std::vector<uint8_t> want_found(rays.size()), found(rays.size());
+    size_t hits = 0;
+    for (size_t i = 0; i < rays.size(); ++i) {
+      want_found[i] = s.trace_hinted(rays[i], lod, TraceHints{beams[i], nullptr}, &want[i]);
+      hits += want_found[i];
+    }
+    EXPECT_GT(hits, rays.size() / 8) << name;
+    for (const Isa isa : isas()) {
+      trace_packets(s, rays.data(), rays.size(), lod, got.data(), found.data(), isa, beams.data());
+      size_t bad = 0;
+      for (size_t i = 0; i < rays.size(); ++i)
+        bad += found[i] != want_found[i] || (found[i] && !same_hit(got[i], want[i]));
+      EXPECT_EQ(bad, 0u) << name << " beams, " << isa_name(isa) << ", lod " << lod_pixels;
+    }
+  }
+}
+
+TEST(PacketCaster, BeamStartsEqualTheScalarCaster) {
+  check_beams(*scenes().esvo, "esvo");
+  check_beams(*scenes().esvo_contours, "esvo contours");
+  check_beams(*scenes().dag, "dag");
+}
+
+TEST(PacketCaster, EsvoHitsEqualTheScalarCaster) {
+  check_structure(*scenes().esvo, "esvo");
+}
+
+TEST(PacketCaster, EsvoFarPointersHitsEqualTheScalarCaster) {
+  // The block layout with 64-slot blocks must actually have far pointers.
+  ASSERT_GT(scenes().esvo_far->octree().memory_stats().far_pointer_bytes, 0u);
+  check_structure(*scenes().esvo_far, "esvo far");
+}
+
+TEST(PacketCaster, EsvoContoursHitsEqualTheScalarCaster) {
+  check_structure(*scenes().esvo_contours, "esvo contours");
+}
+
+TEST(PacketCaster, DagHitsEqualTheScalarCaster) {
+  check_structure(*scenes().dag, "dag");
+}
+
+// Exact ties: on the unit grid (world = octree space - 1, so no rounding in
+// the frame), rays from grid vertices with dyadic directions cross several
+// grid planes at the very same t, where the tie rules decide the cube.
+std::vector<Ray> tie_rays(int levels, size_t n, uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  auto pick = [&](int k) { return std::uniform_int_distribution<int>(0, k - 1)(rng); };
+  const float cell = std::ldexp(1.f, -levels);
+  const float comps[] = {0.f, -0.f, 1.f, -1.f, 0.5f, -0.5f, 0.25f, -0.25f, 2.f};
+  std::vector<Ray> rays;
+  while (rays.size() < n) {
+    Vec3 o, d;
+    for (int a = 0; a < 3; ++a) {
+      o[a] = float(pick((2 << levels) + 1) - (1 << (levels - 1))) * cell;  // [-0.5, 1.5]
+      d[a] = comps[pick(9)];
+    }
+    if (dot(d, d) == 0.f) continue;
+    rays.push_back({o, d, pick(4) == 0 ? float(pick(1 << levels)) * cell : INFINITY});
+  }
+  return rays;
+}
+
+TEST(PacketCaster, GridVertexTiesEqualTheScalarCaster) {
+  constexpr int kLevels = 5;
+  const VoxelSet v = testing::make_random_voxels(kLevels, 4000, 3);
+  ASSERT_TRUE(v.grid.origin.x == 0 && v.grid.origin.y == 0 && v.grid.origin.z == 0);
+  ASSERT_EQ(v.grid.side(), 1.0);
+  const esvo::EsvoStructure e(std::make_shared<const esvo::EsvoOctree>(esvo::build_octree(v)));
+  const dag::DagStructure d(std::make_shared<const dag::SparseVoxelDag>(dag::build_dag(v)));
+  const std::vector<Ray> rays = tie_rays(kLevels, 20000, 17);
+  size_t hits = 0;
+  expect_same(e, rays, LodFootprint{}, "esvo ties", &hits);
+  EXPECT_GT(hits, rays.size() / 10);
+  expect_same(d, rays, LodFootprint{}, "dag ties", &hits);
+  LodFootprint lod;
+  lod.size_at_origin = 2.f / 32.f;  // stops one and two levels up
+  expect_same(e, rays, lod, "esvo ties lod", &hits);
+  expect_same(d, rays, lod, "dag ties lod", &hits);
+}
+
+TEST(PacketCaster, BlockOrderCoversEveryPixelOnceIn4x4Blocks) {
+  std::vector<uint32_t> order;
+  block_order(3, 5, 10, 7, &order);
+  ASSERT_EQ(order.size(), 70u);
+  std::vector<int> seen(70, 0);
+  for (size_t i = 0; i < order.size(); ++i) {
+    const int x = int(order[i] & 0xFFFF) - 3, y = int(order[i] >> 16) - 5;
+    ASSERT_TRUE(x >= 0 && x < 10 && y >= 0 && y < 7);
+    ++seen[size_t(y * 10 + x)];
+  }
+  for (int v : seen) EXPECT_EQ(v, 1);
+  // The first 16 entries are the full block at the corner.
+  for (size_t i = 0; i < 16; ++i) {
+    EXPECT_EQ(int(order[i] & 0xFFFF) - 3, int(i % 4));
+    EXPECT_EQ(int(order[i] >> 16) - 5, int(i / 4));
+  }
+}
+
+}  // namespace
+}  // namespace voxcast
