@@ -10,9 +10,8 @@
 // turned into lane masks: fetch (gather) where the cached descriptor is
 // stale, the three corner t values, then PUSH lanes, ADVANCE lanes and, of
 // those, POP lanes. The stack is per lane in L1, laid out [scale][lane] so
-// that a level's entries of all lanes share a cache line. A lane whose ray
-// ends takes the next ray of the queue (expand-load), so the packet stays
-// full until the queue is empty.
+// that a level's entries of all lanes share a cache line. Lanes are refilled
+// from the queue by expand-loads (see kRefillLanes).
 //
 // A vector policy VP (src/esvo/packet_nodes.hpp, src/dag/packet_nodes.hpp)
 // provides, for lane masks m:
@@ -147,25 +146,43 @@ void packet_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float
   using I = typename L::I;
   using U = typename L::U;
   const VP vp(nodes);
+  constexpr int kRefillLanes = N;
 
-  alignas(64) uint32_t stack_node[(s_max + 1) * N];
-  alignas(64) uint32_t stack_tmax[(s_max + 1) * N];  // float bits
   const I lane = L::iota();
 
-  // Lane state (cast_octree's locals), idle lanes have slot < 0.
-  F cx{}, cy{}, cz{}, bx{}, by{}, bz{};
-  F px{}, py{}, pz{}, t_min{}, t_max{}, h{};
-  F sexp = L::template splat<F>(0.5f);
-  U parent{}, idx{}, flip{};
-  I scale = L::template splat<I>(s_max - 1);
-  I slot = L::template splat<I>(-1);  // the lane's ray in q
-  typename VP::Desc desc{};
+  // A packet: lane state (cast_octree's locals; idle lanes have slot < 0)
+  // and the lanes' stacks.
+  struct Packet {
+    F cx{}, cy{}, cz{}, bx{}, by{}, bz{};
+    F px{}, py{}, pz{}, t_min{}, t_max{}, h{};
+    F sexp = L::template splat<F>(0.5f);
+    U parent{}, idx{}, flip{};
+    I scale = L::template splat<I>(s_max - 1);
+    I slot = L::template splat<I>(-1);  // the lane's ray in q
+    typename VP::Desc desc{};
+    alignas(64) uint32_t stack_node[(s_max + 1) * N];
+    alignas(64) uint32_t stack_tmax[(s_max + 1) * N];  // float bits
+  };
   int next = 0;
 
-  for (;;) {
-    // Refill idle lanes from the queue, in order.
+  // One iteration of the loop on packet pk; false once it has no ray left.
+  auto step = [&](Packet & pk) __attribute__((always_inline)) {
+    F &cx = pk.cx, &cy = pk.cy, &cz = pk.cz, &bx = pk.bx, &by = pk.by, &bz = pk.bz;
+    F &px = pk.px, &py = pk.py, &pz = pk.pz, &t_min = pk.t_min, &t_max = pk.t_max, &h = pk.h;
+    F& sexp = pk.sexp;
+    U &parent = pk.parent, &idx = pk.idx, &flip = pk.flip;
+    I &scale = pk.scale, &slot = pk.slot;
+    typename VP::Desc& desc = pk.desc;
+    uint32_t* stack_node = pk.stack_node;
+    uint32_t* stack_tmax = pk.stack_tmax;
+    // Refill the lanes from the queue, in order, once every lane is idle:
+    // the packet is then the queue's next 16 (8) rays, a 4x4 (4x2) pixel
+    // block of camera rays whose lanes read the same nodes. Refilling lanes
+    // as they finish (after N/4 or N/2 idle lanes) keeps more lanes busy but
+    // mixes rays at different depths, whose gathers miss the caches
+    // independently: measured 10-25 % slower (docs/BENCHMARKS.md).
     uint32_t idle = L::bits(slot < 0);
-    if (idle != 0 && next < q.count) {
+    if (next < q.count && (std::popcount(idle) >= kRefillLanes || idle == L::kAll)) {
       const int avail = q.count - next;
       if (std::popcount(idle) > avail) idle = _pdep_u32((1u << avail) - 1, idle);
       cx = L::expand(cx, idle, q.cx + next), cy = L::expand(cy, idle, q.cy + next);
@@ -189,7 +206,7 @@ void packet_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float
       next += std::popcount(idle);
     }
     const I active = slot >= 0;
-    if (L::bits(active) == 0) break;
+    if (L::bits(active) == 0) return false;
 
     // Fetch the parent where the cached copy is stale (ADVANCE keeps it).
     const I stale = active & ~vp.fetched(desc);
@@ -312,6 +329,13 @@ void packet_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float
       done |= miss;  // out->stop stays 0
     }
     slot = done ? L::template splat<I>(-1) : slot;
+    return true;
+  };
+
+  // One packet at a time: two packets in turn (one computing while the
+  // other waits for its gathers) measured no faster (docs/BENCHMARKS.md).
+  Packet packet;
+  while (step(packet)) {
   }
 }
 
