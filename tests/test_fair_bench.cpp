@@ -76,11 +76,13 @@ TEST(FairBench, JsonHasEveryModeAndEmbreeModesAgree) {
   // Every primary mode, trace only and shaded; voxel casters at LOD 0 and 1.
   std::set<std::string> seen;
   std::set<uint64_t> embree_hits;
+  std::map<std::string, uint64_t> hits_of;
   for (const auto& row : run["primary"]) {
     const std::string key = row["caster"].get<std::string>() + "|" +
                             (row["lod"].is_null() ? "-" : std::to_string(row["lod"].get<float>())) +
                             "|" + (row["shaded"].get<bool>() ? "shaded" : "trace");
     seen.insert(key);
+    hits_of[key] = row["hits"].get<uint64_t>();
     EXPECT_EQ(row["rays"].get<uint64_t>(), uint64_t(kW) * kH) << key;
     EXPECT_GT(row["mrays_per_s"].get<double>(), 0.0) << key;
     if (key.rfind("embree ", 0) == 0) embree_hits.insert(row["hits"].get<uint64_t>());
@@ -94,6 +96,23 @@ TEST(FairBench, JsonHasEveryModeAndEmbreeModesAgree) {
         EXPECT_TRUE(seen.count(std::string(caster) + "|" + std::to_string(lod) + "|" + kind))
             << caster << lod << kind;
   EXPECT_TRUE(seen.count("voxcast esvo+beam|" + std::to_string(1.f) + "|shaded"));
+  // The packet caster's rows (trace only, shaded, with the beam start) find
+  // exactly the scalar caster's hits: its hits are bit-identical.
+  for (const char* caster : {"voxcast esvo", "voxcast dag"})
+    for (float lod : {0.f, 1.f}) {
+      // Built by append: GCC 12 misreads "literal" + std::string chains (-Wrestrict).
+      std::string l = "|";
+      l.append(std::to_string(lod)).append("|");
+      std::string packet = caster;
+      packet.append(" packet");
+      ASSERT_TRUE(seen.count(packet + l + "trace") && seen.count(packet + l + "shaded") &&
+                  seen.count(packet + "+beam" + l + "trace"))
+          << packet << lod;
+      EXPECT_EQ(hits_of[packet + l + "trace"], hits_of[caster + l + "trace"]) << packet << lod;
+      EXPECT_EQ(hits_of[packet + l + "shaded"], hits_of[caster + l + "trace"]) << packet << lod;
+      EXPECT_EQ(hits_of[packet + "+beam" + l + "trace"], hits_of[caster + l + "trace"])
+          << packet << lod;
+    }
   // Same rays -> same hits, in every Embree mode, with and without shading.
   EXPECT_EQ(embree_hits.size(), 1u);
 
@@ -127,6 +146,12 @@ TEST(FairBench, JsonHasEveryModeAndEmbreeModesAgree) {
       EXPECT_EQ(by_name[name]["occluded"], by_name["embree x1"]["occluded"]) << kind << " " << name;
     }
     EXPECT_GT(by_name["voxcast esvo"]["same_as_embree_x1"].get<double>(), 0.8 * double(n)) << kind;
+    // Occlusion packets answer every ray as the scalar casters do.
+    for (const char* name : {"voxcast esvo packet", "voxcast dag packet"}) {
+      ASSERT_TRUE(by_name.count(name)) << kind << " " << name;
+      EXPECT_EQ(by_name[name]["occluded"], by_name["voxcast esvo"]["occluded"]) << kind << name;
+    }
+    EXPECT_EQ(occ["packet_equals_scalar"].get<uint64_t>(), n) << kind;
   }
   EXPECT_EQ(run["occlusion"]["ao"]["rays"].get<uint64_t>(),
             4u * run["occlusion"]["points"].get<uint64_t>());

@@ -136,8 +136,15 @@ Timed trace_depth(const S& s, const RenderOptions& ro, Image* depth) {
 // beam > 0: the coarse pass (esvo §6.2) per beam x beam block first, inside
 // the timed loop; each ray starts at its block's region, rays of empty
 // blocks are not traced.
+// shade: also each hit's attributes and surface_phong (the shading of
+// render() without effects), written to *color: the packet caster in the
+// "trace + the same shading" comparison (attributes are still looked up hit
+// by hit).
 template <class S>
-Timed trace_depth_packets(const S& s, const RenderOptions& ro, int beam, Image* depth) {
+Timed trace_depth_packets(const S& s, const RenderOptions& ro, int beam, Image* depth,
+                          bool shade = false, Image* color = nullptr) {
+  if (shade) *color = Image(ro.width, ro.height, 3);
+  const Vec3 to_light = normalize(-ro.light_dir);
   return depth_frame(
       ro, depth, [&](const detail::Tile& tile, const CameraRays& cam, const LodFootprint& lod) {
         thread_local std::vector<uint32_t> order;
@@ -175,8 +182,17 @@ Timed trace_depth_packets(const S& s, const RenderOptions& ro, int beam, Image* 
                       beam > 0 ? beams.data() : nullptr);
         uint64_t h = 0;
         for (size_t i = 0; i < order.size(); ++i) {
+          const int x = int(order[i] & 0xFFFF), y = int(order[i] >> 16);
           h += found[i];
-          *depth->at(int(order[i] & 0xFFFF), int(order[i] >> 16)) = found[i] ? out[i].t : INFINITY;
+          *depth->at(x, y) = found[i] ? out[i].t : INFINITY;
+          if (shade && found[i]) {
+            Color c;
+            Vec3 n;
+            s.attributes(out[i], &c, &n);
+            const Color sh = surface_phong(c, n, rays[i].dir, to_light);
+            float* o = color->at(x, y);
+            o[0] = sh.r, o[1] = sh.g, o[2] = sh.b;
+          }
         }
         return h;
       });
@@ -489,6 +505,15 @@ Runner add_bench(CLI::App& app) {
                              [&structure, rl] {
                                Image depth;
                                return trace_depth_packets(structure, rl, 0, &depth);
+                             },
+                             {}});
+          primary.push_back({caster + " packet",
+                             "trace_packets + attributes + Phong (no effects)",
+                             lod,
+                             true,
+                             [&structure, rl] {
+                               Image depth, color;
+                               return trace_depth_packets(structure, rl, 0, &depth, true, &color);
                              },
                              {}});
           if (args->beam)
