@@ -95,7 +95,8 @@ LodFootprint pixel_lod(const CameraRays& cam, float lod_pixels) {
 // Trace only, the voxel side of the trace-only comparison: the same tiles and
 // threads as render(), primary rays generated in the loop as render() does,
 // depth written, no attributes and no shading. S is a final class, so the
-// trace() call is direct, not virtual.
+// trace() call is direct, not virtual; one plain (non-counting) trace context
+// per tile, as the frame loop has one per thread.
 template <class S>
 Timed trace_depth(const S& s, const RenderOptions& ro, Image* depth) {
   const CameraRays cam(ro.camera, ro.width, ro.height);
@@ -107,10 +108,11 @@ Timed trace_depth(const S& s, const RenderOptions& ro, Image* depth) {
   t.seconds =
       detail::for_each_tile(ro.width, ro.height, ro.tile_size, [&](const detail::Tile& tile) {
         uint64_t h = 0;
+        TraceContext ctx;
         for (int y = tile.y0; y < tile.y1; ++y)
           for (int x = tile.x0; x < tile.x1; ++x) {
             SurfaceHit hit;
-            const bool found = s.trace(cam.ray(x, y), lod, &hit);
+            const bool found = s.trace(cam.ray(x, y), lod, ctx, &hit);
             h += found;
             *depth->at(x, y) = found ? hit.t : INFINITY;
           }
@@ -130,7 +132,8 @@ Timed occluded_all(const S& s, const std::vector<Ray>& rays, std::vector<uint8_t
   t.rays = rays.size();
   t.seconds =
       detail::for_each_chunk(rays.size(), EmbreeScene::kOcclusionChunk, [&](size_t b, size_t e) {
-        for (size_t i = b; i < e; ++i) o[i] = s.occluded(rays[i], LodFootprint{});
+        TraceContext ctx;
+        for (size_t i = b; i < e; ++i) o[i] = s.occluded(rays[i], LodFootprint{}, ctx);
       });
   for (uint8_t v : *occ) t.hits += v;
   return t;
@@ -141,9 +144,10 @@ Timed occluded_all(const S& s, const std::vector<Ray>& rays, std::vector<uint8_t
 // the renderer's very sampling, and every caster gets the same array.
 class RayRecorder final : public Occluder {
  public:
-  bool occluded(const Ray& ray, const LodFootprint&) const override {
+  float transmittance(const Ray& ray, const LodFootprint&, TraceContext&,
+                      const BeamStart*) const override {
     rays.push_back(ray);
-    return false;
+    return 1.f;
   }
   mutable std::vector<Ray> rays;
 };
@@ -162,20 +166,21 @@ EmbreeScene::StageTicks profile_voxels(const S& s, const RenderOptions& ro) {
   };
   EmbreeScene::StageTicks st;
   Image color(ro.width, ro.height, 3);
+  TraceContext ctx;
   for (int y = 0; y < ro.height; ++y)
     for (int x = 0; x < ro.width; ++x) {
       const uint64_t t0 = detail::ticks();
       const Ray ray = cam.ray(x, y);
       const uint64_t t1 = detail::ticks();
       SurfaceHit hit;
-      const bool found = s.trace(ray, lod, &hit);
+      const bool found = s.trace(ray, lod, ctx, &hit);
       const uint64_t t2 = detail::ticks();
       st.ray_generation += since(t0, t1);
       st.traversal += since(t1, t2);
       if (!found) continue;
       Color c;
       Vec3 n;
-      s.attributes(hit, &c, &n);
+      s.attributes(hit, ctx, &c, &n);
       const uint64_t t3 = detail::ticks();
       const Color sh = surface_phong(c, n, ray.dir, to_light);
       float* o = color.at(x, y);
@@ -636,14 +641,15 @@ Runner add_bench(CLI::App& app) {
         const CameraRays cam(camera, width, height);
         std::vector<ShadingPoint> points;
         std::vector<uint32_t> seeds;
+        TraceContext ctx;
         for (int y = 0; y < height; ++y)
           for (int x = 0; x < width; ++x) {
             const Ray ray = cam.ray(x, y);
             SurfaceHit hit;
-            if (!voxels.trace(ray, LodFootprint{}, &hit)) continue;
+            if (!voxels.trace(ray, LodFootprint{}, ctx, &hit)) continue;
             Color c;
             Vec3 n;
-            voxels.attributes(hit, &c, &n);
+            voxels.attributes(hit, ctx, &c, &n);
             if (dot(n, ray.dir) > 0.f) n = -n;
             points.push_back({hit.position, n, ray.dir, hit.voxel_size});
             seeds.push_back(pixel_seed(x, y, 0));
@@ -657,9 +663,9 @@ Runner add_bench(CLI::App& app) {
         RayRecorder shadow_rec, ao_rec;
         bool ao_uniform = true;
         for (size_t i = 0; i < points.size(); ++i) {
-          shadow_visibility(shadow_rec, points[i], shadow_fx, ro.light_dir, seeds[i], nullptr);
+          shadow_visibility(shadow_rec, ctx, points[i], shadow_fx, ro.light_dir, seeds[i], nullptr);
           const size_t before = ao_rec.rays.size();
-          ambient_occlusion(ao_rec, points[i], ao_fx, ao_fx.ao_radius, seeds[i], nullptr);
+          ambient_occlusion(ao_rec, ctx, points[i], ao_fx, ao_fx.ao_radius, seeds[i], nullptr);
           ao_uniform &= ao_rec.rays.size() - before == size_t(args->ao_rays);
         }
         // AO rays sample-major (ray k of consecutive points next to each
