@@ -120,10 +120,11 @@ Timed trace_depth(const S& s, const RenderOptions& ro, Image* depth) {
   return depth_frame(ro, depth,
                      [&](const detail::Tile& tile, const CameraRays& cam, const LodFootprint& lod) {
                        uint64_t h = 0;
+                       TraceContext ctx;  // plain (non-counting), one per tile
                        for (int y = tile.y0; y < tile.y1; ++y)
                          for (int x = tile.x0; x < tile.x1; ++x) {
                            SurfaceHit hit;
-                           const bool found = s.trace(cam.ray(x, y), lod, &hit);
+                           const bool found = s.trace(cam.ray(x, y), lod, ctx, &hit);
                            h += found;
                            *depth->at(x, y) = found ? hit.t : INFINITY;
                          }
@@ -160,6 +161,7 @@ Timed trace_depth_packets(const S& s, const RenderOptions& ro, int beam, Image* 
         found.resize(order.size());
         for (size_t i = 0; i < order.size(); ++i)
           rays[i] = cam.ray(int(order[i] & 0xFFFF), int(order[i] >> 16));
+        TraceContext ctx;
         if (beam > 0) {
           const int bw = (tile.x1 - tile.x0 + beam - 1) / beam;
           const int bh = (tile.y1 - tile.y0 + beam - 1) / beam;
@@ -169,7 +171,7 @@ Timed trace_depth_packets(const S& s, const RenderOptions& ro, int beam, Image* 
               const int x0 = tile.x0 + bx * beam, y0 = tile.y0 + by * beam;
               s.beam_start(detail::block_beam(cam, x0, y0, std::min(x0 + beam, tile.x1),
                                               std::min(y0 + beam, tile.y1), lod),
-                           &starts[size_t(by * bw + bx)], nullptr);
+                           ctx, &starts[size_t(by * bw + bx)]);
             }
           beams.resize(order.size());
           for (size_t i = 0; i < order.size(); ++i) {
@@ -188,7 +190,7 @@ Timed trace_depth_packets(const S& s, const RenderOptions& ro, int beam, Image* 
           if (shade && found[i]) {
             Color c;
             Vec3 n;
-            s.attributes(out[i], &c, &n);
+            s.attributes(out[i], ctx, &c, &n);
             const Color sh = surface_phong(c, n, rays[i].dir, to_light);
             float* o = color->at(x, y);
             o[0] = sh.r, o[1] = sh.g, o[2] = sh.b;
@@ -217,7 +219,8 @@ Timed occluded_frame(const std::vector<Ray>& rays, std::vector<uint8_t>* occ, co
 template <class S>
 Timed occluded_all(const S& s, const std::vector<Ray>& rays, std::vector<uint8_t>* occ) {
   return occluded_frame(rays, occ, [&](size_t b, size_t e, uint8_t* o) {
-    for (size_t i = b; i < e; ++i) o[i] = s.occluded(rays[i], LodFootprint{});
+    TraceContext ctx;
+    for (size_t i = b; i < e; ++i) o[i] = s.occluded(rays[i], LodFootprint{}, ctx);
   });
 }
 
@@ -234,9 +237,10 @@ Timed occluded_all_packets(const S& s, const std::vector<Ray>& rays, std::vector
 // the renderer's very sampling, and every caster gets the same array.
 class RayRecorder final : public Occluder {
  public:
-  bool occluded(const Ray& ray, const LodFootprint&) const override {
+  float transmittance(const Ray& ray, const LodFootprint&, TraceContext&,
+                      const BeamStart*) const override {
     rays.push_back(ray);
-    return false;
+    return 1.f;
   }
   mutable std::vector<Ray> rays;
 };
@@ -255,20 +259,21 @@ EmbreeScene::StageTicks profile_voxels(const S& s, const RenderOptions& ro) {
   };
   EmbreeScene::StageTicks st;
   Image color(ro.width, ro.height, 3);
+  TraceContext ctx;
   for (int y = 0; y < ro.height; ++y)
     for (int x = 0; x < ro.width; ++x) {
       const uint64_t t0 = detail::ticks();
       const Ray ray = cam.ray(x, y);
       const uint64_t t1 = detail::ticks();
       SurfaceHit hit;
-      const bool found = s.trace(ray, lod, &hit);
+      const bool found = s.trace(ray, lod, ctx, &hit);
       const uint64_t t2 = detail::ticks();
       st.ray_generation += since(t0, t1);
       st.traversal += since(t1, t2);
       if (!found) continue;
       Color c;
       Vec3 n;
-      s.attributes(hit, &c, &n);
+      s.attributes(hit, ctx, &c, &n);
       const uint64_t t3 = detail::ticks();
       const Color sh = surface_phong(c, n, ray.dir, to_light);
       float* o = color.at(x, y);
@@ -765,14 +770,15 @@ Runner add_bench(CLI::App& app) {
         std::vector<uint32_t> seeds;
         std::vector<uint32_t> pixel_order;
         block_order(0, 0, width, height, &pixel_order);
+        TraceContext ctx;
         for (const uint32_t xy : pixel_order) {
           const int x = int(xy & 0xFFFF), y = int(xy >> 16);
           const Ray ray = cam.ray(x, y);
           SurfaceHit hit;
-          if (!voxels.trace(ray, LodFootprint{}, &hit)) continue;
+          if (!voxels.trace(ray, LodFootprint{}, ctx, &hit)) continue;
           Color c;
           Vec3 n;
-          voxels.attributes(hit, &c, &n);
+          voxels.attributes(hit, ctx, &c, &n);
           if (dot(n, ray.dir) > 0.f) n = -n;
           points.push_back({hit.position, n, ray.dir, hit.voxel_size});
           seeds.push_back(pixel_seed(x, y, 0));
@@ -786,9 +792,9 @@ Runner add_bench(CLI::App& app) {
         RayRecorder shadow_rec, ao_rec;
         bool ao_uniform = true;
         for (size_t i = 0; i < points.size(); ++i) {
-          shadow_visibility(shadow_rec, points[i], shadow_fx, ro.light_dir, seeds[i], nullptr);
+          shadow_visibility(shadow_rec, ctx, points[i], shadow_fx, ro.light_dir, seeds[i], nullptr);
           const size_t before = ao_rec.rays.size();
-          ambient_occlusion(ao_rec, points[i], ao_fx, ao_fx.ao_radius, seeds[i], nullptr);
+          ambient_occlusion(ao_rec, ctx, points[i], ao_fx, ao_fx.ao_radius, seeds[i], nullptr);
           ao_uniform &= ao_rec.rays.size() - before == size_t(args->ao_rays);
         }
         // AO rays sample-major (ray k of consecutive points next to each
