@@ -96,9 +96,9 @@ void expect_unit_normals(const Mesh& m) {
 }
 
 // Runs load_mesh expecting voxcast::Error; returns its message.
-std::string load_error(const fs::path& p) {
+std::string load_error(const fs::path& p, uint64_t texture_budget = 0) {
   try {
-    load_mesh(p);
+    load_mesh(p, nullptr, texture_budget);
   } catch (const Error& e) {
     return e.what();
   }
@@ -299,6 +299,44 @@ TEST(MeshImport, GlbEmbeddedPngTexture) {
   ASSERT_EQ(m.textures.size(), 1u);
   EXPECT_GT(m.textures[0].width, 0);
   EXPECT_EQ(m.uvs.size(), m.positions.size());
+}
+
+// Issue 15, item 1: decoding is bounded by load_mesh's texture budget, read
+// from the image header before anything is decoded: 12 bytes per texel
+// (stb_image's inflated stream, its RGBA result and the Texture copy), less
+// the textures already held and the encoded file. The GLB's embedded PNG
+// (its size taken from the unbudgeted load) fits a budget of exactly that
+// and is refused one byte below; a 16384^2 header is refused within 256 MiB
+// in one line, without one it merely fails to decode (a warning).
+TEST(MeshImport, TexturesAreDecodedWithinTheBudget) {
+  const fs::path glb = kAssimpModels / "glTF2/BoxTextured-glTF-Binary/BoxTextured.glb";
+  voxcast::testing::require_file(glb);
+  const Mesh free = load_mesh(glb);
+  ASSERT_EQ(free.textures.size(), 1u);
+  const uint64_t need = uint64_t(free.textures[0].width) * uint64_t(free.textures[0].height) * 12;
+  const Mesh fits = load_mesh(glb, nullptr, need);
+  EXPECT_EQ(fits.textures.size(), 1u);
+  const std::string over = load_error(glb, need - 1);
+  EXPECT_NE(over.find("memory budget"), std::string::npos) << over;
+  EXPECT_EQ(over.find('\n'), std::string::npos) << over;
+
+  TempDir tmp;
+  // PNG signature, IHDR 16384 x 16384 RGBA (CRC unchecked by stb_image), no data.
+  std::string png("\x89PNG\r\n\x1a\n\0\0\0\x0dIHDR\0\0\x40\0\0\0\x40\0\x08\x06\0\0\0", 29);
+  png += std::string(4, '\0') + std::string("\0\0\0\0IEND\xae\x42\x60\x82", 12);
+  tmp.write("huge.png", png);
+  tmp.write("t.mtl", "newmtl m\nKd 1 1 1\nmap_Kd huge.png\n");
+  const fs::path obj = tmp.write("t.obj",
+                                 "mtllib t.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\n"
+                                 "usemtl m\nf 1/1 2/2 3/3\n");
+  const std::string huge = load_error(obj, uint64_t(256) << 20);
+  EXPECT_NE(huge.find("16384x16384"), std::string::npos) << huge;
+  EXPECT_NE(huge.find("memory budget"), std::string::npos) << huge;
+  MeshLoadStats stats;
+  const Mesh plain = load_mesh(obj, &stats);
+  EXPECT_TRUE(plain.textures.empty());
+  ASSERT_EQ(stats.warnings.size(), 1u);
+  EXPECT_NE(stats.warnings[0].find("huge.png"), std::string::npos) << stats.warnings[0];
 }
 
 TEST(MeshImport, ObjWithJpegTextures) {
