@@ -797,6 +797,8 @@ void precheck_gltf(const fs::path& path, const std::string& name, bool binary) {
     std::memcpy(&v, bytes.data() + at, 4);
     return v;
   };
+  // Assimp's glTF importers read a binary file whatever its extension.
+  binary = binary || bytes.compare(0, 4, "glTF") == 0;
   if (binary) {
     // Header: magic "glTF", version, total length; glTF 2 then has chunks
     // of {length, type, data}: JSON first, then optionally BIN.
@@ -805,12 +807,28 @@ void precheck_gltf(const fs::path& path, const std::string& name, bool binary) {
       throw Error(
           fmt::format("{}: the GLB header declares {} bytes but the file has {} (truncated)", name,
                       u32(8), bytes.size()));
-    if (u32(4) != 2 || bytes.size() < 20) return;
+    if (bytes.size() < 20) return;
+    // Assimp allocates a chunk's declared length before reading it (a 1 KB
+    // file declaring a 4 GB JSON chunk costs 4 GB; found by fuzz_mesh):
+    // every declared length must fit in the file. glTF 1 binary: the
+    // content (JSON) length at offset 12; glTF 2: the chunks' lengths.
+    auto chunk_fits = [&](const char* what, uint64_t at, uint64_t length) {
+      if (at + length > bytes.size())
+        throw Error(fmt::format(
+            "{}: the GLB's {} declares {} bytes but the file has {} after its header (truncated "
+            "or damaged)",
+            name, what, length, bytes.size() > at ? bytes.size() - at : 0));
+    };
+    if (u32(4) == 1) chunk_fits("JSON content", 20, u32(12));
+    if (u32(4) != 2) return;
     const uint64_t json_len = u32(12);
-    if (u32(16) != 0x4E4F534Au || 20 + json_len > bytes.size()) return;
+    if (u32(16) != 0x4E4F534Au) return;
+    chunk_fits("JSON chunk", 20, json_len);
     const uint64_t bin_at = 20 + ((json_len + 3) & ~uint64_t(3));
-    if (bin_at + 8 <= bytes.size() && u32(size_t(bin_at) + 4) == 0x004E4942u)
-      bin_chunk = int64_t(std::min<uint64_t>(u32(size_t(bin_at)), bytes.size() - bin_at - 8));
+    if (bin_at + 8 <= bytes.size() && u32(size_t(bin_at) + 4) == 0x004E4942u) {
+      chunk_fits("binary chunk", bin_at + 8, u32(size_t(bin_at)));
+      bin_chunk = int64_t(u32(size_t(bin_at)));
+    }
     doc = nlohmann::json::parse(bytes.begin() + 20, bytes.begin() + 20 + int64_t(json_len), nullptr,
                                 false);
   } else {
