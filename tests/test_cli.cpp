@@ -870,7 +870,7 @@ TEST(CliInputs, BuildRefusesGridsTheLoaderWouldRefuse) {
 }
 
 // Issue 15, item 1: `info` on a scene of 2^60 voxels (the full 1048576^3
-// grid as a DAG: one node per level, a 200-byte file) answers at once and
+// grid as a DAG: one node per level, a file under 4 KB) answers at once and
 // within a 1 GiB address space: every statistic is computed per DAG node,
 // none per voxel or per octree node. Oracle: the counts of a full grid.
 TEST(CliResources, InfoOnAHugeSceneIsFastAndBounded) {
@@ -892,6 +892,7 @@ TEST(CliResources, InfoOnAHugeSceneIsFastAndBounded) {
   info.voxelization = "conservative";
   info.leaf_voxels = d.leaf_voxels;
   voxcast::save_dag_scene(dir.file("full.vxc"), d, info);
+  EXPECT_LT(std::filesystem::file_size(dir.file("full.vxc")), 4096u);
   const auto t0 = std::chrono::steady_clock::now();
   // ulimit -v: an allocation per voxel (or per SVO node) fails instead of
   // paging the machine to death; 1 GiB leaves room for the libraries' and
@@ -1000,23 +1001,23 @@ bool is_staged_temporary(const std::string& name) {
 // Issue 15, item 4: SIGINT or SIGTERM while a command writes its outputs
 // removes the staged temporaries and leaves no output (or, if it came while
 // the outputs were being renamed into place, all of them: never some). The
-// test starts `build` (a 13 MB scene) and a three-output `render`, watches
+// test starts `build` (a 3 MB scene) and a three-output `render`, watches
 // the directory for the first staged file and then sends the signal. A run
 // that finishes before the signal lands is retried; each command and signal
 // must be caught mid-write at least once.
 TEST(CliSignals, InterruptedWritesLeaveNoOutputAndNoTemporary) {
   TempDir dir;
   const std::string scene = dir.file("b.vxc");
-  ASSERT_EQ(run_cli("build " + kBunny + " -o " + scene + " --resolution 256").exit_code, 0);
+  ASSERT_EQ(run_cli("build " + kBunny + " -o " + scene + " --resolution 128").exit_code, 0);
   struct Job {
     const char* name;
     std::vector<std::string> args;
     std::vector<std::string> outputs;
   };
   const Job jobs[] = {
-      {"build", {"build", kBunny, "-o", dir.file("out/b.vxc"), "--resolution", "512"}, {"b.vxc"}},
+      {"build", {"build", kBunny, "-o", dir.file("out/b.vxc"), "--resolution", "256"}, {"b.vxc"}},
       {"render",
-       {"render", scene, "--size", "2048x2048", "-o", dir.file("out/a.png"), "--depth",
+       {"render", scene, "--size", "1024x1024", "-o", dir.file("out/a.png"), "--depth",
         dir.file("out/d.pfm"), "--normals", dir.file("out/n.png")},
        {"a.png", "d.pfm", "n.png"}},
   };
