@@ -13,13 +13,19 @@
 //
 //   VOXCAST_WRITE_SEEDS=DIR ./fuzz_meta
 // writes the seven samples' META sections (with their format byte) to DIR
-// and exits.
+// and exits;
+//   VOXCAST_REFUSALS=DIR ./fuzz_meta -runs=0 CORPUS
+// replays CORPUS and writes, for each distinct refusal (its message with
+// numbers as "n"), the smallest scene file refused with it to
+// DIR/fuzz-meta-<message>.vxc: regression inputs for tests/data/regress.
 #include <tbb/global_control.h>
 
+#include <cctype>
 #include <cstddef>
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <iterator>
 #include <string>
@@ -34,6 +40,39 @@ namespace {
 namespace t = voxcast::testing;
 
 const uint32_t kMeta = voxcast::fourcc("META");
+
+// "corrupt scene: META 'levels' is 99, expected 2..20" -> "meta-levels-is-n-expected-n-n".
+std::string refusal_name(std::string message) {
+  for (const char* prefix : {"corrupt scene: "})
+    if (message.rfind(prefix, 0) == 0) message.erase(0, std::char_traits<char>::length(prefix));
+  std::string out;
+  for (size_t i = 0; i < message.size() && out.size() < 45; ++i) {
+    const unsigned char c = static_cast<unsigned char>(message[i]);
+    if (std::isdigit(c)) {
+      while (i + 1 < message.size() &&
+             (std::isdigit(static_cast<unsigned char>(message[i + 1])) || message[i + 1] == '.'))
+        ++i;
+      out += 'n';
+    } else if (std::isalpha(c)) {
+      out += char(std::tolower(c));
+    } else if (!out.empty() && out.back() != '-') {
+      out += '-';
+    }
+  }
+  while (!out.empty() && out.back() == '-') out.pop_back();
+  return out;
+}
+
+void keep_smallest_refusal(const char* dir, const std::string& error,
+                           const std::vector<uint8_t>& file) {
+  const std::filesystem::path path =
+      std::filesystem::path(dir) / ("fuzz-meta-" + refusal_name(error) + ".vxc");
+  std::error_code ec;
+  const auto size = std::filesystem::file_size(path, ec);
+  if (!ec && size <= file.size()) return;
+  std::ofstream out(path, std::ios::binary);
+  out.write(reinterpret_cast<const char*>(file.data()), std::streamsize(file.size()));
+}
 
 }  // namespace
 
@@ -61,7 +100,10 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
       t::damage_sample(t::kAllSceneKinds[data[0] % std::size(t::kAllSceneKinds)]);
   voxcast::Container c = voxcast::Container::parse(sample.data(), sample.size());
   c.add(kMeta, std::vector<uint8_t>(data + 1, data + size));  // replaces the section
-  const t::Verdict v = t::check_scene(c.serialize());
+  const std::vector<uint8_t> file = c.serialize();
+  const t::Verdict v = t::check_scene(file);
+  if (const char* dir = std::getenv("VOXCAST_REFUSALS"); dir && !v.accepted)
+    keep_smallest_refusal(dir, v.error, file);
   if (!v.use_error.empty()) {
     std::fprintf(stderr, "accepted, then failed: %s\n", v.use_error.c_str());
     std::abort();
