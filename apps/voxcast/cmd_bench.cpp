@@ -53,7 +53,44 @@ struct BenchArgs {
   int ao_rays = 64;
   float ao_radius = 0.f;
   std::string json;  // --json FILE: every figure
+  std::string memory_budget;
 };
+
+// What bench holds at once, estimated before anything is built. Each voxel
+// build is estimated as `build` does (estimate_build_bytes: its peak, which
+// bounds the structure it leaves), each extra build also holds its own copy
+// of the mesh. Embree's high-quality BVH (primitive references, spatial
+// splits, nodes and the triangle copy): 384 bytes per triangle bounds it.
+// Images: per pixel, the voxel render kept for the agreement figures
+// (color, depth, normals: 28 B), Embree's depth render (4 B), and the frame
+// being measured (up to 28 + 4 B of iteration counts), rounded up to 128 B.
+constexpr uint64_t kEmbreeBytesPerTriangle = 384;
+constexpr uint64_t kImageBytesPerPixel = 128;
+
+struct BenchMemory {
+  uint64_t mesh = 0;      // every mesh copy held for the whole run
+  uint64_t esvo = 0;      // the ESVO build (estimate_build_bytes)
+  uint64_t embree = 0;    // Embree's BVH
+  uint64_t contours = 0;  // the contour build and its own mesh copy
+  uint64_t images = 0;    // the largest --size
+  uint64_t dag = 0;       // --effects: what the DAG holds once built
+  uint64_t total() const { return mesh + esvo + embree + contours + images + dag; }
+};
+
+// Occlusion rays of --effects, known once the shading points are: every
+// shadow and AO ray (28 B) twice (as generated and sample-major), one answer
+// byte per ray and caster row (at most 8), and the point itself.
+uint64_t effects_bytes(uint64_t points, uint64_t ao_rays) {
+  return points * ((1 + ao_rays) * (2 * sizeof(Ray) + 8) + sizeof(ShadingPoint) + 4);
+}
+
+void require_within_budget(uint64_t need, uint64_t budget, const std::string& what) {
+  if (budget && need > budget)
+    throw Error("bench: " + what + " need an estimated " + format_bytes(double(need)) +
+                ", more than the " + format_bytes(double(budget)) +
+                " memory budget; lower --resolution or --size, drop --contours/--effects, or "
+                "raise --memory-budget");
+}
 
 // One timing harness for every caster, voxel or Embree. Each row has a
 // frame() that runs one frame and returns the seconds of its timed loop only
@@ -359,6 +396,9 @@ Runner add_bench(CLI::App& app) {
                   "AO ray length for --effects (0 = 5% of the mesh bounds diagonal)")
       ->capture_default_str();
   cmd->add_option("--json", args->json, "Also write every figure as JSON to this file");
+  cmd->add_option("--memory-budget", args->memory_budget,
+                  "Bytes every structure, image and ray array held at once may take (512M, 8G, "
+                  "...; default 90% of available memory); checked before anything is built");
   return [args]() {
     ThreadLimit limit(args->threads);
     std::vector<std::pair<int, int>> sizes;
@@ -383,23 +423,52 @@ Runner add_bench(CLI::App& app) {
     check_camera_options(args->camera, 64, 64);
     require_regular_input(args->input, "mesh");
 
+    const uint64_t budget = effective_budget(
+        args->memory_budget.empty() ? 0 : parse_memory_budget(args->memory_budget));
+
     BuildSettings s;
     s.mesh_path = args->input;
     s.resolution = args->resolution;
     s.mode = parse_voxelization(args->voxelization);
     s.attributes = parse_attribute_format(args->attributes);
     s.verbose = args->verbose;
-    BuiltScene built = build_scene(s);
+    s.memory_budget = budget;
+    MeshLoadStats mesh_stats;
+    Mesh mesh = load_build_mesh(s.mesh_path, budget, &mesh_stats, s.verbose);
+    // Every structure bench holds at once, against the budget, before the
+    // first build: the ESVO, Embree's BVH, the contour octree, the images.
+    BenchMemory held;
+    {
+      const GridTransform grid = build_grid(s, mesh.bounds());
+      const uint64_t build = estimate_build_bytes(mesh, grid), one_mesh = mesh_bytes(mesh);
+      // The ESVO build's mesh, and the copy later builds start from.
+      held.mesh = one_mesh * (args->contours || args->effects ? 2 : 1);
+      held.esvo = build;
+      held.embree = uint64_t(mesh.triangle_count()) * kEmbreeBytesPerTriangle;
+      if (args->contours) held.contours = build + one_mesh;
+      for (const auto& [w, h] : sizes)
+        held.images = std::max(held.images, uint64_t(w) * uint64_t(h) * kImageBytesPerPixel);
+      std::string parts = "the mesh, the ESVO, Embree's BVH";
+      if (args->contours) parts += ", the contour octree";
+      parts += " and the images";
+      require_within_budget(held.total(), budget, parts);
+    }
+    const Mesh mesh_copy = (args->contours || args->effects) ? mesh : Mesh();
+    BuiltScene built = build_scene(s, std::move(mesh), mesh_stats);
     auto octree = std::make_shared<esvo::EsvoOctree>(std::move(built.octree));
     esvo::EsvoStructure voxels(octree);
     const Aabb occupied = esvo::occupied_bounds(*octree);
     EmbreeScene embree(built.mesh);
     std::shared_ptr<esvo::EsvoOctree> contoured;
     double contour_build_seconds = 0;
+    // What is left for a later build (0 would mean "no budget").
+    auto left_after = [&](uint64_t bytes) { return budget > bytes ? budget - bytes : 1; };
     if (args->contours) {
       BuildSettings cs = s;
       cs.contours = true;
-      BuiltScene cb = build_scene(cs);
+      // (build_scene counts its own copy of the mesh.)
+      cs.memory_budget = left_after(held.mesh + held.esvo + held.embree + held.images);
+      BuiltScene cb = build_scene(cs, mesh_copy, mesh_stats);
       contour_build_seconds = cb.voxelize_seconds + cb.octree_seconds;
       contoured = std::make_shared<esvo::EsvoOctree>(std::move(cb.octree));
     }
@@ -581,7 +650,14 @@ Runner add_bench(CLI::App& app) {
         BuildSettings ds = s;
         ds.dag = true;
         ds.verbose = false;
-        BuiltScene dag_built = build_scene(ds);  // the same mesh, grid and voxelization
+        // Out of core within what the others leave when in core would not fit
+        // (build_scene counts its own copy of the mesh).
+        ds.memory_budget = left_after(held.total());
+        // Held afterwards: at most its in-core estimate (the same grid as the
+        // ESVO's) or the budget it was given.
+        held.dag = std::min(held.esvo, ds.memory_budget);
+        // The same mesh, grid and voxelization.
+        BuiltScene dag_built = build_scene(ds, mesh_copy, mesh_stats);
         dag_voxels = std::make_unique<dag::DagStructure>(
             std::make_shared<dag::SparseVoxelDag>(std::move(dag_built.dag)));
         add_voxel_rows("voxcast dag", *dag_voxels);
@@ -783,6 +859,12 @@ Runner add_bench(CLI::App& app) {
           points.push_back({hit.position, n, ray.dir, hit.voxel_size});
           seeds.push_back(pixel_seed(x, y, 0));
         }
+        // The rays are recorded next: check them against what the structures
+        // and images leave of the budget.
+        require_within_budget(
+            held.total() + effects_bytes(points.size(), uint64_t(args->ao_rays)), budget,
+            "the structures and the " + std::to_string(points.size()) + " shading points' " +
+                std::to_string(args->ao_rays + 1) + " occlusion rays each");
         EffectOptions shadow_fx;
         shadow_fx.shadows = ShadowMode::Hard;
         EffectOptions ao_fx;
