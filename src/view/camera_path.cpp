@@ -45,10 +45,6 @@ float number_at(const json& k, size_t index, const char* key) {
   return float(d);
 }
 
-json vec3_json(Vec3 v) {
-  return json::array({v.x, v.y, v.z});
-}
-
 Vec3 lerp(Vec3 a, Vec3 b, float w) {
   return a + (b - a) * w;
 }
@@ -140,26 +136,58 @@ CameraPath CameraPath::load(const std::filesystem::path& file) {
 }
 
 std::string CameraPath::to_json() const {
-  json frames = json::array();
-  for (const CameraKeyframe& kf : keyframes) {
-    json k;
-    if (!kf.name.empty()) k["name"] = kf.name;
-    k["time"] = kf.time;
-    k["eye"] = vec3_json(kf.camera.eye);
-    k["target"] = vec3_json(kf.camera.target);
-    k["up"] = vec3_json(kf.camera.up);
-    if (kf.camera.projection == Projection::Orthographic) {
-      k["projection"] = "orthographic";
-      k["ortho_width"] = kf.camera.ortho_width;
-    } else {
-      k["fovy"] = kf.camera.fovy_degrees;
+  // One keyframe per line, keys in the documented order. Each float goes
+  // through double with the shortest digits that read back to the same
+  // double (nlohmann's number output), hence to the same float: longer than
+  // a float's shortest form, but exact. (Appends, not operator+ chains,
+  // which GCC 12 misreads under -Wrestrict.)
+  std::string out;
+  auto number = [&](double v) { out += json(v).dump(); };
+  auto key = [&](const char* k) {
+    out += ", \"";
+    out += k;
+    out += "\": ";
+  };
+  auto vec = [&](const char* k, Vec3 v) {
+    key(k);
+    out += '[';
+    number(v.x);
+    out += ", ";
+    number(v.y);
+    out += ", ";
+    number(v.z);
+    out += ']';
+  };
+  out += "{\n  \"voxcast_camera_path\": ";
+  out += std::to_string(kCameraPathVersion);
+  out += ",\n  \"keyframes\": [\n";
+  for (size_t i = 0; i < keyframes.size(); ++i) {
+    const CameraKeyframe& kf = keyframes[i];
+    const Camera& c = kf.camera;
+    out += "    {";
+    if (!kf.name.empty()) {
+      out += "\"name\": ";
+      out += json(kf.name).dump();
+      out += ", ";
     }
-    frames.push_back(std::move(k));
+    out += "\"time\": ";
+    number(kf.time);
+    vec("eye", c.eye);
+    vec("target", c.target);
+    vec("up", c.up);
+    if (c.projection == Projection::Orthographic) {
+      key("projection");
+      out += "\"orthographic\"";
+      key("ortho_width");
+      number(c.ortho_width);
+    } else {
+      key("fovy");
+      number(c.fovy_degrees);
+    }
+    out += i + 1 < keyframes.size() ? "},\n" : "}\n";
   }
-  // nlohmann writes a float through double with the shortest digits that
-  // read back to the same double, which is the same float again.
-  json doc = {{"voxcast_camera_path", kCameraPathVersion}, {"keyframes", std::move(frames)}};
-  return doc.dump(2) + "\n";
+  out += "  ]\n}\n";
+  return out;
 }
 
 void CameraPath::save(const std::filesystem::path& file) const {

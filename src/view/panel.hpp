@@ -18,7 +18,7 @@ struct SceneStats {
 
 /// What the panel shows about the last frames.
 struct FrameStatus {
-  double frame_ms = 0;     // wall time of the whole display frame
+  double frame_ms = 0;     // wall time of the last display frame that rendered
   double render_ms = 0;    // renderer's ray-cast time of the last pass
   double mrays = 0;        // primary rays per second of the last pass, millions
   double mrays_total = 0;  // primary + secondary

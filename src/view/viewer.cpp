@@ -233,7 +233,8 @@ ViewerReport run_viewer(const LoadedScene& scene, const ViewerOptions& o) {
                               !(settings == shown_settings) || W != shown_width ||
                               H != shown_height;
     if (view_changed) accumulator.reset();
-    if (view_changed || !accumulator.done()) {
+    const bool render_now = view_changed || !accumulator.done();
+    if (render_now) {
       // While the camera moves interactively, one cheap frame at reduced
       // resolution; once it stops, full-resolution passes are averaged.
       const int scale =
@@ -287,7 +288,8 @@ ViewerReport run_viewer(const LoadedScene& scene, const ViewerOptions& o) {
         std::printf("view: screenshot %s (%dx%d)\n", file.c_str(), shot.width, shot.height);
       }
     }
-    status.frame_ms = seconds_since(frame_start) * 1e3;
+    // The overlay shows the last frame that rendered (idle frames only redraw).
+    if (render_now) status.frame_ms = seconds_since(frame_start) * 1e3;
     if (!scripted) {
       char title[256];
       std::snprintf(title, sizeof title, "%s  %.1f ms  %.1f Mrays/s", o.title.c_str(),
