@@ -64,6 +64,13 @@ std::string numbered_screenshot() {
   return "voxcast-screenshot.png";
 }
 
+// A line for the terminal the viewer was started from, right away (stdout
+// may be a pipe, which would hold it until exit).
+void say(const std::string& line) {
+  std::printf("%s\n", line.c_str());
+  std::fflush(stdout);
+}
+
 Image as_image(const WindowPixels& p) {
   Image im(p.width, p.height, 3);
   for (size_t i = 0; i < p.rgb.size(); ++i) im.pixels[i] = float(p.rgb[i]) / 255.f;
@@ -187,7 +194,7 @@ ViewerReport run_viewer(const LoadedScene& scene, const ViewerOptions& o) {
     if (play) {
       playing = !recorded.keyframes.empty() ? &recorded : (o.path ? &*o.path : nullptr);
       play_start = frame_start;
-      if (!playing) std::printf("view: no camera path to play (record one with R)\n");
+      if (!playing) say("view: no camera path to play (record one with R)");
     }
 
     // ---- camera ----
@@ -214,8 +221,8 @@ ViewerReport run_viewer(const LoadedScene& scene, const ViewerOptions& o) {
         if (!same_camera(camera, recorded.keyframes.back().camera))
           recorded.keyframes.push_back({"", t, camera});
         recorded.save(o.record_path);
-        std::printf("view: recorded %zu keyframes to %s\n", recorded.keyframes.size(),
-                    o.record_path.c_str());
+        say("view: recorded " + std::to_string(recorded.keyframes.size()) + " keyframes to " +
+            o.record_path);
       }
     } else if (recording) {
       // A keyframe at most every 1/10 s while the camera moves: linear
@@ -285,7 +292,8 @@ ViewerReport run_viewer(const LoadedScene& scene, const ViewerOptions& o) {
         const std::string file =
             o.screenshot_path.empty() ? numbered_screenshot() : o.screenshot_path;
         write_image(file, as_image(shot), /*already_srgb=*/true);
-        std::printf("view: screenshot %s (%dx%d)\n", file.c_str(), shot.width, shot.height);
+        say("view: screenshot " + file + " (" + std::to_string(shot.width) + "x" +
+            std::to_string(shot.height) + ")");
       }
     }
     // The overlay shows the last frame that rendered (idle frames only redraw).

@@ -56,6 +56,10 @@ Window::Window(int width, int height, const std::string& title, bool vsync) {
   }
   glfwSetWindowUserPointer(window_, this);
   glfwSetScrollCallback(window_, scroll_callback);
+  // A key or button tapped between two polls (frames can take a while to
+  // render) still reads as pressed once.
+  glfwSetInputMode(window_, GLFW_STICKY_KEYS, GLFW_TRUE);
+  glfwSetInputMode(window_, GLFW_STICKY_MOUSE_BUTTONS, GLFW_TRUE);
   glfwMakeContextCurrent(window_);
   glfwSwapInterval(vsync ? 1 : 0);
 }
