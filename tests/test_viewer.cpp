@@ -11,8 +11,10 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
@@ -23,6 +25,7 @@ using voxcast::Image;
 using voxcast::read_pfm;
 using voxcast::read_png;
 using voxcast::testing::CliResult;
+using voxcast::testing::read_text;
 using voxcast::testing::run_cli;
 using voxcast::testing::TempDir;
 using voxcast::testing::write_text;
@@ -257,4 +260,110 @@ TEST_F(ViewWindow, UsageAndInputErrors) {
   }
   EXPECT_NE(run_cli(v + "--frames 1 --path '" + broken + "'").output.find("missing 'target'"),
             std::string::npos);
+}
+
+// The interactive mode driven like a user would, with X events from xdotool:
+// R starts recording, a left drag orbits, W walks forward, R stops and
+// saves, P replays the recording, F12 saves a screenshot, Esc quits. The
+// recording is read here with a JSON parser of its own, and the screenshot
+// after the replay must show the recording's last keyframe as `render` draws it.
+TEST_F(ViewWindow, InteractiveRecordReplayAndScreenshot) {
+  const std::string rec = dir.file("rec.json"), shot = dir.file("shot.png");
+  const std::string log = dir.file("view.log"), script = dir.file("drive.sh");
+  const std::string launch = std::string("'") + VOXCAST_CLI_PATH + "' view '" + scene +
+                             "' --size 320x240 --no-panel --record '" + rec + "' --screenshot '" +
+                             shot + "' > '" + log + "' 2>&1 &\n";
+  // The sleeps leave the viewer time to render between the steps; the path
+  // recorded lasts ~2.5 s, so 6 s after P its replay is over and the still
+  // camera has a full-resolution frame. Escape is sent with "|| true": the
+  // window may be gone before xdotool sends the key's release.
+  const std::string steps = R"(pid=$!
+wid=$(timeout 30 xdotool search --sync --name 'voxcast view' | head -1)
+sleep 1
+xdotool mousemove --window $wid 160 120
+xdotool key --window $wid r
+sleep 0.5
+xdotool mousedown 1
+for i in 1 2 3 4 5 6 7 8 9 10; do xdotool mousemove_relative -- 8 0; sleep 0.05; done
+xdotool mouseup 1
+sleep 0.5
+xdotool keydown w; sleep 0.3; xdotool keyup w
+sleep 0.5
+xdotool key --window $wid r
+sleep 0.5
+xdotool key --window $wid p
+sleep 6
+xdotool key --window $wid F12
+sleep 1
+xdotool key --window $wid Escape || true
+wait $pid
+)";
+  write_text(script, "set -e\n" + launch + steps);
+  const std::string drive_log = dir.file("drive.log");
+  const int rc =
+      std::system(("timeout 90 sh -x '" + script + "' > '" + drive_log + "' 2>&1").c_str());
+  const std::string out = read_text(log);
+  ASSERT_EQ(rc, 0) << out << "\n" << read_text(drive_log);
+  EXPECT_NE(out.find("view: recorded "), std::string::npos) << out;
+  EXPECT_NE(out.find("view: screenshot " + shot), std::string::npos) << out;
+
+  const nlohmann::json doc = nlohmann::json::parse(read_text(rec));
+  ASSERT_EQ(doc.at("voxcast_camera_path"), 1);
+  const nlohmann::json& keys = doc.at("keyframes");
+  ASSERT_GE(keys.size(), 3u) << doc.dump();
+  auto vec = [](const nlohmann::json& v) {
+    return std::vector<double>{v[0].get<double>(), v[1].get<double>(), v[2].get<double>()};
+  };
+  auto dist = [](const std::vector<double>& a, const std::vector<double>& b) {
+    return std::sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) +
+                     (a[2] - b[2]) * (a[2] - b[2]));
+  };
+  for (size_t i = 1; i < keys.size(); ++i)
+    EXPECT_GT(keys[i].at("time").get<double>(), keys[i - 1].at("time").get<double>());
+  // The recording starts at the first camera: `render --camera auto`'s.
+  const CliResult auto_cam =
+      run_cli("render '" + scene + "' --size 320x240 -o '" + dir.file("auto.png") + "'");
+  ASSERT_EQ(auto_cam.exit_code, 0) << auto_cam.output;
+  std::vector<double> cam;
+  {
+    const size_t at = auto_cam.output.find("camera: ");
+    ASSERT_NE(at, std::string::npos) << auto_cam.output;
+    std::string list = auto_cam.output.substr(at + 8);
+    for (size_t pos = 0; cam.size() < 6;) {
+      cam.push_back(std::stod(list.substr(pos)));
+      pos = list.find(',', pos) + 1;
+    }
+  }
+  const std::vector<double> eye0 = vec(keys[0].at("eye")), target0 = vec(keys[0].at("target"));
+  EXPECT_LT(dist(eye0, {cam[0], cam[1], cam[2]}), 1e-6);
+  EXPECT_LT(dist(target0, {cam[3], cam[4], cam[5]}), 1e-6);
+  // The drag orbits: some keyframe keeps the target and the distance to it
+  // while the eye has moved.
+  const double d0 = dist(eye0, target0);
+  bool orbited = false;
+  for (const auto& k : keys) {
+    const std::vector<double> e = vec(k.at("eye")), t = vec(k.at("target"));
+    if (dist(t, target0) < 1e-6 && dist(e, eye0) > 0.05 * d0 &&
+        std::fabs(dist(e, t) - d0) < 1e-4 * d0)
+      orbited = true;
+  }
+  EXPECT_TRUE(orbited) << doc.dump();
+  // W walked: the last keyframe's target has moved towards where the eye looked.
+  EXPECT_GT(dist(vec(keys.back().at("target")), target0), 0.01 * d0) << doc.dump();
+
+  // After the replay the window shows the last keyframe, as `render` draws it
+  // (below the frame-time overlay, top left).
+  const CliResult ref =
+      run_cli("render '" + scene + "' --size 320x240 --path '" + rec + "' --frame " +
+              std::to_string(keys.size() - 1) + " -o '" + dir.file("last.png") + "'");
+  ASSERT_EQ(ref.exit_code, 0) << ref.output;
+  const Image a = read_png(shot), b = read_png(dir.file("last.png"));
+  ASSERT_EQ(a.width, b.width);
+  ASSERT_EQ(a.height, b.height);
+  size_t differ = 0;
+  for (int y = 90; y < a.height; ++y)
+    for (int x = 0; x < a.width; ++x)
+      for (int c = 0; c < 3; ++c) differ += a.at(x, y)[c] != b.at(x, y)[c];
+  EXPECT_EQ(differ, 0u);
+  EXPECT_GT(lit_pixels(b), 500);
 }
