@@ -149,6 +149,35 @@ TEST_F(ViewWindow, ScreenshotsAtPathKeyframesEqualRender) {
   EXPECT_GT(lit_pixels(read_png(dir.file("k-000.png"))), 500);
 }
 
+TEST_F(ViewWindow, SettingsMeanWhatRendersFlagsMean) {
+  // The viewer's options map onto the same RenderOptions as `render`'s flags:
+  // LOD, beam, hard shadows and the post-filter, and the heat map.
+  const std::string common = " --size 200x150 --camera auto";
+  const std::string v1 = dir.file("v1.png"), r1 = dir.file("r1.png");
+  const std::string flags = " --lod 4 --beam 8 --shadows hard --filter";
+  ASSERT_EQ(
+      run_cli("view '" + scene + "'" + common + flags + " --frames 2 --screenshot '" + v1 + "'")
+          .exit_code,
+      0);
+  ASSERT_EQ(run_cli("render '" + scene + "'" + common + flags + " -o '" + r1 + "'").exit_code, 0);
+  expect_same_pixels(read_png(v1), read_png(r1), 0.f);
+  const std::string v2 = dir.file("v2.png"), r2 = dir.file("r2.png");
+  ASSERT_EQ(run_cli("view '" + scene + "'" + common +
+                    " --heatmap --heatmap-max 40 --frames 2 --screenshot '" + v2 + "'")
+                .exit_code,
+            0);
+  ASSERT_EQ(run_cli("render '" + scene + "'" + common + " --heatmap '" + r2 +
+                    "' --heatmap-max 40 -o '" + dir.file("color.png") + "'")
+                .exit_code,
+            0);
+  expect_same_pixels(read_png(v2), read_png(r2), 0.f);
+  // Not trivially equal: the settings changed the picture.
+  const Image plain = read_png(dir.file("color.png")), lod = read_png(r1);
+  size_t changed = 0;
+  for (size_t i = 0; i < plain.pixels.size(); ++i) changed += plain.pixels[i] != lod.pixels[i];
+  EXPECT_GT(changed, 300u);
+}
+
 TEST_F(ViewWindow, StillFramesAverageAmbientOcclusionPasses) {
   // The camera reaches the last keyframe at frame 4 (1 s at 4 fps) and stays:
   // frames 4..8 are five passes with seeds 0..4, averaged. The oracle: five
