@@ -265,6 +265,9 @@ TEST_F(ViewWindow, UsageAndInputErrors) {
   for (const std::string& bad :
        {v + "--frames 0", v + "--frames 1 --fps 0", v + "--frames 1 --shadows soft",
         v + "--frames 1 --beam 1", v + "--frames 1 --passes 0", v + "--frames 1 --lod nan",
+        v + "--frames -1", v + "--frames 1 --fps nan", v + "--frames 1 --ao-radius nan",
+        v + "--frames 1 --heatmap-max inf", v + "--frames 1 --seed -1", v + "--frames 1 --ao -1",
+        v + "--record '" + dir.file("r.txt") + "'",
         v + "--frames 1 --path '" + path + "' --orbit 10,10", v + "--screenshot-ui",
         v + "--frames 1 --screenshot '" + dir.file("x.jpg") + "'", v + "--size 0x0 --frames 1",
         "render '" + scene + "' -o '" + dir.file("a.png") + "' --frame end",
