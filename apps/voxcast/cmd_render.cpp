@@ -218,11 +218,7 @@ Runner add_render(CLI::App& app) {
     if (!args->ao_output.empty() && fx.ao_rays == 0)
       throw UsageError("--ao-output needs --ao N (N > 0)");
     check_camera_options(args->camera, opt.width, opt.height);
-    const bool camera_given = args->camera.camera_option->count() > 0 ||
-                              !args->camera.orbit.empty() || !args->camera.look_at.empty() ||
-                              args->camera.ortho_option->count() > 0;
-    if (!args->path.empty() && camera_given)
-      throw UsageError("--path sets the camera; it excludes --camera, --orbit, --look-at, --ortho");
+    refuse_camera_options_with_path(args->camera, args->path);
     if (!args->frame.empty() && args->path.empty()) throw UsageError("--frame needs --path");
     uint64_t budget = 0;
     if (!args->memory_budget.empty()) budget = parse_memory_budget(args->memory_budget);

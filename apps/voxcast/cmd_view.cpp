@@ -92,11 +92,7 @@ Runner add_view(CLI::App& app) {
     require_range("--passes", args->passes, 1, 256);
     if (args->screenshot_ui && !scripted)
       throw UsageError("--screenshot-ui is for scripted runs (--frames N)");
-    const bool camera_given = args->camera.camera_option->count() > 0 ||
-                              !args->camera.orbit.empty() || !args->camera.look_at.empty() ||
-                              args->camera.ortho_option->count() > 0;
-    if (!args->path.empty() && camera_given)
-      throw UsageError("--path sets the camera; it excludes --camera, --orbit, --look-at, --ortho");
+    refuse_camera_options_with_path(args->camera, args->path);
     check_camera_options(args->camera, o.width, o.height);
     view::ViewSettings& s = o.settings;
     s.lod_pixels = args->lod;
