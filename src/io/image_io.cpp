@@ -43,6 +43,24 @@ uint8_t to_byte(float v) {
   return uint8_t(std::lround(v * 255.0f));
 }
 
+}  // namespace
+
+std::vector<uint8_t> png_bytes(const Image& im, bool already_srgb) {
+  const int nc = im.channels;
+  // Alpha (the last channel of GA/RGBA) is coverage, not light: never sRGB-encode it.
+  const bool has_alpha = nc == 2 || nc == 4;
+  std::vector<uint8_t> bytes(im.pixels.size());
+  for (size_t i = 0; i < bytes.size(); ++i) {
+    float v = im.pixels[i];
+    bool is_alpha = has_alpha && int(i % size_t(nc)) == nc - 1;
+    if (!already_srgb && !is_alpha) v = linear_to_srgb(std::clamp(v, 0.0f, 1.0f));
+    bytes[i] = to_byte(v);
+  }
+  return bytes;
+}
+
+namespace {
+
 void write_png(const std::filesystem::path& path, const Image& im, bool already_srgb) {
   png_image img;
   std::memset(&img, 0, sizeof img);
@@ -67,15 +85,7 @@ void write_png(const std::filesystem::path& path, const Image& im, bool already_
                               path.string(), im.channels));
   }
   const int nc = im.channels;
-  // Alpha (the last channel of GA/RGBA) is coverage, not light: never sRGB-encode it.
-  const bool has_alpha = nc == 2 || nc == 4;
-  std::vector<uint8_t> bytes(im.pixels.size());
-  for (size_t i = 0; i < bytes.size(); ++i) {
-    float v = im.pixels[i];
-    bool is_alpha = has_alpha && int(i % size_t(nc)) == nc - 1;
-    if (!already_srgb && !is_alpha) v = linear_to_srgb(std::clamp(v, 0.0f, 1.0f));
-    bytes[i] = to_byte(v);
-  }
+  const std::vector<uint8_t> bytes = png_bytes(im, already_srgb);
   png_alloc_size_t size = 0;
   const png_int_32 stride = png_int_32(im.width * nc);
   if (!png_image_write_to_memory(&img, nullptr, &size, 0, bytes.data(), stride, nullptr))
