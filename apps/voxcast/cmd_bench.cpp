@@ -291,19 +291,21 @@ Runner add_bench(CLI::App& app) {
     s.mode = parse_voxelization(args->voxelization);
     s.attributes = parse_attribute_format(args->attributes);
     s.verbose = args->verbose;
-    BuiltScene built = build_scene(s);
-    auto octree = std::make_shared<esvo::EsvoOctree>(std::move(built.octree));
-    esvo::EsvoStructure voxels(octree);
+    BuiltScene built = build_scene(s);  // BuildSettings::format: esvo
+    const esvo::EsvoStructure& voxels = dynamic_cast<const esvo::EsvoStructure&>(*built.structure);
+    const esvo::EsvoOctree* octree = &voxels.octree();
     const Aabb occupied = esvo::occupied_bounds(*octree);
     EmbreeScene embree(built.mesh);
-    std::shared_ptr<esvo::EsvoOctree> contoured;
+    LoadedStructure contour_structure;
+    const esvo::EsvoOctree* contoured = nullptr;
     double contour_build_seconds = 0;
     if (args->contours) {
       BuildSettings cs = s;
       cs.contours = true;
       BuiltScene cb = build_scene(cs);
       contour_build_seconds = cb.voxelize_seconds + cb.octree_seconds;
-      contoured = std::make_shared<esvo::EsvoOctree>(std::move(cb.octree));
+      contour_structure = std::move(cb.structure);
+      contoured = &dynamic_cast<const esvo::EsvoStructure&>(*contour_structure).octree();
     }
 
     // Machine and command line first: every figure below depends on them.
@@ -388,8 +390,9 @@ Runner add_bench(CLI::App& app) {
       std::vector<float> lods{0.f};
       if (args->lod != 0.f) lods.push_back(args->lod);
       RenderResult vox_result;  // at --lod, for the agreement line
-      std::unique_ptr<esvo::EsvoStructure> contour_voxels;
-      if (contoured) contour_voxels = std::make_unique<esvo::EsvoStructure>(contoured);
+      const esvo::EsvoStructure* contour_voxels =
+          contour_structure ? &dynamic_cast<const esvo::EsvoStructure&>(*contour_structure)
+                            : nullptr;
       // Trace-only and render() rows of one voxel structure at every LOD.
       auto add_voxel_rows = [&](const std::string& caster, const auto& structure) {
         for (float lod : lods) {
@@ -445,16 +448,17 @@ Runner add_bench(CLI::App& app) {
                              {}});
       }
       // With --effects: the DAG of the same voxels (svdag §4), same camera.
-      std::unique_ptr<dag::DagStructure> dag_voxels;
+      LoadedStructure dag_structure;
+      const dag::DagStructure* dag_voxels = nullptr;
       RenderOptions dag_beam = ro;
       dag_beam.beam = 8;
       if (args->effects && size_index == 0) {
         BuildSettings ds = s;
-        ds.dag = true;
+        ds.format = "dag";
         ds.verbose = false;
         BuiltScene dag_built = build_scene(ds);  // the same mesh, grid and voxelization
-        dag_voxels = std::make_unique<dag::DagStructure>(
-            std::make_shared<dag::SparseVoxelDag>(std::move(dag_built.dag)));
+        dag_structure = std::move(dag_built.structure);
+        dag_voxels = &dynamic_cast<const dag::DagStructure&>(*dag_structure);
         add_voxel_rows("voxcast dag", *dag_voxels);
         primary.push_back({"voxcast dag+beam",
                            "render(), beam 8x8",
