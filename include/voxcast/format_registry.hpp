@@ -34,7 +34,9 @@ struct FormatBuildOptions {
 
 /// How `voxcast info` writes sizes (the CLI's units), handed to describe().
 struct DescribeStyle {
-  std::function<std::string(double bytes)> bytes;
+  std::function<std::string(double bytes)> bytes = [](double b) {
+    return std::to_string(uint64_t(b)) + " B";
+  };
 };
 
 /// A format's part of `voxcast info`. The CLI prints the facts every scene
