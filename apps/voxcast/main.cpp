@@ -12,6 +12,7 @@
 #include "cli_io.hpp"
 #include "commands.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/format_registry.hpp"
 #include "voxcast/version.hpp"
 
 namespace voxcast::cli {
@@ -70,6 +71,8 @@ ThreadLimit::~ThreadLimit() {
 
 int main(int argc, char** argv) {
   using namespace voxcast::cli;
+  // Every scene format before any option is declared (`build --format` lists them).
+  voxcast::register_builtin_formats();
   CLI::App app{
       "voxcast: voxelize triangle meshes into sparse voxel octrees and ray cast them on the CPU"};
   app.require_subcommand(1);
