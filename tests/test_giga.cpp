@@ -348,16 +348,28 @@ TEST(Giga, QuadrilinearFilteringIsContinuousAcrossLod) {
 }
 
 TEST(Giga, RenderDoesNotDependOnThreads) {
+  // Images, the requests of every pass and the pool statistics are the same
+  // with 1 and 2 threads (requests reach end_pass sorted and deduplicated,
+  // and no buffer overflows: nothing depends on the schedule).
   const auto p = make_procedural("mandelbulb", 64);
   std::vector<std::vector<float>> images;
+  std::vector<std::vector<uint64_t>> requests;
   for (int threads : {1, 2}) {
     tbb::global_control limit(tbb::global_control::max_allowed_parallelism, size_t(threads));
     GigaOptions o = unlimited();
     o.bricks = 300, o.tiles = 300;
     GigaVoxels g(p, o);
-    images.push_back(render(g, view_of(32, 24), 2000, true).film.color.pixels);
+    const Rendered r = render(g, view_of(64, 48), 2000, true);
+    images.push_back(r.film.color.pixels);
+    requests.emplace_back();
+    for (const PassStats& ps : r.stats.passes) {
+      EXPECT_EQ(ps.dropped, 0u);
+      requests.back().push_back(ps.requests);
+    }
+    for (const GigaPassStats& gs : g.pass_stats()) requests.back().push_back(gs.bricks_resident);
   }
   EXPECT_EQ(images[0], images[1]);
+  EXPECT_EQ(requests[0], requests[1]);
 }
 
 TEST(Giga, PoolSizesFollowTheBudget) {

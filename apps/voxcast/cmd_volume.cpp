@@ -38,6 +38,8 @@ void print_pass_stats(uint32_t frame, const FrameStats& fs, const giga::GigaVoxe
     const PassStats& ps = fs.passes[p];
     std::fprintf(stderr, "frame %u pass %zu: %d tiles, %llu requests", frame, p, ps.tiles,
                  (unsigned long long)ps.requests);
+    if (ps.dropped)
+      std::fprintf(stderr, " (+%llu dropped: full buffers)", (unsigned long long)ps.dropped);
     if (p < gs.size()) {
       const giga::GigaPassStats& s = gs[p];
       std::fprintf(stderr,
@@ -133,7 +135,13 @@ Runner add_volume(CLI::App& app) {
       throw UsageError(std::string("--transfer: ") + e.what());
     }
     giga::GigaOptions go;
-    go.budget_bytes = parse_memory_budget(args->budget);
+    try {
+      go.budget_bytes = parse_memory_budget(args->budget);
+    } catch (const UsageError& e) {  // the shared parser names its own option
+      std::string m = e.what();
+      if (m.rfind("--memory-budget", 0) == 0) m.replace(0, 15, "--budget");
+      throw UsageError(m);
+    }
     check_camera_options(args->camera, view.width, view.height);
     OutputSet outputs(procedural ? std::vector<std::string>{}
                                  : std::vector<std::string>{args->source});

@@ -42,6 +42,27 @@ float request_priority(int level) {
   return float(kMaxLevel - level);
 }
 
+/// The requests this context pushed lately, in its accessor cache: a ray
+/// asks for the same node at every sample and every neighbouring ray asks
+/// again, which would fill the fixed-capacity buffer with duplicates and
+/// make what survives depend on the thread schedule. Direct-mapped on the
+/// node index. The volume integrator resets the cache at every tile (the
+/// frame loop must see each asking tile push), the frame loop at every pass.
+struct RecentRequests {
+  static constexpr int kSlots = 31;  // 248 bytes: fits AccessorCache::kBytes
+  uint64_t entry[kSlots];            // node * 2 + kind, + 1 (0 = empty)
+};
+static_assert(sizeof(RecentRequests) <= AccessorCache::kBytes);
+
+void push_request(TraceContext& ctx, const void* owner, uint32_t kind, uint32_t node, int level) {
+  RecentRequests& recent = ctx.cache.get<RecentRequests>(owner);
+  const uint64_t tag = (uint64_t(node) << 1 | kind) + 1;
+  uint64_t& slot = recent.entry[tag % RecentRequests::kSlots];
+  if (slot == tag) return;
+  slot = tag;
+  ctx.requests.push(kind, node, request_priority(level));
+}
+
 /// Order-preserving compaction of a usage list (§3.6.2, Figures 3.17-3.18):
 /// the elements not stamped `now` keep their order at the front, the ones
 /// used in this pass keep theirs at the back. A TBB parallel scan computes
@@ -234,8 +255,7 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
       if (tile == 0) {
         // §3.6.4: a node without data asks for data first (the producer may
         // find it constant or terminal); one with data asks to be subdivided.
-        ctx.requests.push(kind == kDataNone ? kRequestData : kRequestSubdivide, node,
-                          request_priority(level));
+        push_request(ctx, this, kind == kDataNone ? kRequestData : kRequestSubdivide, node, level);
         asked = true;
         break;
       }
@@ -247,7 +267,7 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
       }
       node = tile * 8 + c, ++level;
     }
-    if (fallback != node && !asked) ctx.requests.push(kRequestData, node, request_priority(level));
+    if (fallback != node && !asked) push_request(ctx, this, kRequestData, node, level);
     // Exit of the node's box [cell, cell + 1] / 2^level.
     const float scale = std::ldexp(1.f, -level);
     float te = t1;
@@ -378,7 +398,7 @@ VolumeSample GigaVoxels::sample(Vec3 p, float level, TraceContext& ctx,
   // the wanted level lies between them; a coarser answer stands alone.
   if (fine_level != want || f == 0.f || coarse == kNoNode) return v1;
   if (NodeDataKind::get(data_[coarse]) == kDataNone) {
-    ctx.requests.push(kRequestData, coarse, request_priority(coarse_level));
+    push_request(ctx, this, kRequestData, coarse, coarse_level);
     return v1;
   }
   const VolumeSample v0 = node_value(coarse, coarse_level, coarse_cell, q, ctx);

@@ -221,6 +221,11 @@ VolumeRayResult VolumeIntegrator::integrate(const VolumeQuery& query, const Ray&
 void VolumeIntegrator::render_tile(const Structure& structure, const FrameView& view,
                                    const TileRect& tile, TraceContext& ctx, Film& film) {
   const VolumeQuery* query = structure.volume();
+  // A structure may keep per-context state in the accessor cache, such as
+  // the requests it pushed lately so as not to push duplicates (GigaVoxels).
+  // The frame loop tells which tiles asked for data by whether they pushed,
+  // so nothing may be remembered from one tile to the next.
+  ctx.cache.reset();
   const CameraRays cam = view.rays();
   const LodFootprint lod = view.lod();
   VolumeIntegratorStats local;
