@@ -102,18 +102,22 @@ TEST(Giga, ExactModeWithTinyPoolRendersTheUnlimitedImage) {
   tiny.bricks = uint32_t(pass_need + 4), tiny.tiles = 200;
   ASSERT_LT(tiny.bricks * 2, peak) << "the tiny pool must be much smaller than what the views use";
   GigaVoxels small(cloud, tiny);
-  uint64_t recycled = 0;
+  uint64_t recycled = 0, recycled_tiles = 0;
   for (uint32_t f = 0; f < kFrames; ++f) {
     const Rendered got = render(small, view(f), 5000);
     recycled += total(small, &GigaPassStats::recycled_bricks);
+    recycled_tiles += total(small, &GigaPassStats::recycled_tiles);
     EXPECT_EQ(got.stats.passes.back().requests, 0u) << "frame " << f;
     EXPECT_EQ(got.film.color.pixels, want[f].film.color.pixels) << "frame " << f;
     EXPECT_EQ(got.film.alpha.pixels, want[f].film.alpha.pixels) << "frame " << f;
     EXPECT_EQ(got.film.depth.pixels, want[f].film.depth.pixels) << "frame " << f;
   }
-  std::printf("bricks: unlimited pool peak %llu, tiny pool %u, recycled %llu\n",
-              (unsigned long long)peak, tiny.bricks, (unsigned long long)recycled);
-  EXPECT_GT(recycled, 0u) << "the tiny pool must recycle";
+  std::printf(
+      "bricks: unlimited pool peak %llu, tiny pool %u, recycled %llu; tiles recycled %llu\n",
+      (unsigned long long)peak, tiny.bricks, (unsigned long long)recycled,
+      (unsigned long long)recycled_tiles);
+  EXPECT_GT(recycled, 0u) << "the tiny pool must recycle bricks";
+  EXPECT_GT(recycled_tiles, 0u) << "...and node tiles (with their subtrees)";
 }
 
 TEST(Giga, OnePassShowsCoarserDataThenConverges) {

@@ -471,10 +471,11 @@ PassOutcome GigaVoxels::end_pass(std::span<const Request> requests) {
   // tile its whole subtree (descendants of a tile unused in this pass are
   // unused too) and the subtree's bricks.
   std::vector<uint32_t> freed_tiles;
+  std::vector<uint8_t> is_freed(new_tiles > 0 ? tile_parent_.size() : 0, 0);
   for (size_t i = 0; i < new_tiles; ++i) {
     const uint32_t t = tile_usage_[i];
     if (tile_parent_[t] != kNoNode) ++st.recycled_tiles;
-    freed_tiles.push_back(t);
+    if (!is_freed[t]) freed_tiles.push_back(t), is_freed[t] = 1;
   }
   for (size_t i = 0; i < freed_tiles.size(); ++i) {
     const uint32_t t = freed_tiles[i];
@@ -487,8 +488,7 @@ PassOutcome GigaVoxels::end_pass(std::span<const Request> requests) {
         brick_stamp_[b] = 0, brick_owner_[b] = kNoNode;
       }
       const uint32_t ct = NodeChildTile::get(child_[node]);
-      if (ct != 0 && std::find(freed_tiles.begin(), freed_tiles.end(), ct) == freed_tiles.end())
-        freed_tiles.push_back(ct);
+      if (ct != 0 && !is_freed[ct]) freed_tiles.push_back(ct), is_freed[ct] = 1;
     }
   }
   for (size_t i = 0; i < new_bricks; ++i) {
