@@ -18,11 +18,13 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <fstream>
 #include <map>
 #include <random>
 
+#include "support/cli_runner.hpp"
 #include "support/test_data.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/gigavoxels.hpp"
@@ -454,6 +456,36 @@ TEST(GigaInrimage, VolumeProducerFinestLevelIsTheNormalizedData) {
   int opaque = 0;
   for (float a : film.alpha.pixels) opaque += a > 0.5f;
   EXPECT_GT(opaque, 50);
+}
+
+TEST(GigaInrimage, GzipVolumesLoadAndDamagedStreamsAreRejected) {
+  // Compressed by the gzip tool, not by our code.
+  testing::TempDir dir;
+  const std::string gz = dir.file("skull.inr.gz");
+  ASSERT_EQ(std::system(("gzip -c '" + skull_path().string() + "' > '" + gz + "'").c_str()), 0);
+  const ScalarVolume plain = read_inrimage(skull_path().string());
+  EXPECT_EQ(read_inrimage(gz).values, plain.values);
+  const auto bytes = read_bytes(gz);
+  auto expect_rejected = [&](const std::vector<unsigned char>& b, const std::string& what) {
+    const std::string path = dir.file("damaged.inr.gz");
+    std::ofstream(path, std::ios::binary)
+        .write(reinterpret_cast<const char*>(b.data()), std::streamsize(b.size()));
+    try {
+      read_inrimage(path);
+      ADD_FAILURE() << what << ": accepted";
+    } catch (const Error& e) {
+      EXPECT_EQ(std::string(e.what()).find('\n'), std::string::npos) << what;
+    }
+  };
+  for (size_t len = 2; len < bytes.size(); len += 1 + len / 3)
+    expect_rejected({bytes.begin(), bytes.begin() + std::ptrdiff_t(len)},
+                    "cut at " + std::to_string(len));
+  auto flipped = bytes;
+  flipped[flipped.size() / 2] ^= 0x5a;
+  expect_rejected(flipped, "a corrupted byte");
+  auto trailing = bytes;
+  trailing.push_back(7);
+  expect_rejected(trailing, "a trailing byte");
 }
 
 TEST(GigaInrimage, CorruptedAndTruncatedFilesAreRejected) {

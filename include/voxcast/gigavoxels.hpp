@@ -158,7 +158,11 @@ struct ScalarVolume {
 /// be 1. Validates every field and the data size; throws voxcast::Error with
 /// a one-line message naming the problem.
 ScalarVolume parse_inrimage(std::span<const unsigned char> bytes);
+/// parse_inrimage of a file, gzip'd (.inr.gz) or not (told by its first bytes).
 ScalarVolume read_inrimage(const std::string& path);
+/// Inflates a gzip stream (one-line INRIMAGE errors for a truncated or
+/// corrupted stream; refuses output beyond the largest accepted volume).
+std::vector<unsigned char> gunzip(std::span<const unsigned char> bytes);
 /// Writes `v` as an INRIMAGE-4 float file (tests and tools).
 std::vector<unsigned char> write_inrimage(const ScalarVolume& v);
 /// A producer over a scalar volume: the data centered in the unit cube

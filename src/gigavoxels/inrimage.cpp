@@ -1,4 +1,6 @@
 // INRIMAGE-4 volumes and the producer over a scalar volume (gigavoxels.hpp).
+#include <zlib.h>
+
 #include <algorithm>
 #include <bit>
 #include <charconv>
@@ -151,6 +153,41 @@ ScalarVolume parse_inrimage(std::span<const unsigned char> bytes) {
   return v;
 }
 
+std::vector<unsigned char> gunzip(std::span<const unsigned char> in) {
+  // The largest volume parse_inrimage accepts (2^28 samples of 8 bytes) plus
+  // its header: a larger stream is refused before it exhausts memory.
+  constexpr size_t kLimit = (size_t(8) << 28) + kMaxHeader;
+  z_stream z{};
+  if (inflateInit2(&z, 16 + MAX_WBITS) != Z_OK) fail("gzip: cannot start zlib");
+  std::vector<unsigned char> out;
+  z.next_in = const_cast<Bytef*>(in.data());
+  z.avail_in = uInt(std::min<size_t>(in.size(), 0xFFFFFFFFu));
+  int rc = Z_OK;
+  while (rc != Z_STREAM_END) {
+    if (out.size() >= kLimit) {
+      inflateEnd(&z);
+      fail("gzip: the decompressed file exceeds the size limit");
+    }
+    const size_t at = out.size();
+    out.resize(std::min(kLimit, std::max<size_t>(at * 2, size_t(1) << 20)));
+    z.next_out = out.data() + at;
+    z.avail_out = uInt(out.size() - at);
+    rc = inflate(&z, Z_NO_FLUSH);
+    out.resize(out.size() - z.avail_out);
+    if (rc == Z_BUF_ERROR && z.avail_in == 0) rc = Z_DATA_ERROR;  // the input ended early
+    if (rc != Z_OK && rc != Z_STREAM_END) {
+      const bool truncated = z.avail_in == 0;
+      inflateEnd(&z);
+      fail(truncated ? "gzip: the compressed stream is truncated"
+                     : "gzip: the compressed stream is corrupted");
+    }
+  }
+  const bool trailing = z.avail_in != 0;
+  inflateEnd(&z);
+  if (trailing) fail("gzip: bytes after the compressed stream");
+  return out;
+}
+
 ScalarVolume read_inrimage(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw Error("cannot open '" + path + "'");
@@ -158,6 +195,8 @@ ScalarVolume read_inrimage(const std::string& path) {
                                    std::istreambuf_iterator<char>());
   if (in.bad()) throw Error("cannot read '" + path + "'");
   try {
+    // A gzip'd volume (.inr.gz: the gzip magic 1f 8b) is inflated first.
+    if (bytes.size() >= 2 && bytes[0] == 0x1f && bytes[1] == 0x8b) bytes = gunzip(bytes);
     return parse_inrimage(bytes);
   } catch (const Error& e) {
     throw Error(path + ": " + e.what());
