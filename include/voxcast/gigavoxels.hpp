@@ -81,8 +81,9 @@ static_assert(NodeChildTile::mask == 0x3FFFFFFFu && NodeTerminal::mask == 0x4000
 static_assert(NodeDataPayload::mask == 0x3FFFFFFFu && NodeDataKind::mask == 0xC0000000u);
 
 /// Per-tile localization code (§3.6.6): the parent node's cell coordinates
-/// at its level, 10 bits per axis; the tile's nodes are at depth + 0 with
-/// cell 2 * code + child bits. Depth (8 bits) = level of the tile's nodes.
+/// at the parent's level, 10 bits per axis. With the tile's depth (8 bits,
+/// the level of the tile's nodes), node c of the tile is at that level, cell
+/// 2 * code + (c & 1, c >> 1 & 1, c >> 2).
 using LocX = BitField<0, 10>;
 using LocY = BitField<10, 10>;
 using LocZ = BitField<20, 10>;
