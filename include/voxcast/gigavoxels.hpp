@@ -1,0 +1,277 @@
+#pragma once
+// GigaVoxels (Crassin et al. 2010, ../shared/papers/gigavoxels-crassin-2010.md;
+// docs/ARCHITECTURE.md "GigaVoxels"): a sparse voxel octree of small bricks
+// that holds only what the rays ask for, at the resolution they need.
+//
+//  * Pools (§3.4): a node pool of 2x2x2 node tiles and a brick pool of
+//    (M+2)^3-voxel bricks (M = 8 plus a one-voxel border, so that trilinear
+//    lookups anywhere inside a node stay inside its brick and match the
+//    neighbours': seamless filtering). Both sizes are fixed at construction
+//    by a memory budget; both pools are LRU caches.
+//  * Rendering (§3.5): the VolumeQuery descends by point location (child =
+//    c + int(2x)), stops where the node's voxel is no larger than the pixel
+//    cone (LodFootprint) and yields one span per node: constant nodes as
+//    constant spans, brick nodes as brick spans that sample() filters
+//    quadrilinearly between the brick and its parent's.
+//  * Cache and requests (§3.6) through the frame loop (integrator.hpp): rays
+//    stamp every tile and brick they use (ctx.frame, ctx.pass) and push a
+//    data request (kind 1) for a node without data or a subdivide request
+//    (kind 0) for a node without children, answering meanwhile with the
+//    deepest ancestor that has data. end_pass() sorts the usage lists by
+//    order-preserving compaction (used in this pass to the back), recycles
+//    the front (never what this pass used), invalidates pointers in two steps
+//    (zero the recycled elements' timestamps, then null every pointer to a
+//    zero-stamped element), has the producer fill bricks on worker threads and
+//    decide constant vs brick, and subdivides.
+//
+// FrameView::frame must change from one frame to the next: the timestamps
+// tell this pass's use from older use by (frame, pass).
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "voxcast/bitfield.hpp"
+#include "voxcast/structure.hpp"
+#include "voxcast/volume_query.hpp"
+
+namespace voxcast::giga {
+
+/// M: voxels per brick side (without the border).
+constexpr int kBrickSide = 8;
+/// Stored voxels per brick side: one border voxel on each side.
+constexpr int kBrickStored = kBrickSide + 2;
+constexpr int kBrickVoxels = kBrickStored * kBrickStored * kBrickStored;
+/// Deepest node level (localization codes hold 10 bits per axis, §3.6.6).
+constexpr int kMaxLevel = 10;
+
+/// One stored brick voxel, 16 bytes: extinction per unit-cube length and the
+/// color premultiplied by it (so that trilinear filtering of a voxel next to
+/// empty space does not darken its color; the color is (r, g, b) / density).
+///   byte 0: float density   byte 4: float r*density
+///   byte 8: float g*density byte 12: float b*density
+/// Brick b of the pool is kBrickVoxels of these from voxel index
+/// b * kBrickVoxels, x fastest: stored (i, j, k) at i + 10 (j + 10 k), where
+/// stored i is voxel i - 1 of the node's M^3 grid (0 and M + 1: the border).
+struct BrickVoxel {
+  float density, r, g, b;  // trivial: the pool is allocated without writing it
+};
+static_assert(sizeof(BrickVoxel) == 16 && offsetof(BrickVoxel, r) == 4 &&
+              offsetof(BrickVoxel, b) == 12);
+
+// ---- Node pool layout (§3.4.2, Figure 3.5): two 32-bit words per node, in
+// two separate arrays (structure and data are read at different times of the
+// descent). Node n is child (n & 7) of tile n >> 3; its words are at byte
+// offset 4 n of each array; tile t's eight words at byte 32 t. Child bits:
+// bit 0 = x, bit 1 = y, bit 2 = z (the child whose half contains int(2x)).
+// Tile 0 holds the root in its node 0 (nodes 1..7 unused) and is never
+// recycled, so a child pointer of 0 means "no children".
+
+/// Structure word: child tile pointer (30 bits) + terminal flag.
+using NodeChildTile = BitField<0, 30>;  // bytes 0..3, bits 0..29
+using NodeTerminal = BitField<30, 1>;   // bit 30: refined to the maximum
+/// Data word: kind (2 bits) + payload (30 bits): a brick index or an index
+/// into the structure's table of constant values.
+using NodeDataPayload = BitField<0, 30>;  // bits 0..29
+using NodeDataKind = BitField<30, 2>;     // bits 30..31
+enum : uint32_t { kDataNone = 0, kDataConstant = 1, kDataBrick = 2 };
+static_assert(NodeChildTile::mask == 0x3FFFFFFFu && NodeTerminal::mask == 0x40000000u);
+static_assert(NodeDataPayload::mask == 0x3FFFFFFFu && NodeDataKind::mask == 0xC0000000u);
+
+/// Per-tile localization code (§3.6.6): the parent node's cell coordinates
+/// at the parent's level, 10 bits per axis. With the tile's depth (8 bits,
+/// the level of the tile's nodes), node c of the tile is at that level, cell
+/// 2 * code + (c & 1, c >> 1 & 1, c >> 2).
+using LocX = BitField<0, 10>;
+using LocY = BitField<10, 10>;
+using LocZ = BitField<20, 10>;
+static_assert(LocZ::mask == 0x3FF00000u);
+
+/// Request kinds pushed into TraceContext::requests (key = node index).
+enum : uint32_t { kRequestSubdivide = 0, kRequestData = 1 };
+
+/// A node's place in the octree: level L, cell (x, y, z) of the 2^L grid
+/// over the unit cube.
+struct NodeRegion {
+  int level = 0;
+  uint32_t x = 0, y = 0, z = 0;
+};
+
+/// What a producer made of a node.
+struct Produced {
+  bool constant = false;  // the whole node (with its border) holds `value`
+  bool terminal = false;  // no finer level differs: never subdivide
+  VolumeSample value;     // constant nodes only
+};
+
+/// The source of a volume (§3.6.7 "data provider"): filtered voxels at every
+/// level, over the unit cube. Called from worker threads: must be thread-safe.
+class Producer {
+ public:
+  virtual ~Producer() = default;
+  virtual std::string name() const = 0;
+  /// Level of the finest nodes (their bricks hold the full resolution
+  /// 2^max_level x M per axis); nodes at this level are terminal.
+  virtual int max_level() const = 0;
+  /// Voxel (x, y, z) of level L's grid ((2^L M)^3 voxels over the unit
+  /// cube), filtered for that level; empty outside the cube. Density is
+  /// extinction per unit-cube length; color linear RGB.
+  virtual VolumeSample voxel(int level, int64_t x, int64_t y, int64_t z) const = 0;
+  /// True when the node's region (with a one-voxel margin) is provably
+  /// constant at its level and every finer one; sets *value. Default: never.
+  virtual bool constant_below(const NodeRegion& r, VolumeSample* value) const {
+    (void)r, (void)value;
+    return false;
+  }
+  /// Fills `out` (kBrickVoxels, the layout of BrickVoxel) with the node's
+  /// brick from voxel() and decides constant vs brick: constant_below() ->
+  /// constant and terminal; all stored voxels equal -> constant (terminal
+  /// only at max_level); otherwise a brick.
+  Produced produce(const NodeRegion& r, std::span<BrickVoxel> out) const;
+};
+
+/// Procedural producers (issue 12 item 5), `resolution` = voxels per axis
+/// at the finest level (a power of two, 8 .. 8192):
+///  * "cloud": band-limited value-noise fBm inside a soft sphere (octaves
+///    finer than a level's voxel are dropped: each level is prefiltered);
+///  * "mandelbulb": the power-8 Mandelbulb distance estimate;
+///  * "menger": the Menger sponge signed distance;
+/// the two fractals as solids whose voxel density is the coverage
+/// clamp(0.5 - d / voxel, 0, 1) of their distance d. Throws voxcast::Error
+/// for an unknown name or resolution.
+std::shared_ptr<Producer> make_procedural(const std::string& name, int resolution);
+
+/// A scalar volume read from a file (inrimage.cpp).
+struct ScalarVolume {
+  int nx = 0, ny = 0, nz = 0;
+  float vx = 1.f, vy = 1.f, vz = 1.f;  // voxel size (VX, VY, VZ)
+  std::vector<float> values;           // x fastest
+  float at(int x, int y, int z) const {
+    return values[(size_t(z) * size_t(ny) + size_t(y)) * size_t(nx) + size_t(x)];
+  }
+};
+/// INRIMAGE-4 (.inr): a text header "#INRIMAGE-4#{" of KEY=VALUE lines padded
+/// to a multiple of 256 bytes and closed by "##}", then XDIM*YDIM*ZDIM*VDIM
+/// raw samples of TYPE (unsigned fixed | signed fixed | float) and PIXSIZE
+/// bits, byte order CPU (decm/alpha/pc little endian, sun/sgi big). VDIM must
+/// be 1. Validates every field and the data size; throws voxcast::Error with
+/// a one-line message naming the problem.
+ScalarVolume parse_inrimage(std::span<const unsigned char> bytes);
+/// parse_inrimage of a file, gzip'd (.inr.gz) or not (told by its first bytes).
+ScalarVolume read_inrimage(const std::string& path);
+/// Inflates a gzip stream (one-line INRIMAGE errors for a truncated or
+/// corrupted stream; refuses output beyond the largest accepted volume).
+std::vector<unsigned char> gunzip(std::span<const unsigned char> bytes);
+/// Writes `v` as an INRIMAGE-4 float file (tests and tools).
+std::vector<unsigned char> write_inrimage(const ScalarVolume& v);
+/// A producer over a scalar volume: the data centered in the unit cube
+/// (longest side = 1, voxel sizes honoured), values mapped linearly from
+/// [min, max] of the data to densities [0, 1] (a scalar for the volume
+/// integrator's transfer function), color white; coarser levels average
+/// 2x2x2 voxels of the level below.
+std::shared_ptr<Producer> make_volume_producer(const ScalarVolume& v);
+
+struct GigaOptions {
+  /// Memory for both pools (node tiles and bricks in equal numbers).
+  uint64_t budget_bytes = uint64_t(256) << 20;
+  /// Explicit pool sizes (both > 0: used instead of the budget).
+  uint32_t tiles = 0, bricks = 0;
+  /// World placement of the unit cube: [origin, origin + size]^3.
+  Vec3 origin{0, 0, 0};
+  float size = 1.f;
+  /// Producer calls per end_pass (the rest stays pending for later passes).
+  uint32_t max_data_per_pass = 2048;
+  /// Run validate() after every end_pass and throw voxcast::Error on a
+  /// broken invariant (tests).
+  bool check_after_pass = false;
+};
+
+/// What one end_pass did.
+struct GigaPassStats {
+  uint64_t data_requests = 0, subdivide_requests = 0;  // valid requests received
+  uint64_t bricks_uploaded = 0, constants = 0, subdivisions = 0;
+  uint64_t recycled_bricks = 0, recycled_tiles = 0;  // evictions of elements in use before
+  uint64_t pending = 0;                              // valid requests not served
+  uint64_t bricks_used = 0, tiles_used = 0;          // cache hits: elements the pass's rays used
+  uint64_t bricks_resident = 0, tiles_resident = 0;  // pool occupancy after serving
+};
+
+class GigaVoxels : public Structure, public VolumeQuery {
+ public:
+  GigaVoxels(std::shared_ptr<const Producer> producer, GigaOptions options = {});
+  std::string name() const override { return "gigavoxels"; }
+  Aabb bounds() const override;
+  const VolumeQuery* volume() const override { return this; }
+  void begin_frame(const FrameView& view) override;
+  PassOutcome end_pass(std::span<const Request> requests) override;
+
+  int march(const Ray& ray, float t_begin, const LodFootprint& lod, TraceContext& ctx,
+            std::span<VolumeSpan> out) const override;
+  VolumeSample sample(Vec3 p, float level, TraceContext& ctx,
+                      const VolumeSpan* span = nullptr) const override;
+
+  /// Pool capacities.
+  uint32_t tile_capacity() const { return uint32_t(tile_parent_.size()); }
+  uint32_t brick_capacity() const { return uint32_t(brick_owner_.size()); }
+  /// Bytes of both pools and their bookkeeping.
+  uint64_t pool_bytes() const;
+  const Producer& producer() const { return *producer_; }
+  /// end_pass statistics since begin_frame.
+  const std::vector<GigaPassStats>& pass_stats() const { return passes_; }
+
+  /// Checks every pointer of the node pool: a child pointer names an
+  /// allocated tile whose parent is that node and whose localization code and
+  /// depth are the node's child's; a brick pointer names a brick owned by
+  /// that node; the usage lists are permutations of the recyclable elements.
+  /// Returns "" or the first violation.
+  std::string validate() const;
+
+  // ---- Introspection (tests, statistics). ----
+  /// Brick-holding nodes currently resident, with their regions.
+  struct ResidentBrick {
+    uint32_t brick = 0;  // index in the brick pool
+    uint32_t node = 0;   // the node that points to it
+    NodeRegion region;
+    std::span<const BrickVoxel> voxels;
+  };
+  std::vector<ResidentBrick> resident_bricks() const;
+  /// The usage lists (front = least recently used) and timestamps.
+  const std::vector<uint32_t>& tile_usage() const { return tile_usage_; }
+  const std::vector<uint32_t>& brick_usage() const { return brick_usage_; }
+  uint32_t tile_stamp(uint32_t tile) const { return tile_stamp_[tile]; }
+  uint32_t brick_stamp(uint32_t brick) const { return brick_stamp_[brick]; }
+  /// The stamp rays write in (frame, pass): never 0 (0 marks recycled elements).
+  static uint32_t stamp(uint32_t frame, uint32_t pass);
+
+ private:
+  NodeRegion region_of(uint32_t node) const;
+  float voxel_world(int level) const;
+  VolumeSample node_value(uint32_t node, int level, const uint32_t cell[3], Vec3 q,
+                          TraceContext& ctx) const;
+  void touch_tile(uint32_t tile, uint32_t s) const;
+  void touch_brick(uint32_t brick, uint32_t s) const;
+
+  std::shared_ptr<const Producer> producer_;
+  GigaOptions options_;
+  float inv_size_;
+  // Node pool (§3.4): structure and data words, per-tile bookkeeping.
+  std::vector<uint32_t> child_, data_;
+  mutable std::vector<uint32_t> tile_stamp_;
+  std::vector<uint32_t> tile_code_;
+  std::vector<uint8_t> tile_depth_;
+  std::vector<uint32_t> tile_parent_;  // node pointing to the tile; kNoNode when free
+  std::vector<uint32_t> tile_usage_;   // LRU order of tiles 1.. (tile 0 is the root's)
+  // Brick pool.
+  std::unique_ptr<BrickVoxel[]> bricks_;
+  mutable std::vector<uint32_t> brick_stamp_;
+  std::vector<uint32_t> brick_owner_;  // node holding the brick; kNoNode when free
+  std::vector<uint32_t> brick_usage_;
+  // Constant values of constant nodes (deduplicated).
+  std::vector<VolumeSample> constants_;
+  uint32_t frame_ = 0, pass_ = 0;
+  std::vector<GigaPassStats> passes_;
+};
+
+}  // namespace voxcast::giga

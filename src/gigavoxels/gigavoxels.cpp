@@ -1,0 +1,665 @@
+// GigaVoxels pools, volume query and cache management (gigavoxels.hpp).
+#include "voxcast/gigavoxels.hpp"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
+#include <tbb/parallel_scan.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstring>
+#include <map>
+
+#include "voxcast/error.hpp"
+#include "voxcast/integrator.hpp"
+
+namespace voxcast::giga {
+namespace {
+
+constexpr uint32_t kNoNode = 0xFFFFFFFFu;
+// Bytes per element: a tile's 8 nodes x 2 words + stamp, code, depth,
+// parent, usage entry; a brick's voxels + stamp, owner, usage entry.
+constexpr uint64_t kTileBytes = 8 * 8 + 4 + 4 + 1 + 4 + 4;
+constexpr uint64_t kBrickBytes = uint64_t(kBrickVoxels) * sizeof(BrickVoxel) + 12;
+constexpr uint32_t kMaxPoolElements = uint32_t(1) << 26;
+
+inline size_t stored_index(int i, int j, int k) {
+  return size_t(i) + size_t(kBrickStored) * (size_t(j) + size_t(kBrickStored) * size_t(k));
+}
+
+/// Child bit along one axis (the paper's int(2x), x in [0, 1]) and the
+/// coordinate within that child (2x - int(2x)).
+inline uint32_t child_bit(float* x) {
+  const float x2 = 2.f * *x;
+  const uint32_t b = x2 >= 1.f ? 1u : 0u;
+  *x = std::clamp(x2 - float(b), 0.f, 1.f);
+  return b;
+}
+
+float request_priority(int level) {
+  return float(kMaxLevel - level);
+}
+
+/// The requests this context pushed lately, in its accessor cache: a ray
+/// asks for the same node at every sample and every neighbouring ray asks
+/// again, which would fill the fixed-capacity buffer with duplicates and
+/// make what survives depend on the thread schedule. Direct-mapped on the
+/// node index. The volume integrator resets the cache at every tile (the
+/// frame loop must see each asking tile push), the frame loop at every pass.
+struct RecentRequests {
+  static constexpr int kSlots = 31;  // 248 bytes: fits AccessorCache::kBytes
+  uint64_t entry[kSlots];            // node * 2 + kind, + 1 (0 = empty)
+};
+static_assert(sizeof(RecentRequests) <= AccessorCache::kBytes);
+
+void push_request(TraceContext& ctx, const void* owner, uint32_t kind, uint32_t node, int level) {
+  RecentRequests& recent = ctx.cache.get<RecentRequests>(owner);
+  const uint64_t tag = (uint64_t(node) << 1 | kind) + 1;
+  uint64_t& slot = recent.entry[tag % RecentRequests::kSlots];
+  if (slot == tag) return;
+  slot = tag;
+  ctx.requests.push(kind, node, request_priority(level));
+}
+
+/// Order-preserving compaction of a usage list (§3.6.2, Figures 3.17-3.18):
+/// the elements not stamped `now` keep their order at the front, the ones
+/// used in this pass keep theirs at the back. A TBB parallel scan computes
+/// each unused element's destination (the used ones follow from it).
+/// Returns the number of unused elements.
+size_t lru_compact(std::vector<uint32_t>* usage, const std::vector<uint32_t>& stamps, uint32_t now,
+                   std::vector<uint32_t>* scratch) {
+  const size_t n = usage->size();
+  const std::vector<uint32_t>& u = *usage;
+  const size_t unused = tbb::parallel_reduce(
+      tbb::blocked_range<size_t>(0, n, 4096), size_t(0),
+      [&](const tbb::blocked_range<size_t>& r, size_t acc) {
+        for (size_t i = r.begin(); i != r.end(); ++i) acc += stamps[u[i]] != now;
+        return acc;
+      },
+      std::plus<size_t>());
+  scratch->resize(n);
+  uint32_t* out = scratch->data();
+  tbb::parallel_scan(
+      tbb::blocked_range<size_t>(0, n, 4096), size_t(0),
+      [&](const tbb::blocked_range<size_t>& r, size_t before, bool is_final) {
+        for (size_t i = r.begin(); i != r.end(); ++i) {
+          const bool is_unused = stamps[u[i]] != now;
+          // `before` = unused elements before i; used ones before i = i - before.
+          if (is_final) out[is_unused ? before : unused + (i - before)] = u[i];
+          before += is_unused;
+        }
+        return before;
+      },
+      std::plus<size_t>());
+  usage->swap(*scratch);
+  return unused;
+}
+
+}  // namespace
+
+uint32_t GigaVoxels::stamp(uint32_t frame, uint32_t pass) {
+  return (((frame & 0x7FFFFFu) << 8) | std::min(pass, 255u)) + 1u;
+}
+
+// ---- Producer ----
+
+Produced Producer::produce(const NodeRegion& r, std::span<BrickVoxel> out) const {
+  if (out.size() < size_t(kBrickVoxels)) throw Error("producer: brick buffer too small");
+  Produced p;
+  VolumeSample c;
+  if (constant_below(r, &c)) {
+    p.constant = p.terminal = true, p.value = c;
+    return p;
+  }
+  const int64_t x0 = int64_t(r.x) * kBrickSide - 1, y0 = int64_t(r.y) * kBrickSide - 1,
+                z0 = int64_t(r.z) * kBrickSide - 1;
+  bool same = true;
+  VolumeSample first;
+  for (int k = 0; k < kBrickStored; ++k)
+    for (int j = 0; j < kBrickStored; ++j)
+      for (int i = 0; i < kBrickStored; ++i) {
+        const VolumeSample v = voxel(r.level, x0 + i, y0 + j, z0 + k);
+        const size_t at = stored_index(i, j, k);
+        out[at] = {v.density, v.color.r * v.density, v.color.g * v.density, v.color.b * v.density};
+        if (at == 0)
+          first = v;
+        else if (v.density != first.density ||
+                 (v.density != 0.f && (v.color.r != first.color.r || v.color.g != first.color.g ||
+                                       v.color.b != first.color.b)))
+          same = false;
+      }
+  if (same) {
+    p.constant = true;
+    p.value = first.density == 0.f ? VolumeSample{} : first;
+  }
+  p.terminal = r.level >= max_level();
+  return p;
+}
+
+// ---- Construction ----
+
+GigaVoxels::GigaVoxels(std::shared_ptr<const Producer> producer, GigaOptions options)
+    : producer_(std::move(producer)), options_(options) {
+  if (!producer_) throw Error("gigavoxels: no producer");
+  if (producer_->max_level() < 0 || producer_->max_level() > kMaxLevel)
+    throw Error("gigavoxels: producer levels must be in 0.." + std::to_string(kMaxLevel));
+  if (!(options_.size > 0.f) || !std::isfinite(options_.size) || !is_finite(options_.origin))
+    throw Error("gigavoxels: the volume's size must be a positive number");
+  if (options_.max_data_per_pass == 0) throw Error("gigavoxels: max_data_per_pass must be > 0");
+  uint64_t tiles = options_.tiles, bricks = options_.bricks;
+  if (tiles == 0 || bricks == 0) {
+    const uint64_t n = options_.budget_bytes / (kTileBytes + kBrickBytes);
+    tiles = n, bricks = n;
+  }
+  if (tiles < 2 || bricks < 1)
+    throw Error("gigavoxels: the memory budget holds no brick (at least " +
+                std::to_string(2 * kTileBytes + kBrickBytes) + " bytes)");
+  tiles = std::min<uint64_t>(tiles, kMaxPoolElements);
+  bricks = std::min<uint64_t>(bricks, kMaxPoolElements);
+  inv_size_ = 1.f / options_.size;
+
+  child_.assign(size_t(tiles) * 8, 0);
+  data_.assign(size_t(tiles) * 8, 0);
+  tile_stamp_.assign(size_t(tiles), 0);
+  tile_code_.assign(size_t(tiles), 0);
+  tile_depth_.assign(size_t(tiles), 0);
+  tile_parent_.assign(size_t(tiles), kNoNode);
+  tile_usage_.resize(size_t(tiles) - 1);
+  for (uint32_t t = 1; t < tiles; ++t) tile_usage_[t - 1] = t;
+  bricks_ = std::make_unique_for_overwrite<BrickVoxel[]>(size_t(bricks) * kBrickVoxels);
+  brick_stamp_.assign(size_t(bricks), 0);
+  brick_owner_.assign(size_t(bricks), kNoNode);
+  brick_usage_.resize(size_t(bricks));
+  for (uint32_t b = 0; b < bricks; ++b) brick_usage_[b] = b;
+}
+
+Aabb GigaVoxels::bounds() const {
+  const Vec3 s{options_.size, options_.size, options_.size};
+  return {options_.origin, options_.origin + s};
+}
+
+uint64_t GigaVoxels::pool_bytes() const {
+  return uint64_t(tile_capacity()) * kTileBytes + uint64_t(brick_capacity()) * kBrickBytes;
+}
+
+NodeRegion GigaVoxels::region_of(uint32_t node) const {
+  const uint32_t tile = node >> 3, c = node & 7u;
+  if (tile == 0) return {};
+  const uint32_t code = tile_code_[tile];
+  return {int(tile_depth_[tile]), 2 * LocX::get(code) + (c & 1u),
+          2 * LocY::get(code) + ((c >> 1) & 1u), 2 * LocZ::get(code) + (c >> 2)};
+}
+
+float GigaVoxels::voxel_world(int level) const {
+  return options_.size / float(kBrickSide << level);
+}
+
+void GigaVoxels::touch_tile(uint32_t tile, uint32_t s) const {
+  // Every ray writes the same value: a relaxed store, no read-modify-write.
+  std::atomic_ref<uint32_t>(tile_stamp_[tile]).store(s, std::memory_order_relaxed);
+}
+void GigaVoxels::touch_brick(uint32_t brick, uint32_t s) const {
+  std::atomic_ref<uint32_t>(brick_stamp_[brick]).store(s, std::memory_order_relaxed);
+}
+
+void GigaVoxels::begin_frame(const FrameView& view) {
+  frame_ = view.frame, pass_ = 0;
+  passes_.clear();
+}
+
+// ---- Volume query ----
+
+int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, TraceContext& ctx,
+                      std::span<VolumeSpan> out) const {
+  if (out.empty()) return 0;
+  // The ray in unit-cube coordinates (t stays the world t).
+  const Vec3 o = (ray.origin - options_.origin) * inv_size_, d = ray.dir * inv_size_;
+  float t0 = std::max(0.f, t_begin), t1 = ray.tmax;
+  for (int a = 0; a < 3; ++a) {
+    if (d[a] == 0.f) {
+      if (!(o[a] >= 0.f && o[a] <= 1.f)) return 0;
+      continue;
+    }
+    float ta = -o[a] / d[a], tb = (1.f - o[a]) / d[a];
+    if (ta > tb) std::swap(ta, tb);
+    t0 = std::max(t0, ta), t1 = std::min(t1, tb);
+  }
+  if (!(t1 > t0)) return 0;
+  const uint32_t s = stamp(ctx.frame, ctx.pass);
+  const int max_level = producer_->max_level();
+  // Each node is located from a point slightly past its entry, so that the
+  // descent never picks the node the ray just left (progress is at least eps).
+  const float eps =
+      std::max(1e-3f * voxel_world(max_level), 4.f * std::numeric_limits<float>::epsilon() * t1);
+  int n = 0;
+  float t = t0;
+  while (t < t1 && n < int(out.size())) {
+    const float tp = std::min(t + eps, 0.5f * (t + t1));
+    float x[3];
+    for (int a = 0; a < 3; ++a) x[a] = std::clamp(o[a] + d[a] * tp, 0.f, 1.f);
+    const float foot = lod.size_at_origin + lod.size_per_t * t;
+    // Descent by point location (§3.5.3): child = c + int(2x), x = 2x - int(2x).
+    uint32_t node = 0, cell[3] = {0, 0, 0};
+    int level = 0;
+    uint32_t fallback = kNoNode;
+    int fallback_level = 0;
+    bool asked = false;
+    for (;;) {
+      const uint32_t kind = NodeDataKind::get(data_[node]);
+      if (kind != kDataNone) fallback = node, fallback_level = level;
+      const uint32_t cw = child_[node];
+      if (voxel_world(level) <= foot || NodeTerminal::test(cw) || level >= max_level) break;
+      const uint32_t tile = NodeChildTile::get(cw);
+      if (tile == 0) {
+        // §3.6.4: a node without data asks for data first (the producer may
+        // find it constant or terminal); one with data asks to be subdivided.
+        push_request(ctx, this, kind == kDataNone ? kRequestData : kRequestSubdivide, node, level);
+        asked = true;
+        break;
+      }
+      touch_tile(tile, s);
+      uint32_t c = 0;
+      for (int a = 0; a < 3; ++a) {
+        const uint32_t b = child_bit(&x[a]);
+        c |= b << a, cell[a] = 2 * cell[a] + b;
+      }
+      node = tile * 8 + c, ++level;
+    }
+    if (fallback != node && !asked) push_request(ctx, this, kRequestData, node, level);
+    // Exit of the node's box [cell, cell + 1] / 2^level.
+    const float scale = std::ldexp(1.f, -level);
+    float te = t1;
+    for (int a = 0; a < 3; ++a) {
+      if (d[a] > 0.f) te = std::min(te, (float(cell[a] + 1) * scale - o[a]) / d[a]);
+      if (d[a] < 0.f) te = std::min(te, (float(cell[a]) * scale - o[a]) / d[a]);
+    }
+    if (!(te > t)) te = std::min(t1, t + eps);
+    if (fallback != kNoNode) {
+      const uint32_t dw = data_[fallback];
+      VolumeSpan span;
+      span.t0 = t, span.t1 = te, span.node = fallback, span.level = fallback_level;
+      span.voxel_size = voxel_world(fallback_level);
+      if (NodeDataKind::get(dw) == kDataConstant) {
+        const VolumeSample& v = constants_[NodeDataPayload::get(dw)];
+        span.constant = true;
+        span.value = {v.density * inv_size_, v.color};
+        if (v.density > 0.f) out[size_t(n++)] = span;  // empty space yields no span
+      } else {
+        touch_brick(NodeDataPayload::get(dw), s);
+        out[size_t(n++)] = span;
+      }
+    }
+    t = te;
+  }
+  return n;
+}
+
+VolumeSample GigaVoxels::node_value(uint32_t node, int level, const uint32_t cell[3], Vec3 q,
+                                    TraceContext& ctx) const {
+  const uint32_t dw = data_[node];
+  const uint32_t kind = NodeDataKind::get(dw), payload = NodeDataPayload::get(dw);
+  if (kind == kDataConstant) {
+    const VolumeSample& v = constants_[payload];
+    return {v.density * inv_size_, v.color};
+  }
+  touch_brick(payload, stamp(ctx.frame, ctx.pass));
+  // Trilinear lookup: stored voxel i is centered at (i - 0.5) / M of the node.
+  const float scale = std::ldexp(1.f, level);
+  int i0[3];
+  float f[3];
+  for (int a = 0; a < 3; ++a) {
+    const float u = (q[a] * scale - float(cell[a])) * float(kBrickSide) + 0.5f;
+    const float fl = std::clamp(std::floor(u), 0.f, float(kBrickSide));
+    i0[a] = int(fl);
+    f[a] = std::clamp(u - fl, 0.f, 1.f);
+  }
+  const BrickVoxel* b = &bricks_[size_t(payload) * kBrickVoxels];
+  float acc[4] = {0.f, 0.f, 0.f, 0.f};
+  for (int k = 0; k < 2; ++k)
+    for (int j = 0; j < 2; ++j)
+      for (int i = 0; i < 2; ++i) {
+        const float w = (i ? f[0] : 1.f - f[0]) * (j ? f[1] : 1.f - f[1]) * (k ? f[2] : 1.f - f[2]);
+        const BrickVoxel& v = b[stored_index(i0[0] + i, i0[1] + j, i0[2] + k)];
+        acc[0] += w * v.density, acc[1] += w * v.r, acc[2] += w * v.g, acc[3] += w * v.b;
+      }
+  VolumeSample out;
+  out.density = acc[0] * inv_size_;
+  if (acc[0] > 0.f) out.color = {acc[1] / acc[0], acc[2] / acc[0], acc[3] / acc[0], 1.f};
+  return out;
+}
+
+VolumeSample GigaVoxels::sample(Vec3 p, float level, TraceContext& ctx,
+                                const VolumeSpan* span) const {
+  const Vec3 q = (p - options_.origin) * inv_size_;
+  for (int a = 0; a < 3; ++a)
+    if (!(q[a] >= 0.f && q[a] <= 1.f)) return {};
+  const int max_level = producer_->max_level();
+  const float lv = std::clamp(level, 0.f, float(max_level));
+  const int lo = int(std::floor(lv));
+  const float f = lv - float(lo);
+  const int want = f > 0.f ? lo + 1 : lo;  // the finer of the two levels
+
+  // The nodes at levels `want` and want - 1 containing q: from the span's
+  // node when it is the right one (no descent), else by descending.
+  uint32_t fine = kNoNode, coarse = kNoNode;
+  uint32_t fine_cell[3] = {0, 0, 0}, coarse_cell[3] = {0, 0, 0};
+  int fine_level = 0, coarse_level = 0;
+  if (span != nullptr && !span->constant && span->level == want && span->node != 0 &&
+      span->node < child_.size()) {
+    const uint32_t node = uint32_t(span->node);
+    const NodeRegion r = region_of(node);
+    const float scale = std::ldexp(1.f, r.level), margin = 0.5f / float(kBrickSide);
+    const uint32_t rc[3] = {r.x, r.y, r.z};
+    bool inside = NodeDataKind::get(data_[node]) != kDataNone;
+    for (int a = 0; a < 3 && inside; ++a) {
+      const float u = q[a] * scale - float(rc[a]);
+      inside = u >= -margin && u <= 1.f + margin;
+    }
+    if (inside) {
+      fine = node, fine_level = r.level;
+      std::copy(rc, rc + 3, fine_cell);
+      const uint32_t parent = tile_parent_[node >> 3];
+      const NodeRegion pr = region_of(parent);
+      coarse = parent, coarse_level = pr.level;
+      coarse_cell[0] = pr.x, coarse_cell[1] = pr.y, coarse_cell[2] = pr.z;
+    }
+  }
+  if (fine == kNoNode) {
+    // Descend to `want`, remembering the deepest node with data and the
+    // node one level above it (§3.5.4 keeps the last visited nodes).
+    uint32_t node = 0, cell[3] = {0, 0, 0}, prev = kNoNode, prev_cell[3] = {0, 0, 0};
+    float x[3] = {q.x, q.y, q.z};
+    const uint32_t s = stamp(ctx.frame, ctx.pass);
+    for (int l = 0;; ++l) {
+      if (NodeDataKind::get(data_[node]) != kDataNone) {
+        fine = node, fine_level = l;
+        std::copy(cell, cell + 3, fine_cell);
+        coarse = prev, coarse_level = l - 1;
+        std::copy(prev_cell, prev_cell + 3, coarse_cell);
+      }
+      const uint32_t tile = NodeChildTile::get(child_[node]);
+      if (l == want || tile == 0) break;
+      touch_tile(tile, s);
+      prev = node;
+      std::copy(cell, cell + 3, prev_cell);
+      uint32_t c = 0;
+      for (int a = 0; a < 3; ++a) {
+        const uint32_t b = child_bit(&x[a]);
+        c |= b << a, cell[a] = 2 * cell[a] + b;
+      }
+      node = tile * 8 + c;
+    }
+    if (fine == kNoNode) return {};
+  }
+  const VolumeSample v1 = node_value(fine, fine_level, fine_cell, q, ctx);
+  // Quadrilinear (§3.5.4, Listing 3.1): blend with the parent's brick when
+  // the wanted level lies between them; a coarser answer stands alone.
+  if (fine_level != want || f == 0.f || coarse == kNoNode) return v1;
+  if (NodeDataKind::get(data_[coarse]) == kDataNone) {
+    push_request(ctx, this, kRequestData, coarse, coarse_level);
+    return v1;
+  }
+  const VolumeSample v0 = node_value(coarse, coarse_level, coarse_cell, q, ctx);
+  // Blend extinction and extinction-weighted color (premultiplied, as in the bricks).
+  const float d = (1.f - f) * v0.density + f * v1.density;
+  VolumeSample out;
+  out.density = d;
+  if (d > 0.f) {
+    const float w0 = (1.f - f) * v0.density / d, w1 = f * v1.density / d;
+    out.color = {w0 * v0.color.r + w1 * v1.color.r, w0 * v0.color.g + w1 * v1.color.g,
+                 w0 * v0.color.b + w1 * v1.color.b, 1.f};
+  }
+  return out;
+}
+
+// ---- Serving requests (§3.6) ----
+
+PassOutcome GigaVoxels::end_pass(std::span<const Request> requests) {
+  const uint32_t now = stamp(frame_, pass_);
+  GigaPassStats st;
+  std::vector<uint32_t> scratch;
+  // LRU: used elements to the back, order kept (§3.6.2).
+  const size_t free_tiles = lru_compact(&tile_usage_, tile_stamp_, now, &scratch);
+  const size_t free_bricks = lru_compact(&brick_usage_, brick_stamp_, now, &scratch);
+  st.tiles_used = tile_usage_.size() - free_tiles;
+  st.bricks_used = brick_usage_.size() - free_bricks;
+
+  // Valid requests, most urgent (coarsest) first (§3.6.1: top-down refinement).
+  const int max_level = producer_->max_level();
+  std::vector<Request> data, subdivide;
+  for (const Request& r : requests) {
+    if (r.key >= child_.size()) continue;
+    const uint32_t node = uint32_t(r.key), tile = node >> 3;
+    if (tile == 0 ? node != 0 : tile_parent_[tile] == kNoNode) continue;
+    const uint32_t kind = NodeDataKind::get(data_[node]);
+    if (r.kind == kRequestData && kind == kDataNone) data.push_back(r);
+    if (r.kind == kRequestSubdivide && kind != kDataNone && NodeChildTile::get(child_[node]) == 0 &&
+        !NodeTerminal::test(child_[node]) && region_of(node).level < max_level)
+      subdivide.push_back(r);
+  }
+  auto urgent_first = [](const Request& a, const Request& b) {
+    return a.priority != b.priority ? a.priority > b.priority : a.key < b.key;
+  };
+  std::sort(data.begin(), data.end(), urgent_first);
+  std::sort(subdivide.begin(), subdivide.end(), urgent_first);
+  st.data_requests = data.size(), st.subdivide_requests = subdivide.size();
+  if (data.size() > options_.max_data_per_pass) {
+    st.pending += data.size() - options_.max_data_per_pass;
+    data.resize(options_.max_data_per_pass);
+  }
+
+  // The producer fills bricks on worker threads and decides constant vs brick (§3.6.7).
+  std::vector<BrickVoxel> produced_voxels(data.size() * size_t(kBrickVoxels));
+  std::vector<Produced> produced(data.size());
+  tbb::parallel_for(
+      tbb::blocked_range<size_t>(0, data.size(), 1), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t i = r.begin(); i != r.end(); ++i)
+          produced[i] =
+              producer_->produce(region_of(uint32_t(data[i].key)),
+                                 std::span(&produced_voxels[i * kBrickVoxels], kBrickVoxels));
+      });
+  size_t bricks_needed = 0;
+  for (const Produced& p : produced) bricks_needed += !p.constant;
+  const size_t new_bricks = std::min(bricks_needed, free_bricks);
+  const size_t new_tiles = std::min(subdivide.size(), free_tiles);
+  st.pending += (bricks_needed - new_bricks) + (subdivide.size() - new_tiles);
+
+  // Two-step invalidation (§3.6.2, Figure 3.19). Step 1: zero the timestamps
+  // of what is recycled: the front of each usage list, and with a recycled
+  // tile its whole subtree (descendants of a tile unused in this pass are
+  // unused too) and the subtree's bricks.
+  std::vector<uint32_t> freed_tiles;
+  std::vector<uint8_t> is_freed(new_tiles > 0 ? tile_parent_.size() : 0, 0);
+  for (size_t i = 0; i < new_tiles; ++i) {
+    const uint32_t t = tile_usage_[i];
+    if (tile_parent_[t] != kNoNode) ++st.recycled_tiles;
+    if (!is_freed[t]) freed_tiles.push_back(t), is_freed[t] = 1;
+  }
+  for (size_t i = 0; i < freed_tiles.size(); ++i) {
+    const uint32_t t = freed_tiles[i];
+    tile_stamp_[t] = 0;
+    if (tile_parent_[t] == kNoNode) continue;
+    for (uint32_t c = 0; c < 8; ++c) {
+      const uint32_t node = t * 8 + c;
+      if (NodeDataKind::get(data_[node]) == kDataBrick) {
+        const uint32_t b = NodeDataPayload::get(data_[node]);
+        brick_stamp_[b] = 0, brick_owner_[b] = kNoNode;
+      }
+      const uint32_t ct = NodeChildTile::get(child_[node]);
+      if (ct != 0 && !is_freed[ct]) freed_tiles.push_back(ct), is_freed[ct] = 1;
+    }
+  }
+  for (size_t i = 0; i < new_bricks; ++i) {
+    const uint32_t b = brick_usage_[i];
+    if (brick_owner_[b] != kNoNode) ++st.recycled_bricks;
+    brick_stamp_[b] = 0;
+  }
+  // Step 2: every allocated node's pointer to a zero-stamped element is nulled.
+  if (new_tiles + new_bricks > 0)
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, tile_parent_.size(), 1024),
+                      [&](const tbb::blocked_range<size_t>& r) {
+                        for (size_t t = r.begin(); t != r.end(); ++t) {
+                          if (t != 0 && tile_parent_[t] == kNoNode) continue;
+                          for (size_t node = t * 8; node < t * 8 + 8; ++node) {
+                            const uint32_t ct = NodeChildTile::get(child_[node]);
+                            if (ct != 0 && tile_stamp_[ct] == 0)
+                              child_[node] = NodeChildTile::set(child_[node], 0);
+                            if (NodeDataKind::get(data_[node]) == kDataBrick &&
+                                brick_stamp_[NodeDataPayload::get(data_[node])] == 0)
+                              data_[node] = 0;
+                          }
+                        }
+                      });
+  for (uint32_t t : freed_tiles) {
+    std::fill_n(&child_[size_t(t) * 8], 8, 0u);
+    std::fill_n(&data_[size_t(t) * 8], 8, 0u);
+    tile_parent_[t] = kNoNode;
+  }
+  for (size_t i = 0; i < new_bricks; ++i) brick_owner_[brick_usage_[i]] = kNoNode;
+
+  // Data first (§3.6.5), then subdivisions; the new elements move to the
+  // back of their usage lists, as if just used.
+  bool changed = false;
+  size_t next_brick = 0;
+  for (size_t i = 0; i < data.size(); ++i) {
+    const uint32_t node = uint32_t(data[i].key);
+    if ((node >> 3) != 0 && tile_parent_[node >> 3] == kNoNode) continue;  // freed above
+    const Produced& p = produced[i];
+    uint32_t word;
+    if (p.constant) {
+      const auto same = [&](const VolumeSample& c) {
+        return c.density == p.value.density && c.color.r == p.value.color.r &&
+               c.color.g == p.value.color.g && c.color.b == p.value.color.b;
+      };
+      auto it = std::find_if(constants_.begin(), constants_.end(), same);
+      if (it == constants_.end()) {
+        if (constants_.size() > NodeDataPayload::max) continue;
+        constants_.push_back(p.value);
+        it = constants_.end() - 1;
+      }
+      word = NodeDataKind::put(kDataConstant) |
+             NodeDataPayload::put(uint32_t(it - constants_.begin()));
+      ++st.constants;
+    } else {
+      if (next_brick == new_bricks) continue;  // pending: no brick left in this pass
+      const uint32_t b = brick_usage_[next_brick++];
+      std::memcpy(&bricks_[size_t(b) * kBrickVoxels], &produced_voxels[i * kBrickVoxels],
+                  sizeof(BrickVoxel) * kBrickVoxels);
+      brick_owner_[b] = node, brick_stamp_[b] = now;
+      word = NodeDataKind::put(kDataBrick) | NodeDataPayload::put(b);
+      ++st.bricks_uploaded;
+    }
+    data_[node] = word;
+    if (p.terminal) child_[node] = NodeTerminal::set(child_[node], 1);
+    changed = true;
+  }
+  std::rotate(brick_usage_.begin(), brick_usage_.begin() + std::ptrdiff_t(next_brick),
+              brick_usage_.end());
+  size_t next_tile = 0;
+  for (size_t i = 0; i < new_tiles; ++i) {
+    const uint32_t node = uint32_t(subdivide[i].key);
+    if ((node >> 3) != 0 && tile_parent_[node >> 3] == kNoNode) continue;
+    if (NodeChildTile::get(child_[node]) != 0) continue;
+    const uint32_t t = tile_usage_[next_tile++];
+    const NodeRegion r = region_of(node);
+    tile_parent_[t] = node, tile_stamp_[t] = now;
+    tile_code_[t] = LocX::put(r.x) | LocY::put(r.y) | LocZ::put(r.z);
+    tile_depth_[t] = uint8_t(r.level + 1);
+    child_[node] = NodeChildTile::set(child_[node], t);
+    ++st.subdivisions, changed = true;
+  }
+  std::rotate(tile_usage_.begin(), tile_usage_.begin() + std::ptrdiff_t(next_tile),
+              tile_usage_.end());
+  // Freed elements not reused are at the front already (they were the oldest).
+
+  for (uint32_t t = 1; t < tile_parent_.size(); ++t)
+    st.tiles_resident += tile_parent_[t] != kNoNode;
+  for (uint32_t owner : brick_owner_) st.bricks_resident += owner != kNoNode;
+  passes_.push_back(st);
+  ++pass_;
+  if (options_.check_after_pass) {
+    const std::string problem = validate();
+    if (!problem.empty())
+      throw Error("gigavoxels: after pass " + std::to_string(pass_) + ": " + problem);
+  }
+  PassOutcome out;
+  out.changed = changed;
+  out.served = st.bricks_uploaded + st.constants + st.subdivisions;
+  out.pending = st.pending;
+  return out;
+}
+
+// ---- Checks and introspection ----
+
+std::string GigaVoxels::validate() const {
+  const uint32_t tiles = tile_capacity(), bricks = brick_capacity();
+  auto allocated = [&](uint32_t t) { return t == 0 || tile_parent_[t] != kNoNode; };
+  for (uint32_t t = 0; t < tiles; ++t) {
+    for (uint32_t c = 0; c < 8; ++c) {
+      const uint32_t node = t * 8 + c;
+      const std::string where = "node " + std::to_string(node);
+      if (!allocated(t) || (t == 0 && c != 0)) {
+        if (child_[node] != 0 || data_[node] != 0) return where + " of a free tile has pointers";
+        continue;
+      }
+      const uint32_t ct = NodeChildTile::get(child_[node]);
+      if (ct != 0) {
+        if (ct >= tiles || !allocated(ct)) return where + " points to a free tile";
+        if (tile_parent_[ct] != node) return where + " points to another node's tile";
+        if (tile_stamp_[ct] == 0) return where + " points to an invalidated tile";
+        const NodeRegion r = region_of(node);
+        const uint32_t code = tile_code_[ct];
+        if (tile_depth_[ct] != r.level + 1 || LocX::get(code) != r.x || LocY::get(code) != r.y ||
+            LocZ::get(code) != r.z)
+          return where + ": child tile's localization code is not the node's";
+      }
+      const uint32_t dw = data_[node];
+      const uint32_t kind = NodeDataKind::get(dw), payload = NodeDataPayload::get(dw);
+      if (kind == kDataBrick) {
+        if (payload >= bricks) return where + " points past the brick pool";
+        if (brick_owner_[payload] != node) return where + " points to another node's brick";
+        if (brick_stamp_[payload] == 0) return where + " points to an invalidated brick";
+      } else if (kind == kDataConstant) {
+        if (payload >= constants_.size()) return where + " names a missing constant";
+      } else if (kind != kDataNone) {
+        return where + " has an unknown data kind";
+      }
+    }
+  }
+  for (uint32_t t = 1; t < tiles; ++t)
+    if (allocated(t) && NodeChildTile::get(child_[tile_parent_[t]]) != t)
+      return "tile " + std::to_string(t) + " is not its parent's child (orphan)";
+  for (uint32_t b = 0; b < bricks; ++b) {
+    const uint32_t owner = brick_owner_[b];
+    if (owner != kNoNode &&
+        (owner >= data_.size() ||
+         data_[owner] != (NodeDataKind::put(kDataBrick) | NodeDataPayload::put(b))))
+      return "brick " + std::to_string(b) + " is not its owner's brick";
+  }
+  auto permutation = [](const std::vector<uint32_t>& list, uint32_t first, uint32_t end) {
+    std::vector<uint8_t> seen(end, 0);
+    if (list.size() != end - first) return false;
+    for (uint32_t e : list) {
+      if (e < first || e >= end || seen[e]) return false;
+      seen[e] = 1;
+    }
+    return true;
+  };
+  if (!permutation(tile_usage_, 1, tiles)) return "the tile usage list is not a permutation";
+  if (!permutation(brick_usage_, 0, bricks)) return "the brick usage list is not a permutation";
+  return {};
+}
+
+std::vector<GigaVoxels::ResidentBrick> GigaVoxels::resident_bricks() const {
+  std::vector<ResidentBrick> out;
+  for (uint32_t b = 0; b < brick_capacity(); ++b)
+    if (brick_owner_[b] != kNoNode)
+      out.push_back(
+          {b, brick_owner_[b], region_of(brick_owner_[b]),
+           std::span<const BrickVoxel>(&bricks_[size_t(b) * kBrickVoxels], kBrickVoxels)});
+  return out;
+}
+
+}  // namespace voxcast::giga

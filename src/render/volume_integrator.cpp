@@ -1,0 +1,246 @@
+// The volume integrator of volume_integrator.hpp: front-to-back
+// emission-absorption over VolumeQuery spans.
+#include "voxcast/volume_integrator.hpp"
+
+#include <array>
+#include <atomic>
+#include <charconv>
+#include <cmath>
+#include <string_view>
+
+#include "voxcast/error.hpp"
+
+namespace voxcast {
+
+// ---- Transfer function ----
+
+TransferFunction::TransferFunction(std::vector<Point> points) : points_(std::move(points)) {
+  for (size_t i = 0; i < points_.size(); ++i) {
+    const Point& p = points_[i];
+    if (!std::isfinite(p.value) || !std::isfinite(p.density) || p.density < 0.f)
+      throw Error("transfer function: values and densities must be finite, densities >= 0");
+    if (i > 0 && !(p.value > points_[i - 1].value))
+      throw Error("transfer function: values must be strictly increasing");
+  }
+}
+
+VolumeSample TransferFunction::operator()(float s) const {
+  if (points_.empty()) return {};
+  auto out = [](const Point& p) { return VolumeSample{p.density, p.color}; };
+  if (!(s > points_.front().value)) return out(points_.front());
+  if (!(s < points_.back().value)) return out(points_.back());
+  // First point above s (few points: a linear scan beats a search).
+  size_t i = 1;
+  while (points_[i].value <= s) ++i;
+  const Point &a = points_[i - 1], &b = points_[i];
+  const float f = (s - a.value) / (b.value - a.value), g = 1.f - f;
+  return VolumeSample{g * a.density + f * b.density,
+                      Color{g * a.color.r + f * b.color.r, g * a.color.g + f * b.color.g,
+                            g * a.color.b + f * b.color.b, 1.f}};
+}
+
+namespace {
+
+float parse_float(std::string_view s, const std::string& whole) {
+  float v = 0.f;
+  const auto [end, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
+  if (ec != std::errc() || end != s.data() + s.size() || s.empty())
+    throw Error("transfer function '" + whole + "': '" + std::string(s) + "' is not a number");
+  return v;
+}
+
+std::vector<std::string_view> split(std::string_view s, char sep) {
+  std::vector<std::string_view> parts;
+  size_t start = 0;
+  for (size_t i = 0; i <= s.size(); ++i)
+    if (i == s.size() || s[i] == sep) parts.push_back(s.substr(start, i - start)), start = i + 1;
+  return parts;
+}
+
+}  // namespace
+
+TransferFunction TransferFunction::parse(const std::string& text) {
+  std::vector<Point> points;
+  for (std::string_view item : split(text, ';')) {
+    const auto fields = split(item, ':');
+    if (fields.size() != 3)
+      throw Error("transfer function '" + text + "': expected value:density:r,g,b per point");
+    const auto rgb = split(fields[2], ',');
+    if (rgb.size() != 3)
+      throw Error("transfer function '" + text + "': a color is three numbers r,g,b");
+    Point p;
+    p.value = parse_float(fields[0], text);
+    p.density = parse_float(fields[1], text);
+    p.color = {parse_float(rgb[0], text), parse_float(rgb[1], text), parse_float(rgb[2], text),
+               1.f};
+    points.push_back(p);
+  }
+  return TransferFunction(std::move(points));
+}
+
+// ---- Integrator ----
+
+struct VolumeIntegrator::Totals {
+  std::atomic<uint64_t> rays{0}, spans{0}, samples{0}, early{0};
+};
+
+VolumeIntegrator::VolumeIntegrator(VolumeIntegratorOptions options)
+    : options_(std::move(options)), totals_(std::make_shared<Totals>()) {
+  if (!(options_.step_scale > 0.f) || !std::isfinite(options_.step_scale))
+    throw Error("volume integrator: step_scale must be a positive number");
+  if (!(options_.opacity_cutoff > 0.f && options_.opacity_cutoff <= 1.f))
+    throw Error("volume integrator: opacity_cutoff must be in (0, 1]");
+  if (!(options_.depth_opacity > 0.f && options_.depth_opacity <= 1.f))
+    throw Error("volume integrator: depth_opacity must be in (0, 1]");
+  light_ = normalize(options_.light_dir);
+  if (options_.shading && length(light_) == 0.f)
+    throw Error("volume integrator: light_dir must not be zero");
+}
+
+void VolumeIntegrator::begin_frame(const Structure& structure, const FrameView&, Film&) {
+  if (structure.volume() == nullptr)
+    throw Error("volume render: structure '" + structure.name() + "' has no volume query");
+  totals_->rays = 0, totals_->spans = 0, totals_->samples = 0, totals_->early = 0;
+}
+
+VolumeIntegratorStats VolumeIntegrator::stats() const {
+  return {totals_->rays.load(), totals_->spans.load(), totals_->samples.load(),
+          totals_->early.load()};
+}
+
+VolumeSample VolumeIntegrator::classify(VolumeSample s) const {
+  return options_.transfer.empty() ? s : options_.transfer(s.density);
+}
+
+namespace {
+
+/// The running front-to-back state of one ray.
+struct Accumulator {
+  float c[3] = {0.f, 0.f, 0.f};
+  float T = 1.f;
+  float depth = INFINITY;
+
+  /// One piece of constant medium from t over length dt (the closed form of
+  /// the header). `threshold`: the opacity the depth AOV records.
+  void add(float t, float dt, float sigma, const Color& color, float threshold) {
+    if (!(sigma > 0.f) || !(dt > 0.f)) return;
+    const float a = std::exp(-sigma * dt);
+    const float w = T * (1.f - a);
+    c[0] += w * color.r, c[1] += w * color.g, c[2] += w * color.b;
+    const float before = T;
+    T *= a;
+    if (std::isinf(depth) && 1.f - T >= threshold) {
+      // Inside the piece T(x) = before exp(-sigma x) reaches 1 - threshold at
+      // x = ln(before / (1 - threshold)) / sigma (x = 0 if it already had).
+      const float rest = 1.f - threshold;
+      const float x = rest > 0.f ? std::log(before / rest) / sigma : dt;
+      depth = t + std::clamp(x, 0.f, dt);
+    }
+  }
+};
+
+}  // namespace
+
+VolumeRayResult VolumeIntegrator::integrate(const VolumeQuery& query, const Ray& ray,
+                                            const LodFootprint& lod, TraceContext& ctx,
+                                            VolumeIntegratorStats* stats) const {
+  const VolumeIntegratorOptions& o = options_;
+  Accumulator acc;
+  std::array<VolumeSpan, 16> spans;
+  float t_begin = 0.f;
+  bool done = false;
+  uint64_t span_count = 0, sample_count = 0;
+  const Vec3 view = -ray.dir;
+  const Vec3 half = normalize(light_ + view);
+
+  // The shading factor at p from the density gradient (one voxel apart).
+  auto lighting = [&](Vec3 p, float level, float h, const VolumeSpan& span) {
+    const Vec3 axes[3] = {{h, 0, 0}, {0, h, 0}, {0, 0, h}};
+    Vec3 g;
+    for (int a = 0; a < 3; ++a)
+      g[a] = query.sample(p + axes[a], level, ctx, &span).density -
+             query.sample(p - axes[a], level, ctx, &span).density;
+    const float len = length(g);
+    if (!(len > 0.f)) return 1.f;     // homogeneous: no direction to light
+    const Vec3 n = g * (-1.f / len);  // out of the denser side
+    const float diff = std::max(0.f, dot(n, light_));
+    const float spec = diff > 0.f ? std::pow(std::max(0.f, dot(n, half)), o.shininess) : 0.f;
+    return o.ambient + o.diffuse * diff + o.specular * spec;
+  };
+
+  while (!done) {
+    const int n = query.march(ray, t_begin, lod, ctx, spans);
+    for (int i = 0; i < n && !done; ++i) {
+      const VolumeSpan& s = spans[size_t(i)];
+      ++span_count;
+      if (s.constant) {
+        const VolumeSample v = classify(s.value);
+        acc.add(s.t0, s.t1 - s.t0, v.density, v.color, o.depth_opacity);
+      } else {
+        const float dt = o.step_scale * s.voxel_size;
+        const float steps = std::ceil((s.t1 - s.t0) / dt);
+        for (float k = 0.f; k < steps; ++k) {
+          const float a = s.t0 + k * dt, b = std::min(s.t1, a + dt);
+          const float m = 0.5f * (a + b);
+          const Vec3 p = ray.origin + ray.dir * m;
+          float level = float(s.level);
+          const float foot = lod.size_at_origin + lod.size_per_t * m;
+          if (foot > 0.f)
+            level = std::clamp(level + std::log2(s.voxel_size / foot), std::max(0.f, level - 1.f),
+                               level);
+          VolumeSample v = classify(query.sample(p, level, ctx, &s));
+          ++sample_count;
+          if (o.shading && v.density > 0.f) {
+            const float f = lighting(p, level, s.voxel_size, s);
+            v.color.r *= f, v.color.g *= f, v.color.b *= f;
+          }
+          acc.add(a, b - a, v.density, v.color, o.depth_opacity);
+          if (1.f - acc.T >= o.opacity_cutoff) break;
+        }
+      }
+      if (1.f - acc.T >= o.opacity_cutoff) {
+        done = true;
+        if (stats) ++stats->early_terminations;
+      }
+    }
+    if (done || n < int(spans.size())) break;
+    const float next = spans[size_t(n) - 1].t1;
+    if (!(next > t_begin)) break;  // a query that does not advance would loop forever
+    t_begin = next;
+  }
+  if (stats) ++stats->rays, stats->spans += span_count, stats->samples += sample_count;
+
+  VolumeRayResult r;
+  r.transmittance = acc.T;
+  r.color = {acc.c[0] + acc.T * o.background.r, acc.c[1] + acc.T * o.background.g,
+             acc.c[2] + acc.T * o.background.b, 1.f - acc.T};
+  r.depth = acc.depth;
+  return r;
+}
+
+void VolumeIntegrator::render_tile(const Structure& structure, const FrameView& view,
+                                   const TileRect& tile, TraceContext& ctx, Film& film) {
+  const VolumeQuery* query = structure.volume();
+  // A structure may keep per-context state in the accessor cache, such as
+  // the requests it pushed lately so as not to push duplicates (GigaVoxels).
+  // The frame loop tells which tiles asked for data by whether they pushed,
+  // so nothing may be remembered from one tile to the next.
+  ctx.cache.reset();
+  const CameraRays cam = view.rays();
+  const LodFootprint lod = view.lod();
+  VolumeIntegratorStats local;
+  for (int y = tile.y0; y < tile.y1; ++y)
+    for (int x = tile.x0; x < tile.x1; ++x) {
+      const VolumeRayResult r = integrate(*query, cam.ray(x, y), lod, ctx, &local);
+      if (film.has(kAovColor)) {
+        float* c = film.color.at(x, y);
+        c[0] = r.color.r, c[1] = r.color.g, c[2] = r.color.b;
+      }
+      if (film.has(kAovAlpha)) *film.alpha.at(x, y) = r.color.a;
+      if (film.has(kAovDepth)) *film.depth.at(x, y) = r.depth;
+    }
+  totals_->rays += local.rays, totals_->spans += local.spans;
+  totals_->samples += local.samples, totals_->early += local.early_terminations;
+}
+
+}  // namespace voxcast

@@ -1,0 +1,558 @@
+// GigaVoxels (gigavoxels.hpp): pools, the volume query, the LRU cache and
+// requests through the frame loop, producers and INRIMAGE files.
+//  * exact mode with a tiny pool renders the image of an unlimited pool;
+//  * one-pass mode shows coarser data meanwhile and converges to it;
+//  * validate() (no dangling pointer, no orphan, usage lists permutations)
+//    holds after every pass (GigaOptions::check_after_pass);
+//  * the usage list is an order-preserving partition (std::stable_partition
+//    as the oracle) and recycling never takes what the pass used;
+//  * producer bricks equal the producer's voxels, border included, and
+//    finest-level samples equal trilinear interpolation of the producer's
+//    global voxel grid computed here (seamless across bricks);
+//  * quadrilinear filtering is continuous across LOD changes;
+//  * INRIMAGE files: the shipped crop loads with the values written, every
+//    corrupted or truncated variant is rejected with a one-line error.
+#include <gtest/gtest.h>
+#include <tbb/global_control.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <map>
+#include <random>
+
+#include "support/cli_runner.hpp"
+#include "support/test_data.hpp"
+#include "voxcast/error.hpp"
+#include "voxcast/gigavoxels.hpp"
+#include "voxcast/volume_integrator.hpp"
+
+namespace voxcast::giga {
+namespace {
+
+FrameView view_of(int w, int h, uint32_t frame = 0) {
+  FrameView v;
+  v.width = w, v.height = h, v.frame = frame;
+  v.camera = Camera::orbit(Aabb{{0, 0, 0}, {1, 1, 1}}, w, h, 30.f, 20.f);
+  return v;
+}
+
+GigaOptions unlimited() {
+  GigaOptions o;
+  o.tiles = 1 << 16, o.bricks = 1 << 14;
+  o.check_after_pass = true;
+  return o;
+}
+
+struct Rendered {
+  Film film;
+  FrameStats stats;
+};
+
+Rendered render(GigaVoxels& g, const FrameView& view, int max_passes, bool shading = false) {
+  VolumeIntegratorOptions io;
+  io.shading = shading;
+  VolumeIntegrator integrator(io);
+  FrameOptions fo;
+  fo.max_passes = max_passes;
+  fo.tile_size = 8;
+  Rendered r;
+  r.stats = render_frame(g, integrator, view, fo, &r.film);
+  return r;
+}
+
+uint64_t total(const GigaVoxels& g, uint64_t GigaPassStats::*field) {
+  uint64_t s = 0;
+  for (const GigaPassStats& p : g.pass_stats()) s += p.*field;
+  return s;
+}
+
+TEST(Giga, ExactModeWithTinyPoolRendersTheUnlimitedImage) {
+  // A camera circling the cloud, exact mode: the unlimited pool keeps every
+  // view's bricks; the tiny one holds little more than one pass needs, so
+  // it recycles as the camera moves. Every frame must be the same image.
+  const auto cloud = make_procedural("cloud", 128);
+  auto view = [](uint32_t f) {
+    // Narrow views of different parts of the cloud.
+    FrameView v = view_of(40, 32, f);
+    v.camera = Camera::orbit(Aabb{{0, 0, 0}, {1, 1, 1}}, 40, 32, 60.f * float(f), 15.f, 1.0f);
+    const Vec3 side = normalize(cross(v.camera.target - v.camera.eye, Vec3{0, 1, 0}));
+    v.camera.target = v.camera.target + side * 0.22f + Vec3{0, 0.1f * float(f % 3) - 0.1f, 0};
+    v.camera.fovy_degrees = 18.f;
+    return v;
+  };
+  constexpr uint32_t kFrames = 6;
+  GigaVoxels big(cloud, unlimited());
+  std::vector<Rendered> want;
+  uint64_t peak = 0, pass_need = 0;
+  for (uint32_t f = 0; f < kFrames; ++f) {
+    want.push_back(render(big, view(f), 500));
+    ASSERT_EQ(want.back().stats.passes.back().requests, 0u) << "exact mode must converge";
+    for (const GigaPassStats& p : big.pass_stats()) {
+      peak = std::max(peak, p.bricks_resident);
+      pass_need = std::max(pass_need, p.bricks_used + p.bricks_uploaded);
+    }
+  }
+  int covered = 0;
+  for (float a : want[0].film.alpha.pixels) covered += a > 0.3f;
+  EXPECT_GT(covered, 100) << "the cloud must cover the image";
+
+  GigaOptions tiny = unlimited();
+  tiny.bricks = uint32_t(pass_need + 4), tiny.tiles = 200;
+  ASSERT_LT(tiny.bricks * 2, peak) << "the tiny pool must be much smaller than what the views use";
+  GigaVoxels small(cloud, tiny);
+  uint64_t recycled = 0, recycled_tiles = 0;
+  for (uint32_t f = 0; f < kFrames; ++f) {
+    const Rendered got = render(small, view(f), 5000);
+    recycled += total(small, &GigaPassStats::recycled_bricks);
+    recycled_tiles += total(small, &GigaPassStats::recycled_tiles);
+    EXPECT_EQ(got.stats.passes.back().requests, 0u) << "frame " << f;
+    EXPECT_EQ(got.film.color.pixels, want[f].film.color.pixels) << "frame " << f;
+    EXPECT_EQ(got.film.alpha.pixels, want[f].film.alpha.pixels) << "frame " << f;
+    EXPECT_EQ(got.film.depth.pixels, want[f].film.depth.pixels) << "frame " << f;
+  }
+  std::printf(
+      "bricks: unlimited pool peak %llu, tiny pool %u, recycled %llu; tiles recycled %llu\n",
+      (unsigned long long)peak, tiny.bricks, (unsigned long long)recycled,
+      (unsigned long long)recycled_tiles);
+  EXPECT_GT(recycled, 0u) << "the tiny pool must recycle bricks";
+  EXPECT_GT(recycled_tiles, 0u) << "...and node tiles (with their subtrees)";
+}
+
+TEST(Giga, OnePassShowsCoarserDataThenConverges) {
+  const auto menger = make_procedural("menger", 64);
+  GigaVoxels exact(menger, unlimited());
+  const Rendered want = render(exact, view_of(32, 32), 500, true);
+  GigaVoxels g(menger, unlimited());
+  std::vector<uint64_t> requests;
+  Rendered r;
+  for (uint32_t f = 0; f < 40; ++f) {
+    r = render(g, view_of(32, 32, f), 1, true);
+    ASSERT_EQ(r.stats.passes.size(), 1u);
+    requests.push_back(r.stats.requests);
+    if (f == 0) {
+      // Nothing was resident: the first frame is empty.
+      EXPECT_EQ(*std::max_element(r.film.alpha.pixels.begin(), r.film.alpha.pixels.end()), 0.f);
+    }
+    if (r.stats.requests == 0) break;
+  }
+  ASSERT_EQ(requests.back(), 0u) << "one-pass frames must converge";
+  EXPECT_GT(requests.size(), 3u);  // top-down: one level per frame
+  EXPECT_EQ(r.film.color.pixels, want.film.color.pixels);
+}
+
+/// Traces `view`'s rays through `g` as pass 0 of frame `view.frame` would
+/// (begin_frame, then the rays), without serving; returns the requests,
+/// sorted and deduplicated as the frame loop hands them to end_pass.
+std::vector<Request> trace_pass(GigaVoxels& g, const FrameView& view) {
+  g.begin_frame(view);
+  const CameraRays cam = view.rays();
+  TraceContext ctx;
+  ctx.frame = view.frame, ctx.requests.reserve(1 << 20);
+  const VolumeIntegrator integrator;
+  for (int y = 0; y < view.height; ++y)
+    for (int x = 0; x < view.width; ++x) integrator.integrate(g, cam.ray(x, y), view.lod(), ctx);
+  std::vector<Request> r(ctx.requests.items().begin(), ctx.requests.items().end());
+  std::sort(r.begin(), r.end(), [](const Request& a, const Request& b) {
+    return a.kind != b.kind ? a.kind < b.kind : a.key < b.key;
+  });
+  r.erase(std::unique(r.begin(), r.end(),
+                      [](const Request& a, const Request& b) {
+                        return a.kind == b.kind && a.key == b.key;
+                      }),
+          r.end());
+  return r;
+}
+
+TEST(Giga, UsageListIsAnOrderPreservingPartition) {
+  const auto cloud = make_procedural("cloud", 64);
+  GigaOptions o = unlimited();
+  o.bricks = 400, o.tiles = 200;
+  GigaVoxels g(cloud, o);
+  render(g, view_of(24, 24), 500);
+  ASSERT_EQ(g.validate(), "");
+  // A frame whose rays touch only part of what is resident: a narrow view.
+  FrameView v = view_of(6, 6, 7);
+  v.camera.fovy_degrees = 8.f;
+  trace_pass(g, v);
+  const uint32_t now = GigaVoxels::stamp(7, 0);
+  std::vector<uint32_t> bricks = g.brick_usage(), tiles = g.tile_usage();
+  const auto unused_b = [&](uint32_t b) { return g.brick_stamp(b) != now; };
+  const auto unused_t = [&](uint32_t t) { return g.tile_stamp(t) != now; };
+  std::stable_partition(bricks.begin(), bricks.end(), unused_b);
+  std::stable_partition(tiles.begin(), tiles.end(), unused_t);
+  const size_t used =
+      size_t(std::count_if(bricks.begin(), bricks.end(), [&](uint32_t b) { return !unused_b(b); }));
+  ASSERT_GT(used, 0u);
+  ASSERT_LT(used, bricks.size());
+  g.end_pass({});  // no request: only the LRU update
+  EXPECT_EQ(g.brick_usage(), bricks);
+  EXPECT_EQ(g.tile_usage(), tiles);
+  EXPECT_EQ(g.pass_stats().back().bricks_used, used);
+  EXPECT_EQ(g.validate(), "");
+}
+
+TEST(Giga, RecyclingTakesTheFrontAndNeverWhatThePassUsed) {
+  const auto cloud = make_procedural("cloud", 128);
+  GigaOptions o = unlimited();
+  o.bricks = 60, o.tiles = 400;
+  GigaVoxels g(cloud, o);
+  // One-pass frames from moving viewpoints: the pool fills, then recycles.
+  uint64_t recycled = 0;
+  for (uint32_t f = 0; f < 12; ++f) {
+    FrameView v = view_of(24, 24, f);
+    v.camera = Camera::orbit(Aabb{{0, 0, 0}, {1, 1, 1}}, 24, 24, 30.f * float(f), 10.f, 1.4f);
+    const std::vector<Request> requests = trace_pass(g, v);
+    const uint32_t now = GigaVoxels::stamp(f, 0);
+    // What the pass used, and the LRU order recycling must follow.
+    std::map<uint32_t, std::pair<uint32_t, std::vector<float>>> used;  // brick -> owner, densities
+    for (const auto& rb : g.resident_bricks())
+      if (g.brick_stamp(rb.brick) == now) {
+        std::vector<float> d;
+        for (const BrickVoxel& x : rb.voxels) d.push_back(x.density);
+        used[rb.brick] = {rb.node, d};
+      }
+    std::vector<uint32_t> order = g.brick_usage();
+    std::stable_partition(order.begin(), order.end(),
+                          [&](uint32_t b) { return g.brick_stamp(b) != now; });
+    g.end_pass(requests);
+    ASSERT_EQ(g.validate(), "") << "frame " << f;
+    const GigaPassStats& st = g.pass_stats().back();
+    recycled += st.recycled_bricks;
+    std::map<uint32_t, uint32_t> owner;
+    for (const auto& rb : g.resident_bricks()) {
+      owner[rb.brick] = rb.node;
+      const auto it = used.find(rb.brick);
+      if (it != used.end()) {
+        EXPECT_EQ(rb.node, it->second.first) << "a brick the pass used changed owner";
+        for (size_t i = 0; i < rb.voxels.size(); ++i)
+          ASSERT_EQ(rb.voxels[i].density, it->second.second[i]);
+      }
+    }
+    for (const auto& [b, what] : used) EXPECT_TRUE(owner.count(b)) << "a used brick was evicted";
+    // The uploads went to the front of the old order and now sit at the back.
+    const size_t n = size_t(st.bricks_uploaded);
+    ASSERT_LE(n, order.size());
+    const std::vector<uint32_t>& now_order = g.brick_usage();
+    for (size_t i = 0; i < n; ++i) {
+      EXPECT_EQ(now_order[now_order.size() - n + i], order[i]);
+      EXPECT_TRUE(owner.count(order[i]));
+    }
+  }
+  EXPECT_GT(recycled, 0u);
+}
+
+TEST(Giga, ProducerBricksEqualDirectSampling) {
+  for (const char* name : {"cloud", "menger", "mandelbulb"}) {
+    const auto p = make_procedural(name, 64);
+    GigaVoxels g(p, unlimited());
+    render(g, view_of(24, 24), 500);
+    const auto bricks = g.resident_bricks();
+    ASSERT_GT(bricks.size(), 10u) << name;
+    for (const auto& rb : bricks) {
+      const NodeRegion& r = rb.region;
+      for (int k = 0; k < kBrickStored; ++k)
+        for (int j = 0; j < kBrickStored; ++j)
+          for (int i = 0; i < kBrickStored; ++i) {
+            const VolumeSample v =
+                p->voxel(r.level, int64_t(r.x) * kBrickSide - 1 + i,
+                         int64_t(r.y) * kBrickSide - 1 + j, int64_t(r.z) * kBrickSide - 1 + k);
+            const BrickVoxel& b = rb.voxels[size_t(i + kBrickStored * (j + kBrickStored * k))];
+            ASSERT_EQ(b.density, v.density) << name << " level " << r.level;
+            ASSERT_EQ(b.r, v.color.r * v.density) << name;
+            ASSERT_EQ(b.b, v.color.b * v.density) << name;
+          }
+    }
+  }
+}
+
+/// Trilinear interpolation of the producer's level-L voxel grid at unit-cube
+/// point q (voxel (x, y, z) centered at (x + 0.5) / (M 2^L)), written here
+/// from the producer's voxels alone.
+double trilinear_density(const Producer& p, int level, Vec3 q) {
+  const double n = double(kBrickSide << level);
+  double acc = 0;
+  int64_t i0[3];
+  double f[3];
+  for (int a = 0; a < 3; ++a) {
+    const double u = double(q[a]) * n - 0.5;
+    i0[a] = int64_t(std::floor(u)), f[a] = u - std::floor(u);
+  }
+  for (int k = 0; k < 2; ++k)
+    for (int j = 0; j < 2; ++j)
+      for (int i = 0; i < 2; ++i)
+        acc += (i ? f[0] : 1 - f[0]) * (j ? f[1] : 1 - f[1]) * (k ? f[2] : 1 - f[2]) *
+               p.voxel(level, i0[0] + i, i0[1] + j, i0[2] + k).density;
+  return acc;
+}
+
+TEST(Giga, FinestSamplesAreSeamlessTrilinear) {
+  const auto p = make_procedural("cloud", 32);
+  GigaOptions o = unlimited();
+  o.size = 2.f, o.origin = {-1, -1, -1};  // world placement: densities scale by 1 / size
+  GigaVoxels g(p, o);
+  // An orthographic view at the finest level everywhere (lod_pixels 0).
+  FrameView v;
+  v.width = v.height = 32, v.lod_pixels = 0.f;
+  v.camera.projection = Projection::Orthographic;
+  v.camera.eye = {0.1f, 0.2f, 4.f}, v.camera.target = {0.f, 0.f, 0.f}, v.camera.ortho_width = 2.2f;
+  render(g, v, 500);
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> U(0.2f, 0.8f);
+  TraceContext ctx;
+  double worst = 0;
+  int nonzero = 0;
+  for (int i = 0; i < 4000; ++i) {
+    const Vec3 q{U(rng), U(rng), U(rng)};
+    const VolumeSample s = g.sample(q * 2.f - Vec3{1, 1, 1}, float(p->max_level()), ctx);
+    const double want = trilinear_density(*p, p->max_level(), q) / 2.0;
+    worst = std::max(worst, std::fabs(double(s.density) - want));
+    nonzero += want > 1;
+  }
+  EXPECT_GT(nonzero, 500);
+  EXPECT_LT(worst, 1e-4);
+  EXPECT_TRUE(ctx.requests.empty()) << "all finest bricks the view needs are resident";
+}
+
+TEST(Giga, QuadrilinearFilteringIsContinuousAcrossLod) {
+  // Along a perspective ray the wanted level falls continuously with the
+  // cone; blended samples change little per tiny step, while snapping to
+  // whole levels jumps where the level changes.
+  const auto p = make_procedural("cloud", 128);
+  GigaVoxels g(p, unlimited());
+  FrameView v = view_of(48, 48);
+  v.camera = Camera::orbit(Aabb{{0, 0, 0}, {1, 1, 1}}, 48, 48, 0.f, 0.f, 0.9f);
+  render(g, v, 500);
+  const CameraRays cam = v.rays();
+  const LodFootprint lod = v.lod();
+  TraceContext ctx;
+  ctx.requests.reserve(1 << 16);
+  const Ray ray = cam.ray(24, 24);
+  double jump_blend = 0, jump_snap = 0;
+  int level_changes = 0;
+  float prev_blend = -1, prev_snap = -1, prev_level = -1;
+  for (float t = 0.45f; t < 1.35f; t += 1e-4f) {
+    const float level =
+        std::clamp(std::log2(1.f / (kBrickSide * (lod.size_at_origin + lod.size_per_t * t))), 0.f,
+                   float(p->max_level()));
+    const Vec3 x = ray.origin + ray.dir * t;
+    const float blend = g.sample(x, level, ctx).density;
+    const float snap = g.sample(x, std::floor(level), ctx).density;
+    if (prev_blend >= 0) {
+      jump_blend = std::max(jump_blend, double(std::fabs(blend - prev_blend)));
+      jump_snap = std::max(jump_snap, double(std::fabs(snap - prev_snap)));
+      level_changes += std::floor(level) != std::floor(prev_level);
+    }
+    prev_blend = blend, prev_snap = snap, prev_level = level;
+  }
+  ASSERT_GE(level_changes, 1) << "the ray must cross a LOD change";
+  EXPECT_GT(jump_snap, 0.5) << "snapped levels must jump somewhere for the test to mean anything";
+  EXPECT_LT(jump_blend, jump_snap / 4);
+}
+
+TEST(Giga, RenderDoesNotDependOnThreads) {
+  // Images, the requests of every pass and the pool statistics are the same
+  // with 1 and 2 threads (requests reach end_pass sorted and deduplicated,
+  // and no buffer overflows: nothing depends on the schedule).
+  const auto p = make_procedural("mandelbulb", 64);
+  std::vector<std::vector<float>> images;
+  std::vector<std::vector<uint64_t>> requests;
+  for (int threads : {1, 2}) {
+    tbb::global_control limit(tbb::global_control::max_allowed_parallelism, size_t(threads));
+    GigaOptions o = unlimited();
+    o.bricks = 300, o.tiles = 300;
+    GigaVoxels g(p, o);
+    const Rendered r = render(g, view_of(64, 48), 2000, true);
+    images.push_back(r.film.color.pixels);
+    requests.emplace_back();
+    for (const PassStats& ps : r.stats.passes) {
+      EXPECT_EQ(ps.dropped, 0u);
+      requests.back().push_back(ps.requests);
+    }
+    for (const GigaPassStats& gs : g.pass_stats()) requests.back().push_back(gs.bricks_resident);
+  }
+  EXPECT_EQ(images[0], images[1]);
+  EXPECT_EQ(requests[0], requests[1]);
+}
+
+TEST(Giga, PoolSizesFollowTheBudget) {
+  const auto p = make_procedural("menger", 64);
+  GigaOptions o;
+  o.budget_bytes = uint64_t(64) << 20;
+  GigaVoxels g(p, o);
+  EXPECT_LE(g.pool_bytes(), o.budget_bytes);
+  EXPECT_GT(g.pool_bytes(), o.budget_bytes * 99 / 100);
+  EXPECT_EQ(g.tile_capacity(), g.brick_capacity());
+  o.budget_bytes = 1000;
+  EXPECT_THROW(GigaVoxels(p, o), Error);
+  EXPECT_THROW(make_procedural("cloud", 48), Error);
+  EXPECT_THROW(make_procedural("smoke", 64), Error);
+}
+
+// ---- INRIMAGE ----
+
+std::vector<unsigned char> read_bytes(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+std::filesystem::path skull_path() {
+  return testing::require_file(std::filesystem::path(VOXCAST_TEST_DATA_DIR) /
+                               "volumes/skull32.inr");
+}
+
+TEST(GigaInrimage, ShippedSkullLoadsAndRoundTrips) {
+  const ScalarVolume v = read_inrimage(skull_path().string());
+  EXPECT_EQ(v.nx, 32);
+  EXPECT_EQ(v.ny, 32);
+  EXPECT_EQ(v.nz, 32);
+  EXPECT_FLOAT_EQ(v.vz, 7.30158f);
+  // The samples are the little-endian floats after the 256-byte header.
+  const auto bytes = read_bytes(skull_path());
+  ASSERT_EQ(bytes.size(), 256u + 4u * 32 * 32 * 32);
+  for (size_t i : {size_t(0), size_t(12345), size_t(32767)}) {
+    float x;
+    std::memcpy(&x, &bytes[256 + 4 * i], 4);
+    EXPECT_EQ(v.values[i], x);
+  }
+  const ScalarVolume again = parse_inrimage(write_inrimage(v));
+  EXPECT_EQ(again.values, v.values);
+  EXPECT_EQ(again.vx, v.vx);
+}
+
+TEST(GigaInrimage, VolumeProducerFinestLevelIsTheNormalizedData) {
+  // A cubic volume of 2^L M voxels with equal voxel sizes maps voxel for
+  // voxel onto the finest level.
+  ScalarVolume v;
+  v.nx = v.ny = v.nz = 16;
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> U(-5.f, 20.f);
+  for (int i = 0; i < 16 * 16 * 16; ++i) v.values.push_back(U(rng));
+  const auto [lo, hi] = std::minmax_element(v.values.begin(), v.values.end());
+  const auto p = make_volume_producer(v);
+  ASSERT_EQ(p->max_level(), 1);
+  for (int z = 0; z < 16; z += 3)
+    for (int y = 0; y < 16; y += 5)
+      for (int x = 0; x < 16; ++x)
+        EXPECT_NEAR(p->voxel(1, x, y, z).density, (v.at(x, y, z) - *lo) / (*hi - *lo), 1e-6);
+  // Level 0 averages 2x2x2.
+  double sum = 0;
+  for (int k = 0; k < 8; ++k)
+    sum += p->voxel(1, 2 * 3 + (k & 1), 2 * 4 + ((k >> 1) & 1), 2 * 5 + (k >> 2)).density;
+  EXPECT_NEAR(p->voxel(0, 3, 4, 5).density, sum / 8, 1e-6);
+  // The skull renders through the structure with a transfer function.
+  GigaVoxels g(make_volume_producer(read_inrimage(skull_path().string())), unlimited());
+  VolumeIntegratorOptions io;
+  io.transfer = TransferFunction::parse("0:0:0,0,0;0.3:0:1,0.8,0.6;1:120:1,1,1");
+  VolumeIntegrator integrator(io);
+  Film film;
+  FrameOptions fo;
+  fo.max_passes = 500;
+  const FrameStats s = render_frame(g, integrator, view_of(24, 24), fo, &film);
+  EXPECT_EQ(s.passes.back().requests, 0u);
+  int opaque = 0;
+  for (float a : film.alpha.pixels) opaque += a > 0.5f;
+  EXPECT_GT(opaque, 50);
+}
+
+TEST(GigaInrimage, GzipVolumesLoadAndDamagedStreamsAreRejected) {
+  // Compressed by the gzip tool, not by our code.
+  testing::TempDir dir;
+  const std::string gz = dir.file("skull.inr.gz");
+  ASSERT_EQ(std::system(("gzip -c '" + skull_path().string() + "' > '" + gz + "'").c_str()), 0);
+  const ScalarVolume plain = read_inrimage(skull_path().string());
+  EXPECT_EQ(read_inrimage(gz).values, plain.values);
+  const auto bytes = read_bytes(gz);
+  auto expect_rejected = [&](const std::vector<unsigned char>& b, const std::string& what) {
+    const std::string path = dir.file("damaged.inr.gz");
+    std::ofstream(path, std::ios::binary)
+        .write(reinterpret_cast<const char*>(b.data()), std::streamsize(b.size()));
+    try {
+      read_inrimage(path);
+      ADD_FAILURE() << what << ": accepted";
+    } catch (const Error& e) {
+      EXPECT_EQ(std::string(e.what()).find('\n'), std::string::npos) << what;
+    }
+  };
+  for (size_t len = 2; len < bytes.size(); len += 1 + len / 3)
+    expect_rejected({bytes.begin(), bytes.begin() + std::ptrdiff_t(len)},
+                    "cut at " + std::to_string(len));
+  auto flipped = bytes;
+  flipped[flipped.size() / 2] ^= 0x5a;
+  expect_rejected(flipped, "a corrupted byte");
+  auto trailing = bytes;
+  trailing.push_back(7);
+  expect_rejected(trailing, "a trailing byte");
+}
+
+TEST(GigaInrimage, CorruptedAndTruncatedFilesAreRejected) {
+  const auto good = read_bytes(skull_path());
+  ASSERT_NO_THROW(parse_inrimage(good));
+  auto expect_rejected = [](const std::vector<unsigned char>& bytes, const std::string& what) {
+    try {
+      parse_inrimage(bytes);
+      ADD_FAILURE() << what << ": accepted";
+    } catch (const Error& e) {
+      const std::string msg = e.what();
+      EXPECT_EQ(msg.find('\n'), std::string::npos) << what << ": " << msg;
+      EXPECT_EQ(msg.rfind("INRIMAGE: ", 0), 0u) << what << ": " << msg;
+    }
+  };
+  // Every truncation (a sample of lengths, all inside the header).
+  for (size_t len = 0; len < good.size(); len += (len < 300 ? 1 : 997))
+    expect_rejected({good.begin(), good.begin() + std::ptrdiff_t(len)},
+                    "truncated at " + std::to_string(len));
+  auto with_header = [&](const std::string& from, const std::string& to) {
+    std::string h(good.begin(), good.begin() + 256);
+    const size_t at = h.find(from);
+    EXPECT_NE(at, std::string::npos) << from;
+    h.replace(at, from.size(), to);
+    // Keep the header 256 bytes: absorb the length change in the padding.
+    const size_t end = h.find("##}\n");
+    if (h.size() > 256) h.erase(end - (h.size() - 256), h.size() - 256);
+    if (h.size() < 256) h.insert(end, 256 - h.size(), '\n');
+    std::vector<unsigned char> out(h.begin(), h.end());
+    out.insert(out.end(), good.begin() + 256, good.end());
+    return out;
+  };
+  for (auto [from, to] :
+       std::vector<std::pair<std::string, std::string>>{{"XDIM=32", "XDIM=0"},
+                                                        {"XDIM=32", "XDIM=33"},
+                                                        {"YDIM=32", "YDIM=-32"},
+                                                        {"ZDIM=32", "ZDIM=3x"},
+                                                        {"ZDIM=32\n", ""},
+                                                        {"VDIM=1", "VDIM=3"},
+                                                        {"TYPE=float", "TYPE=double"},
+                                                        {"PIXSIZE=32 bits", "PIXSIZE=12 bits"},
+                                                        {"PIXSIZE=32 bits", "PIXSIZE=32"},
+                                                        {"PIXSIZE=32 bits", "PIXSIZE=64 bits"},
+                                                        {"CPU=decm", "CPU=vax"},
+                                                        {"VX=7.8861", "VX=-1"},
+                                                        {"VY=7.8861", "VY=nan"},
+                                                        {"VZ=7.30158", "VZ=7.3\nVZ=7.3"},
+                                                        {"VDIM=1", "SCALE=3**2"},
+                                                        {"VDIM=1", "no equals sign"},
+                                                        {"#INRIMAGE-4#{", "#INRIMAGE-5#{"},
+                                                        {"##}", "#}}"}})
+    expect_rejected(with_header(from, to), from + " -> " + to);
+  // A header that is not a multiple of 256 bytes; trailing bytes; a NaN sample.
+  std::vector<unsigned char> odd(good.begin(), good.begin() + 252);
+  const std::string end = "##}\n";
+  odd.insert(odd.end() - 4, end.begin(), end.end());
+  odd.resize(256 - 4 + 4 - 4);
+  expect_rejected(odd, "short header");
+  auto trailing = good;
+  trailing.push_back(0);
+  expect_rejected(trailing, "trailing byte");
+  auto nan = good;
+  const float q = NAN;
+  std::memcpy(&nan[256 + 4 * 100], &q, 4);
+  expect_rejected(nan, "NaN sample");
+  EXPECT_THROW(read_inrimage("/nonexistent/volume.inr"), Error);
+}
+
+}  // namespace
+}  // namespace voxcast::giga
