@@ -4,8 +4,8 @@
 // An integrator turns the rays of a tile into film pixels using a
 // structure's queries: the surface integrator (surface_integrator.hpp: shading,
 // shadows, AO, post-filter, heat maps) and the volume integrator
-// (volume_integrator.hpp: front-to-back emission-absorption) are siblings, as in pbrt-v4. Camera, tiles, film and
-// the per-thread trace contexts are the frame loop's, written once:
+// (volume_integrator.hpp: front-to-back emission-absorption) are siblings, as in pbrt-v4. Camera,
+// tiles, film and the per-thread trace contexts are the frame loop's, written once:
 //
 //   structure.begin_frame(view); integrator.begin_frame(...)
 //   pass 0: every tile -> integrator.render_tile(..., ctx of this thread, film)
