@@ -91,6 +91,7 @@ int main(int argc, char** argv) {
   add(add_info);
   add(add_bench);
   add(add_generate);
+  add(add_convert);
   // One convention (README "Command line"): a usage error is one line and
   // exit 2, a runtime error one line and exit 1; --help prints the help.
   auto error_line = [](const std::string& message) {
@@ -110,7 +111,7 @@ int main(int argc, char** argv) {
       if (sub->parsed()) which = sub;
     std::string message = e.what();
     if (!which && app.get_subcommands().empty() && message.find("subcommand") != std::string::npos)
-      message = "a subcommand is required: build, render, info, bench or generate";
+      message = "a subcommand is required: build, render, info, bench, generate or convert";
     error_line(message + " (see 'voxcast" + (which ? " " + which->get_name() : std::string()) +
                " --help')");
     return 2;

@@ -10,7 +10,9 @@
 #include "commands.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/progress.hpp"
+#include "voxcast/solid.hpp"
 #include "voxcast/system.hpp"
+#include "voxcast/voxel_io.hpp"
 
 namespace voxcast::cli {
 
@@ -18,6 +20,21 @@ VoxelizationMode parse_voxelization(const std::string& name) {
   if (name == "conservative") return VoxelizationMode::Conservative;
   if (name == "6-separating" || name == "six-separating") return VoxelizationMode::SixSeparating;
   throw UsageError("--voxelization: '" + printable(name) + "' is not conservative or 6-separating");
+}
+
+void set_voxelization_options(BuildSettings& s, uint32_t resolution, bool voxel_size_given,
+                              double voxel_size, const std::string& voxelization,
+                              const std::string& fill) {
+  require_power_of_two("--resolution", resolution, 1, uint64_t(1) << 20);
+  s.resolution = resolution;
+  if (voxel_size_given) {
+    require_range("--voxel-size", voxel_size, 1e-30, 1e30);
+    s.voxel_size = voxel_size;
+  }
+  s.mode = parse_voxelization(voxelization);
+  if (fill != "surface" && fill != "solid")
+    throw UsageError("--fill: '" + printable(fill) + "' is not surface or solid");
+  s.fill_solid = fill == "solid";
 }
 
 const char* voxelization_name(VoxelizationMode mode) {
@@ -84,11 +101,10 @@ std::string count_of(size_t n, const char* one, const char* many) {
 }
 }  // namespace
 
-BuiltScene build_scene(const BuildSettings& s) {
-  BuiltScene out;
-  StageTimer timer(s.verbose);
-  uint64_t budget = s.memory_budget;
-  if (budget == 0) budget = uint64_t(double(available_memory_bytes()) * 0.9);
+namespace {
+/// The mesh of `s.mesh_path` into `out` (refused before reading when the
+/// file alone exceeds the budget), with its warnings printed.
+void load_input_mesh(const BuildSettings& s, uint64_t budget, BuiltScene& out, StageTimer& timer) {
   {
     // The importer holds at least the whole file: refuse before reading it.
     std::error_code ec;
@@ -109,17 +125,99 @@ BuiltScene build_scene(const BuildSettings& s) {
         count_of(out.mesh.positions.size(), "vertex", "vertices").c_str(),
         count_of(out.mesh_stats.degenerate_dropped, "degenerate triangle", "degenerate triangles")
             .c_str());
+}
 
-  Aabb bounds = out.mesh.bounds();
-  GridTransform grid;
-  if (s.voxel_size > 0)
-    grid = GridTransform::fit_voxel_size(bounds, s.voxel_size);
-  else
-    grid = GridTransform::fit(bounds, s.resolution);
+GridTransform input_grid(const BuildSettings& s, const Mesh& mesh) {
+  const Aabb bounds = mesh.bounds();
+  return s.voxel_size > 0 ? GridTransform::fit_voxel_size(bounds, s.voxel_size)
+                          : GridTransform::fit(bounds, s.resolution);
+}
+
+/// The in-core voxelization of out.mesh, with the solid fill when asked.
+VoxelSet voxelize_in_core(const BuildSettings& s, const GridTransform& grid, uint64_t budget,
+                          BuiltScene& out, StageTimer& timer) {
+  // The mesh stays in memory for the whole build.
+  const uint64_t need = estimate_build_bytes(out.mesh, grid) + mesh_bytes(out.mesh);
+  if (budget && need > budget)
+    throw Error("resolution " + std::to_string(grid.resolution) + " needs an estimated " +
+                format_bytes(double(need)) + ", more than the " + format_bytes(double(budget)) +
+                " memory budget; lower --resolution or raise --memory-budget");
+  VoxelSet voxels;
+  {
+    Progress progress("voxelize", out.mesh.triangle_count());
+    VoxelizeOptions vo;
+    vo.mode = s.mode;
+    vo.progress = &progress;
+    vo.attributes = !s.dag || s.dag_attributes || s.fill_solid;
+    voxels = voxelize(out.mesh, grid, vo);
+  }
+  out.voxelize_seconds = timer.mark("voxelize");
+  if (voxels.size() == 0) throw Error("the mesh produced no voxels");
+  if (s.fill_solid) {
+    SolidFillStats st;
+    // The interior grows with the volume: bounded by what the budget holds
+    // beside the mesh and the surface.
+    const uint64_t used = mesh_bytes(out.mesh) + voxels.size() * kVoxelSetBytesPerVoxel;
+    const uint64_t max_voxels = budget > used ? (budget - used) / kVoxelSetBytesPerVoxel : 1;
+    voxels = fill_solid(out.mesh, voxels, &st, max_voxels);
+    timer.mark("solid fill");
+    if (s.verbose)
+      std::fprintf(stderr,
+                   "solid fill: %llu interior voxels, %llu of %llu columns by winding number\n",
+                   (unsigned long long)st.interior_voxels, (unsigned long long)st.ambiguous_columns,
+                   (unsigned long long)st.columns);
+  }
+  out.leaf_voxels = voxels.size();
+  return voxels;
+}
+
+uint64_t settings_budget(const BuildSettings& s) {
+  return s.memory_budget ? s.memory_budget : uint64_t(double(available_memory_bytes()) * 0.9);
+}
+
+/// A voxel file (.vox, .binvox) is already the voxel set.
+VoxelSet read_voxel_input(const BuildSettings& s, uint64_t budget, BuiltScene& out,
+                          StageTimer& timer) {
+  VoxelReadOptions ro;
+  ro.memory_budget = budget;
+  VoxelSet voxels = read_voxels(s.mesh_path, ro);
+  out.load_seconds = timer.mark("read voxels");
+  out.leaf_voxels = voxels.size();
+  return voxels;
+}
+
+/// The DAG or the ESVO (without contours, which need the mesh) of `voxels`.
+void build_from_voxels(const BuildSettings& s, VoxelSet voxels, BuiltScene& out,
+                       StageTimer& timer) {
+  if (s.dag) {
+    if (!s.dag_attributes) voxels.colors.clear(), voxels.normals.clear(), voxels.weights.clear();
+    out.dag = dag::build_dag(voxels);
+    if (s.attributes == esvo::AttributeFormat::Compressed) out.dag.compress_attributes();
+    out.octree_seconds = timer.mark("DAG build");
+    return;
+  }
+  esvo::BuildOptions build_options;
+  build_options.attributes = s.attributes;
+  out.octree = esvo::build_octree(voxels, build_options);
+  out.octree_seconds = timer.mark("octree build");
+}
+}  // namespace
+
+BuiltScene build_scene(const BuildSettings& s) {
+  BuiltScene out;
+  StageTimer timer(s.verbose);
+  const uint64_t budget = settings_budget(s);
+  if (is_voxel_input(s.mesh_path)) {
+    build_from_voxels(s, read_voxel_input(s, budget, out, timer), out, timer);
+    return out;
+  }
+  load_input_mesh(s, budget, out, timer);
+
+  const GridTransform grid = input_grid(s, out.mesh);
 
   // The mesh stays in memory for the whole build.
   const uint64_t need = estimate_build_bytes(out.mesh, grid) + mesh_bytes(out.mesh);
-  if (s.dag && (s.out_of_core || (budget && need > budget))) {
+  if (s.dag && !s.fill_solid && (s.out_of_core || (budget && need > budget))) {
     // svdag §3 "Implementation details": sub-volumes voxelized and reduced
     // one at a time, peak memory bounded by the budget.
     dag::OutOfCoreOptions oo;
@@ -168,36 +266,24 @@ BuiltScene build_scene(const BuildSettings& s) {
     out.octree_seconds = timer.mark("cell-by-cell octree build");
     return out;
   }
-  if (budget && need > budget)
-    throw Error("resolution " + std::to_string(grid.resolution) + " needs an estimated " +
-                format_bytes(double(need)) + ", more than the " + format_bytes(double(budget)) +
-                " memory budget; lower --resolution or raise --memory-budget");
-
-  VoxelSet voxels;
-  {
-    Progress progress("voxelize", out.mesh.triangle_count());
-    VoxelizeOptions vo;
-    vo.mode = s.mode;
-    vo.progress = &progress;
-    vo.attributes = !s.dag || s.dag_attributes;
-    voxels = voxelize(out.mesh, grid, vo);
-  }
-  out.voxelize_seconds = timer.mark("voxelize");
-  out.leaf_voxels = voxels.size();
-  if (voxels.size() == 0) throw Error("the mesh produced no voxels");
-  if (s.dag) {
-    out.dag = dag::build_dag(voxels);
-    if (s.attributes == esvo::AttributeFormat::Compressed) out.dag.compress_attributes();
-    out.octree_seconds = timer.mark("DAG build");
-    return out;
-  }
+  VoxelSet voxels = voxelize_in_core(s, grid, budget, out, timer);
   if (s.contours) {
     out.octree = esvo::build_octree(voxels, out.mesh, build_options);
-  } else {
-    out.octree = esvo::build_octree(voxels, build_options);
+    out.octree_seconds = timer.mark("octree build");
+    return out;
   }
-  out.octree_seconds = timer.mark("octree build");
+  build_from_voxels(s, std::move(voxels), out, timer);
   return out;
+}
+
+VoxelSet input_voxels(const BuildSettings& s) {
+  BuiltScene out;
+  StageTimer timer(s.verbose);
+  const uint64_t budget = settings_budget(s);
+  if (is_voxel_input(s.mesh_path)) return read_voxel_input(s, budget, out, timer);
+  load_input_mesh(s, budget, out, timer);
+  const GridTransform grid = input_grid(s, out.mesh);
+  return voxelize_in_core(s, grid, budget, out, timer);
 }
 
 }  // namespace voxcast::cli
