@@ -9,6 +9,7 @@
 #include "camera_options.hpp"
 #include "cli_io.hpp"
 #include "commands.hpp"
+#include "exr_output.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/progress.hpp"
@@ -21,6 +22,7 @@ namespace voxcast::cli {
 namespace {
 struct RenderArgs {
   std::string input, output, size = "1024x768", depth, normal, light;
+  std::string aov;  // EXR output: extra layers in the same file
   CameraArgs camera;
   float lod = 1.f;
   int threads = 0;
@@ -73,7 +75,12 @@ Runner add_render(CLI::App& app) {
   auto args = std::make_shared<RenderArgs>();
   CLI::App* cmd = app.add_subcommand("render", "Ray cast a scene file into an image");
   cmd->add_option("SCENE", args->input, "Scene file written by `voxcast build`")->required();
-  cmd->add_option("-o,--output", args->output, "Output image (.png or .pfm)")->required();
+  cmd->add_option("-o,--output", args->output,
+                  "Output image (.png, .pfm or .exr; .exr may hold the --aov layers too)")
+      ->required();
+  cmd->add_option("--aov", args->aov,
+                  "With -o X.exr: also store depth (Z) and/or normal (N.x, N.y, N.z) in it, "
+                  "e.g. depth,normal");
   cmd->add_option("--size", args->size, "Image size WxH")->capture_default_str();
   add_camera_options(cmd, args->camera);
   cmd->add_option("--lod", args->lod,
@@ -204,9 +211,10 @@ Runner add_render(CLI::App& app) {
     // All outputs are checked before the scene is read, and written together
     // at the end (OutputSet): a failure leaves every one of them untouched.
     OutputSet outputs({args->input});
-    outputs.add("-o", args->output, {".png", ".pfm"});
-    if (!args->depth.empty()) outputs.add("--depth", args->depth, {".pfm"});
-    if (!args->normal.empty()) outputs.add("--normals", args->normal, {".png", ".pfm"});
+    outputs.add("-o", args->output, {".png", ".pfm", ".exr"});
+    if (!args->depth.empty()) outputs.add("--depth", args->depth, {".pfm", ".exr"});
+    if (!args->normal.empty()) outputs.add("--normals", args->normal, {".png", ".pfm", ".exr"});
+    const ExrLayers layers = parse_exr_layers(args->aov, args->output);
     if (!args->heatmap.empty()) outputs.add("--heatmap", args->heatmap, {".png"});
     if (!args->ao_output.empty()) outputs.add("--ao-output", args->ao_output, {".png", ".pfm"});
     require_regular_input(args->input, "scene");
@@ -218,8 +226,8 @@ Runner add_render(CLI::App& app) {
       std::error_code ec;
       const double scene_bytes = 2.0 * double(std::filesystem::file_size(args->input, ec));
       double per_pixel = 12 + 12;  // color floats, 8-bit copy + PNG bytes
-      if (!args->depth.empty()) per_pixel += 4 + 4;
-      if (!args->normal.empty()) per_pixel += 12 + 12;
+      if (!args->depth.empty() || layers.depth) per_pixel += 4 + 4;
+      if (!args->normal.empty() || layers.normal) per_pixel += 12 + 12;
       if (opt.collect_stats) per_pixel += 4 + 12 + 12;  // iterations, heat map, PNG
       if (fx.ao_rays > 0) per_pixel += 4 + 4;
       const double need = scene_bytes + per_pixel * double(opt.width) * double(opt.height);
@@ -240,8 +248,8 @@ Runner add_render(CLI::App& app) {
     opt.camera =
         resolve_camera(args->camera, scene.occupied, opt.width, opt.height, &derived_camera);
     if (derived_camera) std::printf("camera: %s\n", opt.camera.to_string().c_str());
-    opt.want_depth = !args->depth.empty();
-    opt.want_normal = !args->normal.empty();
+    opt.want_depth = !args->depth.empty() || layers.depth;
+    opt.want_normal = !args->normal.empty() || layers.normal;
     opt.filter = args->filter;
     RenderResult result = render(structure, opt);
     timer.mark("ray cast");
@@ -251,9 +259,13 @@ Runner add_render(CLI::App& app) {
       outputs.write(path,
                     [&](const std::filesystem::path& to) { write_image(to, im, already_srgb); });
     };
-    image(args->output, result.color);
-    if (opt.want_depth) image(args->depth, result.depth);
-    if (opt.want_normal) image(args->normal, result.normal, true);
+    if (layers.depth || layers.normal)
+      outputs.write(args->output,
+                    [&](const std::filesystem::path& to) { write_exr_layers(to, result, layers); });
+    else
+      image(args->output, result.color);
+    if (!args->depth.empty()) image(args->depth, result.depth);
+    if (!args->normal.empty()) image(args->normal, result.normal, true);
     if (!args->ao_output.empty()) image(args->ao_output, result.ao, true);  // as stored, linear
     if (!args->heatmap.empty())
       image(args->heatmap, iteration_heatmap(result.iterations, args->heatmap_max));
