@@ -42,7 +42,7 @@ Runner add_build(CLI::App& app) {
       "build", "Voxelize a triangle mesh into a scene file (ESVO octree or sparse voxel DAG)");
   cmd->add_option("MESH", args->input,
                   "Input mesh (OBJ, PLY, OFF, STL, glTF/GLB, FBX, DAE, ...) or voxel file "
-                  "(.vox, .binvox: built as it is)")
+                  "(.vox, .binvox, .vdb: built as it is)")
       ->required();
   cmd->add_option("-o,--output", args->output, "Output scene file (.vxc)")->required();
   auto* res = cmd->add_option("--resolution", args->resolution,

@@ -1,5 +1,6 @@
-// voxcast convert IN OUT: between voxel formats (.vox, .binvox in; .vox,
-// .binvox, .raw out), or from a mesh through the voxelizer (as `build`).
+// voxcast convert IN OUT: between voxel formats (.vox, .binvox, .vdb in;
+// .vox, .binvox, .vdb, .raw out), or from a mesh through the voxelizer (as
+// `build`).
 #include <cstdio>
 #include <filesystem>
 #include <memory>
@@ -31,12 +32,13 @@ Runner add_convert(CLI::App& app) {
   auto args = std::make_shared<ConvertArgs>();
   CLI::App* cmd = app.add_subcommand(
       "convert",
-      "Convert voxels between formats (.vox, .binvox -> .vox, .binvox, .raw), or voxelize a mesh "
-      "into one");
-  cmd->add_option("IN", args->input, "Voxel file (.vox, .binvox) or mesh (as for build)")
+      "Convert voxels between formats (.vox, .binvox, .vdb -> .vox, .binvox, .vdb, .raw), or "
+      "voxelize a mesh into one");
+  cmd->add_option("IN", args->input, "Voxel file (.vox, .binvox, .vdb) or mesh (as for build)")
       ->required();
-  cmd->add_option("OUT", args->output,
-                  "Output: .vox (MagicaVoxel), .binvox, .raw (uint8 grid + OUT.raw.json)")
+  cmd->add_option(
+         "OUT", args->output,
+         "Output: .vox (MagicaVoxel), .binvox, .vdb (OpenVDB), .raw (uint8 grid + OUT.raw.json)")
       ->required();
   args->resolution_opt =
       cmd->add_option("--resolution", args->resolution,
@@ -66,7 +68,7 @@ Runner add_convert(CLI::App& app) {
                              args->voxel_size, args->voxelization, args->fill);
     if (!args->memory_budget.empty()) s.memory_budget = parse_memory_budget(args->memory_budget);
     OutputSet outputs({args->input});
-    outputs.add("OUT", args->output, {".vox", ".binvox", ".raw"});
+    outputs.add("OUT", args->output, {".vox", ".binvox", ".vdb", ".raw"});
     const bool raw = std::filesystem::path(args->output).extension() == ".raw";
     const std::string sidecar = args->output + ".json";
     if (raw) outputs.add("OUT", sidecar, {".json"});

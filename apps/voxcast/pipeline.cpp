@@ -175,7 +175,7 @@ uint64_t settings_budget(const BuildSettings& s) {
   return s.memory_budget ? s.memory_budget : uint64_t(double(available_memory_bytes()) * 0.9);
 }
 
-/// A voxel file (.vox, .binvox) is already the voxel set.
+/// A voxel file (.vox, .binvox, .vdb) is already the voxel set.
 VoxelSet read_voxel_input(const BuildSettings& s, uint64_t budget, BuiltScene& out,
                           StageTimer& timer) {
   VoxelReadOptions ro;

@@ -56,7 +56,7 @@ uint64_t estimate_build_bytes(const Mesh& mesh, const GridTransform& grid);
 /// Bytes the mesh's arrays and textures hold.
 uint64_t mesh_bytes(const Mesh& mesh);
 
-/// settings.mesh_path may also name a voxel file (.vox, .binvox:
+/// settings.mesh_path may also name a voxel file (.vox, .binvox, .vdb:
 /// is_voxel_input), which is built as it is (no mesh, no contours).
 BuiltScene build_scene(const BuildSettings& settings);
 

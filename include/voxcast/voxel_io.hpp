@@ -92,11 +92,23 @@ RawGrid encode_raw_grid(const VoxelSet& voxels, uint64_t memory_budget = 0);
 void write_raw_grid(const std::filesystem::path& path, const VoxelSet& voxels,
                     uint64_t memory_budget = 0);
 
+// --- OpenVDB .vdb -------------------------------------------------------------
+// In: the first float, double or bool grid is the geometry: a level set's
+// active voxels at or below 0 (the inner shell of its narrow band), a fog
+// volume's (any other class) active values above 0, a bool grid's active
+// true values, active tiles with every voxel they cover; colors from a Vec3S
+// grid named Cd or color (linear RGB), else white. The grid's uniform voxel
+// size and its placement are kept (origin = the lowest voxel's corner).
+// Out: a FloatGrid "density" (fog volume, 1 in every voxel) and a Vec3SGrid
+// "Cd" (linear colors), index (i, j, k) centered on voxcast voxel (i, j, k).
+VoxelSet read_vdb(const std::filesystem::path& path, const VoxelReadOptions& options = {});
+void write_vdb(const std::filesystem::path& path, const VoxelSet& voxels);
+
 // --- by extension --------------------------------------------------------------
-/// .vox or .binvox (what read_voxels reads).
+/// .vox, .binvox or .vdb (what read_voxels reads).
 bool is_voxel_input(const std::filesystem::path& path);
 VoxelSet read_voxels(const std::filesystem::path& path, const VoxelReadOptions& options = {});
-/// .vox, .binvox or .raw.
+/// .vox, .binvox, .vdb or .raw.
 bool is_voxel_output(const std::filesystem::path& path);
 void write_voxels(const std::filesystem::path& path, const VoxelSet& voxels,
                   uint64_t memory_budget = 0);

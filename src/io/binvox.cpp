@@ -202,19 +202,20 @@ void write_raw_grid(const std::filesystem::path& path, const VoxelSet& voxels,
 
 bool is_voxel_input(const std::filesystem::path& path) {
   const std::string e = lower_ext(path);
-  return e == ".vox" || e == ".binvox";
+  return e == ".vox" || e == ".binvox" || e == ".vdb";
 }
 
 VoxelSet read_voxels(const std::filesystem::path& path, const VoxelReadOptions& options) {
   const std::string e = lower_ext(path);
   if (e == ".vox") return read_vox(path, options);
   if (e == ".binvox") return read_binvox(path, options);
-  throw Error(fmt::format("'{}': not a voxel file (.vox or .binvox)", path.string()));
+  if (e == ".vdb") return read_vdb(path, options);
+  throw Error(fmt::format("'{}': not a voxel file (.vox, .binvox or .vdb)", path.string()));
 }
 
 bool is_voxel_output(const std::filesystem::path& path) {
   const std::string e = lower_ext(path);
-  return e == ".vox" || e == ".binvox" || e == ".raw";
+  return e == ".vox" || e == ".binvox" || e == ".vdb" || e == ".raw";
 }
 
 void write_voxels(const std::filesystem::path& path, const VoxelSet& voxels,
@@ -222,8 +223,10 @@ void write_voxels(const std::filesystem::path& path, const VoxelSet& voxels,
   const std::string e = lower_ext(path);
   if (e == ".vox") return write_vox(path, voxels);
   if (e == ".binvox") return write_binvox(path, voxels);
+  if (e == ".vdb") return write_vdb(path, voxels);
   if (e == ".raw") return write_raw_grid(path, voxels, memory_budget);
-  throw Error(fmt::format("'{}': unknown voxel format (use .vox, .binvox or .raw)", path.string()));
+  throw Error(
+      fmt::format("'{}': unknown voxel format (use .vox, .binvox, .vdb or .raw)", path.string()));
 }
 
 }  // namespace voxcast
