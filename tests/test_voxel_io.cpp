@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <iterator>
 #include <map>
@@ -432,6 +433,14 @@ TEST(VoxelIo, MalformedVoxIsRefused) {
     refused(vb, "more than");
   }
   {
+    // A chain of 20000 transforms: refused by depth, not by a stack overflow.
+    VoxBuilder vb;
+    vb.model(2, 2, 2, {{0, 0, 0, 1}});
+    for (int i = 0; i < 20000; ++i) vb.trn(i, i + 1, {});
+    vb.shp(20000, 0);
+    refused(vb, "deeper than");
+  }
+  {
     VoxBuilder vb;
     vb.model(2, 2, 2, {{0, 0, 0, 1}});
     vb.trn(0, 1, {{"_t", "2000000 0 0"}});
@@ -466,6 +475,34 @@ TEST(VoxelIo, DamagedVoxFilesAreRefusedOrValid) {
     damage_loop(file_bytes(kVoxDir + name), name);
   const uint32_t ext[3] = {300, 8, 20};
   damage_loop(encode_vox(random_set(3, ext, 200, 10)), "written scene graph");
+}
+
+// Inputs from fuzz_vox runs (tests/data/regress/vox): the smallest input of
+// each refusal the fuzzer reached, and a few it accepted. Refused ones stay
+// refused with voxcast::Error; accepted ones stay valid and write and read
+// back unchanged (the fuzz target's own check).
+TEST(VoxelIo, CommittedRegressionInputs) {
+  const std::filesystem::path dir =
+      std::filesystem::path(VOXCAST_TEST_DATA_DIR) / "regress" / "vox";
+  size_t refused = 0, accepted = 0;
+  for (const auto& e : std::filesystem::directory_iterator(dir)) {
+    const std::string name = e.path().filename().string();
+    SCOPED_TRACE(name);
+    const auto bytes = file_bytes(e.path().string());
+    const bool binvox = e.path().extension() == ".binvox";
+    if (name.rfind("refused-", 0) == 0) {
+      EXPECT_THROW(binvox ? parse_binvox(bytes) : parse_vox(bytes), Error);
+      ++refused;
+    } else {
+      const VoxelSet a = binvox ? parse_binvox(bytes) : parse_vox(bytes);
+      expect_valid(a);
+      const VoxelSet b = binvox ? parse_binvox(encode_binvox(a)) : parse_vox(encode_vox(a));
+      EXPECT_EQ(normalized(b), normalized(a));
+      ++accepted;
+    }
+  }
+  EXPECT_GE(refused, 40u);
+  EXPECT_GE(accepted, 3u);
 }
 
 TEST(VoxelIo, BinvoxRoundTripAndRawGrid) {

@@ -160,7 +160,10 @@ Runner add_build(CLI::App& app) {
     StageTimer timer(args->verbose);
     SceneInfo info;
     info.source = std::filesystem::path(args->input).filename().string();
-    info.voxelization = voxelization_name(s.mode);
+    // A voxel file is not voxelized here: its format names the source.
+    info.voxelization = is_voxel_input(args->input) ? "voxel file"
+                        : s.fill_solid ? std::string(voxelization_name(s.mode)) + ", solid"
+                                       : voxelization_name(s.mode);
     info.source_triangles = built.mesh.triangle_count();
     info.leaf_voxels = built.leaf_voxels;
     if (s.dag) {

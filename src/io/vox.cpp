@@ -242,6 +242,10 @@ class SceneWalk {
       throw Error(fmt::format("malformed .vox: scene graph refers to missing node {}", id));
     if (!on_path_.insert(id).second)
       throw Error(fmt::format("malformed .vox: scene graph is recursive (node {})", id));
+    // The walk recurses: a long chain of nodes must not exhaust the stack
+    // (MagicaVoxel writes a handful of levels).
+    if (on_path_.size() > kMaxDepth)
+      throw Error(fmt::format("malformed .vox: scene graph is deeper than {} nodes", kMaxDepth));
     // A group may list one subtree many times: instancing can multiply the
     // visits exponentially with depth, so they are bounded, not just cycles.
     if (++visits_ > kMaxVisits)
@@ -272,6 +276,7 @@ class SceneWalk {
     on_path_.erase(id);
   }
   static constexpr uint64_t kMaxVisits = uint64_t(1) << 20;
+  static constexpr size_t kMaxDepth = 1024;
   static constexpr int64_t kMaxOffset = int64_t(1) << 22;
   const std::map<int32_t, Node>& nodes_;
   const std::vector<Model>& models_;
