@@ -12,6 +12,7 @@
 #include "voxcast/progress.hpp"
 #include "voxcast/scene_file.hpp"
 #include "voxcast/system.hpp"
+#include "voxcast/voxel_io.hpp"
 
 namespace voxcast::cli {
 
@@ -20,6 +21,7 @@ struct BuildArgs {
   std::string input, output, voxelization = "conservative", memory_budget;
   std::string attributes = "raw";
   std::string format = "esvo";
+  std::string fill = "surface";
   uint32_t resolution = 1024;
   double voxel_size = 0;
   int threads = 0;
@@ -40,7 +42,9 @@ Runner add_build(CLI::App& app) {
   auto args = std::make_shared<BuildArgs>();
   CLI::App* cmd = app.add_subcommand(
       "build", "Voxelize a triangle mesh into a scene file (ESVO octree or sparse voxel DAG)");
-  cmd->add_option("MESH", args->input, "Input mesh (OBJ, PLY, OFF, STL, glTF/GLB, FBX, DAE, ...)")
+  cmd->add_option("MESH", args->input,
+                  "Input mesh (OBJ, PLY, OFF, STL, glTF/GLB, FBX, DAE, ...) or voxel file "
+                  "(.vox, .binvox, .vdb: built as it is)")
       ->required();
   cmd->add_option("-o,--output", args->output, "Output scene file (.vxc)")->required();
   auto* res = cmd->add_option("--resolution", args->resolution,
@@ -52,6 +56,10 @@ Runner add_build(CLI::App& app) {
                       "Largest voxel size in world units (resolution rounded up to a power of two)")
           ->excludes(res);
   cmd->add_option("--voxelization", args->voxelization, "conservative | 6-separating")
+      ->capture_default_str();
+  cmd->add_option("--fill", args->fill,
+                  "surface | solid (also the interior of closed meshes; parity per column, "
+                  "winding number where the mesh is not watertight)")
       ->capture_default_str();
   cmd->add_option("--attributes", args->attributes,
                   "Color/normal storage: raw (8 B/voxel) | compressed (esvo §5.5 blocks, lossy; "
@@ -99,15 +107,8 @@ Runner add_build(CLI::App& app) {
     // Every option value first (usage errors, exit 2), then the files.
     BuildSettings s;
     s.mesh_path = args->input;
-    require_power_of_two("--resolution", args->resolution, 1, uint64_t(1) << 20);
-    s.resolution = args->resolution;
-    if (args->voxel_size_opt->count()) {
-      // Finite and positive; whether the grid it implies fits the mesh is
-      // known once the mesh is read (GridTransform::fit_voxel_size).
-      require_range("--voxel-size", args->voxel_size, 1e-30, 1e30);
-      s.voxel_size = args->voxel_size;
-    }
-    s.mode = parse_voxelization(args->voxelization);
+    set_voxelization_options(s, args->resolution, args->voxel_size_opt->count() > 0,
+                             args->voxel_size, args->voxelization, args->fill);
     s.attributes = parse_attribute_format(args->attributes);
     if (!args->memory_budget.empty()) s.memory_budget = parse_memory_budget(args->memory_budget);
     s.verbose = args->verbose;
@@ -159,17 +160,25 @@ Runner add_build(CLI::App& app) {
     if (args->cell_size_opt->count())
       require_power_of_two("--cell-size", args->cell_size, 4, uint64_t(1) << 20);
     s.out_of_core = args->out_of_core || args->cell_size != 0;
+    if (s.fill_solid && (s.contours || s.out_of_core))
+      throw UsageError("--fill solid applies to in-core builds without --contours");
+    if (is_voxel_input(args->input) && (s.contours || s.fill_solid || s.out_of_core))
+      throw UsageError(
+          "a voxel file input is built as it is: no --contours, --fill or --out-of-core");
     s.cell_size = args->cell_size;
     s.dag_attributes = !args->no_attributes;
     OutputSet outputs({args->input});
     outputs.add("-o", args->output, {".vxc"});
-    require_regular_input(args->input, "mesh");
+    require_regular_input(args->input, is_voxel_input(args->input) ? "voxel file" : "mesh");
     StageTimer total(false);
     BuiltScene built = build_scene(s);
     StageTimer timer(args->verbose);
     SceneInfo info;
     info.source = std::filesystem::path(args->input).filename().string();
-    info.voxelization = voxelization_name(s.mode);
+    // A voxel file is not voxelized here: its format names the source.
+    info.voxelization = is_voxel_input(args->input) ? "voxel file"
+                        : s.fill_solid ? std::string(voxelization_name(s.mode)) + ", solid"
+                                       : voxelization_name(s.mode);
     info.source_triangles = built.mesh.triangle_count();
     info.leaf_voxels = built.leaf_voxels;
     outputs.write(args->output, [&](const std::filesystem::path& to) {

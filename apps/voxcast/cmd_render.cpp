@@ -11,6 +11,7 @@
 #include "cli_io.hpp"
 #include "commands.hpp"
 #include "view/camera_path.hpp"
+#include "exr_output.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/progress.hpp"
@@ -23,6 +24,7 @@ namespace voxcast::cli {
 namespace {
 struct RenderArgs {
   std::string input, output, size = "1024x768", depth, normal, light;
+  std::string aov;  // EXR output: extra layers in the same file
   CameraArgs camera;
   float lod = 1.f;
   int threads = 0;
@@ -87,7 +89,12 @@ Runner add_render(CLI::App& app) {
   auto args = std::make_shared<RenderArgs>();
   CLI::App* cmd = app.add_subcommand("render", "Ray cast a scene file into an image");
   cmd->add_option("SCENE", args->input, "Scene file written by `voxcast build`")->required();
-  cmd->add_option("-o,--output", args->output, "Output image (.png or .pfm)")->required();
+  cmd->add_option("-o,--output", args->output,
+                  "Output image (.png, .pfm or .exr; .exr may hold the --aov layers too)")
+      ->required();
+  cmd->add_option("--aov", args->aov,
+                  "With -o X.exr: also store depth (Z) and/or normal (N.x, N.y, N.z) in it, "
+                  "e.g. depth,normal");
   cmd->add_option("--size", args->size, "Image size WxH")->capture_default_str();
   add_camera_options(cmd, args->camera);
   cmd->add_option("--path", args->path,
@@ -234,17 +241,18 @@ Runner add_render(CLI::App& app) {
       if (file.empty()) return;
       switch (which) {
         case 0:
-          return set.add("-o", file, {".png", ".pfm"});
+          return set.add("-o", file, {".png", ".pfm", ".exr"});
         case 1:
-          return set.add("--depth", file, {".pfm"});
+          return set.add("--depth", file, {".pfm", ".exr"});
         case 2:
-          return set.add("--normals", file, {".png", ".pfm"});
+          return set.add("--normals", file, {".png", ".pfm", ".exr"});
         case 3:
           return set.add("--heatmap", file, {".png"});
         default:
           return set.add("--ao-output", file, {".png", ".pfm"});
       }
     };
+    const ExrLayers layers = parse_exr_layers(args->aov, args->output);
     {
       OutputSet as_given(inputs);  // the names as given: usage errors before any file is read
       for (size_t i = 0; i < given.size(); ++i) add_output(as_given, i, given[i]);
@@ -286,8 +294,8 @@ Runner add_render(CLI::App& app) {
       std::error_code ec;
       const double scene_bytes = 2.0 * double(std::filesystem::file_size(args->input, ec));
       double per_pixel = 12 + 12;  // color floats, 8-bit copy + PNG bytes
-      if (!args->depth.empty()) per_pixel += 4 + 4;
-      if (!args->normal.empty()) per_pixel += 12 + 12;
+      if (!args->depth.empty() || layers.depth) per_pixel += 4 + 4;
+      if (!args->normal.empty() || layers.normal) per_pixel += 12 + 12;
       if (opt.collect_stats) per_pixel += 4 + 12 + 12;  // iterations, heat map, PNG
       if (fx.ao_rays > 0) per_pixel += 4 + 4;
       // One view at a time: the images of earlier views are written before
@@ -314,8 +322,8 @@ Runner add_render(CLI::App& app) {
         opt.camera =
             resolve_camera(args->camera, scene.occupied, opt.width, opt.height, &derived_camera);
       if (derived_camera) std::printf("camera: %s\n", opt.camera.to_string().c_str());
-      opt.want_depth = !args->depth.empty();
-      opt.want_normal = !args->normal.empty();
+      opt.want_depth = !args->depth.empty() || layers.depth;
+      opt.want_normal = !args->normal.empty() || layers.normal;
       opt.filter = args->filter;
       RenderResult result = render(structure, opt);
       timer.mark("ray cast");
@@ -327,9 +335,14 @@ Runner add_render(CLI::App& app) {
                       [&](const std::filesystem::path& to) { write_image(to, im, already_srgb); });
       };
       const std::vector<std::string>& f = v.files;  // in the order of `given`
-      image(f[0], result.color);
-      if (opt.want_depth) image(f[1], result.depth);
-      if (opt.want_normal) image(f[2], result.normal, true);
+      if (layers.depth || layers.normal)
+        outputs.write(f[0], [&](const std::filesystem::path& to) {
+          write_exr_layers(to, result, layers);
+        });
+      else
+        image(f[0], result.color);
+      if (!args->depth.empty()) image(f[1], result.depth);
+      if (!args->normal.empty()) image(f[2], result.normal, true);
       if (!args->heatmap.empty())
         image(f[3], iteration_heatmap(result.iterations, args->heatmap_max));
       if (!args->ao_output.empty()) image(f[4], result.ao, true);  // as stored, linear

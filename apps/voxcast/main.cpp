@@ -96,6 +96,7 @@ int main(int argc, char** argv) {
   add(add_generate);
   add(add_view);
   add(add_volume);
+  add(add_convert);
   // One convention (README "Command line"): a usage error is one line and
   // exit 2, a runtime error one line and exit 1; --help prints the help.
   auto error_line = [](const std::string& message) {
@@ -115,7 +116,8 @@ int main(int argc, char** argv) {
       if (sub->parsed()) which = sub;
     std::string message = e.what();
     if (!which && app.get_subcommands().empty() && message.find("subcommand") != std::string::npos)
-      message = "a subcommand is required: build, render, info, bench, generate, view or volume";
+      message =
+          "a subcommand is required: build, render, info, bench, generate, view, volume or convert";
     error_line(message + " (see 'voxcast" + (which ? " " + which->get_name() : std::string()) +
                " --help')");
     return 2;

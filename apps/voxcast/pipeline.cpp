@@ -13,7 +13,9 @@
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/progress.hpp"
+#include "voxcast/solid.hpp"
 #include "voxcast/system.hpp"
+#include "voxcast/voxel_io.hpp"
 
 namespace voxcast::cli {
 
@@ -21,6 +23,21 @@ VoxelizationMode parse_voxelization(const std::string& name) {
   if (name == "conservative") return VoxelizationMode::Conservative;
   if (name == "6-separating" || name == "six-separating") return VoxelizationMode::SixSeparating;
   throw UsageError("--voxelization: '" + printable(name) + "' is not conservative or 6-separating");
+}
+
+void set_voxelization_options(BuildSettings& s, uint32_t resolution, bool voxel_size_given,
+                              double voxel_size, const std::string& voxelization,
+                              const std::string& fill) {
+  require_power_of_two("--resolution", resolution, 1, uint64_t(1) << 20);
+  s.resolution = resolution;
+  if (voxel_size_given) {
+    require_range("--voxel-size", voxel_size, 1e-30, 1e30);
+    s.voxel_size = voxel_size;
+  }
+  s.mode = parse_voxelization(voxelization);
+  if (fill != "surface" && fill != "solid")
+    throw UsageError("--fill: '" + printable(fill) + "' is not surface or solid");
+  s.fill_solid = fill == "solid";
 }
 
 const char* voxelization_name(VoxelizationMode mode) {
@@ -135,9 +152,46 @@ GridTransform build_grid(const BuildSettings& s, const Aabb& bounds) {
   return grid;
 }
 
+namespace {
+/// A voxel file (.vox, .binvox, .vdb) is already the voxel set: built
+/// through the format registry as it is (no mesh, no contours).
+BuiltScene build_from_voxel_file(const BuildSettings& s, uint64_t budget, StageTimer& timer) {
+  BuiltScene out;
+  VoxelReadOptions ro;
+  ro.memory_budget = budget;
+  VoxelSet voxels = read_voxels(s.mesh_path, ro);
+  out.load_seconds = timer.mark("read voxels");
+  out.leaf_voxels = voxels.size();
+  const SceneFormat& format = format_registry().get(s.format);
+  if (format.attributes_optional && !s.dag_attributes)
+    voxels.colors.clear(), voxels.normals.clear(), voxels.weights.clear();
+  FormatBuildOptions fo;
+  fo.compress_attributes = s.attributes == esvo::AttributeFormat::Compressed;
+  out.structure = format.build(voxels, fo);
+  out.octree_seconds = timer.mark((format.name + " build").c_str());
+  return out;
+}
+
+/// --fill solid: the interior added to the surface voxels, bounded by what
+/// the budget holds beside the mesh and the surface.
+void fill_interior(const BuildSettings& s, const Mesh& mesh, uint64_t budget, VoxelSet* voxels,
+                   StageTimer& timer) {
+  SolidFillStats st;
+  const uint64_t used = mesh_bytes(mesh) + voxels->size() * kVoxelSetBytesPerVoxel;
+  const uint64_t max_voxels = budget > used ? (budget - used) / kVoxelSetBytesPerVoxel : 1;
+  *voxels = fill_solid(mesh, *voxels, &st, max_voxels);
+  timer.mark("solid fill");
+  if (s.verbose)
+    std::fprintf(stderr, "solid fill: %llu interior voxels, %llu of %llu columns by winding number\n",
+                 (unsigned long long)st.interior_voxels, (unsigned long long)st.ambiguous_columns,
+                 (unsigned long long)st.columns);
+}
+}  // namespace
+
 BuiltScene build_scene(const BuildSettings& s) {
   const uint64_t budget = effective_budget(s.memory_budget);
   StageTimer timer(s.verbose);
+  if (is_voxel_input(s.mesh_path)) return build_from_voxel_file(s, budget, timer);
   MeshLoadStats stats;
   Mesh mesh = load_build_mesh(s.mesh_path, budget, &stats, s.verbose);
   const double load_seconds = timer.mark("load mesh");
@@ -160,7 +214,7 @@ BuiltScene build_scene(const BuildSettings& s, Mesh mesh, const MeshLoadStats& m
 
   // The mesh stays in memory for the whole build.
   const uint64_t need = estimate_build_bytes(out.mesh, grid) + mesh_bytes(out.mesh);
-  if (dag && (s.out_of_core || (budget && need > budget))) {
+  if (dag && !s.fill_solid && (s.out_of_core || (budget && need > budget))) {
     // svdag §3 "Implementation details": sub-volumes voxelized and reduced
     // one at a time, peak memory bounded by the budget.
     dag::OutOfCoreOptions oo;
@@ -223,12 +277,15 @@ BuiltScene build_scene(const BuildSettings& s, Mesh mesh, const MeshLoadStats& m
     VoxelizeOptions vo;
     vo.mode = s.mode;
     vo.progress = &progress;
-    vo.attributes = !format.attributes_optional || s.dag_attributes;
+    vo.attributes = !format.attributes_optional || s.dag_attributes || s.fill_solid;
     voxels = voxelize(out.mesh, grid, vo);
   }
   out.voxelize_seconds = timer.mark("voxelize");
-  out.leaf_voxels = voxels.size();
   if (voxels.size() == 0) throw Error("the mesh produced no voxels");
+  if (s.fill_solid) fill_interior(s, out.mesh, budget, &voxels, timer);
+  out.leaf_voxels = voxels.size();
+  if (s.fill_solid && format.attributes_optional && !s.dag_attributes)
+    voxels.colors.clear(), voxels.normals.clear(), voxels.weights.clear();
   if (esvo_format && s.contours) {
     // Contours are shaped by the mesh (esvo §5.2): ESVO's own build.
     out.structure = std::make_unique<esvo::EsvoStructure>(
@@ -240,6 +297,40 @@ BuiltScene build_scene(const BuildSettings& s, Mesh mesh, const MeshLoadStats& m
   }
   out.octree_seconds = timer.mark((format.name + " build").c_str());
   return out;
+}
+
+VoxelSet input_voxels(const BuildSettings& s) {
+  const uint64_t budget = effective_budget(s.memory_budget);
+  StageTimer timer(s.verbose);
+  if (is_voxel_input(s.mesh_path)) {
+    VoxelReadOptions ro;
+    ro.memory_budget = budget;
+    VoxelSet voxels = read_voxels(s.mesh_path, ro);
+    timer.mark("read voxels");
+    return voxels;
+  }
+  MeshLoadStats stats;
+  const Mesh mesh = load_build_mesh(s.mesh_path, budget, &stats, s.verbose);
+  timer.mark("load mesh");
+  const GridTransform grid = build_grid(s, mesh.bounds());
+  const uint64_t need = estimate_build_bytes(mesh, grid) + mesh_bytes(mesh);
+  if (budget && need > budget)
+    throw Error("resolution " + std::to_string(grid.resolution) + " needs an estimated " +
+                format_bytes(double(need)) + ", more than the " + format_bytes(double(budget)) +
+                " memory budget; lower --resolution or raise --memory-budget");
+  VoxelSet voxels;
+  {
+    Progress progress("voxelize", mesh.triangle_count());
+    VoxelizeOptions vo;
+    vo.mode = s.mode;
+    vo.progress = &progress;
+    vo.attributes = true;
+    voxels = voxelize(mesh, grid, vo);
+  }
+  timer.mark("voxelize");
+  if (voxels.size() == 0) throw Error("the mesh produced no voxels");
+  if (s.fill_solid) fill_interior(s, mesh, budget, &voxels, timer);
+  return voxels;
 }
 
 }  // namespace voxcast::cli

@@ -32,6 +32,9 @@ struct BuildSettings {
   bool contours = false;
   int max_level = 0;
   double geometry_error = 0, color_error = -1, normal_error = -1;
+  // --fill solid: the surface plus the interior (fill_solid, solid.hpp);
+  // in-core builds without contours only.
+  bool fill_solid = false;
 };
 
 struct BuiltScene {
@@ -66,10 +69,24 @@ Mesh load_build_mesh(const std::string& path, uint64_t budget, MeshLoadStats* st
 /// a grid the scene loader would refuse (GridTransform::placement_is_valid).
 GridTransform build_grid(const BuildSettings& settings, const Aabb& bounds);
 
-/// load_build_mesh, then the build below.
+/// load_build_mesh, then the build below. settings.mesh_path may also name a
+/// voxel file (.vox, .binvox, .vdb: is_voxel_input), which is built as it is
+/// (no mesh, no contours).
 BuiltScene build_scene(const BuildSettings& settings);
 /// The build from an already loaded mesh (moved into BuiltScene::mesh).
 BuiltScene build_scene(const BuildSettings& settings, Mesh mesh, const MeshLoadStats& mesh_stats);
+
+/// The voxel set `voxcast convert` writes: the voxel file read, or the mesh
+/// voxelized in core (with the solid fill when asked).
+VoxelSet input_voxels(const BuildSettings& settings);
+
+/// The grid and voxelization options `build` and `convert` share, checked
+/// (usage errors): --resolution (a power of two), --voxel-size when given
+/// (finite, positive; whether its grid fits the mesh is known once the mesh
+/// is read), --voxelization and --fill (surface | solid).
+void set_voxelization_options(BuildSettings& s, uint32_t resolution, bool voxel_size_given,
+                              double voxel_size, const std::string& voxelization,
+                              const std::string& fill);
 
 VoxelizationMode parse_voxelization(const std::string& name);
 const char* voxelization_name(VoxelizationMode mode);

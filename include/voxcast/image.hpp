@@ -19,7 +19,8 @@ struct Image {
 };
 
 /// Writes .png (8-bit, sRGB-encoded from linear unless `already_srgb`),
-/// .pfm (float, little-endian, scale -1, rows bottom to top; 1 or 3 channels).
+/// .pfm (float, little-endian, scale -1, rows bottom to top; 1 or 3 channels),
+/// .exr (OpenEXR half floats, linear: write_exr_image in exr.hpp).
 /// Writes to a temporary file in the same directory and renames it into place.
 /// Throws voxcast::Error for an unknown extension or an I/O failure.
 void write_image(const std::filesystem::path& path, const Image& image, bool already_srgb = false);

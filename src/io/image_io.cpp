@@ -17,6 +17,7 @@
 
 #include "io/atomic_file.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/exr.hpp"
 #include "voxcast/image.hpp"
 
 namespace voxcast {
@@ -136,10 +137,12 @@ std::string read_whole_file(const std::filesystem::path& path) {
 
 void write_image(const std::filesystem::path& path, const Image& image, bool already_srgb) {
   std::string ext = lower_extension(path);
-  if (ext != ".png" && ext != ".pfm")
-    throw Error(fmt::format("cannot write {}: unknown image extension '{}' (use .png or .pfm)",
-                            path.string(), path.extension().string()));
+  if (ext != ".png" && ext != ".pfm" && ext != ".exr")
+    throw Error(
+        fmt::format("cannot write {}: unknown image extension '{}' (use .png, .pfm or .exr)",
+                    path.string(), path.extension().string()));
   check_image(image, path);
+  if (ext == ".exr") return write_exr_image(path, image);  // exr.cpp
   if (ext == ".png")
     write_png(path, image, already_srgb);
   else

@@ -1,0 +1,185 @@
+// OpenVDB .vdb in and out (voxel_io.hpp) through libopenvdb.
+#include <fmt/format.h>
+#include <openvdb/openvdb.h>
+
+#include <algorithm>
+#include <bit>
+#include <cmath>
+#include <mutex>
+#include <optional>
+
+#include "io/voxel_io_internal.hpp"
+#include "voxcast/error.hpp"
+#include "voxcast/morton.hpp"
+#include "voxcast/voxel_io.hpp"
+
+namespace voxcast {
+
+namespace {
+
+void init_openvdb() {
+  static std::once_flag once;
+  std::call_once(once, [] { openvdb::initialize(); });
+}
+
+/// Index-space voxels of `grid` that are voxcast voxels, as (coord) list:
+/// a level set's active voxels at or below zero (the inner shell of its
+/// narrow band), a fog volume's active values above zero, a BoolGrid's
+/// active true values. Active tiles count with every voxel they cover.
+template <class GridT, class Keep>
+std::vector<openvdb::Coord> occupied(const GridT& grid, Keep keep, uint64_t max_voxels) {
+  std::vector<openvdb::Coord> out;
+  for (auto it = grid.cbeginValueOn(); it; ++it) {
+    if (!keep(*it)) continue;
+    const openvdb::CoordBBox box = it.getBoundingBox();
+    const uint64_t n = box.volume();
+    if (out.size() + n > max_voxels)
+      throw Error(
+          fmt::format(".vdb grid '{}' holds more than {} voxels, more than the memory "
+                      "budget allows",
+                      grid.getName(), max_voxels));
+    for (auto c = box.begin(); c; ++c) out.push_back(*c);
+  }
+  return out;
+}
+
+}  // namespace
+
+VoxelSet read_vdb(const std::filesystem::path& path, const VoxelReadOptions& options) {
+  const uint64_t budget = detail::voxel_budget(options);
+  const uint64_t max_voxels = budget / kVoxelSetBytesPerVoxel;
+  init_openvdb();
+  openvdb::GridPtrVecPtr grids;
+  try {
+    openvdb::io::File file(path.string());
+    file.open(false);  // no delayed loading: the whole file is read and checked now
+    grids = file.getGrids();
+    file.close();
+  } catch (const std::exception& e) {
+    throw Error(fmt::format("'{}': not a readable .vdb file ({})", path.string(), e.what()));
+  }
+  // The first scalar or boolean grid is the geometry; a Vec3S grid named
+  // Cd or color (the usual names) gives the colors.
+  openvdb::GridBase::Ptr geometry;
+  openvdb::Vec3SGrid::Ptr colors;
+  for (const auto& g : *grids) {
+    if (!geometry && (g->isType<openvdb::FloatGrid>() || g->isType<openvdb::DoubleGrid>() ||
+                      g->isType<openvdb::BoolGrid>()))
+      geometry = g;
+    if (!colors && g->isType<openvdb::Vec3SGrid>() &&
+        (g->getName() == "Cd" || g->getName() == "color"))
+      colors = openvdb::gridPtrCast<openvdb::Vec3SGrid>(g);
+  }
+  if (!geometry)
+    throw Error(fmt::format("'{}': no float, double or bool grid in the .vdb file", path.string()));
+  const openvdb::math::Transform& xf = geometry->transform();
+  if (!xf.isLinear() || !xf.hasUniformScale())
+    throw Error(fmt::format("'{}': grid '{}' has a non-uniform or non-linear transform",
+                            path.string(), geometry->getName()));
+  std::vector<openvdb::Coord> coords;
+  const bool level_set = geometry->getGridClass() == openvdb::GRID_LEVEL_SET;
+  if (auto f = openvdb::gridPtrCast<openvdb::FloatGrid>(geometry))
+    coords = level_set ? occupied(
+                             *f, [](float v) { return v <= 0.f; }, max_voxels)
+                       : occupied(
+                             *f, [](float v) { return v > 0.f; }, max_voxels);
+  else if (auto d = openvdb::gridPtrCast<openvdb::DoubleGrid>(geometry))
+    coords = level_set ? occupied(
+                             *d, [](double v) { return v <= 0.0; }, max_voxels)
+                       : occupied(
+                             *d, [](double v) { return v > 0.0; }, max_voxels);
+  else
+    coords = occupied(
+        *openvdb::gridPtrCast<openvdb::BoolGrid>(geometry), [](bool v) { return v; }, max_voxels);
+  if (coords.empty())
+    throw Error(fmt::format("'{}': the .vdb grid holds no voxels", path.string()));
+  openvdb::Coord lo = coords[0], hi = coords[0];
+  for (const auto& c : coords) lo.minComponent(c), hi.maxComponent(c);
+  int64_t extent = 1;
+  for (int a = 0; a < 3; ++a) extent = std::max<int64_t>(extent, int64_t(hi[a]) - lo[a] + 1);
+  if (extent > (int64_t(1) << kMaxGridLevels))
+    throw Error(
+        fmt::format("'{}': the .vdb voxels span {} voxels, more than the {} voxel grid limit",
+                    path.string(), extent, 1 << kMaxGridLevels));
+  VoxelSet set;
+  set.grid = detail::unit_grid(uint32_t(extent));
+  // VDB index coordinates are voxel centers: voxcast's voxel 0 starts half a
+  // voxel below the lowest one.
+  const double h = xf.voxelSize()[0];
+  const openvdb::Vec3d corner =
+      xf.indexToWorld(openvdb::Vec3d(lo.x() - 0.5, lo.y() - 0.5, lo.z() - 0.5));
+  set.grid.voxel_size = h;
+  set.grid.origin = {float(corner.x()), float(corner.y()), float(corner.z())};
+  if (!set.grid.placement_is_valid())
+    throw Error(fmt::format("'{}': the .vdb grid's placement is outside voxcast's world range",
+                            path.string()));
+  std::vector<std::pair<uint64_t, size_t>> order;
+  order.reserve(coords.size());
+  for (size_t i = 0; i < coords.size(); ++i)
+    order.push_back(
+        {morton_encode(uint32_t(coords[i].x() - lo.x()), uint32_t(coords[i].y() - lo.y()),
+                       uint32_t(coords[i].z() - lo.z())),
+         i});
+  std::sort(order.begin(), order.end());
+  auto accessor = colors ? std::optional(colors->getConstAccessor()) : std::nullopt;
+  for (const auto& [code, i] : order) {
+    set.codes.push_back(code);
+    Color c{1, 1, 1, 1};
+    if (accessor) {
+      // The color grid may have its own transform: sample it at the voxel's
+      // world position (nearest voxel).
+      const openvdb::Vec3d world = xf.indexToWorld(coords[i]);
+      const openvdb::Coord ci = colors->transform().worldToIndexNodeCentered(world);
+      const openvdb::Vec3s v = accessor->getValue(ci);
+      c = {v.x(), v.y(), v.z(), 1.f};
+    }
+    set.colors.push_back(c);
+  }
+  detail::finish_voxel_set(set);
+  return set;
+}
+
+void write_vdb(const std::filesystem::path& path, const VoxelSet& voxels) {
+  if (voxels.codes.empty()) throw Error("cannot write .vdb: the voxel set is empty");
+  init_openvdb();
+  // A fog volume (1 in every voxel, 0 outside) and the linear colors.
+  auto density = openvdb::FloatGrid::create(0.f);
+  density->setName("density");
+  density->setGridClass(openvdb::GRID_FOG_VOLUME);
+  auto color = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.f));
+  color->setName("Cd");
+  // Index (i, j, k) at voxel centers: origin + (i + 1/2) * size.
+  const double h = voxels.grid.voxel_size;
+  auto xf = openvdb::math::Transform::createLinearTransform(h);
+  xf->postTranslate(openvdb::Vec3d(voxels.grid.origin.x + 0.5 * h, voxels.grid.origin.y + 0.5 * h,
+                                   voxels.grid.origin.z + 0.5 * h));
+  density->setTransform(xf);
+  color->setTransform(xf->copy());
+  auto d = density->getAccessor();
+  auto c = color->getAccessor();
+  for (size_t i = 0; i < voxels.codes.size(); ++i) {
+    const MortonCoord m = morton_decode(voxels.codes[i]);
+    const openvdb::Coord ijk(int(m.x), int(m.y), int(m.z));
+    d.setValue(ijk, 1.f);
+    const Color& col = voxels.colors.empty() ? Color{1, 1, 1, 1} : voxels.colors[i];
+    c.setValue(ijk, openvdb::Vec3s(col.r, col.g, col.b));
+  }
+  openvdb::GridPtrVec grids{density, color};
+  // Written beside the target and renamed into place, like every output.
+  std::filesystem::path tmp = path;
+  tmp += ".tmp";
+  try {
+    openvdb::io::File file(tmp.string());
+    file.write(grids);
+    file.close();
+  } catch (const std::exception& e) {
+    std::error_code ec;
+    std::filesystem::remove(tmp, ec);
+    throw Error(fmt::format("cannot write {}: {}", path.string(), e.what()));
+  }
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) throw Error(fmt::format("cannot write {}: {}", path.string(), ec.message()));
+}
+
+}  // namespace voxcast

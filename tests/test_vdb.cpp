@@ -1,0 +1,130 @@
+// OpenVDB .vdb in and out (voxel_io.hpp): voxel sets round trip with their
+// placement and colors; a level set written by OpenVDB's own sphere tool
+// reads as the inner shell of its narrow band; damaged files are refused.
+#include <gtest/gtest.h>
+#include <openvdb/openvdb.h>
+#include <openvdb/tools/LevelSetSphere.h>
+
+#include <cmath>
+#include <fstream>
+#include <iterator>
+#include <random>
+
+#include "support/cli_runner.hpp"
+#include "support/voxel_compare.hpp"
+#include "voxcast/error.hpp"
+#include "voxcast/morton.hpp"
+#include "voxcast/voxel_io.hpp"
+
+using namespace voxcast;
+using voxcast::testing::run_cli;
+using voxcast::testing::TempDir;
+
+namespace {
+
+VoxelSet random_colored(uint32_t seed, uint32_t n, size_t count) {
+  std::mt19937 rng(seed);
+  std::vector<uint64_t> codes;
+  for (size_t i = 0; i < count; ++i)
+    codes.push_back(morton_encode(rng() % n, rng() % n, rng() % n));
+  std::sort(codes.begin(), codes.end());
+  codes.erase(std::unique(codes.begin(), codes.end()), codes.end());
+  VoxelSet s;
+  s.grid.resolution = n;
+  s.grid.levels = std::countr_zero(n);
+  s.grid.origin = {-3.25f, 0.5f, 10.f};
+  s.grid.voxel_size = 0.125;
+  s.codes = codes;
+  std::uniform_real_distribution<float> u(0.f, 1.f);
+  for (size_t i = 0; i < codes.size(); ++i) s.colors.push_back({u(rng), u(rng), u(rng), 1.f});
+  return s;
+}
+
+Vec3d center_of(const VoxelSet& s, uint64_t code) {
+  const MortonCoord m = morton_decode(code);
+  const double h = s.grid.voxel_size;
+  return {s.grid.origin.x + (m.x + 0.5) * h, s.grid.origin.y + (m.y + 0.5) * h,
+          s.grid.origin.z + (m.z + 0.5) * h};
+}
+
+}  // namespace
+
+TEST(Vdb, RoundTripKeepsVoxelsPlacementAndColors) {
+  TempDir dir;
+  const VoxelSet a = random_colored(1, 64, 3000);
+  write_vdb(dir.file("a.vdb"), a);
+  const VoxelSet b = read_vdb(dir.file("a.vdb"));
+  ASSERT_EQ(b.size(), a.size());
+  // Positions relative to the occupied box, and the same world positions.
+  auto ra = voxcast::testing::box_relative_codes(a);
+  EXPECT_EQ(voxcast::testing::box_relative_codes(b), b.codes);  // b starts at its box
+  std::vector<std::pair<uint64_t, size_t>> order;
+  for (size_t i = 0; i < ra.size(); ++i) order.push_back({ra[i], i});
+  std::sort(order.begin(), order.end());
+  for (size_t k = 0; k < order.size(); ++k) {
+    ASSERT_EQ(b.codes[k], order[k].first);
+    const size_t i = order[k].second;
+    const Vec3d pa = center_of(a, a.codes[i]), pb = center_of(b, b.codes[k]);
+    EXPECT_NEAR(pa.x, pb.x, 1e-5);
+    EXPECT_NEAR(pa.y, pb.y, 1e-5);
+    EXPECT_NEAR(pa.z, pb.z, 1e-5);
+    EXPECT_EQ(b.colors[k].r, a.colors[i].r);
+    EXPECT_EQ(b.colors[k].g, a.colors[i].g);
+    EXPECT_EQ(b.colors[k].b, a.colors[i].b);
+  }
+  EXPECT_EQ(b.grid.voxel_size, a.grid.voxel_size);
+}
+
+TEST(Vdb, LevelSetSphereReadsAsItsInnerShell) {
+  TempDir dir;
+  openvdb::initialize();
+  const float radius = 5.f, voxel = 0.25f, half_width = 3.f;
+  const openvdb::Vec3f c(1.f, -2.f, 0.5f);
+  auto sphere =
+      openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(radius, c, voxel, half_width);
+  openvdb::io::File(dir.file("s.vdb")).write({sphere});
+  const VoxelSet s = read_vdb(dir.file("s.vdb"));
+  ASSERT_GT(s.size(), 1000u);
+  EXPECT_EQ(s.grid.voxel_size, double(voxel));
+  double rmin = 1e9, rmax = 0;
+  for (uint64_t code : s.codes) {
+    const Vec3d p = center_of(s, code);
+    const double r = std::sqrt((p.x - c.x()) * (p.x - c.x()) + (p.y - c.y()) * (p.y - c.y()) +
+                               (p.z - c.z()) * (p.z - c.z()));
+    rmin = std::min(rmin, r), rmax = std::max(rmax, r);
+  }
+  // Inside (phi <= 0) and within the narrow band of half_width voxels.
+  EXPECT_LE(rmax, radius + 1e-3);
+  EXPECT_GE(rmin, radius - (half_width + 1) * voxel);
+  // The shell spans the sphere: the grid holds a diameter.
+  EXPECT_GE(double(s.grid.resolution) * s.grid.voxel_size, 2 * (radius - voxel));
+}
+
+TEST(Vdb, DamagedFilesAreRefusedAndCliConverts) {
+  TempDir dir;
+  write_vdb(dir.file("a.vdb"), random_colored(2, 16, 200));
+  std::ifstream in(dir.file("a.vdb"), std::ios::binary);
+  const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  for (size_t len : {size_t(0), size_t(7), size_t(100), bytes.size() / 2}) {
+    std::ofstream(dir.file("cut.vdb"), std::ios::binary).write(bytes.data(), std::streamsize(len));
+    EXPECT_THROW(read_vdb(dir.file("cut.vdb")), Error) << len;
+  }
+  const std::string knight = std::string(VOXCAST_TEST_DATA_DIR) + "/vox/chr_knight.vox";
+  auto r = run_cli("convert " + knight + " " + dir.file("k.vdb"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  r = run_cli("convert " + dir.file("k.vdb") + " " + dir.file("k.vox"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  // .vdb keeps the occupied voxels, not the model's empty margins.
+  auto sorted = [](std::vector<uint64_t> v) {
+    std::sort(v.begin(), v.end());
+    return v;
+  };
+  EXPECT_EQ(sorted(voxcast::testing::box_relative_codes(read_vox(dir.file("k.vox")))),
+            sorted(voxcast::testing::box_relative_codes(read_vox(knight))));
+  r = run_cli("build " + dir.file("k.vdb") + " -o " + dir.file("k.vxc"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  std::ofstream(dir.file("cut.vdb"), std::ios::binary).write(bytes.data(), 50);
+  r = run_cli("convert " + dir.file("cut.vdb") + " " + dir.file("x.vox"));
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("voxcast: error: "), std::string::npos) << r.output;
+}
