@@ -84,11 +84,20 @@ std::string count_of(size_t n, const char* one, const char* many) {
 }
 }  // namespace
 
+namespace {
+BuiltScene build_scene_from_mesh(BuiltScene out, const BuildSettings& s, uint64_t budget,
+                                 StageTimer& timer);
+
+// --memory-budget, or 90% of the memory available now.
+uint64_t effective_budget(const BuildSettings& s) {
+  return s.memory_budget ? s.memory_budget : uint64_t(double(available_memory_bytes()) * 0.9);
+}
+}  // namespace
+
 BuiltScene build_scene(const BuildSettings& s) {
   BuiltScene out;
   StageTimer timer(s.verbose);
-  uint64_t budget = s.memory_budget;
-  if (budget == 0) budget = uint64_t(double(available_memory_bytes()) * 0.9);
+  const uint64_t budget = effective_budget(s);
   {
     // The importer holds at least the whole file: refuse before reading it.
     std::error_code ec;
@@ -110,6 +119,23 @@ BuiltScene build_scene(const BuildSettings& s) {
         count_of(out.mesh_stats.degenerate_dropped, "degenerate triangle", "degenerate triangles")
             .c_str());
 
+  return build_scene_from_mesh(std::move(out), s, budget, timer);
+}
+
+BuiltScene build_scene(const BuildSettings& settings, Mesh mesh) {
+  validate_mesh(mesh);
+  BuiltScene out;
+  out.mesh = std::move(mesh);
+  out.mesh_stats.input_triangles = out.mesh.triangle_count();
+  StageTimer timer(settings.verbose);
+  return build_scene_from_mesh(std::move(out), settings, effective_budget(settings), timer);
+}
+
+namespace {
+// Everything after the mesh is in memory: grid, budget check, voxelization
+// and the structure build (shared by the file and the in-memory mesh input).
+BuiltScene build_scene_from_mesh(BuiltScene out, const BuildSettings& s, uint64_t budget,
+                                 StageTimer& timer) {
   Aabb bounds = out.mesh.bounds();
   GridTransform grid;
   if (s.voxel_size > 0)
@@ -199,5 +225,6 @@ BuiltScene build_scene(const BuildSettings& s) {
   out.octree_seconds = timer.mark("octree build");
   return out;
 }
+}  // namespace
 
 }  // namespace voxcast::cli

@@ -54,6 +54,9 @@ uint64_t estimate_build_bytes(const Mesh& mesh, const GridTransform& grid);
 uint64_t mesh_bytes(const Mesh& mesh);
 
 BuiltScene build_scene(const BuildSettings& settings);
+/// The same build from a mesh already in memory (settings.mesh_path unused;
+/// the mesh is checked with validate_mesh first). Used by the Python module.
+BuiltScene build_scene(const BuildSettings& settings, Mesh mesh);
 
 VoxelizationMode parse_voxelization(const std::string& name);
 const char* voxelization_name(VoxelizationMode mode);
