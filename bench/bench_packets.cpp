@@ -47,11 +47,12 @@ const Scene& scene() {
     std::vector<uint32_t> order;
     block_order(0, 0, w, h, &order);
     const Vec3 to_light = normalize(Vec3{0.3f, 1.f, 0.5f});
+    TraceContext ctx;
     for (uint32_t xy : order) {
       const Ray r = cr.ray(int(xy & 0xFFFF), int(xy >> 16));
       s.primary.push_back(r);
       SurfaceHit hit;
-      if (s.esvo->trace(r, LodFootprint{}, &hit))
+      if (s.esvo->trace(r, LodFootprint{}, ctx, &hit))
         s.shadow.push_back({hit.position + to_light * (2.f * hit.voxel_size), to_light, INFINITY});
     }
     return s;
@@ -75,12 +76,13 @@ void run(benchmark::State& state, const S& s, bool shadow) {
   std::vector<SurfaceHit> hits(rays.size());
   std::vector<uint8_t> found(rays.size());
   const Isa isa = caster == 2 ? Isa::Avx512 : Isa::Avx2;
+  TraceContext ctx;
   for (auto _ : state) {
     for (size_t b = 0; b < rays.size(); b += 256) {  // a 16x16 tile's worth per call
       const size_t n = std::min<size_t>(256, rays.size() - b);
       if (caster == 0) {
         for (size_t i = b; i < b + n; ++i)
-          found[i] = shadow ? s.occluded(rays[i], lod) : s.trace(rays[i], lod, &hits[i]);
+          found[i] = shadow ? s.occluded(rays[i], lod, ctx) : s.trace(rays[i], lod, ctx, &hits[i]);
       } else if (shadow) {
         occluded_packets(s, rays.data() + b, n, lod, found.data() + b, isa);
       } else {

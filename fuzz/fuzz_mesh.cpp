@@ -1,6 +1,10 @@
 // libFuzzer target: arbitrary bytes as a mesh file through Assimp and
-// voxcast's own checks, then a small voxelization of whatever loads. The
-// first byte picks the file extension (the importer Assimp tries first).
+// voxcast's own checks (the OFF, PLY and OBJ prechecks, the glTF/GLB header,
+// buffer and image checks, texture decoding of embedded images), then a small
+// voxelization of whatever loads. The first byte picks the file extension
+// (the importer Assimp tries first, and which precheck runs). Textures are
+// decoded within a 64 MiB budget, as `build --memory-budget 64M` would: an
+// image header claiming 2^28 texels is refused instead of decoded.
 #include <unistd.h>
 
 #include <cstddef>
@@ -24,7 +28,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     return 0;
   }
   try {
-    const Mesh mesh = load_mesh(path);
+    const Mesh mesh = load_mesh(path, nullptr, uint64_t(64) << 20);
     const VoxelSet v = voxelize(mesh, GridTransform::fit(mesh.bounds(), 16), {});
     (void)v;
   } catch (const Error&) {

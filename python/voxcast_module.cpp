@@ -28,6 +28,8 @@
 #include "voxcast/morton.hpp"
 #include "voxcast/render.hpp"
 #include "voxcast/scene_file.hpp"
+#include "voxcast/surface_query.hpp"
+#include "voxcast/trace_context.hpp"
 
 namespace py = pybind11;
 using namespace voxcast;
@@ -40,7 +42,7 @@ struct Scene {
   std::string format;  // "esvo" | "dag"
   std::shared_ptr<const esvo::EsvoOctree> octree;
   std::shared_ptr<const dag::SparseVoxelDag> dag;
-  std::shared_ptr<const VoxelStructure> structure;
+  std::shared_ptr<const Structure> structure;
   Aabb occupied;
   SceneInfo info;
 };
@@ -287,7 +289,10 @@ std::shared_ptr<Scene> build(const std::optional<std::string>& mesh,
   if (!vertices || !faces) throw py::value_error("build: vertices and faces go together");
   Mesh m = mesh_from_arrays(*vertices, *faces, normals, colors, color);
   py::gil_scoped_release release;
-  cli::BuiltScene built = cli::build_scene(s, std::move(m));
+  validate_mesh(m);  // what load_mesh checks on a file's mesh
+  MeshLoadStats stats;
+  stats.input_triangles = m.triangle_count();
+  cli::BuiltScene built = cli::build_scene(s, std::move(m), stats);
   return finish_build(std::move(built), s, "numpy arrays");
 }
 
@@ -497,8 +502,11 @@ py::dict trace(const Scene& s, const CArray<float>& origins, const CArray<float>
         *pc = col.mutable_data();
   const float* o = origins.data();
   const float* dir = directions.data();
+  const SurfaceQuery* query = s.structure->surface();
+  if (query == nullptr) throw Error("trace: the " + s.format + " structure has no surface query");
   {
     py::gil_scoped_release release;
+    TraceContext ctx;  // per call: one thread traces all the rays
     // The footprint render() uses: lod_size (orthographic pixel size) plus
     // lod_angle (perspective pixel angle) per unit distance, times LOD pixels.
     LodFootprint lod;
@@ -517,13 +525,13 @@ py::dict trace(const Scene& s, const CArray<float>& origins, const CArray<float>
         // as given, so their hits are bit-identical to render()'s.
         ray.dir = std::fabs(l - 1.f) <= 1e-6f ? d : d * (1.f / l);
         ray.tmax = tmax;
-        found = s.structure->trace(ray, lod, &h);
+        found = query->trace(ray, lod, ctx, &h);
       }
       ph[i] = found;
       Color c{0, 0, 0, 0};
       Vec3 nn{0, 0, 0}, p{NAN, NAN, NAN};
       if (found) {
-        s.structure->attributes(h, &c, &nn);
+        query->attributes(h, ctx, &c, &nn);
         p = h.position;
       }
       pt[i] = found ? h.t : INFINITY;

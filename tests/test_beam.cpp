@@ -54,8 +54,11 @@ bool same_hit(bool a_hit, const SurfaceHit& a, bool b_hit, const SurfaceHit& b) 
 // Traces every pixel of a W x H image plainly and with the start region of
 // its K x K block (blocks on the K grid, partial at the right/bottom border).
 // `tamper` may modify the coarse result (negative control).
-BeamDiff compare_beam(const VoxelStructure& s, const Camera& camera, int W, int H, int K,
+BeamDiff compare_beam(const Structure& structure, const Camera& camera, int W, int H, int K,
                       float lod_pixels, const std::function<void(BeamStart&)>& tamper = {}) {
+  const SurfaceQuery& s = *structure.surface();
+  TraceContext plain_ctx, counted_a, counted_b;
+  counted_a.counting = counted_b.counting = true;
   const CameraRays cam(camera, W, H);
   LodFootprint lod;  // as render() sets it: orthographic pixels have a constant footprint
   lod.size_at_origin = lod_pixels * cam.pixel_size();
@@ -65,7 +68,7 @@ BeamDiff compare_beam(const VoxelStructure& s, const Camera& camera, int W, int 
     for (int bx = 0; bx < W; bx += K) {
       const int bx1 = std::min(bx + K, W), by1 = std::min(by + K, H);
       BeamStart start;
-      s.beam_start(detail::block_beam(cam, bx, by, bx1, by1, lod), &start, nullptr);
+      s.beam_start(detail::block_beam(cam, bx, by, bx1, by1, lod), plain_ctx, &start);
       EXPECT_TRUE(start.valid);
       if (tamper) tamper(start);
       diff.empty_blocks += start.empty;
@@ -73,15 +76,15 @@ BeamDiff compare_beam(const VoxelStructure& s, const Camera& camera, int W, int 
         for (int x = bx; x < bx1; ++x) {
           const Ray ray = cam.ray(x, y);
           SurfaceHit a, b;
-          RayCounters ca, cb;
-          const bool ha = s.trace_hinted(ray, lod, TraceHints{nullptr, &ca}, &a);
-          const bool hb = s.trace_hinted(ray, lod, TraceHints{&start, &cb}, &b);
+          const uint64_t ia = counted_a.counters.iterations, ib = counted_b.counters.iterations;
+          const bool ha = s.trace(ray, lod, counted_a, &a);
+          const bool hb = s.trace(ray, lod, counted_b, &b, &start);
           SurfaceHit plain;
-          const bool hp = s.trace(ray, lod, &plain);
+          const bool hp = s.trace(ray, lod, plain_ctx, &plain);
           ++diff.rays;
           diff.hits += ha;
-          diff.iterations_plain += ca.iterations;
-          diff.iterations_beam += cb.iterations;
+          diff.iterations_plain += counted_a.counters.iterations - ia;
+          diff.iterations_beam += counted_b.counters.iterations - ib;
           if (!same_hit(ha, a, hp, plain) || !same_hit(ha, a, hb, b)) {
             if (diff.mismatches++ == 0) {
               char buf[256];
@@ -111,10 +114,10 @@ std::shared_ptr<const dag::SparseVoxelDag> dag_of(const VoxelSet& set) {
   return std::make_shared<const dag::SparseVoxelDag>(dag::build_dag(set));
 }
 
-// The ESVO octree and the DAG of the same voxels (both VoxelStructures).
-std::vector<std::unique_ptr<VoxelStructure>> structures_of(const VoxelSet& set,
-                                                           uint32_t max_block_slots = 1u << 20) {
-  std::vector<std::unique_ptr<VoxelStructure>> v;
+// The ESVO octree and the DAG of the same voxels (both Structures).
+std::vector<std::unique_ptr<Structure>> structures_of(const VoxelSet& set,
+                                                      uint32_t max_block_slots = 1u << 20) {
+  std::vector<std::unique_ptr<Structure>> v;
   v.push_back(std::make_unique<esvo::EsvoStructure>(octree_of(set, max_block_slots)));
   v.push_back(std::make_unique<dag::DagStructure>(dag_of(set)));
   return v;
@@ -174,7 +177,7 @@ INSTANTIATE_TEST_SUITE_P(SharedMeshes, SharedMeshBeam, voxcast::testing::all_sha
 TEST(Beam, ComparisonDetectsABadStartRegion) {
   for (const auto& sp : structures_of(testing::make_sphere_shell(6))) {
     SCOPED_TRACE(sp->name());
-    const VoxelStructure& s = *sp;
+    const Structure& s = *sp;
     Camera cam;
     cam.eye = {0.5f, 0.6f, 2.5f};
     cam.target = {0.5f, 0.5f, 0.5f};
@@ -198,7 +201,7 @@ TEST(Beam, RandomOctreesAndCameras) {
   // A solid ball (eye inside occupied space), random clouds at two depths,
   // a shell, and a multi-block layout with far pointers.
   // Each set as an ESVO octree and as a DAG (structure index oi / 2).
-  std::vector<std::unique_ptr<VoxelStructure>> structures;
+  std::vector<std::unique_ptr<Structure>> structures;
   auto add = [&](const VoxelSet& set, uint32_t max_block_slots = 1u << 20) {
     for (auto& s : structures_of(set, max_block_slots)) structures.push_back(std::move(s));
   };
@@ -213,7 +216,7 @@ TEST(Beam, RandomOctreesAndCameras) {
   add(testing::make_random_voxels(2, 20, 4));  // the smallest DAG: the root is a 4^3 leaf mask
   size_t total_rays = 0, total_hits = 0, inside_eyes = 0, ortho_rays = 0, ortho_hits = 0;
   for (size_t si = 0; si < structures.size(); ++si) {
-    const VoxelStructure& s = *structures[si];
+    const Structure& s = *structures[si];
     const size_t oi = si / 2;
     for (int trial = 0; trial < 48; ++trial) {
       Camera cam;
@@ -265,7 +268,7 @@ TEST(Beam, RandomOctreesAndCameras) {
 TEST(Beam, RenderImagesIdentical) {
   for (const auto& sp : structures_of(testing::make_sphere_shell(7))) {
     SCOPED_TRACE(sp->name());
-    const VoxelStructure& s = *sp;
+    const Structure& s = *sp;
     RenderOptions ro;
     ro.width = 101;
     ro.height = 67;

@@ -395,9 +395,7 @@ struct BunnyScene {
         esvo_structure(octree),
         dag_structure(std::make_shared<dag::SparseVoxelDag>(dag::build_dag(voxels))),
         occupied(esvo::occupied_bounds(*octree)) {}
-  std::vector<const VoxelStructure*> structures() const {
-    return {&esvo_structure, &dag_structure};
-  }
+  std::vector<const Structure*> structures() const { return {&esvo_structure, &dag_structure}; }
 };
 
 std::vector<Camera> ortho_cameras(const Aabb& b, int W, int H) {
@@ -427,7 +425,7 @@ TEST(CameraOrtho, RendersAgreeWithTheDdaOracle) {
   const GridTransform& g = voxels.grid;
   const int W = 96, H = 72;
   size_t rays = 0, hits = 0, ties = 0;
-  for (const VoxelStructure* s : scene.structures())
+  for (const Structure* s : scene.structures())
     for (const Camera& cam : ortho_cameras(scene.occupied, W, H))
       for (int lod_level : {0, 1}) {
         SCOPED_TRACE(s->name() + " " + cam.to_string() + " lod level " + std::to_string(lod_level));
@@ -491,7 +489,7 @@ TEST(CameraOrtho, BeamOnEqualsBeamOff) {
         return false;
     return true;
   };
-  for (const VoxelStructure* s : scene.structures()) {
+  for (const Structure* s : scene.structures()) {
     const std::vector<Camera> cams = ortho_cameras(scene.occupied, W, H);
     for (size_t ci = 0; ci < cams.size(); ++ci)
       for (float lod : {0.f, 1.f}) {
@@ -552,10 +550,11 @@ TEST(CameraOrtho, LodFootprintIsConstant) {
   EXPECT_EQ(lod.size_per_t, 0.f);
   size_t hits = 0;
   float tmin = INFINITY, tmax = 0;
+  TraceContext ctx;
   for (int y = 0; y < H; ++y)
     for (int x = 0; x < W; ++x) {
       SurfaceHit hit;
-      if (!s.trace(rays.ray(x, y), lod, &hit)) continue;
+      if (!s.trace(rays.ray(x, y), lod, ctx, &hit)) continue;
       ++hits;
       tmin = std::min(tmin, hit.t), tmax = std::max(tmax, hit.t);
       EXPECT_NEAR(hit.voxel_size, 2.0 * vs, 1e-6 * vs) << x << "," << y;

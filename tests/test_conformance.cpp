@@ -507,9 +507,10 @@ class Conformance : public ::testing::TestWithParam<Param> {
 };
 
 TEST_P(Conformance, FirstHitMatchesDda) {
+  TraceContext ctx;
   const Built& b = structure();
   if (!b.rejected.empty()) return;
-  const VoxelStructure& s = *b.scene.structure;
+  const SurfaceQuery& s = *b.scene.structure->surface();
   const DenseGrid g = grid_at_level(b.voxels, b.voxels.grid.levels);
   Tally tally;
   std::vector<char> generic;
@@ -517,7 +518,7 @@ TEST_P(Conformance, FirstHitMatchesDda) {
       make_rays(g.levels(), 3000, 11 + GetParam().vcase, &b.voxels, &generic);
   for (size_t i = 0; i < rays.size(); ++i) {
     SurfaceHit h;
-    const bool hit = s.trace(rays[i], LodFootprint{}, &h);
+    const bool hit = s.trace(rays[i], LodFootprint{}, ctx, &h);
     std::string why;
     tally.add(judge(g, factory().geometry, rays[i], hit, h, &why), hit, generic[i], why);
   }
@@ -526,7 +527,7 @@ TEST_P(Conformance, FirstHitMatchesDda) {
 }
 
 // Renders with the given beam block size; images with depth and normals.
-RenderResult render_with(const VoxelStructure& s, const Camera& camera, int beam, float lod,
+RenderResult render_with(const Structure& s, const Camera& camera, int beam, float lod,
                          bool effects = false) {
   RenderOptions o;
   o.width = 37, o.height = 29;  // partial beam blocks at the borders
@@ -564,7 +565,7 @@ std::vector<Camera> test_cameras() {
 TEST_P(Conformance, BeamOnEqualsBeamOff) {
   const Built& b = structure();
   if (!b.rejected.empty()) return;
-  const VoxelStructure& s = *b.scene.structure;
+  const Structure& s = *b.scene.structure;
   uint64_t hits = 0;
   for (const Camera& cam : test_cameras()) {
     for (float lod : {0.f, 1.5f}) {
@@ -585,9 +586,10 @@ TEST_P(Conformance, BeamOnEqualsBeamOff) {
 }
 
 TEST_P(Conformance, OcclusionEqualsTraceBeforeTmax) {
+  TraceContext ctx;
   const Built& b = structure();
   if (!b.rejected.empty()) return;
-  const VoxelStructure& s = *b.scene.structure;
+  const SurfaceQuery& s = *b.scene.structure->surface();
   std::mt19937_64 rng(23 + GetParam().vcase);
   std::uniform_real_distribution<float> U(0.f, 1.f);
   size_t occluded = 0, free = 0, mismatches = 0;
@@ -597,8 +599,8 @@ TEST_P(Conformance, OcclusionEqualsTraceBeforeTmax) {
     ray.tmax = U(rng) * 1.8f;
     for (const LodFootprint lod : {LodFootprint{}, LodFootprint{0.f, voxel * 2.f}}) {
       SurfaceHit h;
-      const bool traced = s.trace(ray, lod, &h);
-      const bool any = s.occluded(ray, lod);
+      const bool traced = s.trace(ray, lod, ctx, &h);
+      const bool any = s.occluded(ray, lod, ctx);
       (any ? occluded : free)++;
       if (any != traced && mismatches++ == 0)
         first = "tmax " + std::to_string(ray.tmax) + ": occluded " + std::to_string(any) +
@@ -627,21 +629,23 @@ std::vector<size_t> voxels_in_cube(const VoxelSet& v, int level, int x, int y, i
 
 // The linear color and normal the structure shows for leaf voxel `i` at LOD
 // 0: a ray starting at its center hits it at t = 0.
-void leaf_attributes(const VoxelStructure& s, const VoxelSet& v, size_t i, Color* col, Vec3* nrm) {
+void leaf_attributes(const SurfaceQuery& s, const VoxelSet& v, size_t i, Color* col, Vec3* nrm) {
+  TraceContext ctx;
   const MortonCoord c = morton_decode(v.codes[i]);
   const float n = float(v.grid.resolution);
   const Ray ray{{(float(c.x) + 0.5f) / n, (float(c.y) + 0.5f) / n, (float(c.z) + 0.5f) / n},
                 {1, 0, 0},
                 INFINITY};
   SurfaceHit h;
-  EXPECT_TRUE(s.trace(ray, LodFootprint{}, &h));
+  EXPECT_TRUE(s.trace(ray, LodFootprint{}, ctx, &h));
   EXPECT_EQ(h.t, 0.f);
-  s.attributes(h, col, nrm);
+  s.attributes(h, ctx, col, nrm);
 }
 
 // The color promise of an LOD hit cube (StructureFactory::lod_colors).
-void check_lod_color(const StructureFactory& f, const VoxelStructure& s, const VoxelSet& v,
+void check_lod_color(const StructureFactory& f, const SurfaceQuery& s, const VoxelSet& v,
                      const SurfaceHit& h, size_t* checked) {
+  TraceContext ctx;
   if (f.lod_colors == testing::LodColors::None || v.colors.empty()) return;
   int x, y, z;
   hit_voxel(h, &x, &y, &z);
@@ -649,7 +653,7 @@ void check_lod_color(const StructureFactory& f, const VoxelStructure& s, const V
   ASSERT_FALSE(inside.empty());
   Color shown;
   Vec3 normal;
-  s.attributes(h, &shown, &normal);
+  s.attributes(h, ctx, &shown, &normal);
   double e[3] = {0, 0, 0}, wsum = 0, nsum[3] = {0, 0, 0};
   for (size_t i : inside) {
     if (f.lod_colors == testing::LodColors::AreaWeightedMean) {
@@ -690,9 +694,10 @@ void check_lod_color(const StructureFactory& f, const VoxelStructure& s, const V
 }
 
 TEST_P(Conformance, LodStopsAreConsistent) {
+  TraceContext ctx;
   const Built& b = structure();
   if (!b.rejected.empty()) return;
-  const VoxelStructure& s = *b.scene.structure;
+  const SurfaceQuery& s = *b.scene.structure->surface();
   const int L = b.voxels.grid.levels;
   std::vector<DenseGrid> grids;
   for (int l = 0; l <= L; ++l) grids.push_back(grid_at_level(b.voxels, l));
@@ -706,7 +711,7 @@ TEST_P(Conformance, LodStopsAreConsistent) {
     const int level = 1 + int(i % size_t(L - 1));  // 1 .. L-1
     const LodFootprint lod{std::ldexp(1.f, -level), 0.f};
     SurfaceHit h;
-    const bool hit = s.trace(rays[i], lod, &h);
+    const bool hit = s.trace(rays[i], lod, ctx, &h);
     std::string why;
     constant.add(judge(grids[size_t(level)], factory().geometry, rays[i], hit, h, &why), hit,
                  generic[i], why);
@@ -724,8 +729,8 @@ TEST_P(Conformance, LodStopsAreConsistent) {
   for (size_t i = 0; i < rays.size(); ++i) {
     const float per_t = std::ldexp(1.f, -L) * float(1 + i % 8);
     SurfaceHit h0, hk;
-    const bool hit0 = s.trace(rays[i], LodFootprint{}, &h0);
-    const bool hitk = s.trace(rays[i], LodFootprint{0.f, per_t}, &hk);
+    const bool hit0 = s.trace(rays[i], LodFootprint{}, ctx, &h0);
+    const bool hitk = s.trace(rays[i], LodFootprint{0.f, per_t}, ctx, &hk);
     std::string why = describe(rays[i], hitk, hk, DdaHit{});
     bool ok = !hit0 || hitk;
     if (hitk) {
@@ -782,6 +787,7 @@ TEST_P(Conformance, ThreadCountInvariance) {
 // with it. Any exception other than voxcast::Error is a failure.
 enum class Outcome { Rejected, Rendered, Failed };
 Outcome load_and_use(const std::vector<uint8_t>& bytes, size_t size, std::string* why) {
+  TraceContext ctx;
   LoadedScene scene;
   try {
     scene = load_scene(Container::parse(bytes.data(), size));
@@ -801,14 +807,15 @@ Outcome load_and_use(const std::vector<uint8_t>& bytes, size_t size, std::string
     o.beam = 4;
     o.effects.shadows = ShadowMode::Hard;
     render(*scene.structure, o);
+    const SurfaceQuery& q = *scene.structure->surface();
     for (const Ray& ray : make_rays(4, 20, 3)) {
       SurfaceHit h;
-      if (scene.structure->trace(ray, LodFootprint{0.f, 0.01f}, &h)) {
+      if (q.trace(ray, LodFootprint{0.f, 0.01f}, ctx, &h)) {
         Color c;
         Vec3 n;
-        scene.structure->attributes(h, &c, &n);
+        q.attributes(h, ctx, &c, &n);
       }
-      scene.structure->occluded(ray, LodFootprint{});
+      q.occluded(ray, LodFootprint{}, ctx);
     }
   } catch (const std::exception& e) {
     *why = std::string("accepted, then threw: ") + e.what();
@@ -886,30 +893,31 @@ INSTANTIATE_TEST_SUITE_P(Structures, Conformance, ::testing::ValuesIn(params(fal
 
 // Negative controls: the oracle comparison catches a caster that reports the
 // neighbouring voxel, one that stops a little late, and one that drops hits.
-class Tampered final : public VoxelStructure {
+class Tampered final : public SurfaceQuery {
  public:
   enum class Fault { NextVoxel, LateT, DropHits };
-  Tampered(const VoxelStructure& inner, Fault fault) : inner_(inner), fault_(fault) {}
-  Aabb bounds() const override { return inner_.bounds(); }
-  bool trace(const Ray& ray, const LodFootprint& lod, SurfaceHit* hit) const override {
-    if (!inner_.trace(ray, lod, hit)) return false;
+  Tampered(const SurfaceQuery& inner, Fault fault) : inner_(inner), fault_(fault) {}
+  bool trace(const Ray& ray, const LodFootprint& lod, TraceContext& ctx, SurfaceHit* hit,
+             const BeamStart* beam = nullptr) const override {
+    if (!inner_.trace(ray, lod, ctx, hit, beam)) return false;
     if (fault_ == Fault::DropHits) return (++calls_ % 2) == 0;
     if (fault_ == Fault::NextVoxel) hit->position.x += hit->voxel_size;
     if (fault_ == Fault::LateT) hit->t += 1e-4f;
     return true;
   }
-  void attributes(const SurfaceHit& hit, Color* color, Vec3* normal) const override {
-    inner_.attributes(hit, color, normal);
+  void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
+                  Vec3* normal) const override {
+    inner_.attributes(hit, ctx, color, normal);
   }
-  std::string name() const override { return "tampered"; }
 
  private:
-  const VoxelStructure& inner_;
+  const SurfaceQuery& inner_;
   Fault fault_;
   mutable uint64_t calls_ = 0;
 };
 
 TEST(ConformanceOracle, CatchesWrongHits) {
+  TraceContext ctx;
   const size_t esvo = 0, half_dense = 3;
   ASSERT_EQ(voxel_cases()[half_dense].name, "half_dense");
   const Built& b = built(esvo, half_dense);
@@ -918,11 +926,11 @@ TEST(ConformanceOracle, CatchesWrongHits) {
   const std::vector<Ray> rays = make_rays(g.levels(), 300, 99, &b.voxels);
   for (const auto fault :
        {Tampered::Fault::NextVoxel, Tampered::Fault::LateT, Tampered::Fault::DropHits}) {
-    const Tampered s(*b.scene.structure, fault);
+    const Tampered s(*b.scene.structure->surface(), fault);
     size_t fails = 0, hits = 0;
     for (const Ray& ray : rays) {
       SurfaceHit h;
-      const bool hit = s.trace(ray, LodFootprint{}, &h);
+      const bool hit = s.trace(ray, LodFootprint{}, ctx, &h);
       std::string why;
       hits += hit;
       fails += judge(g, testing::VoxelGeometry::Cubes, ray, hit, h, &why) == Verdict::Fail;
@@ -936,6 +944,7 @@ TEST(ConformanceOracle, CatchesWrongHits) {
 class ConformanceEmpty : public ::testing::TestWithParam<Param> {};
 
 TEST_P(ConformanceEmpty, RejectedOrMissesEverything) {
+  TraceContext ctx;
   const Built& b = built(GetParam().factory, GetParam().vcase);
   ASSERT_EQ(b.voxels.size(), 0u);
   if (!b.rejected.empty()) {
@@ -944,11 +953,12 @@ TEST_P(ConformanceEmpty, RejectedOrMissesEverything) {
                 b.rejected.c_str());
     return;
   }
-  const VoxelStructure& s = *b.scene.structure;
+  const Structure& s = *b.scene.structure;
+  const SurfaceQuery& q = *s.surface();
   for (const Ray& ray : make_rays(b.voxels.grid.levels, 500, 7)) {
     SurfaceHit h;
-    EXPECT_FALSE(s.trace(ray, LodFootprint{}, &h));
-    EXPECT_FALSE(s.occluded(ray, LodFootprint{}));
+    EXPECT_FALSE(q.trace(ray, LodFootprint{}, ctx, &h));
+    EXPECT_FALSE(q.occluded(ray, LodFootprint{}, ctx));
   }
   EXPECT_EQ(render_with(s, test_cameras()[0], 4, 1.f).hits, 0u);
 }

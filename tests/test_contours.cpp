@@ -491,7 +491,7 @@ struct Agreement {
   double iou = 0, depth_error = 0;  // depth error in finest voxels, mean over common hits
 };
 
-Agreement compare(const VoxelStructure& s, const EmbreeScene& e, const Camera& cam, int W, int H,
+Agreement compare(const Structure& s, const EmbreeScene& e, const Camera& cam, int W, int H,
                   double voxel) {
   const RenderResult vr = render(s, testing::depth_render_options(cam, W, H));
   const auto er = e.render_depth(cam, W, H, EmbreeScene::Mode::Single);

@@ -285,6 +285,7 @@ TEST(DagTraversal, MatchesEsvoOnRandomSetsAndShells) {
 }
 
 TEST(DagTraversal, StructureMatchesEsvoStructureAndOccluded) {
+  TraceContext ctx;
   VoxelSet set = testing::make_sphere_shell(7);
   set.grid.origin = {-3.f, 2.f, 0.5f};
   set.grid.voxel_size = 0.03;
@@ -306,9 +307,9 @@ TEST(DagTraversal, StructureMatchesEsvoStructureAndOccluded) {
     LodFootprint lod;
     if (i % 2) lod.size_per_t = 0.01f;
     SurfaceHit he, hd;
-    const bool ae = es.trace(r, lod, &he), ad = ds.trace(r, lod, &hd);
+    const bool ae = es.trace(r, lod, ctx, &he), ad = ds.trace(r, lod, ctx, &hd);
     ASSERT_EQ(ae, ad);
-    ASSERT_EQ(ds.occluded(r, lod), ad);
+    ASSERT_EQ(ds.occluded(r, lod, ctx), ad);
     if (!ad) continue;
     ++hits;
     EXPECT_EQ(he.t, hd.t);
@@ -331,6 +332,7 @@ TEST(DagTraversal, StructureMatchesEsvoStructureAndOccluded) {
 }
 
 TEST(DagTraversal, GeometryOnlyShadesGrayWithFaceNormal) {
+  TraceContext ctx;
   VoxelSet set = testing::make_sphere_shell(6);
   set.colors.clear(), set.normals.clear(), set.weights.clear();
   const auto d = std::make_shared<SparseVoxelDag>(dag::build_dag(set));
@@ -340,10 +342,10 @@ TEST(DagTraversal, GeometryOnlyShadesGrayWithFaceNormal) {
   r.origin = {0.5f, 0.5f, -1.f};
   r.dir = {0, 0, 1};
   SurfaceHit h;
-  ASSERT_TRUE(ds.trace(r, {}, &h));
+  ASSERT_TRUE(ds.trace(r, {}, ctx, &h));
   Color c;
   Vec3 n;
-  ds.attributes(h, &c, &n);
+  ds.attributes(h, ctx, &c, &n);
   EXPECT_EQ(c.r, 0.5f);
   EXPECT_EQ(n.z, -1.f);  // entered the -z face
   EXPECT_EQ(n.x, 0.f);

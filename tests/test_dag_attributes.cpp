@@ -221,6 +221,7 @@ TEST(DagCompressed, SharedMeshWithinBounds) {
 }
 
 TEST(DagCompressed, LodMeansAreMeansOfDecodedValues) {
+  TraceContext ctx;
   const SparseVoxelDag raw = dag::build_dag(smooth_shell(7));
   const SparseVoxelDag cmp = compressed(raw);
   ASSERT_EQ(cmp.attribute_prefix.size(), raw.attribute_prefix.size());
@@ -265,7 +266,7 @@ TEST(DagCompressed, LodMeansAreMeansOfDecodedValues) {
   hit.level = 3;
   Color c, m;
   Vec3 n, mn;
-  st.attributes(hit, &c, &n);
+  st.attributes(hit, ctx, &c, &n);
   cmp.mean_attributes(cmp.cube_range(V / 2, 3), &m, &mn);
   EXPECT_EQ(c.r, m.r);
   EXPECT_EQ(n.x, mn.x);

@@ -240,6 +240,7 @@ TEST(DagIndex64, RayHitsReportSixtyFourBitRanks) {
 }
 
 TEST(DagIndex64, SceneFileRoundTrip) {
+  TraceContext ctx;
   const SparseVoxelDag d = box_dag(kBig);
   testing::TempDir dir;
   const std::string path = dir.file("box.vxc");
@@ -263,7 +264,7 @@ TEST(DagIndex64, SceneFileRoundTrip) {
   ray.dir = {0, 0, -1};
   ray.tmax = 1e30f;
   SurfaceHit hit;
-  ASSERT_TRUE(scene.structure->trace(ray, {}, &hit));
+  ASSERT_TRUE(scene.structure->surface()->trace(ray, {}, ctx, &hit));
   EXPECT_EQ(hit.voxel_ref, kBig.rank(3000, 2900, 2776));
   EXPECT_GT(hit.voxel_ref, uint64_t(1) << 32);
 }
@@ -272,6 +273,7 @@ TEST(DagIndex64, SceneFileRoundTrip) {
 // LOD attributes: a coarse hit shows the mean of the leaf voxels under it.
 
 TEST(DagLodAttributes, CoarseHitsShowTheMeanOfTheirVoxels) {
+  TraceContext ctx;
   for (int L : {2, 5, 7}) {
     SCOPED_TRACE("levels " + std::to_string(L));
     const VoxelSet set = L == 7 ? testing::make_sphere_shell(L)
@@ -295,7 +297,7 @@ TEST(DagLodAttributes, CoarseHitsShowTheMeanOfTheirVoxels) {
       LodFootprint lod;
       lod.size_per_t = float(side / n * std::ldexp(1.0, int(rng() % (L + 1))) * u(rng));
       SurfaceHit hit;
-      if (!structure.trace(ray, lod, &hit) || hit.level == L) continue;
+      if (!structure.trace(ray, lod, ctx, &hit) || hit.level == L) continue;
       ++lod_hits;
       // The hit cube's voxels, brute force from the set: cube of side
       // 2^(L - level) voxels at the voxel containing the clamped position.
@@ -324,7 +326,7 @@ TEST(DagLodAttributes, CoarseHitsShowTheMeanOfTheirVoxels) {
       }
       Color got;
       Vec3 got_n;
-      structure.attributes(hit, &got, &got_n);
+      structure.attributes(hit, ctx, &got, &got_n);
       const double tol = 1e-6;
       EXPECT_NEAR(got.r, c[0] / double(count), tol);
       EXPECT_NEAR(got.g, c[1] / double(count), tol);

@@ -195,6 +195,7 @@ TEST(OocDag, CellRasterizerIsTheFullRasterizerRestricted) {
 // opposite corners of the unit cube. Out-of-core equals in-core, the scene
 // round-trips through a file, and a ray finds the surface at the right depth.
 TEST(OocDag, TwentyLevelsBuildSaveLoadAndTrace) {
+  TraceContext ctx;
   Mesh m;
   const float e = 2e-5f;
   m.positions = {{0, 0, 0.5f * e},     {e, 0, 0.5f * e},         {0, e, 0.5f * e},
@@ -220,11 +221,11 @@ TEST(OocDag, TwentyLevelsBuildSaveLoadAndTrace) {
   ray.origin = {0.3f * e, 0.3f * e, -1.0f};
   ray.dir = {0, 0, 1};
   SurfaceHit hit;
-  ASSERT_TRUE(s.trace(ray, {}, &hit));
+  ASSERT_TRUE(s.trace(ray, {}, ctx, &hit));
   EXPECT_EQ(hit.level, 20);
   EXPECT_NEAR(hit.t, 1.0 + 0.5 * e, 2.0 * grid.voxel_size);
   ray.origin = {0.5f, 0.5f, -1.0f};  // between the triangles: empty
-  EXPECT_FALSE(s.trace(ray, {}, &hit));
+  EXPECT_FALSE(s.trace(ray, {}, ctx, &hit));
 }
 
 // The CLI takes the out-of-core path when asked (or when the in-core

@@ -43,9 +43,10 @@ struct OracleRun {
 // codes, not from the DAG's decoding; its level, voxel size and clamped
 // position are checked against that voxel's world box.
 CasterHit dag_first_hit(const dag::DagStructure& s, const VoxelSet& set, const Ray& ray) {
+  TraceContext ctx;
   SurfaceHit h;
   CasterHit out;
-  if (!s.trace(ray, LodFootprint{}, &h)) return out;
+  if (!s.trace(ray, LodFootprint{}, ctx, &h)) return out;
   const GridTransform& g = set.grid;
   EXPECT_EQ(h.level, g.levels) << "LOD 0 must stop at the finest level";
   EXPECT_FLOAT_EQ(h.voxel_size, float(g.voxel_size));
@@ -71,6 +72,7 @@ CasterHit dag_first_hit(const dag::DagStructure& s, const VoxelSet& set, const R
 // each checked for first hit (unbounded) and any hit (tmax of a few voxels,
 // of up to the cube's side, or unbounded: AO-like, shadow-like).
 void run_dag_oracle(const VoxelSet& set, int rays, uint64_t seed, OracleRun* run) {
+  TraceContext ctx;
   ASSERT_FALSE(set.codes.empty());
   const dag::DagStructure s(std::make_shared<dag::SparseVoxelDag>(dag::build_dag(set)));
   const DenseGrid grid = DenseGrid::from_voxels(set);
@@ -110,7 +112,7 @@ void run_dag_oracle(const VoxelSet& set, int rays, uint64_t seed, OracleRun* run
       default:
         break;
     }
-    const bool occluded = s.occluded(Ray{wo, d, tmax}, LodFootprint{});
+    const bool occluded = s.occluded(Ray{wo, d, tmax}, LodFootprint{}, ctx);
     testing::expect_any_hit_matches(grid, go, gd, double(tmax), occluded, first, delta, &run->any,
                                     wo, d);
     if (::testing::Test::HasFailure()) return;

@@ -32,15 +32,6 @@ namespace {
 
 const std::filesystem::path kMeshes = std::filesystem::path(VOXCAST_TEST_DATA_DIR) / "meshes";
 
-class EmbreeOccluder final : public Occluder {
- public:
-  explicit EmbreeOccluder(const EmbreeScene& s) : s_(s) {}
-  bool occluded(const Ray& ray, const LodFootprint&) const override { return s_.occluded(ray); }
-
- private:
-  const EmbreeScene& s_;
-};
-
 // ESVO and DAG built from the same voxels.
 struct Scene {
   Mesh mesh;
@@ -161,15 +152,16 @@ std::vector<ShadePoint> shading_points(const Scene& s, const EmbreeScene& embree
   const CameraRays cam(camera, W, H);
   const float voxel = float(s.voxels.grid.voxel_size);
   std::vector<ShadePoint> points;
+  TraceContext ctx;
   for (int y = 0; y < H; ++y)
     for (int x = 0; x < W; ++x) {
       const Ray ray = cam.ray(x, y);
       const float te = embree.intersect(ray);
       SurfaceHit hit;
-      if (!std::isfinite(te) || !s.esvo->trace(ray, LodFootprint{}, &hit)) continue;
+      if (!std::isfinite(te) || !s.esvo->trace(ray, LodFootprint{}, ctx, &hit)) continue;
       Color c;
       Vec3 n;
-      s.esvo->attributes(hit, &c, &n);
+      s.esvo->attributes(hit, ctx, &c, &n);
       if (dot(n, ray.dir) > 0.f) n = -n;
       points.push_back({{ray.origin + ray.dir * te, n, ray.dir, voxel}, pixel_seed(x, y, 0)});
     }
@@ -192,16 +184,18 @@ Answers answer(const Occluder& occ, const std::vector<ShadePoint>& pts, const Oc
   tbb::parallel_for(size_t(0), n, [&](size_t i) {
     const ShadingPoint& p = pts[i].p;
     const uint32_t seed = pts[i].seed;
+    TraceContext ctx;
     EffectCounters cd, cp;
-    a.dir[i] = shadow_visibility(occ, p, o.dir, o.light_dir, seed, &cd);
-    a.point[i] = shadow_visibility(occ, p, o.point, o.light_dir, seed, &cp);
+    a.dir[i] = shadow_visibility(occ, ctx, p, o.dir, o.light_dir, seed, &cd);
+    a.point[i] = shadow_visibility(occ, ctx, p, o.point, o.light_dir, seed, &cp);
     a.cast_dir[i] = cd.shadow_rays > 0;
     a.cast_point[i] = cp.shadow_rays > 0;
-    a.ao[i] = ambient_occlusion(occ, p, o.ao, o.ao_radius, seed, nullptr);
+    a.ao[i] = ambient_occlusion(occ, ctx, p, o.ao, o.ao_radius, seed, nullptr);
     if (with_soft) {
-      a.soft[i] = shadow_visibility(occ, p, o.soft, o.light_dir, seed, nullptr);
-      a.soft_off[i] = shadow_visibility(occ, p, o.soft_off, o.light_dir, seed, nullptr);
-      a.soft_corners[i] = shadow_visibility(occ, p, o.soft_corners, o.light_dir, seed, nullptr);
+      a.soft[i] = shadow_visibility(occ, ctx, p, o.soft, o.light_dir, seed, nullptr);
+      a.soft_off[i] = shadow_visibility(occ, ctx, p, o.soft_off, o.light_dir, seed, nullptr);
+      a.soft_corners[i] =
+          shadow_visibility(occ, ctx, p, o.soft_corners, o.light_dir, seed, nullptr);
     }
   });
   return a;
@@ -304,7 +298,10 @@ OcclusionAgreement compare_occlusion(const EmbreeScene& embree, const std::vecto
 class FixedAnswerOccluder final : public Occluder {
  public:
   explicit FixedAnswerOccluder(bool answer) : answer_(answer) {}
-  bool occluded(const Ray&, const LodFootprint&) const override { return answer_; }
+  float transmittance(const Ray&, const LodFootprint&, TraceContext&,
+                      const BeamStart*) const override {
+    return answer_ ? 0.f : 1.f;
+  }
 
  private:
   bool answer_;
@@ -348,7 +345,7 @@ TEST_P(EffectsOracle, OcclusionMatchesEmbree) {
   const std::vector<ShadePoint> pts = shading_points(s, embree, camera, W, H);
   const OcclusionSetup o = occlusion_setup(framed);
 
-  const EmbreeOccluder eocc(embree);
+  const Occluder& eocc = embree;  // the mesh answers through the same interface
   const StructureOccluder vocc(*s.esvo), docc(*s.dag);
   const Answers ref = answer(eocc, pts, o, true);
   const Answers esvo = answer(vocc, pts, o, true);
@@ -430,6 +427,7 @@ INSTANTIATE_TEST_SUITE_P(
 // grid edges and corners, where the loop's tie rules decide); axis-aligned;
 // from inside occupied space; with and without a LOD cone.
 TEST(Effects, DagAnyHitEqualsClosestHit) {
+  TraceContext ctx;
   std::vector<VoxelSet> sets;
   sets.push_back(testing::make_random_voxels(5, 4000, 7));
   sets.push_back(testing::make_random_voxels(7, 60000, 8));
@@ -449,9 +447,9 @@ TEST(Effects, DagAnyHitEqualsClosestHit) {
     const float side = float(g.side()), voxel = side / float(1u << g.levels);
     auto check = [&](const Ray& ray, const LodFootprint& lod) {
       SurfaceHit hit;
-      const bool closest = d.trace(ray, lod, &hit);
-      const bool any = d.occluded(ray, lod);
-      const bool esvo_any = e.occluded(ray, lod);
+      const bool closest = d.trace(ray, lod, ctx, &hit);
+      const bool any = d.occluded(ray, lod, ctx);
+      const bool esvo_any = e.occluded(ray, lod, ctx);
       ++rays;
       hits += any;
       if (any != closest || any != esvo_any) {
@@ -575,8 +573,9 @@ Mesh tilted_plane() {
 }
 
 TEST(Effects, FlatLitPlaneHasNoShadowAcne) {
+  TraceContext ctx;
   const Scene s = make_scene(tilted_plane(), 256);
-  const StructureOccluder occ(*s.esvo);
+  const SurfaceQuery& occ = *s.esvo;
   RenderOptions ro;
   ro.width = ro.height = 64;
   ro.camera.eye = kPlaneNormal * 2.f + Vec3{0.4f, 0, 0.3f};
@@ -606,9 +605,9 @@ TEST(Effects, FlatLitPlaneHasNoShadowAcne) {
   for (int y = 0; y < ro.height; ++y)
     for (int x = 0; x < ro.width; ++x) {
       SurfaceHit h;
-      if (!s.esvo->trace(cam.ray(x, y), LodFootprint{}, &h)) continue;
+      if (!s.esvo->trace(cam.ray(x, y), LodFootprint{}, ctx, &h)) continue;
       ++hits;
-      naive_blocked += occ.occluded(Ray{h.position, kPlaneNormal, INFINITY}, LodFootprint{});
+      naive_blocked += occ.occluded(Ray{h.position, kPlaneNormal, INFINITY}, LodFootprint{}, ctx);
     }
   EXPECT_GT(naive_blocked, hits / 10);
 }
@@ -631,8 +630,8 @@ TEST(Effects, OccluderCastsFullShadowAndBoxCornerIsOccluded) {
   ro.lod_pixels = 0.f;
   ro.light_dir = {0, -1, 0};
   ro.effects.shadows = ShadowMode::Hard;
-  for (const VoxelStructure* st : {static_cast<const VoxelStructure*>(s.esvo.get()),
-                                   static_cast<const VoxelStructure*>(s.dag.get())}) {
+  for (const Structure* st :
+       {static_cast<const Structure*>(s.esvo.get()), static_cast<const Structure*>(s.dag.get())}) {
     RenderResult r = render(*st, ro);
     ASSERT_EQ(r.hits, r.rays);
     for (float v : r.shadow.pixels) ASSERT_EQ(v, 0.f) << st->name();
@@ -657,7 +656,8 @@ TEST(Effects, OccluderCastsFullShadowAndBoxCornerIsOccluded) {
   const float voxel = float(c.voxels.grid.voxel_size);
   auto ao_at = [&](Vec3 p) {
     const ShadingPoint sp{p, {0, 1, 0}, normalize(Vec3{-0.3f, -1, -0.2f}), voxel};
-    return ambient_occlusion(StructureOccluder(*c.esvo), sp, ao, 0.2f, 1234u, nullptr);
+    TraceContext ctx;
+    return ambient_occlusion(StructureOccluder(*c.esvo), ctx, sp, ao, 0.2f, 1234u, nullptr);
   };
   const float corner = ao_at({0.05f, 0, 0.05f}), open = ao_at({0.7f, 0, 0.7f});
   std::printf("box corner AO %.3f, open floor AO %.3f\n", corner, open);

@@ -252,6 +252,7 @@ TEST(OctreeCaster, AllResidentChangesNothing) {
 }
 
 TEST(OctreeCaster, EsvoOccludedEqualsTrace) {
+  TraceContext ctx;
   VoxelSet set = testing::make_sphere_shell(7);
   set.grid.origin = {-1.f, 2.f, 0.5f};
   set.grid.voxel_size = 0.02;
@@ -268,8 +269,8 @@ TEST(OctreeCaster, EsvoOccludedEqualsTrace) {
     LodFootprint lod;
     if (i % 2) lod.size_per_t = 0.01f;
     SurfaceHit h;
-    const bool hit = s.trace(r, lod, &h);
-    ASSERT_EQ(s.occluded(r, lod), hit) << i;
+    const bool hit = s.trace(r, lod, ctx, &h);
+    ASSERT_EQ(s.occluded(r, lod, ctx), hit) << i;
     hits += hit, misses += !hit;
   }
   EXPECT_GT(hits, 1000);

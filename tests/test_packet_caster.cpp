@@ -151,9 +151,10 @@ void expect_same(const S& s, const std::vector<Ray>& rays, const LodFootprint& l
                  const std::string& what, size_t* hits_out) {
   std::vector<SurfaceHit> want(rays.size());
   std::vector<uint8_t> want_found(rays.size()), want_occ(rays.size());
+  TraceContext ctx;
   for (size_t i = 0; i < rays.size(); ++i) {
-    want_found[i] = s.trace(rays[i], lod, &want[i]);
-    want_occ[i] = s.occluded(rays[i], lod);
+    want_found[i] = s.trace(rays[i], lod, ctx, &want[i]);
+    want_occ[i] = s.occluded(rays[i], lod, ctx);
   }
   size_t hits = 0;
   for (uint8_t f : want_found) hits += f;
@@ -201,7 +202,7 @@ void check_structure(const S& s, const char* name) {
 }
 
 // Camera rays with the coarse pass of their 8x8 pixel block (esvo §6.2):
-// trace_packets with the blocks' beams == trace_hinted with the same beam.
+// trace_packets with the blocks' beams == trace() with the same beam.
 template <class S>
 void check_beams(const S& s, const char* name) {
   constexpr int w = 96, h = 72, k = 8;
@@ -213,11 +214,12 @@ void check_beams(const S& s, const char* name) {
     lod.size_per_t = lod_pixels * cr.pixel_angle();
     std::vector<BeamStart> starts((w / k) * (h / k));
     size_t empty = 0, regions = 0;
+    TraceContext ctx;
     for (int by = 0; by < h / k; ++by)
       for (int bx = 0; bx < w / k; ++bx) {
         BeamStart& st = starts[size_t(by * (w / k) + bx)];
-        s.beam_start(detail::block_beam(cr, bx * k, by * k, bx * k + k, by * k + k, lod), &st,
-                     nullptr);
+        s.beam_start(detail::block_beam(cr, bx * k, by * k, bx * k + k, by * k + k, lod), ctx,
+                     &st);
         empty += st.valid && st.empty;
         regions += st.valid && !st.empty;
       }
@@ -236,7 +238,7 @@ void check_beams(const S& s, const char* name) {
     std::vector<uint8_t> want_found(rays.size()), found(rays.size());
     size_t hits = 0;
     for (size_t i = 0; i < rays.size(); ++i) {
-      want_found[i] = s.trace_hinted(rays[i], lod, TraceHints{beams[i], nullptr}, &want[i]);
+      want_found[i] = s.trace(rays[i], lod, ctx, &want[i], beams[i]);
       hits += want_found[i];
     }
     EXPECT_GT(hits, rays.size() / 8) << name;

@@ -112,6 +112,7 @@ TEST(RenderStats, ExactCountsTwoLevels) {
 // follows a PUSH; a descriptor is fetched at the start, after every PUSH and
 // after every POP that stays inside the root.
 TEST(RenderStats, LoopInvariantsOnRandomRays) {
+  TraceContext ctx;
   std::mt19937 rng(7);
   std::uniform_real_distribution<float> u(-0.5f, 1.5f);
   esvo::BuildOptions bo;
@@ -126,12 +127,13 @@ TEST(RenderStats, LoopInvariantsOnRandomRays) {
     const Vec3 target{u(rng) * 0.5f + 0.25f, u(rng) * 0.5f + 0.25f, u(rng) * 0.5f + 0.25f};
     LodFootprint lod;
     if (i % 4 == 0) lod.size_per_t = 0.02f;  // LOD stops are hits too
-    RayCounters c;
+    TraceContext counted;
+    counted.counting = true;
     SurfaceHit h;
-    const bool hit =
-        s.trace_hinted({o, normalize(target - o), INFINITY}, lod, TraceHints{nullptr, &c}, &h);
+    const bool hit = s.trace({o, normalize(target - o), INFINITY}, lod, counted, &h);
+    const RayCounters& c = counted.counters;
     SurfaceHit plain;
-    ASSERT_EQ(hit, s.trace({o, normalize(target - o), INFINITY}, lod, &plain));
+    ASSERT_EQ(hit, s.trace({o, normalize(target - o), INFINITY}, lod, ctx, &plain));
     if (hit) {
       ASSERT_EQ(std::memcmp(&h.t, &plain.t, sizeof h.t), 0);
     }

@@ -316,6 +316,7 @@ TEST(TraversalLod, PixelConeHitsCoarserAncestorEarlier) {
 }
 
 TEST(TraversalStructure, WorldRaysMapToOctreeSpace) {
+  TraceContext ctx;
   // World placement: origin (-3, 1, 2), side 4 (grid of 2^6 voxels of 1/16).
   VoxelSet set = testing::make_sphere_shell(6);
   set.grid.origin = {-3.f, 1.f, 2.f};
@@ -329,7 +330,7 @@ TEST(TraversalStructure, WorldRaysMapToOctreeSpace) {
   // center + 0.4*side (+- one voxel).
   const Ray ray{{5.f, 3.02f, 4.01f}, {-1, 0, 0}, INFINITY};
   SurfaceHit hit;
-  ASSERT_TRUE(s.trace(ray, {}, &hit));
+  ASSERT_TRUE(s.trace(ray, {}, ctx, &hit));
   EXPECT_NEAR(hit.t, 5.f - (-1.f + 0.4f * 4.f), 2 * 4.0 / 64);
   EXPECT_EQ(hit.level, 6);
   EXPECT_FLOAT_EQ(hit.voxel_size, 4.f / 64);
@@ -346,14 +347,14 @@ TEST(TraversalStructure, WorldRaysMapToOctreeSpace) {
   EXPECT_EQ(int(hit.child), r.child);
   EXPECT_FLOAT_EQ(hit.t, r.t);
   // tmax before the surface: miss. A world footprint of 2 voxels: level 5.
-  EXPECT_FALSE(s.trace({ray.origin, ray.dir, hit.t * 0.5f}, {}, &hit));
-  ASSERT_TRUE(s.trace(ray, {2 * 4.f / 64, 0.f}, &hit));
+  EXPECT_FALSE(s.trace({ray.origin, ray.dir, hit.t * 0.5f}, {}, ctx, &hit));
+  ASSERT_TRUE(s.trace(ray, {2 * 4.f / 64, 0.f}, ctx, &hit));
   EXPECT_EQ(hit.level, 5);
   // Attributes are those of the hit voxel (radial normal of the shell: +x here).
   Color c;
   Vec3 n;
-  ASSERT_TRUE(s.trace(ray, {}, &hit));
-  s.attributes(hit, &c, &n);
+  ASSERT_TRUE(s.trace(ray, {}, ctx, &hit));
+  s.attributes(hit, ctx, &c, &n);
   EXPECT_GT(n.x, 0.8f);
 }
 
@@ -364,6 +365,7 @@ namespace voxcast {
 namespace {
 
 TEST(Render, ImagesCountsAndLod) {
+  TraceContext ctx;
   auto octree =
       std::make_shared<esvo::EsvoOctree>(esvo::build_octree(testing::make_sphere_shell(7)));
   const esvo::EsvoStructure s(octree);
@@ -387,7 +389,7 @@ TEST(Render, ImagesCountsAndLod) {
       const float d = *r.depth.at(x, y);
       const float* c = r.color.at(x, y);
       SurfaceHit hit;
-      const bool h = s.trace(rays.ray(x, y), {}, &hit);
+      const bool h = s.trace(rays.ray(x, y), {}, ctx, &hit);
       ASSERT_EQ(h, std::isfinite(d)) << x << "," << y;
       if (!h) {
         EXPECT_EQ(c[0], ro.background.r);

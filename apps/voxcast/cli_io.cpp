@@ -175,12 +175,7 @@ uint64_t parse_memory_budget(const std::string& text) {
 namespace {
 
 const char* file_kind(mode_t mode) {
-  if (S_ISDIR(mode)) return "a directory";
-  if (S_ISFIFO(mode)) return "a FIFO (named pipe)";
-  if (S_ISCHR(mode)) return "a character device";
-  if (S_ISBLK(mode)) return "a block device";
-  if (S_ISSOCK(mode)) return "a socket";
-  return "not a regular file";
+  return file_type_name(uint32_t(mode));
 }
 
 // The file a write to `path` lands in: symlinks in the last component are
@@ -208,9 +203,24 @@ fs::path follow_links(const fs::path& path, const char* option) {
 constexpr int kMaxStaged = 32;
 char g_staged[kMaxStaged][4096];
 volatile std::sig_atomic_t g_staged_count = 0;
+// While commit() renames the staged files into place, a signal is held back
+// (recorded here and re-raised once every rename is done or undone): dying
+// halfway would leave some outputs new and some old, and backups behind. The
+// handler may run on any thread (TBB's workers do not block signals), so it
+// cannot rely on the committing thread's signal mask.
+volatile std::sig_atomic_t g_committing = 0;
+volatile std::sig_atomic_t g_pending_signal = 0;
+
+void remove_staged() {
+  for (int i = 0; i < g_staged_count; ++i) ::unlink(g_staged[i]);
+}
 
 extern "C" void remove_staged_and_die(int sig) {
-  for (int i = 0; i < g_staged_count; ++i) ::unlink(g_staged[i]);
+  if (g_committing) {
+    g_pending_signal = sig;
+    return;
+  }
+  remove_staged();
   std::signal(sig, SIG_DFL);
   std::raise(sig);
 }
@@ -223,6 +233,18 @@ void register_staged(const std::string& path) {
   if (!installed) {
     installed = true;
     for (int sig : {SIGINT, SIGTERM, SIGHUP}) std::signal(sig, remove_staged_and_die);
+  }
+}
+
+// Ends commit()'s window: a signal that came during it now takes effect,
+// after the staged files that are still registered are removed (none once
+// every rename succeeded).
+void end_commit_window() {
+  g_committing = 0;
+  if (const int sig = g_pending_signal) {
+    remove_staged();
+    std::signal(sig, SIG_DFL);
+    std::raise(sig);
   }
 }
 
@@ -345,6 +367,19 @@ std::string OutputSet::rename_in_message(std::string message, const fs::path& st
 }
 
 void OutputSet::commit() {
+  g_committing = 1;
+  try {
+    commit_all();
+  } catch (...) {
+    end_commit_window();
+    throw;
+  }
+  committed_ = true;
+  unregister_staged_all();
+  end_commit_window();
+}
+
+void OutputSet::commit_all() {
   // Backups keep the previous contents reachable until every rename has
   // succeeded; a hard link costs no copy.
   for (size_t i = 0; i < outputs_.size(); ++i) {
@@ -384,8 +419,6 @@ void OutputSet::commit() {
       ::close(dfd);
     }
   }
-  committed_ = true;
-  unregister_staged_all();
 }
 
 }  // namespace voxcast::cli

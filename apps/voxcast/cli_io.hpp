@@ -95,9 +95,15 @@ class OutputSet {
   /// Renames every staged output into place. If one rename fails, the ones
   /// already done are undone (previous contents restored from hard-link
   /// backups) before the error is thrown.
+  ///
+  /// Signals: SIGINT, SIGTERM or SIGHUP before commit() remove every staged
+  /// file (and its writer's temporary) and end the process with that signal,
+  /// so no output is touched; one that arrives during commit() takes effect
+  /// when it returns or throws, so the outputs are all new or all as before.
   void commit();
 
  private:
+  void commit_all();
   static std::string rename_in_message(std::string message, const std::filesystem::path& stage,
                                        const std::string& path);
   struct Output {

@@ -53,7 +53,44 @@ struct BenchArgs {
   int ao_rays = 64;
   float ao_radius = 0.f;
   std::string json;  // --json FILE: every figure
+  std::string memory_budget;
 };
+
+// What bench holds at once, estimated before anything is built. Each voxel
+// build is estimated as `build` does (estimate_build_bytes: its peak, which
+// bounds the structure it leaves), each extra build also holds its own copy
+// of the mesh. Embree's high-quality BVH (primitive references, spatial
+// splits, nodes and the triangle copy): 384 bytes per triangle bounds it.
+// Images: per pixel, the voxel render kept for the agreement figures
+// (color, depth, normals: 28 B), Embree's depth render (4 B), and the frame
+// being measured (up to 28 + 4 B of iteration counts), rounded up to 128 B.
+constexpr uint64_t kEmbreeBytesPerTriangle = 384;
+constexpr uint64_t kImageBytesPerPixel = 128;
+
+struct BenchMemory {
+  uint64_t mesh = 0;      // every mesh copy held for the whole run
+  uint64_t esvo = 0;      // the ESVO build (estimate_build_bytes)
+  uint64_t embree = 0;    // Embree's BVH
+  uint64_t contours = 0;  // the contour build and its own mesh copy
+  uint64_t images = 0;    // the largest --size
+  uint64_t dag = 0;       // --effects: what the DAG holds once built
+  uint64_t total() const { return mesh + esvo + embree + contours + images + dag; }
+};
+
+// Occlusion rays of --effects, known once the shading points are: every
+// shadow and AO ray (28 B) twice (as generated and sample-major), one answer
+// byte per ray and caster row (at most 8), and the point itself.
+uint64_t effects_bytes(uint64_t points, uint64_t ao_rays) {
+  return points * ((1 + ao_rays) * (2 * sizeof(Ray) + 8) + sizeof(ShadingPoint) + 4);
+}
+
+void require_within_budget(uint64_t need, uint64_t budget, const std::string& what) {
+  if (budget && need > budget)
+    throw Error("bench: " + what + " need an estimated " + format_bytes(double(need)) +
+                ", more than the " + format_bytes(double(budget)) +
+                " memory budget; lower --resolution or --size, drop --contours/--effects, or "
+                "raise --memory-budget");
+}
 
 // One timing harness for every caster, voxel or Embree. Each row has a
 // frame() that runs one frame and returns the seconds of its timed loop only
@@ -120,10 +157,11 @@ Timed trace_depth(const S& s, const RenderOptions& ro, Image* depth) {
   return depth_frame(ro, depth,
                      [&](const detail::Tile& tile, const CameraRays& cam, const LodFootprint& lod) {
                        uint64_t h = 0;
+                       TraceContext ctx;  // plain (non-counting), one per tile
                        for (int y = tile.y0; y < tile.y1; ++y)
                          for (int x = tile.x0; x < tile.x1; ++x) {
                            SurfaceHit hit;
-                           const bool found = s.trace(cam.ray(x, y), lod, &hit);
+                           const bool found = s.trace(cam.ray(x, y), lod, ctx, &hit);
                            h += found;
                            *depth->at(x, y) = found ? hit.t : INFINITY;
                          }
@@ -160,6 +198,7 @@ Timed trace_depth_packets(const S& s, const RenderOptions& ro, int beam, Image* 
         found.resize(order.size());
         for (size_t i = 0; i < order.size(); ++i)
           rays[i] = cam.ray(int(order[i] & 0xFFFF), int(order[i] >> 16));
+        TraceContext ctx;
         if (beam > 0) {
           const int bw = (tile.x1 - tile.x0 + beam - 1) / beam;
           const int bh = (tile.y1 - tile.y0 + beam - 1) / beam;
@@ -169,7 +208,7 @@ Timed trace_depth_packets(const S& s, const RenderOptions& ro, int beam, Image* 
               const int x0 = tile.x0 + bx * beam, y0 = tile.y0 + by * beam;
               s.beam_start(detail::block_beam(cam, x0, y0, std::min(x0 + beam, tile.x1),
                                               std::min(y0 + beam, tile.y1), lod),
-                           &starts[size_t(by * bw + bx)], nullptr);
+                           ctx, &starts[size_t(by * bw + bx)]);
             }
           beams.resize(order.size());
           for (size_t i = 0; i < order.size(); ++i) {
@@ -188,7 +227,7 @@ Timed trace_depth_packets(const S& s, const RenderOptions& ro, int beam, Image* 
           if (shade && found[i]) {
             Color c;
             Vec3 n;
-            s.attributes(out[i], &c, &n);
+            s.attributes(out[i], ctx, &c, &n);
             const Color sh = surface_phong(c, n, rays[i].dir, to_light);
             float* o = color->at(x, y);
             o[0] = sh.r, o[1] = sh.g, o[2] = sh.b;
@@ -217,7 +256,8 @@ Timed occluded_frame(const std::vector<Ray>& rays, std::vector<uint8_t>* occ, co
 template <class S>
 Timed occluded_all(const S& s, const std::vector<Ray>& rays, std::vector<uint8_t>* occ) {
   return occluded_frame(rays, occ, [&](size_t b, size_t e, uint8_t* o) {
-    for (size_t i = b; i < e; ++i) o[i] = s.occluded(rays[i], LodFootprint{});
+    TraceContext ctx;
+    for (size_t i = b; i < e; ++i) o[i] = s.occluded(rays[i], LodFootprint{}, ctx);
   });
 }
 
@@ -234,9 +274,10 @@ Timed occluded_all_packets(const S& s, const std::vector<Ray>& rays, std::vector
 // the renderer's very sampling, and every caster gets the same array.
 class RayRecorder final : public Occluder {
  public:
-  bool occluded(const Ray& ray, const LodFootprint&) const override {
+  float transmittance(const Ray& ray, const LodFootprint&, TraceContext&,
+                      const BeamStart*) const override {
     rays.push_back(ray);
-    return false;
+    return 1.f;
   }
   mutable std::vector<Ray> rays;
 };
@@ -255,20 +296,21 @@ EmbreeScene::StageTicks profile_voxels(const S& s, const RenderOptions& ro) {
   };
   EmbreeScene::StageTicks st;
   Image color(ro.width, ro.height, 3);
+  TraceContext ctx;
   for (int y = 0; y < ro.height; ++y)
     for (int x = 0; x < ro.width; ++x) {
       const uint64_t t0 = detail::ticks();
       const Ray ray = cam.ray(x, y);
       const uint64_t t1 = detail::ticks();
       SurfaceHit hit;
-      const bool found = s.trace(ray, lod, &hit);
+      const bool found = s.trace(ray, lod, ctx, &hit);
       const uint64_t t2 = detail::ticks();
       st.ray_generation += since(t0, t1);
       st.traversal += since(t1, t2);
       if (!found) continue;
       Color c;
       Vec3 n;
-      s.attributes(hit, &c, &n);
+      s.attributes(hit, ctx, &c, &n);
       const uint64_t t3 = detail::ticks();
       const Color sh = surface_phong(c, n, ray.dir, to_light);
       float* o = color.at(x, y);
@@ -354,6 +396,9 @@ Runner add_bench(CLI::App& app) {
                   "AO ray length for --effects (0 = 5% of the mesh bounds diagonal)")
       ->capture_default_str();
   cmd->add_option("--json", args->json, "Also write every figure as JSON to this file");
+  cmd->add_option("--memory-budget", args->memory_budget,
+                  "Bytes every structure, image and ray array held at once may take (512M, 8G, "
+                  "...; default 90% of available memory); checked before anything is built");
   return [args]() {
     ThreadLimit limit(args->threads);
     std::vector<std::pair<int, int>> sizes;
@@ -378,23 +423,52 @@ Runner add_bench(CLI::App& app) {
     check_camera_options(args->camera, 64, 64);
     require_regular_input(args->input, "mesh");
 
+    const uint64_t budget = effective_budget(
+        args->memory_budget.empty() ? 0 : parse_memory_budget(args->memory_budget));
+
     BuildSettings s;
     s.mesh_path = args->input;
     s.resolution = args->resolution;
     s.mode = parse_voxelization(args->voxelization);
     s.attributes = parse_attribute_format(args->attributes);
     s.verbose = args->verbose;
-    BuiltScene built = build_scene(s);
+    s.memory_budget = budget;
+    MeshLoadStats mesh_stats;
+    Mesh mesh = load_build_mesh(s.mesh_path, budget, &mesh_stats, s.verbose);
+    // Every structure bench holds at once, against the budget, before the
+    // first build: the ESVO, Embree's BVH, the contour octree, the images.
+    BenchMemory held;
+    {
+      const GridTransform grid = build_grid(s, mesh.bounds());
+      const uint64_t build = estimate_build_bytes(mesh, grid), one_mesh = mesh_bytes(mesh);
+      // The ESVO build's mesh, and the copy later builds start from.
+      held.mesh = one_mesh * (args->contours || args->effects ? 2 : 1);
+      held.esvo = build;
+      held.embree = uint64_t(mesh.triangle_count()) * kEmbreeBytesPerTriangle;
+      if (args->contours) held.contours = build + one_mesh;
+      for (const auto& [w, h] : sizes)
+        held.images = std::max(held.images, uint64_t(w) * uint64_t(h) * kImageBytesPerPixel);
+      std::string parts = "the mesh, the ESVO, Embree's BVH";
+      if (args->contours) parts += ", the contour octree";
+      parts += " and the images";
+      require_within_budget(held.total(), budget, parts);
+    }
+    const Mesh mesh_copy = (args->contours || args->effects) ? mesh : Mesh();
+    BuiltScene built = build_scene(s, std::move(mesh), mesh_stats);
     auto octree = std::make_shared<esvo::EsvoOctree>(std::move(built.octree));
     esvo::EsvoStructure voxels(octree);
     const Aabb occupied = esvo::occupied_bounds(*octree);
     EmbreeScene embree(built.mesh);
     std::shared_ptr<esvo::EsvoOctree> contoured;
     double contour_build_seconds = 0;
+    // What is left for a later build (0 would mean "no budget").
+    auto left_after = [&](uint64_t bytes) { return budget > bytes ? budget - bytes : 1; };
     if (args->contours) {
       BuildSettings cs = s;
       cs.contours = true;
-      BuiltScene cb = build_scene(cs);
+      // (build_scene counts its own copy of the mesh.)
+      cs.memory_budget = left_after(held.mesh + held.esvo + held.embree + held.images);
+      BuiltScene cb = build_scene(cs, mesh_copy, mesh_stats);
       contour_build_seconds = cb.voxelize_seconds + cb.octree_seconds;
       contoured = std::make_shared<esvo::EsvoOctree>(std::move(cb.octree));
     }
@@ -576,7 +650,14 @@ Runner add_bench(CLI::App& app) {
         BuildSettings ds = s;
         ds.dag = true;
         ds.verbose = false;
-        BuiltScene dag_built = build_scene(ds);  // the same mesh, grid and voxelization
+        // Out of core within what the others leave when in core would not fit
+        // (build_scene counts its own copy of the mesh).
+        ds.memory_budget = left_after(held.total());
+        // Held afterwards: at most its in-core estimate (the same grid as the
+        // ESVO's) or the budget it was given.
+        held.dag = std::min(held.esvo, ds.memory_budget);
+        // The same mesh, grid and voxelization.
+        BuiltScene dag_built = build_scene(ds, mesh_copy, mesh_stats);
         dag_voxels = std::make_unique<dag::DagStructure>(
             std::make_shared<dag::SparseVoxelDag>(std::move(dag_built.dag)));
         add_voxel_rows("voxcast dag", *dag_voxels);
@@ -765,18 +846,25 @@ Runner add_bench(CLI::App& app) {
         std::vector<uint32_t> seeds;
         std::vector<uint32_t> pixel_order;
         block_order(0, 0, width, height, &pixel_order);
+        TraceContext ctx;
         for (const uint32_t xy : pixel_order) {
           const int x = int(xy & 0xFFFF), y = int(xy >> 16);
           const Ray ray = cam.ray(x, y);
           SurfaceHit hit;
-          if (!voxels.trace(ray, LodFootprint{}, &hit)) continue;
+          if (!voxels.trace(ray, LodFootprint{}, ctx, &hit)) continue;
           Color c;
           Vec3 n;
-          voxels.attributes(hit, &c, &n);
+          voxels.attributes(hit, ctx, &c, &n);
           if (dot(n, ray.dir) > 0.f) n = -n;
           points.push_back({hit.position, n, ray.dir, hit.voxel_size});
           seeds.push_back(pixel_seed(x, y, 0));
         }
+        // The rays are recorded next: check them against what the structures
+        // and images leave of the budget.
+        require_within_budget(
+            held.total() + effects_bytes(points.size(), uint64_t(args->ao_rays)), budget,
+            "the structures and the " + std::to_string(points.size()) + " shading points' " +
+                std::to_string(args->ao_rays + 1) + " occlusion rays each");
         EffectOptions shadow_fx;
         shadow_fx.shadows = ShadowMode::Hard;
         EffectOptions ao_fx;
@@ -786,9 +874,9 @@ Runner add_bench(CLI::App& app) {
         RayRecorder shadow_rec, ao_rec;
         bool ao_uniform = true;
         for (size_t i = 0; i < points.size(); ++i) {
-          shadow_visibility(shadow_rec, points[i], shadow_fx, ro.light_dir, seeds[i], nullptr);
+          shadow_visibility(shadow_rec, ctx, points[i], shadow_fx, ro.light_dir, seeds[i], nullptr);
           const size_t before = ao_rec.rays.size();
-          ambient_occlusion(ao_rec, points[i], ao_fx, ao_fx.ao_radius, seeds[i], nullptr);
+          ambient_occlusion(ao_rec, ctx, points[i], ao_fx, ao_fx.ao_radius, seeds[i], nullptr);
           ao_uniform &= ao_rec.rays.size() - before == size_t(args->ao_rays);
         }
         // AO rays sample-major (ray k of consecutive points next to each

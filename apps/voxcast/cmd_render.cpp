@@ -235,7 +235,7 @@ Runner add_render(CLI::App& app) {
     if (fx.ao_rays > 0)  // default: 5% of the occupied bounds' diagonal
       fx.ao_radius =
           args->ao_radius > 0 ? args->ao_radius : 0.05f * length(scene.occupied.extent());
-    const VoxelStructure& structure = *scene.structure;
+    const Structure& structure = *scene.structure;
     bool derived_camera = false;
     opt.camera =
         resolve_camera(args->camera, scene.occupied, opt.width, opt.height, &derived_camera);

@@ -1,5 +1,6 @@
 #include "pipeline.hpp"
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdio>
@@ -84,64 +85,72 @@ std::string count_of(size_t n, const char* one, const char* many) {
 }
 }  // namespace
 
-namespace {
-BuiltScene build_scene_from_mesh(BuiltScene out, const BuildSettings& s, uint64_t budget,
-                                 StageTimer& timer);
-
-// --memory-budget, or 90% of the memory available now.
-uint64_t effective_budget(const BuildSettings& s) {
-  return s.memory_budget ? s.memory_budget : uint64_t(double(available_memory_bytes()) * 0.9);
+uint64_t effective_budget(uint64_t memory_budget) {
+  return memory_budget ? memory_budget : uint64_t(double(available_memory_bytes()) * 0.9);
 }
-}  // namespace
 
-BuiltScene build_scene(const BuildSettings& s) {
-  BuiltScene out;
-  StageTimer timer(s.verbose);
-  const uint64_t budget = effective_budget(s);
-  {
-    // The importer holds at least the whole file: refuse before reading it.
-    std::error_code ec;
-    const uint64_t file_bytes = std::filesystem::file_size(s.mesh_path, ec);
-    if (!ec && budget && file_bytes > budget)
-      throw Error(in_quotes(s.mesh_path) + " is " + format_bytes(double(file_bytes)) +
-                  ", more than the " + format_bytes(double(budget)) +
-                  " memory budget; raise --memory-budget");
-  }
-  out.mesh = load_mesh(s.mesh_path, &out.mesh_stats);
-  out.load_seconds = timer.mark("load mesh");
-  for (const std::string& w : out.mesh_stats.warnings)
+Mesh load_build_mesh(const std::string& path, uint64_t budget, MeshLoadStats* stats, bool verbose) {
+  // The importer holds at least the whole file: refuse before reading it.
+  std::error_code ec;
+  const uint64_t file_bytes = std::filesystem::file_size(path, ec);
+  if (!ec && budget && file_bytes > budget)
+    throw Error(in_quotes(path) + " is " + format_bytes(double(file_bytes)) + ", more than the " +
+                format_bytes(double(budget)) + " memory budget; raise --memory-budget");
+  // Decoded textures get what the file leaves of the budget.
+  const uint64_t held = ec ? 0 : file_bytes;
+  Mesh mesh = load_mesh(path, stats, budget ? (budget > held ? budget - held : 1) : 0);
+  for (const std::string& w : stats->warnings)
     std::fprintf(stderr, "voxcast: warning: %s\n", printable(w).c_str());
-  if (s.verbose || out.mesh_stats.degenerate_dropped)
+  if (verbose || stats->degenerate_dropped)
     std::fprintf(
         stderr, "mesh: %s, %s (%s dropped)\n",
-        count_of(out.mesh.triangle_count(), "triangle", "triangles").c_str(),
-        count_of(out.mesh.positions.size(), "vertex", "vertices").c_str(),
-        count_of(out.mesh_stats.degenerate_dropped, "degenerate triangle", "degenerate triangles")
-            .c_str());
-
-  return build_scene_from_mesh(std::move(out), s, budget, timer);
+        count_of(mesh.triangle_count(), "triangle", "triangles").c_str(),
+        count_of(mesh.positions.size(), "vertex", "vertices").c_str(),
+        count_of(stats->degenerate_dropped, "degenerate triangle", "degenerate triangles").c_str());
+  return mesh;
 }
 
-BuiltScene build_scene(const BuildSettings& settings, Mesh mesh) {
-  validate_mesh(mesh);
+GridTransform build_grid(const BuildSettings& s, const Aabb& bounds) {
+  const GridTransform grid = s.voxel_size > 0 ? GridTransform::fit_voxel_size(bounds, s.voxel_size)
+                                              : GridTransform::fit(bounds, s.resolution);
+  // The scene loader refuses any other placement (README "Reliability"):
+  // refuse it here, before the build, rather than write a file nothing reads.
+  if (!grid.placement_is_valid()) {
+    bool beyond = false;
+    for (int a = 0; a < 3; ++a)
+      beyond |= !(std::fabs(double(grid.origin[a])) <= kMaxWorldCoordinate) ||
+                !(std::fabs(double(grid.origin[a]) + grid.side()) <= kMaxWorldCoordinate);
+    char buf[400];
+    std::snprintf(buf, sizeof buf,
+                  "the mesh's voxel grid (origin %.6g,%.6g,%.6g, side %.6g) is not a box of float "
+                  "coordinates within +-1e18 (%s); move the mesh closer to the origin",
+                  double(grid.origin.x), double(grid.origin.y), double(grid.origin.z), grid.side(),
+                  beyond ? "it reaches beyond 1e18"
+                         : "the mesh is too small for its distance from the origin: float "
+                           "coordinates cannot tell its sides apart");
+    throw Error(buf);
+  }
+  return grid;
+}
+
+BuiltScene build_scene(const BuildSettings& s) {
+  const uint64_t budget = effective_budget(s.memory_budget);
+  StageTimer timer(s.verbose);
+  MeshLoadStats stats;
+  Mesh mesh = load_build_mesh(s.mesh_path, budget, &stats, s.verbose);
+  const double load_seconds = timer.mark("load mesh");
+  BuiltScene out = build_scene(s, std::move(mesh), stats);
+  out.load_seconds = load_seconds;
+  return out;
+}
+
+BuiltScene build_scene(const BuildSettings& s, Mesh mesh, const MeshLoadStats& mesh_stats) {
   BuiltScene out;
   out.mesh = std::move(mesh);
-  out.mesh_stats.input_triangles = out.mesh.triangle_count();
-  StageTimer timer(settings.verbose);
-  return build_scene_from_mesh(std::move(out), settings, effective_budget(settings), timer);
-}
-
-namespace {
-// Everything after the mesh is in memory: grid, budget check, voxelization
-// and the structure build (shared by the file and the in-memory mesh input).
-BuiltScene build_scene_from_mesh(BuiltScene out, const BuildSettings& s, uint64_t budget,
-                                 StageTimer& timer) {
-  Aabb bounds = out.mesh.bounds();
-  GridTransform grid;
-  if (s.voxel_size > 0)
-    grid = GridTransform::fit_voxel_size(bounds, s.voxel_size);
-  else
-    grid = GridTransform::fit(bounds, s.resolution);
+  out.mesh_stats = mesh_stats;
+  StageTimer timer(s.verbose);
+  const uint64_t budget = effective_budget(s.memory_budget);
+  const GridTransform grid = build_grid(s, out.mesh.bounds());
 
   // The mesh stays in memory for the whole build.
   const uint64_t need = estimate_build_bytes(out.mesh, grid) + mesh_bytes(out.mesh);
@@ -225,6 +234,5 @@ BuiltScene build_scene_from_mesh(BuiltScene out, const BuildSettings& s, uint64_
   out.octree_seconds = timer.mark("octree build");
   return out;
 }
-}  // namespace
 
 }  // namespace voxcast::cli

@@ -53,10 +53,22 @@ uint64_t estimate_build_bytes(const Mesh& mesh, const GridTransform& grid);
 /// Bytes the mesh's arrays and textures hold.
 uint64_t mesh_bytes(const Mesh& mesh);
 
+/// `memory_budget`, or 90% of the available memory when it is 0.
+uint64_t effective_budget(uint64_t memory_budget);
+
+/// The mesh file, refused when larger than `budget`, with the textures'
+/// decoding bounded by what the file leaves of it (load_mesh); prints the
+/// import's warnings and, when verbose or triangles were dropped, its counts.
+Mesh load_build_mesh(const std::string& path, uint64_t budget, MeshLoadStats* stats, bool verbose);
+
+/// The voxel grid `settings` ask for around `bounds`; refuses (voxcast::Error)
+/// a grid the scene loader would refuse (GridTransform::placement_is_valid).
+GridTransform build_grid(const BuildSettings& settings, const Aabb& bounds);
+
+/// load_build_mesh, then the build below.
 BuiltScene build_scene(const BuildSettings& settings);
-/// The same build from a mesh already in memory (settings.mesh_path unused;
-/// the mesh is checked with validate_mesh first). Used by the Python module.
-BuiltScene build_scene(const BuildSettings& settings, Mesh mesh);
+/// The build from an already loaded mesh (moved into BuiltScene::mesh).
+BuiltScene build_scene(const BuildSettings& settings, Mesh mesh, const MeshLoadStats& mesh_stats);
 
 VoxelizationMode parse_voxelization(const std::string& name);
 const char* voxelization_name(VoxelizationMode mode);

@@ -270,14 +270,14 @@ bool cast_occluded(const SparseVoxelDag& dag, Vec3 origin, Vec3 dir, float tmax,
 class DagStructure final : public OctreeStructure<DagStructure> {
  public:
   explicit DagStructure(std::shared_ptr<const SparseVoxelDag> dag);
-  // bounds, trace, trace_hinted, occluded, beam_start: the octree family's
+  // bounds, surface, trace, transmittance, beam_start: the octree family's
   // (octree_structure.hpp), the ESVO's caster and beam walk over the DAG's
   // nodes (svdag §4). SurfaceHit::voxel_ref = Morton rank of the hit voxel
   // (its first leaf for LOD hits), child = entered face (see CastResult::face).
-  /// attributes() + 8 bytes (color and normal words) when the DAG has attributes.
-  void attributes_counted(const SurfaceHit& hit, Color* color, Vec3* normal,
-                          RayCounters* counters) const override;
-  void attributes(const SurfaceHit& hit, Color* color, Vec3* normal) const override;
+  /// The hit voxel's attributes; while ctx.counting, adds the bytes read
+  /// (raw: the 32-bit color and normal words; compressed: the 24-byte block).
+  void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
+                  Vec3* normal) const override;
   std::string name() const override { return "dag"; }
   const SparseVoxelDag& dag() const { return *dag_; }
 

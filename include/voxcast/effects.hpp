@@ -2,16 +2,20 @@
 // Secondary-ray effects on top of the primary hits: hard shadows, soft shadows
 // from a rectangular area light with the per-pixel shadow beam, and ambient
 // occlusion with falloff-in-sampling (Kämpe, Sintorn & Assarsson 2013, svdag
-// §4; Laine & Karras 2010b). Works on any VoxelStructure (through
-// VoxelStructure::occluded) and on anything else that answers occlusion
-// queries (the Embree reference in tests and `voxcast bench`).
+// §4; Laine & Karras 2010b). Works on anything that answers transmittance
+// queries through an Occluder: a structure's SurfaceQuery (StructureOccluder)
+// and the Embree reference of the source mesh (embree_reference.hpp; the
+// oracle tests and `voxcast bench`). Occlusion is a transmittance in [0, 1]:
+// 0 or 1 for an opaque surface, fractional through a volume; shadow
+// visibility and AO are averages of transmittances.
 //
 // Determinism: every random number of a pixel comes from a hash of (x, y,
 // seed), so an image does not depend on the thread count or the tile order.
 #include <cstdint>
 
 #include "voxcast/math.hpp"
-#include "voxcast/structure.hpp"
+#include "voxcast/surface_query.hpp"
+#include "voxcast/trace_context.hpp"
 
 namespace voxcast {
 
@@ -78,39 +82,38 @@ struct ShadingPoint {
 /// shadows/occlusion closer than ~2 voxels to the surface are missed.
 Vec3 offset_origin(const ShadingPoint& p);
 
-/// Answers occlusion queries for the effects.
+/// Answers the effects' occlusion queries with the caller's per-thread
+/// TraceContext (trace_context.hpp).
 class Occluder {
  public:
   virtual ~Occluder() = default;
-  /// Any hit within [0, ray.tmax] (unit direction).
-  virtual bool occluded(const Ray& ray, const LodFootprint& lod) const = 0;
+  /// Fraction of light passing along the ray within [0, ray.tmax] (unit
+  /// direction): 0 or 1 for an opaque surface. `beam` (may be null): the
+  /// result of beam_start() for a beam containing the ray; it only skips
+  /// work, the answer is the same.
+  virtual float transmittance(const Ray& ray, const LodFootprint& lod, TraceContext& ctx,
+                              const BeamStart* beam) const = 0;
   /// Conservative beam pass (esvo §6.2 / svdag §4); default: no information.
-  virtual void beam_start(const BeamFrustum& beam, BeamStart* start) const {
-    (void)beam;
+  virtual void beam_start(const BeamFrustum& beam, TraceContext& ctx, BeamStart* start) const {
+    (void)beam, (void)ctx;
     *start = BeamStart{};
-  }
-  /// occluded() for a ray of the beam `start` was computed for (finest level).
-  /// Must give exactly occluded()'s answer.
-  virtual bool occluded_in_beam(const Ray& ray, const BeamStart& start) const {
-    (void)start;
-    return occluded(ray, LodFootprint{});
   }
 };
 
-/// A VoxelStructure as an Occluder (occluded(), beam_start(), trace_hinted()).
+/// A structure's SurfaceQuery as an Occluder (transmittance(), beam_start()).
 class StructureOccluder final : public Occluder {
  public:
-  explicit StructureOccluder(const VoxelStructure& s) : s_(s) {}
-  bool occluded(const Ray& ray, const LodFootprint& lod) const override {
-    return s_.occluded(ray, lod);
+  explicit StructureOccluder(const SurfaceQuery& q) : q_(q) {}
+  float transmittance(const Ray& ray, const LodFootprint& lod, TraceContext& ctx,
+                      const BeamStart* beam) const override {
+    return q_.transmittance(ray, lod, ctx, beam);
   }
-  void beam_start(const BeamFrustum& beam, BeamStart* start) const override {
-    s_.beam_start(beam, start, nullptr);
+  void beam_start(const BeamFrustum& beam, TraceContext& ctx, BeamStart* start) const override {
+    q_.beam_start(beam, ctx, start);
   }
-  bool occluded_in_beam(const Ray& ray, const BeamStart& start) const override;
 
  private:
-  const VoxelStructure& s_;
+  const SurfaceQuery& q_;
 };
 
 /// Ray and beam counts of a frame (or of one pixel).
@@ -132,23 +135,27 @@ uint32_t pixel_seed(int x, int y, uint32_t seed);
 /// the light's distance (+inf for a directional light).
 Vec3 direction_to_light(const EffectOptions& o, Vec3 light_dir, Vec3 p, float* distance);
 
-/// Fraction of the light visible from `p` in [0, 1]: hard shadows 0 or 1,
-/// soft shadows the unoccluded fraction of o.shadow_rays stratified samples
-/// (svdag §4 beam per o.shadow_beam). Light directions below the surface
-/// (dot with the normal <= 0) count as occluded without a ray.
-float shadow_visibility(const Occluder& occ, const ShadingPoint& p, const EffectOptions& o,
-                        Vec3 light_dir, uint32_t seed, EffectCounters* counters);
+/// Fraction of the light visible from `p` in [0, 1]: hard shadows the
+/// transmittance of the ray to the light, soft shadows the mean transmittance
+/// of o.shadow_rays stratified samples (svdag §4 beam per o.shadow_beam).
+/// Light directions below the surface (dot with the normal <= 0) count as
+/// occluded without a ray.
+float shadow_visibility(const Occluder& occ, TraceContext& ctx, const ShadingPoint& p,
+                        const EffectOptions& o, Vec3 light_dir, uint32_t seed,
+                        EffectCounters* counters);
 
 /// Ambient occlusion (1 = open, 0 = fully occluded) of `p` with o.ao_rays
 /// rays, falloff in sampling (Laine & Karras 2010b): the occlusion sought is
 ///   1 - AO = integral over the hemisphere of cos(theta)/pi * f(d(w)) dw,
 /// d(w) = distance to the first hit, f(d) = 1 - (d/R)^2 on [0, R], 0 beyond.
 /// f(d) = P(L > d) for a ray length L with CDF (l/R)^2, i.e. L = R*sqrt(u),
-/// so each ray w ~ cos(theta)/pi gets length R*sqrt(u) and AO is the fraction
-/// of unoccluded rays: no hit distances, no weights, any-hit rays only.
+/// so each ray w ~ cos(theta)/pi gets length R*sqrt(u) and AO is the mean
+/// transmittance of the rays (the fraction of unoccluded rays for a
+/// surface): no hit distances, no weights, any-hit rays only.
 /// Samples: rotated Hammersley in (u1, u2) + base-3 radical inverse in u (one
 /// sample per stratum of each dimension), per-pixel Cranley-Patterson rotation.
-float ambient_occlusion(const Occluder& occ, const ShadingPoint& p, const EffectOptions& o,
-                        float radius, uint32_t seed, EffectCounters* counters);
+float ambient_occlusion(const Occluder& occ, TraceContext& ctx, const ShadingPoint& p,
+                        const EffectOptions& o, float radius, uint32_t seed,
+                        EffectCounters* counters);
 
 }  // namespace voxcast

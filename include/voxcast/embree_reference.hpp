@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "voxcast/camera.hpp"
+#include "voxcast/effects.hpp"
 #include "voxcast/image.hpp"
 #include "voxcast/math.hpp"
 #include "voxcast/mesh.hpp"
@@ -28,7 +29,10 @@ inline Color surface_phong(Color c, Vec3 n, Vec3 dir, Vec3 to_light) {
   return {c.r * k + 0.12f * spec, c.g * k + 0.12f * spec, c.b * k + 0.12f * spec, 1.f};
 }
 
-class EmbreeScene {
+/// The mesh as an Occluder (effects.hpp), so that shadows and AO can be
+/// computed against the source mesh with the very code the voxel renderer
+/// runs (the oracle tests compare the two).
+class EmbreeScene final : public Occluder {
  public:
   /// Builds an Embree BVH (high quality) over the mesh; throws voxcast::Error.
   explicit EmbreeScene(const Mesh& mesh);
@@ -47,6 +51,11 @@ class EmbreeScene {
   Hit intersect_hit(const Ray& ray) const;
   /// rtcOccluded1.
   bool occluded(const Ray& ray) const;
+  /// Occluder: 1 - occluded(ray). A mesh has one level of detail and no
+  /// beam pass (beam_start gives no information), so `lod`, `ctx` and `beam`
+  /// change nothing.
+  float transmittance(const Ray& ray, const LodFootprint& lod, TraceContext& ctx,
+                      const BeamStart* beam) const override;
 
   /// Primary-ray modes (issue 10: Embree at its best). Packets are pixel
   /// blocks (2x2, 4x2, 4x4) with invalid lanes masked at tile borders; every

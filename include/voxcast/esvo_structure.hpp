@@ -1,5 +1,6 @@
 #pragma once
-// ESVO as a VoxelStructure, and the raw ray caster (esvo §6.1, Appendix A).
+// ESVO as a Structure with a SurfaceQuery, and the raw ray caster (esvo §6.1,
+// Appendix A).
 #include <memory>
 
 #include "voxcast/esvo.hpp"
@@ -43,13 +44,15 @@ CastResult cast_ray(const EsvoOctree& octree, Vec3 origin, Vec3 dir, float tmax,
 class EsvoStructure final : public OctreeStructure<EsvoStructure> {
  public:
   explicit EsvoStructure(std::shared_ptr<const EsvoOctree> octree);
-  // bounds, trace, trace_hinted, occluded, beam_start: the octree family's
+  // bounds, surface, trace, transmittance, beam_start: the octree family's
   // (octree_structure.hpp); SurfaceHit::voxel_ref = the parent's descriptor
   // slot, child = the slot in it.
-  void attributes(const SurfaceHit& hit, Color* color, Vec3* normal) const override;
+  /// The hit voxel's attributes; while ctx.counting, adds the attachment
+  /// bytes it reads (raw: a 32-bit lookup entry and a 64-bit value, esvo §5.4;
+  /// compressed: the voxel's block, §5.5).
+  void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
+                  Vec3* normal) const override;
   std::string name() const override { return "esvo"; }
-  void attributes_counted(const SurfaceHit& hit, Color* color, Vec3* normal,
-                          RayCounters* counters) const override;
   const EsvoOctree& octree() const { return *octree_; }
 
  private:

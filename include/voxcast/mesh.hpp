@@ -61,7 +61,13 @@ struct MeshLoadStats {
 /// Throws voxcast::Error with a one-line message for a missing/unreadable
 /// file, a file without triangles, NaN/Inf coordinates or out-of-range indices.
 /// Degenerate triangles are dropped and counted in `stats`.
-Mesh load_mesh(const std::filesystem::path& path, MeshLoadStats* stats = nullptr);
+/// `texture_budget` (bytes, 0 = none) bounds what decoding the textures may
+/// allocate: each image's size is read from its header and a texture whose
+/// decode would exceed what is left of the budget is refused with
+/// voxcast::Error before it is decoded (an unreadable or missing texture
+/// only drops the texture, with a warning in `stats`).
+Mesh load_mesh(const std::filesystem::path& path, MeshLoadStats* stats = nullptr,
+               uint64_t texture_budget = 0);
 
 /// Checks the invariants listed on Mesh (sizes, index ranges, finite values);
 /// throws voxcast::Error naming the first violation. load_mesh calls it; call it

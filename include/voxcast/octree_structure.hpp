@@ -2,12 +2,18 @@
 // The octree family of voxel structures (ESVO octree, sparse voxel DAG; a
 // streamed ESVO later): structures in the [1,2]^3 octree space of esvo §6.1
 // that share one ray caster, the Appendix A loop of src/core/octree_caster.hpp
-// over a node-access policy. Deriving from OctreeStructure<Self> gives a
-// structure its VoxelStructure tracing methods from that caster; Self
-// supplies `world()` (its policy and grid), declared private with
-// OctreeStructure<Self> as a friend, and instantiates the template in its
-// own source file (src/esvo/traverse.cpp, src/dag/traverse.cpp).
+// over a node-access policy. Deriving from OctreeStructure<Self> makes a
+// structure a Structure whose surface() is itself, with the SurfaceQuery
+// tracing methods (trace, transmittance, beam_start) from that caster; Self
+// supplies attributes() and `world()` (its policy and grid), declared private
+// with OctreeStructure<Self> as a friend, and instantiates the template in
+// its own source file (src/esvo/traverse.cpp, src/dag/traverse.cpp).
+//
+// The counting instantiation of the caster (esvo §8.5 counters) is chosen
+// once per call from TraceContext::counting; the plain instantiation has no
+// counter code in its loop.
 #include "voxcast/structure.hpp"
+#include "voxcast/surface_query.hpp"
 
 namespace voxcast {
 
@@ -16,21 +22,30 @@ template <class Nodes>
 struct OctreeWorld;  // what Self::world() returns: src/core/octree_caster.hpp
 }  // namespace detail
 
+// SurfaceQuery is the first base: the renderer calls trace() and
+// attributes() through a SurfaceQuery pointer once per ray, and at offset 0
+// those calls need no this-adjusting thunk (Structure's methods run once per
+// frame).
 template <class Self>
-class OctreeStructure : public VoxelStructure {
+class OctreeStructure : public SurfaceQuery, public Structure {
  public:
   /// World-space bounds of the root cube.
   Aabb bounds() const override;
-  /// First hit (esvo §6.1, Appendix A), LOD stop from the footprint.
-  bool trace(const Ray& ray, const LodFootprint& lod, SurfaceHit* hit) const override;
-  /// trace() started at the beam's region (esvo §6.2; bit-identical hits), with counters.
-  bool trace_hinted(const Ray& ray, const LodFootprint& lod, const TraceHints& hints,
-                    SurfaceHit* hit) const override;
-  /// Any hit within [0, ray.tmax]: the same loop, stopped at the first hit
-  /// without the hit's position or attribute handle (shadow and AO rays).
-  bool occluded(const Ray& ray, const LodFootprint& lod = {}) const override;
+  /// An in-core octree answers every surface query; it has no volume query
+  /// and ignores the frame loop (it never pushes a request).
+  const SurfaceQuery* surface() const override { return this; }
+  /// First hit (esvo §6.1, Appendix A), LOD stop from the footprint; `beam`
+  /// starts the ray at the region of the coarse pass (esvo §6.2; bit-identical
+  /// hits). Counts into ctx.counters while ctx.counting.
+  bool trace(const Ray& ray, const LodFootprint& lod, TraceContext& ctx, SurfaceHit* hit,
+             const BeamStart* beam = nullptr) const override;
+  /// 0 or 1: the same loop stopped at the first hit, without the hit's
+  /// position or attribute handle (shadow and AO rays); `beam` clips it as in
+  /// trace(), with the same answer.
+  float transmittance(const Ray& ray, const LodFootprint& lod, TraceContext& ctx,
+                      const BeamStart* beam = nullptr) const override;
   /// Coarse pass of the beam optimization (esvo §6.2, core/beam_frustum.hpp).
-  void beam_start(const BeamFrustum& beam, BeamStart* start, RayCounters* counters) const override;
+  void beam_start(const BeamFrustum& beam, TraceContext& ctx, BeamStart* start) const override;
 };
 
 }  // namespace voxcast

@@ -37,7 +37,7 @@ inline int packet_width(Isa isa) {
   return isa == Isa::Avx512 ? 16 : 8;
 }
 
-/// trace_hinted(rays[i], lod, {beams[i]}, &hits[i]) for i < n: found[i] =
+/// trace(rays[i], lod, ctx, &hits[i], beams[i]) for i < n: found[i] =
 /// the return value, hits[i] written where found[i] (bit-identical).
 /// `beams` (may be null, entries may be null): the coarse pass of each ray's
 /// pixel block (beam_start, esvo §6.2): rays of an empty beam cost nothing,

@@ -1,5 +1,7 @@
 #pragma once
-// Tiled multi-threaded renderer over any VoxelStructure.
+// One-call rendering with the surface integrator (surface_integrator.hpp)
+// over the frame loop (integrator.hpp), the heat map, and the esvo §6.3
+// post-filter.
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -8,30 +10,23 @@
 #include "voxcast/effects.hpp"
 #include "voxcast/image.hpp"
 #include "voxcast/structure.hpp"
+#include "voxcast/surface_integrator.hpp"
 
 namespace voxcast {
 
-struct RenderOptions {
+/// A frame (size, camera, LOD, tiles) and what the surface integrator does
+/// with it (SurfaceOptions: light, background, AOVs, beam, statistics,
+/// post-filter, effects).
+struct RenderOptions : SurfaceOptions {
   int width = 1024, height = 768;
   Camera camera;
   /// LOD: stop at voxels whose projection is <= this many pixels (0 = finest level).
   float lod_pixels = 1.f;
-  Vec3 light_dir = normalize(Vec3{-0.4f, -1.0f, -0.6f});  // direction the light travels
-  Color background{0.08f, 0.09f, 0.11f, 1.f};
-  bool want_depth = false;   // fill RenderResult::depth (world distance, +inf on miss)
-  bool want_normal = false;  // fill RenderResult::normal (n*0.5+0.5)
   int tile_size = 16;
-  /// Beam optimization (esvo §6.2): block size K of the coarse pass (K x K
-  /// pixel blocks, 2..64; 0 = off). The hits are identical either way.
-  int beam = 0;
-  /// Profiling counters (esvo §8.5, Table 6): fill RenderResult::counters,
-  /// coarse_counters and iterations. Slower than a plain render.
-  bool collect_stats = false;
-  /// Adaptive post-process blur of the color image (esvo §6.3); see post_filter().
-  bool filter = false;
-  /// Shadows and ambient occlusion per hit pixel (svdag §4, effects.hpp).
-  /// The light of Directional is light_dir above.
-  EffectOptions effects;
+  /// Passes of the frame loop (integrator.hpp): 1 = one-pass mode; more lets
+  /// a streaming structure serve what the rays asked for and render the
+  /// asking tiles again. A static structure always renders one pass.
+  int max_passes = 1;
 };
 
 struct RenderResult {
@@ -52,9 +47,23 @@ struct RenderResult {
   Image ao;      // 1 channel, AO in [0,1] (1 on misses); when ao_rays > 0
   Image shadow;  // 1 channel, light visibility in [0,1] (1 on misses); with shadows
   EffectCounters effect_counters;  // secondary rays traced
+  int passes = 1;                  // passes the frame loop ran
 };
 
-RenderResult render(const VoxelStructure& structure, const RenderOptions& options);
+/// Renders one frame: a SurfaceIntegrator over render_frame, the film
+/// converted into a RenderResult. Throws voxcast::Error for invalid options
+/// or a structure without a surface query.
+///
+/// Two overloads, because the frame loop may change a structure between
+/// passes (Structure::end_pass serves the rays' requests):
+///  * a mutable structure runs the full loop (options.max_passes);
+///  * a const one is rendered in exactly one pass through a view that
+///    forwards its queries and serves nothing: a static structure loses
+///    nothing, a streaming one shows what is resident and its requests are
+///    dropped. The CLI, the bench and most tests render in-core structures
+///    they hold const, so the const path keeps them simple.
+RenderResult render(Structure& structure, const RenderOptions& options);
+RenderResult render(const Structure& structure, const RenderOptions& options);
 
 /// Iteration-count heat map (esvo Figure 16/32): 0 .. max_iterations mapped
 /// onto the perceptual "inferno" ramp (black -> purple -> orange -> pale

@@ -75,9 +75,9 @@ dag::SparseVoxelDag dag_scene_from_container(const Container& container, SceneIn
 
 /// Any scene file, loaded and validated, as the renderer's interface.
 struct LoadedScene {
-  std::string format;                         // META "format"
-  std::unique_ptr<VoxelStructure> structure;  // EsvoStructure or DagStructure
-  Aabb occupied;                              // occupied bounds for automatic cameras
+  std::string format;                    // META "format"
+  std::unique_ptr<Structure> structure;  // EsvoStructure or DagStructure
+  Aabb occupied;                         // occupied bounds for automatic cameras
   SceneInfo info;
   std::vector<uint32_t> sections;  // fourccs of the file's sections, ascending
 };

@@ -11,5 +11,8 @@ uint64_t available_memory_bytes();
 uint64_t physical_memory_bytes();
 /// Parses "512M", "8G", "1.5GiB", "123456" (bytes) into bytes; throws voxcast::Error.
 uint64_t parse_byte_size(const char* text);
+/// What a stat() st_mode is, for messages: "a directory", "a FIFO (named
+/// pipe)", "a character device", ..., "a regular file".
+const char* file_type_name(uint32_t st_mode);
 
 }  // namespace voxcast

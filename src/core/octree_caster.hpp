@@ -8,7 +8,7 @@
 //  * beam_walk: the node walk of the coarse beam pass (§6.2) over the same
 //    policy (the cube test and region are in core/beam_frustum.hpp);
 //  * OctreeWorld: the world <-> octree frame (OctreeFrame, core/octree_ray.hpp)
-//    around the two, and with it the VoxelStructure methods of
+//    around the two, and with it the SurfaceQuery methods of
 //    OctreeStructure (include/voxcast/octree_structure.hpp).
 // svdag §4: "The main traversal loop closely resembles that of Laine and
 // Karras [2010a] ... the DAG data structure requires only minor changes":
@@ -559,52 +559,70 @@ Out cast_result(const OctreeCast<Index>& r) {
   return out;
 }
 
-/// The VoxelStructure surface of an octree-family structure: world rays
-/// mapped into octree space (OctreeFrame), cast, and mapped back (t stays the
-/// world distance along the unit direction); P::name_hit fills the
-/// structure-specific SurfaceHit::voxel_ref and child.
+/// The SurfaceQuery of an octree-family structure: world rays mapped into
+/// octree space (OctreeFrame), cast, and mapped back (t stays the world
+/// distance along the unit direction); P::name_hit fills the
+/// structure-specific SurfaceHit::voxel_ref and child. Each query picks the
+/// caster instantiation once from ctx.counting: the plain loop has no
+/// counter code at all.
 template <class P>
 struct OctreeWorld {
   explicit OctreeWorld(const typename P::Source& s) : source(s), frame(s.grid) {}
 
   Aabb bounds() const { return frame.bounds(); }
 
-  /// VoxelStructure::trace_hinted (trace() with TraceHints{}).
-  bool trace(const Ray& ray, const LodFootprint& lod, const TraceHints& hints,
-             SurfaceHit* hit) const {
+  /// SurfaceQuery::trace.
+  bool trace(const Ray& ray, const LodFootprint& lod, TraceContext& ctx, SurfaceHit* hit,
+             const BeamStart* beam) const {
     const Aabb* region = nullptr;
-    if (hints.beam != nullptr && hints.beam->valid) {
+    if (beam != nullptr && beam->valid) {
       // §6.2: the coarse pass proved that no ray of the beam hits anything.
-      if (hints.beam->empty) return false;
-      region = &hints.beam->region;
+      if (beam->empty) return false;
+      region = &beam->region;
     }
     const Vec3 p = frame.point(ray.origin), d = frame.direction(ray.dir);
+    const float coef = frame.length(lod.size_per_t), bias = frame.length(lod.size_at_origin);
     const auto r =
-        cast_octree_counted<P, false>(source, p, d, ray.tmax, frame.length(lod.size_per_t),
-                                      frame.length(lod.size_at_origin), region, hints.counters);
+        ctx.counting
+            ? cast_octree<P, true, false>(source, p, d, ray.tmax, coef, bias, region, &ctx.counters)
+            : cast_octree<P, false, false>(source, p, d, ray.tmax, coef, bias, region, nullptr);
     if (!r.hit) return false;
     frame.hit_to_world(p, d, r.t, r.pos, r.scale, hit);
     P::name_hit(r, hit);
     return true;
   }
 
-  /// VoxelStructure::occluded: any hit within [0, ray.tmax].
+  /// SurfaceQuery::transmittance: 0 (any hit within [0, ray.tmax]) or 1.
   /// The any-hit instantiation only where it skips work in the loop (a
   /// payload to carry, the entered face); otherwise it would differ from the
   /// closest-hit one by the final unmirroring alone, and primary and
   /// secondary rays share one copy of the loop (docs/BENCHMARKS.md "One
   /// octree caster": the ESVO's AO rays measured slower with their own).
-  bool occluded(const Ray& ray, const LodFootprint& lod) const {
+  /// A beam region keeps the answer (see "Why a start region gives
+  /// bit-identical hits": the hit/miss decision is the loop's, whatever the
+  /// instantiation).
+  float transmittance(const Ray& ray, const LodFootprint& lod, TraceContext& ctx,
+                      const BeamStart* beam) const {
     constexpr bool kAnyHit = !std::is_same_v<typename P::Index, NoIndex> || P::kEnteredFace;
-    return cast_octree<P, false, kAnyHit>(source, frame.point(ray.origin), frame.direction(ray.dir),
-                                          ray.tmax, frame.length(lod.size_per_t),
-                                          frame.length(lod.size_at_origin), nullptr, nullptr)
-        .hit;
+    const Aabb* region = nullptr;
+    if (beam != nullptr && beam->valid) {
+      if (beam->empty) return 1.f;
+      region = &beam->region;
+    }
+    const Vec3 p = frame.point(ray.origin), d = frame.direction(ray.dir);
+    const float coef = frame.length(lod.size_per_t), bias = frame.length(lod.size_at_origin);
+    const bool hit = ctx.counting ? cast_octree<P, true, kAnyHit>(source, p, d, ray.tmax, coef,
+                                                                  bias, region, &ctx.counters)
+                                        .hit
+                                  : cast_octree<P, false, kAnyHit>(source, p, d, ray.tmax, coef,
+                                                                   bias, region, nullptr)
+                                        .hit;
+    return hit ? 0.f : 1.f;
   }
 
-  /// VoxelStructure::beam_start: the coarse pass (§6.2).
-  void beam_start(const BeamFrustum& beam, BeamStart* start, RayCounters* counters) const {
-    beam_walk<P>(source, beam, start, counters);
+  /// SurfaceQuery::beam_start: the coarse pass (§6.2).
+  void beam_start(const BeamFrustum& beam, TraceContext& ctx, BeamStart* start) const {
+    beam_walk<P>(source, beam, start, ctx.counting ? &ctx.counters : nullptr);
   }
 
   const typename P::Source& source;
@@ -623,22 +641,19 @@ Aabb OctreeStructure<Self>::bounds() const {
   return static_cast<const Self&>(*this).world().bounds();
 }
 template <class Self>
-bool OctreeStructure<Self>::trace(const Ray& ray, const LodFootprint& lod, SurfaceHit* hit) const {
-  return static_cast<const Self&>(*this).world().trace(ray, lod, TraceHints{}, hit);
+bool OctreeStructure<Self>::trace(const Ray& ray, const LodFootprint& lod, TraceContext& ctx,
+                                  SurfaceHit* hit, const BeamStart* beam) const {
+  return static_cast<const Self&>(*this).world().trace(ray, lod, ctx, hit, beam);
 }
 template <class Self>
-bool OctreeStructure<Self>::trace_hinted(const Ray& ray, const LodFootprint& lod,
-                                         const TraceHints& hints, SurfaceHit* hit) const {
-  return static_cast<const Self&>(*this).world().trace(ray, lod, hints, hit);
+float OctreeStructure<Self>::transmittance(const Ray& ray, const LodFootprint& lod,
+                                           TraceContext& ctx, const BeamStart* beam) const {
+  return static_cast<const Self&>(*this).world().transmittance(ray, lod, ctx, beam);
 }
 template <class Self>
-bool OctreeStructure<Self>::occluded(const Ray& ray, const LodFootprint& lod) const {
-  return static_cast<const Self&>(*this).world().occluded(ray, lod);
-}
-template <class Self>
-void OctreeStructure<Self>::beam_start(const BeamFrustum& beam, BeamStart* start,
-                                       RayCounters* counters) const {
-  static_cast<const Self&>(*this).world().beam_start(beam, start, counters);
+void OctreeStructure<Self>::beam_start(const BeamFrustum& beam, TraceContext& ctx,
+                                       BeamStart* start) const {
+  static_cast<const Self&>(*this).world().beam_start(beam, ctx, start);
 }
 
 }  // namespace voxcast

@@ -99,7 +99,7 @@ typename P::Index payload_at(const P& nodes, Vec3 pos, int scale) {
 /// The OctreeWorld::trace / occluded answers for rays[0, n) (world space),
 /// bit-identical, via `kernel`. any_hit: only found[i] (occluded), hits unused.
 /// beams (may be null): per ray, the coarse-pass result of its block (or
-/// null), as TraceHints::beam of OctreeWorld::trace: an empty beam is a miss,
+/// null), as the beam argument of OctreeWorld::trace: an empty beam is a miss,
 /// a region is where the ray starts and ends (bit-identical hits).
 template <class P>
 void cast_packets(const OctreeWorld<P>& world, PacketKernel<P> kernel, const Ray* rays, size_t n,
@@ -185,10 +185,10 @@ void structure_packets(const S& s, const typename P::Source& source, Isa isa, Pa
                        uint8_t* found) {
   const PacketKernel<P> kernel = packet_kernel_for<P>(isa, avx2, avx512);
   if (source.words.size() >= (size_t(1) << 31)) {
+    TraceContext ctx;
     for (size_t i = 0; i < n; ++i) {
       const BeamStart* beam = beams != nullptr ? beams[i] : nullptr;
-      found[i] = any_hit ? s.occluded(rays[i], lod)
-                         : s.trace_hinted(rays[i], lod, TraceHints{beam, nullptr}, &hits[i]);
+      found[i] = any_hit ? s.occluded(rays[i], lod, ctx) : s.trace(rays[i], lod, ctx, &hits[i], beam);
     }
     return;
   }

@@ -1,5 +1,7 @@
 #include "voxcast/system.hpp"
 
+#include <sys/stat.h>
+
 #include <cctype>
 #include <cmath>
 #include <cstdio>
@@ -56,6 +58,17 @@ uint64_t physical_memory_bytes() {
     if (limit > 0 && (total == 0 || limit < total)) total = limit;
   }
   return total;
+}
+
+const char* file_type_name(uint32_t st_mode) {
+  const mode_t mode = mode_t(st_mode);
+  if (S_ISREG(mode)) return "a regular file";
+  if (S_ISDIR(mode)) return "a directory";
+  if (S_ISFIFO(mode)) return "a FIFO (named pipe)";
+  if (S_ISCHR(mode)) return "a character device";
+  if (S_ISBLK(mode)) return "a block device";
+  if (S_ISSOCK(mode)) return "a socket";
+  return "not a regular file";
 }
 
 uint64_t parse_byte_size(const char* text) {

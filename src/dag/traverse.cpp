@@ -1,6 +1,7 @@
 // Sparse voxel DAG ray caster (svdag §4: "The main traversal loop closely
 // resembles that of Laine and Karras [2010a] ... the DAG data structure
-// requires only minor changes") and the DagStructure adapter. The loop, the
+// requires only minor changes") and the DagStructure (Structure +
+// SurfaceQuery). The loop, the
 // coarse beam walk (esvo §6.2), the world <-> octree frame and the profiling
 // counters (esvo §8.5) are the octree family's (core/octree_caster.hpp), the
 // very code the ESVO runs, so a DAG and an ESVO octree of the same voxels give
@@ -22,7 +23,7 @@ using Nodes = ::voxcast::detail::DagNodes;
 
 }  // namespace
 
-// The VoxelStructure tracing methods are the octree family's
+// The SurfaceQuery tracing methods are the octree family's
 // (core/octree_caster.hpp). The coarse beam pass walks the tree (positions),
 // not the DAG: a node shared by many positions is visited once per occurrence.
 ::voxcast::detail::OctreeWorld<Nodes> DagStructure::world() const {
@@ -55,17 +56,13 @@ DagStructure::DagStructure(std::shared_ptr<const SparseVoxelDag> dag) : dag_(std
   if (!(dag_->grid.side() > 0)) throw Error("DagStructure: DAG has a non-positive side");
 }
 
-void DagStructure::attributes_counted(const SurfaceHit& hit, Color* color, Vec3* normal,
-                                      RayCounters* counters) const {
-  attributes(hit, color, normal);
+void DagStructure::attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
+                              Vec3* normal) const {
   // Raw: one 32-bit color and one 32-bit normal per voxel (dag.hpp);
   // compressed: the voxel's 24-byte esvo §5.5 block (as the ESVO counts it).
   // The index itself came with the traversal (prefix sums next to the pointers).
-  if (counters != nullptr && dag_->has_attributes())
-    counters->attribute_bytes += dag_->compressed_attributes() ? 24 : 8;
-}
-
-void DagStructure::attributes(const SurfaceHit& hit, Color* color, Vec3* normal) const {
+  if (ctx.counting && dag_->has_attributes())
+    ctx.counters.attribute_bytes += dag_->compressed_attributes() ? 24 : 8;
   if (dag_->has_attributes()) {
     // A coarse (LOD) hit shows the mean of all its leaf voxels (dag.hpp),
     // as an ESVO parent shows its children's average (esvo §5.4).

@@ -1,5 +1,5 @@
 // ESVO ray caster (Laine & Karras 2010, §6.1, Appendix A) and the
-// EsvoStructure adapter: the loop, the coarse beam walk (§6.2), the world <->
+// EsvoStructure (Structure + SurfaceQuery): the loop, the coarse beam walk (§6.2), the world <->
 // octree frame and the profiling counters (§8.5) are the octree family's
 // (core/octree_caster.hpp); the ESVO contributes its node access
 // (esvo/octree_nodes.hpp: child descriptors with leaf masks and far pointers,
@@ -50,21 +50,18 @@ EsvoStructure::EsvoStructure(std::shared_ptr<const EsvoOctree> octree)
   return ::voxcast::detail::OctreeWorld<Nodes>(*octree_);
 }
 
-void EsvoStructure::attributes_counted(const SurfaceHit& hit, Color* color, Vec3* normal,
-                                       RayCounters* counters) const {
-  attributes(hit, color, normal);
+void EsvoStructure::attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
+                               Vec3* normal) const {
   // Bytes of the attachment read per hit. Raw (§5.4, Figure 7): one 32-bit
   // lookup entry and one 64-bit value. Compressed (§5.5): the compression
   // block holding the voxel. (Page header and info section reads are
-  // per-block metadata that stays cached; they are not counted.)
-  if (counters != nullptr) {
-    counters->attribute_bytes += octree_->attribute_format() == AttributeFormat::Compressed
-                                     ? uint64_t(detail::kCompressedBlockWords) * 4
-                                     : 4 + 8;
+  // per-block metadata that stays cached; they are not counted.) Counted
+  // before the fetch so that the fetch is a tail call on the plain path.
+  if (ctx.counting) {
+    ctx.counters.attribute_bytes += octree_->attribute_format() == AttributeFormat::Compressed
+                                        ? uint64_t(detail::kCompressedBlockWords) * 4
+                                        : 4 + 8;
   }
-}
-
-void EsvoStructure::attributes(const SurfaceHit& hit, Color* color, Vec3* normal) const {
   octree_->attributes(uint32_t(hit.voxel_ref), int(hit.child), color, normal);
 }
 

@@ -46,6 +46,7 @@
 #include "voxcast/error.hpp"
 #include "voxcast/image.hpp"
 #include "voxcast/mesh.hpp"
+#include "voxcast/system.hpp"
 
 namespace voxcast {
 
@@ -75,10 +76,42 @@ constexpr uint64_t kMaxTexels = uint64_t(1) << 28;
 
 // ------------------------------------------------------------ image decode
 
+// A texture that does not fit the memory budget, or whose file is not a
+// regular file, stops the import (a resource error like any other budget
+// refusal; a FIFO could block a later reader), unlike a missing or unreadable
+// texture, which only costs the model its texture.
+class FatalTextureError : public Error {
+ public:
+  using Error::Error;
+};
+
+// Peak bytes of decoding a w x h image to RGBA: stb_image's inflated stream
+// (up to 4 bytes per texel plus a filter byte per row), its converted RGBA
+// result and our copy of it in Texture::rgba; 3 x 4 bytes per texel bounds
+// all three.
+constexpr uint64_t kDecodeBytesPerTexel = 12;
+
+// Refuses, before anything is allocated, a w x h texture whose decode peak
+// does not fit what is left of the budget. `budget_left` 0: no budget.
+void require_texture_budget(uint64_t w, uint64_t h, uint64_t bytes_per_texel, uint64_t budget_left,
+                            uint64_t held, const std::string& what) {
+  if (budget_left == 0) return;
+  const uint64_t need = w * h * bytes_per_texel;
+  if (need <= budget_left) return;
+  throw FatalTextureError(fmt::format(
+      "texture {}: {}x{} texels need {} MiB to decode, more than the {} MiB left of the memory "
+      "budget{}; raise --memory-budget",
+      what, w, h, (need + (1u << 20) - 1) >> 20, budget_left >> 20,
+      held ? fmt::format(" ({} MiB held by earlier textures)", (held + (1u << 20) - 1) >> 20)
+           : std::string()));
+}
+
 // Texture files (PNG, JPEG, TGA, BMP, PSD, GIF, HDR, PNM) are decoded by
 // stb_image from Debian's libstb. The header is read first so that a
-// decompression bomb is refused before anything is allocated.
-Texture decode_image(const uint8_t* data, size_t size, const std::string& what) {
+// decompression bomb, or an image too large for the budget, is refused
+// before anything is allocated.
+Texture decode_image(const uint8_t* data, size_t size, const std::string& what,
+                     uint64_t budget_left, uint64_t held) {
   if (size == 0 || size > size_t(INT32_MAX))
     throw Error(fmt::format("texture {}: empty or oversized image file", what));
   int w = 0, h = 0, comp = 0;
@@ -87,6 +120,7 @@ Texture decode_image(const uint8_t* data, size_t size, const std::string& what) 
                             one_line(stbi_failure_reason() ? stbi_failure_reason() : "unknown")));
   if (w <= 0 || h <= 0 || uint64_t(w) * uint64_t(h) > kMaxTexels)
     throw Error(fmt::format("texture {}: {}x{} texels is out of range", what, w, h));
+  require_texture_budget(uint64_t(w), uint64_t(h), kDecodeBytesPerTexel, budget_left, held, what);
   stbi_uc* pixels = stbi_load_from_memory(data, int(size), &w, &h, &comp, 4);
   if (!pixels)
     throw Error(fmt::format("texture {}: cannot decode ({})", what,
@@ -117,8 +151,9 @@ void require_finite_positions(const aiMesh& am, unsigned mesh_index, const std::
 
 class SceneConverter {
  public:
-  SceneConverter(const aiScene& scene, const fs::path& path)
-      : scene_(scene), path_(path), name_(path.string()) {
+  // `texture_budget`: bytes the decoded textures may take (0 = no limit).
+  SceneConverter(const aiScene& scene, const fs::path& path, uint64_t texture_budget)
+      : scene_(scene), path_(path), name_(path.string()), texture_budget_(texture_budget) {
     std::string ext = path.extension().string();
     std::transform(ext.begin(), ext.end(), ext.begin(),
                    [](unsigned char c) { return char(std::tolower(c)); });
@@ -364,12 +399,15 @@ class SceneConverter {
     Texture tex;
     try {
       tex = load_texture(key);
+    } catch (const FatalTextureError&) {
+      throw;
     } catch (const Error& e) {
       warnings_.push_back(std::string(e.what()) + "; using the base color instead");
       texture_map_.emplace(key, -1);
       return -1;
     }
     int index = int(textures_.size());
+    texture_bytes_ += tex.rgba.size();
     textures_.push_back(std::move(tex));
     texture_map_.emplace(key, index);
     return index;
@@ -390,23 +428,41 @@ class SceneConverter {
                                         dir / fs::path(slashed).filename()};
     for (const fs::path& c : candidates) {
       std::error_code ec;
-      if (c.empty() || !fs::is_regular_file(c, ec)) continue;
+      if (c.empty()) continue;
+      struct stat st;
+      if (::stat(c.c_str(), &st) != 0) continue;
+      if (!S_ISREG(st.st_mode))
+        throw FatalTextureError(fmt::format("texture {}: '{}' is {}, not a regular file", what,
+                                            one_line(c.string(), 120),
+                                            file_type_name(uint32_t(st.st_mode))));
+      // The file's bytes are held while they are decoded.
+      const uint64_t file_bytes = fs::file_size(c, ec);
+      if (!ec && texture_budget_ && file_bytes > budget_left())
+        throw FatalTextureError(fmt::format(
+            "texture {}: the file is {} MiB, more than the {} MiB left of the memory budget; "
+            "raise --memory-budget",
+            what, (file_bytes + (1u << 20) - 1) >> 20, budget_left() >> 20));
       std::ifstream in(c, std::ios::binary);
       std::vector<uint8_t> bytes((std::istreambuf_iterator<char>(in)),
                                  std::istreambuf_iterator<char>());
       if (!in.good() && !in.eof())
         throw Error(fmt::format("texture {}: cannot read {}", what, c.string()));
-      return decode_image(bytes.data(), bytes.size(), what);
+      return decode_image(bytes.data(), bytes.size(), what, decode_budget(bytes.size()),
+                          texture_bytes_);
     }
     throw Error(fmt::format("texture {} not found next to the model", what));
   }
 
-  static Texture convert_embedded(const aiTexture& t, const std::string& what) {
+  Texture convert_embedded(const aiTexture& t, const std::string& what) const {
     if (!t.pcData) throw Error(fmt::format("texture {}: embedded texture has no data", what));
-    if (t.mHeight == 0)  // compressed file bytes, mWidth is their size
-      return decode_image(reinterpret_cast<const uint8_t*>(t.pcData), t.mWidth, what);
+    if (t.mHeight == 0)  // compressed file bytes (already in memory), mWidth is their size
+      return decode_image(reinterpret_cast<const uint8_t*>(t.pcData), t.mWidth, what,
+                          decode_budget(0), texture_bytes_);
     if (uint64_t(t.mWidth) * t.mHeight > kMaxTexels)
       throw Error(fmt::format("texture {}: embedded texture too large", what));
+    // Only our RGBA copy is allocated here.
+    if (texture_budget_)
+      require_texture_budget(t.mWidth, t.mHeight, 4, budget_left(), texture_bytes_, what);
     Texture tex;
     tex.width = int(t.mWidth);
     tex.height = int(t.mHeight);
@@ -473,6 +529,20 @@ class SceneConverter {
   std::map<std::string, int> texture_map_;
   std::vector<std::string> warnings_;
   std::vector<Texture> textures_;
+  uint64_t texture_budget_ = 0;  // 0: no limit
+  uint64_t texture_bytes_ = 0;   // held by textures_
+
+  // What the budget leaves for the next texture (1 when it is used up, so
+  // that 0 keeps meaning "no budget" to require_texture_budget).
+  uint64_t budget_left() const {
+    return texture_budget_ > texture_bytes_ ? texture_budget_ - texture_bytes_ : 1;
+  }
+  // The same while `file_bytes` of its encoded file are held too.
+  uint64_t decode_budget(uint64_t file_bytes) const {
+    if (texture_budget_ == 0) return 0;
+    const uint64_t left = budget_left();
+    return left > file_bytes ? left - file_bytes : 1;
+  }
 };
 
 // Assimp's OFF reader clamps out-of-range face indices to the last vertex
@@ -657,13 +727,63 @@ void check_gltf_buffers(const nlohmann::json& doc, const fs::path& dir, const st
       throw Error(fmt::format("{}: buffer {} refers to '{}', which is not next to the model", name,
                               id, one_line(uri, 120)));
     if (!S_ISREG(st.st_mode))
-      throw Error(fmt::format("{}: buffer {} file '{}' is not a regular file", name, id,
-                              one_line(uri, 120)));
+      throw Error(fmt::format("{}: buffer {} file '{}' is {}, not a regular file", name, id,
+                              one_line(uri, 120), file_type_name(uint32_t(st.st_mode))));
     if (declared > double(st.st_size))
       throw Error(fmt::format(
           "{}: buffer '{}' holds {} bytes but the model declares {} (truncated, or from another "
           "version of the model?)",
           name, one_line(uri, 120), uint64_t(st.st_size), declared));
+  }
+}
+
+// A referenced file that exists but is not a regular file: a FIFO blocks the
+// reader that opens it until a writer appears (Assimp would hang), a device
+// may never end. Missing files are left to the importer and the texture
+// loader, which report them.
+void require_regular_reference(const fs::path& file, const std::string& name, const char* what,
+                               const std::string& ref) {
+  struct stat st;
+  if (::stat(file.c_str(), &st) == 0 && !S_ISREG(st.st_mode))
+    throw Error(fmt::format("{}: {} '{}' is {}, not a regular file", name, what, one_line(ref, 120),
+                            file_type_name(uint32_t(st.st_mode))));
+}
+
+// glTF images (the buffers: check_gltf_buffers).
+void check_gltf_images(const nlohmann::json& doc, const fs::path& dir, const std::string& name) {
+  if (!doc.is_object() || !doc.contains("images")) return;
+  const nlohmann::json& images = doc["images"];  // glTF 2: array; glTF 1: object by id
+  if (!images.is_array() && !images.is_object()) return;
+  for (const auto& [key, image] : images.items()) {
+    (void)key;
+    if (!image.is_object() || !image.contains("uri") || !image["uri"].is_string()) continue;
+    const std::string uri = image["uri"].get<std::string>();
+    if (uri.rfind("data:", 0) == 0) continue;
+    require_regular_reference(dir / percent_decode(uri), name, "image", uri);
+  }
+}
+
+// OBJ: Assimp opens every "mtllib" file with a blocking read. It takes the
+// rest of the line as one name; each whitespace-separated word is checked
+// too (other readers split the list).
+void precheck_obj(const fs::path& path, const std::string& name) {
+  std::ifstream in(path, std::ios::binary);
+  std::string line;
+  while (std::getline(in, line)) {
+    const size_t start = line.find_first_not_of(" \t");
+    if (start == std::string::npos || line.compare(start, 6, "mtllib") != 0) continue;
+    std::string rest = line.substr(start + 6);
+    if (!rest.empty() && rest[0] != ' ' && rest[0] != '\t') continue;  // e.g. "mtllibx"
+    const size_t first = rest.find_first_not_of(" \t");
+    const size_t last = rest.find_last_not_of(" \t\r");
+    if (first == std::string::npos) continue;
+    rest = rest.substr(first, last - first + 1);
+    std::vector<std::string> names{rest};
+    std::istringstream words(rest);
+    for (std::string w; words >> w;)
+      if (w != rest) names.push_back(w);
+    for (const std::string& n : names)
+      require_regular_reference(path.parent_path() / n, name, "material library", n);
   }
 }
 
@@ -677,6 +797,8 @@ void precheck_gltf(const fs::path& path, const std::string& name, bool binary) {
     std::memcpy(&v, bytes.data() + at, 4);
     return v;
   };
+  // Assimp's glTF importers read a binary file whatever its extension.
+  binary = binary || bytes.compare(0, 4, "glTF") == 0;
   if (binary) {
     // Header: magic "glTF", version, total length; glTF 2 then has chunks
     // of {length, type, data}: JSON first, then optionally BIN.
@@ -685,12 +807,28 @@ void precheck_gltf(const fs::path& path, const std::string& name, bool binary) {
       throw Error(
           fmt::format("{}: the GLB header declares {} bytes but the file has {} (truncated)", name,
                       u32(8), bytes.size()));
-    if (u32(4) != 2 || bytes.size() < 20) return;
+    if (bytes.size() < 20) return;
+    // Assimp allocates a chunk's declared length before reading it (a 1 KB
+    // file declaring a 4 GB JSON chunk costs 4 GB; found by fuzz_mesh):
+    // every declared length must fit in the file. glTF 1 binary: the
+    // content (JSON) length at offset 12; glTF 2: the chunks' lengths.
+    auto chunk_fits = [&](const char* what, uint64_t at, uint64_t length) {
+      if (at + length > bytes.size())
+        throw Error(fmt::format(
+            "{}: the GLB's {} declares {} bytes but the file has {} after its header (truncated "
+            "or damaged)",
+            name, what, length, bytes.size() > at ? bytes.size() - at : 0));
+    };
+    if (u32(4) == 1) chunk_fits("JSON content", 20, u32(12));
+    if (u32(4) != 2) return;
     const uint64_t json_len = u32(12);
-    if (u32(16) != 0x4E4F534Au || 20 + json_len > bytes.size()) return;
+    if (u32(16) != 0x4E4F534Au) return;
+    chunk_fits("JSON chunk", 20, json_len);
     const uint64_t bin_at = 20 + ((json_len + 3) & ~uint64_t(3));
-    if (bin_at + 8 <= bytes.size() && u32(size_t(bin_at) + 4) == 0x004E4942u)
-      bin_chunk = int64_t(std::min<uint64_t>(u32(size_t(bin_at)), bytes.size() - bin_at - 8));
+    if (bin_at + 8 <= bytes.size() && u32(size_t(bin_at) + 4) == 0x004E4942u) {
+      chunk_fits("binary chunk", bin_at + 8, u32(size_t(bin_at)));
+      bin_chunk = int64_t(u32(size_t(bin_at)));
+    }
     doc = nlohmann::json::parse(bytes.begin() + 20, bytes.begin() + 20 + int64_t(json_len), nullptr,
                                 false);
   } else {
@@ -698,6 +836,7 @@ void precheck_gltf(const fs::path& path, const std::string& name, bool binary) {
   }
   if (doc.is_discarded()) return;  // not JSON: Assimp's message says where
   check_gltf_buffers(doc, path.parent_path(), name, bin_chunk);
+  check_gltf_images(doc, path.parent_path(), name);
 }
 
 // Assimp reports through its DefaultLogger (silent unless one is created),
@@ -780,7 +919,8 @@ class QuietImport {
 
 }  // namespace
 
-Mesh load_mesh(const std::filesystem::path& path, MeshLoadStats* stats_out) {
+Mesh load_mesh(const std::filesystem::path& path, MeshLoadStats* stats_out,
+               uint64_t texture_budget) {
   const std::string name = path.string();
   std::error_code ec;
   if (!fs::exists(path, ec)) throw Error(fmt::format("{}: file not found", name));
@@ -794,6 +934,7 @@ Mesh load_mesh(const std::filesystem::path& path, MeshLoadStats* stats_out) {
     if (ext == ".off") precheck_off(path, name);
     precheck_ply(path, name, ext == ".ply");
     if (ext == ".gltf" || ext == ".glb") precheck_gltf(path, name, ext == ".glb");
+    if (ext == ".obj") precheck_obj(path, name);
   }
 
   Assimp::Importer importer;
@@ -848,7 +989,7 @@ Mesh load_mesh(const std::filesystem::path& path, MeshLoadStats* stats_out) {
     throw Error(fmt::format("{}: contains no triangles", name));
 
   MeshLoadStats stats;
-  Mesh mesh = SceneConverter(*scene, path).convert(stats);
+  Mesh mesh = SceneConverter(*scene, path, texture_budget).convert(stats);
   try {
     validate_mesh(mesh);
   } catch (const Error& e) {

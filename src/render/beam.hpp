@@ -1,6 +1,6 @@
 #pragma once
 // Beam optimization (esvo §6.2), renderer side: the pyramid of rays through
-// a block of pixels, handed to VoxelStructure::beam_start.
+// a block of pixels, handed to SurfaceQuery::beam_start.
 #include "voxcast/camera.hpp"
 #include "voxcast/structure.hpp"
 

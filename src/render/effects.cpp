@@ -109,15 +109,6 @@ Vec3 offset_origin(const ShadingPoint& p) {
   return p.position + (p.normal * 2.f - p.view_dir) * p.voxel_size;
 }
 
-bool StructureOccluder::occluded_in_beam(const Ray& ray, const BeamStart& start) const {
-  if (!start.valid) return s_.occluded(ray, LodFootprint{});
-  if (start.empty) return false;  // esvo §6.2: no ray of the beam hits anything
-  // trace_hinted returns exactly trace()'s answer (the region only skips
-  // empty space), and occluded() is the any-hit version of trace().
-  SurfaceHit hit;
-  return s_.trace_hinted(ray, LodFootprint{}, TraceHints{&start, nullptr}, &hit);
-}
-
 uint32_t pixel_seed(int x, int y, uint32_t seed) {
   return hash32(uint32_t(x) * 0x8da6b343u ^
                 hash32(uint32_t(y) * 0xd8163841u ^ hash32(seed + 0x2545f491u)));
@@ -133,8 +124,9 @@ Vec3 direction_to_light(const EffectOptions& o, Vec3 light_dir, Vec3 p, float* d
   return normalize(d);
 }
 
-float shadow_visibility(const Occluder& occ, const ShadingPoint& p, const EffectOptions& o,
-                        Vec3 light_dir, uint32_t seed, EffectCounters* counters) {
+float shadow_visibility(const Occluder& occ, TraceContext& ctx, const ShadingPoint& p,
+                        const EffectOptions& o, Vec3 light_dir, uint32_t seed,
+                        EffectCounters* counters) {
   const Vec3 origin = offset_origin(p);
   EffectCounters c;
   float visibility = 0.f;
@@ -144,7 +136,7 @@ float shadow_visibility(const Occluder& occ, const ShadingPoint& p, const Effect
     const Vec3 d = direction_to_light(o, light_dir, origin, &dist);
     if (dot(d, p.normal) > 0.f && dist > 0.f) {  // below the horizon: the surface itself blocks
       ++c.shadow_rays;
-      visibility = occ.occluded(Ray{origin, d, dist}, LodFootprint{}) ? 0.f : 1.f;
+      visibility = occ.transmittance(Ray{origin, d, dist}, LodFootprint{}, ctx, nullptr);
     }
     if (counters) *counters += c;
     return visibility;
@@ -199,7 +191,7 @@ float shadow_visibility(const Occluder& occ, const ShadingPoint& p, const Effect
       // Widest angle between two directions of the cone = between two corner
       // directions (the cone is their convex hull); 1e-4 relative + 1e-6 rad slack.
       beam.angular_width = std::acos(std::clamp(min_cos, -1.f, 1.f)) * 1.0001f + 1e-6f;
-      occ.beam_start(beam, &start);
+      occ.beam_start(beam, ctx, &start);
     }
     if (start.valid && start.empty) {
       ++c.beams_lit;
@@ -216,7 +208,8 @@ float shadow_visibility(const Occluder& occ, const ShadingPoint& p, const Effect
       const Vec3 d = corner[k] - origin;
       const float dist = length(d);
       ++c.shadow_rays;
-      any_blocked = occ.occluded(Ray{origin, d / dist, dist}, LodFootprint{});
+      any_blocked =
+          occ.transmittance(Ray{origin, d / dist, dist}, LodFootprint{}, ctx, nullptr) < 1.f;
     }
     if (!any_blocked) {
       ++c.beams_lit;
@@ -224,19 +217,22 @@ float shadow_visibility(const Occluder& occ, const ShadingPoint& p, const Effect
       return 1.f;  // all corners above the horizon -> every sample is (convexity)
     }
   }
-  int lit = 0;
+  // The sum of 0/1 transmittances is an exact small integer, so a surface's
+  // visibility is the fraction of unoccluded rays, as counted.
+  float lit = 0.f;
   for (int i = 0; i < n; ++i) {
     Ray ray;
     if (!sample_ray(i, &ray)) continue;
     ++c.shadow_rays;
-    lit += start.valid ? !occ.occluded_in_beam(ray, start) : !occ.occluded(ray, LodFootprint{});
+    lit += occ.transmittance(ray, LodFootprint{}, ctx, start.valid ? &start : nullptr);
   }
   if (counters) *counters += c;
-  return float(lit) / float(n);
+  return lit / float(n);
 }
 
-float ambient_occlusion(const Occluder& occ, const ShadingPoint& p, const EffectOptions& o,
-                        float radius, uint32_t seed, EffectCounters* counters) {
+float ambient_occlusion(const Occluder& occ, TraceContext& ctx, const ShadingPoint& p,
+                        const EffectOptions& o, float radius, uint32_t seed,
+                        EffectCounters* counters) {
   const int n = o.ao_rays;
   if (n <= 0 || !(radius > 0.f)) return 1.f;
   const Vec3 origin = offset_origin(p);
@@ -248,7 +244,7 @@ float ambient_occlusion(const Occluder& occ, const ShadingPoint& p, const Effect
   LodFootprint lod;
   if (o.ao_cone_angle_deg > 0.f)
     lod.size_per_t = 2.f * std::tan(0.5f * o.ao_cone_angle_deg * 3.14159265358979f / 180.f);
-  int open = 0;
+  float open = 0.f;  // sum of transmittances (exact integers for a surface)
   for (int i = 0; i < n; ++i) {
     // Cosine-weighted direction (Malley): uniform on the disc, lifted.
     const float u1 = sample(i, n, 0, seed), u2 = sample(i, n, 1, seed), u3 = sample(i, n, 2, seed);
@@ -258,10 +254,10 @@ float ambient_occlusion(const Occluder& occ, const ShadingPoint& p, const Effect
     // Falloff in sampling (Laine & Karras 2010b): length R*sqrt(u) has
     // P(L > d) = 1 - (d/R)^2 = f(d), so a ray is occluded with probability f.
     const float len = radius * std::sqrt(u3);
-    open += !occ.occluded(Ray{origin, d, len}, lod);
+    open += occ.transmittance(Ray{origin, d, len}, lod, ctx, nullptr);
   }
   if (counters) counters->ao_rays += uint64_t(n);
-  return float(open) / float(n);
+  return open / float(n);
 }
 
 }  // namespace voxcast

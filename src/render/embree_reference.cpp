@@ -175,6 +175,12 @@ bool EmbreeScene::occluded(const Ray& ray) const {
   return r.tfar < 0.f;  // Embree sets tfar = -inf on occlusion
 }
 
+float EmbreeScene::transmittance(const Ray& ray, const LodFootprint& lod, TraceContext& ctx,
+                                 const BeamStart* beam) const {
+  (void)lod, (void)ctx, (void)beam;
+  return occluded(ray) ? 0.f : 1.f;
+}
+
 namespace {
 // Indexed by Mode (the enum's order).
 struct ModeText {

@@ -20,7 +20,8 @@ int main(int argc, char** argv) {
   voxcast::Aabb b = mesh.bounds();
   voxcast::Vec3 eye = b.center() + voxcast::Vec3{0, 0, 10 * (b.hi.z - b.lo.z)};
   voxcast::SurfaceHit hit;
-  bool found = structure.trace({eye, {0, 0, -1}, INFINITY}, {}, &hit);
+  voxcast::TraceContext ctx;  // per-thread query state (counters, requests, caches)
+  bool found = structure.trace({eye, {0, 0, -1}, INFINITY}, {}, ctx, &hit);
   std::printf("%zu voxels, center ray %s at t=%g\n", voxels.size(), found ? "hit" : "missed",
               hit.t);
   return found ? 0 : 1;

@@ -1,0 +1,243 @@
+// The surface integrator over the frame loop (surface_integrator.hpp,
+// render.hpp) against a straightforward reference: one pixel after the other
+// on one thread, no tiles, batches, beams or frame loop, through the
+// SurfaceQuery and the effect functions directly, shaded with the
+// Blinn-Phong formula written out here. The images must agree byte for byte
+// (the move of render() onto the integrator kept every output identical),
+// and the counters must be those of the rays alone.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstring>
+#include <memory>
+#include <string>
+#include <utility>
+
+#include "support/test_data.hpp"
+#include "voxcast/dag.hpp"
+#include "voxcast/error.hpp"
+#include "voxcast/esvo_structure.hpp"
+#include "voxcast/mesh.hpp"
+#include "voxcast/render.hpp"
+#include "voxcast/surface_integrator.hpp"
+#include "voxcast/voxelize.hpp"
+
+namespace voxcast {
+namespace {
+
+struct Scenes {
+  std::unique_ptr<esvo::EsvoStructure> esvo;
+  std::unique_ptr<dag::DagStructure> dag;
+  Aabb bounds;
+};
+
+const Scenes& scenes() {
+  static const Scenes s = [] {
+    Scenes out;
+    const Mesh mesh = load_mesh(testing::test_mesh("spot.obj"));
+    const GridTransform grid = GridTransform::fit(mesh.bounds(), 128);
+    VoxelizeOptions vo;
+    vo.attributes = true;
+    const VoxelSet voxels = voxelize(mesh, grid, vo);
+    out.esvo = std::make_unique<esvo::EsvoStructure>(
+        std::make_shared<const esvo::EsvoOctree>(esvo::build_octree(voxels)));
+    out.dag = std::make_unique<dag::DagStructure>(
+        std::make_shared<const dag::SparseVoxelDag>(dag::build_dag(voxels)));
+    out.bounds = mesh.bounds();
+    return out;
+  }();
+  return s;
+}
+
+struct Reference {
+  Image color, depth, normal, iterations, ao, shadow;
+  uint64_t hits = 0;
+  RayCounters counters;
+};
+
+// The reference loop. Effects through StructureOccluder with the options'
+// explicit AO radius (the tests set one, so no default is involved).
+Reference reference_render(const SurfaceQuery& q, const RenderOptions& o) {
+  const int W = o.width, H = o.height;
+  const CameraRays cam(o.camera, W, H);
+  const LodFootprint lod{o.lod_pixels * cam.pixel_size(), o.lod_pixels * cam.pixel_angle()};
+  const Vec3 to_light = normalize(-o.light_dir);
+  const EffectOptions& fx = o.effects;
+  const StructureOccluder occluder(q);
+  Reference r;
+  r.color = Image(W, H, 3), r.depth = Image(W, H, 1), r.normal = Image(W, H, 3);
+  r.iterations = Image(W, H, 1), r.ao = Image(W, H, 1), r.shadow = Image(W, H, 1);
+  TraceContext ctx;
+  ctx.counting = true;
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) {
+      const Ray ray = cam.ray(x, y);
+      SurfaceHit hit;
+      const uint64_t before = ctx.counters.iterations;
+      const bool found = q.trace(ray, lod, ctx, &hit);
+      *r.iterations.at(x, y) = float(ctx.counters.iterations - before);
+      float* c = r.color.at(x, y);
+      float* nn = r.normal.at(x, y);
+      *r.ao.at(x, y) = *r.shadow.at(x, y) = 1.f;
+      if (!found) {
+        c[0] = o.background.r, c[1] = o.background.g, c[2] = o.background.b;
+        *r.depth.at(x, y) = INFINITY;
+        nn[0] = nn[1] = nn[2] = 0.5f;
+        continue;
+      }
+      ++r.hits;
+      Color col;
+      Vec3 n;
+      q.attributes(hit, ctx, &col, &n);
+      if (dot(n, ray.dir) > 0.f) n = -n;
+      Vec3 light = to_light;
+      if (fx.light != LightKind::Directional) {
+        float dist;
+        light = direction_to_light(fx, o.light_dir, hit.position, &dist);
+      }
+      // Secondary rays are not part of the Table 6 counters.
+      TraceContext secondary;
+      const ShadingPoint sp{hit.position, n, ray.dir, hit.voxel_size};
+      const uint32_t seed = pixel_seed(x, y, fx.seed);
+      float visibility = 1.f, ao = 1.f;
+      if (fx.shadows != ShadowMode::None)
+        *r.shadow.at(x, y) = visibility =
+            shadow_visibility(occluder, secondary, sp, fx, o.light_dir, seed, nullptr);
+      if (fx.ao_rays > 0)
+        *r.ao.at(x, y) = ao =
+            ambient_occlusion(occluder, secondary, sp, fx, fx.ao_radius, seed, nullptr);
+      const float diffuse = std::fmax(0.f, dot(n, light)) * visibility;
+      const Vec3 half_vec = normalize(light - ray.dir);
+      const float s1 = std::fmax(0.f, dot(n, half_vec));
+      const float s2 = s1 * s1, s4 = s2 * s2, s8 = s4 * s4, s16 = s8 * s8;
+      const float spec = s16 * s16 * visibility;
+      const float k = 0.18f * ao + 0.82f * diffuse;
+      c[0] = col.r * k + 0.12f * spec;
+      c[1] = col.g * k + 0.12f * spec;
+      c[2] = col.b * k + 0.12f * spec;
+      *r.depth.at(x, y) = hit.t;
+      nn[0] = n.x * 0.5f + 0.5f, nn[1] = n.y * 0.5f + 0.5f, nn[2] = n.z * 0.5f + 0.5f;
+    }
+  r.counters = ctx.counters;
+  return r;
+}
+
+bool same_bytes(const Image& a, const Image& b) {
+  return a.width == b.width && a.height == b.height && a.channels == b.channels &&
+         std::memcmp(a.pixels.data(), b.pixels.data(), a.pixels.size() * sizeof(float)) == 0;
+}
+
+struct Variant {
+  const char* name;
+  float lod;
+  int beam;
+  bool effects;
+  bool point_light;
+};
+
+class SurfaceIntegratorVsReference : public ::testing::TestWithParam<Variant> {};
+
+TEST_P(SurfaceIntegratorVsReference, ImagesAndCountersAgreeByteForByte) {
+  const Variant v = GetParam();
+  const Scenes& s = scenes();
+  RenderOptions o;
+  o.width = 72, o.height = 54;
+  o.tile_size = 16;  // partial tiles at the right and bottom borders
+  o.camera = Camera::frame(s.bounds, o.width, o.height);
+  o.lod_pixels = v.lod;
+  o.beam = v.beam;
+  o.want_depth = o.want_normal = true;
+  o.collect_stats = true;
+  if (v.effects) {
+    o.effects.shadows = ShadowMode::Hard;
+    o.effects.ao_rays = 6;
+    o.effects.ao_radius = 0.1f * length(s.bounds.extent());
+    o.effects.seed = 5;
+  }
+  if (v.point_light) {
+    o.effects.light = LightKind::Point;
+    o.effects.light_position = s.bounds.hi + s.bounds.extent() * 0.5f;
+  }
+  for (Structure* st :
+       {static_cast<Structure*>(s.esvo.get()), static_cast<Structure*>(s.dag.get())}) {
+    SCOPED_TRACE(st->name() + " " + v.name);
+    const Reference ref = reference_render(*st->surface(), o);
+    ASSERT_GT(ref.hits, uint64_t(o.width * o.height / 10)) << "the view shows too little";
+    const RenderResult got = render(std::as_const(*st), o);  // one pass, serves nothing
+    EXPECT_EQ(got.hits, ref.hits);
+    EXPECT_TRUE(same_bytes(got.color, ref.color));
+    EXPECT_TRUE(same_bytes(got.depth, ref.depth));
+    EXPECT_TRUE(same_bytes(got.normal, ref.normal));
+    // Iterations per pixel: the reference's rays start at the root, so they
+    // equal only without the beam.
+    if (v.beam == 0) {
+      EXPECT_TRUE(same_bytes(got.iterations, ref.iterations));
+    }
+    if (v.effects) {
+      EXPECT_TRUE(same_bytes(got.ao, ref.ao));
+      EXPECT_TRUE(same_bytes(got.shadow, ref.shadow));
+      EXPECT_GT(got.effect_counters.ao_rays, 0u);
+    } else {
+      EXPECT_TRUE(got.ao.pixels.empty());
+      EXPECT_TRUE(got.shadow.pixels.empty());
+    }
+    // The counters are the primary rays' (with the beam they start at the
+    // block's region: no more iterations than from the root); the coarse
+    // pass is counted apart (added in, it would exceed the reference).
+    if (v.beam == 0) {
+      EXPECT_EQ(got.counters.iterations, ref.counters.iterations);
+      EXPECT_EQ(got.counters.pushes, ref.counters.pushes);
+      EXPECT_EQ(got.counters.descriptor_fetches, ref.counters.descriptor_fetches);
+      EXPECT_EQ(got.coarse_counters.iterations, 0u);
+      EXPECT_EQ(got.beams, 0u);
+    } else {
+      EXPECT_LE(got.counters.iterations, ref.counters.iterations);
+      EXPECT_GT(got.coarse_counters.iterations, 0u);
+      EXPECT_EQ(got.beams, uint64_t((o.width + v.beam - 1) / v.beam) *
+                               uint64_t((o.height + v.beam - 1) / v.beam));
+    }
+    EXPECT_EQ(got.counters.attribute_bytes, ref.counters.attribute_bytes);
+    double sum = 0;
+    for (float it : got.iterations.pixels) sum += it;
+    EXPECT_EQ(uint64_t(sum), got.counters.iterations);
+
+    // The mutable overload runs the full frame loop: the same image (a
+    // static structure never asks for anything, so it is one pass).
+    const RenderResult loop = render(*st, o);
+    EXPECT_EQ(loop.passes, 1);
+    EXPECT_TRUE(same_bytes(loop.color, got.color));
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(Variants, SurfaceIntegratorVsReference,
+                         ::testing::Values(Variant{"finest", 0.f, 0, false, false},
+                                           Variant{"lod1_beam4", 1.f, 4, false, false},
+                                           Variant{"effects", 0.f, 0, true, false},
+                                           Variant{"effects_beam8", 1.f, 8, true, false},
+                                           Variant{"point_light", 0.f, 0, true, true}),
+                         [](const auto& info) { return std::string(info.param.name); });
+
+// A structure without a surface query cannot be rendered by the surface
+// integrator: a clear error, before any tile runs.
+class VolumeOnly final : public Structure {
+ public:
+  std::string name() const override { return "volume-only"; }
+  Aabb bounds() const override { return Aabb{{0, 0, 0}, {1, 1, 1}}; }
+};
+
+TEST(SurfaceIntegrator, StructureWithoutSurfaceQueryIsAnError) {
+  const VolumeOnly v;
+  RenderOptions o;
+  o.width = 8, o.height = 8;
+  try {
+    render(v, o);
+    FAIL() << "rendered a structure without a surface query";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("volume-only structure has no surface query"),
+              std::string::npos)
+        << e.what();
+  }
+}
+
+}  // namespace
+}  // namespace voxcast
