@@ -17,6 +17,7 @@
 
 #include "dag/attribute_sum.hpp"
 #include "voxcast/dag.hpp"
+#include "voxcast/dag_format.hpp"
 #include "voxcast/esvo.hpp"
 #include "voxcast/isa.hpp"
 #include "voxcast/morton.hpp"

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Damage a .vxc scene file the way a buggy writer would: set 32-bit words of
-one section payload and recompute that section's xxHash64, so the container
-checks pass and the damage reaches the validators (issue 15; the C++ sweep is
+one section payload and recompute that section's xxHash64 (its chunk hashes
+and, in version 2 files, the directory hash), so the container checks pass and the damage reaches the validators (issue 15; the C++ sweep is
 tests/test_scene_damage.cpp, README "Reliability").
 
     fuzz/damage_scene.py IN.vxc OUT.vxc SECTION WORD=VALUE [WORD=VALUE ...]
@@ -68,24 +68,50 @@ def xxh64(data, seed=0):
 
 
 def sections(buf):
-    count = struct.unpack_from('<I', buf, 12)[0]
+    """(entry offset, name, offset, size, chunk bytes, first hash offset) per
+    section, for both container versions (layout: include/voxcast/container.hpp)."""
+    version, count = struct.unpack_from('<II', buf, 8)
+    if version == 1:
+        for e in range(count):
+            at = 16 + 32 * e
+            fourcc, _, offset, size, _ = struct.unpack_from('<4sIQQQ', buf, at)
+            yield at, fourcc.decode('latin-1'), offset, size, max(size, 1), at + 24
+        return
+    directory = struct.unpack_from('<Q', buf, 16)[0]
+    hash_at = directory + 32 * count
     for e in range(count):
-        at = 16 + 32 * e
-        fourcc, _, offset, size, _ = struct.unpack_from('<4sIQQQ', buf, at)
-        yield at, fourcc.decode('latin-1'), offset, size
+        at = directory + 32 * e
+        fourcc, chunks, offset, size, chunk_bytes = struct.unpack_from('<4sIQQQ', buf, at)
+        yield at, fourcc.decode('latin-1'), offset, size, chunk_bytes, hash_at
+        hash_at += 8 * chunks
+
+
+def rehash(buf, offset, size, chunk_bytes, hash_at):
+    """Recomputes a section's chunk hashes and, for version 2, the directory hash."""
+    chunk = 0
+    while True:
+        start = offset + chunk * chunk_bytes
+        end = min(start + chunk_bytes, offset + size)
+        struct.pack_into('<Q', buf, hash_at + 8 * chunk, xxh64(bytes(buf[start:end])))
+        chunk += 1
+        if offset + chunk * chunk_bytes >= offset + size:
+            break
+    if struct.unpack_from('<I', buf, 8)[0] >= 2:
+        directory = struct.unpack_from('<Q', buf, 16)[0]
+        struct.pack_into('<Q', buf, 32, xxh64(bytes(buf[0:32]) + bytes(buf[directory:])))
 
 
 def main(argv):
     if len(argv) >= 3 and argv[2] == '--list':
         buf = open(argv[1], 'rb').read()
-        for _, name, offset, size in sections(buf):
+        for _, name, offset, size, _, _ in sections(buf):
             print(f'{name} offset {offset} size {size} ({size // 4} words)')
         return 0
     if len(argv) < 5:
         print(__doc__, file=sys.stderr)
         return 2
     buf = bytearray(open(argv[1], 'rb').read())
-    for at, name, offset, size in sections(buf):
+    for _, name, offset, size, chunk_bytes, hash_at in list(sections(buf)):
         if name != argv[3]:
             continue
         for edit in argv[4:]:
@@ -101,7 +127,7 @@ def main(argv):
             else:
                 new = int(value, 0)
             struct.pack_into('<I', buf, pos, new & 0xFFFFFFFF)
-        struct.pack_into('<Q', buf, at + 24, xxh64(bytes(buf[offset:offset + size])))
+        rehash(buf, offset, size, chunk_bytes, hash_at)
         open(argv[2], 'wb').write(buf)
         return 0
     raise SystemExit(f'no section {argv[3]}')

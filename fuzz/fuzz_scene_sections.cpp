@@ -6,7 +6,9 @@
 // dying at the checksum. The custom mutator edits 32-bit words of one
 // section (the sweep's edits of tests/support/scene_damage.hpp, or
 // libFuzzer's own byte mutations of the payload, or a resize), then
-// re-serializes the container, recomputing the hashes. Each input then goes
+// re-serializes the container, recomputing the hashes; or re-chunks every
+// section (small chunk sizes), or edits one word of the directory with its
+// hash recomputed (container.hpp layout). Each input then goes
 // through everything a subcommand does (testing::check_scene: load_scene,
 // the info statistics, a small render with beam, shadows and AO).
 //
@@ -16,6 +18,7 @@
 //   VOXCAST_WRITE_SEEDS=DIR ./fuzz_scene_sections
 // writes them to DIR and exits (README "Reliability" has the full recipe).
 #include <tbb/global_control.h>
+#include <xxhash.h>
 
 #include <cstddef>
 #include <cstdint>
@@ -28,6 +31,7 @@
 #include <vector>
 
 #include "support/scene_damage.hpp"
+#include "voxcast/container.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/scene_file.hpp"
 
@@ -59,6 +63,34 @@ std::vector<uint8_t> mutate(const std::vector<uint8_t>& file, std::mt19937& rng)
       else
         bytes.resize(bytes.size() + 4 * k, uint8_t(rng() % 2 ? 0 : 0xFF));
       break;
+    }
+    case 2: {  // the same sections in chunks of 8..4096 bytes: chunk tables reach the reader
+      std::vector<uint8_t> out;
+      voxcast::ContainerWriter w(&out, 8u << (rng() % 10));
+      for (const uint32_t s : ids) w.add(s, c.get(s));
+      w.commit();
+      return out;
+    }
+    case 3: {  // one directory word edited, the directory hash recomputed, so
+               // the directory checks (offsets, sizes, counts) see it
+      std::vector<uint8_t> out = c.serialize();
+      uint64_t dir = 0;
+      std::memcpy(&dir, &out[16], 8);
+      const size_t span = out.size() - size_t(dir);
+      if (span < 4) return out;
+      const size_t at = size_t(dir) + 4 * (rng() % (span / 4));
+      uint32_t v = 0;
+      std::memcpy(&v, &out[at], 4);
+      v = rng() % 2 ? v ^ (1u << (rng() % 32)) : v + uint32_t(rng() % 3) - 1;
+      std::memcpy(&out[at], &v, 4);
+      XXH64_state_t* st = XXH64_createState();
+      XXH64_reset(st, 0);
+      XXH64_update(st, out.data(), 32);
+      XXH64_update(st, out.data() + dir, span);
+      const uint64_t h = XXH64_digest(st);
+      XXH64_freeState(st);
+      std::memcpy(&out[32], &h, 8);
+      return out;
     }
     default: {  // 1-3 word edits, mostly on non-zero (structure) words
       if (words == 0) break;

@@ -14,7 +14,6 @@
 #include <memory>
 #include <optional>
 #include <string>
-#include <type_traits>
 #include <vector>
 
 #include "pipeline.hpp"  // apps/voxcast: the build `voxcast build` runs
@@ -23,6 +22,7 @@
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
 #include "voxcast/esvo_structure.hpp"
+#include "voxcast/format_registry.hpp"
 #include "voxcast/image.hpp"
 #include "voxcast/mesh.hpp"
 #include "voxcast/morton.hpp"
@@ -39,64 +39,37 @@ namespace {
 // A scene as `voxcast render` sees it after load_scene(): one structure, its
 // occupied bounds (for automatic cameras) and the metadata saved with it.
 struct Scene {
-  std::string format;  // "esvo" | "dag"
-  std::shared_ptr<const esvo::EsvoOctree> octree;
-  std::shared_ptr<const dag::SparseVoxelDag> dag;
+  std::string format;  // a registered format (format_registry.hpp): "esvo", "dag", ...
   std::shared_ptr<const Structure> structure;
   Aabb occupied;
   SceneInfo info;
+  // The structure's own data when it is one of these (info(), voxels()).
+  const esvo::EsvoOctree* octree = nullptr;
+  const dag::SparseVoxelDag* dag = nullptr;
 };
 
-// The same steps as load_scene(Container) after parsing, for a structure
-// built in memory, so a built scene renders exactly like its saved file.
-template <class Structure, class Data>
-std::shared_ptr<Scene> scene_from(Data data, const SceneInfo& info, const char* format) {
+std::shared_ptr<Scene> scene_of(std::string format, LoadedStructure structure, Aabb occupied,
+                                SceneInfo info) {
   auto s = std::make_shared<Scene>();
-  auto shared = std::make_shared<const Data>(std::move(data));
-  s->format = format;
-  s->occupied = occupied_bounds(*shared);  // esvo:: or dag::, by argument
-  s->structure = std::make_unique<Structure>(shared);
-  if constexpr (std::is_same_v<Data, esvo::EsvoOctree>)
-    s->octree = shared;
-  else
-    s->dag = shared;
-  s->info = info;
+  s->format = std::move(format);
+  s->structure = std::move(structure);
+  s->occupied = occupied;
+  s->info = std::move(info);
+  if (auto* e = dynamic_cast<const esvo::EsvoStructure*>(s->structure.get()))
+    s->octree = &e->octree();
+  if (auto* d = dynamic_cast<const dag::DagStructure*>(s->structure.get())) s->dag = &d->dag();
   return s;
-}
-
-std::shared_ptr<Scene> esvo_scene(esvo::EsvoOctree octree, const SceneInfo& info) {
-  return scene_from<esvo::EsvoStructure>(std::move(octree), info, "esvo");
-}
-
-std::shared_ptr<Scene> dag_scene(dag::SparseVoxelDag d, const SceneInfo& info) {
-  return scene_from<dag::DagStructure>(std::move(d), info, "dag");
 }
 
 std::shared_ptr<Scene> load(const std::string& path) {
   py::gil_scoped_release release;
   LoadedScene loaded = load_scene(path);
-  auto s = std::make_shared<Scene>();
-  s->format = loaded.format;
-  s->structure = std::move(loaded.structure);
-  s->occupied = loaded.occupied;
-  s->info = loaded.info;
-  // save() and voxels() need the typed data: views into the structure's own
-  // octree / DAG (the aliasing constructor keeps the structure alive).
-  if (s->format == "esvo")
-    s->octree = std::shared_ptr<const esvo::EsvoOctree>(
-        s->structure, &static_cast<const esvo::EsvoStructure&>(*s->structure).octree());
-  else
-    s->dag = std::shared_ptr<const dag::SparseVoxelDag>(
-        s->structure, &static_cast<const dag::DagStructure&>(*s->structure).dag());
-  return s;
+  return scene_of(loaded.format, std::move(loaded.structure), loaded.occupied, loaded.info);
 }
 
 void save(const Scene& s, const std::string& path) {
   py::gil_scoped_release release;
-  if (s.format == "esvo")
-    save_esvo_scene(path, *s.octree, s.info);
-  else
-    save_dag_scene(path, *s.dag, s.info);
+  save_scene(path, s.format, *s.structure, s.info);
 }
 
 py::tuple vec3(Vec3 v) {
@@ -106,7 +79,9 @@ py::tuple vec3(Vec3 v) {
 py::dict info(const Scene& s) {
   py::dict d;
   d["format"] = s.format;
-  const GridTransform& g = s.octree ? s.octree->grid : s.dag->grid;
+  const GridTransform g = s.octree ? s.octree->grid
+                          : s.dag  ? s.dag->grid
+                                  : format_registry().get(s.format).describe(*s.structure, {}).grid;
   d["resolution"] = g.resolution;
   d["levels"] = g.levels;
   d["voxel_size"] = g.voxel_size;
@@ -135,7 +110,7 @@ py::dict info(const Scene& s) {
     mem["normals"] = m.normal_bytes;
     mem["contours"] = m.contour_bytes;
     mem["total"] = m.total_bytes;
-  } else {
+  } else if (s.dag) {
     const dag::DagStats st = s.dag->stats();
     d["attributes"] = st.compressed_attributes ? "compressed" : "raw";
     mem["nodes"] = st.dag_bytes;
@@ -164,15 +139,15 @@ cli::BuildSettings settings(uint32_t resolution, double voxel_size, const std::s
       throw Error("voxel_size must be a finite number > 0");
     s.voxel_size = voxel_size;
   }
-  if (format != "esvo" && format != "dag")
-    throw Error("format: '" + format + "' is not esvo or dag");
-  s.dag = format == "dag";
+  const SceneFormat& f = format_registry().get(format);  // "unknown scene format ... (known: ...)"
+  s.format = f.name;
   s.attributes = cli::parse_attribute_format(attributes);
   s.mode = cli::parse_voxelization(voxelization);
-  if (contours && s.dag) throw Error("contours apply to format esvo only");
+  if (contours && s.format != "esvo") throw Error("contours apply to format esvo only");
   s.contours = contours;
   s.dag_attributes = dag_attributes;
-  if (!dag_attributes && !s.dag) throw Error("attributes=False applies to format dag only");
+  if (!dag_attributes && !f.attributes_optional)
+    throw Error("dag_attributes=False: format " + f.name + " needs colors and normals");
   s.out_of_core = out_of_core;
   return s;
 }
@@ -184,8 +159,9 @@ std::shared_ptr<Scene> finish_build(cli::BuiltScene built, const cli::BuildSetti
   info.voxelization = cli::voxelization_name(s.mode);
   info.source_triangles = built.mesh.triangle_count();
   info.leaf_voxels = built.leaf_voxels;
-  if (s.dag) return dag_scene(std::move(built.dag), info);
-  return esvo_scene(std::move(built.octree), info);
+  // What load_scene() derives from a file, from the built structure.
+  const Aabb occupied = format_registry().get(s.format).occupied(*built.structure);
+  return scene_of(s.format, std::move(built.structure), occupied, info);
 }
 
 template <class T>
@@ -598,6 +574,8 @@ py::array_t<float> read_pfm_array(const std::string& path) {
 }  // namespace
 
 PYBIND11_MODULE(voxcast, m) {
+  // Every scene format before anything builds, loads or saves (as the CLI's main()).
+  register_builtin_formats();
   m.doc() = "voxcast: triangle meshes -> sparse voxel structures (ESVO, DAG) -> CPU ray casting";
   // One exception type for every library error, with the library's message.
   static py::exception<Error> error(m, "Error", PyExc_RuntimeError);

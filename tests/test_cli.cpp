@@ -20,6 +20,7 @@
 
 #include "support/cli_runner.hpp"
 #include "voxcast/dag.hpp"
+#include "voxcast/dag_format.hpp"
 #include "voxcast/scene_file.hpp"
 
 extern char** environ;

@@ -19,6 +19,7 @@
 #include "support/esvo_testing.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
+#include "voxcast/esvo_format.hpp"
 #include "voxcast/morton.hpp"
 #include "voxcast/scene_file.hpp"
 

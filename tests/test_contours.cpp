@@ -23,6 +23,7 @@
 #include "voxcast/embree_reference.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
+#include "voxcast/esvo_format.hpp"
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/mesh.hpp"
 #include "voxcast/render.hpp"

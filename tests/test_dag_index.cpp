@@ -20,6 +20,7 @@
 #include "support/cli_runner.hpp"
 #include "support/esvo_testing.hpp"
 #include "voxcast/dag.hpp"
+#include "voxcast/dag_format.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/morton.hpp"
 #include "voxcast/scene_file.hpp"

@@ -14,6 +14,7 @@
 
 #include "support/cli_runner.hpp"
 #include "voxcast/dag.hpp"
+#include "voxcast/dag_format.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/mesh.hpp"
 #include "voxcast/morton.hpp"

@@ -3,6 +3,7 @@
 // valid checksum, bad metadata) ends in a voxcast::Error, never a crash.
 #include <gtest/gtest.h>
 #include <unistd.h>
+#include <xxhash.h>
 
 #include <bit>
 #include <cstring>
@@ -10,12 +11,18 @@
 #include <random>
 
 #include "support/esvo_testing.hpp"
+#include "support/file_bytes.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
+#include "voxcast/esvo_format.hpp"
 #include "voxcast/scene_file.hpp"
 
 namespace voxcast {
 namespace {
+
+using testing::error_of;
+using testing::read_bytes;
+using testing::write_bytes;
 
 namespace fs = std::filesystem;
 using esvo::EsvoOctree;
@@ -32,15 +39,6 @@ class SceneFile : public ::testing::Test {
   fs::path path(const std::string& name) const { return dir_ / name; }
   fs::path dir_;
 };
-
-std::vector<uint8_t> read_bytes(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  return std::vector<uint8_t>(std::istreambuf_iterator<char>(in), {});
-}
-void write_bytes(const fs::path& p, const std::vector<uint8_t>& b) {
-  std::ofstream out(p, std::ios::binary | std::ios::trunc);
-  out.write(reinterpret_cast<const char*>(b.data()), std::streamsize(b.size()));
-}
 
 SceneInfo sample_info() {
   SceneInfo info;
@@ -97,16 +95,6 @@ void use_everything(const EsvoOctree& o) {
   }
 }
 
-template <class F>
-std::string error_of(F&& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "<no error>";
-}
-
 TEST_F(SceneFile, RoundTrip) {
   const EsvoOctree o = small_octree();
   save_esvo_scene(path("a.vxc"), o, sample_info());
@@ -141,9 +129,21 @@ TEST_F(SceneFile, ContainerSections) {
   EXPECT_TRUE(back.get(fourcc("EMPT")).empty());
   EXPECT_EQ(back.get(fourcc("XYZW")).size(), 17u);
   EXPECT_THROW(back.get(fourcc("NONE")), Error);
-  // Duplicate section: copy entry 0 over entry 1 (same hash, same offset).
+  // Duplicate section: copy directory entry 0 over entry 1 and recompute the
+  // directory hash (header bytes 0..31, then the directory: container.hpp),
+  // so only the duplicate id is wrong.
   std::vector<uint8_t> dup = bytes;
-  std::memcpy(&dup[16 + 32], &dup[16], 32);
+  uint64_t dir = 0, dir_bytes = 0;
+  std::memcpy(&dir, &dup[16], 8);
+  std::memcpy(&dir_bytes, &dup[24], 8);
+  std::memcpy(&dup[size_t(dir) + 32], &dup[size_t(dir)], 32);
+  XXH64_state_t* st = XXH64_createState();
+  XXH64_reset(st, 0);
+  XXH64_update(st, dup.data(), 32);
+  XXH64_update(st, dup.data() + dir, size_t(dir_bytes));
+  const uint64_t h = XXH64_digest(st);
+  XXH64_freeState(st);
+  std::memcpy(&dup[32], &h, 8);
   EXPECT_NE(error_of([&] { Container::parse(dup.data(), dup.size()); }).find("duplicate"),
             std::string::npos);
 }

@@ -84,6 +84,17 @@ Camera resolve_camera(const CameraArgs& args, const Aabb& bounds, int width, int
   return camera;
 }
 
+bool camera_options_given(const CameraArgs& args) {
+  return (args.camera_option != nullptr && args.camera_option->count() > 0) ||
+         !args.orbit.empty() || !args.look_at.empty() ||
+         (args.ortho_option != nullptr && args.ortho_option->count() > 0);
+}
+
+void refuse_camera_options_with_path(const CameraArgs& args, const std::string& path) {
+  if (!path.empty() && camera_options_given(args))
+    throw UsageError("--path sets the camera; it excludes --camera, --orbit, --look-at, --ortho");
+}
+
 void check_camera_options(const CameraArgs& args, int width, int height) {
   Aabb unit;
   unit.extend(Vec3{0, 0, 0});

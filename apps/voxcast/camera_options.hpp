@@ -25,6 +25,12 @@ void add_camera_options(CLI::App* cmd, CameraArgs& args);
 Camera resolve_camera(const CameraArgs& args, const Aabb& bounds, int width, int height,
                       bool* derived = nullptr);
 
+/// Whether any of --camera, --orbit, --look-at, --ortho was given.
+bool camera_options_given(const CameraArgs& args);
+/// --path (a camera path) sets the camera: a UsageError if `path` is set and
+/// any camera option was given too.
+void refuse_camera_options_with_path(const CameraArgs& args, const std::string& path);
+
 /// Checks the options before any file is read (a bad camera is a usage error,
 /// exit 2, whatever the scene): resolves them against a unit box.
 void check_camera_options(const CameraArgs& args, int width, int height);

@@ -454,12 +454,13 @@ Runner add_bench(CLI::App& app) {
       require_within_budget(held.total(), budget, parts);
     }
     const Mesh mesh_copy = (args->contours || args->effects) ? mesh : Mesh();
-    BuiltScene built = build_scene(s, std::move(mesh), mesh_stats);
-    auto octree = std::make_shared<esvo::EsvoOctree>(std::move(built.octree));
-    esvo::EsvoStructure voxels(octree);
+    BuiltScene built = build_scene(s, std::move(mesh), mesh_stats);  // BuildSettings::format: esvo
+    const esvo::EsvoStructure& voxels = dynamic_cast<const esvo::EsvoStructure&>(*built.structure);
+    const esvo::EsvoOctree* octree = &voxels.octree();
     const Aabb occupied = esvo::occupied_bounds(*octree);
     EmbreeScene embree(built.mesh);
-    std::shared_ptr<esvo::EsvoOctree> contoured;
+    LoadedStructure contour_structure;
+    const esvo::EsvoOctree* contoured = nullptr;
     double contour_build_seconds = 0;
     // What is left for a later build (0 would mean "no budget").
     auto left_after = [&](uint64_t bytes) { return budget > bytes ? budget - bytes : 1; };
@@ -470,7 +471,8 @@ Runner add_bench(CLI::App& app) {
       cs.memory_budget = left_after(held.mesh + held.esvo + held.embree + held.images);
       BuiltScene cb = build_scene(cs, mesh_copy, mesh_stats);
       contour_build_seconds = cb.voxelize_seconds + cb.octree_seconds;
-      contoured = std::make_shared<esvo::EsvoOctree>(std::move(cb.octree));
+      contour_structure = std::move(cb.structure);
+      contoured = &dynamic_cast<const esvo::EsvoStructure&>(*contour_structure).octree();
     }
 
     // Machine and command line first: every figure below depends on them.
@@ -555,8 +557,9 @@ Runner add_bench(CLI::App& app) {
       std::vector<float> lods{0.f};
       if (args->lod != 0.f) lods.push_back(args->lod);
       RenderResult vox_result;  // at --lod, for the agreement line
-      std::unique_ptr<esvo::EsvoStructure> contour_voxels;
-      if (contoured) contour_voxels = std::make_unique<esvo::EsvoStructure>(contoured);
+      const esvo::EsvoStructure* contour_voxels =
+          contour_structure ? &dynamic_cast<const esvo::EsvoStructure&>(*contour_structure)
+                            : nullptr;
       // Trace-only and render() rows of one voxel structure at every LOD.
       auto add_voxel_rows = [&](const std::string& caster, const auto& structure) {
         for (float lod : lods) {
@@ -643,12 +646,13 @@ Runner add_bench(CLI::App& app) {
                              {}});
       }
       // With --effects: the DAG of the same voxels (svdag §4), same camera.
-      std::unique_ptr<dag::DagStructure> dag_voxels;
+      LoadedStructure dag_structure;
+      const dag::DagStructure* dag_voxels = nullptr;
       RenderOptions dag_beam = ro;
       dag_beam.beam = 8;
       if (args->effects && size_index == 0) {
         BuildSettings ds = s;
-        ds.dag = true;
+        ds.format = "dag";
         ds.verbose = false;
         // Out of core within what the others leave when in core would not fit
         // (build_scene counts its own copy of the mesh).
@@ -658,8 +662,8 @@ Runner add_bench(CLI::App& app) {
         held.dag = std::min(held.esvo, ds.memory_budget);
         // The same mesh, grid and voxelization.
         BuiltScene dag_built = build_scene(ds, mesh_copy, mesh_stats);
-        dag_voxels = std::make_unique<dag::DagStructure>(
-            std::make_shared<dag::SparseVoxelDag>(std::move(dag_built.dag)));
+        dag_structure = std::move(dag_built.structure);
+        dag_voxels = &dynamic_cast<const dag::DagStructure&>(*dag_structure);
         add_voxel_rows("voxcast dag", *dag_voxels);
         primary.push_back({"voxcast dag+beam",
                            "render(), beam 8x8",

@@ -1,4 +1,5 @@
-// voxcast build MESH -o SCENE: voxelize a mesh and store it as an ESVO scene.
+// voxcast build MESH -o SCENE: voxelize a mesh and store it as a scene of any
+// registered format (format_registry.hpp).
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -7,6 +8,7 @@
 #include "commands.hpp"
 #include "pipeline.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/format_registry.hpp"
 #include "voxcast/progress.hpp"
 #include "voxcast/scene_file.hpp"
 #include "voxcast/system.hpp"
@@ -55,9 +57,10 @@ Runner add_build(CLI::App& app) {
                   "Color/normal storage: raw (8 B/voxel) | compressed (esvo §5.5 blocks, lossy; "
                   "dag: 16 Morton-order voxels per 24 B block)")
       ->capture_default_str();
-  cmd->add_option("--format", args->format,
-                  "Structure: esvo (ESVO octree) | dag (sparse voxel DAG, svdag paper section 3)")
-      ->capture_default_str();
+  std::string formats;
+  for (const SceneFormat& f : format_registry().formats())
+    formats += (formats.empty() ? "" : " | ") + f.name + " (" + f.description + ")";
+  cmd->add_option("--format", args->format, "Structure: " + formats)->capture_default_str();
   cmd->add_option("--memory-budget", args->memory_budget,
                   "Refuse builds estimated to need more (e.g. 8G; default 90% of free memory)");
   cmd->add_flag("--out-of-core", args->out_of_core,
@@ -108,14 +111,21 @@ Runner add_build(CLI::App& app) {
     s.attributes = parse_attribute_format(args->attributes);
     if (!args->memory_budget.empty()) s.memory_budget = parse_memory_budget(args->memory_budget);
     s.verbose = args->verbose;
-    if (args->format != "esvo" && args->format != "dag")
-      throw UsageError("--format: '" + printable(args->format) + "' is not esvo or dag");
-    s.dag = args->format == "dag";
+    const SceneFormat* format = format_registry().find(args->format);
+    if (!format) {
+      std::string known;
+      for (const std::string& n : format_registry().names())
+        known += (known.empty() ? "" : ", ") + n;
+      throw UsageError("--format: '" + printable(args->format) + "' is not a scene format (" +
+                       known + ")");
+    }
+    s.format = format->name;
+    const bool esvo_format = s.format == "esvo";  // contours: ESVO's own options
     const bool variable = args->max_level_opt->count() || args->geometry_error_opt->count() ||
                           args->color_error_opt->count() || args->normal_error_opt->count();
     if (variable && !args->contours) throw UsageError("--max-level and --*-error need --contours");
     if (args->contours) {
-      if (s.dag) throw UsageError("--contours applies to --format esvo only");
+      if (!esvo_format) throw UsageError("--contours applies to --format esvo only");
       if (args->max_level_opt->count()) require_range("--max-level", args->max_level, 0, 20);
       auto tolerance = [](CLI::Option* opt, double v, const char* name, double lo, double hi) {
         if (!opt->count()) return -1.0;
@@ -133,11 +143,16 @@ Runner add_build(CLI::App& app) {
       s.normal_error =
           tolerance(args->normal_error_opt, args->normal_error, "--normal-error", 0, 180);
     }
-    if (s.dag && s.attributes != esvo::AttributeFormat::Raw && args->no_attributes)
+    if (s.attributes != esvo::AttributeFormat::Raw && args->no_attributes)
       throw UsageError("--attributes compressed and --no-attributes exclude each other");
-    if (!s.dag && args->no_attributes)
-      throw UsageError("--no-attributes applies to --format dag only");
-    if (!s.dag && !s.contours && (args->out_of_core || args->cell_size_opt->count()))
+    if (!format->attributes_optional && args->no_attributes)
+      throw UsageError("--no-attributes applies to formats that can store geometry only (" + [] {
+        std::string n;
+        for (const SceneFormat& f : format_registry().formats())
+          if (f.attributes_optional) n += (n.empty() ? "" : ", ") + f.name;
+        return n;
+      }() + ")");
+    if (s.format != "dag" && !s.contours && (args->out_of_core || args->cell_size_opt->count()))
       throw UsageError("--out-of-core and --cell-size apply to --format dag or --contours");
     // The grid decides the upper bound (the library checks it against the
     // resolution); a non-power of two or a cell below 4^3 is never valid.
@@ -157,40 +172,24 @@ Runner add_build(CLI::App& app) {
     info.voxelization = voxelization_name(s.mode);
     info.source_triangles = built.mesh.triangle_count();
     info.leaf_voxels = built.leaf_voxels;
-    if (s.dag) {
-      outputs.write(args->output,
-                    [&](const std::filesystem::path& to) { save_dag_scene(to, built.dag, info); });
-      outputs.commit();
-      timer.mark("write scene");
-      const dag::DagStats st = built.dag.stats();
-      if (built.out_of_core)
-        std::printf("out-of-core: %llu cells of %u^3, voxelize %.2f s, reduce %.2f s\n",
-                    (unsigned long long)built.ooc.cells, built.ooc.cell_size,
-                    built.ooc.voxelize_seconds, built.ooc.reduce_seconds);
-      std::printf(
-          "%s: %u^3 grid (%d levels), %llu leaf voxels, DAG %s (%.3f bits/leaf voxel, "
-          "%llu nodes vs %llu SVO nodes), %.2f s\n",
-          printable(args->output).c_str(), built.dag.grid.resolution, built.dag.levels(),
-          (unsigned long long)built.leaf_voxels, format_bytes(double(st.dag_bytes)).c_str(),
-          st.bits_per_voxel, (unsigned long long)st.dag_nodes, (unsigned long long)st.svo_nodes,
-          total.mark("total"));
-      return 0;
-    }
     outputs.write(args->output, [&](const std::filesystem::path& to) {
-      save_esvo_scene(to, built.octree, info);
+      save_scene(to, s.format, *built.structure, info);
     });
     outputs.commit();
     timer.mark("write scene");
-    if (built.out_of_core && !built.esvo_cells.in_core)
+    // The memory-bounded builds' reports (BuiltScene: one of them is filled).
+    if (built.out_of_core && s.format == "dag")
+      std::printf("out-of-core: %llu cells of %u^3, voxelize %.2f s, reduce %.2f s\n",
+                  (unsigned long long)built.ooc.cells, built.ooc.cell_size,
+                  built.ooc.voxelize_seconds, built.ooc.reduce_seconds);
+    else if (built.out_of_core && !built.esvo_cells.in_core)
       std::printf("out-of-core: %llu cells of %u^3 (%llu planned below their root), %.2f s\n",
                   (unsigned long long)built.esvo_cells.cells, built.esvo_cells.cell_size,
                   (unsigned long long)built.esvo_cells.refined_cells, built.octree_seconds);
-    auto mem = built.octree.memory_stats();
-    std::printf("%s: %u^3 grid (%d levels), %llu leaf voxels, %s (%.2f bytes/leaf voxel), %.2f s\n",
-                printable(args->output).c_str(), built.octree.grid.resolution,
-                built.octree.levels(), (unsigned long long)built.leaf_voxels,
-                format_bytes(double(mem.total_bytes)).c_str(),
-                double(mem.total_bytes) / double(built.leaf_voxels), total.mark("total"));
+    DescribeStyle style;
+    style.bytes = [](double b) { return format_bytes(b); };
+    std::printf("%s: %s, %.2f s\n", printable(args->output).c_str(),
+                format->build_summary(*built.structure, info, style).c_str(), total.mark("total"));
     return 0;
   };
 }

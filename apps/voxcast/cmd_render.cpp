@@ -3,12 +3,14 @@
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "camera_options.hpp"
 #include "cli_io.hpp"
 #include "commands.hpp"
+#include "view/camera_path.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/progress.hpp"
@@ -36,7 +38,19 @@ struct RenderArgs {
   float ao_radius = 0.f, ao_cone_angle = 0.f;
   uint32_t seed = 0;
   std::string memory_budget;
+  std::string path, frame;  // camera path (src/view/camera_path.hpp) and one keyframe of it
 };
+
+// The output for keyframe `index` of `count` when a whole path is rendered:
+// "out.png" -> "out-007.png" (at least 3 digits, more for long paths).
+std::string keyframe_file(const std::string& path, size_t index, size_t count) {
+  const std::filesystem::path p(path);
+  int digits = 3;
+  for (size_t n = count - 1; n >= 1000; n /= 10) ++digits;
+  char number[32];
+  std::snprintf(number, sizeof number, "-%0*zu", digits, index);
+  return (p.parent_path() / (p.stem().string() + number + p.extension().string())).string();
+}
 
 // Table 6 style block (esvo §8.5): per-ray averages over the full-resolution
 // rays; with the beam, the coarse pass is listed and added like in the paper.
@@ -76,6 +90,11 @@ Runner add_render(CLI::App& app) {
   cmd->add_option("-o,--output", args->output, "Output image (.png or .pfm)")->required();
   cmd->add_option("--size", args->size, "Image size WxH")->capture_default_str();
   add_camera_options(cmd, args->camera);
+  cmd->add_option("--path", args->path,
+                  "Camera path (JSON, README 'Camera path JSON'): one image per keyframe, "
+                  "named OUT-000.png, OUT-001.png, ... (every output alike)");
+  cmd->add_option("--frame", args->frame,
+                  "With --path: render only this keyframe (its name or index) to the names given");
   cmd->add_option("--lod", args->lod,
                   "Stop at voxels projecting to at most this many pixels (0 = finest level)")
       ->capture_default_str();
@@ -199,16 +218,65 @@ Runner add_render(CLI::App& app) {
     if (!args->ao_output.empty() && fx.ao_rays == 0)
       throw UsageError("--ao-output needs --ao N (N > 0)");
     check_camera_options(args->camera, opt.width, opt.height);
+    refuse_camera_options_with_path(args->camera, args->path);
+    if (!args->frame.empty() && args->path.empty()) throw UsageError("--frame needs --path");
     uint64_t budget = 0;
     if (!args->memory_budget.empty()) budget = parse_memory_budget(args->memory_budget);
     // All outputs are checked before the scene is read, and written together
     // at the end (OutputSet): a failure leaves every one of them untouched.
-    OutputSet outputs({args->input});
-    outputs.add("-o", args->output, {".png", ".pfm"});
-    if (!args->depth.empty()) outputs.add("--depth", args->depth, {".pfm"});
-    if (!args->normal.empty()) outputs.add("--normals", args->normal, {".png", ".pfm"});
-    if (!args->heatmap.empty()) outputs.add("--heatmap", args->heatmap, {".png"});
-    if (!args->ao_output.empty()) outputs.add("--ao-output", args->ao_output, {".png", ".pfm"});
+    std::vector<std::string> inputs = {args->input};
+    if (!args->path.empty()) inputs.push_back(args->path);
+    // Every image of one view, in this order: -o, --depth, --normals,
+    // --heatmap, --ao-output (the paths as given; empty where not asked).
+    const std::vector<std::string> given = {args->output, args->depth, args->normal, args->heatmap,
+                                            args->ao_output};
+    auto add_output = [](OutputSet& set, size_t which, const std::string& file) {
+      if (file.empty()) return;
+      switch (which) {
+        case 0:
+          return set.add("-o", file, {".png", ".pfm"});
+        case 1:
+          return set.add("--depth", file, {".pfm"});
+        case 2:
+          return set.add("--normals", file, {".png", ".pfm"});
+        case 3:
+          return set.add("--heatmap", file, {".png"});
+        default:
+          return set.add("--ao-output", file, {".png", ".pfm"});
+      }
+    };
+    {
+      OutputSet as_given(inputs);  // the names as given: usage errors before any file is read
+      for (size_t i = 0; i < given.size(); ++i) add_output(as_given, i, given[i]);
+    }
+    // The views to render: the camera options' one, one keyframe of --path
+    // (to the names given) or every keyframe (to numbered names).
+    struct View {
+      std::optional<Camera> camera;    // none: resolved from the camera options
+      std::vector<std::string> files;  // per entry of `given` (empty where not asked)
+    };
+    std::vector<View> views;
+    auto files_for = [&](std::optional<size_t> index, size_t count) {
+      std::vector<std::string> f;
+      for (const std::string& g : given)
+        f.push_back(g.empty() || !index ? g : keyframe_file(g, *index, count));
+      return f;
+    };
+    if (!args->path.empty()) {
+      require_regular_input(args->path, "camera path");
+      const view::CameraPath path = view::CameraPath::load(args->path);
+      const size_t n = path.keyframes.size();
+      if (!args->frame.empty()) {
+        views.push_back({path.keyframes[path.find(args->frame)].camera, files_for({}, 1)});
+      } else {
+        for (size_t k = 0; k < n; ++k) views.push_back({path.keyframes[k].camera, files_for(k, n)});
+      }
+    } else {
+      views.push_back({std::nullopt, files_for({}, 1)});
+    }
+    OutputSet outputs(inputs);
+    for (const View& v : views)
+      for (size_t i = 0; i < given.size(); ++i) add_output(outputs, i, v.files[i]);
     require_regular_input(args->input, "scene");
     {
       // Checked before anything large is allocated: the file as read, its
@@ -222,6 +290,8 @@ Runner add_render(CLI::App& app) {
       if (!args->normal.empty()) per_pixel += 12 + 12;
       if (opt.collect_stats) per_pixel += 4 + 12 + 12;  // iterations, heat map, PNG
       if (fx.ao_rays > 0) per_pixel += 4 + 4;
+      // One view at a time: the images of earlier views are written before
+      // the next is rendered (staged, not yet renamed into place).
       const double need = scene_bytes + per_pixel * double(opt.width) * double(opt.height);
       if (budget && need > double(budget))
         throw Error("rendering " + std::to_string(opt.width) + "x" + std::to_string(opt.height) +
@@ -236,50 +306,57 @@ Runner add_render(CLI::App& app) {
       fx.ao_radius =
           args->ao_radius > 0 ? args->ao_radius : 0.05f * length(scene.occupied.extent());
     const Structure& structure = *scene.structure;
-    bool derived_camera = false;
-    opt.camera =
-        resolve_camera(args->camera, scene.occupied, opt.width, opt.height, &derived_camera);
-    if (derived_camera) std::printf("camera: %s\n", opt.camera.to_string().c_str());
-    opt.want_depth = !args->depth.empty();
-    opt.want_normal = !args->normal.empty();
-    opt.filter = args->filter;
-    RenderResult result = render(structure, opt);
-    timer.mark("ray cast");
-    if (args->verbose && opt.filter)
-      std::fprintf(stderr, "  %-22s %9.1f ms\n", "  of which filter", result.filter_seconds * 1e3);
-    auto image = [&](const std::string& path, const Image& im, bool already_srgb = false) {
-      outputs.write(path,
-                    [&](const std::filesystem::path& to) { write_image(to, im, already_srgb); });
-    };
-    image(args->output, result.color);
-    if (opt.want_depth) image(args->depth, result.depth);
-    if (opt.want_normal) image(args->normal, result.normal, true);
-    if (!args->ao_output.empty()) image(args->ao_output, result.ao, true);  // as stored, linear
-    if (!args->heatmap.empty())
-      image(args->heatmap, iteration_heatmap(result.iterations, args->heatmap_max));
+    for (const View& v : views) {
+      bool derived_camera = false;
+      if (v.camera)
+        opt.camera = *v.camera;
+      else
+        opt.camera =
+            resolve_camera(args->camera, scene.occupied, opt.width, opt.height, &derived_camera);
+      if (derived_camera) std::printf("camera: %s\n", opt.camera.to_string().c_str());
+      opt.want_depth = !args->depth.empty();
+      opt.want_normal = !args->normal.empty();
+      opt.filter = args->filter;
+      RenderResult result = render(structure, opt);
+      timer.mark("ray cast");
+      if (args->verbose && opt.filter)
+        std::fprintf(stderr, "  %-22s %9.1f ms\n", "  of which filter",
+                     result.filter_seconds * 1e3);
+      auto image = [&](const std::string& path, const Image& im, bool already_srgb = false) {
+        outputs.write(path,
+                      [&](const std::filesystem::path& to) { write_image(to, im, already_srgb); });
+      };
+      const std::vector<std::string>& f = v.files;  // in the order of `given`
+      image(f[0], result.color);
+      if (opt.want_depth) image(f[1], result.depth);
+      if (opt.want_normal) image(f[2], result.normal, true);
+      if (!args->heatmap.empty())
+        image(f[3], iteration_heatmap(result.iterations, args->heatmap_max));
+      if (!args->ao_output.empty()) image(f[4], result.ao, true);  // as stored, linear
+      if (!args->heatmap.empty())
+        std::printf("heatmap: %s, inferno ramp, black = 0, pale yellow = %g iterations\n",
+                    printable(f[3]).c_str(), double(args->heatmap_max));
+      std::printf("%s: %dx%d, %.1f%% of pixels hit, %.2f Mrays/s\n", printable(f[0]).c_str(),
+                  opt.width, opt.height, 100.0 * double(result.hits) / double(result.rays),
+                  double(result.rays) / result.seconds * 1e-6);
+      if (fx.active()) {
+        const EffectCounters& ec = result.effect_counters;
+        const double secondary = double(ec.shadow_rays + ec.ao_rays);
+        std::printf("effects: %llu shadow rays, %llu AO rays (radius %g)",
+                    (unsigned long long)ec.shadow_rays, (unsigned long long)ec.ao_rays,
+                    double(fx.ao_radius));
+        if (ec.beams)
+          std::printf(", %llu of %llu soft-shadow beams fully lit",
+                      (unsigned long long)ec.beams_lit, (unsigned long long)ec.beams);
+        // result.seconds covers primary and secondary rays: the Mrays/s above
+        // counts primary rays only.
+        std::printf("; %.2f Mrays/s primary + secondary\n",
+                    (double(result.rays) + secondary) / result.seconds * 1e-6);
+      }
+      if (args->stats) print_stats(result, opt.beam);
+    }
     outputs.commit();
     timer.mark("write images");
-    if (!args->heatmap.empty())
-      std::printf("heatmap: %s, inferno ramp, black = 0, pale yellow = %g iterations\n",
-                  printable(args->heatmap).c_str(), double(args->heatmap_max));
-    std::printf("%s: %dx%d, %.1f%% of pixels hit, %.2f Mrays/s\n", printable(args->output).c_str(),
-                opt.width, opt.height, 100.0 * double(result.hits) / double(result.rays),
-                double(result.rays) / result.seconds * 1e-6);
-    if (fx.active()) {
-      const EffectCounters& ec = result.effect_counters;
-      const double secondary = double(ec.shadow_rays + ec.ao_rays);
-      std::printf("effects: %llu shadow rays, %llu AO rays (radius %g)",
-                  (unsigned long long)ec.shadow_rays, (unsigned long long)ec.ao_rays,
-                  double(fx.ao_radius));
-      if (ec.beams)
-        std::printf(", %llu of %llu soft-shadow beams fully lit", (unsigned long long)ec.beams_lit,
-                    (unsigned long long)ec.beams);
-      // result.seconds covers primary and secondary rays: the Mrays/s above
-      // counts primary rays only.
-      std::printf("; %.2f Mrays/s primary + secondary\n",
-                  (double(result.rays) + secondary) / result.seconds * 1e-6);
-    }
-    if (args->stats) print_stats(result, opt.beam);
     return 0;
   };
 }

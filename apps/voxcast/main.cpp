@@ -12,6 +12,7 @@
 #include "cli_io.hpp"
 #include "commands.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/format_registry.hpp"
 #include "voxcast/version.hpp"
 
 namespace voxcast::cli {
@@ -61,6 +62,8 @@ ThreadLimit::~ThreadLimit() {
 
 int main(int argc, char** argv) {
   using namespace voxcast::cli;
+  // Every scene format before any option is declared (`build --format` lists them).
+  voxcast::register_builtin_formats();
   CLI::App app{
       "voxcast: voxelize triangle meshes into sparse voxel octrees and ray cast them on the CPU"};
   app.require_subcommand(1);
@@ -82,6 +85,7 @@ int main(int argc, char** argv) {
   add(add_info);
   add(add_bench);
   add(add_generate);
+  add(add_view);
   // One convention (README "Command line"): a usage error is one line and
   // exit 2, a runtime error one line and exit 1; --help prints the help.
   auto error_line = [](const std::string& message) {
@@ -101,7 +105,7 @@ int main(int argc, char** argv) {
       if (sub->parsed()) which = sub;
     std::string message = e.what();
     if (!which && app.get_subcommands().empty() && message.find("subcommand") != std::string::npos)
-      message = "a subcommand is required: build, render, info, bench or generate";
+      message = "a subcommand is required: build, render, info, bench, generate or view";
     error_line(message + " (see 'voxcast" + (which ? " " + which->get_name() : std::string()) +
                " --help')");
     return 2;

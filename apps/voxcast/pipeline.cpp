@@ -9,7 +9,9 @@
 
 #include "cli_io.hpp"
 #include "commands.hpp"
+#include "voxcast/dag.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/esvo_structure.hpp"
 #include "voxcast/progress.hpp"
 #include "voxcast/system.hpp"
 
@@ -145,6 +147,10 @@ BuiltScene build_scene(const BuildSettings& s) {
 }
 
 BuiltScene build_scene(const BuildSettings& s, Mesh mesh, const MeshLoadStats& mesh_stats) {
+  const SceneFormat& format = format_registry().get(s.format);
+  // The two memory-bounded builds from the mesh (not from a voxel set) are
+  // their structures' own: the DAG's sub-volumes and ESVO's contour cells.
+  const bool dag = s.format == "dag", esvo_format = s.format == "esvo";
   BuiltScene out;
   out.mesh = std::move(mesh);
   out.mesh_stats = mesh_stats;
@@ -154,7 +160,7 @@ BuiltScene build_scene(const BuildSettings& s, Mesh mesh, const MeshLoadStats& m
 
   // The mesh stays in memory for the whole build.
   const uint64_t need = estimate_build_bytes(out.mesh, grid) + mesh_bytes(out.mesh);
-  if (s.dag && (s.out_of_core || (budget && need > budget))) {
+  if (dag && (s.out_of_core || (budget && need > budget))) {
     // svdag §3 "Implementation details": sub-volumes voxelized and reduced
     // one at a time, peak memory bounded by the budget.
     dag::OutOfCoreOptions oo;
@@ -162,12 +168,14 @@ BuiltScene build_scene(const BuildSettings& s, Mesh mesh, const MeshLoadStats& m
     oo.attributes = s.dag_attributes;
     oo.memory_budget = budget;
     oo.cell_size = s.cell_size;
-    out.dag = dag::build_dag_out_of_core(out.mesh, grid, oo, &out.ooc);
+    auto d = std::make_shared<dag::SparseVoxelDag>(
+        dag::build_dag_out_of_core(out.mesh, grid, oo, &out.ooc));
     // esvo §5.5 blocks over the Morton-order array (dag.hpp); from the same
     // raw values as in core, so the scene bytes stay identical.
-    if (s.attributes == esvo::AttributeFormat::Compressed) out.dag.compress_attributes();
+    if (s.attributes == esvo::AttributeFormat::Compressed) d->compress_attributes();
     out.out_of_core = true;
-    out.leaf_voxels = out.dag.leaf_voxels;
+    out.leaf_voxels = d->leaf_voxels;
+    out.structure = std::make_unique<dag::DagStructure>(std::move(d));
     out.voxelize_seconds = out.ooc.voxelize_seconds;
     out.octree_seconds = out.ooc.reduce_seconds;
     timer.mark("out-of-core DAG build");
@@ -191,13 +199,14 @@ BuiltScene build_scene(const BuildSettings& s, Mesh mesh, const MeshLoadStats& m
   // the cells holding a leaf to test), so only when the in-core estimate
   // exceeds the budget (or when asked).
   const bool attribute_tolerance = s.color_error >= 0 || s.normal_error >= 0;
-  if (!s.dag && s.contours &&
+  if (esvo_format && s.contours &&
       (s.out_of_core || (budget && need > budget) || !attribute_tolerance)) {
     VoxelizeOptions vo;
     vo.mode = s.mode;
     vo.attributes = true;
-    out.octree = esvo::build_octree_cells(out.mesh, grid, vo, build_options, s.cell_size, budget,
-                                          &out.esvo_cells);
+    out.structure = std::make_unique<esvo::EsvoStructure>(
+        std::make_shared<esvo::EsvoOctree>(esvo::build_octree_cells(
+            out.mesh, grid, vo, build_options, s.cell_size, budget, &out.esvo_cells)));
     out.out_of_core = true;
     out.leaf_voxels = out.esvo_cells.voxels;
     out.octree_seconds = timer.mark("cell-by-cell octree build");
@@ -214,24 +223,22 @@ BuiltScene build_scene(const BuildSettings& s, Mesh mesh, const MeshLoadStats& m
     VoxelizeOptions vo;
     vo.mode = s.mode;
     vo.progress = &progress;
-    vo.attributes = !s.dag || s.dag_attributes;
+    vo.attributes = !format.attributes_optional || s.dag_attributes;
     voxels = voxelize(out.mesh, grid, vo);
   }
   out.voxelize_seconds = timer.mark("voxelize");
   out.leaf_voxels = voxels.size();
   if (voxels.size() == 0) throw Error("the mesh produced no voxels");
-  if (s.dag) {
-    out.dag = dag::build_dag(voxels);
-    if (s.attributes == esvo::AttributeFormat::Compressed) out.dag.compress_attributes();
-    out.octree_seconds = timer.mark("DAG build");
-    return out;
-  }
-  if (s.contours) {
-    out.octree = esvo::build_octree(voxels, out.mesh, build_options);
+  if (esvo_format && s.contours) {
+    // Contours are shaped by the mesh (esvo §5.2): ESVO's own build.
+    out.structure = std::make_unique<esvo::EsvoStructure>(
+        std::make_shared<esvo::EsvoOctree>(esvo::build_octree(voxels, out.mesh, build_options)));
   } else {
-    out.octree = esvo::build_octree(voxels, build_options);
+    FormatBuildOptions fo;
+    fo.compress_attributes = s.attributes == esvo::AttributeFormat::Compressed;
+    out.structure = format.build(voxels, fo);
   }
-  out.octree_seconds = timer.mark("octree build");
+  out.octree_seconds = timer.mark((format.name + " build").c_str());
   return out;
 }
 

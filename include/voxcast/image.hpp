@@ -24,6 +24,12 @@ struct Image {
 /// Throws voxcast::Error for an unknown extension or an I/O failure.
 void write_image(const std::filesystem::path& path, const Image& image, bool already_srgb = false);
 
+/// The 8-bit samples write_image stores in a PNG (row-major, `channels` per
+/// pixel): color channels sRGB-encoded from linear unless `already_srgb`,
+/// alpha as is, NaN as 0. The viewer uploads these bytes as its texture so
+/// that its screenshots equal `voxcast render`'s PNGs byte for byte.
+std::vector<uint8_t> png_bytes(const Image& image, bool already_srgb = false);
+
 /// Reads a PFM written by write_image (used by tests and tools).
 Image read_pfm(const std::filesystem::path& path);
 /// Reads an 8-bit PNG into [0,1] floats without color conversion.

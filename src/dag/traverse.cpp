@@ -1,12 +1,11 @@
 // Sparse voxel DAG ray caster (svdag §4: "The main traversal loop closely
 // resembles that of Laine and Karras [2010a] ... the DAG data structure
 // requires only minor changes") and the DagStructure (Structure +
-// SurfaceQuery). The loop, the
-// coarse beam walk (esvo §6.2), the world <-> octree frame and the profiling
-// counters (esvo §8.5) are the octree family's (core/octree_caster.hpp), the
-// very code the ESVO runs, so a DAG and an ESVO octree of the same voxels give
-// bit-identical hits; the DAG contributes its node access and voxel indexing
-// (dag/octree_nodes.hpp). The any-hit variant (shadow rays) skips the index
+// SurfaceQuery). The loop, the coarse beam walk (esvo §6.2), the world <->
+// octree frame and the profiling counters (esvo §8.5) are the octree
+// family's (core/octree_caster.hpp), the very code the ESVO runs, so a DAG
+// and an ESVO octree of the same voxels give bit-identical hits; the DAG
+// contributes its node access and voxel indexing (dag/octree_nodes.hpp). The any-hit variant (shadow rays) skips the index
 // bookkeeping; the loop visits voxels front to back, so the first leaf found
 // is also the closest one.
 #include <cstdint>

@@ -15,6 +15,7 @@
 #include <iterator>
 #include <string>
 
+#include "io/atomic_file.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/image.hpp"
 
@@ -43,6 +44,24 @@ uint8_t to_byte(float v) {
   return uint8_t(std::lround(v * 255.0f));
 }
 
+}  // namespace
+
+std::vector<uint8_t> png_bytes(const Image& im, bool already_srgb) {
+  const int nc = im.channels;
+  // Alpha (the last channel of GA/RGBA) is coverage, not light: never sRGB-encode it.
+  const bool has_alpha = nc == 2 || nc == 4;
+  std::vector<uint8_t> bytes(im.pixels.size());
+  for (size_t i = 0; i < bytes.size(); ++i) {
+    float v = im.pixels[i];
+    bool is_alpha = has_alpha && int(i % size_t(nc)) == nc - 1;
+    if (!already_srgb && !is_alpha) v = linear_to_srgb(std::clamp(v, 0.0f, 1.0f));
+    bytes[i] = to_byte(v);
+  }
+  return bytes;
+}
+
+namespace {
+
 void write_png(const std::filesystem::path& path, const Image& im, bool already_srgb) {
   png_image img;
   std::memset(&img, 0, sizeof img);
@@ -67,15 +86,7 @@ void write_png(const std::filesystem::path& path, const Image& im, bool already_
                               path.string(), im.channels));
   }
   const int nc = im.channels;
-  // Alpha (the last channel of GA/RGBA) is coverage, not light: never sRGB-encode it.
-  const bool has_alpha = nc == 2 || nc == 4;
-  std::vector<uint8_t> bytes(im.pixels.size());
-  for (size_t i = 0; i < bytes.size(); ++i) {
-    float v = im.pixels[i];
-    bool is_alpha = has_alpha && int(i % size_t(nc)) == nc - 1;
-    if (!already_srgb && !is_alpha) v = linear_to_srgb(std::clamp(v, 0.0f, 1.0f));
-    bytes[i] = to_byte(v);
-  }
+  const std::vector<uint8_t> bytes = png_bytes(im, already_srgb);
   png_alloc_size_t size = 0;
   const png_int_32 stride = png_int_32(im.width * nc);
   if (!png_image_write_to_memory(&img, nullptr, &size, 0, bytes.data(), stride, nullptr))
@@ -227,41 +238,9 @@ Image read_png(const std::filesystem::path& path) {
 }
 
 void write_file_atomic(const std::filesystem::path& path, const void* bytes, size_t size) {
-  const std::string target = path.string();
-  const std::string tmp = fmt::format("{}.tmp.{}", target, ::getpid());
-  int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0666);
-  if (fd < 0) throw Error(fmt::format("cannot write {}: {}", target, std::strerror(errno)));
-  auto fail = [&](const char* what, int err) {
-    if (fd >= 0) ::close(fd);
-    ::unlink(tmp.c_str());
-    throw Error(fmt::format("cannot write {}: {} failed: {}", target, what, std::strerror(err)));
-  };
-  const auto* p = static_cast<const char*>(bytes);
-  size_t left = size;
-  while (left > 0) {
-    ssize_t n = ::write(fd, p, left);
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      fail("write", errno);
-    }
-    p += n;
-    left -= size_t(n);
-  }
-  // fsync before rename: otherwise a crash can leave the new name pointing at
-  // an empty file on filesystems that reorder metadata and data writes.
-  if (::fsync(fd) != 0) fail("fsync", errno);
-  int rc = ::close(fd);
-  fd = -1;
-  if (rc != 0) fail("close", errno);
-  if (::rename(tmp.c_str(), target.c_str()) != 0) fail("rename", errno);
-  // Persist the rename itself; failure here does not undo the (already visible) write.
-  std::filesystem::path dir = path.parent_path();
-  if (dir.empty()) dir = ".";
-  int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (dfd >= 0) {
-    ::fsync(dfd);
-    ::close(dfd);
-  }
+  io::AtomicFile file(path);
+  file.write_at(0, bytes, size);
+  file.commit();
 }
 
 }  // namespace voxcast

@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "voxcast/container.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/scene_file.hpp"
 #include "voxcast/voxelize.hpp"
@@ -64,9 +65,9 @@ inline std::string get_string(const nlohmann::json& j, const char* key) {
   return v.get<std::string>();
 }
 
-/// Parses the META section of `c`; throws voxcast::Error when absent or not JSON.
-inline nlohmann::json parse(const Container& c) {
-  const std::vector<uint8_t>& bytes = c.get(kSection);
+/// Parses the META section; throws voxcast::Error when absent or not JSON.
+inline nlohmann::json parse(const ContainerReader& c) {
+  const std::vector<uint8_t> bytes = c.read(kSection);
   try {
     return nlohmann::json::parse(bytes.begin(), bytes.end());
   } catch (const nlohmann::json::exception& e) {

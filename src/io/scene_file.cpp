@@ -1,97 +1,107 @@
-// ESVO scene files: a Container (scene_file.hpp) with
-//   'META' UTF-8 JSON: {"format": "esvo", "grid": {"origin": [x,y,z],
-//          "voxel_size": s, "resolution": N, "levels": L}, "block_count": B,
-//          "source": ..., "voxelization": ..., "source_triangles": ...,
-//          "leaf_voxels": ..., "attributes": "raw" | "compressed"}
-//   ("attributes" names the color/normal attachment, esvo §5.4/§5.5; optional
-//   for older files, and must agree with the info sections when present;
-//   "contours": true is written for octrees with contour attachments (§5.2),
-//   absent otherwise, and must agree with the info sections when present)
-//   'ESVO' the octree words (little-endian u32, layout in esvo.hpp).
-// Loading checks every META field's type and range and then runs
-// EsvoOctree::validate(), so a loaded octree is safe to traverse.
+// The format-neutral half of scene files: META's "format", the registry, and
+// the one loader every subcommand uses. The formats themselves live with
+// their structures (src/esvo/format.cpp, src/dag/format.cpp).
 #include "voxcast/scene_file.hpp"
 
-#include <cmath>
-#include <cstring>
+#include <algorithm>
 #include <nlohmann/json.hpp>
 #include <string>
 
 #include "io/meta_json.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/format_registry.hpp"
 
 namespace voxcast {
-namespace {
 
-constexpr uint32_t kEsvo = fourcc("ESVO");
-
-}  // namespace
-
-void save_esvo_scene(const std::filesystem::path& path, const esvo::EsvoOctree& octree,
-                     const SceneInfo& info) {
-  nlohmann::json meta = meta::info_to_json(info);
-  meta.update({
-      {"format", "esvo"},
-      {"grid", meta::grid_to_json(octree.grid)},
-      {"block_count", octree.block_count},
-      {"leaf_voxels", info.leaf_voxels},
-      {"attributes",
-       octree.attribute_format() == esvo::AttributeFormat::Compressed ? "compressed" : "raw"},
-  });
-  if (octree.has_contours()) meta["contours"] = true;
-  Container c;
-  c.add(meta::kSection, meta::dump(meta));
-  std::vector<uint8_t> words(octree.words.size() * 4);
-  static_assert(std::endian::native == std::endian::little, "scene files are little-endian");
-  if (!words.empty()) std::memcpy(words.data(), octree.words.data(), words.size());
-  c.add(kEsvo, std::move(words));
-  c.write(path);
-}
-
-esvo::EsvoOctree load_esvo_scene(const std::filesystem::path& path, SceneInfo* info) {
-  return esvo_scene_from_container(Container::read(path), info);
-}
-
-esvo::EsvoOctree esvo_scene_from_container(const Container& c, SceneInfo* info) {
-  esvo::EsvoOctree octree;
-  SceneInfo si;
-  std::string meta_attributes;
-  int meta_contours = -1;  // absent
-  const nlohmann::json meta = meta::parse(c);
+std::string scene_format(const ContainerReader& reader) {
+  const nlohmann::json meta = meta::parse(reader);
   try {
-    using namespace meta;
-    if (get_string(meta, "format") != "esvo") bad("format is not 'esvo'");
-    octree.grid = grid_from_json(meta, 1);
-    octree.block_count = uint32_t(get_uint(meta, "block_count", 1, 0xFFFFFFFFu));
-    info_from_json(meta, &si);
-    si.leaf_voxels = get_uint(meta, "leaf_voxels", 0, UINT64_MAX);
-    if (meta.contains("attributes")) {
-      const std::string a = get_string(meta, "attributes");
-      if (a != "raw" && a != "compressed") bad("'attributes' is not 'raw' or 'compressed'");
-      meta_attributes = a;
-    }
-    if (meta.contains("contours")) {
-      if (!meta["contours"].is_boolean()) bad("'contours' is not a boolean");
-      meta_contours = meta["contours"].get<bool>() ? 1 : 0;
-    }
+    return meta::get_string(meta, "format");
   } catch (const nlohmann::json::exception& e) {
-    throw Error("corrupt scene: META section is not valid JSON: " + meta::json_error_text(e));
+    throw Error(std::string("corrupt scene: META section: ") + e.what());
   }
-  const std::vector<uint8_t>& esvo_bytes = c.get(kEsvo);
-  if (esvo_bytes.size() % 8 != 0 || esvo_bytes.size() < esvo::kPageWords * 4)
-    throw Error("corrupt scene: ESVO section size " + std::to_string(esvo_bytes.size()) +
-                " is not a whole number of slots of at least one page");
-  octree.words.resize(esvo_bytes.size() / 4);
-  std::memcpy(octree.words.data(), esvo_bytes.data(), esvo_bytes.size());
-  octree.validate();
-  if (!meta_attributes.empty() &&
-      (meta_attributes == "compressed") !=
-          (octree.attribute_format() == esvo::AttributeFormat::Compressed))
-    meta::bad("'attributes' does not match the ESVO attachments");
-  if (meta_contours >= 0 && (meta_contours == 1) != octree.has_contours())
-    meta::bad("'contours' does not match the ESVO attachments");
-  if (info) *info = std::move(si);
-  return octree;
+}
+
+std::string scene_format(const Container& c) {
+  return scene_format(ContainerReader::from_bytes(c.serialize()));
+}
+
+void FormatRegistry::add(SceneFormat format) {
+  if (format.name.empty()) throw Error("scene format without a name");
+  if (find(format.name)) throw Error("scene format '" + format.name + "' registered twice");
+  if (!format.build || !format.save || !format.load || !format.occupied || !format.describe ||
+      !format.build_summary)
+    throw Error("scene format '" + format.name + "' lacks a build, save, load, occupied, " +
+                "describe or build_summary function");
+  formats_.push_back(std::move(format));
+}
+
+const SceneFormat* FormatRegistry::find(std::string_view name) const {
+  for (const SceneFormat& f : formats_)
+    if (f.name == name) return &f;
+  return nullptr;
+}
+
+std::vector<std::string> FormatRegistry::names() const {
+  std::vector<std::string> n;
+  for (const SceneFormat& f : formats_) n.push_back(f.name);
+  return n;
+}
+
+const SceneFormat& FormatRegistry::get(std::string_view name) const {
+  if (const SceneFormat* f = find(name)) return *f;
+  std::string known;
+  for (const SceneFormat& f : formats_) known += (known.empty() ? "" : ", ") + f.name;
+  if (known.empty()) known = "none registered: call voxcast::register_builtin_formats()";
+  // The name comes from a file: keep the message one printable line.
+  std::string shown;
+  for (const char c : name.substr(0, 64)) shown += (c >= 0x20 && c < 0x7F) ? c : '?';
+  throw Error("unknown scene format '" + shown + "' (known: " + known + ")");
+}
+
+FormatRegistry& format_registry() {
+  static FormatRegistry registry;
+  return registry;
+}
+
+void save_scene(const std::filesystem::path& path, const std::string& format,
+                const Structure& structure, const SceneInfo& info) {
+  const SceneFormat& f = format_registry().get(format);
+  ContainerWriter writer(path);
+  f.save(writer, structure, info);
+  writer.commit();
+}
+
+LoadedScene load_scene(const std::filesystem::path& path) {
+  try {
+    return load_scene(ContainerReader::open(path));
+  } catch (const Error& e) {
+    // One line naming the file and what is wrong (the container's own
+    // open/read errors already name it).
+    const std::string what = e.what(), name = "'" + path.string() + "'";
+    if (what.find(name) != std::string::npos) throw;
+    throw Error("scene " + name + ": " + what);
+  }
+}
+
+LoadedScene load_scene(const ContainerReader& reader) {
+  // The one gate between a file and every reader (render, info): the
+  // format's full validator, then every chunk it did not read (so a file
+  // with a damaged extra section is refused as before, when the whole file
+  // was hashed up front), then the walks done here, so every subcommand
+  // accepts or refuses exactly the same files.
+  LoadedScene out;
+  out.format = scene_format(reader);
+  const SceneFormat& f = format_registry().get(out.format);
+  out.sections = reader.section_ids();
+  out.structure = f.load(reader, &out.info);
+  reader.verify_all();
+  out.occupied = f.occupied(*out.structure);
+  return out;
+}
+
+LoadedScene load_scene(const Container& c) {
+  return load_scene(ContainerReader::from_bytes(c.serialize()));
 }
 
 }  // namespace voxcast

@@ -244,7 +244,7 @@ class VoxcastModule(unittest.TestCase):
         self.assertTrue(issubclass(voxcast.Error, RuntimeError))
         with self.assertRaisesRegex(voxcast.Error, "power of two"):
             voxcast.build(MESH, resolution=100)
-        with self.assertRaisesRegex(voxcast.Error, "esvo or dag"):
+        with self.assertRaisesRegex(voxcast.Error, "octree"):
             voxcast.build(MESH, resolution=16, format="octree")
         with self.assertRaisesRegex(voxcast.Error, "camera"):
             voxcast.render(self.scene, size=SIZE, camera="1,2,3")

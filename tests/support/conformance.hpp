@@ -29,7 +29,9 @@
 #include <vector>
 
 #include "voxcast/dag.hpp"
+#include "voxcast/dag_format.hpp"
 #include "voxcast/esvo.hpp"
+#include "voxcast/esvo_format.hpp"
 #include "voxcast/mesh.hpp"
 #include "voxcast/scene_file.hpp"
 #include "voxcast/voxelize.hpp"

@@ -8,12 +8,16 @@
 #include <filesystem>
 #include <map>
 #include <mutex>
+#include <nlohmann/json.hpp>
 #include <random>
 
 #include "voxcast/camera.hpp"
 #include "voxcast/dag.hpp"
+#include "voxcast/dag_format.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/esvo_format.hpp"
 #include "voxcast/esvo_structure.hpp"
+#include "voxcast/format_registry.hpp"
 #include "voxcast/generate.hpp"
 #include "voxcast/render.hpp"
 #include "voxcast/scene_file.hpp"
@@ -25,7 +29,7 @@ namespace fs = std::filesystem;
 
 std::vector<uint8_t> read_all(const fs::path& p) {
   const Container c = Container::read(p);
-  return c.serialize();  // canonical bytes, the same as on disk
+  return c.serialize();  // current-version bytes, sections in ascending id order
 }
 
 // The scene bytes as `voxcast build` would write them: through the real
@@ -198,10 +202,12 @@ std::vector<Mutation> sweep_mutations(const std::vector<uint8_t>& file, size_t p
 }
 
 Verdict check_scene(const std::vector<uint8_t>& file) {
+  register_builtin_formats();  // idempotent; the fuzz targets have no other start-up
   Verdict v;
   LoadedScene scene;
   try {
-    scene = load_scene(Container::parse(file.data(), file.size()));
+    // The streaming reader over the bytes, as load_scene(path) reads a file.
+    scene = load_scene(ContainerReader::from_memory(file.data(), file.size()));
   } catch (const Error& e) {
     v.error = e.what();
     return v;
@@ -211,13 +217,12 @@ Verdict check_scene(const std::vector<uint8_t>& file) {
   // means the loader let through something a reader cannot use (info would
   // accept the file and render refuse it).
   try {
-    // What `info` computes from the loaded structure.
-    if (const auto* e = dynamic_cast<const esvo::EsvoStructure*>(scene.structure.get())) {
-      for (const esvo::LevelStats& l : e->octree().level_stats()) v.voxels += l.voxels - l.non_leaf;
-      (void)e->octree().memory_stats();
-    } else if (const auto* d = dynamic_cast<const dag::DagStructure*>(scene.structure.get())) {
-      v.voxels = d->dag().stats().leaf_voxels;
-    }
+    // What `info` computes from the loaded structure: the format's describe().
+    DescribeStyle style;
+    style.bytes = [](double b) { return std::to_string(b); };
+    const SceneDescription d =
+        format_registry().get(scene.format).describe(*scene.structure, style);
+    v.voxels = nlohmann::json::parse(d.json).at("leaf_voxels").get<uint64_t>();
     // What `render` does: auto camera from the occupied bounds, beam, shadow
     // and AO rays; every hit shades (attribute lookup).
     RenderOptions ro;

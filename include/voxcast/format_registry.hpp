@@ -1,0 +1,105 @@
+#pragma once
+// The scene format registry: one entry per stored structure (ESVO octree,
+// sparse voxel DAG, ...) saying how to build it from voxels, write it into a
+// container, load it back and describe it for `voxcast info`. The registry,
+// like the container (container.hpp), knows no structure: each structure
+// module registers its own entry (src/esvo/format.cpp, src/dag/format.cpp)
+// and register_builtin_formats() (src/formats/builtin.cpp, outside src/io)
+// is the one list that calls them. The CLI and load_scene() find formats
+// here by name (the META "format" string, `build --format`).
+//
+// Adding a structure: write src/<module>/format.cpp with a
+// `void register_format(FormatRegistry&)` that adds its SceneFormat, and
+// call it from src/formats/builtin.cpp. Nothing else names the structure.
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "voxcast/container.hpp"
+#include "voxcast/math.hpp"
+#include "voxcast/scene_file.hpp"
+#include "voxcast/voxelize.hpp"
+
+namespace voxcast {
+
+/// What every format's build understands (a format ignores what it has no
+/// use for, e.g. attributes for a geometry-only structure).
+/// Whether colors and normals are stored is decided by the voxel set (built
+/// with or without attributes, see SceneFormat::attributes_optional).
+struct FormatBuildOptions {
+  bool compress_attributes = false;  // esvo §5.5 blocks instead of raw 8 B/voxel
+};
+
+/// How `voxcast info` writes sizes (the CLI's units), handed to describe().
+struct DescribeStyle {
+  std::function<std::string(double bytes)> bytes = [](double b) {
+    return std::to_string(uint64_t(b)) + " B";
+  };
+};
+
+/// A format's part of `voxcast info`. The CLI prints the facts every scene
+/// shares (file, sections, source, grid) around these.
+struct SceneDescription {
+  GridTransform grid;
+  std::string json;     // a JSON object of the format's own fields, merged into `info --json`
+  std::string summary;  // lines printed after "sections" (each ends in '\n'): "structure ..."
+  std::string voxels;   // the value of the "voxels" line
+  std::string details;  // printed after the shared lines: per-level and memory tables
+};
+
+struct SceneFormat {
+  std::string name;         // META "format" and `voxcast build --format`
+  std::string description;  // one line, for --help
+  std::vector<std::string> extensions = {".vxc"};
+  /// The format can store geometry without colors and normals (`build
+  /// --no-attributes`); otherwise its build needs a voxel set with attributes.
+  bool attributes_optional = false;
+  /// Voxels -> structure (the in-core build).
+  std::function<LoadedStructure(const VoxelSet&, const FormatBuildOptions&)> build;
+  /// Writes META (with "format": name) and the data sections. The structure
+  /// is one this format built or loaded.
+  std::function<void(ContainerWriter&, const Structure&, const SceneInfo&)> save;
+  /// Reads and fully validates a container whose META names this format;
+  /// throws voxcast::Error with a one-line reason.
+  std::function<LoadedStructure(const ContainerReader&, SceneInfo*)> load;
+  /// Bounds of the occupied voxels (automatic cameras).
+  std::function<Aabb(const Structure&)> occupied;
+  std::function<SceneDescription(const Structure&, const DescribeStyle&)> describe;
+  /// One line after `voxcast build`: size and what it costs per voxel.
+  /// (SceneInfo::leaf_voxels: the voxels the build consumed.)
+  std::function<std::string(const Structure&, const SceneInfo&, const DescribeStyle&)>
+      build_summary;
+};
+
+/// Formats by name. Filled once at start-up (register_builtin_formats), then
+/// only read: lookups from several threads are safe, registration is not.
+class FormatRegistry {
+ public:
+  /// Throws voxcast::Error for a duplicate name or a missing function.
+  void add(SceneFormat format);
+  const SceneFormat* find(std::string_view name) const;
+  /// Throws voxcast::Error "unknown scene format 'X' (known: a, b)".
+  const SceneFormat& get(std::string_view name) const;
+  std::vector<std::string> names() const;  // in registration order
+  const std::vector<SceneFormat>& formats() const { return formats_; }
+
+ private:
+  std::vector<SceneFormat> formats_;
+};
+
+/// The process-wide registry load_scene() and the CLI use.
+FormatRegistry& format_registry();
+
+/// Registers every built-in format with format_registry() (once; later calls
+/// do nothing). Lives outside src/io, in src/formats/builtin.cpp: the one list
+/// of structures. Programs call it before loading or saving scenes.
+void register_builtin_formats();
+
+/// `structure` (of format `format`) into a container at `path`, streamed to
+/// a temporary file and renamed into place.
+void save_scene(const std::filesystem::path& path, const std::string& format,
+                const Structure& structure, const SceneInfo& info);
+
+}  // namespace voxcast

@@ -1,0 +1,41 @@
+// The viewer's render call (frame_source.hpp).
+#include "view/frame_source.hpp"
+
+#include <utility>
+
+namespace voxcast::view {
+
+RenderOptions render_options(const ViewSettings& s, const Camera& camera, int width, int height,
+                             const Aabb& occupied, uint32_t seed) {
+  RenderOptions opt;
+  opt.width = width;
+  opt.height = height;
+  opt.camera = camera;
+  opt.lod_pixels = s.lod_pixels;
+  opt.beam = s.beam;
+  opt.filter = s.filter;
+  opt.collect_stats = s.heatmap;  // the heat map needs the per-pixel iteration counts
+  EffectOptions& fx = opt.effects;
+  fx.shadows = s.hard_shadows ? ShadowMode::Hard : ShadowMode::None;
+  fx.ao_rays = s.ao_rays;
+  // `voxcast render` measures the default AO radius on the occupied bounds
+  // (not the structure's root cube); the viewer must match it.
+  if (s.ao_rays > 0)
+    fx.ao_radius = s.ao_radius > 0 ? s.ao_radius : 0.05f * length(occupied.extent());
+  fx.seed = seed;
+  return opt;
+}
+
+ViewFrame render_frame(const Structure& structure, const RenderOptions& options,
+                       const ViewSettings& settings) {
+  RenderResult r = render(structure, options);
+  ViewFrame f;
+  f.color =
+      settings.heatmap ? iteration_heatmap(r.iterations, settings.heatmap_max) : std::move(r.color);
+  f.rays = r.rays;
+  f.secondary_rays = r.effect_counters.shadow_rays + r.effect_counters.ao_rays;
+  f.seconds = r.seconds;
+  return f;
+}
+
+}  // namespace voxcast::view
