@@ -17,6 +17,17 @@
 
 namespace voxcast::cli {
 
+// Here, not in main.cpp, so the Python module (which links this file and
+// pipeline.cpp, not main.cpp) has it too.
+std::string format_bytes(double bytes) {
+  const char* units[] = {"B", "KiB", "MiB", "GiB", "TiB"};
+  int u = 0;
+  while (bytes >= 1024 && u < 4) bytes /= 1024, ++u;
+  char buf[64];
+  std::snprintf(buf, sizeof buf, u == 0 ? "%.0f %s" : "%.2f %s", bytes, units[u]);
+  return buf;
+}
+
 namespace fs = std::filesystem;
 
 // ------------------------------------------------------------ messages
