@@ -37,9 +37,12 @@ constexpr uint32_t kDagSection = fourcc("SDAG");
 constexpr uint32_t kDagAttributes = fourcc("DATR");
 constexpr uint32_t kDagCompressedAttributes = fourcc("DATC");
 
-std::vector<uint32_t> to_words(const std::vector<uint8_t>& bytes) {
-  std::vector<uint32_t> w(bytes.size() / 4);
-  if (!w.empty()) std::memcpy(w.data(), bytes.data(), w.size() * 4);
+// A section of whole words, read straight into the array that keeps it (no
+// second copy of the section is held).
+std::vector<uint32_t> read_words(const ContainerReader& c, uint32_t id) {
+  const uint64_t size = c.section(id).size;
+  std::vector<uint32_t> w(size_t(size / 4));
+  c.read_into(id, w.data(), size);
   return w;
 }
 
@@ -122,7 +125,7 @@ dag::SparseVoxelDag dag_scene_from_container(const ContainerReader& c, SceneInfo
   if (dag_size % 4 != 0 || dag_size < 8)
     throw Error("corrupt scene: SDAG section size " + std::to_string(dag_size) +
                 " is not a whole number of words of at least one node");
-  dag.words = to_words(c.read(kDagSection));
+  dag.words = read_words(c, kDagSection);
   const bool raw = attributes && !compressed;
   if (raw != c.has(kDagAttributes))
     throw Error(raw ? "corrupt scene: META says attributes but there is no DATR section"
@@ -141,18 +144,32 @@ dag::SparseVoxelDag dag_scene_from_container(const ContainerReader& c, SceneInfo
       throw Error("corrupt scene: DATC section holds " + std::to_string(size) +
                   " bytes, expected " + std::to_string(expected) + " (24 per 16 leaf voxels, " +
                   std::to_string(si.leaf_voxels) + " voxels)");
-    dag.attribute_blocks = to_words(c.read(kDagCompressedAttributes));
+    dag.attribute_blocks = read_words(c, kDagCompressedAttributes);
   } else if (attributes) {
     const uint64_t size = c.section(kDagAttributes).size;
     if (size != si.leaf_voxels * 8)
       throw Error("corrupt scene: DATR section holds " + std::to_string(size) +
                   " bytes, expected 8 per leaf voxel (" + std::to_string(si.leaf_voxels) + ")");
-    const std::vector<uint8_t> ab = c.read(kDagAttributes);
+    // Interleaved (color, normal) pairs into the two arrays, a chunk at a
+    // time where chunks hold whole pairs (every file this writer makes), so
+    // that the section is not held beside them.
     dag.colors.resize(size_t(si.leaf_voxels));
     dag.normals.resize(size_t(si.leaf_voxels));
-    for (size_t i = 0; i < dag.colors.size(); ++i) {
-      std::memcpy(&dag.colors[i], &ab[8 * i], 4);
-      std::memcpy(&dag.normals[i], &ab[8 * i + 4], 4);
+    const SectionInfo& sec = c.section(kDagAttributes);
+    auto split = [&](const uint8_t* pairs, size_t first, size_t n) {
+      for (size_t i = 0; i < n; ++i) {
+        std::memcpy(&dag.colors[first + i], pairs + 8 * i, 4);
+        std::memcpy(&dag.normals[first + i], pairs + 8 * i + 4, 4);
+      }
+    };
+    if (sec.chunk_bytes % 8 == 0) {
+      for (uint32_t k = 0; k < sec.chunk_count; ++k) {
+        const std::vector<uint8_t> chunk = c.read_chunk(kDagAttributes, k);
+        split(chunk.data(), size_t(uint64_t(k) * sec.chunk_bytes / 8), chunk.size() / 8);
+      }
+    } else {
+      const std::vector<uint8_t> ab = c.read(kDagAttributes);
+      split(ab.data(), 0, dag.colors.size());
     }
   }
   dag.finalize();  // throws "corrupt DAG: ..."

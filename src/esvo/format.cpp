@@ -95,11 +95,9 @@ esvo::EsvoOctree esvo_scene_from_container(const ContainerReader& c, SceneInfo* 
   if (esvo_size % 8 != 0 || esvo_size < esvo::kPageWords * 4)
     throw Error("corrupt scene: ESVO section size " + std::to_string(esvo_size) +
                 " is not a whole number of slots of at least one page");
-  {
-    const std::vector<uint8_t> esvo_bytes = c.read(kEsvo);
-    octree.words.resize(esvo_bytes.size() / 4);
-    std::memcpy(octree.words.data(), esvo_bytes.data(), esvo_bytes.size());
-  }
+  // Straight into the octree's words: the section is not held twice.
+  octree.words.resize(size_t(esvo_size / 4));
+  c.read_into(kEsvo, octree.words.data(), esvo_size);
   octree.validate();
   if (!meta_attributes.empty() &&
       (meta_attributes == "compressed") !=
