@@ -141,9 +141,9 @@ cli::BuildSettings settings(uint32_t resolution, double voxel_size, const std::s
   }
   const SceneFormat& f = format_registry().get(format);  // "unknown scene format ... (known: ...)"
   s.format = f.name;
-  s.attributes = cli::parse_attribute_format(attributes);
+  s.compress_attributes = cli::parse_compressed_attributes(attributes);
   s.mode = cli::parse_voxelization(voxelization);
-  if (contours && s.format != "esvo") throw Error("contours apply to format esvo only");
+  if (contours && !f.contours) throw Error("contours: format " + f.name + " stores no contours");
   s.contours = contours;
   s.dag_attributes = dag_attributes;
   if (!dag_attributes && !f.attributes_optional)

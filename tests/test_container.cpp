@@ -124,6 +124,27 @@ TEST(Container, ReadsOneChunkWithoutTheRest) {
   EXPECT_THROW(r.read_chunk(kBig, 11), Error);
 }
 
+// read_into: the whole section straight into caller memory (the loaders'
+// arrays), every chunk verified; only the section's exact size is accepted.
+TEST(Container, ReadsASectionIntoCallerMemory) {
+  TempDir dir;
+  const std::string path = write_sample(dir);
+  const ContainerReader r = ContainerReader::open(path);
+  const uint64_t size = r.section(kBig).size;
+  std::vector<uint8_t> into(size_t(size), 0xEE);
+  const uint64_t before = r.bytes_read();
+  r.read_into(kBig, into.data(), size);
+  EXPECT_EQ(r.bytes_read() - before, size);  // the section once, nothing else
+  EXPECT_EQ(into, gen_range(1, 0, 10 * kChunk + kChunk / 2));
+  EXPECT_THROW(r.read_into(kBig, into.data(), size - 1), Error);
+  EXPECT_THROW(r.read_into(kBig, into.data(), size + 1), Error);
+  std::vector<uint8_t> bytes = read_bytes(path);
+  bytes[size_t(r.section(kBig).chunk_offset(7) + 3)] ^= 0x01;
+  write_bytes(path, bytes);
+  const ContainerReader damaged = ContainerReader::open(path);
+  EXPECT_THROW(damaged.read_into(kBig, into.data(), size), Error);
+}
+
 TEST(Container, DamagedChunkIsRefusedWhileTheOthersRead) {
   TempDir dir;
   const std::string path = write_sample(dir);

@@ -220,5 +220,25 @@ TEST(FormatRegistry, IoAndContainerHeadersNameNoStructure) {
   EXPECT_GE(structure_includes(root / "src/formats/builtin.cpp").size(), 2u);
 }
 
+// The CLI's build pipeline and bench reach structures through the registry
+// only (issue 9): no structure header, no structure namespace, no format
+// chosen by its name in code. Comments may cite the papers' sections.
+TEST(FormatRegistry, BuildPipelineAndBenchNameNoStructure) {
+  const fs::path root(VOXCAST_SOURCE_DIR);
+  static const std::regex named(R"re(\b(esvo|dag)::|"(esvo|dag)"|(Esvo|Dag)Structure)re");
+  for (const char* name : {"pipeline.hpp", "pipeline.cpp", "cmd_build.cpp", "cmd_bench.cpp"}) {
+    const fs::path f = root / "apps/voxcast" / name;
+    ASSERT_TRUE(fs::is_regular_file(f)) << f;
+    for (const std::string& hit : structure_includes(f)) ADD_FAILURE() << hit;
+    std::ifstream in(f);
+    std::string line;
+    for (int n = 1; std::getline(in, line); ++n) {
+      const size_t comment = line.find("//");
+      const std::string code = comment == std::string::npos ? line : line.substr(0, comment);
+      if (std::regex_search(code, named)) ADD_FAILURE() << f << ":" << n << ": " << line;
+    }
+  }
+}
+
 }  // namespace
 }  // namespace voxcast

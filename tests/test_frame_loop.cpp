@@ -36,6 +36,7 @@ class StreamingPlane final : public Structure, public SurfaceQuery {
     const Vec3 p = ray.origin + ray.dir * t;
     if (!(p.x >= 0.f && p.x < 1.f && p.y >= 0.f && p.y < 1.f)) return false;
     const int cell = int(p.y * kCells) * kCells + int(p.x * kCells);
+    if (ctx.counting) ++ctx.counters.iterations;  // one per ray that reaches the plane
     if (!resident_[size_t(cell)]) {
       ctx.requests.push(0, uint64_t(cell), 1.f);
       return false;
@@ -175,6 +176,36 @@ TEST(FrameLoop, FullRequestBufferDropsAndCounts) {
   EXPECT_GT(s.passes[0].dropped, 0u);
   EXPECT_LE(s.passes[0].requests, 3u * 64u);
   EXPECT_LT(plane.resident_count(), kCells * kCells);
+}
+
+// Counting: each pass counts the rays of the tiles it rendered; the frame
+// counts each final pixel once (a tile rendered again replaces its earlier
+// counts). Oracle: the toy plane counts one iteration per ray that reaches
+// it, and every pixel of top_view() does.
+TEST(FrameLoop, CountersArePerPassAndTheFrameCountsEachPixelOnce) {
+  StreamingPlane plane(5);
+  CellIntegrator integrator;
+  Film film;
+  FrameOptions o;
+  o.max_passes = 100;
+  o.tile_size = 8;
+  o.counting = true;
+  const FrameStats s = render_frame(plane, integrator, top_view(), o, &film);
+  ASSERT_GE(s.passes.size(), 13u);
+  uint64_t passes_sum = 0;
+  for (size_t k = 0; k < s.passes.size(); ++k) {
+    EXPECT_EQ(s.passes[k].counters.iterations, uint64_t(s.passes[k].tiles) * 8u * 8u)
+        << "pass " << k;
+    passes_sum += s.passes[k].counters.iterations;
+  }
+  EXPECT_EQ(s.counters.iterations, 64u * 64u);
+  EXPECT_GT(passes_sum, s.counters.iterations);  // tiles were rendered again
+  // Without counting, nothing is counted.
+  StreamingPlane fresh(5);
+  o.counting = false;
+  const FrameStats quiet = render_frame(fresh, integrator, top_view(), o, &film);
+  EXPECT_EQ(quiet.counters.iterations, 0u);
+  for (const PassStats& p : quiet.passes) EXPECT_EQ(p.counters.iterations, 0u);
 }
 
 TEST(FrameLoop, RejectsBadOptions) {

@@ -315,6 +315,37 @@ TEST(PacketCaster, GridVertexTiesEqualTheScalarCaster) {
   expect_same(d, rays, lod, "dag ties lod", &hits);
 }
 
+// The packet casters as a capability of the surface query (PacketQuery,
+// what bench and other structure-agnostic callers use): the same answers as
+// the scalar caster through the Structure interface alone.
+TEST(PacketCaster, OfferedThroughTheSurfaceQuery) {
+  const Scenes& sc = scenes();
+  float pixel_angle = 0;
+  const Structure* structures[] = {sc.esvo.get(), sc.dag.get()};
+  for (const Structure* st : structures) {
+    const SurfaceQuery* q = st->surface();
+    ASSERT_NE(q, nullptr) << st->name();
+    const PacketQuery* p = q->packets();
+    ASSERT_NE(p, nullptr) << st->name();
+    const std::vector<Ray> rays = camera_rays(st->bounds(), 48, 36, &pixel_angle);
+    std::vector<SurfaceHit> got(rays.size());
+    std::vector<uint8_t> found(rays.size(), 7), occ(rays.size(), 7);
+    p->trace_packets(rays.data(), rays.size(), LodFootprint{}, got.data(), found.data());
+    p->occluded_packets(rays.data(), rays.size(), LodFootprint{}, occ.data());
+    TraceContext ctx;
+    size_t hits = 0, bad = 0;
+    for (size_t i = 0; i < rays.size(); ++i) {
+      SurfaceHit want;
+      const bool f = q->trace(rays[i], LodFootprint{}, ctx, &want);
+      hits += f;
+      bad += found[i] != f || (f && !same_hit(got[i], want)) ||
+             occ[i] != q->occluded(rays[i], LodFootprint{}, ctx);
+    }
+    EXPECT_GT(hits, rays.size() / 8) << st->name();
+    EXPECT_EQ(bad, 0u) << st->name();
+  }
+}
+
 TEST(PacketCaster, BlockOrderCoversEveryPixelOnceIn4x4Blocks) {
   std::vector<uint32_t> order;
   block_order(3, 5, 10, 7, &order);

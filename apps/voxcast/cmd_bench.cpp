@@ -15,6 +15,7 @@
 #include <iterator>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -27,11 +28,10 @@
 #include "render/beam.hpp"
 #include "render/bench_timing.hpp"
 #include "render/tiling.hpp"
-#include "voxcast/dag.hpp"
 #include "voxcast/effects.hpp"
 #include "voxcast/embree_reference.hpp"
 #include "voxcast/error.hpp"
-#include "voxcast/esvo_structure.hpp"
+#include "voxcast/format_registry.hpp"
 #include "voxcast/packet_caster.hpp"
 #include "voxcast/progress.hpp"
 #include "voxcast/render.hpp"
@@ -69,13 +69,46 @@ constexpr uint64_t kImageBytesPerPixel = 128;
 
 struct BenchMemory {
   uint64_t mesh = 0;      // every mesh copy held for the whole run
-  uint64_t esvo = 0;      // the ESVO build (estimate_build_bytes)
+  uint64_t primary = 0;   // the first structure's build (estimate_build_bytes)
   uint64_t embree = 0;    // Embree's BVH
   uint64_t contours = 0;  // the contour build and its own mesh copy
   uint64_t images = 0;    // the largest --size
-  uint64_t dag = 0;       // --effects: what the DAG holds once built
-  uint64_t total() const { return mesh + esvo + embree + contours + images + dag; }
+  uint64_t others = 0;    // --effects: what the other structures hold once built
+  uint64_t total() const { return mesh + primary + embree + contours + images + others; }
 };
+
+// One measured structure: a registered format whose structure has a surface
+// query, built from the same mesh, grid and voxelization as the others.
+struct Measured {
+  std::string caster;  // "voxcast <format>": the rows' and the JSON's name
+  const SceneFormat* format = nullptr;
+  LoadedStructure structure;
+  const SurfaceQuery* query = nullptr;
+  const PacketQuery* packets = nullptr;  // null: no packet rows
+  uint64_t leaf_voxels = 0;
+  double voxelize_seconds = 0, build_seconds = 0;
+};
+
+// The built scene as a Measured, or nothing when its structure has no
+// surface query (a volume: nothing for these rays to hit).
+std::optional<Measured> measured(const SceneFormat& format, BuiltScene&& built) {
+  Measured m;
+  m.caster = "voxcast " + format.name;
+  m.format = &format;
+  m.query = built.structure->surface();
+  if (!m.query) return std::nullopt;
+  m.packets = m.query->packets();
+  m.structure = std::move(built.structure);
+  m.leaf_voxels = built.leaf_voxels;
+  m.voxelize_seconds = built.voxelize_seconds;
+  m.build_seconds = built.octree_seconds;
+  return m;
+}
+
+// Bytes a structure holds, by its format's count (SceneFormat::memory_bytes).
+uint64_t memory_of(const Measured& m) {
+  return m.format->memory_bytes ? m.format->memory_bytes(*m.structure) : 0;
+}
 
 // Occlusion rays of --effects, known once the shading points are: every
 // shadow and AO ray (28 B) twice (as generated and sample-major), one answer
@@ -151,9 +184,9 @@ Timed depth_frame(const RenderOptions& ro, Image* depth, const TraceTile& trace_
 }
 
 // Trace only, the voxel side of the trace-only comparison: no attributes and
-// no shading. S is a final class, so the trace() call is direct, not virtual.
-template <class S>
-Timed trace_depth(const S& s, const RenderOptions& ro, Image* depth) {
+// no shading. Through the SurfaceQuery, as render() calls it (one virtual
+// call per ray; the structure is any registered format's).
+Timed trace_depth(const SurfaceQuery& s, const RenderOptions& ro, Image* depth) {
   return depth_frame(ro, depth,
                      [&](const detail::Tile& tile, const CameraRays& cam, const LodFootprint& lod) {
                        uint64_t h = 0;
@@ -169,7 +202,8 @@ Timed trace_depth(const S& s, const RenderOptions& ro, Image* depth) {
                      });
 }
 
-// trace_depth through the packet caster (voxcast/packet_caster.hpp): each
+// trace_depth through the structure's packet caster (SurfaceQuery::packets(),
+// voxcast/packet_caster.hpp): each
 // tile's rays generated in 4x4 block order and traced as one queue.
 // beam > 0: the coarse pass (esvo §6.2) per beam x beam block first, inside
 // the timed loop; each ray starts at its block's region, rays of empty
@@ -178,9 +212,9 @@ Timed trace_depth(const S& s, const RenderOptions& ro, Image* depth) {
 // render() without effects), written to *color: the packet caster in the
 // "trace + the same shading" comparison (attributes are still looked up hit
 // by hit).
-template <class S>
-Timed trace_depth_packets(const S& s, const RenderOptions& ro, int beam, Image* depth,
-                          bool shade = false, Image* color = nullptr) {
+Timed trace_depth_packets(const SurfaceQuery& s, const PacketQuery& packets,
+                          const RenderOptions& ro, int beam, Image* depth, bool shade = false,
+                          Image* color = nullptr) {
   if (shade) *color = Image(ro.width, ro.height, 3);
   const Vec3 to_light = normalize(-ro.light_dir);
   return depth_frame(
@@ -217,8 +251,8 @@ Timed trace_depth_packets(const S& s, const RenderOptions& ro, int beam, Image* 
             beams[i] = &starts[size_t(by * bw + bx)];
           }
         }
-        trace_packets(s, rays.data(), rays.size(), lod, out.data(), found.data(), active_isa(),
-                      beam > 0 ? beams.data() : nullptr);
+        packets.trace_packets(rays.data(), rays.size(), lod, out.data(), found.data(), active_isa(),
+                              beam > 0 ? beams.data() : nullptr);
         uint64_t h = 0;
         for (size_t i = 0; i < order.size(); ++i) {
           const int x = int(order[i] & 0xFFFF), y = int(order[i] >> 16);
@@ -253,8 +287,7 @@ Timed occluded_frame(const std::vector<Ray>& rays, std::vector<uint8_t>* occ, co
 }
 
 // A voxel structure's occluded(), ray by ray.
-template <class S>
-Timed occluded_all(const S& s, const std::vector<Ray>& rays, std::vector<uint8_t>* occ) {
+Timed occluded_all(const SurfaceQuery& s, const std::vector<Ray>& rays, std::vector<uint8_t>* occ) {
   return occluded_frame(rays, occ, [&](size_t b, size_t e, uint8_t* o) {
     TraceContext ctx;
     for (size_t i = b; i < e; ++i) o[i] = s.occluded(rays[i], LodFootprint{}, ctx);
@@ -262,10 +295,10 @@ Timed occluded_all(const S& s, const std::vector<Ray>& rays, std::vector<uint8_t
 }
 
 // The packet caster's occluded_packets: each chunk as one queue.
-template <class S>
-Timed occluded_all_packets(const S& s, const std::vector<Ray>& rays, std::vector<uint8_t>* occ) {
+Timed occluded_all_packets(const PacketQuery& s, const std::vector<Ray>& rays,
+                           std::vector<uint8_t>* occ) {
   return occluded_frame(rays, occ, [&](size_t b, size_t e, uint8_t* o) {
-    occluded_packets(s, rays.data() + b, e - b, LodFootprint{}, o + b);
+    s.occluded_packets(rays.data() + b, e - b, LodFootprint{}, o + b);
   });
 }
 
@@ -285,8 +318,7 @@ class RayRecorder final : public Occluder {
 // Stage ticks of the instrumented single-threaded voxel pass: what render()
 // does per pixel (ray generation, trace, attributes, shading without
 // effects), with timestamp reads between the stages.
-template <class S>
-EmbreeScene::StageTicks profile_voxels(const S& s, const RenderOptions& ro) {
+EmbreeScene::StageTicks profile_voxels(const SurfaceQuery& s, const RenderOptions& ro) {
   const CameraRays cam(ro.camera, ro.width, ro.height);
   const LodFootprint lod = pixel_lod(cam, ro.lod_pixels);
   const Vec3 to_light = normalize(-ro.light_dir);
@@ -388,8 +420,9 @@ Runner add_bench(CLI::App& app) {
       "and without the beam (the shape of esvo Table 4)");
   cmd->add_flag(
       "--effects", args->effects,
-      "Also measure the DAG of the same voxels, and shadow and AO rays (svdag section 4), "
-      "generated once, on the ESVO, the DAG and Embree rtcOccluded1/8/16/1M");
+      "Also measure every other registered structure of the same voxels (the DAG), and shadow "
+      "and AO rays (svdag section 4), generated once, on every structure and Embree "
+      "rtcOccluded1/8/16/1M");
   cmd->add_option("--ao-rays", args->ao_rays, "AO rays per hit pixel for --effects")
       ->capture_default_str();
   cmd->add_option("--ao-radius", args->ao_radius,
@@ -430,50 +463,81 @@ Runner add_bench(CLI::App& app) {
     s.mesh_path = args->input;
     s.resolution = args->resolution;
     s.mode = parse_voxelization(args->voxelization);
-    s.attributes = parse_attribute_format(args->attributes);
+    s.compress_attributes = parse_compressed_attributes(args->attributes);
     s.verbose = args->verbose;
     s.memory_budget = budget;
+    // The registered formats, in registration order: the first is measured
+    // always (its hits are the shading points of --effects, its bounds frame
+    // the camera), the others with --effects.
+    const std::vector<SceneFormat>& formats = format_registry().formats();
+    if (formats.empty()) throw Error("bench: no scene format is registered");
+    const SceneFormat& first = formats.front();
+    if (args->contours && !first.contours)
+      throw UsageError("--contours: format " + first.name + " stores no contours");
+    s.format = first.name;
     MeshLoadStats mesh_stats;
     Mesh mesh = load_build_mesh(s.mesh_path, budget, &mesh_stats, s.verbose);
+    // The grid every build fits to the mesh (build_scene's).
+    const GridTransform grid = build_grid(s, mesh.bounds());
     // Every structure bench holds at once, against the budget, before the
-    // first build: the ESVO, Embree's BVH, the contour octree, the images.
+    // first build: the first structure, Embree's BVH, the contour build, the
+    // images.
     BenchMemory held;
     {
-      const GridTransform grid = build_grid(s, mesh.bounds());
       const uint64_t build = estimate_build_bytes(mesh, grid), one_mesh = mesh_bytes(mesh);
-      // The ESVO build's mesh, and the copy later builds start from.
+      // The first build's mesh, and the copy later builds start from.
       held.mesh = one_mesh * (args->contours || args->effects ? 2 : 1);
-      held.esvo = build;
+      held.primary = build;
       held.embree = uint64_t(mesh.triangle_count()) * kEmbreeBytesPerTriangle;
       if (args->contours) held.contours = build + one_mesh;
       for (const auto& [w, h] : sizes)
         held.images = std::max(held.images, uint64_t(w) * uint64_t(h) * kImageBytesPerPixel);
-      std::string parts = "the mesh, the ESVO, Embree's BVH";
+      std::string parts = "the mesh, the " + first.name + " structure, Embree's BVH";
       if (args->contours) parts += ", the contour octree";
       parts += " and the images";
       require_within_budget(held.total(), budget, parts);
     }
     const Mesh mesh_copy = (args->contours || args->effects) ? mesh : Mesh();
-    BuiltScene built = build_scene(s, std::move(mesh), mesh_stats);  // BuildSettings::format: esvo
-    const esvo::EsvoStructure& voxels = dynamic_cast<const esvo::EsvoStructure&>(*built.structure);
-    const esvo::EsvoOctree* octree = &voxels.octree();
-    const Aabb occupied = esvo::occupied_bounds(*octree);
+    BuiltScene built = build_scene(s, std::move(mesh), mesh_stats);
+    const size_t triangles = built.mesh.triangle_count();
+    std::optional<Measured> primary_or = measured(first, std::move(built));
+    if (!primary_or)
+      throw Error("bench: format " + first.name + " has no surface query to cast rays at");
+    // Every measured structure; [0] is the first format's. Reserved: the rows
+    // below keep references to the elements.
+    std::vector<Measured> structures;
+    structures.reserve(formats.size());
+    structures.push_back(std::move(*primary_or));
+    const Measured& main_structure = structures.front();
+    const Aabb occupied = first.occupied(*main_structure.structure);
     EmbreeScene embree(built.mesh);
-    LoadedStructure contour_structure;
-    const esvo::EsvoOctree* contoured = nullptr;
-    double contour_build_seconds = 0;
+    std::optional<Measured> contoured;
     // What is left for a later build (0 would mean "no budget").
     auto left_after = [&](uint64_t bytes) { return budget > bytes ? budget - bytes : 1; };
     if (args->contours) {
       BuildSettings cs = s;
       cs.contours = true;
       // (build_scene counts its own copy of the mesh.)
-      cs.memory_budget = left_after(held.mesh + held.esvo + held.embree + held.images);
-      BuiltScene cb = build_scene(cs, mesh_copy, mesh_stats);
-      contour_build_seconds = cb.voxelize_seconds + cb.octree_seconds;
-      contour_structure = std::move(cb.structure);
-      contoured = &dynamic_cast<const esvo::EsvoStructure&>(*contour_structure).octree();
+      cs.memory_budget = left_after(held.mesh + held.primary + held.embree + held.images);
+      contoured = measured(first, build_scene(cs, mesh_copy, mesh_stats));
     }
+    // With --effects: every other registered format of the same voxels
+    // (svdag §4: the DAG), same mesh, grid and voxelization.
+    if (args->effects)
+      for (size_t i = 1; i < formats.size(); ++i) {
+        BuildSettings ds = s;
+        ds.format = formats[i].name;
+        ds.verbose = false;
+        // Out of core within what the others leave when in core would not
+        // fit (build_scene counts its own copy of the mesh).
+        ds.memory_budget = left_after(held.total());
+        // Held afterwards: at most its in-core estimate (the same grid as
+        // the first's) or the budget it was given.
+        held.others += std::min(held.primary, ds.memory_budget);
+        if (std::optional<Measured> m =
+                measured(formats[i], build_scene(ds, mesh_copy, mesh_stats)))
+          structures.push_back(std::move(*m));
+      }
 
     // Machine and command line first: every figure below depends on them.
     // "AMD EPYC" alone does not tell Zen generations apart: add family/model.
@@ -557,11 +621,12 @@ Runner add_bench(CLI::App& app) {
       std::vector<float> lods{0.f};
       if (args->lod != 0.f) lods.push_back(args->lod);
       RenderResult vox_result;  // at --lod, for the agreement line
-      const esvo::EsvoStructure* contour_voxels =
-          contour_structure ? &dynamic_cast<const esvo::EsvoStructure&>(*contour_structure)
-                            : nullptr;
-      // Trace-only and render() rows of one voxel structure at every LOD.
-      auto add_voxel_rows = [&](const std::string& caster, const auto& structure) {
+      // Trace-only and render() rows of one voxel structure at every LOD
+      // (packet rows where it offers a packet caster).
+      auto add_voxel_rows = [&](const Measured& m) {
+        const std::string& caster = m.caster;
+        const SurfaceQuery& q = *m.query;
+        const PacketQuery* p = m.packets;
         for (float lod : lods) {
           RenderOptions rl = ro;
           rl.lod_pixels = lod;
@@ -569,107 +634,96 @@ Runner add_bench(CLI::App& app) {
                              "trace, depth only",
                              lod,
                              false,
-                             [&structure, rl] {
+                             [&q, rl] {
                                Image depth;
-                               return trace_depth(structure, rl, &depth);
+                               return trace_depth(q, rl, &depth);
                              },
                              {}});
-          primary.push_back({caster + " packet",
-                             std::string("trace_packets ") + isa_name(active_isa()) + " x" +
-                                 std::to_string(packet_width(active_isa())) + ", depth only",
-                             lod,
-                             false,
-                             [&structure, rl] {
-                               Image depth;
-                               return trace_depth_packets(structure, rl, 0, &depth);
-                             },
-                             {}});
-          primary.push_back({caster + " packet",
-                             "trace_packets + attributes + Phong (no effects)",
-                             lod,
-                             true,
-                             [&structure, rl] {
-                               Image depth, color;
-                               return trace_depth_packets(structure, rl, 0, &depth, true, &color);
-                             },
-                             {}});
-          if (args->beam)
-            primary.push_back({caster + " packet+beam",
-                               std::string("trace_packets, beam ") + std::to_string(args->beam) +
-                                   "x" + std::to_string(args->beam) +
-                                   " (coarse pass included), depth only",
+          if (p) {
+            primary.push_back({caster + " packet",
+                               std::string("trace_packets ") + isa_name(active_isa()) + " x" +
+                                   std::to_string(packet_width(active_isa())) + ", depth only",
                                lod,
                                false,
-                               [&structure, rl, k = args->beam] {
+                               [&q, p, rl] {
                                  Image depth;
-                                 return trace_depth_packets(structure, rl, k, &depth);
+                                 return trace_depth_packets(q, *p, rl, 0, &depth);
                                },
                                {}});
-          primary.push_back(
-              {caster,
-               "render(): attributes + Phong",
-               lod,
-               true,
-               [&, rl, keep = static_cast<const void*>(&structure) == &voxels && lod == args->lod] {
-                 if (!keep) return timed(render(structure, rl));
-                 vox_result = render(structure, rl);
-                 return timed(vox_result);
-               },
-               {}});
+            primary.push_back({caster + " packet",
+                               "trace_packets + attributes + Phong (no effects)",
+                               lod,
+                               true,
+                               [&q, p, rl] {
+                                 Image depth, color;
+                                 return trace_depth_packets(q, *p, rl, 0, &depth, true, &color);
+                               },
+                               {}});
+            if (args->beam)
+              primary.push_back({caster + " packet+beam",
+                                 std::string("trace_packets, beam ") + std::to_string(args->beam) +
+                                     "x" + std::to_string(args->beam) +
+                                     " (coarse pass included), depth only",
+                                 lod,
+                                 false,
+                                 [&q, p, rl, k = args->beam] {
+                                   Image depth;
+                                   return trace_depth_packets(q, *p, rl, k, &depth);
+                                 },
+                                 {}});
+          }
+          primary.push_back({caster,
+                             "render(): attributes + Phong",
+                             lod,
+                             true,
+                             [&, rl, keep = &m == &main_structure && lod == args->lod] {
+                               if (!keep) return timed(render(*m.structure, rl));
+                               vox_result = render(*m.structure, rl);
+                               return timed(vox_result);
+                             },
+                             {}});
         }
       };
-      add_voxel_rows("voxcast esvo", voxels);
+      add_voxel_rows(main_structure);
       // The existing variants at --lod, rendered (attributes + shading).
       RenderOptions ro_beam = ro;
       ro_beam.beam = args->beam;
       if (args->beam)
-        primary.push_back({"voxcast esvo+beam",
+        primary.push_back({main_structure.caster + "+beam",
                            "render(), beam " + std::to_string(args->beam) + "x" +
                                std::to_string(args->beam) + " (coarse pass included)",
                            args->lod,
                            true,
-                           [&] { return timed(render(voxels, ro_beam)); },
+                           [&] { return timed(render(*main_structure.structure, ro_beam)); },
                            {}});
-      if (contour_voxels) {
+      if (contoured) {
         primary.push_back({"voxcast contours",
                            "render()",
                            args->lod,
                            true,
-                           [&] { return timed(render(*contour_voxels, ro)); },
+                           [&] { return timed(render(*contoured->structure, ro)); },
                            {}});
         if (args->beam)
           primary.push_back({"voxcast contours+beam",
                              "render(), beam",
                              args->lod,
                              true,
-                             [&] { return timed(render(*contour_voxels, ro_beam)); },
+                             [&] { return timed(render(*contoured->structure, ro_beam)); },
                              {}});
       }
-      // With --effects: the DAG of the same voxels (svdag §4), same camera.
-      LoadedStructure dag_structure;
-      const dag::DagStructure* dag_voxels = nullptr;
-      RenderOptions dag_beam = ro;
-      dag_beam.beam = 8;
-      if (args->effects && size_index == 0) {
-        BuildSettings ds = s;
-        ds.format = "dag";
-        ds.verbose = false;
-        // Out of core within what the others leave when in core would not fit
-        // (build_scene counts its own copy of the mesh).
-        ds.memory_budget = left_after(held.total());
-        // Held afterwards: at most its in-core estimate (the same grid as the
-        // ESVO's) or the budget it was given.
-        held.dag = std::min(held.esvo, ds.memory_budget);
-        // The same mesh, grid and voxelization.
-        BuiltScene dag_built = build_scene(ds, mesh_copy, mesh_stats);
-        dag_structure = std::move(dag_built.structure);
-        dag_voxels = &dynamic_cast<const dag::DagStructure&>(*dag_structure);
-        add_voxel_rows("voxcast dag", *dag_voxels);
-        primary.push_back({"voxcast dag+beam",
+      // With --effects: the other structures of the same voxels (svdag §4),
+      // same camera, rendered with a beam of 8x8 as well.
+      RenderOptions other_beam = ro;
+      other_beam.beam = 8;
+      const size_t measured_here = size_index == 0 ? structures.size() : 1;
+      for (size_t i = 1; i < measured_here; ++i) {
+        const Measured& m = structures[i];
+        add_voxel_rows(m);
+        primary.push_back({m.caster + "+beam",
                            "render(), beam 8x8",
                            args->lod,
                            true,
-                           [&] { return timed(render(*dag_voxels, dag_beam)); },
+                           [&] { return timed(render(*m.structure, other_beam)); },
                            {}});
       }
       measure_interleaved(primary, args->repeat);
@@ -683,7 +737,7 @@ Runner add_bench(CLI::App& app) {
 
       // How well the voxels reproduce the mesh in this very frame.
       size_t agree = 0, both = 0, close = 0;
-      double tol = 2.0 * std::sqrt(3.0) * octree->grid.voxel_size;
+      double tol = 2.0 * std::sqrt(3.0) * grid.voxel_size;
       for (size_t i = 0; i < vox_result.depth.pixels.size(); ++i) {
         float dv = vox_result.depth.pixels[i], de = e1.depth.pixels[i];
         agree += std::isfinite(dv) == std::isfinite(de);
@@ -692,22 +746,23 @@ Runner add_bench(CLI::App& app) {
           close += std::fabs(dv - de) <= tol;
         }
       }
-      auto mem = octree->memory_stats();
-      std::printf("mesh        %s: %zu triangles\n", printable(args->input).c_str(),
-                  built.mesh.triangle_count());
+      const uint64_t memory = memory_of(main_structure);
+      std::printf("mesh        %s: %zu triangles\n", printable(args->input).c_str(), triangles);
       std::printf("camera      %s\n", camera.to_string().c_str());
       std::printf("image       %dx%d, %.1f%% of pixels hit the mesh, %d threads, best of %d\n",
                   width, height, 100.0 * cov, threads, args->repeat);
-      std::printf("voxels      %u^3 %s, %llu leaf voxels, lod %.2g px\n", octree->grid.resolution,
-                  voxelization_name(s.mode), (unsigned long long)built.leaf_voxels, args->lod);
+      std::printf("voxels      %u^3 %s, %llu leaf voxels, lod %.2g px\n", grid.resolution,
+                  voxelization_name(s.mode), (unsigned long long)main_structure.leaf_voxels,
+                  args->lod);
       std::printf("agreement   hit/miss %.3f%%, depth within 2 leaf voxel diagonals %.3f%%\n",
                   100.0 * double(agree) / rays, both ? 100.0 * double(close) / double(both) : 0.0);
-      std::printf("build       voxcast %.2f s (voxelize %.2f s + octree %.2f s), embree %.2f s\n",
-                  built.voxelize_seconds + built.octree_seconds, built.voxelize_seconds,
-                  built.octree_seconds, embree.build_seconds());
+      std::printf("build       voxcast %.2f s (voxelize %.2f s + %s %.2f s), embree %.2f s\n",
+                  main_structure.voxelize_seconds + main_structure.build_seconds,
+                  main_structure.voxelize_seconds, first.name.c_str(), main_structure.build_seconds,
+                  embree.build_seconds());
       std::printf("memory      voxcast %s (%.2f B/leaf voxel), embree %s\n",
-                  format_bytes(double(mem.total_bytes)).c_str(),
-                  double(mem.total_bytes) / double(built.leaf_voxels),
+                  format_bytes(double(memory)).c_str(),
+                  double(memory) / double(main_structure.leaf_voxels),
                   format_bytes(double(embree.memory_bytes())).c_str());
       for (int shaded = 0; shaded < 2; ++shaded) {
         std::printf("\n%s (ratio: Mrays/s over %s, the fastest Embree mode here)\n",
@@ -731,18 +786,18 @@ Runner add_bench(CLI::App& app) {
           if (r.caster == caster && r.shaded == shaded && (r.lod < 0 || r.lod == lod)) return &r.t;
         return nullptr;
       };
-      const double m_vox = find("voxcast esvo", true, args->lod)->mrays();
+      const double m_vox = find(main_structure.caster, true, args->lod)->mrays();
       std::printf("voxcast     %8.2f Mrays/s\n", m_vox);
       double best_voxcast = m_vox;
-      if (const Timed* t = find("voxcast esvo+beam", true, args->lod)) {
+      if (const Timed* t = find(main_structure.caster + "+beam", true, args->lod)) {
         std::printf("voxcast+beam%8.2f Mrays/s (beam %dx%d, coarse pass included)\n", t->mrays(),
                     args->beam, args->beam);
         best_voxcast = std::max(best_voxcast, t->mrays());
       }
       if (const Timed* t = find("voxcast contours", true, args->lod)) {
         std::printf("contours    %8.2f Mrays/s (build %.2f s, %s)\n", t->mrays(),
-                    contour_build_seconds,
-                    format_bytes(double(contoured->memory_stats().total_bytes)).c_str());
+                    contoured->voxelize_seconds + contoured->build_seconds,
+                    format_bytes(double(memory_of(*contoured))).c_str());
         best_voxcast = std::max(best_voxcast, t->mrays());
       }
       if (const Timed* t = find("voxcast contours+beam", true, args->lod)) {
@@ -755,10 +810,12 @@ Runner add_bench(CLI::App& app) {
         std::printf("%-12s%8.2f Mrays/s (%s)\n", name.c_str(), find(name, false, 0)->mrays(),
                     EmbreeScene::mode_call(m));
       }
-      if (const Timed* t = find("voxcast dag", true, args->lod))
-        std::printf("primary dag %8.2f Mrays/s, with beam 8x8 %.2f Mrays/s (%s DAG)\n", t->mrays(),
-                    find("voxcast dag+beam", true, args->lod)->mrays(),
-                    format_bytes(double(dag_voxels->dag().stats().dag_bytes)).c_str());
+      for (size_t i = 1; i < measured_here; ++i)
+        std::printf("primary %s %8.2f Mrays/s, with beam 8x8 %.2f Mrays/s (%s in memory)\n",
+                    structures[i].format->name.c_str(),
+                    find(structures[i].caster, true, args->lod)->mrays(),
+                    find(structures[i].caster + "+beam", true, args->lod)->mrays(),
+                    format_bytes(double(memory_of(structures[i]))).c_str());
       std::printf("ratio voxcast/embree: %.3f\n", best_voxcast / fastest[0]);
 
       run["coverage"] = cov;
@@ -805,11 +862,10 @@ Runner add_bench(CLI::App& app) {
         for (float lod : lods) {
           RenderOptions rl = ro;
           rl.lod_pixels = lod;
-          prof.push_back(
-              {"voxcast esvo", lod, least_disturbed([&] { return profile_voxels(voxels, rl); })});
-          if (dag_voxels)
-            prof.push_back({"voxcast dag", lod,
-                            least_disturbed([&] { return profile_voxels(*dag_voxels, rl); })});
+          for (size_t i = 0; i < measured_here; ++i)
+            prof.push_back({structures[i].caster, lod, least_disturbed([&] {
+                              return profile_voxels(*structures[i].query, rl);
+                            })});
         }
         std::printf(
             "cycles per ray (TSC ticks at %.2f GHz, 1 thread, instrumented pass; per primary ray,\n"
@@ -839,7 +895,7 @@ Runner add_bench(CLI::App& app) {
       }
 
       if (args->effects && size_index == 0) {
-        // Shading points: the ESVO's primary hits of this frame (finest level,
+        // Shading points: the first structure's primary hits of this frame (finest level,
         // voxel normals), offset once (effects.hpp). Their shadow and AO rays
         // are generated once, here, and every caster traces the same arrays.
         // Pixels in 4x4 block order (block_order): the shadow rays of a block
@@ -855,10 +911,10 @@ Runner add_bench(CLI::App& app) {
           const int x = int(xy & 0xFFFF), y = int(xy >> 16);
           const Ray ray = cam.ray(x, y);
           SurfaceHit hit;
-          if (!voxels.trace(ray, LodFootprint{}, ctx, &hit)) continue;
+          if (!main_structure.query->trace(ray, LodFootprint{}, ctx, &hit)) continue;
           Color c;
           Vec3 n;
-          voxels.attributes(hit, ctx, &c, &n);
+          main_structure.query->attributes(hit, ctx, &c, &n);
           if (dot(n, ray.dir) > 0.f) n = -n;
           points.push_back({hit.position, n, ray.dir, hit.voxel_size});
           seeds.push_back(pixel_seed(x, y, 0));
@@ -892,12 +948,12 @@ Runner add_bench(CLI::App& app) {
             for (size_t j = 0; j < k; ++j) ao_rays[j * np + p] = ao_rec.rays[p * k + j];
         }
         std::printf(
-            "occlusion   %zu shading points (ESVO primary hits, offset 2 voxels along the normal "
+            "occlusion   %zu shading points (%s primary hits, offset 2 voxels along the normal "
             "+ "
             "1 back); %zu shadow rays (directional), %zu AO rays (%d per point, radius %g), "
             "generated once\n",
-            points.size(), shadow_rec.rays.size(), ao_rays.size(), args->ao_rays,
-            double(ao_fx.ao_radius));
+            points.size(), first.name.c_str(), shadow_rec.rays.size(), ao_rays.size(),
+            args->ao_rays, double(ao_fx.ao_radius));
         struct OccRow {
           std::string caster, how;
           bool embree;
@@ -912,37 +968,35 @@ Runner add_bench(CLI::App& app) {
           // Every row answers into its own array (frames capture the row's
           // index: the vector may move while rows are added).
           std::vector<OccRow> rows;
-          rows.push_back(
-              {"voxcast esvo",
-               "any hit (trace)",
-               false,
-               [&, i = rows.size()] { return occluded_all(voxels, rs, &rows[i].answers); },
-               {},
-               {}});
-          rows.push_back(
-              {"voxcast dag",
-               "any hit (cast_occluded)",
-               false,
-               [&, i = rows.size()] { return occluded_all(*dag_voxels, rs, &rows[i].answers); },
-               {},
-               {}});
+          // Each structure's scalar any-hit rows, then its packet rows.
+          std::vector<size_t> scalar_row(structures.size()), packet_row(structures.size(), 0);
+          for (size_t k = 0; k < structures.size(); ++k) {
+            scalar_row[k] = rows.size();
+            rows.push_back({structures[k].caster,
+                            "any hit (transmittance)",
+                            false,
+                            [&, k, i = rows.size()] {
+                              return occluded_all(*structures[k].query, rs, &rows[i].answers);
+                            },
+                            {},
+                            {}});
+          }
           const std::string occ_how = std::string("occluded_packets ") + isa_name(active_isa()) +
                                       " x" + std::to_string(packet_width(active_isa()));
-          rows.push_back(
-              {"voxcast esvo packet",
-               occ_how,
-               false,
-               [&, i = rows.size()] { return occluded_all_packets(voxels, rs, &rows[i].answers); },
-               {},
-               {}});
-          rows.push_back({"voxcast dag packet",
-                          occ_how,
-                          false,
-                          [&, i = rows.size()] {
-                            return occluded_all_packets(*dag_voxels, rs, &rows[i].answers);
-                          },
-                          {},
-                          {}});
+          for (size_t k = 0; k < structures.size(); ++k) {
+            if (!structures[k].packets) continue;
+            packet_row[k] = rows.size();
+            rows.push_back({structures[k].caster + " packet",
+                            occ_how,
+                            false,
+                            [&, k, i = rows.size()] {
+                              return occluded_all_packets(*structures[k].packets, rs,
+                                                          &rows[i].answers);
+                            },
+                            {},
+                            {}});
+          }
+          const size_t embree_x1 = rows.size();  // the first of kOcclusionModes
           for (const EmbreeScene::Mode m : EmbreeScene::kOcclusionModes) {
             static const char* const calls[] = {"rtcOccluded1", "", "rtcOccluded8 coherent",
                                                 "rtcOccluded16 coherent", "rtcOccluded1M coherent"};
@@ -970,7 +1024,7 @@ Runner add_bench(CLI::App& app) {
                       fastest_occ_name.c_str());
           std::printf("  %-14s %9s %9s %7s %9s  %s\n", "caster", "Mrays/s", "occluded", "ratio",
                       "same", "how");
-          const std::vector<uint8_t>& ref = rows[4].answers;  // embree x1
+          const std::vector<uint8_t>& ref = rows[embree_x1].answers;
           nlohmann::json kj;
           for (const OccRow& r : rows) {
             size_t same = 0;
@@ -988,19 +1042,28 @@ Runner add_bench(CLI::App& app) {
                           {"mrays_per_s", r.t.mrays()},
                           {"ratio", r.t.mrays() / fastest_occ}});
           }
-          // Rows 0, 1: the scalar casters; 2, 3: their packet casters.
-          size_t esvo_dag = 0, packet_same = 0;
+          // Rays on which every structure answers alike, and on which every
+          // packet caster answers as its structure's scalar caster.
+          size_t agree = 0, packet_same = 0;
+          std::string names;
+          for (const Measured& m : structures)
+            names += (names.empty() ? "" : " == ") + m.format->name;
           for (size_t i = 0; i < rs.size(); ++i) {
-            esvo_dag += rows[0].answers[i] == rows[1].answers[i];
-            packet_same += rows[0].answers[i] == rows[2].answers[i] &&
-                           rows[1].answers[i] == rows[3].answers[i];
+            bool all = true, packets = true;
+            for (size_t k = 0; k < structures.size(); ++k) {
+              all &= rows[scalar_row[k]].answers[i] == rows[scalar_row[0]].answers[i];
+              if (structures[k].packets)
+                packets &= rows[packet_row[k]].answers[i] == rows[scalar_row[k]].answers[i];
+            }
+            agree += all;
+            packet_same += packets;
           }
-          std::printf("  esvo == dag on %.3f%% of the rays, packet == scalar on %.3f%%\n\n",
-                      100.0 * double(esvo_dag) / double(std::max<size_t>(rs.size(), 1)),
+          std::printf("  %s on %.3f%% of the rays, packet == scalar on %.3f%%\n\n", names.c_str(),
+                      100.0 * double(agree) / double(std::max<size_t>(rs.size(), 1)),
                       100.0 * double(packet_same) / double(std::max<size_t>(rs.size(), 1)));
           occ_json[kind_name] = {{"rays", rs.size()},
                                  {"fastest_embree", fastest_occ_name},
-                                 {"esvo_equals_dag", esvo_dag},
+                                 {"structures_agree", agree},
                                  {"packet_equals_scalar", packet_same},
                                  {"casters", kj}};
         }
@@ -1021,8 +1084,8 @@ Runner add_bench(CLI::App& app) {
             {"embree_isa", isa},
             {"threads", args->threads ? args->threads : int(std::thread::hardware_concurrency())}}},
           {"mesh", args->input},
-          {"triangles", built.mesh.triangle_count()},
-          {"resolution", octree->grid.resolution},
+          {"triangles", triangles},
+          {"resolution", grid.resolution},
           {"repeat", args->repeat},
           {"runs", json_runs}};
       std::ofstream out(args->json);

@@ -20,7 +20,7 @@ namespace {
 struct BuildArgs {
   std::string input, output, voxelization = "conservative", memory_budget;
   std::string attributes = "raw";
-  std::string format = "esvo";
+  std::string format;  // the first registered format unless given
   std::string fill = "surface";
   uint32_t resolution = 1024;
   double voxel_size = 0;
@@ -36,6 +36,28 @@ struct BuildArgs {
   CLI::Option *voxel_size_opt = nullptr, *max_level_opt = nullptr, *geometry_error_opt = nullptr,
               *color_error_opt = nullptr, *normal_error_opt = nullptr, *cell_size_opt = nullptr;
 };
+// The registered formats `pred` holds for: "a, b".
+template <class Pred>
+std::string names_of(const Pred& pred) {
+  std::string n;
+  for (const SceneFormat& f : format_registry().formats())
+    if (pred(f)) n += (n.empty() ? "" : ", ") + f.name;
+  return n;
+}
+
+// What a memory-bounded build applies to: "--format dag or --contours".
+std::string bounded_builds() {
+  FormatBuildOptions plain, contoured;
+  contoured.contours.enabled = true;
+  auto bounded = [](const SceneFormat& f, const FormatBuildOptions& o) {
+    return f.bounded_mesh_build && f.bounded_mesh_build(o);
+  };
+  std::string n = names_of([&](const SceneFormat& f) { return bounded(f, plain); });
+  if (!n.empty()) n = "--format " + n;
+  if (!names_of([&](const SceneFormat& f) { return f.contours && bounded(f, contoured); }).empty())
+    n += (n.empty() ? "" : " or ") + std::string("--contours");
+  return n;
+}
 }  // namespace
 
 Runner add_build(CLI::App& app) {
@@ -65,6 +87,7 @@ Runner add_build(CLI::App& app) {
                   "Color/normal storage: raw (8 B/voxel) | compressed (esvo §5.5 blocks, lossy; "
                   "dag: 16 Morton-order voxels per 24 B block)")
       ->capture_default_str();
+  if (!format_registry().formats().empty()) args->format = format_registry().formats().front().name;
   std::string formats;
   for (const SceneFormat& f : format_registry().formats())
     formats += (formats.empty() ? "" : " | ") + f.name + " (" + f.description + ")";
@@ -109,7 +132,7 @@ Runner add_build(CLI::App& app) {
     s.mesh_path = args->input;
     set_voxelization_options(s, args->resolution, args->voxel_size_opt->count() > 0,
                              args->voxel_size, args->voxelization, args->fill);
-    s.attributes = parse_attribute_format(args->attributes);
+    s.compress_attributes = parse_compressed_attributes(args->attributes);
     if (!args->memory_budget.empty()) s.memory_budget = parse_memory_budget(args->memory_budget);
     s.verbose = args->verbose;
     const SceneFormat* format = format_registry().find(args->format);
@@ -121,12 +144,13 @@ Runner add_build(CLI::App& app) {
                        known + ")");
     }
     s.format = format->name;
-    const bool esvo_format = s.format == "esvo";  // contours: ESVO's own options
     const bool variable = args->max_level_opt->count() || args->geometry_error_opt->count() ||
                           args->color_error_opt->count() || args->normal_error_opt->count();
     if (variable && !args->contours) throw UsageError("--max-level and --*-error need --contours");
     if (args->contours) {
-      if (!esvo_format) throw UsageError("--contours applies to --format esvo only");
+      if (!format->contours)
+        throw UsageError("--contours applies to --format " +
+                         names_of([](const SceneFormat& f) { return f.contours; }) + " only");
       if (args->max_level_opt->count()) require_range("--max-level", args->max_level, 0, 20);
       auto tolerance = [](CLI::Option* opt, double v, const char* name, double lo, double hi) {
         if (!opt->count()) return -1.0;
@@ -144,17 +168,17 @@ Runner add_build(CLI::App& app) {
       s.normal_error =
           tolerance(args->normal_error_opt, args->normal_error, "--normal-error", 0, 180);
     }
-    if (s.attributes != esvo::AttributeFormat::Raw && args->no_attributes)
+    if (s.compress_attributes && args->no_attributes)
       throw UsageError("--attributes compressed and --no-attributes exclude each other");
     if (!format->attributes_optional && args->no_attributes)
-      throw UsageError("--no-attributes applies to formats that can store geometry only (" + [] {
-        std::string n;
-        for (const SceneFormat& f : format_registry().formats())
-          if (f.attributes_optional) n += (n.empty() ? "" : ", ") + f.name;
-        return n;
-      }() + ")");
-    if (s.format != "dag" && !s.contours && (args->out_of_core || args->cell_size_opt->count()))
-      throw UsageError("--out-of-core and --cell-size apply to --format dag or --contours");
+      throw UsageError("--no-attributes applies to formats that can store geometry only (" +
+                       names_of([](const SceneFormat& f) { return f.attributes_optional; }) + ")");
+    // Whether the format's mesh build can bound its memory may depend on the
+    // options (a format may have a cell build only with contours).
+    if ((args->out_of_core || args->cell_size_opt->count()) &&
+        !(format->bounded_mesh_build &&
+          format->bounded_mesh_build(format_build_options(s, nullptr))))
+      throw UsageError("--out-of-core and --cell-size apply to " + bounded_builds());
     // The grid decides the upper bound (the library checks it against the
     // resolution); a non-power of two or a cell below 4^3 is never valid.
     if (args->cell_size_opt->count())
@@ -186,15 +210,12 @@ Runner add_build(CLI::App& app) {
     });
     outputs.commit();
     timer.mark("write scene");
-    // The memory-bounded builds' reports (BuiltScene: one of them is filled).
-    if (built.out_of_core && s.format == "dag")
-      std::printf("out-of-core: %llu cells of %u^3, voxelize %.2f s, reduce %.2f s\n",
-                  (unsigned long long)built.ooc.cells, built.ooc.cell_size,
-                  built.ooc.voxelize_seconds, built.ooc.reduce_seconds);
-    else if (built.out_of_core && !built.esvo_cells.in_core)
-      std::printf("out-of-core: %llu cells of %u^3 (%llu planned below their root), %.2f s\n",
-                  (unsigned long long)built.esvo_cells.cells, built.esvo_cells.cell_size,
-                  (unsigned long long)built.esvo_cells.refined_cells, built.octree_seconds);
+    // The format's memory-bounded build reports itself (MeshBuild).
+    std::fputs(built.build_report.c_str(), stdout);
+    if (args->verbose)
+      for (const BuildStat& st : built.build_stats)
+        std::fprintf(stderr, "build: %s: %s\n", printable(st.key).c_str(),
+                     printable(st.value).c_str());
     DescribeStyle style;
     style.bytes = [](double b) { return format_bytes(b); };
     std::printf("%s: %s, %.2f s\n", printable(args->output).c_str(),

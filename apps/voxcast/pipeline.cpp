@@ -9,9 +9,7 @@
 
 #include "cli_io.hpp"
 #include "commands.hpp"
-#include "voxcast/dag.hpp"
 #include "voxcast/error.hpp"
-#include "voxcast/esvo_structure.hpp"
 #include "voxcast/progress.hpp"
 #include "voxcast/solid.hpp"
 #include "voxcast/system.hpp"
@@ -44,14 +42,30 @@ const char* voxelization_name(VoxelizationMode mode) {
   return mode == VoxelizationMode::Conservative ? "conservative" : "6-separating";
 }
 
-esvo::AttributeFormat parse_attribute_format(const std::string& name) {
-  if (name == "raw") return esvo::AttributeFormat::Raw;
-  if (name == "compressed") return esvo::AttributeFormat::Compressed;
+bool parse_compressed_attributes(const std::string& name) {
+  if (name == "raw") return false;
+  if (name == "compressed") return true;
   throw UsageError("--attributes: '" + printable(name) + "' is not raw or compressed");
 }
 
-const char* attribute_format_name(esvo::AttributeFormat format) {
-  return format == esvo::AttributeFormat::Compressed ? "compressed" : "raw";
+const SceneFormat& format_of(const BuildSettings& s) {
+  if (s.format.empty() && !format_registry().formats().empty())
+    return format_registry().formats().front();
+  return format_registry().get(s.format);
+}
+
+FormatBuildOptions format_build_options(const BuildSettings& s, const Mesh* mesh) {
+  FormatBuildOptions fo;
+  fo.compress_attributes = s.compress_attributes;
+  fo.contours.enabled = s.contours;
+  if (s.contours) {
+    fo.contours.max_level = s.max_level;
+    fo.contours.geometry_error = s.geometry_error;
+    fo.contours.color_error = s.color_error;
+    fo.contours.normal_error = s.normal_error;
+  }
+  fo.mesh = mesh;
+  return fo;
 }
 
 uint64_t estimate_build_bytes(const Mesh& mesh, const GridTransform& grid) {
@@ -162,12 +176,10 @@ BuiltScene build_from_voxel_file(const BuildSettings& s, uint64_t budget, StageT
   VoxelSet voxels = read_voxels(s.mesh_path, ro);
   out.load_seconds = timer.mark("read voxels");
   out.leaf_voxels = voxels.size();
-  const SceneFormat& format = format_registry().get(s.format);
+  const SceneFormat& format = format_of(s);
   if (format.attributes_optional && !s.dag_attributes)
     voxels.colors.clear(), voxels.normals.clear(), voxels.weights.clear();
-  FormatBuildOptions fo;
-  fo.compress_attributes = s.attributes == esvo::AttributeFormat::Compressed;
-  out.structure = format.build(voxels, fo);
+  out.structure = format.build(voxels, format_build_options(s, nullptr));
   out.octree_seconds = timer.mark((format.name + " build").c_str());
   return out;
 }
@@ -201,70 +213,41 @@ BuiltScene build_scene(const BuildSettings& s) {
 }
 
 BuiltScene build_scene(const BuildSettings& s, Mesh mesh, const MeshLoadStats& mesh_stats) {
-  const SceneFormat& format = format_registry().get(s.format);
-  // The two memory-bounded builds from the mesh (not from a voxel set) are
-  // their structures' own: the DAG's sub-volumes and ESVO's contour cells.
-  const bool dag = s.format == "dag", esvo_format = s.format == "esvo";
+  const SceneFormat& format = format_of(s);
   BuiltScene out;
   out.mesh = std::move(mesh);
   out.mesh_stats = mesh_stats;
   StageTimer timer(s.verbose);
   const uint64_t budget = effective_budget(s.memory_budget);
   const GridTransform grid = build_grid(s, out.mesh.bounds());
+  const FormatBuildOptions fo = format_build_options(s, &out.mesh);
 
   // The mesh stays in memory for the whole build.
   const uint64_t need = estimate_build_bytes(out.mesh, grid) + mesh_bytes(out.mesh);
-  if (dag && !s.fill_solid && (s.out_of_core || (budget && need > budget))) {
-    // svdag §3 "Implementation details": sub-volumes voxelized and reduced
-    // one at a time, peak memory bounded by the budget.
-    dag::OutOfCoreOptions oo;
-    oo.mode = s.mode;
-    oo.attributes = s.dag_attributes;
-    oo.memory_budget = budget;
-    oo.cell_size = s.cell_size;
-    auto d = std::make_shared<dag::SparseVoxelDag>(
-        dag::build_dag_out_of_core(out.mesh, grid, oo, &out.ooc));
-    // esvo §5.5 blocks over the Morton-order array (dag.hpp); from the same
-    // raw values as in core, so the scene bytes stay identical.
-    if (s.attributes == esvo::AttributeFormat::Compressed) d->compress_attributes();
-    out.out_of_core = true;
-    out.leaf_voxels = d->leaf_voxels;
-    out.structure = std::make_unique<dag::DagStructure>(std::move(d));
-    out.voxelize_seconds = out.ooc.voxelize_seconds;
-    out.octree_seconds = out.ooc.reduce_seconds;
-    timer.mark("out-of-core DAG build");
-    return out;
-  }
-  esvo::BuildOptions build_options;
-  build_options.attributes = s.attributes;
-  if (s.contours) {
-    build_options.contours = true;
-    build_options.max_level = s.max_level;
-    build_options.geometry_error = s.geometry_error;
-    build_options.color_error = s.color_error;
-    build_options.normal_error = s.normal_error;
-  }
-  // esvo §7.1-7.3 "memory bounded": one cell's full-depth voxels at a time,
-  // only the kept (variable-depth) octree is held; same bytes as in core.
-  // Without a color/normal tolerance it voxelizes every cell once and is as
-  // fast as the in-core build (docs/notes-vardepth.md), so it is the default
-  // there; with one, the attribute tests stream the cells two more times
-  // (with compressed attributes also once per §7.3 decoded-leaf round for
-  // the cells holding a leaf to test), so only when the in-core estimate
-  // exceeds the budget (or when asked).
-  const bool attribute_tolerance = s.color_error >= 0 || s.normal_error >= 0;
-  if (esvo_format && s.contours &&
-      (s.out_of_core || (budget && need > budget) || !attribute_tolerance)) {
-    VoxelizeOptions vo;
-    vo.mode = s.mode;
-    vo.attributes = true;
-    out.structure = std::make_unique<esvo::EsvoStructure>(
-        std::make_shared<esvo::EsvoOctree>(esvo::build_octree_cells(
-            out.mesh, grid, vo, build_options, s.cell_size, budget, &out.esvo_cells)));
-    out.out_of_core = true;
-    out.leaf_voxels = out.esvo_cells.voxels;
-    out.octree_seconds = timer.mark("cell-by-cell octree build");
-    return out;
+  // A format's own build from the mesh (the memory-bounded ones: the DAG's
+  // sub-volumes, ESVO's contour cells) decides whether this request is its;
+  // the solid fill needs the whole surface in core first.
+  if (format.build_from_mesh && !s.fill_solid) {
+    MeshBuildRequest r;
+    r.mode = s.mode;
+    r.attributes = !format.attributes_optional || s.dag_attributes;
+    r.options = fo;
+    r.memory_budget = budget;
+    r.in_core_estimate = need;
+    r.out_of_core = s.out_of_core;
+    r.cell_size = s.cell_size;
+    MeshBuild b = format.build_from_mesh(out.mesh, grid, r);
+    if (b.structure) {
+      out.structure = std::move(b.structure);
+      out.leaf_voxels = b.leaf_voxels;
+      out.voxelize_seconds = b.voxelize_seconds;
+      out.octree_seconds = b.build_seconds;
+      out.out_of_core = b.out_of_core;
+      out.build_report = std::move(b.report);
+      out.build_stats = std::move(b.stats);
+      timer.mark(b.stage.c_str());
+      return out;
+    }
   }
   if (budget && need > budget)
     throw Error("resolution " + std::to_string(grid.resolution) + " needs an estimated " +
@@ -286,15 +269,7 @@ BuiltScene build_scene(const BuildSettings& s, Mesh mesh, const MeshLoadStats& m
   out.leaf_voxels = voxels.size();
   if (s.fill_solid && format.attributes_optional && !s.dag_attributes)
     voxels.colors.clear(), voxels.normals.clear(), voxels.weights.clear();
-  if (esvo_format && s.contours) {
-    // Contours are shaped by the mesh (esvo §5.2): ESVO's own build.
-    out.structure = std::make_unique<esvo::EsvoStructure>(
-        std::make_shared<esvo::EsvoOctree>(esvo::build_octree(voxels, out.mesh, build_options)));
-  } else {
-    FormatBuildOptions fo;
-    fo.compress_attributes = s.attributes == esvo::AttributeFormat::Compressed;
-    out.structure = format.build(voxels, fo);
-  }
+  out.structure = format.build(voxels, fo);
   out.octree_seconds = timer.mark((format.name + " build").c_str());
   return out;
 }

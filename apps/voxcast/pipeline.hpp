@@ -2,10 +2,8 @@
 // mesh file -> voxels -> structure (any registered format), shared by `build`
 // and `bench`.
 #include <string>
+#include <vector>
 
-#include "esvo/build_cells.hpp"
-#include "voxcast/dag.hpp"
-#include "voxcast/esvo.hpp"
 #include "voxcast/format_registry.hpp"
 #include "voxcast/mesh.hpp"
 #include "voxcast/voxelize.hpp"
@@ -17,18 +15,21 @@ struct BuildSettings {
   uint32_t resolution = 1024;  // ignored when voxel_size > 0
   double voxel_size = 0;       // > 0: fit the grid to this voxel size
   VoxelizationMode mode = VoxelizationMode::Conservative;
-  uint64_t memory_budget = 0;                                     // 0: 90% of available memory
-  esvo::AttributeFormat attributes = esvo::AttributeFormat::Raw;  // esvo §5.4 / §5.5
+  uint64_t memory_budget = 0;        // 0: 90% of available memory
+  bool compress_attributes = false;  // esvo §5.5 blocks (FormatBuildOptions)
   bool verbose = false;
-  std::string format = "esvo";  // a registered format (format_registry.hpp)
-  // DAG: colors + normals per voxel (DATR); the out-of-core path
-  // (build_dag_out_of_core) when asked or when the in-core estimate exceeds
-  // the budget; cell_size 0 = chosen from the budget. ESVO with contours: the
-  // same for the cell-by-cell build (esvo::build_octree_cells).
+  std::string format;  // a registered format (format_registry.hpp); empty: the first
+
+  // Formats with attributes_optional (the DAG): colors + normals per voxel.
   bool dag_attributes = true;
+  // The format's memory-bounded build from the mesh (SceneFormat::
+  // build_from_mesh: the DAG's sub-volumes, ESVO's contour cells) when asked
+  // or when the in-core estimate exceeds the budget; cell_size 0 = chosen
+  // from the budget.
   bool out_of_core = false;
   uint32_t cell_size = 0;
-  // ESVO only (esvo §5.2, §7.1-7.3): contours and the variable-depth build.
+  // Formats with SceneFormat::contours (esvo §5.2, §7.1-7.3): contours and
+  // the variable-depth build.
   bool contours = false;
   int max_level = 0;
   double geometry_error = 0, color_error = -1, normal_error = -1;
@@ -43,10 +44,9 @@ struct BuiltScene {
   LoadedStructure structure;  // of BuildSettings::format
   uint64_t leaf_voxels = 0;
   double load_seconds = 0, voxelize_seconds = 0, octree_seconds = 0;
-  bool out_of_core = false;         // the DAG came from build_dag_out_of_core, or the ESVO
-                                    // from build_octree_cells
-  dag::OutOfCoreReport ooc;         // when out_of_core (DAG)
-  esvo::CellBuildStats esvo_cells;  // when out_of_core (ESVO)
+  bool out_of_core = false;            // built by the format's memory-bounded mesh build
+  std::string build_report;            // its lines for after the build (MeshBuild::report)
+  std::vector<BuildStat> build_stats;  // its statistics (`build -v`)
 };
 
 /// Rough upper estimate of the peak bytes voxelizing `mesh` into `grid` takes
@@ -91,8 +91,15 @@ void set_voxelization_options(BuildSettings& s, uint32_t resolution, bool voxel_
 VoxelizationMode parse_voxelization(const std::string& name);
 const char* voxelization_name(VoxelizationMode mode);
 
-/// "raw" | "compressed" (esvo §5.4 / §5.5 color/normal attachments).
-esvo::AttributeFormat parse_attribute_format(const std::string& name);
-const char* attribute_format_name(esvo::AttributeFormat format);
+/// "raw" | "compressed" (esvo §5.4 / §5.5 color/normal attachments): true
+/// for compressed.
+bool parse_compressed_attributes(const std::string& name);
+
+/// settings.format's registry entry (the first registered for an empty name).
+const SceneFormat& format_of(const BuildSettings& settings);
+
+/// The registry's build options of `settings` (`mesh`: the source mesh, null
+/// for a voxel file).
+FormatBuildOptions format_build_options(const BuildSettings& settings, const Mesh* mesh);
 
 }  // namespace voxcast::cli

@@ -149,6 +149,10 @@ class ContainerReader {
 
   /// The whole section, every chunk verified.
   std::vector<uint8_t> read(uint32_t id) const;
+  /// The whole section straight into caller memory of exactly the section's
+  /// size (a structure's own storage: no second copy), every chunk verified.
+  /// Throws voxcast::Error when `bytes` is not the section's size.
+  void read_into(uint32_t id, void* dst, uint64_t bytes) const;
   /// One chunk, verified; reads nothing else.
   std::vector<uint8_t> read_chunk(uint32_t id, uint32_t chunk) const;
   /// Reads and verifies every chunk not yet verified (in pieces of at most

@@ -19,6 +19,7 @@
 
 #include "voxcast/container.hpp"
 #include "voxcast/math.hpp"
+#include "voxcast/mesh.hpp"
 #include "voxcast/scene_file.hpp"
 #include "voxcast/voxelize.hpp"
 
@@ -30,6 +31,52 @@ namespace voxcast {
 /// with or without attributes, see SceneFormat::attributes_optional).
 struct FormatBuildOptions {
   bool compress_attributes = false;  // esvo §5.5 blocks instead of raw 8 B/voxel
+  /// Contours and variable depth (esvo §5.2, §7.1-7.3), for a format with
+  /// SceneFormat::contours; the others are never handed `contours.enabled`.
+  struct Contours {
+    bool enabled = false;
+    int max_level = 0;          // deepest level (0: the grid's levels)
+    double geometry_error = 0;  // <= 0: unset (full depth)
+    double color_error = -1;    // < 0: unset
+    double normal_error = -1;   // < 0: unset
+  } contours;
+  /// The mesh the voxel set was voxelized from, when there is one (null for a
+  /// voxel file): contours are shaped by its triangles (esvo §5.2).
+  const Mesh* mesh = nullptr;
+};
+
+/// What a build from a mesh (SceneFormat::build_from_mesh) is handed besides
+/// the mesh and its grid.
+struct MeshBuildRequest {
+  VoxelizationMode mode = VoxelizationMode::Conservative;
+  /// Colors and normals; false only for a format with attributes_optional.
+  bool attributes = true;
+  FormatBuildOptions options;
+  uint64_t memory_budget = 0;  // bytes the build may hold (0: 90% of free memory)
+  /// The caller's estimate of the peak of voxelizing in core and building
+  /// from the voxel set (mesh included): the format's memory-bounded build
+  /// is due when it exceeds memory_budget.
+  uint64_t in_core_estimate = 0;
+  bool out_of_core = false;  // the memory-bounded build was asked for (`--out-of-core`)
+  uint32_t cell_size = 0;    // its sub-volume side in voxels (0: from the budget)
+};
+
+/// One statistic of a build, for `voxcast build -v` ("cells": "194").
+struct BuildStat {
+  std::string key, value;
+};
+
+/// What SceneFormat::build_from_mesh produced. No structure: the format has
+/// no build of its own for this request, and the caller voxelizes in core and
+/// calls SceneFormat::build.
+struct MeshBuild {
+  LoadedStructure structure;
+  uint64_t leaf_voxels = 0;  // the voxels the build consumed (SceneInfo::leaf_voxels)
+  double voxelize_seconds = 0, build_seconds = 0;
+  bool out_of_core = false;  // sub-volume by sub-volume, within the budget
+  std::string stage;         // the stage's name for the CLI's timings ("out-of-core DAG build")
+  std::string report;        // printed after `voxcast build` as it is (each line ends in '\n')
+  std::vector<BuildStat> stats;
 };
 
 /// How `voxcast info` writes sizes (the CLI's units), handed to describe().
@@ -56,8 +103,19 @@ struct SceneFormat {
   /// The format can store geometry without colors and normals (`build
   /// --no-attributes`); otherwise its build needs a voxel set with attributes.
   bool attributes_optional = false;
+  /// The format stores contours (FormatBuildOptions::contours: `build
+  /// --contours` and the variable-depth options).
+  bool contours = false;
   /// Voxels -> structure (the in-core build).
   std::function<LoadedStructure(const VoxelSet&, const FormatBuildOptions&)> build;
+  /// Optional: the format's own build from the mesh (memory-bounded builds
+  /// that voxelize sub-volume by sub-volume). Returns a MeshBuild without a
+  /// structure when the request is the in-core one (voxelize, then build).
+  std::function<MeshBuild(const Mesh&, const GridTransform&, const MeshBuildRequest&)>
+      build_from_mesh;
+  /// Whether build_from_mesh can bound its memory for these options (`build
+  /// --out-of-core`, `--cell-size`); null: never.
+  std::function<bool(const FormatBuildOptions&)> bounded_mesh_build;
   /// Writes META (with "format": name) and the data sections. The structure
   /// is one this format built or loaded.
   std::function<void(ContainerWriter&, const Structure&, const SceneInfo&)> save;
@@ -67,6 +125,9 @@ struct SceneFormat {
   /// Bounds of the occupied voxels (automatic cameras).
   std::function<Aabb(const Structure&)> occupied;
   std::function<SceneDescription(const Structure&, const DescribeStyle&)> describe;
+  /// Optional: bytes the structure holds in memory (`voxcast bench`'s
+  /// memory lines).
+  std::function<uint64_t(const Structure&)> memory_bytes;
   /// One line after `voxcast build`: size and what it costs per voxel.
   /// (SceneInfo::leaf_voxels: the voxels the build consumed.)
   std::function<std::string(const Structure&, const SceneInfo&, const DescribeStyle&)>

@@ -94,12 +94,16 @@ struct PassStats {
   double seconds = 0;        // wall time of the tiles
   double serve_seconds = 0;  // wall time of end_pass
   PassOutcome outcome;
+  RayCounters counters;  // of this pass's tiles (counting only)
 };
 
 struct FrameStats {
   std::vector<PassStats> passes;
   double seconds = 0;     // wall time of all passes' tiles (without serving)
-  RayCounters counters;   // summed over every context (counting only)
+  /// Counting only: every tile as the last pass that rendered it counted it,
+  /// i.e. each final pixel's rays once. The passes' counters sum to more
+  /// when tiles were rendered again (tests/test_frame_loop.cpp).
+  RayCounters counters;
   uint64_t requests = 0;  // summed over the passes
 };
 

@@ -50,9 +50,16 @@ struct SurfaceHit {
   int level = 0;           // octree level of the hit voxel (root = 0)
 };
 
+class PacketQuery;  // packet_caster.hpp
+
 class SurfaceQuery {
  public:
   virtual ~SurfaceQuery() = default;
+
+  /// The structure's packet casters (packet_caster.hpp: many rays at once,
+  /// answers bit-identical to trace() / occluded()), or null: callers then
+  /// trace ray by ray.
+  virtual const PacketQuery* packets() const { return nullptr; }
 
   /// First hit along `ray` (unit direction) within [0, ray.tmax], stopping at
   /// the LOD footprint. `beam` (may be null): the result of beam_start() for

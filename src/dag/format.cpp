@@ -37,9 +37,12 @@ constexpr uint32_t kDagSection = fourcc("SDAG");
 constexpr uint32_t kDagAttributes = fourcc("DATR");
 constexpr uint32_t kDagCompressedAttributes = fourcc("DATC");
 
-std::vector<uint32_t> to_words(const std::vector<uint8_t>& bytes) {
-  std::vector<uint32_t> w(bytes.size() / 4);
-  if (!w.empty()) std::memcpy(w.data(), bytes.data(), w.size() * 4);
+// A section of whole words, read straight into the array that keeps it (no
+// second copy of the section is held).
+std::vector<uint32_t> read_words(const ContainerReader& c, uint32_t id) {
+  const uint64_t size = c.section(id).size;
+  std::vector<uint32_t> w(size_t(size / 4));
+  c.read_into(id, w.data(), size);
   return w;
 }
 
@@ -122,7 +125,7 @@ dag::SparseVoxelDag dag_scene_from_container(const ContainerReader& c, SceneInfo
   if (dag_size % 4 != 0 || dag_size < 8)
     throw Error("corrupt scene: SDAG section size " + std::to_string(dag_size) +
                 " is not a whole number of words of at least one node");
-  dag.words = to_words(c.read(kDagSection));
+  dag.words = read_words(c, kDagSection);
   const bool raw = attributes && !compressed;
   if (raw != c.has(kDagAttributes))
     throw Error(raw ? "corrupt scene: META says attributes but there is no DATR section"
@@ -141,18 +144,32 @@ dag::SparseVoxelDag dag_scene_from_container(const ContainerReader& c, SceneInfo
       throw Error("corrupt scene: DATC section holds " + std::to_string(size) +
                   " bytes, expected " + std::to_string(expected) + " (24 per 16 leaf voxels, " +
                   std::to_string(si.leaf_voxels) + " voxels)");
-    dag.attribute_blocks = to_words(c.read(kDagCompressedAttributes));
+    dag.attribute_blocks = read_words(c, kDagCompressedAttributes);
   } else if (attributes) {
     const uint64_t size = c.section(kDagAttributes).size;
     if (size != si.leaf_voxels * 8)
       throw Error("corrupt scene: DATR section holds " + std::to_string(size) +
                   " bytes, expected 8 per leaf voxel (" + std::to_string(si.leaf_voxels) + ")");
-    const std::vector<uint8_t> ab = c.read(kDagAttributes);
+    // Interleaved (color, normal) pairs into the two arrays, a chunk at a
+    // time where chunks hold whole pairs (every file this writer makes), so
+    // that the section is not held beside them.
     dag.colors.resize(size_t(si.leaf_voxels));
     dag.normals.resize(size_t(si.leaf_voxels));
-    for (size_t i = 0; i < dag.colors.size(); ++i) {
-      std::memcpy(&dag.colors[i], &ab[8 * i], 4);
-      std::memcpy(&dag.normals[i], &ab[8 * i + 4], 4);
+    const SectionInfo& sec = c.section(kDagAttributes);
+    auto split = [&](const uint8_t* pairs, size_t first, size_t n) {
+      for (size_t i = 0; i < n; ++i) {
+        std::memcpy(&dag.colors[first + i], pairs + 8 * i, 4);
+        std::memcpy(&dag.normals[first + i], pairs + 8 * i + 4, 4);
+      }
+    };
+    if (sec.chunk_bytes % 8 == 0) {
+      for (uint32_t k = 0; k < sec.chunk_count; ++k) {
+        const std::vector<uint8_t> chunk = c.read_chunk(kDagAttributes, k);
+        split(chunk.data(), size_t(uint64_t(k) * sec.chunk_bytes / 8), chunk.size() / 8);
+      }
+    } else {
+      const std::vector<uint8_t> ab = c.read(kDagAttributes);
+      split(ab.data(), 0, dag.colors.size());
     }
   }
   dag.finalize();  // throws "corrupt DAG: ..."
@@ -251,6 +268,43 @@ SceneDescription describe(const Structure& s, const DescribeStyle& style) {
   return out;
 }
 
+// svdag §3 "Implementation details": sub-volumes voxelized and reduced one
+// at a time, peak memory bounded by the budget; when asked, or when the
+// in-core estimate exceeds the budget. Otherwise the in-core build
+// (voxelize, then build_dag) is the caller's.
+MeshBuild build_from_mesh(const Mesh& mesh, const GridTransform& grid, const MeshBuildRequest& r) {
+  MeshBuild out;
+  if (!r.out_of_core && !(r.memory_budget && r.in_core_estimate > r.memory_budget)) return out;
+  OutOfCoreOptions oo;
+  oo.mode = r.mode;
+  oo.attributes = r.attributes;
+  oo.memory_budget = r.memory_budget;
+  oo.cell_size = r.cell_size;
+  OutOfCoreReport rep;
+  auto d = std::make_shared<SparseVoxelDag>(build_dag_out_of_core(mesh, grid, oo, &rep));
+  // esvo §5.5 blocks over the Morton-order array (dag.hpp); from the same
+  // raw values as in core, so the scene bytes stay identical.
+  if (r.options.compress_attributes && d->has_attributes()) d->compress_attributes();
+  out.leaf_voxels = d->leaf_voxels;
+  out.structure = std::make_unique<DagStructure>(std::move(d));
+  out.out_of_core = true;
+  out.voxelize_seconds = rep.voxelize_seconds;
+  out.build_seconds = rep.reduce_seconds;
+  out.stage = "out-of-core DAG build";
+  // bench/dag_scaling.sh reads the cell size from this line.
+  out.report = fmt::sprintf("out-of-core: %llu cells of %u^3, voxelize %.2f s, reduce %.2f s\n",
+                            (unsigned long long)rep.cells, rep.cell_size, rep.voxelize_seconds,
+                            rep.reduce_seconds);
+  out.stats = {
+      {"cell size", std::to_string(rep.cell_size)},
+      {"cells", std::to_string(rep.cells)},
+      {"fullest cell voxels", std::to_string(rep.max_cell_voxels)},
+      {"fullest cell working set (estimate)", std::to_string(rep.estimated_cell_bytes) + " B"},
+      {"fixed (mesh, grid-unit vertices, bins)", std::to_string(rep.fixed_bytes) + " B"},
+      {"total seconds", fmt::sprintf("%.2f", rep.total_seconds)}};
+  return out;
+}
+
 }  // namespace
 
 void register_format(FormatRegistry& registry) {
@@ -263,6 +317,8 @@ void register_format(FormatRegistry& registry) {
     if (o.compress_attributes && d.has_attributes()) d.compress_attributes();
     return std::make_unique<DagStructure>(std::make_shared<SparseVoxelDag>(std::move(d)));
   };
+  f.build_from_mesh = build_from_mesh;
+  f.bounded_mesh_build = [](const FormatBuildOptions&) { return true; };
   f.save = [](ContainerWriter& w, const Structure& s, const SceneInfo& info) {
     write_dag_scene(w, dag_of(s), info);
   };
@@ -271,6 +327,11 @@ void register_format(FormatRegistry& registry) {
         std::make_shared<SparseVoxelDag>(dag_scene_from_container(r, info)));
   };
   f.occupied = [](const Structure& s) { return occupied_bounds(dag_of(s)); };
+  // The DAG words, the attributes and the voxel index derived at load.
+  f.memory_bytes = [](const Structure& s) {
+    const DagStats st = dag_of(s).stats();
+    return st.dag_bytes + st.attribute_bytes + st.index_bytes;
+  };
   f.describe = describe;
   f.build_summary = [](const Structure& s, const SceneInfo& info, const DescribeStyle& style) {
     const SparseVoxelDag& d = dag_of(s);

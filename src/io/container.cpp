@@ -316,11 +316,19 @@ void ContainerReader::read_chunk_into(const SectionInfo& s, uint32_t chunk, uint
 }
 
 std::vector<uint8_t> ContainerReader::read(uint32_t id) const {
-  const SectionInfo& s = section(id);
-  std::vector<uint8_t> out(size_t(s.size));
-  for (uint32_t c = 0; c < s.chunk_count; ++c)
-    read_chunk_into(s, c, out.data() + uint64_t(c) * s.chunk_bytes);
+  std::vector<uint8_t> out(size_t(section(id).size));
+  read_into(id, out.data(), out.size());
   return out;
+}
+
+void ContainerReader::read_into(uint32_t id, void* dst, uint64_t bytes) const {
+  const SectionInfo& s = section(id);
+  if (bytes != s.size)
+    throw Error("section " + fourcc_name(id) + " holds " + std::to_string(s.size) +
+                " bytes, not the " + std::to_string(bytes) + " asked for");
+  uint8_t* out = static_cast<uint8_t*>(dst);
+  for (uint32_t c = 0; c < s.chunk_count; ++c)
+    read_chunk_into(s, c, out + uint64_t(c) * s.chunk_bytes);
 }
 
 std::vector<uint8_t> ContainerReader::read_chunk(uint32_t id, uint32_t chunk) const {

@@ -56,6 +56,10 @@ FrameStats render_frame(Structure& structure, Integrator& integrator, const Fram
   for (int i = 0; i < tile_count; ++i) todo[size_t(i)] = i;
   // Per tile: did its rays push a request in the current pass?
   std::vector<uint8_t> asked(size_t(tile_count), 0);
+  // Counting: each tile's counters from the last pass that rendered it, so
+  // that the frame's total counts every final pixel once (a re-rendered
+  // tile replaces its earlier counts) while each pass keeps its own.
+  std::vector<RayCounters> tile_counters(options.counting ? size_t(tile_count) : 0);
 
   tbb::enumerable_thread_specific<std::unique_ptr<TraceContext>> contexts([&] {
     auto ctx = std::make_unique<TraceContext>();
@@ -86,7 +90,14 @@ FrameStats render_frame(Structure& structure, Integrator& integrator, const Fram
                                 std::min(view.height, (ty + 1) * ts)};
             const size_t before = ctx.requests.size();
             const uint64_t dropped_before = ctx.requests.dropped();
+            RayCounters outer;
+            if (options.counting) outer = ctx.counters, ctx.counters = RayCounters{};
             integrator.render_tile(structure, view, rect, ctx, *film);
+            if (options.counting) {
+              tile_counters[size_t(t)] = ctx.counters;
+              ctx.counters = outer;
+              ctx.counters += tile_counters[size_t(t)];
+            }
             asked[size_t(t)] =
                 ctx.requests.size() != before || ctx.requests.dropped() != dropped_before;
           }
@@ -94,6 +105,8 @@ FrameStats render_frame(Structure& structure, Integrator& integrator, const Fram
         tbb::simple_partitioner());
     ps.seconds = seconds_since(t0);
     stats.seconds += ps.seconds;
+    if (options.counting)
+      for (int t : todo) ps.counters += tile_counters[size_t(t)];
 
     merged.clear();
     for (auto& ctx : contexts) {
@@ -115,7 +128,7 @@ FrameStats render_frame(Structure& structure, Integrator& integrator, const Fram
         if (asked[size_t(t)]) next.push_back(t);
     todo.swap(next);
   }
-  for (auto& ctx : contexts) stats.counters += ctx->counters;
+  for (const RayCounters& c : tile_counters) stats.counters += c;
   integrator.end_frame(structure, view, *film);
   structure.end_frame();
   return stats;
