@@ -6,8 +6,8 @@
 #include <cstddef>
 #include <cstdint>
 #include <span>
-#include <vector>
 
+#include "volume_fuzz.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/gigavoxels.hpp"
 
@@ -15,11 +15,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   using namespace voxcast;
   try {
     const giga::ScalarVolume v = giga::parse_inrimage(std::span(data, size));
-    if (v.values.size() <= (size_t(1) << 18)) {  // small volumes: through the producer too
-      const auto producer = giga::make_volume_producer(v);
-      std::vector<giga::BrickVoxel> brick(giga::kBrickVoxels);
-      (void)producer->produce(giga::NodeRegion{}, brick);
-    }
+    fuzz_volume_through_producer(v);
   } catch (const Error&) {
   }
   return 0;

@@ -404,6 +404,19 @@ std::filesystem::path skull_path() {
                                "volumes/skull32.inr");
 }
 
+/// `parse` must throw voxcast::Error with one line starting with `prefix`.
+template <class Parse>
+void expect_one_line_error(Parse&& parse, const std::string& prefix, const std::string& what) {
+  try {
+    parse();
+    ADD_FAILURE() << what << ": accepted";
+  } catch (const Error& e) {
+    const std::string msg = e.what();
+    EXPECT_EQ(msg.find('\n'), std::string::npos) << what << ": " << msg;
+    EXPECT_EQ(msg.rfind(prefix, 0), 0u) << what << ": " << msg;
+  }
+}
+
 TEST(GigaInrimage, ShippedSkullLoadsAndRoundTrips) {
   const ScalarVolume v = read_inrimage(skull_path().string());
   EXPECT_EQ(v.nx, 32);
@@ -492,14 +505,7 @@ TEST(GigaInrimage, CorruptedAndTruncatedFilesAreRejected) {
   const auto good = read_bytes(skull_path());
   ASSERT_NO_THROW(parse_inrimage(good));
   auto expect_rejected = [](const std::vector<unsigned char>& bytes, const std::string& what) {
-    try {
-      parse_inrimage(bytes);
-      ADD_FAILURE() << what << ": accepted";
-    } catch (const Error& e) {
-      const std::string msg = e.what();
-      EXPECT_EQ(msg.find('\n'), std::string::npos) << what << ": " << msg;
-      EXPECT_EQ(msg.rfind("INRIMAGE: ", 0), 0u) << what << ": " << msg;
-    }
+    expect_one_line_error([&] { parse_inrimage(bytes); }, "INRIMAGE: ", what);
   };
   // Every truncation (a sample of lengths, all inside the header).
   for (size_t len = 0; len < good.size(); len += (len < 300 ? 1 : 997))
@@ -552,6 +558,240 @@ TEST(GigaInrimage, CorruptedAndTruncatedFilesAreRejected) {
   std::memcpy(&nan[256 + 4 * 100], &q, 4);
   expect_rejected(nan, "NaN sample");
   EXPECT_THROW(read_inrimage("/nonexistent/volume.inr"), Error);
+}
+
+// ---- Span sampling (the integrator's fast path) ----
+
+TEST(Giga, SpanSamplingEqualsPointSampling) {
+  // sample_span resolves a span's brick and its parent's once and samples
+  // them by affine maps of t; sample() locates every point by descending
+  // from the root. Both must give the same medium at the same points and
+  // levels, blended or not.
+  const auto p = make_procedural("cloud", 64);
+  GigaVoxels g(p, unlimited());
+  const FrameView v = view_of(40, 30);
+  render(g, v, 500);
+  const CameraRays cam = v.rays();
+  const LodFootprint lod = v.lod();
+  TraceContext ctx;
+  ctx.requests.reserve(1 << 16);
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> unit(0.f, 1.f);
+  int compared = 0, blended = 0;
+  double worst = 0;
+  for (int y = 0; y < 30; y += 3)
+    for (int x = 0; x < 40; x += 3) {
+      const Ray ray = cam.ray(x, y);
+      VolumeSpan spans[64];
+      const int n = g.march(ray, 0.f, lod, ctx, spans);
+      for (int i = 0; i < n; ++i) {
+        const VolumeSpan& s = spans[i];
+        if (s.constant) continue;
+        float t[8], level[8];
+        for (int k = 0; k < 8; ++k) {
+          t[k] = s.t0 + (s.t1 - s.t0) * unit(rng);
+          // Whole levels and blends between the span's level and its parent's.
+          level[k] = k == 0 ? float(s.level) : float(s.level) - (k == 1 ? 1.f : unit(rng));
+        }
+        VolumeSample got[8];
+        g.sample_span(ray, s, t, level, 8, ctx, got);
+        for (int k = 0; k < 8; ++k) {
+          const VolumeSample want = g.sample(ray.origin + ray.dir * t[k], level[k], ctx, nullptr);
+          const double err = std::fabs(double(got[k].density) - double(want.density));
+          worst = std::max(worst, err / std::max(1.0, double(want.density)));
+          if (want.density > 1e-3f) {
+            for (float c : {got[k].color.r - want.color.r, got[k].color.g - want.color.g,
+                            got[k].color.b - want.color.b})
+              EXPECT_NEAR(c, 0.f, 1e-3f);
+          }
+          ++compared, blended += level[k] != std::floor(level[k]);
+        }
+      }
+    }
+  EXPECT_GT(compared, 1000);
+  EXPECT_GT(blended, 500);
+  EXPECT_LT(worst, 1e-4) << "relative density error";
+}
+
+// ---- MetaImage files ----
+
+TEST(GigaMetaImage, LocalAndExternalDataLoad) {
+  // .mha: the shipped skull written as MetaImage reads back exactly.
+  const ScalarVolume skull = read_inrimage(skull_path().string());
+  const auto mha = write_metaimage(skull);
+  const ScalarVolume back = parse_metaimage(mha);
+  EXPECT_EQ(back.nx, 32);
+  EXPECT_EQ(back.values, skull.values);
+  EXPECT_EQ(back.vz, skull.vz);
+  // .mhd + .raw: big-endian 16-bit samples written here byte by byte,
+  // with a 3-byte HeaderSize prefix in the data file.
+  testing::TempDir dir;
+  const std::string header =
+      "ObjectType = Image\nNDims = 3\nDimSize = 3 2 2\nElementSpacing = 1 1 2.5\n"
+      "Offset = 0 0 0\nElementType = MET_SHORT\nBinaryDataByteOrderMSB = True\n"
+      "HeaderSize = 3\nElementDataFile = data.raw\n";
+  std::ofstream(dir.file("v.mhd"), std::ios::binary) << header;
+  std::string raw = "abc";
+  for (int i = 0; i < 12; ++i) {
+    const int16_t x = int16_t(i * 100 - 300);
+    raw += char(uint16_t(x) >> 8), raw += char(uint16_t(x) & 0xFF);
+  }
+  std::ofstream(dir.file("data.raw"), std::ios::binary) << raw;
+  const ScalarVolume v = read_metaimage(dir.file("v.mhd"));
+  ASSERT_EQ(v.values.size(), 12u);
+  for (int i = 0; i < 12; ++i) EXPECT_EQ(v.values[size_t(i)], float(i * 100 - 300));
+  EXPECT_EQ(v.nx, 3);
+  EXPECT_EQ(v.nz, 2);
+  EXPECT_EQ(v.vz, 2.5f);
+  EXPECT_EQ(read_volume_file(dir.file("v.mhd")).values, v.values);
+  EXPECT_THROW(read_volume_file(dir.file("data.raw")), Error);
+}
+
+TEST(GigaMetaImage, CorruptedAndTruncatedFilesAreRejected) {
+  ScalarVolume small;
+  small.nx = 4, small.ny = 3, small.nz = 2;
+  for (int i = 0; i < 24; ++i) small.values.push_back(float(i));
+  const auto good = write_metaimage(small);
+  ASSERT_EQ(parse_metaimage(good).values, small.values);
+  auto expect_rejected = [](const std::vector<unsigned char>& bytes, const std::string& what) {
+    expect_one_line_error([&] { parse_metaimage(bytes); }, "MetaImage: ", what);
+  };
+  for (size_t len = 0; len < good.size(); ++len)
+    expect_rejected({good.begin(), good.begin() + std::ptrdiff_t(len)},
+                    "truncated at " + std::to_string(len));
+  const std::string text(good.begin(), good.end());
+  auto edited = [&](const std::string& from, const std::string& to) {
+    std::string t = text;
+    const size_t at = t.find(from);
+    EXPECT_NE(at, std::string::npos) << from;
+    t.replace(at, from.size(), to);
+    return std::vector<unsigned char>(t.begin(), t.end());
+  };
+  for (auto [from, to] : std::vector<std::pair<std::string, std::string>>{
+           {"NDims = 3", "NDims = 2"},
+           {"DimSize = 4 3 2", "DimSize = 4 3"},
+           {"DimSize = 4 3 2", "DimSize = 4 3 0"},
+           {"DimSize = 4 3 2", "DimSize = 4 3 x"},
+           {"DimSize = 4 3 2", "DimSize = 4 3 3"},
+           {"DimSize = 4 3 2", "DimSize = 4 3 1"},
+           {"MET_FLOAT", "MET_HALF"},
+           {"MET_FLOAT", "MET_DOUBLE"},
+           {"ElementSpacing = 1 1 1", "ElementSpacing = 1 -1 1"},
+           {"ElementSpacing = 1 1 1", "ElementSpacing = 1 1"},
+           {"BinaryDataByteOrderMSB = False", "BinaryDataByteOrderMSB = Maybe"},
+           {"ObjectType = Image", "ObjectType = Mesh"},
+           {"ObjectType = Image", "ObjectType = Image\nCompressedData = True"},
+           {"ObjectType = Image", "ObjectType = Image\nElementNumberOfChannels = 3"},
+           {"ObjectType = Image", "ObjectType = Image\nHeaderSize = -7"},
+           {"ObjectType = Image", "ObjectType = Image\nNDims = 3"},
+           {"ObjectType = Image", "ObjectTpye = Image"},
+           {"ObjectType = Image", "no equals sign"},
+           {"ElementDataFile = LOCAL", "ElementDataFile = ../secret.raw"},
+           {"ElementDataFile = LOCAL", "ElementDataFile = other.raw"},
+           {"ElementDataFile = LOCAL", "ElementDataFil = LOCAL"}})
+    expect_rejected(edited(from, to), from + " -> " + to);
+  auto trailing = good;
+  trailing.push_back(0);
+  expect_rejected(trailing, "trailing byte");
+  auto nan = good;
+  const float q = NAN;
+  ASSERT_GT(nan.size(), 96u);
+  std::memcpy(nan.data() + (nan.size() - 8), &q, 4);
+  expect_rejected(nan, "NaN sample");
+  EXPECT_THROW(read_metaimage("/nonexistent/volume.mhd"), Error);
+}
+
+// ---- Effects (§3.9) ----
+
+double edge_energy(const Film& f) {
+  // Second differences between horizontal neighbours (red channel), over
+  // the image's brightness: detail, not brightness or smooth gradients.
+  double e = 0, sum = 0;
+  for (int y = 0; y < f.color.height; ++y)
+    for (int x = 1; x + 1 < f.color.width; ++x) {
+      const float c = f.color.at(x, y)[0];
+      e += std::fabs(f.color.at(x + 1, y)[0] - 2.f * c + f.color.at(x - 1, y)[0]);
+      sum += c;
+    }
+  return e / std::max(sum, 1e-9);
+}
+
+TEST(Giga, DepthOfFieldBlursOutOfFocusAndKeepsTheFocusPlane) {
+  // The shaded sponge has edges everywhere (its holes); the lens cone reads
+  // coarser levels away from the focus plane, which softens them.
+  const auto p = make_procedural("menger", 64);
+  const FrameView v = view_of(64, 48);
+  auto draw = [&](float aperture, float focus) {
+    GigaVoxels g(p, unlimited());
+    VolumeIntegratorOptions io;
+    io.shading = true;
+    io.dof_aperture = aperture, io.dof_focus = focus;
+    VolumeIntegrator integrator(io);
+    FrameOptions fo;
+    fo.max_passes = 500, fo.tile_size = 8;
+    Film film;
+    render_frame(g, integrator, v, fo, &film);
+    return film;
+  };
+  const Film pinhole = draw(0.f, 1.f);
+  const float distance = length(v.camera.eye - Vec3{0.5f, 0.5f, 0.5f});
+  const double sharp = edge_energy(pinhole);
+  // Focused in front of the sponge: all of it blurs.
+  const double front = edge_energy(draw(0.25f, 0.5f * distance));
+  EXPECT_LT(front, 0.6 * sharp);
+  // Focused on its center: only its front and back blur, it keeps more detail.
+  const double center = edge_energy(draw(0.25f, distance));
+  EXPECT_GT(center, 1.3 * front) << sharp;
+  // A lens too small to widen the cone beyond the pixel's renders the pinhole image.
+  const Film tiny = draw(1e-7f, distance);
+  double diff = 0;
+  for (size_t i = 0; i < tiny.color.pixels.size(); ++i)
+    diff = std::max(diff, double(std::fabs(tiny.color.pixels[i] - pinhole.color.pixels[i])));
+  EXPECT_LT(diff, 0.02);
+  EXPECT_THROW(VolumeIntegrator([] {
+                 VolumeIntegratorOptions o;
+                 o.dof_aperture = 0.1f, o.dof_focus = 0.f;
+                 return o;
+               }()),
+               Error);
+}
+
+TEST(Giga, SoftShadowsCostFewerSamplesThanHardOnes) {
+  // The light cone widens with the light's size, so a soft shadow reads
+  // coarser levels with longer steps: fewer brick samples per light cone
+  // than a hard one; both darken the image.
+  const auto p = make_procedural("cloud", 64);
+  const FrameView v = view_of(32, 24);
+  auto draw = [&](bool shadows, float radius, VolumeIntegratorStats* st) {
+    GigaVoxels g(p, unlimited());
+    VolumeIntegratorOptions io;
+    io.shadows = shadows, io.light_radius = radius;
+    VolumeIntegrator integrator(io);
+    FrameOptions fo;
+    fo.max_passes = 500, fo.tile_size = 8;
+    Film film;
+    // The second frame finds everything resident: its statistics count one pass.
+    render_frame(g, integrator, v, fo, &film);
+    FrameView again = v;
+    again.frame = 1;
+    render_frame(g, integrator, again, fo, &film);
+    *st = integrator.stats();
+    double sum = 0;
+    for (float c : film.color.pixels) sum += c;
+    return sum;
+  };
+  VolumeIntegratorStats none, hard, soft;
+  const double lit = draw(false, 0.f, &none);
+  const double hard_sum = draw(true, 0.f, &hard);
+  const double soft_sum = draw(true, 0.2f, &soft);
+  EXPECT_EQ(none.shadow_rays, 0u);
+  ASSERT_GT(hard.shadow_rays, 1000u);
+  EXPECT_EQ(soft.shadow_rays, hard.shadow_rays) << "one light cone per lit sample";
+  const double hard_per = double(hard.shadow_samples) / double(hard.shadow_rays);
+  const double soft_per = double(soft.shadow_samples) / double(soft.shadow_rays);
+  EXPECT_LT(soft_per, 0.7 * hard_per) << hard_per << " vs " << soft_per;
+  EXPECT_LT(hard_sum, 0.95 * lit);
+  EXPECT_LT(soft_sum, 0.95 * lit);
 }
 
 }  // namespace

@@ -120,5 +120,91 @@ TEST(GigaCli, ErrorsAreOneLineWithConventionalExitCodes) {
   EXPECT_NE(help.output.find("--passes"), std::string::npos);
 }
 
+TEST(GigaCli, VolumeInfoDescribesFilesMeshesAndProceduralSources) {
+  const CliResult file = run_cli("volume info " + skull());
+  ASSERT_EQ(file.exit_code, 0) << file.output;
+  EXPECT_NE(file.output.find("dimensions  32 x 32 x 32"), std::string::npos) << file.output;
+  EXPECT_NE(file.output.find("range"), std::string::npos);
+  EXPECT_NE(file.output.find("data        128.00 KiB"), std::string::npos) << file.output;
+  EXPECT_NE(file.output.find("octree      3 levels, finest 32^3"), std::string::npos)
+      << file.output;
+  const CliResult proc = run_cli("volume info procedural:cloud --resolution 8192");
+  ASSERT_EQ(proc.exit_code, 0) << proc.output;
+  EXPECT_NE(proc.output.find("11 levels, finest 8192^3"), std::string::npos) << proc.output;
+  const std::string mesh =
+      require_file(std::filesystem::path(VOXCAST_TEST_DATA_DIR) / "meshes/spot.obj").string();
+  const CliResult m = run_cli("volume info " + mesh + " --resolution 16");
+  ASSERT_EQ(m.exit_code, 0) << m.output;
+  EXPECT_NE(m.output.find("mesh, solid voxels = 1"), std::string::npos) << m.output;
+  EXPECT_NE(m.output.find("range       0 .. 1"), std::string::npos) << m.output;
+  EXPECT_EQ(run_cli_split("volume info " + mesh + " --resolution 12").exit_code, 2);
+}
+
+TEST(GigaCli, MetaImageAndMeshSourcesRender) {
+  TempDir dir;
+  // A 8^3 MetaImage with a bright cube in the middle, data in a .raw file.
+  std::ofstream(dir.file("c.mhd"))
+      << "ObjectType = Image\nNDims = 3\nDimSize = 8 8 8\nElementType = MET_UCHAR\n"
+         "ElementDataFile = c.raw\n";
+  std::string raw(512, '\0');
+  for (int z = 2; z < 6; ++z)
+    for (int y = 2; y < 6; ++y)
+      for (int x = 2; x < 6; ++x) raw[size_t((z * 8 + y) * 8 + x)] = char(200);
+  std::ofstream(dir.file("c.raw"), std::ios::binary) << raw;
+  const CliResult r =
+      run_cli("volume render " + dir.file("c.mhd") +
+              " --size 32x32 --transfer '0:0:1,1,1;1:50:1,1,1' -o " + dir.file("c.pfm"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_GT(mean(read_pfm(dir.file("c.pfm"))), 0.05);
+  const std::string mesh =
+      require_file(std::filesystem::path(VOXCAST_TEST_DATA_DIR) / "meshes/spot.obj").string();
+  const CliResult m = run_cli(
+      "volume render " + mesh +
+      " --resolution 32 --size 32x32 --transfer '0:0:1,1,1;1:80:1,1,1' -o " + dir.file("m.pfm"));
+  ASSERT_EQ(m.exit_code, 0) << m.output;
+  EXPECT_GT(mean(read_pfm(dir.file("m.pfm"))), 0.05);
+  // A truncated raw file: exit 1, one line.
+  std::ofstream(dir.file("c.raw"), std::ios::binary) << raw.substr(0, 100);
+  const CliResult bad =
+      run_cli_split("volume render " + dir.file("c.mhd") + " -o " + dir.file("x.png"));
+  EXPECT_EQ(bad.exit_code, 1);
+  EXPECT_EQ(lines(bad.errors), 1) << bad.errors;
+  EXPECT_NE(bad.errors.find("truncated"), std::string::npos) << bad.errors;
+}
+
+TEST(GigaCli, EffectsAndCameraPathFrames) {
+  TempDir dir;
+  const std::string base = "volume render procedural:menger --resolution 32 --size 32x24 ";
+  for (const char* fx : {"--dof 0.05,1.5", "--soft-shadows", "--shadows --shading"}) {
+    const CliResult r = run_cli(base + fx + " -o " + dir.file("fx.pfm"));
+    ASSERT_EQ(r.exit_code, 0) << fx << "\n" << r.output;
+    EXPECT_GT(mean(read_pfm(dir.file("fx.pfm"))), 0.02) << fx;
+  }
+  std::ofstream(dir.file("path.json"))
+      << "{\"voxcast_camera_path\": 1, \"keyframes\": ["
+         "{\"time\": 0, \"eye\": [0.5, 0.5, 2.2], \"target\": [0.5, 0.5, 0.5]},"
+         "{\"time\": 1, \"eye\": [2.2, 0.5, 0.5], \"target\": [0.5, 0.5, 0.5]}]}";
+  const CliResult p =
+      run_cli(base + "--frames 4 --path " + dir.file("path.json") + " -o " + dir.file("p.pfm"));
+  ASSERT_EQ(p.exit_code, 0) << p.output;
+  EXPECT_NE(p.output.find("3 frames after the first"), std::string::npos) << p.output;
+  EXPECT_NE(p.output.find("passes"), std::string::npos) << p.output;
+  // The last frame looks from the last keyframe: the image of that camera.
+  ASSERT_EQ(
+      run_cli(base + "--camera 2.2,0.5,0.5,0.5,0.5,0.5,0,1,0,40 -o " + dir.file("k.pfm")).exit_code,
+      0);
+  EXPECT_EQ(read_pfm(dir.file("p.pfm")).pixels, read_pfm(dir.file("k.pfm")).pixels);
+  const std::string out = " -o " + dir.file("x.png");
+  for (const std::string& args :
+       {base + "--dof 0.1" + out, base + "--dof -1,2" + out, base + "--dof a,b" + out,
+        base + "--shadows --soft-shadows" + out, base + "--light 0,0,0" + out,
+        base + "--path " + dir.file("path.json") + out,
+        base + "--frames 3 --path " + dir.file("path.json") + " --orbit 10,10" + out}) {
+    const CliResult r = run_cli_split(args);
+    EXPECT_EQ(r.exit_code, 2) << args << "\n" << r.errors;
+    EXPECT_EQ(lines(r.errors), 1) << args << "\n" << r.errors;
+  }
+}
+
 }  // namespace
 }  // namespace voxcast::testing

@@ -290,6 +290,48 @@ TEST(VolumeIntegrator, BlinnPhongFromDensityGradient) {
   EXPECT_EQ(lit.transmittance, flat.transmittance);  // shading changes color only
 }
 
+TEST(VolumeIntegrator, ShadowsMatchClosedFormTransmittance) {
+  // A 4^3 grid: an emitting layer (y = 0, sigma 0.5, white) under an empty
+  // layer and two absorbing black layers (y = 2, 3, sigma 0.8). A ray along
+  // x through the emitting layer sees it lit through the absorbers: the
+  // light's transmittance from any of its points straight up is
+  // exp(-0.8 x 2) (and what lies of the emitting layer above the light
+  // cone's start), so every cell's color is ambient + (1 - ambient) T and
+  // the composited color that times 1 - e^(-0.5 x 4).
+  DenseVolume v(4, 4, 4);
+  for (int z = 0; z < 4; ++z)
+    for (int x = 0; x < 4; ++x) {
+      v.at(x, 0, z) = {0.5, {1, 1, 1}};
+      v.at(x, 2, z) = v.at(x, 3, z) = {0.8, {0, 0, 0}};
+    }
+  VolumeIntegratorOptions o = no_cutoff();
+  o.shadows = true;
+  o.light_dir = {0, 1, 0};
+  const double emitted = 1 - std::exp(-2.0);
+  const Ray ray{{-1.f, 0.5f, 0.5f}, {1.f, 0.f, 0.f}, INFINITY};
+  TraceContext ctx;
+  for (bool brick : {false, true}) {
+    // Constant spans integrate the light exactly; brick steps of a quarter
+    // cell fall on the cell faces along the light ray here. The light cone
+    // starts one voxel above the sample (no self-shadowing at the sample):
+    // a whole cell for constant spans (y = 1.5, above the emitting layer), a
+    // quarter cell for the brick (y = 0.75: the emitting layer's last
+    // quarter, sigma 0.5, shadows too).
+    const DenseGrid grid(v, brick, 0.25f);
+    const double depth = 1.6 + (brick ? 0.25 * 0.5 : 0.0);
+    const double lit = o.ambient + (1 - o.ambient) * std::exp(-depth);
+    const VolumeIntegrator integrator(o);
+    VolumeIntegratorStats st;
+    const VolumeRayResult r = integrator.integrate(grid, ray, {}, ctx, &st);
+    EXPECT_NEAR(r.color.r, lit * emitted, 1e-4) << (brick ? "brick" : "constant");
+    EXPECT_NEAR(r.transmittance, std::exp(-2.0), 1e-5);
+    EXPECT_GT(st.shadow_rays, 0u);
+    VolumeIntegratorOptions no = o;
+    no.shadows = false;
+    EXPECT_NEAR(VolumeIntegrator(no).integrate(grid, ray, {}, ctx).color.r, emitted, 1e-4);
+  }
+}
+
 TEST(VolumeIntegrator, RenderFrameWritesColorAlphaDepth) {
   const DenseVolume v = random_volume(51);
   DenseGrid grid(v, false);

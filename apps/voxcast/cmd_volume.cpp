@@ -1,19 +1,25 @@
 // voxcast volume render SOURCE -o IMAGE: GigaVoxels volume rendering
 // (gigavoxels.hpp) of a volume file or a procedural volume, through the
 // frame loop with the volume integrator.
+#include <algorithm>
+#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <memory>
+#include <optional>
 #include <string>
 
 #include "camera_options.hpp"
 #include "cli_io.hpp"
 #include "commands.hpp"
+#include "view/camera_path.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/gigavoxels.hpp"
 #include "voxcast/image.hpp"
 #include "voxcast/integrator.hpp"
+#include "voxcast/mesh.hpp"
+#include "voxcast/progress.hpp"
 #include "voxcast/volume_integrator.hpp"
 
 namespace voxcast::cli {
@@ -25,12 +31,44 @@ constexpr const char* kDefaultTransfer = "0.2:0:0.8,0.5,0.3;0.35:30:0.95,0.8,0.6
 
 struct VolumeArgs {
   std::string source, output, depth, size = "640x480", budget = "256M", passes = "exact";
-  std::string transfer, background;
+  std::string transfer, background, dof, light, path;
   CameraArgs camera;
   int resolution = 256, frames = 1, threads = 0;
-  float lod = 1.f, step = 0.5f;
-  bool shading = false, verbose = false;
+  float lod = 1.f, step = 0.5f, light_radius = 0.05f;
+  bool shading = false, verbose = false, shadows = false, soft_shadows = false;
+  std::string info_source;
+  int info_resolution = 256;
 };
+
+bool is_volume_file(const std::string& path) {
+  std::string lower = path;
+  for (char& c : lower) c = char(std::tolower(static_cast<unsigned char>(c)));
+  for (const char* ext : {".inr", ".inr.gz", ".mhd", ".mha"})
+    if (lower.ends_with(ext)) return true;
+  return false;
+}
+
+/// A volume file as it is, any other file as a mesh voxelized solid at
+/// `resolution` voxels per axis (density 1 inside).
+giga::ScalarVolume read_source_volume(const std::string& source, int resolution) {
+  if (is_volume_file(source)) return giga::read_volume_file(source);
+  if (resolution < 1 || resolution > 1024 || (resolution & (resolution - 1)) != 0)
+    throw UsageError("--resolution must be a power of two in 1..1024 for a mesh source");
+  return giga::solid_volume(load_mesh(source), resolution);
+}
+
+/// The producer of a SOURCE: procedural:NAME, a volume file or a mesh.
+std::shared_ptr<giga::Producer> make_source(const std::string& source, int resolution) {
+  if (source.rfind("procedural:", 0) == 0) {
+    try {
+      return giga::make_procedural(source.substr(11), resolution);
+    } catch (const Error& e) {
+      throw UsageError(e.what());
+    }
+  }
+  require_regular_input(source, "volume");
+  return giga::make_volume_producer(read_source_volume(source, resolution));
+}
 
 void print_pass_stats(uint32_t frame, const FrameStats& fs, const giga::GigaVoxels& g) {
   const auto& gs = g.pass_stats();
@@ -59,6 +97,34 @@ void print_pass_stats(uint32_t frame, const FrameStats& fs, const giga::GigaVoxe
   }
 }
 
+int volume_info(const std::string& source, int resolution) {
+  std::shared_ptr<giga::Producer> producer;
+  if (source.rfind("procedural:", 0) == 0) {
+    producer = make_source(source, resolution);
+    std::printf("source      %s (procedural)\n", printable(source).c_str());
+  } else {
+    require_regular_input(source, "volume");
+    const giga::ScalarVolume v = read_source_volume(source, resolution);
+    const auto [lo, hi] = std::minmax_element(v.values.begin(), v.values.end());
+    std::printf("source      %s (%s)\n", printable(source).c_str(),
+                is_volume_file(source) ? "volume file" : "mesh, solid voxels = 1");
+    std::printf("dimensions  %d x %d x %d voxels of %g x %g x %g\n", v.nx, v.ny, v.nz, v.vx, v.vy,
+                v.vz);
+    std::printf("range       %g .. %g (mapped to densities 0 .. 1)\n", double(*lo), double(*hi));
+    std::printf("data        %s as floats\n", format_bytes(double(v.values.size()) * 4).c_str());
+    producer = giga::make_volume_producer(v);
+  }
+  const int n = giga::kBrickSide << producer->max_level();
+  // The octree the producer fills: every level's voxels and what a dense
+  // copy of the finest level would take (16 bytes per voxel, BrickVoxel).
+  const double dense = double(n) * n * n * double(sizeof(giga::BrickVoxel));
+  std::printf("octree      %d levels, finest %d^3 voxels (bricks of %d^3 + border)\n",
+              producer->max_level() + 1, n, giga::kBrickSide);
+  std::printf("dense size  %s at the finest level (the pools hold what rays ask for)\n",
+              format_bytes(dense).c_str());
+  return 0;
+}
+
 }  // namespace
 
 Runner add_volume(CLI::App& app) {
@@ -67,8 +133,10 @@ Runner add_volume(CLI::App& app) {
       app.add_subcommand("volume", "GigaVoxels volumes (see 'voxcast volume render --help')");
   vol->require_subcommand(1);
   CLI::App* cmd = vol->add_subcommand("render", "Render a volume file or a procedural volume");
-  cmd->add_option("SOURCE", args->source,
-                  "An INRIMAGE-4 volume (.inr) or procedural:cloud|mandelbulb|menger")
+  cmd->add_option(
+         "SOURCE", args->source,
+         "A volume file (.inr, .inr.gz, .mhd, .mha), a mesh (voxelized solid at --resolution) or "
+         "procedural:cloud|mandelbulb|menger")
       ->required();
   cmd->add_option("-o,--output", args->output, "Output image (.png or .pfm)")->required();
   cmd->add_option("--depth", args->depth,
@@ -96,9 +164,33 @@ Runner add_volume(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--step", args->step, "Brick sampling step in voxels")->capture_default_str();
   cmd->add_flag("--shading", args->shading, "Blinn-Phong with density-gradient normals");
+  cmd->add_flag("--shadows", args->shadows, "Hard shadows: a light cone as wide as the pixel cone");
+  cmd->add_flag("--soft-shadows", args->soft_shadows,
+                "Soft shadows: light cones widening by the light's size (--light-radius)");
+  cmd->add_option("--light-radius", args->light_radius,
+                  "With --soft-shadows: tangent of the light's angular radius")
+      ->capture_default_str();
+  cmd->add_option("--light", args->light,
+                  "Direction towards the light x,y,z (default 0.4,0.8,0.45)");
+  cmd->add_option("--dof", args->dof,
+                  "Depth of field: APERTURE,FOCUS (lens diameter and focus distance, world units)");
+  cmd->add_option("--path", args->path,
+                  "With --frames K: camera path (JSON, README 'Camera path JSON'); frame k looks "
+                  "from the path at time start + k (end - start) / (K - 1)");
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)");
   cmd->add_flag("-v,--verbose", args->verbose, "Per-pass statistics on stderr");
-  return [args, cmd]() {
+  CLI::App* info =
+      vol->add_subcommand("info", "Describe a volume source: dimensions, value range, bytes");
+  info->add_option(
+          "SOURCE", args->info_source,
+          "A volume file (.inr, .inr.gz, .mhd, .mha), a mesh (voxelized solid at --resolution) or "
+          "procedural:cloud|mandelbulb|menger")
+      ->required();
+  info->add_option("--resolution", args->info_resolution,
+                   "Procedural sources: voxels per axis at the finest level")
+      ->capture_default_str();
+  return [args, cmd, info]() {
+    if (info->parsed()) return volume_info(args->info_source, args->info_resolution);
     if (!cmd->parsed()) return 2;
     ThreadLimit limit(args->threads);
     // Every option first (usage errors, exit 2), then the source.
@@ -125,6 +217,32 @@ Runner add_volume(CLI::App& app) {
       const Vec3 b = parse_vec3(args->background, "--background");
       io.background = {b.x, b.y, b.z, 1.f};
     }
+    io.shadows = args->shadows || args->soft_shadows;
+    if (args->shadows && args->soft_shadows)
+      throw UsageError("--shadows and --soft-shadows exclude each other");
+    require_range("--light-radius", args->light_radius, 0, 1);
+    io.light_radius = args->soft_shadows ? args->light_radius : 0.f;
+    if (!args->light.empty()) {
+      io.light_dir = parse_vec3(args->light, "--light");
+      if (!(length(io.light_dir) > 0.f)) throw UsageError("--light must not be zero");
+    }
+    if (!args->dof.empty()) {
+      const size_t comma = args->dof.find(',');
+      char* end = nullptr;
+      const std::string a = args->dof.substr(0, comma),
+                        f = comma == std::string::npos ? "" : args->dof.substr(comma + 1);
+      io.dof_aperture = std::strtof(a.c_str(), &end);
+      bool ok = !a.empty() && *end == 0;
+      io.dof_focus = std::strtof(f.c_str(), &end);
+      ok = ok && !f.empty() && *end == 0;
+      if (!ok || !std::isfinite(io.dof_aperture) || !(io.dof_aperture > 0.f) ||
+          !std::isfinite(io.dof_focus) || !(io.dof_focus > 0.f))
+        throw UsageError("--dof must be APERTURE,FOCUS with two positive numbers");
+    }
+    if (!args->path.empty()) {
+      refuse_camera_options_with_path(args->camera, args->path);
+      if (args->frames < 2) throw UsageError("--path needs --frames K with K >= 2");
+    }
     const bool procedural = args->source.rfind("procedural:", 0) == 0;
     try {
       if (!args->transfer.empty())
@@ -148,17 +266,12 @@ Runner add_volume(CLI::App& app) {
     outputs.add("-o", args->output, {".png", ".pfm"});
     if (!args->depth.empty()) outputs.add("--depth", args->depth, {".pfm"});
 
-    std::shared_ptr<giga::Producer> producer;
-    if (procedural) {
-      try {
-        producer = giga::make_procedural(args->source.substr(11), args->resolution);
-      } catch (const Error& e) {
-        throw UsageError(e.what());
-      }
-    } else {
-      require_regular_input(args->source, "volume");
-      producer = giga::make_volume_producer(giga::read_inrimage(args->source));
+    std::optional<view::CameraPath> path;
+    if (!args->path.empty()) {
+      require_regular_input(args->path, "camera path");
+      path = view::CameraPath::load(args->path);
     }
+    const std::shared_ptr<giga::Producer> producer = make_source(args->source, args->resolution);
     giga::GigaVoxels volume(producer, go);
     const Aabb bounds = volume.bounds();
     bool derived = false;
@@ -168,13 +281,26 @@ Runner add_volume(CLI::App& app) {
     Film film;
     double later_seconds = 0;
     uint64_t later_rays = 0;
+    // Per-pass statistics of the frames after the first (the warm ones).
+    uint64_t later_passes = 0, later_requests = 0, later_uploads = 0, later_hits = 0;
+    Progress progress("frames", uint64_t(args->frames));
     for (int f = 0; f < args->frames; ++f) {
       view.frame = uint32_t(f);
+      if (path)
+        view.camera = path->at(path->start() + (path->end() - path->start()) * double(f) /
+                                                   double(args->frames - 1));
       const auto t0 = std::chrono::steady_clock::now();
       const FrameStats fs = render_frame(volume, integrator, view, fo, &film);
       const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
       if (args->verbose) print_pass_stats(uint32_t(f), fs, volume);
-      if (f > 0) later_seconds += s, later_rays += integrator.stats().rays;
+      if (f > 0) {
+        later_seconds += s, later_rays += integrator.stats().rays;
+        later_passes += fs.passes.size();
+        for (const giga::GigaPassStats& g : volume.pass_stats())
+          later_requests += g.data_requests + g.subdivide_requests,
+              later_uploads += g.bricks_uploaded + g.constants, later_hits += g.bricks_used;
+      }
+      progress.advance();
       if (f + 1 == args->frames && fo.max_passes > 1 && !fs.passes.empty() &&
           fs.passes.back().requests != 0)
         std::fprintf(stderr,
@@ -182,6 +308,7 @@ Runner add_volume(CLI::App& app) {
                      "too small for the view or --passes too low): the image shows coarser data\n",
                      (unsigned long long)fs.passes.back().requests);
     }
+    progress.finish();
     outputs.write(args->output,
                   [&](const std::filesystem::path& to) { write_image(to, film.color); });
     if (!args->depth.empty())
@@ -195,10 +322,15 @@ Runner add_volume(CLI::App& app) {
                 producer->max_level(), format_bytes(double(volume.pool_bytes())).c_str(),
                 volume.brick_capacity(), volume.tile_capacity(),
                 covered / double(film.alpha.pixels.size()));
-    if (args->frames > 1)
-      std::printf("%d frames after the first: %.2f frames/s, %.2f Mrays/s\n", args->frames - 1,
-                  double(args->frames - 1) / later_seconds,
-                  double(later_rays) / later_seconds * 1e-6);
+    if (args->frames > 1) {
+      const double k = double(args->frames - 1);
+      std::printf(
+          "%d frames after the first: %.2f frames/s, %.2f Mrays/s; per frame %.2f passes, "
+          "%.0f requests, %.0f uploads, %.0f bricks used\n",
+          args->frames - 1, k / later_seconds, double(later_rays) / later_seconds * 1e-6,
+          double(later_passes) / k, double(later_requests) / k, double(later_uploads) / k,
+          double(later_hits) / k);
+    }
     return 0;
   };
 }

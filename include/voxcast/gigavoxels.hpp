@@ -28,6 +28,7 @@
 // tell this pass's use from older use by (frame, pass).
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <span>
 #include <string>
@@ -36,6 +37,10 @@
 #include "voxcast/bitfield.hpp"
 #include "voxcast/structure.hpp"
 #include "voxcast/volume_query.hpp"
+
+namespace voxcast {
+struct Mesh;
+}
 
 namespace voxcast::giga {
 
@@ -166,6 +171,30 @@ ScalarVolume read_inrimage(const std::string& path);
 std::vector<unsigned char> gunzip(std::span<const unsigned char> bytes);
 /// Writes `v` as an INRIMAGE-4 float file (tests and tools).
 std::vector<unsigned char> write_inrimage(const ScalarVolume& v);
+/// MetaImage (ITK): a text header of "Key = Value" lines (ObjectType Image,
+/// NDims 3, DimSize, ElementSpacing, ElementType MET_UCHAR | MET_CHAR |
+/// MET_USHORT | MET_SHORT | MET_UINT | MET_INT | MET_FLOAT | MET_DOUBLE,
+/// ElementNumberOfChannels 1, BinaryDataByteOrderMSB / ElementByteOrderMSB,
+/// HeaderSize, CompressedData False) ended by ElementDataFile: LOCAL (the
+/// samples follow in the same file, .mha) or the name of a raw file next to
+/// the header (.mhd + .raw), read through `read_data_file`. Placement keys
+/// (Offset, TransformMatrix, ...) are ignored, unknown keys refused; the data
+/// size must match exactly. Throws voxcast::Error with a one-line message.
+ScalarVolume parse_metaimage(
+    std::span<const unsigned char> bytes,
+    const std::function<std::vector<unsigned char>(const std::string&)>& read_data_file = {});
+/// parse_metaimage of a .mhd / .mha file (a data file is looked up next to it).
+ScalarVolume read_metaimage(const std::string& path);
+/// Writes `v` as a MetaImage .mha (float samples after the header).
+std::vector<unsigned char> write_metaimage(const ScalarVolume& v);
+/// A scalar volume file by its extension: .inr / .inr.gz (INRIMAGE-4) or
+/// .mhd / .mha (MetaImage); throws voxcast::Error for another extension.
+ScalarVolume read_volume_file(const std::string& path);
+/// A mesh voxelized by the pipeline (conservative surface voxels plus the
+/// interior, fill_solid) on the grid GridTransform::fit gives it at
+/// `resolution` (a power of two, 1..1024): 1 in every solid voxel, 0
+/// elsewhere; voxel sizes the grid's. Throws voxcast::Error.
+ScalarVolume solid_volume(const Mesh& mesh, int resolution);
 /// A producer over a scalar volume: the data centered in the unit cube
 /// (longest side = 1, voxel sizes honoured), values mapped linearly from
 /// [min, max] of the data to densities [0, 1] (a scalar for the volume
@@ -211,6 +240,11 @@ class GigaVoxels : public Structure, public VolumeQuery {
             std::span<VolumeSpan> out) const override;
   VolumeSample sample(Vec3 p, float level, TraceContext& ctx,
                       const VolumeSpan* span = nullptr) const override;
+  /// sample() of every point of a brick span with the span's brick and its
+  /// parent's resolved once: per point two SIMD trilinear lookups at most,
+  /// no descent, no allocation (the hot loop of the volume integrator).
+  void sample_span(const Ray& ray, const VolumeSpan& span, const float* t, const float* level,
+                   int n, TraceContext& ctx, VolumeSample* out) const override;
 
   /// Pool capacities.
   uint32_t tile_capacity() const { return uint32_t(tile_parent_.size()); }
@@ -247,7 +281,8 @@ class GigaVoxels : public Structure, public VolumeQuery {
 
  private:
   NodeRegion region_of(uint32_t node) const;
-  float voxel_world(int level) const;
+  /// World side of a voxel at `level` (a table: the descent asks at every step).
+  float voxel_world(int level) const { return voxel_world_[level]; }
   VolumeSample node_value(uint32_t node, int level, const uint32_t cell[3], Vec3 q,
                           TraceContext& ctx) const;
   void touch_tile(uint32_t tile, uint32_t s) const;
@@ -256,6 +291,7 @@ class GigaVoxels : public Structure, public VolumeQuery {
   std::shared_ptr<const Producer> producer_;
   GigaOptions options_;
   float inv_size_;
+  float voxel_world_[kMaxLevel + 1];
   // Node pool (§3.4): structure and data words, per-tile bookkeeping.
   std::vector<uint32_t> child_, data_;
   mutable std::vector<uint32_t> tile_stamp_;

@@ -73,14 +73,30 @@ struct VolumeIntegratorOptions {
   bool shading = false;
   Vec3 light_dir{0.4f, 0.8f, 0.45f};  // towards the light (normalized on use)
   float ambient = 0.3f, diffuse = 0.7f, specular = 0.25f, shininess = 24.f;
+  /// Shadows (gigavoxels §3.9): every lit sample (and constant span) asks
+  /// the medium's transmittance towards light_dir along a light cone that
+  /// starts as wide as the pixel cone there and widens by 2 light_radius per
+  /// unit length (light_radius: tangent of the light's angular radius; 0 =
+  /// hard shadows); its steps are shadow_step_scale x the cone's voxel. The
+  /// light reaching a sample is ambient + (1 - ambient) x transmittance.
+  bool shadows = false;
+  float light_radius = 0.f;
+  float shadow_step_scale = 1.f;
+  /// Depth of field (gigavoxels §3.9): a lens of diameter dof_aperture
+  /// (world units; 0 = pinhole) focused at distance dof_focus widens each
+  /// ray's cone by dof_aperture |t - dof_focus| / dof_focus, so the LOD reads
+  /// coarser (blurred) levels away from the focus plane.
+  float dof_aperture = 0.f, dof_focus = 1.f;
 };
 
 /// Per-frame totals (summed over threads).
 struct VolumeIntegratorStats {
   uint64_t rays = 0;
   uint64_t spans = 0;
-  uint64_t samples = 0;             // sample() calls for brick steps (without gradients)
+  uint64_t samples = 0;             // brick steps composited (without gradients, shadows)
   uint64_t early_terminations = 0;  // rays stopped by opacity_cutoff
+  uint64_t shadow_rays = 0;         // light cones traced (shadows)
+  uint64_t shadow_samples = 0;      // brick steps of the light cones
 };
 
 /// One ray's result (what a pixel receives).
@@ -110,6 +126,9 @@ class VolumeIntegrator final : public Integrator {
 
  private:
   VolumeSample classify(VolumeSample s) const;
+  /// Transmittance from p towards the light along the light cone.
+  float light_transmittance(const VolumeQuery& query, Vec3 p, float foot, TraceContext& ctx,
+                            uint64_t* samples) const;
   VolumeIntegratorOptions options_;
   Vec3 light_;
   struct Totals;

@@ -54,6 +54,16 @@ class VolumeQuery {
   /// `span` (may be null): the span `p` lies in, as a lookup hint.
   virtual VolumeSample sample(Vec3 p, float level, TraceContext& ctx,
                               const VolumeSpan* span = nullptr) const = 0;
+
+  /// The samples of a brick span in one call: out[k] = sample(ray.origin +
+  /// ray.dir * t[k], level[k], ctx, &span) for k < n, every t[k] inside
+  /// [span.t0, span.t1]. A structure resolves the span's node (and its
+  /// parent, for the blend) once instead of at every sample; the default
+  /// calls sample() per point. Never allocates.
+  virtual void sample_span(const Ray& ray, const VolumeSpan& span, const float* t,
+                           const float* level, int n, TraceContext& ctx, VolumeSample* out) const {
+    for (int k = 0; k < n; ++k) out[k] = sample(ray.origin + ray.dir * t[k], level[k], ctx, &span);
+  }
 };
 
 }  // namespace voxcast

@@ -10,6 +10,7 @@
 #include <map>
 #include <string_view>
 
+#include "volume_samples.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/gigavoxels.hpp"
 
@@ -40,17 +41,6 @@ float parse_positive(std::string_view key, std::string_view v) {
   if (ec != std::errc() || end != v.data() + v.size() || !std::isfinite(x) || !(x > 0.f))
     fail(std::string(key) + "='" + std::string(v) + "' must be a positive number");
   return x;
-}
-
-template <class T>
-T load(const unsigned char* p, bool big) {
-  using U = std::conditional_t<
-      sizeof(T) == 1, uint8_t,
-      std::conditional_t<sizeof(T) == 2, uint16_t,
-                         std::conditional_t<sizeof(T) == 4, uint32_t, uint64_t>>>;
-  U u = 0;
-  for (size_t i = 0; i < sizeof(T); ++i) u |= U(U(p[big ? sizeof(T) - 1 - i : i]) << (8 * i));
-  return std::bit_cast<T>(u);
 }
 
 }  // namespace
@@ -134,22 +124,13 @@ ScalarVolume parse_inrimage(std::span<const unsigned char> bytes) {
     fail(std::to_string(have - want) + " bytes after the announced " + std::to_string(want) +
          " bytes of data");
 
-  v.values.resize(size_t(count));
-  const unsigned char* p = bytes.data() + header;
+  using detail::SampleType;
   const bool is_signed = type == "signed fixed";
-  for (size_t i = 0; i < size_t(count); ++i, p += width) {
-    float x;
-    if (is_float)
-      x = bits == 32 ? load<float>(p, big) : float(load<double>(p, big));
-    else if (bits == 8)
-      x = is_signed ? float(load<int8_t>(p, big)) : float(load<uint8_t>(p, big));
-    else if (bits == 16)
-      x = is_signed ? float(load<int16_t>(p, big)) : float(load<uint16_t>(p, big));
-    else
-      x = is_signed ? float(load<int32_t>(p, big)) : float(load<uint32_t>(p, big));
-    if (!std::isfinite(x)) fail("sample " + std::to_string(i) + " is not a finite number");
-    v.values[i] = x;
-  }
+  const SampleType st = is_float     ? (bits == 32 ? SampleType::F32 : SampleType::F64)
+                        : bits == 8  ? (is_signed ? SampleType::I8 : SampleType::U8)
+                        : bits == 16 ? (is_signed ? SampleType::I16 : SampleType::U16)
+                                     : (is_signed ? SampleType::I32 : SampleType::U32);
+  detail::decode_samples(bytes.data() + header, size_t(count), st, big, "INRIMAGE", &v.values);
   return v;
 }
 

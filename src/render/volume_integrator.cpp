@@ -81,7 +81,7 @@ TransferFunction TransferFunction::parse(const std::string& text) {
 // ---- Integrator ----
 
 struct VolumeIntegrator::Totals {
-  std::atomic<uint64_t> rays{0}, spans{0}, samples{0}, early{0};
+  std::atomic<uint64_t> rays{0}, spans{0}, samples{0}, early{0}, shadow_rays{0}, shadow_samples{0};
 };
 
 VolumeIntegrator::VolumeIntegrator(VolumeIntegratorOptions options)
@@ -93,7 +93,15 @@ VolumeIntegrator::VolumeIntegrator(VolumeIntegratorOptions options)
   if (!(options_.depth_opacity > 0.f && options_.depth_opacity <= 1.f))
     throw Error("volume integrator: depth_opacity must be in (0, 1]");
   light_ = normalize(options_.light_dir);
-  if (options_.shading && length(light_) == 0.f)
+  if (!(options_.dof_aperture >= 0.f) || !std::isfinite(options_.dof_aperture) ||
+      (options_.dof_aperture > 0.f &&
+       !(options_.dof_focus > 0.f && std::isfinite(options_.dof_focus))))
+    throw Error("volume integrator: the lens aperture must be >= 0 and the focus distance > 0");
+  if (!(options_.light_radius >= 0.f && options_.light_radius <= 1.f))
+    throw Error("volume integrator: light_radius must be in [0, 1]");
+  if (!(options_.shadow_step_scale > 0.f) || !std::isfinite(options_.shadow_step_scale))
+    throw Error("volume integrator: shadow_step_scale must be a positive number");
+  if ((options_.shading || options_.shadows) && length(light_) == 0.f)
     throw Error("volume integrator: light_dir must not be zero");
 }
 
@@ -101,11 +109,12 @@ void VolumeIntegrator::begin_frame(const Structure& structure, const FrameView&,
   if (structure.volume() == nullptr)
     throw Error("volume render: structure '" + structure.name() + "' has no volume query");
   totals_->rays = 0, totals_->spans = 0, totals_->samples = 0, totals_->early = 0;
+  totals_->shadow_rays = 0, totals_->shadow_samples = 0;
 }
 
 VolumeIntegratorStats VolumeIntegrator::stats() const {
-  return {totals_->rays.load(), totals_->spans.load(), totals_->samples.load(),
-          totals_->early.load()};
+  return {totals_->rays.load(),  totals_->spans.load(),       totals_->samples.load(),
+          totals_->early.load(), totals_->shadow_rays.load(), totals_->shadow_samples.load()};
 }
 
 VolumeSample VolumeIntegrator::classify(VolumeSample s) const {
@@ -141,15 +150,97 @@ struct Accumulator {
 
 }  // namespace
 
+namespace {
+
+/// Walks one brick span of `ray` in steps, calling take(a, b, t, level,
+/// sample) for each step [a, b] with its midpoint t until take returns false
+/// (returns false then). Steps are step_scale x the larger of the span's
+/// voxel and the cone at its entry (the LOD's own resolution: where the cone
+/// is wider than the voxel, samples blend toward the parent's coarser brick,
+/// which needs no denser steps). Samples come in chunks through
+/// VolumeQuery::sample_span (the span's bricks resolved once per chunk);
+/// nothing is allocated.
+template <class Take>
+bool walk_brick(const VolumeQuery& query, const Ray& ray, const LodFootprint& lod,
+                const VolumeSpan& s, float step_scale, TraceContext& ctx, Take&& take) {
+  const float foot0 = lod.size_at_origin + lod.size_per_t * s.t0;
+  const float dt = step_scale * std::max(s.voxel_size, foot0);
+  const float steps = std::ceil((s.t1 - s.t0) / dt);
+  // The cone's level L + log2(v / f(t)), clamped to [L - 1, L]: log2 of the
+  // footprint (linear in t) is interpolated between the span's ends, where
+  // it is exact (a span is one node: f changes by a small fraction across
+  // it, and the interpolation stays continuous from span to span).
+  const float foot1 = lod.size_at_origin + lod.size_per_t * s.t1;
+  const float L = float(s.level), lo = std::max(0.f, L - 1.f);
+  const bool cone = foot0 > 0.f && foot1 > 0.f;
+  const float lv0 = cone ? L + std::log2(s.voxel_size / foot0) : L;
+  const float lv1 = cone ? L + std::log2(s.voxel_size / foot1) : L;
+  const float slope = s.t1 > s.t0 ? (lv1 - lv0) / (s.t1 - s.t0) : 0.f;
+  constexpr int kChunk = 16;
+  float tk[kChunk], lk[kChunk];
+  VolumeSample vk[kChunk];
+  for (float k0 = 0.f; k0 < steps; k0 += float(kChunk)) {
+    const int m = int(std::min(float(kChunk), steps - k0));
+    for (int j = 0; j < m; ++j) {
+      const float a = s.t0 + (k0 + float(j)) * dt, b = std::min(s.t1, a + dt);
+      tk[j] = 0.5f * (a + b);
+      lk[j] = std::clamp(lv0 + slope * (tk[j] - s.t0), lo, L);
+    }
+    query.sample_span(ray, s, tk, lk, m, ctx, vk);
+    for (int j = 0; j < m; ++j) {
+      const float a = s.t0 + (k0 + float(j)) * dt, b = std::min(s.t1, a + dt);
+      if (!take(a, b, tk[j], lk[j], vk[j])) return false;
+    }
+  }
+  return true;
+}
+
+}  // namespace
+
+float VolumeIntegrator::light_transmittance(const VolumeQuery& query, Vec3 p, float foot,
+                                            TraceContext& ctx, uint64_t* samples) const {
+  const VolumeIntegratorOptions& o = options_;
+  // The light cone: as wide as the primary ray's footprint where it starts,
+  // widening by the light's angular size (0: a hard shadow at the
+  // footprint's resolution). A wider cone reads coarser levels and takes
+  // longer steps: soft shadows cost less than hard ones.
+  const Ray ray{p, light_, INFINITY};
+  const LodFootprint lod{foot, 2.f * o.light_radius};
+  const float stop = 1.f - o.opacity_cutoff;
+  // Start one footprint away, so that the sample does not shadow itself.
+  float T = 1.f, t_begin = foot;
+  std::array<VolumeSpan, 16> spans;
+  for (;;) {
+    const int n = query.march(ray, t_begin, lod, ctx, spans);
+    for (int i = 0; i < n; ++i) {
+      const VolumeSpan& s = spans[size_t(i)];
+      if (s.constant) {
+        T *= std::exp(-classify(s.value).density * (s.t1 - s.t0));
+      } else {
+        walk_brick(query, ray, lod, s, o.shadow_step_scale, ctx,
+                   [&](float a, float b, float, float, const VolumeSample& v) {
+                     ++*samples;
+                     T *= std::exp(-classify(v).density * (b - a));
+                     return T > stop;
+                   });
+      }
+      if (!(T > stop)) return 0.f;
+    }
+    if (n < int(spans.size())) return T;
+    const float next = spans[size_t(n) - 1].t1;
+    if (!(next > t_begin)) return T;
+    t_begin = next;
+  }
+}
+
 VolumeRayResult VolumeIntegrator::integrate(const VolumeQuery& query, const Ray& ray,
                                             const LodFootprint& lod, TraceContext& ctx,
                                             VolumeIntegratorStats* stats) const {
   const VolumeIntegratorOptions& o = options_;
   Accumulator acc;
   std::array<VolumeSpan, 16> spans;
-  float t_begin = 0.f;
   bool done = false;
-  uint64_t span_count = 0, sample_count = 0;
+  uint64_t span_count = 0, sample_count = 0, shadow_count = 0, shadow_samples = 0;
   const Vec3 view = -ray.dir;
   const Vec3 half = normalize(light_ + view);
 
@@ -167,48 +258,88 @@ VolumeRayResult VolumeIntegrator::integrate(const VolumeQuery& query, const Ray&
     const float spec = diff > 0.f ? std::pow(std::max(0.f, dot(n, half)), o.shininess) : 0.f;
     return o.ambient + o.diffuse * diff + o.specular * spec;
   };
+  // The light's transmittance at a sample (one light cone).
+  auto light_T = [&](const Ray& r, float t, float foot) {
+    ++shadow_count;
+    return light_transmittance(query, r.origin + r.dir * t, foot, ctx, &shadow_samples);
+  };
 
-  while (!done) {
-    const int n = query.march(ray, t_begin, lod, ctx, spans);
-    for (int i = 0; i < n && !done; ++i) {
-      const VolumeSpan& s = spans[size_t(i)];
-      ++span_count;
-      if (s.constant) {
-        const VolumeSample v = classify(s.value);
-        acc.add(s.t0, s.t1 - s.t0, v.density, v.color, o.depth_opacity);
-      } else {
-        const float dt = o.step_scale * s.voxel_size;
-        const float steps = std::ceil((s.t1 - s.t0) / dt);
-        for (float k = 0.f; k < steps; ++k) {
-          const float a = s.t0 + k * dt, b = std::min(s.t1, a + dt);
-          const float m = 0.5f * (a + b);
-          const Vec3 p = ray.origin + ray.dir * m;
-          float level = float(s.level);
-          const float foot = lod.size_at_origin + lod.size_per_t * m;
-          if (foot > 0.f)
-            level = std::clamp(level + std::log2(s.voxel_size / foot), std::max(0.f, level - 1.f),
-                               level);
-          VolumeSample v = classify(query.sample(p, level, ctx, &s));
-          ++sample_count;
-          if (o.shading && v.density > 0.f) {
-            const float f = lighting(p, level, s.voxel_size, s);
+  // Depth of field (gigavoxels §3.9): the lens cone adds
+  // aperture |t - focus| / focus to the pixel cone, which is linear in t on
+  // each side of the focus plane: the ray is marched in two segments, each
+  // with its own linear footprint, through the same mip-mapped traversal.
+  struct Segment {
+    Ray ray;
+    LodFootprint lod;
+    float t_begin;
+  };
+  Segment segments[2];
+  int segment_count = 1;
+  segments[0] = {ray, lod, 0.f};
+  if (o.dof_aperture > 0.f) {
+    const float A = o.dof_aperture, F = o.dof_focus;
+    segments[0].lod = {lod.size_at_origin + A, lod.size_per_t - A / F};
+    segments[0].ray.tmax = std::min(ray.tmax, F);
+    if (ray.tmax > F)
+      segments[1] = {ray, {lod.size_at_origin - A, lod.size_per_t + A / F}, F}, segment_count = 2;
+  }
+
+  for (int g = 0; g < segment_count && !done; ++g) {
+    const Ray& sray = segments[g].ray;
+    const LodFootprint& slod = segments[g].lod;
+    float t_begin = segments[g].t_begin;
+    while (!done) {
+      const int n = query.march(sray, t_begin, slod, ctx, spans);
+      for (int i = 0; i < n && !done; ++i) {
+        const VolumeSpan& s = spans[size_t(i)];
+        ++span_count;
+        if (s.constant) {
+          VolumeSample v = classify(s.value);
+          if (o.shadows && v.density > 0.f) {
+            const float m = 0.5f * (s.t0 + s.t1);
+            const float T =
+                light_T(sray, m, std::max(s.voxel_size, slod.size_at_origin + slod.size_per_t * m));
+            const float f = o.ambient + (1.f - o.ambient) * T;
             v.color.r *= f, v.color.g *= f, v.color.b *= f;
           }
-          acc.add(a, b - a, v.density, v.color, o.depth_opacity);
-          if (1.f - acc.T >= o.opacity_cutoff) break;
+          acc.add(s.t0, s.t1 - s.t0, v.density, v.color, o.depth_opacity);
+        } else {
+          walk_brick(query, sray, slod, s, o.step_scale, ctx,
+                     [&](float a, float b, float t, float level, const VolumeSample& raw) {
+                       VolumeSample v = classify(raw);
+                       ++sample_count;
+                       if (v.density > 0.f && (o.shading || o.shadows)) {
+                         float f = 1.f;
+                         if (o.shading)
+                           f = lighting(sray.origin + sray.dir * t, level, s.voxel_size, s);
+                         if (o.shadows) {
+                           // Shadows dim the direct light; the ambient term stays.
+                           const float T = light_T(
+                               sray, t,
+                               std::max(s.voxel_size, slod.size_at_origin + slod.size_per_t * t));
+                           f = o.ambient + ((o.shading ? f : 1.f) - o.ambient) * T;
+                         }
+                         v.color.r *= f, v.color.g *= f, v.color.b *= f;
+                       }
+                       acc.add(a, b - a, v.density, v.color, o.depth_opacity);
+                       return 1.f - acc.T < o.opacity_cutoff;
+                     });
+        }
+        if (1.f - acc.T >= o.opacity_cutoff) {
+          done = true;
+          if (stats) ++stats->early_terminations;
         }
       }
-      if (1.f - acc.T >= o.opacity_cutoff) {
-        done = true;
-        if (stats) ++stats->early_terminations;
-      }
+      if (done || n < int(spans.size())) break;
+      const float next = spans[size_t(n) - 1].t1;
+      if (!(next > t_begin)) break;  // a query that does not advance would loop forever
+      t_begin = next;
     }
-    if (done || n < int(spans.size())) break;
-    const float next = spans[size_t(n) - 1].t1;
-    if (!(next > t_begin)) break;  // a query that does not advance would loop forever
-    t_begin = next;
   }
-  if (stats) ++stats->rays, stats->spans += span_count, stats->samples += sample_count;
+  if (stats) {
+    ++stats->rays, stats->spans += span_count, stats->samples += sample_count;
+    stats->shadow_rays += shadow_count, stats->shadow_samples += shadow_samples;
+  }
 
   VolumeRayResult r;
   r.transmittance = acc.T;
@@ -241,6 +372,7 @@ void VolumeIntegrator::render_tile(const Structure& structure, const FrameView& 
     }
   totals_->rays += local.rays, totals_->spans += local.spans;
   totals_->samples += local.samples, totals_->early += local.early_terminations;
+  totals_->shadow_rays += local.shadow_rays, totals_->shadow_samples += local.shadow_samples;
 }
 
 }  // namespace voxcast
