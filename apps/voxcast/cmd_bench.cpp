@@ -174,64 +174,27 @@ Timed trace_depth(const S& s, const RenderOptions& ro, Image* depth) {
 // beam > 0: the coarse pass (esvo §6.2) per beam x beam block first, inside
 // the timed loop; each ray starts at its block's region, rays of empty
 // blocks are not traced.
-// shade: also each hit's attributes and surface_phong (the shading of
-// render() without effects), written to *color: the packet caster in the
-// "trace + the same shading" comparison (attributes are still looked up hit
-// by hit).
+// (The shaded packet rows are render() itself, which traces the same way.)
 template <class S>
-Timed trace_depth_packets(const S& s, const RenderOptions& ro, int beam, Image* depth,
-                          bool shade = false, Image* color = nullptr) {
-  if (shade) *color = Image(ro.width, ro.height, 3);
-  const Vec3 to_light = normalize(-ro.light_dir);
+Timed trace_depth_packets(const S& s, const RenderOptions& ro, int beam, Image* depth) {
   return depth_frame(
       ro, depth, [&](const detail::Tile& tile, const CameraRays& cam, const LodFootprint& lod) {
-        thread_local std::vector<uint32_t> order;
-        thread_local std::vector<Ray> rays;
-        thread_local std::vector<SurfaceHit> out;
-        thread_local std::vector<uint8_t> found;
-        thread_local std::vector<BeamStart> starts;
-        thread_local std::vector<const BeamStart*> beams;
-        order.clear();
-        block_order(tile.x0, tile.y0, tile.x1 - tile.x0, tile.y1 - tile.y0, &order);
-        rays.resize(order.size());
-        out.resize(order.size());
-        found.resize(order.size());
-        for (size_t i = 0; i < order.size(); ++i)
-          rays[i] = cam.ray(int(order[i] & 0xFFFF), int(order[i] >> 16));
+        thread_local detail::PacketTile pt;
+        pt.generate(cam, tile.x0, tile.y0, tile.x1, tile.y1);
         TraceContext ctx;
-        if (beam > 0) {
-          const int bw = (tile.x1 - tile.x0 + beam - 1) / beam;
-          const int bh = (tile.y1 - tile.y0 + beam - 1) / beam;
-          starts.resize(size_t(bw * bh));
-          for (int by = 0; by < bh; ++by)
-            for (int bx = 0; bx < bw; ++bx) {
-              const int x0 = tile.x0 + bx * beam, y0 = tile.y0 + by * beam;
-              s.beam_start(detail::block_beam(cam, x0, y0, std::min(x0 + beam, tile.x1),
-                                              std::min(y0 + beam, tile.y1), lod),
-                           ctx, &starts[size_t(by * bw + bx)]);
-            }
-          beams.resize(order.size());
-          for (size_t i = 0; i < order.size(); ++i) {
-            const int bx = (int(order[i] & 0xFFFF) - tile.x0) / beam;
-            const int by = (int(order[i] >> 16) - tile.y0) / beam;
-            beams[i] = &starts[size_t(by * bw + bx)];
-          }
-        }
-        trace_packets(s, rays.data(), rays.size(), lod, out.data(), found.data(), active_isa(),
-                      beam > 0 ? beams.data() : nullptr);
+        if (beam > 0)
+          pt.coarse_pass(
+              tile.x0, tile.y0, tile.x1, tile.y1, beam, [&](int x0, int y0, BeamStart* start) {
+                s.beam_start(detail::block_beam(cam, x0, y0, std::min(x0 + beam, tile.x1),
+                                                std::min(y0 + beam, tile.y1), lod),
+                             ctx, start);
+              });
+        trace_packets(s, pt.rays.data(), pt.rays.size(), lod, pt.hits.data(), pt.found.data(),
+                      active_isa(), pt.beam_list());
         uint64_t h = 0;
-        for (size_t i = 0; i < order.size(); ++i) {
-          const int x = int(order[i] & 0xFFFF), y = int(order[i] >> 16);
-          h += found[i];
-          *depth->at(x, y) = found[i] ? out[i].t : INFINITY;
-          if (shade && found[i]) {
-            Color c;
-            Vec3 n;
-            s.attributes(out[i], ctx, &c, &n);
-            const Color sh = surface_phong(c, n, rays[i].dir, to_light);
-            float* o = color->at(x, y);
-            o[0] = sh.r, o[1] = sh.g, o[2] = sh.b;
-          }
+        for (size_t i = 0; i < pt.rays.size(); ++i) {
+          h += pt.found[i];
+          *depth->at(pt.x(i), pt.y(i)) = pt.found[i] ? pt.hits[i].t : INFINITY;
         }
         return h;
       });
@@ -284,9 +247,12 @@ class RayRecorder final : public Occluder {
 
 // Stage ticks of the instrumented single-threaded voxel pass: what render()
 // does per pixel (ray generation, trace, attributes, shading without
-// effects), with timestamp reads between the stages.
+// effects), with timestamp reads between the stages. packets: render()'s
+// packet path, per 16x16 tile the rays generated in 4x4 block order and
+// traced by one trace_packets call (ray generation and traversal read per
+// tile), then the hits' attributes and shading.
 template <class S>
-EmbreeScene::StageTicks profile_voxels(const S& s, const RenderOptions& ro) {
+EmbreeScene::StageTicks profile_voxels(const S& s, const RenderOptions& ro, bool packets) {
   const CameraRays cam(ro.camera, ro.width, ro.height);
   const LodFootprint lod = pixel_lod(cam, ro.lod_pixels);
   const Vec3 to_light = normalize(-ro.light_dir);
@@ -297,28 +263,48 @@ EmbreeScene::StageTicks profile_voxels(const S& s, const RenderOptions& ro) {
   EmbreeScene::StageTicks st;
   Image color(ro.width, ro.height, 3);
   TraceContext ctx;
-  for (int y = 0; y < ro.height; ++y)
-    for (int x = 0; x < ro.width; ++x) {
-      const uint64_t t0 = detail::ticks();
-      const Ray ray = cam.ray(x, y);
-      const uint64_t t1 = detail::ticks();
-      SurfaceHit hit;
-      const bool found = s.trace(ray, lod, ctx, &hit);
-      const uint64_t t2 = detail::ticks();
-      st.ray_generation += since(t0, t1);
-      st.traversal += since(t1, t2);
-      if (!found) continue;
-      Color c;
-      Vec3 n;
-      s.attributes(hit, ctx, &c, &n);
-      const uint64_t t3 = detail::ticks();
-      const Color sh = surface_phong(c, n, ray.dir, to_light);
-      float* o = color.at(x, y);
-      o[0] = sh.r, o[1] = sh.g, o[2] = sh.b;
-      const uint64_t t4 = detail::ticks();
-      st.attributes += since(t2, t3);
-      st.shading += since(t3, t4);
-    }
+  // Attributes and shading of one hit, from t0 = the tick after its trace.
+  auto shade = [&](const SurfaceHit& hit, Vec3 dir, int x, int y, uint64_t t0) {
+    Color c;
+    Vec3 n;
+    s.attributes(hit, ctx, &c, &n);
+    const uint64_t t1 = detail::ticks();
+    const Color sh = surface_phong(c, n, dir, to_light);
+    float* o = color.at(x, y);
+    o[0] = sh.r, o[1] = sh.g, o[2] = sh.b;
+    const uint64_t t2 = detail::ticks();
+    st.attributes += since(t0, t1);
+    st.shading += since(t1, t2);
+  };
+  if (packets) {
+    const int T = 16;
+    detail::PacketTile pt;
+    for (int ty = 0; ty < ro.height; ty += T)
+      for (int tx = 0; tx < ro.width; tx += T) {
+        const uint64_t t0 = detail::ticks();
+        pt.generate(cam, tx, ty, std::min(tx + T, ro.width), std::min(ty + T, ro.height));
+        const uint64_t t1 = detail::ticks();
+        trace_packets(s, pt.rays.data(), pt.rays.size(), lod, pt.hits.data(), pt.found.data());
+        const uint64_t t2 = detail::ticks();
+        st.ray_generation += since(t0, t1);
+        st.traversal += since(t1, t2);
+        for (size_t i = 0; i < pt.rays.size(); ++i)
+          if (pt.found[i]) shade(pt.hits[i], pt.rays[i].dir, pt.x(i), pt.y(i), detail::ticks());
+      }
+  } else {
+    for (int y = 0; y < ro.height; ++y)
+      for (int x = 0; x < ro.width; ++x) {
+        const uint64_t t0 = detail::ticks();
+        const Ray ray = cam.ray(x, y);
+        const uint64_t t1 = detail::ticks();
+        SurfaceHit hit;
+        const bool found = s.trace(ray, lod, ctx, &hit);
+        const uint64_t t2 = detail::ticks();
+        st.ray_generation += since(t0, t1);
+        st.traversal += since(t1, t2);
+        if (found) shade(hit, ray.dir, x, y, t2);
+      }
+  }
   st.rays = uint64_t(ro.width) * uint64_t(ro.height);
   return st;
 }
@@ -584,13 +570,17 @@ Runner add_bench(CLI::App& app) {
                                return trace_depth_packets(structure, rl, 0, &depth);
                              },
                              {}});
+          // render() as it runs by default: primary rays as 4x4 pixel blocks
+          // through the packet caster, then attributes and shading.
           primary.push_back({caster + " packet",
-                             "trace_packets + attributes + Phong (no effects)",
+                             std::string("render(), packet primary rays ") +
+                                 isa_name(active_isa()) + ": attributes + Phong",
                              lod,
                              true,
                              [&structure, rl] {
-                               Image depth, color;
-                               return trace_depth_packets(structure, rl, 0, &depth, true, &color);
+                               RenderOptions rp = rl;
+                               rp.caster = Caster::Packet;
+                               return timed(render(structure, rp));
                              },
                              {}});
           if (args->beam)
@@ -605,14 +595,16 @@ Runner add_bench(CLI::App& app) {
                                  return trace_depth_packets(structure, rl, k, &depth);
                                },
                                {}});
+          RenderOptions rs = rl;
+          rs.caster = Caster::Scalar;
           primary.push_back(
               {caster,
-               "render(): attributes + Phong",
+               "render(), scalar primary rays: attributes + Phong",
                lod,
                true,
-               [&, rl, keep = static_cast<const void*>(&structure) == &voxels && lod == args->lod] {
-                 if (!keep) return timed(render(structure, rl));
-                 vox_result = render(structure, rl);
+               [&, rs, keep = static_cast<const void*>(&structure) == &voxels && lod == args->lod] {
+                 if (!keep) return timed(render(structure, rs));
+                 vox_result = render(structure, rs);
                  return timed(vox_result);
                },
                {}});
@@ -731,7 +723,8 @@ Runner add_bench(CLI::App& app) {
           if (r.caster == caster && r.shaded == shaded && (r.lod < 0 || r.lod == lod)) return &r.t;
         return nullptr;
       };
-      const double m_vox = find("voxcast esvo", true, args->lod)->mrays();
+      // render() as it runs by default (packet primary rays).
+      const double m_vox = find("voxcast esvo packet", true, args->lod)->mrays();
       std::printf("voxcast     %8.2f Mrays/s\n", m_vox);
       double best_voxcast = m_vox;
       if (const Timed* t = find("voxcast esvo+beam", true, args->lod)) {
@@ -805,11 +798,18 @@ Runner add_bench(CLI::App& app) {
         for (float lod : lods) {
           RenderOptions rl = ro;
           rl.lod_pixels = lod;
-          prof.push_back(
-              {"voxcast esvo", lod, least_disturbed([&] { return profile_voxels(voxels, rl); })});
-          if (dag_voxels)
-            prof.push_back({"voxcast dag", lod,
-                            least_disturbed([&] { return profile_voxels(*dag_voxels, rl); })});
+          prof.push_back({"voxcast esvo", lod,
+                          least_disturbed([&] { return profile_voxels(voxels, rl, false); })});
+          prof.push_back({"esvo packet", lod,
+                          least_disturbed([&] { return profile_voxels(voxels, rl, true); })});
+          if (dag_voxels) {
+            prof.push_back({"voxcast dag", lod, least_disturbed([&] {
+                              return profile_voxels(*dag_voxels, rl, false);
+                            })});
+            prof.push_back({"dag packet", lod, least_disturbed([&] {
+                              return profile_voxels(*dag_voxels, rl, true);
+                            })});
+          }
         }
         std::printf(
             "cycles per ray (TSC ticks at %.2f GHz, 1 thread, instrumented pass; per primary ray,\n"

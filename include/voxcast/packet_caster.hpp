@@ -27,11 +27,6 @@ namespace dag {
 class DagStructure;
 }
 
-/// Which caster traces a frame's rays (`voxcast bench --caster`).
-enum class Caster { Scalar, Packet };
-/// "scalar" or "packet".
-const char* caster_name(Caster c);
-
 /// Rays per packet of `isa`'s kernel.
 inline int packet_width(Isa isa) {
   return isa == Isa::Avx512 ? 16 : 8;

@@ -6,9 +6,11 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <vector>
 
 #include "render/beam.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/packet_caster.hpp"
 #include "voxcast/render.hpp"
 
 namespace voxcast {
@@ -33,6 +35,10 @@ void SurfaceIntegrator::begin_frame(const Structure& structure, const FrameView&
   query_ = structure.surface();
   if (query_ == nullptr)
     throw Error("render: the " + structure.name() + " structure has no surface query");
+  packets_ = options_.caster == Caster::Packet ? query_->packets() : nullptr;
+  isa_ = options_.isa ? *options_.isa : active_isa();
+  if (packets_ != nullptr && !cpu_supports(isa_))
+    throw Error(std::string("render: this CPU does not support ") + isa_name(isa_));
   cam_.emplace(view.camera, view.width, view.height);
   // Pixel cone (esvo §6.1 ray_size_coef/bias): a voxel may stand for the
   // surface once it projects to <= lod_pixels pixels; 0 keeps the finest
@@ -79,64 +85,72 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
   Vec3 batch_dir[kBatch];
   int batch_x[kBatch], batch_y[kBatch];
   int batch_n = 0;
-  auto shade_batch = [&] {
-    for (int b = 0; b < batch_n; ++b) {
-      const SurfaceHit& hit = batch_hit[b];
-      const int x = batch_x[b], y = batch_y[b];
-      float* out = film.color.at(x, y);
-      Color c;
-      Vec3 n;
-      q.attributes(hit, ctx, &c, &n);  // counts its bytes while collecting
-      const Vec3 dir = batch_dir[b];
-      // Voxel normals are averages over the surface inside the voxel and may
-      // face away from the viewer; shade the side we see.
-      if (dot(n, dir) > 0.f) n = -n;
-      Vec3 light = to_light;
-      float visibility = 1.f, ao = 1.f;
-      if (fx.light != LightKind::Directional) {
-        float dist;
-        light = direction_to_light(fx, options_.light_dir, hit.position, &dist);
-      }
-      if (effects) {
-        // The Table 6 counters describe primary rays; secondary rays are
-        // counted by EffectCounters.
-        const bool counting = ctx.counting;
-        ctx.counting = false;
-        const ShadingPoint sp{hit.position, n, dir, hit.voxel_size};
-        const uint32_t seed = pixel_seed(x, y, fx.seed);
-        if (fx.shadows != ShadowMode::None)
-          *film.shadow.at(x, y) = visibility =
-              shadow_visibility(occluder, ctx, sp, fx, options_.light_dir, seed, &ts.effects);
-        if (fx.ao_rays > 0)
-          *film.ao.at(x, y) = ao =
-              ambient_occlusion(occluder, ctx, sp, fx, fx.ao_radius, seed, &ts.effects);
-        ctx.counting = counting;
-      }
-      const float diffuse = std::fmax(0.f, dot(n, light)) * visibility;
-      const Vec3 half_vec = normalize(light - dir);   // Blinn: light + view
-      float spec = std::fmax(0.f, dot(n, half_vec));  // ^32 by squaring (no powf call)
-      spec *= spec, spec *= spec, spec *= spec, spec *= spec, spec *= spec;
-      spec *= visibility;
-      const float k = 0.18f * ao + 0.82f * diffuse;
-      out[0] = c.r * k + 0.12f * spec;
-      out[1] = c.g * k + 0.12f * spec;
-      out[2] = c.b * k + 0.12f * spec;
-      if (want_depth) *film.depth.at(x, y) = hit.t;
-      if (!film.filter_radius.empty()) {
-        // esvo §6.3: the voxel side over the pixel footprint at distance t,
-        // log2 in 3.5 fixed point (the paper's alpha channel); t ~ 0 (eye in
-        // the voxel, perspective) gives +inf or a huge size -> the largest
-        // code. Misses keep 0 = radius 1 = no blur.
-        const float footprint = pixel_size + hit.t * pixel_angle;
-        film.filter_radius[size_t(y) * W + x] =
-            footprint > 0.f ? encode_filter_radius(hit.voxel_size / footprint) : uint8_t(255);
-      }
-      if (want_normal) {
-        float* o = film.normal.at(x, y);
-        o[0] = n.x * 0.5f + 0.5f, o[1] = n.y * 0.5f + 0.5f, o[2] = n.z * 0.5f + 0.5f;
-      }
+  // One hit pixel: attributes, effects, Blinn-Phong, AOVs.
+  auto shade = [&](const SurfaceHit& hit, int x, int y, Vec3 dir) {
+    float* out = film.color.at(x, y);
+    Color c;
+    Vec3 n;
+    q.attributes(hit, ctx, &c, &n);  // counts its bytes while collecting
+    // Voxel normals are averages over the surface inside the voxel and may
+    // face away from the viewer; shade the side we see.
+    if (dot(n, dir) > 0.f) n = -n;
+    Vec3 light = to_light;
+    float visibility = 1.f, ao = 1.f;
+    if (fx.light != LightKind::Directional) {
+      float dist;
+      light = direction_to_light(fx, options_.light_dir, hit.position, &dist);
     }
+    if (effects) {
+      // The Table 6 counters describe primary rays; secondary rays are
+      // counted by EffectCounters.
+      const bool counting = ctx.counting;
+      ctx.counting = false;
+      const ShadingPoint sp{hit.position, n, dir, hit.voxel_size};
+      const uint32_t seed = pixel_seed(x, y, fx.seed);
+      if (fx.shadows != ShadowMode::None)
+        *film.shadow.at(x, y) = visibility =
+            shadow_visibility(occluder, ctx, sp, fx, options_.light_dir, seed, &ts.effects);
+      if (fx.ao_rays > 0)
+        *film.ao.at(x, y) = ao =
+            ambient_occlusion(occluder, ctx, sp, fx, fx.ao_radius, seed, &ts.effects);
+      ctx.counting = counting;
+    }
+    const float diffuse = std::fmax(0.f, dot(n, light)) * visibility;
+    const Vec3 half_vec = normalize(light - dir);   // Blinn: light + view
+    float spec = std::fmax(0.f, dot(n, half_vec));  // ^32 by squaring (no powf call)
+    spec *= spec, spec *= spec, spec *= spec, spec *= spec, spec *= spec;
+    spec *= visibility;
+    const float k = 0.18f * ao + 0.82f * diffuse;
+    out[0] = c.r * k + 0.12f * spec;
+    out[1] = c.g * k + 0.12f * spec;
+    out[2] = c.b * k + 0.12f * spec;
+    if (want_depth) *film.depth.at(x, y) = hit.t;
+    if (!film.filter_radius.empty()) {
+      // esvo §6.3: the voxel side over the pixel footprint at distance t,
+      // log2 in 3.5 fixed point (the paper's alpha channel); t ~ 0 (eye in
+      // the voxel, perspective) gives +inf or a huge size -> the largest
+      // code. Misses keep 0 = radius 1 = no blur.
+      const float footprint = pixel_size + hit.t * pixel_angle;
+      film.filter_radius[size_t(y) * W + x] =
+          footprint > 0.f ? encode_filter_radius(hit.voxel_size / footprint) : uint8_t(255);
+    }
+    if (want_normal) {
+      float* o = film.normal.at(x, y);
+      o[0] = n.x * 0.5f + 0.5f, o[1] = n.y * 0.5f + 0.5f, o[2] = n.z * 0.5f + 0.5f;
+    }
+  };
+  auto shade_batch = [&] {
+    for (int b = 0; b < batch_n; ++b) shade(batch_hit[b], batch_x[b], batch_y[b], batch_dir[b]);
     batch_n = 0;
+  };
+  auto miss = [&](int x, int y) {
+    float* out = film.color.at(x, y);
+    out[0] = bg.r, out[1] = bg.g, out[2] = bg.b;
+    if (want_depth) *film.depth.at(x, y) = INFINITY;
+    if (want_normal) {
+      float* n = film.normal.at(x, y);
+      n[0] = n[1] = n[2] = 0.5f;
+    }
   };
   // One pixel; `beam` = the coarse-pass result of its block (or null).
   auto trace_pixel = [&](int x, int y, const BeamStart* beam) {
@@ -152,37 +166,57 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
       if (++batch_n == kBatch) shade_batch();
       return;
     }
-    float* out = film.color.at(x, y);
-    out[0] = bg.r, out[1] = bg.g, out[2] = bg.b;
-    if (want_depth) *film.depth.at(x, y) = INFINITY;
-    if (want_normal) {
-      float* n = film.normal.at(x, y);
-      n[0] = n[1] = n[2] = 0.5f;
+    miss(x, y);
+  };
+  // The coarse pass (§6.2) of the K x K block at (bx, by), clipped to the
+  // tile; it runs inside the timed loop and ignores contours (§6.2: whole
+  // cubes contain their contour-clipped shape; core/beam_frustum.hpp).
+  auto coarse_pass = [&](int bx, int by, BeamStart* start) {
+    const int bx1 = std::min(bx + beam_k, tile.x1), by1 = std::min(by + beam_k, tile.y1);
+    const BeamFrustum frustum = detail::block_beam(cam, bx, by, bx1, by1, lod);
+    if (collect) {
+      // The coarse pass's work is kept apart from the rays' (Table 6).
+      const RayCounters rays = ctx.counters;
+      ctx.counters = RayCounters{};
+      q.beam_start(frustum, ctx, start);
+      ts.coarse_counters += ctx.counters;
+      ctx.counters = rays;
+      ++ts.beams;
+    } else {
+      q.beam_start(frustum, ctx, start);
     }
   };
-  if (beam_k == 0) {
+  // Packets need a frame that does not count: the kernels have no counters
+  // (and the iteration AOV is per ray).
+  if (packets_ != nullptr && !ctx.counting) {
+    // The tile's rays in 4x4 pixel blocks (block_order), traced as one call:
+    // the packet caster fills its lanes from this queue in order, so a packet
+    // starts as a coherent block. Buffers per thread, grown once.
+    thread_local detail::PacketTile pt;
+    pt.generate(cam, tile.x0, tile.y0, tile.x1, tile.y1);
+    if (beam_k != 0) pt.coarse_pass(tile.x0, tile.y0, tile.x1, tile.y1, beam_k, coarse_pass);
+    const size_t n = pt.order.size();
+    packets_->trace_packets(pt.rays.data(), n, lod, ctx, pt.hits.data(), pt.found.data(), isa_,
+                            pt.beam_list());
+    for (size_t i = 0; i < n; ++i) {
+      if (pt.found[i]) {
+        ++ts.hits;
+        shade(pt.hits[i], pt.x(i), pt.y(i), pt.rays[i].dir);
+      } else {
+        miss(pt.x(i), pt.y(i));
+      }
+    }
+  } else if (beam_k == 0) {
     for (int y = tile.y0; y < tile.y1; ++y)
       for (int x = tile.x0; x < tile.x1; ++x) trace_pixel(x, y, nullptr);
   } else {
     // §6.2: per K x K block (clipped to the tile), a coarse pass computes a
-    // conservative start region shared by the block's rays. It runs inside
-    // the timed loop and ignores contours (§6.2: whole cubes contain their
-    // contour-clipped shape; core/beam_frustum.hpp).
+    // conservative start region shared by the block's rays.
     for (int by = tile.y0; by < tile.y1; by += beam_k) {
       for (int bx = tile.x0; bx < tile.x1; bx += beam_k) {
         const int bx1 = std::min(bx + beam_k, tile.x1), by1 = std::min(by + beam_k, tile.y1);
         BeamStart start;
-        if (collect) {
-          // The coarse pass's work is kept apart from the rays' (Table 6).
-          const RayCounters rays = ctx.counters;
-          ctx.counters = RayCounters{};
-          q.beam_start(detail::block_beam(cam, bx, by, bx1, by1, lod), ctx, &start);
-          ts.coarse_counters += ctx.counters;
-          ctx.counters = rays;
-          ++ts.beams;
-        } else {
-          q.beam_start(detail::block_beam(cam, bx, by, bx1, by1, lod), ctx, &start);
-        }
+        coarse_pass(bx, by, &start);
         for (int y = by; y < by1; ++y)
           for (int x = bx; x < bx1; ++x) trace_pixel(x, y, &start);
       }
