@@ -11,13 +11,16 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <bit>
 #include <cmath>
 #include <cstring>
 #include <memory>
+#include <random>
 #include <string>
 #include <utility>
 #include <vector>
 
+#include "render/shade_kernel.hpp"
 #include "support/test_data.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/error.hpp"
@@ -386,6 +389,76 @@ INSTANTIATE_TEST_SUITE_P(Variants, SurfaceIntegratorPackets,
                                            PacketVariant{"lod1_beam8", 1.f, 8},
                                            PacketVariant{"lod1_beam6", 1.f, 6}),
                          [](const auto& info) { return std::string(info.param.name); });
+
+// The batched Blinn-Phong kernels against the scalar formula as the
+// integrator wrote it before (std::fmax, normalize()), bit for bit, on
+// random unit vectors and on the edge cases of its selects: a normal facing
+// away, a half vector of zero or underflowing length (light == dir), NaN
+// and -0 dot products, zero visibility and AO.
+TEST(ShadeKernel, EveryIsaEqualsTheScalarFormula) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> uni(-1.f, 1.f);
+  auto unit = [&] {
+    Vec3 v;
+    do v = {uni(rng), uni(rng), uni(rng)};
+    while (dot(v, v) < 1e-3f || dot(v, v) > 1.f);
+    return normalize(v);
+  };
+  const float nan = std::nanf("");
+  for (const Isa isa : isas()) {
+    SCOPED_TRACE(isa_name(isa));
+    const detail::ShadeKernel kernel = detail::shade_kernel(isa);
+    for (int round = 0; round < 64; ++round) {
+      detail::ShadeBatch b;
+      Vec3 n[detail::kShadeLanes], d[detail::kShadeLanes], l[detail::kShadeLanes];
+      for (int i = 0; i < detail::kShadeLanes; ++i) {
+        n[i] = unit(), d[i] = unit(), l[i] = unit();
+        switch ((round * detail::kShadeLanes + i) % 9) {
+          case 0:
+            l[i] = d[i];
+            break;  // half vector of length 0
+          case 1:
+            l[i] = d[i] + Vec3{1e-30f, 0.f, 0.f};
+            break;  // underflowing length
+          case 2:
+            n[i] = {nan, 0.f, 0.f};
+            break;  // NaN dot products
+          case 3:
+            n[i] = {0.f, -0.f, 0.f}, l[i] = {1.f, 0.f, 0.f};
+            break;  // -0 and +0
+          case 4:
+            n[i] = -l[i];
+            break;  // facing away from the light
+          default:
+            break;
+        }
+        b.cr[i] = uni(rng) * 0.5f + 0.5f, b.cg[i] = uni(rng) * 0.5f + 0.5f,
+        b.cb[i] = uni(rng) * 0.5f + 0.5f;
+        b.nx[i] = n[i].x, b.ny[i] = n[i].y, b.nz[i] = n[i].z;
+        b.dx[i] = d[i].x, b.dy[i] = d[i].y, b.dz[i] = d[i].z;
+        b.lx[i] = l[i].x, b.ly[i] = l[i].y, b.lz[i] = l[i].z;
+        b.visibility[i] = i % 5 == 0 ? 0.f : uni(rng) * 0.5f + 0.5f;
+        b.ao[i] = i % 7 == 0 ? 0.f : uni(rng) * 0.5f + 0.5f;
+      }
+      b.count = detail::kShadeLanes;
+      kernel(&b);
+      for (int i = 0; i < detail::kShadeLanes; ++i) {
+        const float diffuse = std::fmax(0.f, dot(n[i], l[i])) * b.visibility[i];
+        float spec = std::fmax(0.f, dot(n[i], normalize(l[i] - d[i])));
+        spec *= spec, spec *= spec, spec *= spec, spec *= spec, spec *= spec;
+        spec *= b.visibility[i];
+        const float k = 0.18f * b.ao[i] + 0.82f * diffuse;
+        EXPECT_EQ(std::bit_cast<uint32_t>(b.r[i]),
+                  std::bit_cast<uint32_t>(b.cr[i] * k + 0.12f * spec))
+            << round << " " << i;
+        EXPECT_EQ(std::bit_cast<uint32_t>(b.g[i]),
+                  std::bit_cast<uint32_t>(b.cg[i] * k + 0.12f * spec));
+        EXPECT_EQ(std::bit_cast<uint32_t>(b.b[i]),
+                  std::bit_cast<uint32_t>(b.cb[i] * k + 0.12f * spec));
+      }
+    }
+  }
+}
 
 // A structure without a surface query cannot be rendered by the surface
 // integrator: a clear error, before any tile runs.

@@ -38,7 +38,9 @@ struct SurfaceOptions {
   /// images are byte-identical either way (tests/test_surface_integrator.cpp,
   /// SurfaceIntegratorPackets.*).
   Caster caster = Caster::Packet;
-  /// The packet kernels' ISA; unset: active_isa().
+  /// The ISA of the packet caster's and the batched shading's kernels
+  /// (render/shade_kernel.hpp); unset: active_isa(). The image is the same
+  /// for every ISA.
   std::optional<Isa> isa;
   /// Shadows and ambient occlusion per hit pixel (svdag §4, effects.hpp).
   /// The light of Directional is light_dir above.

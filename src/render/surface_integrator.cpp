@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "render/beam.hpp"
+#include "render/shade_kernel.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/packet_caster.hpp"
 #include "voxcast/render.hpp"
@@ -37,7 +38,7 @@ void SurfaceIntegrator::begin_frame(const Structure& structure, const FrameView&
     throw Error("render: the " + structure.name() + " structure has no surface query");
   packets_ = options_.caster == Caster::Packet ? query_->packets() : nullptr;
   isa_ = options_.isa ? *options_.isa : active_isa();
-  if (packets_ != nullptr && !cpu_supports(isa_))
+  if (!cpu_supports(isa_))
     throw Error(std::string("render: this CPU does not support ") + isa_name(isa_));
   cam_.emplace(view.camera, view.width, view.height);
   // Pixel cone (esvo §6.1 ray_size_coef/bias): a voxel may stand for the
@@ -76,71 +77,90 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
   RayCounters outer;
   if (collect) outer = ctx.counters, ctx.counters = RayCounters{};
 
-  // Pixels go in batches: first every ray of the batch is traced, then the
-  // hits are shaded. Attribute fetches are mostly cache misses (the values
-  // live far from the descriptors); issued back to back they overlap in the
-  // memory system instead of stalling one ray at a time.
-  constexpr int kBatch = 32;
+  // Hits are shaded in groups of up to kShadeLanes: first every hit's
+  // attributes are fetched (mostly cache misses: the values live far from
+  // the descriptors; issued back to back they overlap in the memory system
+  // instead of stalling one hit at a time), then per hit the normal is
+  // turned to the viewer and the effects are traced, then the group's
+  // Blinn-Phong runs in vector lanes (render/shade_kernel.hpp), and the
+  // AOVs are written.
+  const detail::ShadeKernel phong = detail::shade_kernel(isa_);
+  detail::ShadeBatch sb{};
+  Color group_c[detail::kShadeLanes];
+  Vec3 group_n[detail::kShadeLanes];
+  auto shade_group = [&](const SurfaceHit* const* hits, const int* xs, const int* ys,
+                         const Vec3* dirs, int m) {
+    for (int i = 0; i < m; ++i)
+      q.attributes(*hits[i], ctx, &group_c[i], &group_n[i]);  // counts its bytes while collecting
+    for (int i = 0; i < m; ++i) {
+      const SurfaceHit& hit = *hits[i];
+      const int x = xs[i], y = ys[i];
+      const Vec3 dir = dirs[i];
+      Vec3 n = group_n[i];
+      // Voxel normals are averages over the surface inside the voxel and may
+      // face away from the viewer; shade the side we see.
+      if (dot(n, dir) > 0.f) n = -n;
+      Vec3 light = to_light;
+      float visibility = 1.f, ao = 1.f;
+      if (fx.light != LightKind::Directional) {
+        float dist;
+        light = direction_to_light(fx, options_.light_dir, hit.position, &dist);
+      }
+      if (effects) {
+        // The Table 6 counters describe primary rays; secondary rays are
+        // counted by EffectCounters.
+        const bool counting = ctx.counting;
+        ctx.counting = false;
+        const ShadingPoint sp{hit.position, n, dir, hit.voxel_size};
+        const uint32_t seed = pixel_seed(x, y, fx.seed);
+        if (fx.shadows != ShadowMode::None)
+          *film.shadow.at(x, y) = visibility =
+              shadow_visibility(occluder, ctx, sp, fx, options_.light_dir, seed, &ts.effects);
+        if (fx.ao_rays > 0)
+          *film.ao.at(x, y) = ao =
+              ambient_occlusion(occluder, ctx, sp, fx, fx.ao_radius, seed, &ts.effects);
+        ctx.counting = counting;
+      }
+      const Color c = group_c[i];
+      sb.cr[i] = c.r, sb.cg[i] = c.g, sb.cb[i] = c.b;
+      sb.nx[i] = n.x, sb.ny[i] = n.y, sb.nz[i] = n.z;
+      sb.dx[i] = dir.x, sb.dy[i] = dir.y, sb.dz[i] = dir.z;
+      sb.lx[i] = light.x, sb.ly[i] = light.y, sb.lz[i] = light.z;
+      sb.visibility[i] = visibility, sb.ao[i] = ao;
+    }
+    sb.count = m;
+    phong(&sb);
+    for (int i = 0; i < m; ++i) {
+      const SurfaceHit& hit = *hits[i];
+      const int x = xs[i], y = ys[i];
+      float* out = film.color.at(x, y);
+      out[0] = sb.r[i], out[1] = sb.g[i], out[2] = sb.b[i];
+      if (want_depth) *film.depth.at(x, y) = hit.t;
+      if (!film.filter_radius.empty()) {
+        // esvo §6.3: the voxel side over the pixel footprint at distance t,
+        // log2 in 3.5 fixed point (the paper's alpha channel); t ~ 0 (eye in
+        // the voxel, perspective) gives +inf or a huge size -> the largest
+        // code. Misses keep 0 = radius 1 = no blur.
+        const float footprint = pixel_size + hit.t * pixel_angle;
+        film.filter_radius[size_t(y) * W + x] =
+            footprint > 0.f ? encode_filter_radius(hit.voxel_size / footprint) : uint8_t(255);
+      }
+      if (want_normal) {
+        float* o = film.normal.at(x, y);
+        o[0] = sb.nx[i] * 0.5f + 0.5f, o[1] = sb.ny[i] * 0.5f + 0.5f, o[2] = sb.nz[i] * 0.5f + 0.5f;
+      }
+    }
+  };
+  // Scalar path: the hits of kShadeLanes rays in a row.
+  constexpr int kBatch = detail::kShadeLanes;
   SurfaceHit batch_hit[kBatch];
+  const SurfaceHit* batch_ptr[kBatch];
+  for (int b = 0; b < kBatch; ++b) batch_ptr[b] = &batch_hit[b];
   Vec3 batch_dir[kBatch];
   int batch_x[kBatch], batch_y[kBatch];
   int batch_n = 0;
-  // One hit pixel: attributes, effects, Blinn-Phong, AOVs.
-  auto shade = [&](const SurfaceHit& hit, int x, int y, Vec3 dir) {
-    float* out = film.color.at(x, y);
-    Color c;
-    Vec3 n;
-    q.attributes(hit, ctx, &c, &n);  // counts its bytes while collecting
-    // Voxel normals are averages over the surface inside the voxel and may
-    // face away from the viewer; shade the side we see.
-    if (dot(n, dir) > 0.f) n = -n;
-    Vec3 light = to_light;
-    float visibility = 1.f, ao = 1.f;
-    if (fx.light != LightKind::Directional) {
-      float dist;
-      light = direction_to_light(fx, options_.light_dir, hit.position, &dist);
-    }
-    if (effects) {
-      // The Table 6 counters describe primary rays; secondary rays are
-      // counted by EffectCounters.
-      const bool counting = ctx.counting;
-      ctx.counting = false;
-      const ShadingPoint sp{hit.position, n, dir, hit.voxel_size};
-      const uint32_t seed = pixel_seed(x, y, fx.seed);
-      if (fx.shadows != ShadowMode::None)
-        *film.shadow.at(x, y) = visibility =
-            shadow_visibility(occluder, ctx, sp, fx, options_.light_dir, seed, &ts.effects);
-      if (fx.ao_rays > 0)
-        *film.ao.at(x, y) = ao =
-            ambient_occlusion(occluder, ctx, sp, fx, fx.ao_radius, seed, &ts.effects);
-      ctx.counting = counting;
-    }
-    const float diffuse = std::fmax(0.f, dot(n, light)) * visibility;
-    const Vec3 half_vec = normalize(light - dir);   // Blinn: light + view
-    float spec = std::fmax(0.f, dot(n, half_vec));  // ^32 by squaring (no powf call)
-    spec *= spec, spec *= spec, spec *= spec, spec *= spec, spec *= spec;
-    spec *= visibility;
-    const float k = 0.18f * ao + 0.82f * diffuse;
-    out[0] = c.r * k + 0.12f * spec;
-    out[1] = c.g * k + 0.12f * spec;
-    out[2] = c.b * k + 0.12f * spec;
-    if (want_depth) *film.depth.at(x, y) = hit.t;
-    if (!film.filter_radius.empty()) {
-      // esvo §6.3: the voxel side over the pixel footprint at distance t,
-      // log2 in 3.5 fixed point (the paper's alpha channel); t ~ 0 (eye in
-      // the voxel, perspective) gives +inf or a huge size -> the largest
-      // code. Misses keep 0 = radius 1 = no blur.
-      const float footprint = pixel_size + hit.t * pixel_angle;
-      film.filter_radius[size_t(y) * W + x] =
-          footprint > 0.f ? encode_filter_radius(hit.voxel_size / footprint) : uint8_t(255);
-    }
-    if (want_normal) {
-      float* o = film.normal.at(x, y);
-      o[0] = n.x * 0.5f + 0.5f, o[1] = n.y * 0.5f + 0.5f, o[2] = n.z * 0.5f + 0.5f;
-    }
-  };
   auto shade_batch = [&] {
-    for (int b = 0; b < batch_n; ++b) shade(batch_hit[b], batch_x[b], batch_y[b], batch_dir[b]);
+    shade_group(batch_ptr, batch_x, batch_y, batch_dir, batch_n);
     batch_n = 0;
   };
   auto miss = [&](int x, int y) {
@@ -198,14 +218,23 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
     const size_t n = pt.order.size();
     packets_->trace_packets(pt.rays.data(), n, lod, ctx, pt.hits.data(), pt.found.data(), isa_,
                             pt.beam_list());
+    // The hits in groups of kShadeLanes, in queue order (a 4x4 block is
+    // one group where all its rays hit).
+    const SurfaceHit* group_hit[detail::kShadeLanes];
+    Vec3 group_dir[detail::kShadeLanes];
+    int group_x[detail::kShadeLanes], group_y[detail::kShadeLanes];
+    int m = 0;
     for (size_t i = 0; i < n; ++i) {
-      if (pt.found[i]) {
-        ++ts.hits;
-        shade(pt.hits[i], pt.x(i), pt.y(i), pt.rays[i].dir);
-      } else {
+      if (!pt.found[i]) {
         miss(pt.x(i), pt.y(i));
+        continue;
       }
+      ++ts.hits;
+      group_hit[m] = &pt.hits[i], group_dir[m] = pt.rays[i].dir;
+      group_x[m] = pt.x(i), group_y[m] = pt.y(i);
+      if (++m == detail::kShadeLanes) shade_group(group_hit, group_x, group_y, group_dir, m), m = 0;
     }
+    if (m > 0) shade_group(group_hit, group_x, group_y, group_dir, m);
   } else if (beam_k == 0) {
     for (int y = tile.y0; y < tile.y1; ++y)
       for (int x = tile.x0; x < tile.x1; ++x) trace_pixel(x, y, nullptr);
