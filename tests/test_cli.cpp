@@ -126,6 +126,14 @@ TEST(Cli, BuildRenderInfoEndToEnd) {
                          " --size 64x48 --camera " + cam);
   ASSERT_EQ(r2.exit_code, 0) << r2.output;
   EXPECT_EQ(read_text(dir.file("t.png")), read_text(dir.file("t2.png")));
+
+  // --caster scalar traces one ray at a time instead of the default packets:
+  // the same image and depth bytes.
+  CliResult r3 = run_cli("render " + dir.file("t.vxc") + " -o " + dir.file("t3.png") +
+                         " --size 64x48 --caster scalar --depth " + dir.file("d3.pfm"));
+  ASSERT_EQ(r3.exit_code, 0) << r3.output;
+  EXPECT_EQ(read_text(dir.file("t.png")), read_text(dir.file("t3.png")));
+  EXPECT_EQ(read_text(dir.file("d.pfm")), read_text(dir.file("d3.pfm")));
 }
 
 TEST(Cli, RenderRejectsBadInput) {
@@ -146,6 +154,7 @@ TEST(Cli, RenderRejectsBadInput) {
   expect_one_line_error(
       run_cli("render " + scene + " -o " + dir.file("x.png") + " --camera 0,0,5,0,0,0,0,1,0,190"));
   expect_one_line_error(run_cli("render " + scene + " -o " + dir.file("x.png") + " --lod -1"));
+  expect_one_line_error(run_cli("render " + scene + " -o " + dir.file("x.png") + " --caster simd"));
   expect_one_line_error(run_cli("render " + scene + " -o " + dir.file("x.png") + " --light 0,0,0"));
   // A mesh is not a scene; a truncated scene is not a scene.
   expect_one_line_error(run_cli("render " + dir.file("t.obj") + " -o " + dir.file("x.png")));

@@ -315,8 +315,8 @@ TEST(PacketCaster, GridVertexTiesEqualTheScalarCaster) {
   expect_same(d, rays, lod, "dag ties lod", &hits);
 }
 
-// The packet casters as a capability of the surface query (PacketQuery,
-// what bench and other structure-agnostic callers use): the same answers as
+// The packet casters as a capability of the surface query (SurfacePackets,
+// what render, bench and other structure-agnostic callers use): the same answers as
 // the scalar caster through the Structure interface alone.
 TEST(PacketCaster, OfferedThroughTheSurfaceQuery) {
   const Scenes& sc = scenes();
@@ -325,14 +325,15 @@ TEST(PacketCaster, OfferedThroughTheSurfaceQuery) {
   for (const Structure* st : structures) {
     const SurfaceQuery* q = st->surface();
     ASSERT_NE(q, nullptr) << st->name();
-    const PacketQuery* p = q->packets();
+    const SurfacePackets* p = q->packets();
     ASSERT_NE(p, nullptr) << st->name();
     const std::vector<Ray> rays = camera_rays(st->bounds(), 48, 36, &pixel_angle);
     std::vector<SurfaceHit> got(rays.size());
     std::vector<uint8_t> found(rays.size(), 7), occ(rays.size(), 7);
-    p->trace_packets(rays.data(), rays.size(), LodFootprint{}, got.data(), found.data());
-    p->occluded_packets(rays.data(), rays.size(), LodFootprint{}, occ.data());
     TraceContext ctx;
+    p->trace_packets(rays.data(), rays.size(), LodFootprint{}, ctx, got.data(), found.data(),
+                     active_isa());
+    p->occluded_packets(rays.data(), rays.size(), LodFootprint{}, ctx, occ.data(), active_isa());
     size_t hits = 0, bad = 0;
     for (size_t i = 0; i < rays.size(); ++i) {
       SurfaceHit want;

@@ -4,15 +4,23 @@
 // SurfaceQuery and the effect functions directly, shaded with the
 // Blinn-Phong formula written out here. The images must agree byte for byte
 // (the move of render() onto the integrator kept every output identical),
-// and the counters must be those of the rays alone.
+// and the counters must be those of the rays alone. Frames that do not count
+// trace their primary rays as 4x4 pixel blocks through the packet caster
+// (SurfaceOptions::caster): the same bytes again, for every kernel ISA this
+// CPU runs, on ESVO (raw, compressed attributes, contours) and DAG.
 #include <gtest/gtest.h>
 
+#include <atomic>
+#include <bit>
 #include <cmath>
 #include <cstring>
 #include <memory>
+#include <random>
 #include <string>
 #include <utility>
+#include <vector>
 
+#include "render/shade_kernel.hpp"
 #include "support/test_data.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/error.hpp"
@@ -127,6 +135,12 @@ bool same_bytes(const Image& a, const Image& b) {
          std::memcmp(a.pixels.data(), b.pixels.data(), a.pixels.size() * sizeof(float)) == 0;
 }
 
+std::vector<Isa> isas() {
+  std::vector<Isa> v{Isa::Avx2};
+  if (cpu_supports(Isa::Avx512)) v.push_back(Isa::Avx512);
+  return v;
+}
+
 struct Variant {
   const char* name;
   float lod;
@@ -201,6 +215,24 @@ TEST_P(SurfaceIntegratorVsReference, ImagesAndCountersAgreeByteForByte) {
     for (float it : got.iterations.pixels) sum += it;
     EXPECT_EQ(uint64_t(sum), got.counters.iterations);
 
+    // Without counting, the primary rays go through the packet caster in
+    // 4x4 blocks: the reference's bytes again, with every kernel ISA.
+    for (const Isa isa : isas()) {
+      SCOPED_TRACE(isa_name(isa));
+      RenderOptions p = o;
+      p.collect_stats = false;
+      p.isa = isa;
+      const RenderResult packets = render(std::as_const(*st), p);
+      EXPECT_EQ(packets.hits, ref.hits);
+      EXPECT_TRUE(same_bytes(packets.color, ref.color));
+      EXPECT_TRUE(same_bytes(packets.depth, ref.depth));
+      EXPECT_TRUE(same_bytes(packets.normal, ref.normal));
+      if (v.effects) {
+        EXPECT_TRUE(same_bytes(packets.ao, ref.ao));
+        EXPECT_TRUE(same_bytes(packets.shadow, ref.shadow));
+      }
+    }
+
     // The mutable overload runs the full frame loop: the same image (a
     // static structure never asks for anything, so it is one pass).
     const RenderResult loop = render(*st, o);
@@ -216,6 +248,217 @@ INSTANTIATE_TEST_SUITE_P(Variants, SurfaceIntegratorVsReference,
                                            Variant{"effects_beam8", 1.f, 8, true, false},
                                            Variant{"point_light", 0.f, 0, true, true}),
                          [](const auto& info) { return std::string(info.param.name); });
+
+// A structure's queries, forwarded, with the primary rays counted by the
+// path they took: shows which caster the integrator used.
+class CountingQuery final : public Structure, public SurfaceQuery, public SurfacePackets {
+ public:
+  explicit CountingQuery(const Structure& s) : s_(s), q_(*s.surface()) {}
+  std::string name() const override { return "counting " + s_.name(); }
+  Aabb bounds() const override { return s_.bounds(); }
+  const SurfaceQuery* surface() const override { return this; }
+  bool trace(const Ray& ray, const LodFootprint& lod, TraceContext& ctx, SurfaceHit* hit,
+             const BeamStart* beam) const override {
+    scalar_rays.fetch_add(1, std::memory_order_relaxed);
+    return q_.trace(ray, lod, ctx, hit, beam);
+  }
+  float transmittance(const Ray& ray, const LodFootprint& lod, TraceContext& ctx,
+                      const BeamStart* beam) const override {
+    return q_.transmittance(ray, lod, ctx, beam);
+  }
+  void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
+                  Vec3* normal) const override {
+    q_.attributes(hit, ctx, color, normal);
+  }
+  void beam_start(const BeamFrustum& beam, TraceContext& ctx, BeamStart* start) const override {
+    q_.beam_start(beam, ctx, start);
+  }
+  const SurfacePackets* packets() const override { return q_.packets() ? this : nullptr; }
+  void trace_packets(const Ray* rays, size_t n, const LodFootprint& lod, TraceContext& ctx,
+                     SurfaceHit* hits, uint8_t* found, Isa isa,
+                     const BeamStart* const* beams) const override {
+    packet_rays.fetch_add(n, std::memory_order_relaxed);
+    q_.packets()->trace_packets(rays, n, lod, ctx, hits, found, isa, beams);
+  }
+  void occluded_packets(const Ray* rays, size_t n, const LodFootprint& lod, TraceContext& ctx,
+                        uint8_t* occluded, Isa isa) const override {
+    q_.packets()->occluded_packets(rays, n, lod, ctx, occluded, isa);
+  }
+  mutable std::atomic<uint64_t> scalar_rays{0}, packet_rays{0};
+
+ private:
+  const Structure& s_;
+  const SurfaceQuery& q_;
+};
+
+// The structures of the packet comparison: spot at 128^3 with attributes.
+struct PacketScenes {
+  std::unique_ptr<esvo::EsvoStructure> raw, compressed, contours;
+  std::unique_ptr<dag::DagStructure> dag;
+  Aabb bounds;
+};
+
+const PacketScenes& packet_scenes() {
+  static const PacketScenes s = [] {
+    PacketScenes out;
+    const Mesh mesh = load_mesh(testing::test_mesh("spot.obj"));
+    const GridTransform grid = GridTransform::fit(mesh.bounds(), 128);
+    VoxelizeOptions vo;
+    vo.attributes = true;
+    const VoxelSet voxels = voxelize(mesh, grid, vo);
+    auto esvo_of = [](esvo::EsvoOctree o) {
+      return std::make_unique<esvo::EsvoStructure>(
+          std::make_shared<const esvo::EsvoOctree>(std::move(o)));
+    };
+    out.raw = esvo_of(esvo::build_octree(voxels));
+    esvo::BuildOptions compressed;
+    compressed.attributes = esvo::AttributeFormat::Compressed;
+    out.compressed = esvo_of(esvo::build_octree(voxels, compressed));
+    esvo::BuildOptions contours;
+    contours.contours = true;
+    out.contours = esvo_of(esvo::build_octree(voxels, mesh, contours));
+    out.dag = std::make_unique<dag::DagStructure>(
+        std::make_shared<const dag::SparseVoxelDag>(dag::build_dag(voxels)));
+    out.bounds = mesh.bounds();
+    return out;
+  }();
+  return s;
+}
+
+struct PacketVariant {
+  const char* name;
+  float lod;
+  int beam;
+};
+
+class SurfaceIntegratorPackets : public ::testing::TestWithParam<PacketVariant> {};
+
+// Packet primary rays against scalar ones through the same integrator: every
+// AOV byte for byte, on two views (one orthographic), and the packet path
+// really taken (every pixel's ray handed to trace_packets, none to trace()).
+TEST_P(SurfaceIntegratorPackets, ImagesByteIdenticalToScalar) {
+  const PacketVariant v = GetParam();
+  const PacketScenes& s = packet_scenes();
+  RenderOptions o;
+  o.width = 70, o.height = 46;  // 4x4 blocks and 16x16 tiles cut at the borders
+  o.tile_size = 16;
+  o.lod_pixels = v.lod;
+  o.beam = v.beam;
+  o.want_depth = o.want_normal = true;
+  o.filter = true;  // the filter radius of every hit, then the blur
+  const std::pair<const char*, const Structure*> structures[] = {
+      {"esvo raw", s.raw.get()},
+      {"esvo compressed", s.compressed.get()},
+      {"esvo contours", s.contours.get()},
+      {"dag", s.dag.get()}};
+  for (const Camera& cam :
+       {Camera::orbit(s.bounds, o.width, o.height, 30.f, -20.f),
+        Camera::orbit(s.bounds, o.width, o.height, 120.f, 10.f, 0.f, Projection::Orthographic)}) {
+    o.camera = cam;
+    for (const auto& [name, st] : structures) {
+      SCOPED_TRACE(std::string(name) + " " + v.name);
+      ASSERT_NE(st->surface()->packets(), nullptr);
+      RenderOptions scalar = o;
+      scalar.caster = Caster::Scalar;
+      const CountingQuery sq(*st);
+      const RenderResult ref = render(sq, scalar);
+      EXPECT_EQ(sq.packet_rays.load(), 0u);
+      EXPECT_EQ(sq.scalar_rays.load(), uint64_t(o.width * o.height));
+      ASSERT_GT(ref.hits, uint64_t(o.width * o.height / 10)) << "the view shows too little";
+      for (const Isa isa : isas()) {
+        SCOPED_TRACE(isa_name(isa));
+        RenderOptions p = o;
+        p.isa = isa;
+        const CountingQuery pq(*st);
+        const RenderResult got = render(pq, p);
+        EXPECT_EQ(pq.scalar_rays.load(), 0u);
+        EXPECT_EQ(pq.packet_rays.load(), uint64_t(o.width * o.height));
+        EXPECT_EQ(got.hits, ref.hits);
+        EXPECT_TRUE(same_bytes(got.color, ref.color));
+        EXPECT_TRUE(same_bytes(got.depth, ref.depth));
+        EXPECT_TRUE(same_bytes(got.normal, ref.normal));
+      }
+    }
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(Variants, SurfaceIntegratorPackets,
+                         ::testing::Values(PacketVariant{"lod0", 0.f, 0},
+                                           PacketVariant{"lod1", 1.f, 0},
+                                           PacketVariant{"lod0_beam8", 0.f, 8},
+                                           PacketVariant{"lod1_beam8", 1.f, 8},
+                                           PacketVariant{"lod1_beam6", 1.f, 6}),
+                         [](const auto& info) { return std::string(info.param.name); });
+
+// The batched Blinn-Phong kernels against the scalar formula as the
+// integrator wrote it before (std::fmax, normalize()), bit for bit, on
+// random unit vectors and on the edge cases of its selects: a normal facing
+// away, a half vector of zero or underflowing length (light == dir), NaN
+// and -0 dot products, zero visibility and AO.
+TEST(ShadeKernel, EveryIsaEqualsTheScalarFormula) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> uni(-1.f, 1.f);
+  auto unit = [&] {
+    Vec3 v;
+    do v = {uni(rng), uni(rng), uni(rng)};
+    while (dot(v, v) < 1e-3f || dot(v, v) > 1.f);
+    return normalize(v);
+  };
+  const float nan = std::nanf("");
+  for (const Isa isa : isas()) {
+    SCOPED_TRACE(isa_name(isa));
+    const detail::ShadeKernel kernel = detail::shade_kernel(isa);
+    for (int round = 0; round < 64; ++round) {
+      detail::ShadeBatch b;
+      Vec3 n[detail::kShadeLanes], d[detail::kShadeLanes], l[detail::kShadeLanes];
+      for (int i = 0; i < detail::kShadeLanes; ++i) {
+        n[i] = unit(), d[i] = unit(), l[i] = unit();
+        switch ((round * detail::kShadeLanes + i) % 9) {
+          case 0:
+            l[i] = d[i];
+            break;  // half vector of length 0
+          case 1:
+            l[i] = d[i] + Vec3{1e-30f, 0.f, 0.f};
+            break;  // underflowing length
+          case 2:
+            n[i] = {nan, 0.f, 0.f};
+            break;  // NaN dot products
+          case 3:
+            n[i] = {0.f, -0.f, 0.f}, l[i] = {1.f, 0.f, 0.f};
+            break;  // -0 and +0
+          case 4:
+            n[i] = -l[i];
+            break;  // facing away from the light
+          default:
+            break;
+        }
+        b.cr[i] = uni(rng) * 0.5f + 0.5f, b.cg[i] = uni(rng) * 0.5f + 0.5f,
+        b.cb[i] = uni(rng) * 0.5f + 0.5f;
+        b.nx[i] = n[i].x, b.ny[i] = n[i].y, b.nz[i] = n[i].z;
+        b.dx[i] = d[i].x, b.dy[i] = d[i].y, b.dz[i] = d[i].z;
+        b.lx[i] = l[i].x, b.ly[i] = l[i].y, b.lz[i] = l[i].z;
+        b.visibility[i] = i % 5 == 0 ? 0.f : uni(rng) * 0.5f + 0.5f;
+        b.ao[i] = i % 7 == 0 ? 0.f : uni(rng) * 0.5f + 0.5f;
+      }
+      b.count = detail::kShadeLanes;
+      kernel(&b);
+      for (int i = 0; i < detail::kShadeLanes; ++i) {
+        const float diffuse = std::fmax(0.f, dot(n[i], l[i])) * b.visibility[i];
+        float spec = std::fmax(0.f, dot(n[i], normalize(l[i] - d[i])));
+        spec *= spec, spec *= spec, spec *= spec, spec *= spec, spec *= spec;
+        spec *= b.visibility[i];
+        const float k = 0.18f * b.ao[i] + 0.82f * diffuse;
+        EXPECT_EQ(std::bit_cast<uint32_t>(b.r[i]),
+                  std::bit_cast<uint32_t>(b.cr[i] * k + 0.12f * spec))
+            << round << " " << i;
+        EXPECT_EQ(std::bit_cast<uint32_t>(b.g[i]),
+                  std::bit_cast<uint32_t>(b.cg[i] * k + 0.12f * spec));
+        EXPECT_EQ(std::bit_cast<uint32_t>(b.b[i]),
+                  std::bit_cast<uint32_t>(b.cb[i] * k + 0.12f * spec));
+      }
+    }
+  }
+}
 
 // A structure without a surface query cannot be rendered by the surface
 // integrator: a clear error, before any tile runs.

@@ -84,7 +84,7 @@ struct Measured {
   const SceneFormat* format = nullptr;
   LoadedStructure structure;
   const SurfaceQuery* query = nullptr;
-  const PacketQuery* packets = nullptr;  // null: no packet rows
+  const SurfacePackets* packets = nullptr;  // null: no packet rows
   uint64_t leaf_voxels = 0;
   double voxelize_seconds = 0, build_seconds = 0;
 };
@@ -208,64 +208,27 @@ Timed trace_depth(const SurfaceQuery& s, const RenderOptions& ro, Image* depth) 
 // beam > 0: the coarse pass (esvo §6.2) per beam x beam block first, inside
 // the timed loop; each ray starts at its block's region, rays of empty
 // blocks are not traced.
-// shade: also each hit's attributes and surface_phong (the shading of
-// render() without effects), written to *color: the packet caster in the
-// "trace + the same shading" comparison (attributes are still looked up hit
-// by hit).
-Timed trace_depth_packets(const SurfaceQuery& s, const PacketQuery& packets,
-                          const RenderOptions& ro, int beam, Image* depth, bool shade = false,
-                          Image* color = nullptr) {
-  if (shade) *color = Image(ro.width, ro.height, 3);
-  const Vec3 to_light = normalize(-ro.light_dir);
+// (The shaded packet rows are render() itself, which traces the same way.)
+Timed trace_depth_packets(const SurfaceQuery& s, const SurfacePackets& packets,
+                          const RenderOptions& ro, int beam, Image* depth) {
   return depth_frame(
       ro, depth, [&](const detail::Tile& tile, const CameraRays& cam, const LodFootprint& lod) {
-        thread_local std::vector<uint32_t> order;
-        thread_local std::vector<Ray> rays;
-        thread_local std::vector<SurfaceHit> out;
-        thread_local std::vector<uint8_t> found;
-        thread_local std::vector<BeamStart> starts;
-        thread_local std::vector<const BeamStart*> beams;
-        order.clear();
-        block_order(tile.x0, tile.y0, tile.x1 - tile.x0, tile.y1 - tile.y0, &order);
-        rays.resize(order.size());
-        out.resize(order.size());
-        found.resize(order.size());
-        for (size_t i = 0; i < order.size(); ++i)
-          rays[i] = cam.ray(int(order[i] & 0xFFFF), int(order[i] >> 16));
+        thread_local detail::PacketTile pt;
+        pt.generate(cam, tile.x0, tile.y0, tile.x1, tile.y1);
         TraceContext ctx;
-        if (beam > 0) {
-          const int bw = (tile.x1 - tile.x0 + beam - 1) / beam;
-          const int bh = (tile.y1 - tile.y0 + beam - 1) / beam;
-          starts.resize(size_t(bw * bh));
-          for (int by = 0; by < bh; ++by)
-            for (int bx = 0; bx < bw; ++bx) {
-              const int x0 = tile.x0 + bx * beam, y0 = tile.y0 + by * beam;
-              s.beam_start(detail::block_beam(cam, x0, y0, std::min(x0 + beam, tile.x1),
-                                              std::min(y0 + beam, tile.y1), lod),
-                           ctx, &starts[size_t(by * bw + bx)]);
-            }
-          beams.resize(order.size());
-          for (size_t i = 0; i < order.size(); ++i) {
-            const int bx = (int(order[i] & 0xFFFF) - tile.x0) / beam;
-            const int by = (int(order[i] >> 16) - tile.y0) / beam;
-            beams[i] = &starts[size_t(by * bw + bx)];
-          }
-        }
-        packets.trace_packets(rays.data(), rays.size(), lod, out.data(), found.data(), active_isa(),
-                              beam > 0 ? beams.data() : nullptr);
+        if (beam > 0)
+          pt.coarse_pass(
+              tile.x0, tile.y0, tile.x1, tile.y1, beam, [&](int x0, int y0, BeamStart* start) {
+                s.beam_start(detail::block_beam(cam, x0, y0, std::min(x0 + beam, tile.x1),
+                                                std::min(y0 + beam, tile.y1), lod),
+                             ctx, start);
+              });
+        packets.trace_packets(pt.rays.data(), pt.rays.size(), lod, ctx, pt.hits.data(),
+                              pt.found.data(), active_isa(), pt.beam_list());
         uint64_t h = 0;
-        for (size_t i = 0; i < order.size(); ++i) {
-          const int x = int(order[i] & 0xFFFF), y = int(order[i] >> 16);
-          h += found[i];
-          *depth->at(x, y) = found[i] ? out[i].t : INFINITY;
-          if (shade && found[i]) {
-            Color c;
-            Vec3 n;
-            s.attributes(out[i], ctx, &c, &n);
-            const Color sh = surface_phong(c, n, rays[i].dir, to_light);
-            float* o = color->at(x, y);
-            o[0] = sh.r, o[1] = sh.g, o[2] = sh.b;
-          }
+        for (size_t i = 0; i < pt.rays.size(); ++i) {
+          h += pt.found[i];
+          *depth->at(pt.x(i), pt.y(i)) = pt.found[i] ? pt.hits[i].t : INFINITY;
         }
         return h;
       });
@@ -295,10 +258,11 @@ Timed occluded_all(const SurfaceQuery& s, const std::vector<Ray>& rays, std::vec
 }
 
 // The packet caster's occluded_packets: each chunk as one queue.
-Timed occluded_all_packets(const PacketQuery& s, const std::vector<Ray>& rays,
+Timed occluded_all_packets(const SurfacePackets& s, const std::vector<Ray>& rays,
                            std::vector<uint8_t>* occ) {
   return occluded_frame(rays, occ, [&](size_t b, size_t e, uint8_t* o) {
-    s.occluded_packets(rays.data() + b, e - b, LodFootprint{}, o + b);
+    TraceContext ctx;
+    s.occluded_packets(rays.data() + b, e - b, LodFootprint{}, ctx, o + b, active_isa());
   });
 }
 
@@ -317,8 +281,13 @@ class RayRecorder final : public Occluder {
 
 // Stage ticks of the instrumented single-threaded voxel pass: what render()
 // does per pixel (ray generation, trace, attributes, shading without
-// effects), with timestamp reads between the stages.
-EmbreeScene::StageTicks profile_voxels(const SurfaceQuery& s, const RenderOptions& ro) {
+// effects), with timestamp reads between the stages. packets (may be null:
+// the scalar path): render()'s packet path, per 16x16 tile the rays
+// generated in 4x4 block order and traced by one trace_packets call (ray
+// generation and traversal read per tile), then the hits' attributes and
+// shading.
+EmbreeScene::StageTicks profile_voxels(const SurfaceQuery& s, const RenderOptions& ro,
+                                       const SurfacePackets* packets) {
   const CameraRays cam(ro.camera, ro.width, ro.height);
   const LodFootprint lod = pixel_lod(cam, ro.lod_pixels);
   const Vec3 to_light = normalize(-ro.light_dir);
@@ -329,28 +298,49 @@ EmbreeScene::StageTicks profile_voxels(const SurfaceQuery& s, const RenderOption
   EmbreeScene::StageTicks st;
   Image color(ro.width, ro.height, 3);
   TraceContext ctx;
-  for (int y = 0; y < ro.height; ++y)
-    for (int x = 0; x < ro.width; ++x) {
-      const uint64_t t0 = detail::ticks();
-      const Ray ray = cam.ray(x, y);
-      const uint64_t t1 = detail::ticks();
-      SurfaceHit hit;
-      const bool found = s.trace(ray, lod, ctx, &hit);
-      const uint64_t t2 = detail::ticks();
-      st.ray_generation += since(t0, t1);
-      st.traversal += since(t1, t2);
-      if (!found) continue;
-      Color c;
-      Vec3 n;
-      s.attributes(hit, ctx, &c, &n);
-      const uint64_t t3 = detail::ticks();
-      const Color sh = surface_phong(c, n, ray.dir, to_light);
-      float* o = color.at(x, y);
-      o[0] = sh.r, o[1] = sh.g, o[2] = sh.b;
-      const uint64_t t4 = detail::ticks();
-      st.attributes += since(t2, t3);
-      st.shading += since(t3, t4);
-    }
+  // Attributes and shading of one hit, from t0 = the tick after its trace.
+  auto shade = [&](const SurfaceHit& hit, Vec3 dir, int x, int y, uint64_t t0) {
+    Color c;
+    Vec3 n;
+    s.attributes(hit, ctx, &c, &n);
+    const uint64_t t1 = detail::ticks();
+    const Color sh = surface_phong(c, n, dir, to_light);
+    float* o = color.at(x, y);
+    o[0] = sh.r, o[1] = sh.g, o[2] = sh.b;
+    const uint64_t t2 = detail::ticks();
+    st.attributes += since(t0, t1);
+    st.shading += since(t1, t2);
+  };
+  if (packets) {
+    const int T = 16;
+    detail::PacketTile pt;
+    for (int ty = 0; ty < ro.height; ty += T)
+      for (int tx = 0; tx < ro.width; tx += T) {
+        const uint64_t t0 = detail::ticks();
+        pt.generate(cam, tx, ty, std::min(tx + T, ro.width), std::min(ty + T, ro.height));
+        const uint64_t t1 = detail::ticks();
+        packets->trace_packets(pt.rays.data(), pt.rays.size(), lod, ctx, pt.hits.data(),
+                               pt.found.data(), active_isa());
+        const uint64_t t2 = detail::ticks();
+        st.ray_generation += since(t0, t1);
+        st.traversal += since(t1, t2);
+        for (size_t i = 0; i < pt.rays.size(); ++i)
+          if (pt.found[i]) shade(pt.hits[i], pt.rays[i].dir, pt.x(i), pt.y(i), detail::ticks());
+      }
+  } else {
+    for (int y = 0; y < ro.height; ++y)
+      for (int x = 0; x < ro.width; ++x) {
+        const uint64_t t0 = detail::ticks();
+        const Ray ray = cam.ray(x, y);
+        const uint64_t t1 = detail::ticks();
+        SurfaceHit hit;
+        const bool found = s.trace(ray, lod, ctx, &hit);
+        const uint64_t t2 = detail::ticks();
+        st.ray_generation += since(t0, t1);
+        st.traversal += since(t1, t2);
+        if (found) shade(hit, ray.dir, x, y, t2);
+      }
+  }
   st.rays = uint64_t(ro.width) * uint64_t(ro.height);
   return st;
 }
@@ -626,7 +616,7 @@ Runner add_bench(CLI::App& app) {
       auto add_voxel_rows = [&](const Measured& m) {
         const std::string& caster = m.caster;
         const SurfaceQuery& q = *m.query;
-        const PacketQuery* p = m.packets;
+        const SurfacePackets* p = m.packets;
         for (float lod : lods) {
           RenderOptions rl = ro;
           rl.lod_pixels = lod;
@@ -650,13 +640,17 @@ Runner add_bench(CLI::App& app) {
                                  return trace_depth_packets(q, *p, rl, 0, &depth);
                                },
                                {}});
+            // render() as it runs by default: primary rays as 4x4 pixel
+            // blocks through the packet caster, then attributes and shading.
             primary.push_back({caster + " packet",
-                               "trace_packets + attributes + Phong (no effects)",
+                               std::string("render(), packet primary rays ") +
+                                   isa_name(active_isa()) + ": attributes + Phong",
                                lod,
                                true,
-                               [&q, p, rl] {
-                                 Image depth, color;
-                                 return trace_depth_packets(q, *p, rl, 0, &depth, true, &color);
+                               [&m, rl] {
+                                 RenderOptions rp = rl;
+                                 rp.caster = Caster::Packet;
+                                 return timed(render(*m.structure, rp));
                                },
                                {}});
             if (args->beam)
@@ -672,13 +666,15 @@ Runner add_bench(CLI::App& app) {
                                  },
                                  {}});
           }
+          RenderOptions rs = rl;
+          rs.caster = Caster::Scalar;
           primary.push_back({caster,
-                             "render(): attributes + Phong",
+                             "render(), scalar primary rays: attributes + Phong",
                              lod,
                              true,
-                             [&, rl, keep = &m == &main_structure && lod == args->lod] {
-                               if (!keep) return timed(render(*m.structure, rl));
-                               vox_result = render(*m.structure, rl);
+                             [&, rs, keep = &m == &main_structure && lod == args->lod] {
+                               if (!keep) return timed(render(*m.structure, rs));
+                               vox_result = render(*m.structure, rs);
                                return timed(vox_result);
                              },
                              {}});
@@ -786,7 +782,11 @@ Runner add_bench(CLI::App& app) {
           if (r.caster == caster && r.shaded == shaded && (r.lod < 0 || r.lod == lod)) return &r.t;
         return nullptr;
       };
-      const double m_vox = find(main_structure.caster, true, args->lod)->mrays();
+      // render() as it runs by default (packet primary rays where the
+      // structure has them).
+      const Timed* main_packet = find(main_structure.caster + " packet", true, args->lod);
+      const double m_vox =
+          (main_packet ? main_packet : find(main_structure.caster, true, args->lod))->mrays();
       std::printf("voxcast     %8.2f Mrays/s\n", m_vox);
       double best_voxcast = m_vox;
       if (const Timed* t = find(main_structure.caster + "+beam", true, args->lod)) {
@@ -862,10 +862,16 @@ Runner add_bench(CLI::App& app) {
         for (float lod : lods) {
           RenderOptions rl = ro;
           rl.lod_pixels = lod;
-          for (size_t i = 0; i < measured_here; ++i)
+          for (size_t i = 0; i < measured_here; ++i) {
             prof.push_back({structures[i].caster, lod, least_disturbed([&] {
-                              return profile_voxels(*structures[i].query, rl);
+                              return profile_voxels(*structures[i].query, rl, nullptr);
                             })});
+            if (structures[i].packets)
+              prof.push_back({structures[i].caster + " packet", lod, least_disturbed([&] {
+                                return profile_voxels(*structures[i].query, rl,
+                                                      structures[i].packets);
+                              })});
+          }
         }
         std::printf(
             "cycles per ray (TSC ticks at %.2f GHz, 1 thread, instrumented pass; per primary ray,\n"

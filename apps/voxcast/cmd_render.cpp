@@ -10,8 +10,8 @@
 #include "camera_options.hpp"
 #include "cli_io.hpp"
 #include "commands.hpp"
-#include "view/camera_path.hpp"
 #include "exr_output.hpp"
+#include "view/camera_path.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/progress.hpp"
@@ -29,10 +29,11 @@ struct RenderArgs {
   float lod = 1.f;
   int threads = 0;
   bool verbose = false;
-  int beam = 0;              // esvo §6.2 block size, 0 = off
-  bool stats = false;        // esvo §8.5 Table 6 counters
-  std::string heatmap;       // iteration heat map (Figure 32)
-  float heatmap_max = 64.f;  // iterations mapped to the top of the ramp
+  int beam = 0;                   // esvo §6.2 block size, 0 = off
+  std::string caster = "packet";  // primary rays: packet | scalar (same image)
+  bool stats = false;             // esvo §8.5 Table 6 counters
+  std::string heatmap;            // iteration heat map (Figure 32)
+  float heatmap_max = 64.f;       // iterations mapped to the top of the ramp
   bool filter = false;
   // Effects (svdag §4): shadows and ambient occlusion.
   std::string shadows = "none", point_light, area_light, shadow_beam = "conservative", ao_output;
@@ -114,6 +115,11 @@ Runner add_render(CLI::App& app) {
   cmd->add_option("--beam", args->beam,
                   "Beam optimization block size, e.g. 4 or 8 (0 = off; esvo paper section 6.2)")
       ->capture_default_str();
+  cmd->add_option("--caster", args->caster,
+                  "Primary rays: packet (4x4 pixel blocks through the packet caster where the "
+                  "structure has one) or scalar (one ray at a time); the image is the same")
+      ->check(CLI::IsMember({"packet", "scalar"}))
+      ->capture_default_str();
   cmd->add_flag("--stats", args->stats,
                 "Print per-ray profiling counters (esvo paper Table 6); slower");
   cmd->add_option("--heatmap", args->heatmap,
@@ -159,6 +165,7 @@ Runner add_render(CLI::App& app) {
     if (args->beam != 0 && (args->beam < 2 || args->beam > 64))
       throw UsageError("--beam must be 0 (off) or a block size in 2..64");
     opt.beam = args->beam;
+    opt.caster = args->caster == "scalar" ? Caster::Scalar : Caster::Packet;
     require_range("--heatmap-max", args->heatmap_max, 1e-6, 1e9);
     opt.collect_stats = args->stats || !args->heatmap.empty();
     if (!args->light.empty()) {
@@ -336,9 +343,8 @@ Runner add_render(CLI::App& app) {
       };
       const std::vector<std::string>& f = v.files;  // in the order of `given`
       if (layers.depth || layers.normal)
-        outputs.write(f[0], [&](const std::filesystem::path& to) {
-          write_exr_layers(to, result, layers);
-        });
+        outputs.write(
+            f[0], [&](const std::filesystem::path& to) { write_exr_layers(to, result, layers); });
       else
         image(f[0], result.color);
       if (!args->depth.empty()) image(f[1], result.depth);

@@ -87,7 +87,6 @@
 #include "voxcast/esvo.hpp"
 #include "voxcast/math.hpp"
 #include "voxcast/octree_structure.hpp"
-#include "voxcast/packet_caster.hpp"
 #include "voxcast/structure.hpp"
 #include "voxcast/voxelize.hpp"
 
@@ -268,11 +267,8 @@ CastResult cast_ray(const SparseVoxelDag& dag, Vec3 origin, Vec3 dir, float tmax
 bool cast_occluded(const SparseVoxelDag& dag, Vec3 origin, Vec3 dir, float tmax, float size_coef,
                    float size_bias);
 
-class DagStructure final : public OctreeStructure<DagStructure>,
-                           public PacketQueryOf<DagStructure> {
+class DagStructure final : public OctreeStructure<DagStructure> {
  public:
-  /// Its packet casters (packet_caster.hpp).
-  const PacketQuery* packets() const override { return this; }
   explicit DagStructure(std::shared_ptr<const SparseVoxelDag> dag);
   // bounds, surface, trace, transmittance, beam_start: the octree family's
   // (octree_structure.hpp), the ESVO's caster and beam walk over the DAG's

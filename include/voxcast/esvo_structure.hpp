@@ -5,7 +5,6 @@
 
 #include "voxcast/esvo.hpp"
 #include "voxcast/octree_structure.hpp"
-#include "voxcast/packet_caster.hpp"
 #include "voxcast/structure.hpp"
 
 namespace voxcast::detail {
@@ -42,11 +41,8 @@ CastResult cast_ray(const EsvoOctree& octree, Vec3 origin, Vec3 dir, float tmax,
 CastResult cast_ray(const EsvoOctree& octree, Vec3 origin, Vec3 dir, float tmax, float size_coef,
                     float size_bias, const Aabb* region, RayCounters* counters);
 
-class EsvoStructure final : public OctreeStructure<EsvoStructure>,
-                            public PacketQueryOf<EsvoStructure> {
+class EsvoStructure final : public OctreeStructure<EsvoStructure> {
  public:
-  /// Its packet casters (packet_caster.hpp).
-  const PacketQuery* packets() const override { return this; }
   explicit EsvoStructure(std::shared_ptr<const EsvoOctree> octree);
   // bounds, surface, trace, transmittance, beam_start: the octree family's
   // (octree_structure.hpp); SurfaceHit::voxel_ref = the parent's descriptor

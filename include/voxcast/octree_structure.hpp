@@ -25,9 +25,9 @@ struct OctreeWorld;  // what Self::world() returns: src/core/octree_caster.hpp
 // SurfaceQuery is the first base: the renderer calls trace() and
 // attributes() through a SurfaceQuery pointer once per ray, and at offset 0
 // those calls need no this-adjusting thunk (Structure's methods run once per
-// frame).
+// frame, SurfacePackets' once per queue of rays).
 template <class Self>
-class OctreeStructure : public SurfaceQuery, public Structure {
+class OctreeStructure : public SurfaceQuery, public Structure, public SurfacePackets {
  public:
   /// World-space bounds of the root cube.
   Aabb bounds() const override;
@@ -46,6 +46,15 @@ class OctreeStructure : public SurfaceQuery, public Structure {
                       const BeamStart* beam = nullptr) const override;
   /// Coarse pass of the beam optimization (esvo §6.2, core/beam_frustum.hpp).
   void beam_start(const BeamFrustum& beam, TraceContext& ctx, BeamStart* start) const override;
+  /// Every octree structure has the packet casters (voxcast/packet_caster.hpp).
+  const SurfacePackets* packets() const override { return this; }
+  /// voxcast::trace_packets / occluded_packets on Self (bit-identical to
+  /// trace() / occluded()); ctx is not used (packets do not count).
+  void trace_packets(const Ray* rays, size_t n, const LodFootprint& lod, TraceContext& ctx,
+                     SurfaceHit* hits, uint8_t* found, Isa isa,
+                     const BeamStart* const* beams = nullptr) const override;
+  void occluded_packets(const Ray* rays, size_t n, const LodFootprint& lod, TraceContext& ctx,
+                        uint8_t* occluded, Isa isa) const override;
 };
 
 }  // namespace voxcast

@@ -27,11 +27,6 @@ namespace dag {
 class DagStructure;
 }
 
-/// Which caster traces a frame's rays (`voxcast bench --caster`).
-enum class Caster { Scalar, Packet };
-/// "scalar" or "packet".
-const char* caster_name(Caster c);
-
 /// Rays per packet of `isa`'s kernel.
 inline int packet_width(Isa isa) {
   return isa == Isa::Avx512 ? 16 : 8;
@@ -56,36 +51,6 @@ void occluded_packets(const esvo::EsvoStructure& s, const Ray* rays, size_t n,
                       const LodFootprint& lod, uint8_t* occluded, Isa isa = active_isa());
 void occluded_packets(const dag::DagStructure& s, const Ray* rays, size_t n,
                       const LodFootprint& lod, uint8_t* occluded, Isa isa = active_isa());
-
-/// The packet casters as a capability of a surface query
-/// (SurfaceQuery::packets()), so that callers need not know the structure:
-/// the same contracts as the functions above.
-class PacketQuery {
- public:
-  virtual ~PacketQuery() = default;
-  virtual void trace_packets(const Ray* rays, size_t n, const LodFootprint& lod, SurfaceHit* hits,
-                             uint8_t* found, Isa isa = active_isa(),
-                             const BeamStart* const* beams = nullptr) const = 0;
-  virtual void occluded_packets(const Ray* rays, size_t n, const LodFootprint& lod,
-                                uint8_t* occluded, Isa isa = active_isa()) const = 0;
-};
-
-/// PacketQuery for a structure Self with trace_packets / occluded_packets
-/// overloads above: Self derives from it and returns `this` from packets().
-template <class Self>
-class PacketQueryOf : public PacketQuery {
- public:
-  void trace_packets(const Ray* rays, size_t n, const LodFootprint& lod, SurfaceHit* hits,
-                     uint8_t* found, Isa isa = active_isa(),
-                     const BeamStart* const* beams = nullptr) const override {
-    ::voxcast::trace_packets(static_cast<const Self&>(*this), rays, n, lod, hits, found, isa,
-                             beams);
-  }
-  void occluded_packets(const Ray* rays, size_t n, const LodFootprint& lod, uint8_t* occluded,
-                        Isa isa = active_isa()) const override {
-    ::voxcast::occluded_packets(static_cast<const Self&>(*this), rays, n, lod, occluded, isa);
-  }
-};
 
 /// Pixel (x, y) of the w x h rectangle at (x0, y0), in packet order: 4x4
 /// blocks row by row, pixels row-major inside a block; edge blocks are cut.

@@ -31,6 +31,17 @@ struct SurfaceOptions {
   bool collect_stats = false;
   /// Adaptive post-process blur of the color image (esvo §6.3); see post_filter().
   bool filter = false;
+  /// Primary rays: Packet traces each tile as 4x4 pixel blocks through the
+  /// structure's packet caster (SurfaceQuery::packets()) where it has one
+  /// and the frame does not count (the packet kernels have no counters);
+  /// Scalar, or a structure without packets, traces one ray at a time. The
+  /// images are byte-identical either way (tests/test_surface_integrator.cpp,
+  /// SurfaceIntegratorPackets.*).
+  Caster caster = Caster::Packet;
+  /// The ISA of the packet caster's and the batched shading's kernels
+  /// (render/shade_kernel.hpp); unset: active_isa(). The image is the same
+  /// for every ISA.
+  std::optional<Isa> isa;
   /// Shadows and ambient occlusion per hit pixel (svdag §4, effects.hpp).
   /// The light of Directional is light_dir above.
   EffectOptions effects;
@@ -81,6 +92,8 @@ class SurfaceIntegrator final : public Integrator {
   // Per frame (begin_frame):
   EffectOptions fx_;
   const SurfaceQuery* query_ = nullptr;
+  const SurfacePackets* packets_ = nullptr;  // null: scalar primary rays
+  Isa isa_ = Isa::Avx2;
   std::optional<CameraRays> cam_;
   LodFootprint lod_;
   Vec3 to_light_;

@@ -6,8 +6,10 @@
 // the caller's per-thread TraceContext (trace_context.hpp): counters, the
 // request sink of streaming structures, accessor caches.
 #include <cmath>
+#include <cstddef>
 #include <cstdint>
 
+#include "voxcast/isa.hpp"
 #include "voxcast/math.hpp"
 #include "voxcast/trace_context.hpp"
 
@@ -50,16 +52,36 @@ struct SurfaceHit {
   int level = 0;           // octree level of the hit voxel (root = 0)
 };
 
-class PacketQuery;  // packet_caster.hpp
+/// Which caster traces a frame's primary rays (SurfaceOptions::caster,
+/// `voxcast render/bench --caster`).
+enum class Caster { Scalar, Packet };
+/// "scalar" or "packet".
+const char* caster_name(Caster c);
+
+/// The packet capability of a surface query (SurfaceQuery::packets()): many
+/// rays per call, traced by lane-parallel kernels (voxcast/packet_caster.hpp).
+/// Every answer is that of the scalar trace() / occluded() for the same ray,
+/// bit for bit, so a caller may use either for any ray. Neither call counts
+/// (ctx.counters): a counting caller uses the scalar methods.
+class SurfacePackets {
+ public:
+  virtual ~SurfacePackets() = default;
+  /// found[i] = trace(rays[i], lod, ctx, &hits[i], beams[i]) for i < n;
+  /// hits[i] written where found[i]. beams (may be null, entries may be null):
+  /// as trace()'s beam argument per ray. Coherent rays in order (camera rays
+  /// as 4x4 pixel blocks, block_order()) make fast packets. `isa`: the kernel
+  /// variant (throws voxcast::Error if the CPU lacks it).
+  virtual void trace_packets(const Ray* rays, size_t n, const LodFootprint& lod, TraceContext& ctx,
+                             SurfaceHit* hits, uint8_t* found, Isa isa,
+                             const BeamStart* const* beams = nullptr) const = 0;
+  /// occluded[i] = occluded(rays[i], lod, ctx) for i < n (shadow, AO rays).
+  virtual void occluded_packets(const Ray* rays, size_t n, const LodFootprint& lod,
+                                TraceContext& ctx, uint8_t* occluded, Isa isa) const = 0;
+};
 
 class SurfaceQuery {
  public:
   virtual ~SurfaceQuery() = default;
-
-  /// The structure's packet casters (packet_caster.hpp: many rays at once,
-  /// answers bit-identical to trace() / occluded()), or null: callers then
-  /// trace ray by ray.
-  virtual const PacketQuery* packets() const { return nullptr; }
 
   /// First hit along `ray` (unit direction) within [0, ray.tmax], stopping at
   /// the LOD footprint. `beam` (may be null): the result of beam_start() for
@@ -94,6 +116,11 @@ class SurfaceQuery {
     (void)beam, (void)ctx;
     *start = BeamStart{};
   }
+
+  /// The packet capability, or null (the default) when the structure has
+  /// only the scalar trace(): a streaming structure that serves requests per
+  /// ray, say. Valid as long as the query.
+  virtual const SurfacePackets* packets() const { return nullptr; }
 };
 
 }  // namespace voxcast

@@ -56,6 +56,7 @@
 #include "core/octree_ray.hpp"
 #include "voxcast/math.hpp"
 #include "voxcast/octree_structure.hpp"
+#include "voxcast/packet_caster.hpp"
 #include "voxcast/structure.hpp"
 #include "voxcast/voxelize.hpp"
 
@@ -654,6 +655,17 @@ template <class Self>
 void OctreeStructure<Self>::beam_start(const BeamFrustum& beam, TraceContext& ctx,
                                        BeamStart* start) const {
   static_cast<const Self&>(*this).world().beam_start(beam, ctx, start);
+}
+template <class Self>
+void OctreeStructure<Self>::trace_packets(const Ray* rays, size_t n, const LodFootprint& lod,
+                                          TraceContext&, SurfaceHit* hits, uint8_t* found, Isa isa,
+                                          const BeamStart* const* beams) const {
+  ::voxcast::trace_packets(static_cast<const Self&>(*this), rays, n, lod, hits, found, isa, beams);
+}
+template <class Self>
+void OctreeStructure<Self>::occluded_packets(const Ray* rays, size_t n, const LodFootprint& lod,
+                                             TraceContext&, uint8_t* occluded, Isa isa) const {
+  ::voxcast::occluded_packets(static_cast<const Self&>(*this), rays, n, lod, occluded, isa);
 }
 
 }  // namespace voxcast

@@ -6,9 +6,12 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <vector>
 
 #include "render/beam.hpp"
+#include "render/shade_kernel.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/packet_caster.hpp"
 #include "voxcast/render.hpp"
 
 namespace voxcast {
@@ -33,6 +36,10 @@ void SurfaceIntegrator::begin_frame(const Structure& structure, const FrameView&
   query_ = structure.surface();
   if (query_ == nullptr)
     throw Error("render: the " + structure.name() + " structure has no surface query");
+  packets_ = options_.caster == Caster::Packet ? query_->packets() : nullptr;
+  isa_ = options_.isa ? *options_.isa : active_isa();
+  if (!cpu_supports(isa_))
+    throw Error(std::string("render: this CPU does not support ") + isa_name(isa_));
   cam_.emplace(view.camera, view.width, view.height);
   // Pixel cone (esvo §6.1 ray_size_coef/bias): a voxel may stand for the
   // surface once it projects to <= lod_pixels pixels; 0 keeps the finest
@@ -70,24 +77,26 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
   RayCounters outer;
   if (collect) outer = ctx.counters, ctx.counters = RayCounters{};
 
-  // Pixels go in batches: first every ray of the batch is traced, then the
-  // hits are shaded. Attribute fetches are mostly cache misses (the values
-  // live far from the descriptors); issued back to back they overlap in the
-  // memory system instead of stalling one ray at a time.
-  constexpr int kBatch = 32;
-  SurfaceHit batch_hit[kBatch];
-  Vec3 batch_dir[kBatch];
-  int batch_x[kBatch], batch_y[kBatch];
-  int batch_n = 0;
-  auto shade_batch = [&] {
-    for (int b = 0; b < batch_n; ++b) {
-      const SurfaceHit& hit = batch_hit[b];
-      const int x = batch_x[b], y = batch_y[b];
-      float* out = film.color.at(x, y);
-      Color c;
-      Vec3 n;
-      q.attributes(hit, ctx, &c, &n);  // counts its bytes while collecting
-      const Vec3 dir = batch_dir[b];
+  // Hits are shaded in groups of up to kShadeLanes: first every hit's
+  // attributes are fetched (mostly cache misses: the values live far from
+  // the descriptors; issued back to back they overlap in the memory system
+  // instead of stalling one hit at a time), then per hit the normal is
+  // turned to the viewer and the effects are traced, then the group's
+  // Blinn-Phong runs in vector lanes (render/shade_kernel.hpp), and the
+  // AOVs are written.
+  const detail::ShadeKernel phong = detail::shade_kernel(isa_);
+  detail::ShadeBatch sb{};
+  Color group_c[detail::kShadeLanes];
+  Vec3 group_n[detail::kShadeLanes];
+  auto shade_group = [&](const SurfaceHit* const* hits, const int* xs, const int* ys,
+                         const Vec3* dirs, int m) {
+    for (int i = 0; i < m; ++i)
+      q.attributes(*hits[i], ctx, &group_c[i], &group_n[i]);  // counts its bytes while collecting
+    for (int i = 0; i < m; ++i) {
+      const SurfaceHit& hit = *hits[i];
+      const int x = xs[i], y = ys[i];
+      const Vec3 dir = dirs[i];
+      Vec3 n = group_n[i];
       // Voxel normals are averages over the surface inside the voxel and may
       // face away from the viewer; shade the side we see.
       if (dot(n, dir) > 0.f) n = -n;
@@ -112,15 +121,20 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
               ambient_occlusion(occluder, ctx, sp, fx, fx.ao_radius, seed, &ts.effects);
         ctx.counting = counting;
       }
-      const float diffuse = std::fmax(0.f, dot(n, light)) * visibility;
-      const Vec3 half_vec = normalize(light - dir);   // Blinn: light + view
-      float spec = std::fmax(0.f, dot(n, half_vec));  // ^32 by squaring (no powf call)
-      spec *= spec, spec *= spec, spec *= spec, spec *= spec, spec *= spec;
-      spec *= visibility;
-      const float k = 0.18f * ao + 0.82f * diffuse;
-      out[0] = c.r * k + 0.12f * spec;
-      out[1] = c.g * k + 0.12f * spec;
-      out[2] = c.b * k + 0.12f * spec;
+      const Color c = group_c[i];
+      sb.cr[i] = c.r, sb.cg[i] = c.g, sb.cb[i] = c.b;
+      sb.nx[i] = n.x, sb.ny[i] = n.y, sb.nz[i] = n.z;
+      sb.dx[i] = dir.x, sb.dy[i] = dir.y, sb.dz[i] = dir.z;
+      sb.lx[i] = light.x, sb.ly[i] = light.y, sb.lz[i] = light.z;
+      sb.visibility[i] = visibility, sb.ao[i] = ao;
+    }
+    sb.count = m;
+    phong(&sb);
+    for (int i = 0; i < m; ++i) {
+      const SurfaceHit& hit = *hits[i];
+      const int x = xs[i], y = ys[i];
+      float* out = film.color.at(x, y);
+      out[0] = sb.r[i], out[1] = sb.g[i], out[2] = sb.b[i];
       if (want_depth) *film.depth.at(x, y) = hit.t;
       if (!film.filter_radius.empty()) {
         // esvo §6.3: the voxel side over the pixel footprint at distance t,
@@ -133,10 +147,30 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
       }
       if (want_normal) {
         float* o = film.normal.at(x, y);
-        o[0] = n.x * 0.5f + 0.5f, o[1] = n.y * 0.5f + 0.5f, o[2] = n.z * 0.5f + 0.5f;
+        o[0] = sb.nx[i] * 0.5f + 0.5f, o[1] = sb.ny[i] * 0.5f + 0.5f, o[2] = sb.nz[i] * 0.5f + 0.5f;
       }
     }
+  };
+  // Scalar path: the hits of kShadeLanes rays in a row.
+  constexpr int kBatch = detail::kShadeLanes;
+  SurfaceHit batch_hit[kBatch];
+  const SurfaceHit* batch_ptr[kBatch];
+  for (int b = 0; b < kBatch; ++b) batch_ptr[b] = &batch_hit[b];
+  Vec3 batch_dir[kBatch];
+  int batch_x[kBatch], batch_y[kBatch];
+  int batch_n = 0;
+  auto shade_batch = [&] {
+    shade_group(batch_ptr, batch_x, batch_y, batch_dir, batch_n);
     batch_n = 0;
+  };
+  auto miss = [&](int x, int y) {
+    float* out = film.color.at(x, y);
+    out[0] = bg.r, out[1] = bg.g, out[2] = bg.b;
+    if (want_depth) *film.depth.at(x, y) = INFINITY;
+    if (want_normal) {
+      float* n = film.normal.at(x, y);
+      n[0] = n[1] = n[2] = 0.5f;
+    }
   };
   // One pixel; `beam` = the coarse-pass result of its block (or null).
   auto trace_pixel = [&](int x, int y, const BeamStart* beam) {
@@ -152,37 +186,66 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
       if (++batch_n == kBatch) shade_batch();
       return;
     }
-    float* out = film.color.at(x, y);
-    out[0] = bg.r, out[1] = bg.g, out[2] = bg.b;
-    if (want_depth) *film.depth.at(x, y) = INFINITY;
-    if (want_normal) {
-      float* n = film.normal.at(x, y);
-      n[0] = n[1] = n[2] = 0.5f;
+    miss(x, y);
+  };
+  // The coarse pass (§6.2) of the K x K block at (bx, by), clipped to the
+  // tile; it runs inside the timed loop and ignores contours (§6.2: whole
+  // cubes contain their contour-clipped shape; core/beam_frustum.hpp).
+  auto coarse_pass = [&](int bx, int by, BeamStart* start) {
+    const int bx1 = std::min(bx + beam_k, tile.x1), by1 = std::min(by + beam_k, tile.y1);
+    const BeamFrustum frustum = detail::block_beam(cam, bx, by, bx1, by1, lod);
+    if (collect) {
+      // The coarse pass's work is kept apart from the rays' (Table 6).
+      const RayCounters rays = ctx.counters;
+      ctx.counters = RayCounters{};
+      q.beam_start(frustum, ctx, start);
+      ts.coarse_counters += ctx.counters;
+      ctx.counters = rays;
+      ++ts.beams;
+    } else {
+      q.beam_start(frustum, ctx, start);
     }
   };
-  if (beam_k == 0) {
+  // Packets need a frame that does not count: the kernels have no counters
+  // (and the iteration AOV is per ray).
+  if (packets_ != nullptr && !ctx.counting) {
+    // The tile's rays in 4x4 pixel blocks (block_order), traced as one call:
+    // the packet caster fills its lanes from this queue in order, so a packet
+    // starts as a coherent block. Buffers per thread, grown once.
+    thread_local detail::PacketTile pt;
+    pt.generate(cam, tile.x0, tile.y0, tile.x1, tile.y1);
+    if (beam_k != 0) pt.coarse_pass(tile.x0, tile.y0, tile.x1, tile.y1, beam_k, coarse_pass);
+    const size_t n = pt.order.size();
+    packets_->trace_packets(pt.rays.data(), n, lod, ctx, pt.hits.data(), pt.found.data(), isa_,
+                            pt.beam_list());
+    // The hits in groups of kShadeLanes, in queue order (a 4x4 block is
+    // one group where all its rays hit).
+    const SurfaceHit* group_hit[detail::kShadeLanes];
+    Vec3 group_dir[detail::kShadeLanes];
+    int group_x[detail::kShadeLanes], group_y[detail::kShadeLanes];
+    int m = 0;
+    for (size_t i = 0; i < n; ++i) {
+      if (!pt.found[i]) {
+        miss(pt.x(i), pt.y(i));
+        continue;
+      }
+      ++ts.hits;
+      group_hit[m] = &pt.hits[i], group_dir[m] = pt.rays[i].dir;
+      group_x[m] = pt.x(i), group_y[m] = pt.y(i);
+      if (++m == detail::kShadeLanes) shade_group(group_hit, group_x, group_y, group_dir, m), m = 0;
+    }
+    if (m > 0) shade_group(group_hit, group_x, group_y, group_dir, m);
+  } else if (beam_k == 0) {
     for (int y = tile.y0; y < tile.y1; ++y)
       for (int x = tile.x0; x < tile.x1; ++x) trace_pixel(x, y, nullptr);
   } else {
     // §6.2: per K x K block (clipped to the tile), a coarse pass computes a
-    // conservative start region shared by the block's rays. It runs inside
-    // the timed loop and ignores contours (§6.2: whole cubes contain their
-    // contour-clipped shape; core/beam_frustum.hpp).
+    // conservative start region shared by the block's rays.
     for (int by = tile.y0; by < tile.y1; by += beam_k) {
       for (int bx = tile.x0; bx < tile.x1; bx += beam_k) {
         const int bx1 = std::min(bx + beam_k, tile.x1), by1 = std::min(by + beam_k, tile.y1);
         BeamStart start;
-        if (collect) {
-          // The coarse pass's work is kept apart from the rays' (Table 6).
-          const RayCounters rays = ctx.counters;
-          ctx.counters = RayCounters{};
-          q.beam_start(detail::block_beam(cam, bx, by, bx1, by1, lod), ctx, &start);
-          ts.coarse_counters += ctx.counters;
-          ctx.counters = rays;
-          ++ts.beams;
-        } else {
-          q.beam_start(detail::block_beam(cam, bx, by, bx1, by1, lod), ctx, &start);
-        }
+        coarse_pass(bx, by, &start);
         for (int y = by; y < by1; ++y)
           for (int x = bx; x < bx1; ++x) trace_pixel(x, y, &start);
       }
