@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "camera_options.hpp"
 #include "cli_io.hpp"
@@ -14,6 +15,7 @@
 #include "voxcast/gigavoxels.hpp"
 #include "voxcast/image.hpp"
 #include "voxcast/integrator.hpp"
+#include "voxcast/progress.hpp"
 #include "voxcast/volume_integrator.hpp"
 
 namespace voxcast::cli {
@@ -168,15 +170,20 @@ Runner add_volume(CLI::App& app) {
     Film film;
     double later_seconds = 0;
     uint64_t later_rays = 0;
+    // One bar phase per frame; each pass adds its tiles to the frame's work.
+    Progress progress("volume render",
+                      std::vector<Progress::Phase>(size_t(args->frames), Progress::Phase{"", 1}));
+    fo.progress = &progress;
     for (int f = 0; f < args->frames; ++f) {
       view.frame = uint32_t(f);
+      progress.start_phase(size_t(f), 0);
       const auto t0 = std::chrono::steady_clock::now();
       const FrameStats fs = render_frame(volume, integrator, view, fo, &film);
       const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
       if (args->verbose) print_pass_stats(uint32_t(f), fs, volume);
       if (f > 0) later_seconds += s, later_rays += integrator.stats().rays;
       if (f + 1 == args->frames && fo.max_passes > 1 && !fs.passes.empty() &&
-          fs.passes.back().requests != 0)
+          fs.passes.back().requests != 0 && !Progress::quiet())
         std::fprintf(stderr,
                      "voxcast: warning: the last pass still asked for %llu elements (the pool is "
                      "too small for the view or --passes too low): the image shows coarser data\n",
