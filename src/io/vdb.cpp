@@ -1,12 +1,17 @@
 // OpenVDB .vdb in and out (voxel_io.hpp) through libopenvdb.
 #include <fmt/format.h>
 #include <openvdb/openvdb.h>
+#include <xxhash.h>
 
 #include <algorithm>
 #include <bit>
+#include <cctype>
 #include <cmath>
+#include <cstdio>
 #include <mutex>
 #include <optional>
+#include <string>
+#include <vector>
 
 #include "io/voxel_io_internal.hpp"
 #include "voxcast/error.hpp"
@@ -41,6 +46,53 @@ std::vector<openvdb::Coord> occupied(const GridT& grid, Keep keep, uint64_t max_
     for (auto c = box.begin(); c; ++c) out.push_back(*c);
   }
   return out;
+}
+
+// OpenVDB's io::File writes a random UUID into every file header (for its
+// own caches of delayed-loaded files), so the same voxels would give
+// different bytes on every run. Replaced, after the write, by one derived
+// from the file's other bytes: same content, same UUID (issue 15 item 9,
+// DeterministicVoxels). Header: magic (8 bytes), file version, library major
+// and minor (4 each), the grid-offsets flag (1), then the UUID as 36 ASCII
+// characters.
+void content_uuid(const std::filesystem::path& path) {
+  constexpr size_t kAt = 21, kLen = 36;
+  std::FILE* f = std::fopen(path.c_str(), "r+b");
+  if (!f) throw Error(fmt::format("cannot write {}: cannot reopen it", path.string()));
+  std::vector<char> bytes;
+  char buf[1 << 16];
+  for (size_t n; (n = std::fread(buf, 1, sizeof buf, f)) > 0;)
+    bytes.insert(bytes.end(), buf, buf + n);
+  auto is_uuid = [&] {
+    if (bytes.size() < kAt + kLen) return false;
+    for (size_t i = 0; i < kLen; ++i) {
+      const char c = bytes[kAt + i];
+      if ((i == 8 || i == 13 || i == 18 || i == 23) ? c != '-'
+                                                    : !std::isxdigit(static_cast<unsigned char>(c)))
+        return false;
+    }
+    return true;
+  };
+  if (!is_uuid()) {  // another header layout: leave OpenVDB's UUID alone
+    std::fclose(f);
+    return;
+  }
+  std::fill(bytes.begin() + kAt, bytes.begin() + kAt + kLen, '0');
+  const uint64_t h[2] = {XXH64(bytes.data(), bytes.size(), 1),
+                         XXH64(bytes.data(), bytes.size(), 2)};
+  uint8_t b[16];
+  for (int i = 0; i < 16; ++i) b[i] = uint8_t(h[i / 8] >> (8 * (i % 8)));
+  b[6] = uint8_t((b[6] & 0x0F) | 0x40);  // RFC 4122 layout: "version 4", variant 10
+  b[8] = uint8_t((b[8] & 0x3F) | 0x80);
+  std::string uuid;
+  for (int i = 0; i < 16; ++i) {
+    if (i == 4 || i == 6 || i == 8 || i == 10) uuid += '-';
+    uuid += fmt::format("{:02x}", b[i]);
+  }
+  const bool ok =
+      std::fseek(f, long(kAt), SEEK_SET) == 0 && std::fwrite(uuid.data(), 1, kLen, f) == kLen;
+  if (std::fclose(f) != 0 || !ok)
+    throw Error(fmt::format("cannot write {}: I/O error", path.string()));
 }
 
 }  // namespace
@@ -176,6 +228,13 @@ void write_vdb(const std::filesystem::path& path, const VoxelSet& voxels) {
     std::error_code ec;
     std::filesystem::remove(tmp, ec);
     throw Error(fmt::format("cannot write {}: {}", path.string(), e.what()));
+  }
+  try {
+    content_uuid(tmp);
+  } catch (const Error&) {
+    std::error_code ec;
+    std::filesystem::remove(tmp, ec);
+    throw;
   }
   std::error_code ec;
   std::filesystem::rename(tmp, path, ec);
