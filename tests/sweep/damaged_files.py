@@ -3,7 +3,7 @@
 reads a file, every stored scene format and every interop input format.
 
     tests/sweep/damaged_files.py VOXCAST [--per-file N] [--seed S] [--timeout T]
-                                 [--work DIR]
+                                 [--work DIR] [--only scenes,voxels,volumes,meshes]
 
 Samples (built with VOXCAST from tests/data, small): the seven scene formats
 (ESVO raw, compressed, contours, contours + compressed, variable depth, DAG
@@ -162,6 +162,8 @@ def main():
     ap.add_argument('--seed', type=int, default=2026)
     ap.add_argument('--timeout', type=float, default=60)
     ap.add_argument('--work')
+    ap.add_argument('--only', default='scenes,voxels,volumes,meshes',
+                    help='comma-separated parts of the sweep to run')
     a = ap.parse_args()
     rng = random.Random(a.seed)
     work = a.work or tempfile.mkdtemp(prefix='voxcast-damage-')
@@ -178,8 +180,9 @@ def main():
     def state():
         return (sw.runs, sw.accepted, sw.refused, len(sw.failures))
 
+    only = set(a.only.split(','))
     # ---- scenes ----
-    for name, opts in SCENE_FORMATS.items():
+    for name, opts in (SCENE_FORMATS.items() if 'scenes' in only else []):
         src = sw.out(name + '.vxc')
         if not sw.run(['build', spot, '-o', src] + opts.split(), 'sample ' + name):
             raise SystemExit(f'cannot build the {name} sample')
@@ -197,12 +200,13 @@ def main():
 
     # ---- voxel files ----
     voxel_samples = []
-    for ext in ('vox', 'binvox', 'vdb'):
+    for ext in ('vox', 'binvox', 'vdb') if 'voxels' in only else []:
         f = sw.out('sample.' + ext)
         if not sw.run(['convert', spot, f, '--resolution', '32'], 'sample ' + ext):
             raise SystemExit(f'cannot write the .{ext} sample')
         voxel_samples.append((ext, f))
-    voxel_samples.append(('vox (MagicaVoxel)', os.path.join(DATA, 'vox', 'chr_knight.vox')))
+    if 'voxels' in only:
+        voxel_samples.append(('vox (MagicaVoxel)', os.path.join(DATA, 'vox', 'chr_knight.vox')))
     for name, src in voxel_samples:
         before = state()
         for i, f in damaged_files(sw, src, rng, a.per_file):
@@ -219,7 +223,7 @@ def main():
 
     # ---- volumes ----
     inr = os.path.join(DATA, 'volumes')
-    for v in sorted(os.listdir(inr)) if os.path.isdir(inr) else []:
+    for v in sorted(os.listdir(inr)) if 'volumes' in only else []:
         if not v.endswith('.inr'):
             continue
         before = state()
@@ -230,12 +234,12 @@ def main():
 
     # ---- meshes ----
     meshes = [os.path.join(DATA, 'meshes', 'spot.obj'),
-              os.path.join(DATA, 'meshes', 'camel.off')]
+              os.path.join(DATA, 'meshes', 'camel.off')] if 'meshes' in only else []
     # The fuzz corpus' small seeds (first byte = the extension index of
     # fuzz_mesh.cpp): OBJ with mtllib, PLY, STL, OFF, glTF, GLB.
     corpus = os.path.join(ROOT, 'fuzz', 'corpus', 'mesh')
     kext = ['.obj', '.ply', '.stl', '.off', '.gltf', '.glb', '.dae']
-    for seed in sorted(os.listdir(corpus)):
+    for seed in sorted(os.listdir(corpus)) if meshes else []:
         raw = open(os.path.join(corpus, seed), 'rb').read()
         if raw:
             f = sw.out('seed-' + seed + kext[raw[0] % 7])
