@@ -5,7 +5,9 @@
 // (CompressedOctree.DeterministicForAnyThreadCount, DagBuild.Deterministic-
 // AcrossThreadCounts, DagCompressed.DeterministicForOneAndTwoThreads,
 // CellBuild / variable-depth 1-vs-all, Effects.DeterministicAcrossThreadCounts).
-// These fill the gaps: every other .vxc variant and the rendered .png/.pfm.
+// These fill the gaps: every other .vxc variant, the rendered .png/.pfm/.exr,
+// the voxel files `convert` writes (.vox, .binvox, .vdb, .raw + .raw.json)
+// and the GigaVoxels volume images.
 #include <gtest/gtest.h>
 
 #include <string>
@@ -95,6 +97,86 @@ INSTANTIATE_TEST_SUITE_P(Structures, DeterministicImages,
                          [](const ::testing::TestParamInfo<const char*>& p) {
                            return std::string(p.index == 0 ? "esvo" : "dag");
                          });
+
+// The multi-layer EXR (color, depth and normal layers in one file).
+TEST(DeterministicExr, SameBytesOnOneAndTwoThreads) {
+  TempDir dir;
+  const std::string scene = dir.file("s.vxc");
+  const testing::CliResult b = run_cli("build '" + kSpot + "' -o '" + scene + "' --resolution 128");
+  ASSERT_EQ(b.exit_code, 0) << b.output;
+  std::string bytes[2];
+  for (int t = 0; t < 2; ++t) {
+    const std::string out = dir.file(std::to_string(t) + ".exr");
+    const testing::CliResult r =
+        run_cli("render '" + scene + "' -o '" + out +
+                "' --aov depth,normal --size 96x72 --beam 4 --shadows hard --ao 4 --threads " +
+                std::to_string(t + 1));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    bytes[t] = read_text(out);
+  }
+  ASSERT_GT(bytes[0].size(), 1000u);
+  EXPECT_TRUE(bytes[0] == bytes[1]) << ".exr differs between 1 and 2 threads";
+}
+
+// `convert` from a mesh (voxelized on the threads) into every voxel format;
+// solid fill for one of them, so the parity fill's threads are covered too.
+struct VoxelOutput {
+  const char* name;
+  const char* file;
+  const char* options;
+};
+
+class DeterministicVoxels : public ::testing::TestWithParam<VoxelOutput> {};
+
+TEST_P(DeterministicVoxels, SameBytesOnOneAndTwoThreads) {
+  TempDir dir;
+  std::string bytes[2], json[2];
+  const bool raw = std::string(GetParam().file).ends_with(".raw");
+  for (int t = 0; t < 2; ++t) {
+    const std::string out = dir.file(std::to_string(t) + GetParam().file);
+    const testing::CliResult r =
+        run_cli("convert '" + kSpot + "' '" + out + "' " + GetParam().options + " --threads " +
+                std::to_string(t + 1));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    bytes[t] = read_text(out);
+    if (raw) json[t] = read_text(out + ".json");
+  }
+  ASSERT_GT(bytes[0].size(), 100u);
+  EXPECT_TRUE(bytes[0] == bytes[1]) << GetParam().name << " differs between 1 and 2 threads";
+  if (raw) {
+    ASSERT_FALSE(json[0].empty());
+    EXPECT_EQ(json[0], json[1]);
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    Formats, DeterministicVoxels,
+    ::testing::Values(VoxelOutput{"vox", ".vox", "--resolution 64"},
+                      VoxelOutput{"vox_solid", ".vox", "--resolution 64 --fill solid"},
+                      VoxelOutput{"binvox", ".binvox", "--resolution 64"},
+                      VoxelOutput{"vdb", ".vdb", "--resolution 64"},
+                      VoxelOutput{"raw", ".raw", "--resolution 64"}),
+    [](const ::testing::TestParamInfo<VoxelOutput>& p) { return std::string(p.param.name); });
+
+// `volume render` (GigaVoxels: several passes that serve requests between
+// them, so the pools' contents depend on what the threads asked for).
+TEST(DeterministicVolume, SameBytesOnOneAndTwoThreads) {
+  TempDir dir;
+  std::string bytes[2][2];
+  for (int t = 0; t < 2; ++t) {
+    const std::string p = dir.file(std::to_string(t));
+    const testing::CliResult r =
+        run_cli("volume render procedural:menger -o '" + p + ".png' --depth '" + p +
+                ".pfm' --resolution 64 --size 64x48 --shading --threads " + std::to_string(t + 1));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    bytes[t][0] = read_text(p + ".png");
+    bytes[t][1] = read_text(p + ".pfm");
+  }
+  for (int k = 0; k < 2; ++k) {
+    ASSERT_GT(bytes[0][k].size(), 100u);
+    EXPECT_TRUE(bytes[0][k] == bytes[1][k]) << (k ? ".pfm" : ".png") << " differs";
+  }
+}
 
 }  // namespace
 }  // namespace voxcast

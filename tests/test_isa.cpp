@@ -115,6 +115,8 @@ TEST(Isa, VersionReportsBuildAndIsa) {
     EXPECT_NE(r.output.find("build type: "), std::string::npos) << r.output;
     EXPECT_NE(r.output.find("assimp "), std::string::npos) << r.output;
     EXPECT_NE(r.output.find("oneTBB "), std::string::npos) << r.output;
+    EXPECT_NE(r.output.find("OpenEXR 3."), std::string::npos) << r.output;
+    EXPECT_NE(r.output.find("OpenVDB "), std::string::npos) << r.output;
   }
   if (cpu_supports(Isa::Avx512)) {
     IsaEnv env("avx512");

@@ -6,6 +6,7 @@
 #include <openvdb/tools/LevelSetSphere.h>
 
 #include <cmath>
+#include <cstring>
 #include <fstream>
 #include <iterator>
 #include <random>
@@ -127,4 +128,54 @@ TEST(Vdb, DamagedFilesAreRefusedAndCliConverts) {
   r = run_cli("convert " + dir.file("cut.vdb") + " " + dir.file("x.vox"));
   EXPECT_EQ(r.exit_code, 1) << r.output;
   EXPECT_NE(r.output.find("voxcast: error: "), std::string::npos) << r.output;
+}
+
+// OpenVDB allocates a string's declared length before reading it; the
+// precheck refuses any declared length or grid offset beyond the file first
+// (fuzz_vdb found a 33 KB file declaring a 1.9 GB grid name, committed in
+// tests/data/regress/vdb).
+TEST(Vdb, DeclaredLengthsBeyondTheFileAreRefusedBeforeOpenVdbAllocates) {
+  const std::string found =
+      std::string(VOXCAST_TEST_DATA_DIR) + "/regress/vdb/fuzz-grid-name-1.9-gb.vdb";
+  try {
+    read_vdb(found);
+    ADD_FAILURE() << "accepted " << found;
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("grid name declares 1879080816 bytes"), std::string::npos)
+        << e.what();
+  }
+  // The same edits on a file of ours: header (8 magic, 3 x 4 versions, 1
+  // flag, 36 UUID), no file metadata (4), the grid count (4), then the first
+  // descriptor's name length at byte 65 and, after name, type and instance
+  // strings, its three offsets.
+  TempDir dir;
+  write_vdb(dir.file("a.vdb"), random_colored(3, 16, 100));
+  std::ifstream in(dir.file("a.vdb"), std::ios::binary);
+  const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  auto u32_at = [&](size_t at) {
+    uint32_t v;
+    std::memcpy(&v, bytes.data() + at, 4);
+    return v;
+  };
+  ASSERT_EQ(u32_at(57), 0u);  // no file metadata
+  ASSERT_GE(u32_at(61), 1u);  // grids
+  auto edited = [&](size_t at, const void* value, size_t n) {
+    std::string b = bytes;
+    std::memcpy(b.data() + at, value, n);
+    std::ofstream(dir.file("e.vdb"), std::ios::binary).write(b.data(), std::streamsize(b.size()));
+    try {
+      read_vdb(dir.file("e.vdb"));
+    } catch (const Error& e) {
+      return std::string(e.what());
+    }
+    return std::string("accepted");
+  };
+  const uint32_t huge = 0x7FFFFFF0u;
+  EXPECT_NE(edited(65, &huge, 4).find("grid name declares"), std::string::npos);
+  const size_t name = u32_at(65), type_at = 69 + name, type = u32_at(type_at);
+  const size_t inst_at = type_at + 4 + type, offsets_at = inst_at + 4 + u32_at(inst_at);
+  EXPECT_NE(edited(type_at, &huge, 4).find("grid type name declares"), std::string::npos);
+  const int64_t beyond = int64_t(bytes.size()) + 1;
+  EXPECT_NE(edited(offsets_at + 16, &beyond, 8).find("outside the"), std::string::npos);
+  EXPECT_EQ(edited(0, bytes.data(), 4), "accepted");  // an unchanged copy reads
 }

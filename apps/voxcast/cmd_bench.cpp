@@ -137,16 +137,20 @@ struct Timed {
   double mrays() const { return double(rays) / seconds * 1e-6; }
   double mhits() const { return double(hits) / seconds * 1e-6; }
 };
+// The bar advances between frames, outside every timed loop.
 template <class Row>
-void measure_interleaved(std::vector<Row>& rows, int repeat) {
+void measure_interleaved(std::vector<Row>& rows, int repeat, const char* what) {
+  Progress progress(what, uint64_t(rows.size()) * uint64_t(repeat + 1));
   for (Row& r : rows) {
     r.t = r.frame();  // warm-up
     r.t.seconds = 1e30;
+    progress.advance();
   }
   for (int k = 0; k < repeat; ++k)
     for (Row& r : rows) {
       const Timed t = r.frame();
       if (t.seconds < r.t.seconds) r.t = t;
+      progress.advance();
     }
 }
 
@@ -722,7 +726,7 @@ Runner add_bench(CLI::App& app) {
                            [&] { return timed(render(*m.structure, other_beam)); },
                            {}});
       }
-      measure_interleaved(primary, args->repeat);
+      measure_interleaved(primary, args->repeat, "bench primary rays");
       const double cov = double(primary[0].t.hits) / rays;
       // Ratios against the fastest Embree mode of the same comparison.
       double fastest[2] = {0, 0};
@@ -1020,7 +1024,8 @@ Runner add_bench(CLI::App& app) {
                             {}});
           }
           // AO has ~16x the rays of the shadows: fewer rounds.
-          measure_interleaved(rows, kind == 0 ? args->repeat : std::min(args->repeat, 3));
+          measure_interleaved(rows, kind == 0 ? args->repeat : std::min(args->repeat, 3),
+                              "bench secondary rays");
           double fastest_occ = 0;
           std::string fastest_occ_name;
           for (const OccRow& r : rows)

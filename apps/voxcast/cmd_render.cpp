@@ -332,7 +332,13 @@ Runner add_render(CLI::App& app) {
       opt.want_depth = !args->depth.empty() || layers.depth;
       opt.want_normal = !args->normal.empty() || layers.normal;
       opt.filter = args->filter;
-      RenderResult result = render(structure, opt);
+      RenderResult result;
+      {
+        Progress progress("render", uint64_t(0));  // the frame loop adds the tiles
+        opt.progress = &progress;
+        result = render(structure, opt);
+        opt.progress = nullptr;
+      }
       timer.mark("ray cast");
       if (args->verbose && opt.filter)
         std::fprintf(stderr, "  %-22s %9.1f ms\n", "  of which filter",

@@ -9,6 +9,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "camera_options.hpp"
 #include "cli_io.hpp"
@@ -283,9 +284,13 @@ Runner add_volume(CLI::App& app) {
     uint64_t later_rays = 0;
     // Per-pass statistics of the frames after the first (the warm ones).
     uint64_t later_passes = 0, later_requests = 0, later_uploads = 0, later_hits = 0;
-    Progress progress("frames", uint64_t(args->frames));
+    // One bar phase per frame; each pass adds its tiles to the frame's work.
+    Progress progress("volume render",
+                      std::vector<Progress::Phase>(size_t(args->frames), Progress::Phase{"", 1}));
+    fo.progress = &progress;
     for (int f = 0; f < args->frames; ++f) {
       view.frame = uint32_t(f);
+      progress.start_phase(size_t(f), 0);
       if (path)
         view.camera = path->at(path->start() + (path->end() - path->start()) * double(f) /
                                                    double(args->frames - 1));
@@ -300,9 +305,8 @@ Runner add_volume(CLI::App& app) {
           later_requests += g.data_requests + g.subdivide_requests,
               later_uploads += g.bricks_uploaded + g.constants, later_hits += g.bricks_used;
       }
-      progress.advance();
       if (f + 1 == args->frames && fo.max_passes > 1 && !fs.passes.empty() &&
-          fs.passes.back().requests != 0)
+          fs.passes.back().requests != 0 && !Progress::quiet())
         std::fprintf(stderr,
                      "voxcast: warning: the last pass still asked for %llu elements (the pool is "
                      "too small for the view or --passes too low): the image shows coarser data\n",

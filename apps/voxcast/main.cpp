@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <functional>
 #include <new>
 #include <sstream>
 #include <vector>
@@ -13,6 +14,7 @@
 #include "commands.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/format_registry.hpp"
+#include "voxcast/progress.hpp"
 #include "voxcast/version.hpp"
 
 namespace voxcast::cli {
@@ -75,10 +77,20 @@ int main(int argc, char** argv) {
   });
   app.get_formatter()->column_width(36);
   std::vector<std::pair<CLI::App*, Runner>> commands;
+  // --quiet on every subcommand (and sub-subcommand): no progress bars and
+  // no warnings; errors and the command's own output stay.
+  std::function<void(CLI::App*)> add_quiet = [&](CLI::App* sub) {
+    sub->add_flag_callback(
+        "-q,--quiet", [] { voxcast::Progress::set_quiet(true); },
+        "No progress bars or warnings on stderr (errors and results stay)");
+    for (CLI::App* child : sub->get_subcommands({})) add_quiet(child);
+  };
   auto add = [&](Runner (*fn)(CLI::App&)) {
     size_t before = app.get_subcommands({}).size();
     Runner r = fn(app);
-    commands.emplace_back(app.get_subcommands({})[before], std::move(r));
+    CLI::App* sub = app.get_subcommands({})[before];
+    add_quiet(sub);
+    commands.emplace_back(sub, std::move(r));
   };
   add(add_build);
   add(add_render);

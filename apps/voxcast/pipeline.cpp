@@ -132,9 +132,10 @@ Mesh load_build_mesh(const std::string& path, uint64_t budget, MeshLoadStats* st
   // Decoded textures get what the file leaves of the budget.
   const uint64_t held = ec ? 0 : file_bytes;
   Mesh mesh = load_mesh(path, stats, budget ? (budget > held ? budget - held : 1) : 0);
-  for (const std::string& w : stats->warnings)
-    std::fprintf(stderr, "voxcast: warning: %s\n", printable(w).c_str());
-  if (verbose || stats->degenerate_dropped)
+  if (!Progress::quiet())
+    for (const std::string& w : stats->warnings)
+      std::fprintf(stderr, "voxcast: warning: %s\n", printable(w).c_str());
+  if (verbose || (stats->degenerate_dropped && !Progress::quiet()))
     std::fprintf(
         stderr, "mesh: %s, %s (%s dropped)\n",
         count_of(mesh.triangle_count(), "triangle", "triangles").c_str(),

@@ -33,6 +33,8 @@
 
 namespace voxcast {
 
+class Progress;
+
 /// What a frame looks at, shared by every pass and tile.
 struct FrameView {
   Camera camera;
@@ -85,6 +87,9 @@ struct FrameOptions {
   size_t requests_per_thread = size_t(1) << 16;
   /// Counting path: every context has TraceContext::counting set.
   bool counting = false;
+  /// Advanced once per rendered tile; each pass adds its tiles to the work
+  /// (progress.hpp). Optional.
+  Progress* progress = nullptr;
 };
 
 struct PassStats {

@@ -14,6 +14,8 @@
 
 namespace voxcast {
 
+class Progress;
+
 /// A frame (size, camera, LOD, tiles) and what the surface integrator does
 /// with it (SurfaceOptions: light, background, AOVs, beam, statistics,
 /// post-filter, effects).
@@ -27,6 +29,8 @@ struct RenderOptions : SurfaceOptions {
   /// a streaming structure serve what the rays asked for and render the
   /// asking tiles again. A static structure always renders one pass.
   int max_passes = 1;
+  /// Progress bar of the frame loop, advanced per tile (progress.hpp); optional.
+  Progress* progress = nullptr;
 };
 
 struct RenderResult {

@@ -68,6 +68,7 @@
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
 #include "voxcast/morton.hpp"
+#include "voxcast/progress.hpp"
 #include "voxcast/system.hpp"
 #include "voxelize/cell.hpp"
 
@@ -859,6 +860,8 @@ EsvoOctree build_octree_cells(const Mesh& mesh, const GridTransform& grid,
   if (mesh.triangle_count() > size_t(UINT32_MAX))
     throw Error("cannot build octree: more than 2^32-1 triangles");
   VoxelizeOptions vo = voxelize_options;
+  // The caller's bar follows the cells, not each cell's small voxelization.
+  Progress* const progress = vo.progress;
   vo.progress = nullptr;
   const bool attr_tolerance = options.color_error >= 0 || options.normal_error >= 0;
   // With compressed attributes a leaf decodes to what the §5.5 block of its
@@ -1097,9 +1100,16 @@ EsvoOctree build_octree_cells(const Mesh& mesh, const GridTransform& grid,
     const detail::TreeView top = tree_view(sup, nullptr, 0, C);
     detail::ContourPlanner planner(top, pmesh, options, C, nullptr);
     const detail::ContourPlan& tp = planner.plan();
+    // The cells stream (voxelize + plan each) is nearly all of the time; the
+    // layout of the kept tree follows.
+    if (progress) {
+      progress->set_phases({{"cells", 0.9}, {"layout", 0.1}});
+      progress->start_phase(0, nbins);
+    }
     for (size_t b = 0; b < nbins; ++b) {
       std::vector<Level> clv;
       std::vector<uint64_t> cleaf;
+      if (progress) progress->advance();
       if (!cell_levels(b, clv, cleaf)) continue;
       add_root(b, clv, cleaf.size());
       if (const auto seed = planner.take_seed(uint32_t(b))) {
@@ -1123,11 +1133,17 @@ EsvoOctree build_octree_cells(const Mesh& mesh, const GridTransform& grid,
       }
     }
   } else {
-    // Pass 1: the cell roots.
+    // Pass 1: the cell roots. (The bar follows the first two streams over
+    // the cells; the attribute rounds after them show as "attributes".)
+    if (progress) {
+      progress->set_phases({{"cell roots", 1}, {"attribute flags", 1}, {"attributes", 1}});
+      progress->start_phase(0, nbins);
+    }
     for (size_t b = 0; b < nbins; ++b) {
       std::vector<Level> clv;
       std::vector<uint64_t> cleaf;
       if (cell_levels(b, clv, cleaf)) add_root(b, clv, cleaf.size());
+      if (progress) progress->advance();
     }
     const std::vector<uint32_t> cell_bin = roots.bin;
     build_top();
@@ -1137,7 +1153,9 @@ EsvoOctree build_octree_cells(const Mesh& mesh, const GridTransform& grid,
     std::vector<std::vector<uint8_t>> attr_flags(size_t(C) + 1);
     for (int d = 1; d <= C; ++d) attr_flags[size_t(d)].assign(lv[size_t(d)].mask.size(), 0);
     std::vector<uint64_t> values;
+    if (progress) progress->start_phase(1, ncells);
     for (size_t k = 0; k < ncells; ++k) {
+      if (progress) progress->advance();
       // The cell's ancestors (depth C: itself), bottom-up.
       uint32_t anc[kMaxGridLevels + 1];
       anc[C] = uint32_t(k);
@@ -1177,6 +1195,7 @@ EsvoOctree build_octree_cells(const Mesh& mesh, const GridTransform& grid,
     };
     copy_top_plan();
     Level& r = lv[size_t(C)];
+    if (progress) progress->start_phase(2, 0);
     if (!check_decoded) {
       attr_flags = {};
       roots.first_child = std::move(r.first_child);
@@ -1380,6 +1399,7 @@ EsvoOctree build_octree_cells(const Mesh& mesh, const GridTransform& grid,
     }
   }
   bins = {};
+  if (progress && !attr_tolerance) progress->start_phase(1, 0);  // "layout"
 
   // Subtree sizes of the top levels from the cells', then the layout of the
   // kept tree (the decoded-value loop is not needed: raw leaves decode to

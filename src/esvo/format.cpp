@@ -26,6 +26,7 @@
 #include "voxcast/esvo_format.hpp"
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/format_registry.hpp"
+#include "voxcast/progress.hpp"
 
 namespace voxcast {
 namespace {
@@ -256,6 +257,8 @@ MeshBuild build_from_mesh(const Mesh& mesh, const GridTransform& grid, const Mes
   VoxelizeOptions vo;
   vo.mode = r.mode;
   vo.attributes = true;
+  Progress progress("cell-by-cell build", uint64_t(0));  // a bar on a terminal only
+  vo.progress = &progress;
   CellBuildStats st;
   const auto start = std::chrono::steady_clock::now();
   out.structure = std::make_unique<EsvoStructure>(std::make_shared<EsvoOctree>(build_octree_cells(

@@ -1,12 +1,18 @@
 // OpenVDB .vdb in and out (voxel_io.hpp) through libopenvdb.
 #include <fmt/format.h>
 #include <openvdb/openvdb.h>
+#include <xxhash.h>
 
 #include <algorithm>
 #include <bit>
+#include <cctype>
 #include <cmath>
+#include <cstdio>
+#include <fstream>
 #include <mutex>
 #include <optional>
+#include <string>
+#include <vector>
 
 #include "io/voxel_io_internal.hpp"
 #include "voxcast/error.hpp"
@@ -43,6 +49,119 @@ std::vector<openvdb::Coord> occupied(const GridT& grid, Keep keep, uint64_t max_
   return out;
 }
 
+// OpenVDB's reader allocates every string its file declares (a 32-bit
+// length) before reading it: a 33 KB file declaring a 1.9 GB grid name made
+// read_vdb allocate 1.9 GB (found by fuzz_vdb; tests/data/regress/vdb). The
+// file-level structure OpenVDB reads first — header, file metadata, grid
+// descriptors — is walked here, every declared length and offset checked
+// against the file's size. Layouts of other file versions are left to
+// OpenVDB. (Per-grid data — grid metadata, transform, tree — is not walked.)
+void precheck_vdb(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::error_code ec;
+  const uint64_t size = std::filesystem::file_size(path, ec);
+  if (!in || ec) return;  // OpenVDB reports it
+  auto fail = [&](const std::string& what) {
+    throw Error(fmt::format("'{}': not a readable .vdb file ({})", path.string(), what));
+  };
+  uint64_t at = 0;
+  auto read = [&](void* out, uint64_t n, const char* what) {
+    if (n > size - at) fail(fmt::format("{} runs past the end of the file", what));
+    in.seekg(std::streamoff(at));
+    in.read(static_cast<char*>(out), std::streamsize(n));
+    if (!in) fail(fmt::format("cannot read its {}", what));
+    at += n;
+  };
+  auto u32 = [&](const char* what) {
+    uint32_t v = 0;
+    read(&v, 4, what);
+    return v;
+  };
+  auto skip = [&](uint64_t n, const char* what) {
+    if (n > size - at)
+      fail(fmt::format("its {} declares {} bytes, more than the file's remaining {}", what, n,
+                       size - at));
+    at += n;
+  };
+  auto string = [&](const char* what) { skip(u32(what), what); };
+  if (size < 8) return;
+  uint64_t magic = 0;
+  read(&magic, 8, "header");
+  if (magic != 0x56444220) return;  // not a VDB: OpenVDB says so
+  const uint32_t version = u32("header");
+  if (version < 222 || version > 224) return;
+  u32("header"), u32("header");  // library major and minor version
+  uint8_t offsets = 0;
+  read(&offsets, 1, "header");
+  skip(36, "UUID");
+  const uint32_t metas = u32("metadata count");
+  for (uint32_t m = 0; m < metas; ++m) {
+    string("metadata name");
+    string("metadata type name");
+    skip(u32("metadata value"), "metadata value");
+  }
+  if (!offsets) return;  // written as a stream: read sequentially by OpenVDB
+  const uint32_t grids = u32("grid count");
+  for (uint32_t g = 0; g < grids; ++g) {
+    string("grid name");
+    string("grid type name");
+    string("grid instance name");
+    int64_t pos[3];  // grid, data block and end offsets
+    read(pos, sizeof pos, "grid descriptor");
+    if (pos[0] < int64_t(at) || pos[1] < pos[0] || pos[2] < pos[1] || uint64_t(pos[2]) > size)
+      fail(fmt::format("grid {} has offsets {}, {}, {} outside the {}-byte file", g, pos[0], pos[1],
+                       pos[2], size));
+    at = uint64_t(pos[2]);
+  }
+}
+
+// OpenVDB's io::File writes a random UUID into every file header (for its
+// own caches of delayed-loaded files), so the same voxels would give
+// different bytes on every run. Replaced, after the write, by one derived
+// from the file's other bytes: same content, same UUID (issue 15 item 9,
+// DeterministicVoxels). Header: magic (8 bytes), file version, library major
+// and minor (4 each), the grid-offsets flag (1), then the UUID as 36 ASCII
+// characters.
+void content_uuid(const std::filesystem::path& path) {
+  constexpr size_t kAt = 21, kLen = 36;
+  std::FILE* f = std::fopen(path.c_str(), "r+b");
+  if (!f) throw Error(fmt::format("cannot write {}: cannot reopen it", path.string()));
+  std::vector<char> bytes;
+  char buf[1 << 16];
+  for (size_t n; (n = std::fread(buf, 1, sizeof buf, f)) > 0;)
+    bytes.insert(bytes.end(), buf, buf + n);
+  auto is_uuid = [&] {
+    if (bytes.size() < kAt + kLen) return false;
+    for (size_t i = 0; i < kLen; ++i) {
+      const char c = bytes[kAt + i];
+      if ((i == 8 || i == 13 || i == 18 || i == 23) ? c != '-'
+                                                    : !std::isxdigit(static_cast<unsigned char>(c)))
+        return false;
+    }
+    return true;
+  };
+  if (!is_uuid()) {  // another header layout: leave OpenVDB's UUID alone
+    std::fclose(f);
+    return;
+  }
+  std::fill(bytes.begin() + kAt, bytes.begin() + kAt + kLen, '0');
+  const uint64_t h[2] = {XXH64(bytes.data(), bytes.size(), 1),
+                         XXH64(bytes.data(), bytes.size(), 2)};
+  uint8_t b[16];
+  for (int i = 0; i < 16; ++i) b[i] = uint8_t(h[i / 8] >> (8 * (i % 8)));
+  b[6] = uint8_t((b[6] & 0x0F) | 0x40);  // RFC 4122 layout: "version 4", variant 10
+  b[8] = uint8_t((b[8] & 0x3F) | 0x80);
+  std::string uuid;
+  for (int i = 0; i < 16; ++i) {
+    if (i == 4 || i == 6 || i == 8 || i == 10) uuid += '-';
+    uuid += fmt::format("{:02x}", b[i]);
+  }
+  const bool ok =
+      std::fseek(f, long(kAt), SEEK_SET) == 0 && std::fwrite(uuid.data(), 1, kLen, f) == kLen;
+  if (std::fclose(f) != 0 || !ok)
+    throw Error(fmt::format("cannot write {}: I/O error", path.string()));
+}
+
 }  // namespace
 
 VoxelSet read_vdb(const std::filesystem::path& path, const VoxelReadOptions& options) {
@@ -50,6 +169,7 @@ VoxelSet read_vdb(const std::filesystem::path& path, const VoxelReadOptions& opt
   const uint64_t max_voxels = budget / kVoxelSetBytesPerVoxel;
   init_openvdb();
   openvdb::GridPtrVecPtr grids;
+  precheck_vdb(path);
   try {
     openvdb::io::File file(path.string());
     file.open(false);  // no delayed loading: the whole file is read and checked now
@@ -176,6 +296,13 @@ void write_vdb(const std::filesystem::path& path, const VoxelSet& voxels) {
     std::error_code ec;
     std::filesystem::remove(tmp, ec);
     throw Error(fmt::format("cannot write {}: {}", path.string(), e.what()));
+  }
+  try {
+    content_uuid(tmp);
+  } catch (const Error&) {
+    std::error_code ec;
+    std::filesystem::remove(tmp, ec);
+    throw;
   }
   std::error_code ec;
   std::filesystem::rename(tmp, path, ec);

@@ -13,6 +13,7 @@
 
 #include "voxcast/error.hpp"
 #include "voxcast/integrator.hpp"
+#include "voxcast/progress.hpp"
 
 namespace voxcast {
 namespace {
@@ -76,6 +77,7 @@ FrameStats render_frame(Structure& structure, Integrator& integrator, const Fram
     }
     PassStats ps;
     ps.tiles = int(todo.size());
+    if (options.progress) options.progress->add_units(todo.size());
     const auto t0 = std::chrono::steady_clock::now();
     tbb::parallel_for(
         tbb::blocked_range<size_t>(0, todo.size(), 1),
@@ -100,6 +102,7 @@ FrameStats render_frame(Structure& structure, Integrator& integrator, const Fram
             }
             asked[size_t(t)] =
                 ctx.requests.size() != before || ctx.requests.dropped() != dropped_before;
+            if (options.progress) options.progress->advance();
           }
         },
         tbb::simple_partitioner());

@@ -32,6 +32,7 @@ RenderResult render_with(Structure& structure, const RenderOptions& options, int
   fo.tile_size = options.tile_size;
   fo.max_passes = max_passes;
   fo.counting = options.collect_stats;
+  fo.progress = options.progress;
   Film film;
   const FrameStats fs = render_frame(structure, integrator, view, fo, &film);
 

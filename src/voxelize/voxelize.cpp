@@ -29,6 +29,12 @@ namespace voxcast {
 
 namespace {
 
+// Shares of voxelize's time per phase (rasterize, sort, merge), measured on
+// the bunny on 2 cores: without attributes at 2048^3 2.5 s, 1.9 s, 0.2 s; with
+// attributes at 1024^3 0.8 s, 0.8 s, 3.6 s (the merge's box filter per
+// voxel dominates).
+constexpr double kPhaseWeights[2][3] = {{0.55, 0.40, 0.05}, {0.15, 0.15, 0.70}};
+
 // ---------------------------------------------------------------------------
 // Per-triangle rasterization
 // ---------------------------------------------------------------------------
@@ -190,6 +196,14 @@ VoxelSet voxelize_impl(const Mesh& mesh, const GridTransform& grid, const Voxeli
   // (code, triangle) order, whatever the thread count.
   constexpr size_t kBlock = 256;
   const size_t nblocks = (ntri + kBlock - 1) / kBlock;
+  // The bar's phases and their shares of the time (kPhaseWeights): a bar
+  // over the rasterization alone reached 100% (ETA 0 s) with up to 85% of
+  // the time, the sort and the attribute merge, still ahead.
+  if (opt.progress) {
+    const double* w = kPhaseWeights[opt.attributes ? 1 : 0];
+    opt.progress->set_phases({{"rasterize", w[0]}, {"sort", w[1]}, {"merge", w[2]}});
+    opt.progress->start_phase(0, ntri);
+  }
   std::vector<std::vector<Span<Rec>>> block_spans(nblocks);
   tbb::enumerable_thread_specific<Arena<Rec>> arenas;
   tbb::parallel_for(size_t(0), nblocks, [&](size_t b) {
@@ -228,13 +242,16 @@ VoxelSet voxelize_impl(const Mesh& mesh, const GridTransform& grid, const Voxeli
     return [&tr, shift, mask](const Rec& r) { return size_t((tr.code(r) >> shift) & mask); };
   };
   const size_t parts = std::clamp<size_t>(total / (size_t(1) << 16), 1, 64);
+  if (opt.progress) opt.progress->start_phase(1, uint64_t(passes));
   radix_pass(spans, parts, buf_a.get(), buckets, digit(0));
+  if (opt.progress) opt.progress->advance();
   arenas.combine_each([](Arena<Rec>& a) { a.release(); });
   spans.clear();
   if (passes > 1) buf_b.reset(new Rec[std::max<size_t>(total, 1)]);
   for (int p = 1; p < passes; ++p) {
     radix_pass(split<Rec>(buf_a.get(), total, parts), parts, buf_b.get(), buckets, digit(p));
     std::swap(buf_a, buf_b);
+    if (opt.progress) opt.progress->advance();
   }
   buf_b.reset();
   const Rec* pairs = buf_a.get();
@@ -256,6 +273,7 @@ VoxelSet voxelize_impl(const Mesh& mesh, const GridTransform& grid, const Voxeli
   });
   for (size_t p = 0; p < parts; ++p) first_voxel[p + 1] += first_voxel[p];
   const size_t nvox = first_voxel[parts];
+  if (opt.progress) opt.progress->start_phase(2, uint64_t(parts));
 
   VoxelSet out;
   out.grid = grid;
@@ -289,6 +307,7 @@ VoxelSet voxelize_impl(const Mesh& mesh, const GridTransform& grid, const Voxeli
       ++vox;
       i = j;
     }
+    if (opt.progress) opt.progress->advance();
   });
   return out;
 }

@@ -1,0 +1,236 @@
+// The progress facility (progress.hpp): fractions, weighted phases and the
+// ETA with an injected clock (no timing in the test), the drawn lines, the
+// redraw limit, quiet mode; the voxelizer's and the frame loop's phases and
+// units; the CLI's bars on a real pseudo-terminal (script(1)).
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "support/cli_runner.hpp"
+#include "voxcast/generate.hpp"
+#include "voxcast/progress.hpp"
+#include "voxcast/voxelize.hpp"
+
+namespace voxcast {
+namespace {
+
+constexpr int64_t kMs = 1'000'000;
+
+// A clock the test moves by hand and the text a Progress drew.
+struct FakeTerminal {
+  std::shared_ptr<int64_t> now = std::make_shared<int64_t>(0);
+  std::shared_ptr<std::vector<std::string>> writes = std::make_shared<std::vector<std::string>>();
+  ProgressSink sink(bool tty = true) const {
+    ProgressSink s;
+    s.tty = tty;
+    auto n = now;
+    s.now_ns = [n] { return *n; };
+    auto w = writes;
+    s.write = [w](const std::string& text) { w->push_back(text); };
+    return s;
+  }
+  void at(int64_t ms) const { *now = ms * kMs; }
+};
+
+TEST(Progress, SinglePhaseFractionAndEta) {
+  FakeTerminal term;
+  Progress p("task", {{"", 1}}, term.sink());
+  p.start_phase(0, 200);
+  EXPECT_DOUBLE_EQ(p.fraction(), 0.0);
+  EXPECT_LT(p.eta_seconds(), 0);  // no estimate before 1%
+  term.at(2000);
+  p.advance(50);
+  EXPECT_DOUBLE_EQ(p.fraction(), 0.25);
+  // 25% in 2 s: 6 s left at the same rate.
+  EXPECT_DOUBLE_EQ(p.eta_seconds(), 6.0);
+  EXPECT_NE(p.status_line().find(" 25.0%"), std::string::npos) << p.status_line();
+  EXPECT_NE(p.status_line().find("ETA 6.0s"), std::string::npos) << p.status_line();
+}
+
+// The issue-14 complaint: a bar over the first phase only reads ETA 0 at its
+// end while the rest of the task is ahead. With weights, the end of a phase
+// of weight 0.5 is 50% of the task, and the ETA is the time spent so far.
+TEST(Progress, WeightedPhasesKeepTheEtaHonestAcrossPhases) {
+  FakeTerminal term;
+  Progress p("voxelize", {{"rasterize", 0.5}, {"sort", 0.3}, {"merge", 0.2}}, term.sink());
+  p.start_phase(0, 1000);
+  term.at(4000);
+  p.advance(1000);  // rasterization done after 4 s
+  EXPECT_DOUBLE_EQ(p.fraction(), 0.5);
+  EXPECT_DOUBLE_EQ(p.eta_seconds(), 4.0);
+  p.start_phase(1, 3);
+  EXPECT_DOUBLE_EQ(p.fraction(), 0.5);  // a new phase starts where the last ended
+  p.advance(2);
+  EXPECT_NEAR(p.fraction(), 0.7, 1e-12);
+  EXPECT_NE(p.status_line().find("voxelize (sort)"), std::string::npos) << p.status_line();
+  p.start_phase(2, 4);
+  p.advance(4);
+  EXPECT_DOUBLE_EQ(p.fraction(), 1.0);
+  EXPECT_DOUBLE_EQ(p.eta_seconds(), 0.0);
+}
+
+TEST(Progress, WeightsAreRelative) {
+  FakeTerminal term;
+  Progress p("t", {{"a", 3}, {"b", 1}}, term.sink());
+  p.start_phase(0, 10);
+  p.advance(10);
+  EXPECT_DOUBLE_EQ(p.fraction(), 0.75);
+  p.start_phase(1, 0);  // a phase of unknown size counts as not started
+  EXPECT_DOUBLE_EQ(p.fraction(), 0.75);
+  p.add_units(8);
+  p.advance(4);
+  EXPECT_DOUBLE_EQ(p.fraction(), 0.875);
+  p.set_done(8);
+  EXPECT_DOUBLE_EQ(p.fraction(), 1.0);
+  p.advance(5);  // more than announced: clamped
+  EXPECT_DOUBLE_EQ(p.fraction(), 1.0);
+}
+
+TEST(Progress, DrawsAfterTheDelayAtMostTenTimesASecondAndEndsTheLine) {
+  FakeTerminal term;
+  {
+    Progress p("task", {{"", 1}}, term.sink());
+    p.start_phase(0, 100);
+    for (int ms = 0; ms < 1000; ms += 10) {  // first second: silent
+      term.at(ms);
+      p.advance(0);
+    }
+    EXPECT_TRUE(term.writes->empty());
+    for (int ms = 1000; ms < 2000; ms += 10) {  // next second: 100 calls, <= 10 draws
+      term.at(ms);
+      p.advance(ms % 100 == 0 ? 5 : 0);
+    }
+    EXPECT_GE(term.writes->size(), 9u);
+    EXPECT_LE(term.writes->size(), 10u);
+    for (const std::string& w : *term.writes) {
+      EXPECT_EQ(w[0], '\r');
+      EXPECT_EQ(w.find('\n'), std::string::npos);
+    }
+  }
+  // The destructor finished the bar: 100% and a newline, no ETA.
+  const std::string& last = term.writes->back();
+  EXPECT_NE(last.find("100.0%"), std::string::npos) << last;
+  EXPECT_EQ(last.back(), '\n');
+  EXPECT_EQ(last.find("ETA"), std::string::npos) << last;
+}
+
+TEST(Progress, NothingWithoutATerminalOrForAShortTask) {
+  FakeTerminal piped;
+  {
+    Progress p("task", {{"", 1}}, piped.sink(/*tty=*/false));
+    p.start_phase(0, 10);
+    piped.at(5000);
+    p.advance(10);
+  }
+  EXPECT_TRUE(piped.writes->empty());
+  FakeTerminal quick;
+  {
+    Progress p("task", {{"", 1}}, quick.sink());
+    p.start_phase(0, 10);
+    quick.at(900);
+    p.advance(10);
+  }
+  EXPECT_TRUE(quick.writes->empty());  // no bar drawn, so no final line either
+}
+
+TEST(Progress, QuietTurnsTheTerminalSinkOff) {
+  Progress::set_quiet(true);
+  EXPECT_FALSE(ProgressSink::terminal().tty);
+  Progress::set_quiet(false);
+  EXPECT_FALSE(Progress::quiet());
+}
+
+TEST(Progress, ShorterLinesOverwriteLongerOnes) {
+  FakeTerminal term;
+  Progress p("t", {{"a-long-phase-name", 1}, {"b", 1}}, term.sink());
+  p.start_phase(0, 10);
+  term.at(1500);
+  p.advance(1);
+  p.start_phase(1, 10);
+  term.at(1700);
+  p.advance(1);
+  ASSERT_EQ(term.writes->size(), 2u);
+  EXPECT_GE((*term.writes)[1].size(), (*term.writes)[0].size());
+}
+
+// The voxelizer re-plans the bar it is given into its three phases and
+// leaves it complete; the drawn phase names come in order.
+TEST(Progress, VoxelizeReportsItsPhasesInOrder) {
+  const Mesh mesh = generate::menger(2);
+  FakeTerminal term;
+  // Every clock read moves 150 ms on, so each advance may draw.
+  auto now = term.now;
+  ProgressSink sink = term.sink();
+  sink.now_ns = [now] { return *now += 150 * kMs; };
+  Progress p("voxelize", {{"", 1}}, sink);
+  VoxelizeOptions vo;
+  vo.progress = &p;
+  vo.attributes = true;
+  const VoxelSet v = voxelize(mesh, GridTransform::fit(mesh.bounds(), 256), vo);
+  ASSERT_GT(v.size(), 0u);
+  EXPECT_DOUBLE_EQ(p.fraction(), 1.0);
+  std::vector<std::string> seen;
+  for (const std::string& w : *term.writes)
+    for (const char* phase : {"rasterize", "sort", "merge"})
+      if (w.find(std::string("(") + phase + ")") != std::string::npos &&
+          (seen.empty() || seen.back() != phase))
+        seen.push_back(phase);
+  EXPECT_EQ(seen, (std::vector<std::string>{"rasterize", "sort", "merge"}));
+  // The drawn fractions never go back.
+  double last = -1;
+  for (const std::string& w : *term.writes) {
+    const size_t pct = w.find('%');
+    ASSERT_NE(pct, std::string::npos) << w;
+    const double f = std::atof(w.substr(w.rfind(' ', pct - 2) + 1, pct).c_str());
+    EXPECT_GE(f, last) << w;
+    last = f;
+  }
+  EXPECT_EQ(last, 100.0);
+}
+
+// The CLI on a real pseudo-terminal (script(1) gives the child a pty as
+// stderr): build and render draw bars with an ETA; --quiet draws none.
+// VOXCAST_PROGRESS_DELAY_MS=0 so a quick task draws too.
+std::string on_a_terminal(const std::string& args) {
+  const std::string log = ::testing::TempDir() + "/voxcast-pty.log";
+  const std::string cmd = "VOXCAST_PROGRESS_DELAY_MS=0 script -qec \"" +
+                          std::string(VOXCAST_CLI_PATH) + " " + args + "\" " + log +
+                          " > /dev/null 2>&1";
+  if (std::system(cmd.c_str()) != 0) return "command failed: " + cmd;
+  std::FILE* f = std::fopen(log.c_str(), "rb");
+  std::string text;
+  if (f) {
+    char buf[4096];
+    for (size_t n; (n = std::fread(buf, 1, sizeof buf, f)) > 0;) text.append(buf, n);
+    std::fclose(f);
+  }
+  return text;
+}
+
+TEST(ProgressCli, BarsOnATerminalAndNoneWhenQuiet) {
+  // script(1) is util-linux's (Debian's bsdutils, always installed).
+  ASSERT_EQ(std::system("command -v script > /dev/null 2>&1"), 0) << "no script(1)";
+  const std::string dir = ::testing::TempDir();
+  const std::string mesh = std::string(VOXCAST_TEST_DATA_DIR) + "/meshes/spot.obj";
+  const std::string scene = dir + "/progress-spot.vxc";
+  const std::string built = on_a_terminal("build " + mesh + " -o " + scene + " --resolution 128");
+  EXPECT_NE(built.find("voxelize ("), std::string::npos) << built;
+  EXPECT_NE(built.find("ETA"), std::string::npos) << built;
+  EXPECT_NE(built.find("load spot.obj"), std::string::npos) << built;
+  const std::string rendered =
+      on_a_terminal("render " + scene + " -o " + dir + "/progress-spot.png --size 64x48");
+  EXPECT_NE(rendered.find("render ["), std::string::npos) << rendered;
+  EXPECT_NE(rendered.find("100.0%"), std::string::npos) << rendered;
+  const std::string quiet =
+      on_a_terminal("render " + scene + " -o " + dir + "/progress-spot-q.png --size 64x48 --quiet");
+  EXPECT_EQ(quiet.find("render ["), std::string::npos) << quiet;
+  EXPECT_NE(quiet.find("progress-spot-q.png: 64x48"), std::string::npos) << quiet;  // stdout stays
+}
+
+}  // namespace
+}  // namespace voxcast
