@@ -32,6 +32,7 @@
 #include "voxcast/embree_reference.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_structure.hpp"
+#include "voxcast/occlusion_packets.hpp"
 #include "voxcast/packet_caster.hpp"
 #include "voxcast/progress.hpp"
 #include "voxcast/render.hpp"
@@ -267,6 +268,48 @@ Timed occluded_all_packets(const S& s, const std::vector<Ray>& rays, std::vector
   return occluded_frame(rays, occ, [&](size_t b, size_t e, uint8_t* o) {
     occluded_packets(s, rays.data() + b, e - b, LodFootprint{}, o + b);
   });
+}
+
+// The any-hit packets (occlusion_packets.hpp), every ray from the root:
+// each chunk as one call.
+template <class S>
+Timed occluded_all_anyhit(const S& s, const std::vector<Ray>& rays, std::vector<uint8_t>* occ) {
+  return occluded_frame(rays, occ, [&](size_t b, size_t e, uint8_t* o) {
+    AnyHitOptions opt;
+    opt.deep_start = false;
+    occluded_anyhit(s, rays.data() + b, e - b, LodFootprint{}, o + b, opt);
+  });
+}
+
+// The any-hit packets on point-major AO rays (k per point, rays[p k + j]),
+// with or without the deep start, chunks of whole points. The answers go
+// back to sample-major order (the other rows' order, occ[j np + p]) after
+// the timed loop. *stats (may be null): what the deep start did.
+template <class S>
+Timed occluded_ao_groups(const S& s, const std::vector<Ray>& rays, const std::vector<Vec3>& normals,
+                         size_t k, bool deep, std::vector<uint8_t>* occ, AnyHitStats* stats) {
+  const size_t np = normals.size();
+  std::vector<uint8_t> point_major(rays.size(), 0);  // outside the timed loop
+  std::atomic<uint64_t> points{0}, deep_points{0}, depth{0}, culled{0}, root_rays{0};
+  const size_t per_chunk = std::max<size_t>(1, EmbreeScene::kOcclusionChunk / k);
+  Timed t;
+  t.rays = rays.size();
+  t.seconds = detail::for_each_chunk(np, per_chunk, [&](size_t b, size_t e) {
+    AnyHitOptions opt;
+    opt.group = int(k), opt.normals = normals.data() + b, opt.deep_start = deep;
+    AnyHitStats st;
+    occluded_anyhit(s, rays.data() + b * k, (e - b) * k, LodFootprint{}, point_major.data() + b * k,
+                    opt, &st);
+    points += st.points, deep_points += st.deep_points, depth += st.depth_sum;
+    culled += st.culled, root_rays += st.root_rays;
+  });
+  occ->assign(rays.size(), 0);
+  for (size_t p = 0; p < np; ++p)
+    for (size_t j = 0; j < k; ++j) (*occ)[j * np + p] = point_major[p * k + j];
+  for (uint8_t v : *occ) t.hits += v;
+  if (stats != nullptr)
+    *stats = {points.load(), deep_points.load(), depth.load(), culled.load(), root_rays.load()};
+  return t;
 }
 
 // Records the rays shadow_visibility() / ambient_occlusion() would trace
@@ -885,6 +928,8 @@ Runner add_bench(CLI::App& app) {
         }
         // AO rays sample-major (ray k of consecutive points next to each
         // other), so a packet holds the same sample of neighbouring pixels.
+        std::vector<Vec3> ao_normals;  // one per point: the AO hemisphere's
+        for (const ShadingPoint& p : points) ao_normals.push_back(p.normal);
         std::vector<Ray> ao_rays = ao_rec.rays;
         if (ao_uniform) {
           const size_t np = points.size(), k = size_t(args->ao_rays);
@@ -943,6 +988,50 @@ Runner add_bench(CLI::App& app) {
                           },
                           {},
                           {}});
+          // The any-hit packets (issue 10 item 5), same arrays, from the root.
+          const std::string any_how = std::string("occluded_anyhit ") + isa_name(active_isa()) +
+                                      " x" + std::to_string(packet_width(active_isa()));
+          rows.push_back(
+              {"voxcast esvo anyhit",
+               any_how,
+               false,
+               [&, i = rows.size()] { return occluded_all_anyhit(voxels, rs, &rows[i].answers); },
+               {},
+               {}});
+          rows.push_back({"voxcast dag anyhit",
+                          any_how,
+                          false,
+                          [&, i = rows.size()] {
+                            return occluded_all_anyhit(*dag_voxels, rs, &rows[i].answers);
+                          },
+                          {},
+                          {}});
+          // AO: the same rays point-major, 16 (8) rays of one point per packet,
+          // from the root and with the deep start (ball / hemisphere cull).
+          AnyHitStats deep_stats[2];
+          const bool ao_groups = kind == 1 && ao_uniform;
+          if (ao_groups) {
+            for (const bool deep : {false, true}) {
+              for (int st = 0; st < 2; ++st) {
+                rows.push_back(
+                    {std::string(st == 0 ? "voxcast esvo" : "voxcast dag") +
+                         (deep ? " ao deep" : " ao point"),
+                     any_how + (deep ? ", point-major, deep start" : ", point-major, root start"),
+                     false,
+                     [&, deep, st, i = rows.size()] {
+                       const size_t k = size_t(args->ao_rays);
+                       AnyHitStats* stats = deep ? &deep_stats[st] : nullptr;
+                       return st == 0 ? occluded_ao_groups(voxels, ao_rec.rays, ao_normals, k, deep,
+                                                           &rows[i].answers, stats)
+                                      : occluded_ao_groups(*dag_voxels, ao_rec.rays, ao_normals, k,
+                                                           deep, &rows[i].answers, stats);
+                     },
+                     {},
+                     {}});
+              }
+            }
+          }
+          const size_t embree_first = rows.size();
           for (const EmbreeScene::Mode m : EmbreeScene::kOcclusionModes) {
             static const char* const calls[] = {"rtcOccluded1", "", "rtcOccluded8 coherent",
                                                 "rtcOccluded16 coherent", "rtcOccluded1M coherent"};
@@ -970,7 +1059,7 @@ Runner add_bench(CLI::App& app) {
                       fastest_occ_name.c_str());
           std::printf("  %-14s %9s %9s %7s %9s  %s\n", "caster", "Mrays/s", "occluded", "ratio",
                       "same", "how");
-          const std::vector<uint8_t>& ref = rows[4].answers;  // embree x1
+          const std::vector<uint8_t>& ref = rows[embree_first].answers;  // embree x1
           nlohmann::json kj;
           for (const OccRow& r : rows) {
             size_t same = 0;
@@ -995,13 +1084,46 @@ Runner add_bench(CLI::App& app) {
             packet_same += rows[0].answers[i] == rows[2].answers[i] &&
                            rows[1].answers[i] == rows[3].answers[i];
           }
-          std::printf("  esvo == dag on %.3f%% of the rays, packet == scalar on %.3f%%\n\n",
-                      100.0 * double(esvo_dag) / double(std::max<size_t>(rs.size(), 1)),
-                      100.0 * double(packet_same) / double(std::max<size_t>(rs.size(), 1)));
+          // Rows 4 .. embree_first - 1: the any-hit packet rows, ESVO and DAG
+          // in turn, each against its scalar caster.
+          size_t anyhit_same = 0;
+          for (size_t i = 0; i < rs.size(); ++i) {
+            bool same = true;
+            for (size_t r = 4; r < embree_first; ++r)
+              same &= rows[r].answers[i] == rows[r % 2].answers[i];
+            anyhit_same += same;
+          }
+          const double nrs = double(std::max<size_t>(rs.size(), 1));
+          std::printf(
+              "  esvo == dag on %.3f%% of the rays, packet == scalar on %.3f%%, any-hit packets "
+              "== scalar on %.3f%%\n",
+              100.0 * double(esvo_dag) / nrs, 100.0 * double(packet_same) / nrs,
+              100.0 * double(anyhit_same) / nrs);
+          nlohmann::json deep_json;
+          if (ao_groups) {
+            for (int st = 0; st < 2; ++st) {
+              const AnyHitStats& d = deep_stats[st];
+              const uint64_t traced = d.deep_points - d.culled;
+              std::printf(
+                  "  %s deep start: %llu of %llu points started deep, %.2f levels down on "
+                  "average, %llu answered by the cull alone, %llu rays from the root\n",
+                  st == 0 ? "esvo" : "dag", (unsigned long long)d.deep_points,
+                  (unsigned long long)d.points, traced ? double(d.depth_sum) / double(traced) : 0.0,
+                  (unsigned long long)d.culled, (unsigned long long)d.root_rays);
+              deep_json[st == 0 ? "esvo" : "dag"] = {{"points", d.points},
+                                                     {"deep_points", d.deep_points},
+                                                     {"depth_sum", d.depth_sum},
+                                                     {"culled", d.culled},
+                                                     {"root_rays", d.root_rays}};
+            }
+          }
+          std::printf("\n");
           occ_json[kind_name] = {{"rays", rs.size()},
                                  {"fastest_embree", fastest_occ_name},
                                  {"esvo_equals_dag", esvo_dag},
                                  {"packet_equals_scalar", packet_same},
+                                 {"anyhit_equals_scalar", anyhit_same},
+                                 {"deep_start", deep_json},
                                  {"casters", kj}};
         }
         occ_json["points"] = points.size();

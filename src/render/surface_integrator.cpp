@@ -79,18 +79,37 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
   Vec3 batch_dir[kBatch];
   int batch_x[kBatch], batch_y[kBatch];
   int batch_n = 0;
+  Color batch_color[kBatch];
+  ShadingPoint batch_point[kBatch];
+  uint32_t batch_seed[kBatch];
+  float batch_vis[kBatch];
   auto shade_batch = [&] {
+    for (int b = 0; b < batch_n; ++b) {
+      const SurfaceHit& hit = batch_hit[b];
+      Vec3 n;
+      q.attributes(hit, ctx, &batch_color[b], &n);  // counts its bytes while collecting
+      // Voxel normals are averages over the surface inside the voxel and may
+      // face away from the viewer; shade the side we see.
+      if (dot(n, batch_dir[b]) > 0.f) n = -n;
+      batch_point[b] = ShadingPoint{hit.position, n, batch_dir[b], hit.voxel_size};
+      batch_seed[b] = pixel_seed(batch_x[b], batch_y[b], fx.seed);
+    }
+    if (effects && fx.shadows != ShadowMode::None) {
+      // The batch's shadow rays together (effects.hpp: one packet of
+      // parallel rays under a directional light); the same visibilities.
+      const bool counting = ctx.counting;
+      ctx.counting = false;
+      shadow_visibility_batch(occluder, ctx, batch_point, batch_n, fx, options_.light_dir,
+                              batch_seed, &ts.effects, batch_vis);
+      ctx.counting = counting;
+    }
     for (int b = 0; b < batch_n; ++b) {
       const SurfaceHit& hit = batch_hit[b];
       const int x = batch_x[b], y = batch_y[b];
       float* out = film.color.at(x, y);
-      Color c;
-      Vec3 n;
-      q.attributes(hit, ctx, &c, &n);  // counts its bytes while collecting
+      const Color c = batch_color[b];
+      const Vec3 n = batch_point[b].normal;
       const Vec3 dir = batch_dir[b];
-      // Voxel normals are averages over the surface inside the voxel and may
-      // face away from the viewer; shade the side we see.
-      if (dot(n, dir) > 0.f) n = -n;
       Vec3 light = to_light;
       float visibility = 1.f, ao = 1.f;
       if (fx.light != LightKind::Directional) {
@@ -102,14 +121,10 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
         // counted by EffectCounters.
         const bool counting = ctx.counting;
         ctx.counting = false;
-        const ShadingPoint sp{hit.position, n, dir, hit.voxel_size};
-        const uint32_t seed = pixel_seed(x, y, fx.seed);
-        if (fx.shadows != ShadowMode::None)
-          *film.shadow.at(x, y) = visibility =
-              shadow_visibility(occluder, ctx, sp, fx, options_.light_dir, seed, &ts.effects);
+        if (fx.shadows != ShadowMode::None) *film.shadow.at(x, y) = visibility = batch_vis[b];
         if (fx.ao_rays > 0)
-          *film.ao.at(x, y) = ao =
-              ambient_occlusion(occluder, ctx, sp, fx, fx.ao_radius, seed, &ts.effects);
+          *film.ao.at(x, y) = ao = ambient_occlusion(occluder, ctx, batch_point[b], fx,
+                                                     fx.ao_radius, batch_seed[b], &ts.effects);
         ctx.counting = counting;
       }
       const float diffuse = std::fmax(0.f, dot(n, light)) * visibility;

@@ -1,0 +1,28 @@
+// DAG any-hit packets (voxcast/occlusion_packets.hpp): the octree family's
+// any-hit driver (core/octree_anyhit_caster.hpp) with the DAG's kernels.
+#include <cstdint>
+
+#include "core/anyhit_kernels.hpp"
+#include "core/octree_anyhit_caster.hpp"
+#include "dag/octree_nodes.hpp"
+#include "voxcast/dag.hpp"
+#include "voxcast/occlusion_packets.hpp"
+
+namespace voxcast {
+
+void occluded_anyhit(const dag::DagStructure& s, const Ray* rays, size_t n, const LodFootprint& lod,
+                     uint8_t* occluded, const AnyHitOptions& o, AnyHitStats* stats) {
+  detail::structure_anyhit<detail::DagNodes>(s, s.dag(), o.isa, &detail::dag_anyhit_kernel_avx2,
+                                             &detail::dag_anyhit_kernel_avx512, rays, n, lod,
+                                             o.group, o.normals, o.deep_start, occluded, stats);
+}
+
+void dag::DagStructure::transmittance_batch(const Ray* rays, size_t n, const LodFootprint& lod,
+                                            TraceContext& ctx, float* out, int group,
+                                            const Vec3* normals) const {
+  ::voxcast::detail::structure_transmittance_batch<::voxcast::detail::DagNodes>(
+      *this, dag(), &::voxcast::detail::dag_anyhit_kernel_avx2,
+      &::voxcast::detail::dag_anyhit_kernel_avx512, rays, n, lod, ctx, out, group, normals);
+}
+
+}  // namespace voxcast

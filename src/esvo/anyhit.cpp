@@ -1,0 +1,29 @@
+// ESVO any-hit packets (voxcast/occlusion_packets.hpp): the octree family's
+// any-hit driver (core/octree_anyhit_caster.hpp) with the ESVO's kernels.
+#include <cstdint>
+
+#include "core/anyhit_kernels.hpp"
+#include "core/octree_anyhit_caster.hpp"
+#include "esvo/octree_nodes.hpp"
+#include "voxcast/esvo_structure.hpp"
+#include "voxcast/occlusion_packets.hpp"
+
+namespace voxcast {
+
+void occluded_anyhit(const esvo::EsvoStructure& s, const Ray* rays, size_t n,
+                     const LodFootprint& lod, uint8_t* occluded, const AnyHitOptions& o,
+                     AnyHitStats* stats) {
+  detail::structure_anyhit<detail::EsvoNodes>(
+      s, s.octree(), o.isa, &detail::esvo_anyhit_kernel_avx2, &detail::esvo_anyhit_kernel_avx512,
+      rays, n, lod, o.group, o.normals, o.deep_start, occluded, stats);
+}
+
+void esvo::EsvoStructure::transmittance_batch(const Ray* rays, size_t n, const LodFootprint& lod,
+                                              TraceContext& ctx, float* out, int group,
+                                              const Vec3* normals) const {
+  ::voxcast::detail::structure_transmittance_batch<::voxcast::detail::EsvoNodes>(
+      *this, octree(), &::voxcast::detail::esvo_anyhit_kernel_avx2,
+      &::voxcast::detail::esvo_anyhit_kernel_avx512, rays, n, lod, ctx, out, group, normals);
+}
+
+}  // namespace voxcast
