@@ -157,8 +157,9 @@ TEST(FairBench, JsonHasEveryModeAndEmbreeModesAgree) {
     // root and with the deep start).
     std::vector<std::string> anyhit = {"voxcast esvo anyhit", "voxcast dag anyhit"};
     if (std::string(kind) == "ao")
-      for (const char* name : {"voxcast esvo ao point", "voxcast dag ao point",
-                               "voxcast esvo ao deep", "voxcast dag ao deep"})
+      for (const char* name :
+           {"voxcast esvo ao point", "voxcast dag ao point", "voxcast esvo ao deep",
+            "voxcast dag ao deep", "voxcast esvo ao deep+cull", "voxcast dag ao deep+cull"})
         anyhit.push_back(name);
     for (const std::string& name : anyhit) {
       ASSERT_TRUE(by_name.count(name)) << kind << " " << name;

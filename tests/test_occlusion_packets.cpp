@@ -164,19 +164,28 @@ AnyHitStats expect_same(const S& s, const std::vector<Ray>& rays, const LodFootp
   EXPECT_LT(occluded, rays.size()) << what;
   AnyHitStats stats;
   for (const Isa isa : isas()) {
-    for (const bool deep : {true, false}) {
+    // Deep start with the cull, without it, and every ray from the root.
+    for (const int variant : {0, 1, 2}) {
+      const bool deep = variant < 2;
       AnyHitOptions o;
       o.group = group, o.normals = normals, o.deep_start = deep, o.isa = isa;
+      o.cull_budget = variant == 0 ? 24 : 0;
       std::vector<uint8_t> got(rays.size(), 7);
       AnyHitStats st;
       occluded_anyhit(s, rays.data(), rays.size(), lod, got.data(), o, &st);
-      if (deep && isa == Isa::Avx2) stats = st;
+      if (variant == 0 && isa == Isa::Avx2) stats = st;
       size_t bad = 0;
       for (size_t i = 0; i < rays.size(); ++i)
         if (got[i] != want[i] && ++bad <= 5)
-          ADD_FAILURE() << what << " " << isa_name(isa) << (deep ? " deep" : " root") << " ray "
-                        << i << ": " << int(got[i]) << " want " << int(want[i]);
-      EXPECT_EQ(bad, 0u) << what << " " << isa_name(isa) << (deep ? " deep" : " root");
+          ADD_FAILURE() << what << " " << isa_name(isa)
+                        << (variant == 0 ? " deep+cull"
+                            : deep       ? " deep"
+                                         : " root")
+                        << " ray " << i << ": " << int(got[i]) << " want " << int(want[i]);
+      EXPECT_EQ(bad, 0u) << what << " " << isa_name(isa)
+                         << (variant == 0 ? " deep+cull"
+                             : deep       ? " deep"
+                                          : " root");
     }
   }
   return stats;

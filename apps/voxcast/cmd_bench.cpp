@@ -287,7 +287,8 @@ Timed occluded_all_anyhit(const S& s, const std::vector<Ray>& rays, std::vector<
 // the timed loop. *stats (may be null): what the deep start did.
 template <class S>
 Timed occluded_ao_groups(const S& s, const std::vector<Ray>& rays, const std::vector<Vec3>& normals,
-                         size_t k, bool deep, std::vector<uint8_t>* occ, AnyHitStats* stats) {
+                         size_t k, bool deep, int cull_budget, std::vector<uint8_t>* occ,
+                         AnyHitStats* stats) {
   const size_t np = normals.size();
   std::vector<uint8_t> point_major(rays.size(), 0);  // outside the timed loop
   std::atomic<uint64_t> points{0}, deep_points{0}, depth{0}, culled{0}, root_rays{0};
@@ -297,6 +298,7 @@ Timed occluded_ao_groups(const S& s, const std::vector<Ray>& rays, const std::ve
   t.seconds = detail::for_each_chunk(np, per_chunk, [&](size_t b, size_t e) {
     AnyHitOptions opt;
     opt.group = int(k), opt.normals = normals.data() + b, opt.deep_start = deep;
+    opt.cull_budget = cull_budget;
     AnyHitStats st;
     occluded_anyhit(s, rays.data() + b * k, (e - b) * k, LodFootprint{}, point_major.data() + b * k,
                     opt, &st);
@@ -1008,23 +1010,30 @@ Runner add_bench(CLI::App& app) {
                           {}});
           // AO: the same rays point-major, 16 (8) rays of one point per packet,
           // from the root and with the deep start (ball / hemisphere cull).
+          // Variants: from the root; deep start; deep start + a cull of up to
+          // 24 node fetches per point (AnyHitOptions::cull_budget).
           AnyHitStats deep_stats[2];
           const bool ao_groups = kind == 1 && ao_uniform;
           if (ao_groups) {
-            for (const bool deep : {false, true}) {
+            for (const int variant : {0, 1, 2}) {
+              static const char* const names[] = {" ao point", " ao deep", " ao deep+cull"};
+              static const char* const hows[] = {", point-major, root start",
+                                                 ", point-major, deep start",
+                                                 ", point-major, deep start, cull budget 24"};
               for (int st = 0; st < 2; ++st) {
                 rows.push_back(
-                    {std::string(st == 0 ? "voxcast esvo" : "voxcast dag") +
-                         (deep ? " ao deep" : " ao point"),
-                     any_how + (deep ? ", point-major, deep start" : ", point-major, root start"),
+                    {std::string(st == 0 ? "voxcast esvo" : "voxcast dag") + names[variant],
+                     any_how + hows[variant],
                      false,
-                     [&, deep, st, i = rows.size()] {
+                     [&, variant, st, i = rows.size()] {
                        const size_t k = size_t(args->ao_rays);
-                       AnyHitStats* stats = deep ? &deep_stats[st] : nullptr;
+                       const bool deep = variant > 0;
+                       const int budget = variant == 2 ? 24 : 0;
+                       AnyHitStats* stats = variant == 2 ? &deep_stats[st] : nullptr;
                        return st == 0 ? occluded_ao_groups(voxels, ao_rec.rays, ao_normals, k, deep,
-                                                           &rows[i].answers, stats)
+                                                           budget, &rows[i].answers, stats)
                                       : occluded_ao_groups(*dag_voxels, ao_rec.rays, ao_normals, k,
-                                                           deep, &rows[i].answers, stats);
+                                                           deep, budget, &rows[i].answers, stats);
                      },
                      {},
                      {}});
@@ -1105,7 +1114,7 @@ Runner add_bench(CLI::App& app) {
               const AnyHitStats& d = deep_stats[st];
               const uint64_t traced = d.deep_points - d.culled;
               std::printf(
-                  "  %s deep start: %llu of %llu points started deep, %.2f levels down on "
+                  "  %s deep start + cull: %llu of %llu points started deep, %.2f levels down on "
                   "average, %llu answered by the cull alone, %llu rays from the root\n",
                   st == 0 ? "esvo" : "dag", (unsigned long long)d.deep_points,
                   (unsigned long long)d.points, traced ? double(d.depth_sum) / double(traced) : 0.0,

@@ -58,7 +58,7 @@ struct EffectOptions {
   // ---- how the rays are traced (the images are the same either way) ----
   // true: AO rays of a point and the hard shadow rays of a batch of pixels go
   // to the occluder together (Occluder::transmittance_batch: any-hit packets
-  // and the AO deep start on the octree family); false: one ray at a time.
+  // on the octree family); false: one ray at a time.
   bool packets = true;
 
   bool active() const { return shadows != ShadowMode::None || ao_rays > 0; }

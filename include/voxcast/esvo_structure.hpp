@@ -53,9 +53,9 @@ class EsvoStructure final : public OctreeStructure<EsvoStructure> {
   void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
                   Vec3* normal) const override;
   std::string name() const override { return "esvo"; }
-  /// Any-hit packets (voxcast/occlusion_packets.hpp, AO deep start for
-  /// groups) for the active ISA; the scalar caster while ctx.counting (the
-  /// Table 6 counters). The same values as transmittance().
+  /// Any-hit packets (voxcast/occlusion_packets.hpp, default options) for
+  /// the active ISA; the scalar caster while ctx.counting (the Table 6
+  /// counters). The same values as transmittance().
   void transmittance_batch(const Ray* rays, size_t n, const LodFootprint& lod, TraceContext& ctx,
                            float* out, int group = 0,
                            const Vec3* normals = nullptr) const override;

@@ -1,10 +1,11 @@
 #pragma once
 // Any-hit packets (issue 10 item 5): occlusion rays of the octree family on
 // 16 AVX-512 lanes (8 with AVX2), every lane ending at its first occupied
-// cube, and the AO deep start: rays that share an origin (the AO rays of one
-// shading point) start at the deepest node whose cube holds all their
-// segments, after a cull of its subtree by the rays' ball, hemisphere and
-// box (src/core/octree_anyhit_caster.hpp has the argument). The answers are
+// cube, and, as an option, the AO deep start: rays that share an origin (the
+// AO rays of one shading point) start at the deepest node whose cube holds
+// all their segments, optionally after a cull of its subtree by the rays'
+// ball, hemisphere and box (src/core/octree_anyhit_caster.hpp has the
+// argument). The answers are
 // those of occluded() bit for bit (tests/test_occlusion_packets.cpp), so the
 // scalar caster stays the reference and either may answer any ray.
 #include <cstddef>
@@ -29,7 +30,14 @@ struct AnyHitOptions {
   /// group > 0, may be null: one normal per group with dot(dir, normal) >= 0
   /// for its rays (checked): the cull also uses the half-space above it.
   const Vec3* normals = nullptr;
-  bool deep_start = true;  // false: every ray starts at the root (to measure)
+  /// Start groups at their deepest common node. Off by default: it measured
+  /// slower than starting the same point-major packets at the root
+  /// (docs/BENCHMARKS.md "Occlusion packets"); kept to measure it.
+  bool deep_start = false;
+  /// Nodes the cull of a deep group's subtree may fetch before it gives up
+  /// and the rays are traced (0: no cull; docs/BENCHMARKS.md "Occlusion
+  /// packets" measures it).
+  int cull_budget = 0;
   Isa isa = active_isa();  // throws voxcast::Error if the CPU lacks it
 };
 

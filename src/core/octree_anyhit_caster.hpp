@@ -78,8 +78,8 @@ using AnyHitKernel = void (*)(const P& nodes, const AnyHitQueue& q, float size_c
 /// core/octree_ray.hpp) and below a voxel of a 16K^3 grid (2^-14).
 inline constexpr float kDeepMargin = 0x1p-17f;
 
-/// Nodes the cull may visit per ray group before it gives up (and traces).
-inline constexpr int kCullBudget = 24;
+/// Most nodes the cull may fetch per ray group (its stack is sized for it).
+inline constexpr int kMaxCullBudget = 64;
 
 /// Where a group's rays start: `node` at loop scale `scale` (its children's),
 /// and the cubes from the root's child down to the node's own cube
@@ -172,10 +172,10 @@ struct SegmentRegion {
 
 /// The deepest start of a region's rays (see the file comment): false if the
 /// group must start at the root. Sets start->culled when the cull of the
-/// subtree (at most kCullBudget node fetches) finds no present cube touching
-/// the region.
+/// subtree (at most `budget` <= kMaxCullBudget node fetches) finds no present
+/// cube touching the region.
 template <class P>
-bool deep_start(const P& nodes, const SegmentRegion& r, DeepStart* start) {
+bool deep_start(const P& nodes, const SegmentRegion& r, int budget, DeepStart* start) {
   const float m = kDeepMargin;
   NoCounters cnt;
   [[maybe_unused]] typename P::Index index{};
@@ -219,12 +219,12 @@ bool deep_start(const P& nodes, const SegmentRegion& r, DeepStart* start) {
     Vec3 lo;
     float side;
   };
-  Item stack[8 * kCullBudget];
+  Item stack[8 * kMaxCullBudget];
   int top = 0, fetches = 0;
   stack[top++] = {node, scale, lo, side};
   while (top > 0) {
     const Item it = stack[--top];
-    if (++fetches > kCullBudget) return true;  // undecided: trace the rays
+    if (++fetches > budget) return true;  // undecided: trace the rays
     const auto desc = nodes.fetch(it.node, it.scale, cnt);
     const float half = it.side * 0.5f;
     for (uint32_t mask = nodes.mask(desc); mask != 0; mask &= mask - 1) {
@@ -232,7 +232,7 @@ bool deep_start(const P& nodes, const SegmentRegion& r, DeepStart* start) {
       const Vec3 clo{it.lo.x + ((c & 1) ? half : 0.f), it.lo.y + ((c & 2) ? half : 0.f),
                      it.lo.z + ((c & 4) ? half : 0.f)};
       if (!r.touches(clo, half)) continue;
-      if (nodes.leaf(desc, c, it.scale) || top == 8 * kCullBudget) return true;
+      if (nodes.leaf(desc, c, it.scale) || top == 8 * kMaxCullBudget) return true;
       stack[top++] = {nodes.descend(desc, it.node, c, it.scale, index, cnt), it.scale - 1, clo,
                       half};
     }
@@ -249,7 +249,8 @@ bool deep_start(const P& nodes, const SegmentRegion& r, DeepStart* start) {
 template <class P>
 void anyhit_packets(const OctreeWorld<P>& world, AnyHitKernel<P> kernel, const Ray* rays, size_t n,
                     const LodFootprint& lod, int group, const Vec3* normals, bool deep,
-                    uint8_t* hit, AnyHitStats* stats) {
+                    int cull_budget, uint8_t* hit, AnyHitStats* stats) {
+  cull_budget = cull_budget < 0 ? 0 : (cull_budget > kMaxCullBudget ? kMaxCullBudget : cull_budget);
   const P nodes(world.source);
   const OctreeFrame& frame = world.frame;
   const float size_coef = frame.length(lod.size_per_t),
@@ -293,7 +294,7 @@ void anyhit_packets(const OctreeWorld<P>& world, AnyHitKernel<P> kernel, const R
         if (ok) {
           if (half) reg.half = true, reg.normal = *nrm;
           ++st.points;
-          use_deep = deep_start(nodes, reg, &ds);
+          use_deep = deep_start(nodes, reg, cull_budget, &ds);
           if (use_deep) {
             ++st.deep_points;
             if (ds.culled) {
@@ -357,7 +358,8 @@ void anyhit_packets(const OctreeWorld<P>& world, AnyHitKernel<P> kernel, const R
 template <class P, class S>
 void structure_anyhit(const S& s, const typename P::Source& source, Isa isa, AnyHitKernel<P> avx2,
                       AnyHitKernel<P> avx512, const Ray* rays, size_t n, const LodFootprint& lod,
-                      int group, const Vec3* normals, bool deep, uint8_t* hit, AnyHitStats* stats) {
+                      int group, const Vec3* normals, bool deep, int cull_budget, uint8_t* hit,
+                      AnyHitStats* stats) {
   if (!cpu_supports(isa))
     throw Error(std::string("any-hit packets: this CPU does not support ") + isa_name(isa));
   if (source.words.size() >= (size_t(1) << 31)) {
@@ -366,7 +368,7 @@ void structure_anyhit(const S& s, const typename P::Source& source, Isa isa, Any
     return;
   }
   anyhit_packets(OctreeWorld<P>(source), isa == Isa::Avx512 ? avx512 : avx2, rays, n, lod, group,
-                 normals, deep, hit, stats);
+                 normals, deep, cull_budget, hit, stats);
 }
 
 /// A structure's SurfaceQuery::transmittance_batch: any-hit packets of the
@@ -395,7 +397,7 @@ void structure_transmittance_batch(const S& s, const typename P::Source& source,
     const size_t m = n - b < chunk ? n - b : chunk;
     o.normals = normals != nullptr ? normals + b / gg : nullptr;
     structure_anyhit<P>(s, source, o.isa, avx2, avx512, rays + b, m, lod, o.group, o.normals,
-                        o.deep_start, hit, nullptr);
+                        o.deep_start, o.cull_budget, hit, nullptr);
     for (size_t i = 0; i < m; ++i) out[b + i] = hit[i] ? 0.f : 1.f;
   }
 }

@@ -12,9 +12,9 @@ namespace voxcast {
 
 void occluded_anyhit(const dag::DagStructure& s, const Ray* rays, size_t n, const LodFootprint& lod,
                      uint8_t* occluded, const AnyHitOptions& o, AnyHitStats* stats) {
-  detail::structure_anyhit<detail::DagNodes>(s, s.dag(), o.isa, &detail::dag_anyhit_kernel_avx2,
-                                             &detail::dag_anyhit_kernel_avx512, rays, n, lod,
-                                             o.group, o.normals, o.deep_start, occluded, stats);
+  detail::structure_anyhit<detail::DagNodes>(
+      s, s.dag(), o.isa, &detail::dag_anyhit_kernel_avx2, &detail::dag_anyhit_kernel_avx512, rays,
+      n, lod, o.group, o.normals, o.deep_start, o.cull_budget, occluded, stats);
 }
 
 void dag::DagStructure::transmittance_batch(const Ray* rays, size_t n, const LodFootprint& lod,

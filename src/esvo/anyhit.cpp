@@ -15,7 +15,7 @@ void occluded_anyhit(const esvo::EsvoStructure& s, const Ray* rays, size_t n,
                      AnyHitStats* stats) {
   detail::structure_anyhit<detail::EsvoNodes>(
       s, s.octree(), o.isa, &detail::esvo_anyhit_kernel_avx2, &detail::esvo_anyhit_kernel_avx512,
-      rays, n, lod, o.group, o.normals, o.deep_start, occluded, stats);
+      rays, n, lod, o.group, o.normals, o.deep_start, o.cull_budget, occluded, stats);
 }
 
 void esvo::EsvoStructure::transmittance_batch(const Ray* rays, size_t n, const LodFootprint& lod,

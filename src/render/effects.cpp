@@ -283,10 +283,10 @@ float ambient_occlusion(const Occluder& occ, TraceContext& ctx, const ShadingPoi
   if (o.ao_cone_angle_deg > 0.f)
     lod.size_per_t = 2.f * std::tan(0.5f * o.ao_cone_angle_deg * 3.14159265358979f / 180.f);
   float open = 0.f;  // sum of transmittances (exact integers for a surface)
-  // o.packets: the point's rays are generated first and traced as one group
-  // (their common origin and the normal let the octree family start them at
-  // the deepest node holding their ball: voxcast/occlusion_packets.hpp),
-  // then summed in the same order, so `open` is the same float.
+  // o.packets: the point's rays are generated first and traced together (on
+  // the octree family: packets of one point's rays, which share their origin
+  // and so the first nodes they read; voxcast/occlusion_packets.hpp), then
+  // summed in the same order, so `open` is the same float.
   constexpr int kMaxRays = 4096;  // validate(): ao_rays <= 4096
   thread_local Ray group[kMaxRays];
   thread_local float trans[kMaxRays];
