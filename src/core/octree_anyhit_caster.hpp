@@ -157,14 +157,14 @@ struct SegmentRegion {
     float d2 = 0.f, top = -INFINITY;
     for (int a = 0; a < 3; ++a) {
       if (c[a] > hi[a] + m || c[a] + s < lo[a] - m) return false;
-      const float q = std::fmax(c[a], std::fmin(center[a], c[a] + s)) - center[a];
+      const float q = vmax(c[a], vmin(center[a], c[a] + s)) - center[a];
       d2 += q * q;
     }
     if (d2 > (radius + m) * (radius + m)) return false;
     if (!half) return true;
     for (int k = 0; k < 8; ++k) {
       const Vec3 v{c.x + ((k & 1) ? s : 0.f), c.y + ((k & 2) ? s : 0.f), c.z + ((k & 4) ? s : 0.f)};
-      top = std::fmax(top, dot(v - center, normal));
+      top = vmax(top, dot(v - center, normal));
     }
     return top >= -m;
   }
@@ -287,8 +287,8 @@ void anyhit_packets(const OctreeWorld<P>& world, AnyHitKernel<P> kernel, const R
           if (!ok) break;
           const Vec3 e = p + d * r.tmax;
           for (int a = 0; a < 3; ++a)
-            reg.lo[a] = std::fmin(reg.lo[a], e[a]), reg.hi[a] = std::fmax(reg.hi[a], e[a]);
-          reg.radius = std::fmax(reg.radius, length(d * r.tmax));
+            reg.lo[a] = vmin(reg.lo[a], e[a]), reg.hi[a] = vmax(reg.hi[a], e[a]);
+          reg.radius = vmax(reg.radius, length(d * r.tmax));
           half = half && dot(r.dir, *nrm) >= 0.f;
         }
         if (ok) {

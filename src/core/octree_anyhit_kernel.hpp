@@ -10,10 +10,11 @@
 //  * a lane's start node, scale and exit scale come from the queue (a POP to
 //    the exit scale ends the lane as a miss: it left its deep start cube);
 //  * a hit only sets the ray's byte (no loop state is kept for an epilogue);
-//  * lanes are refilled as soon as half of them are idle (measured in
-//    docs/BENCHMARKS.md "Occlusion packets"): occlusion rays end at very
-//    different iterations, a packet waiting for its longest lane wastes more
-//    than the first-hit kernel's block coherence would gain.
+//  * lanes are refilled once every lane is idle, as in the first-hit kernel:
+//    the packet is then the queue's next 16 (8) rays, one pixel block's
+//    shadow rays or one point's AO rays; refilling as soon as half of the
+//    lanes were idle measured no faster (docs/BENCHMARKS.md "Occlusion
+//    packets").
 #include <immintrin.h>
 
 #include <bit>
@@ -35,7 +36,7 @@ void anyhit_kernel(const typename VP::Scalar& nodes, const AnyHitQueue& q, float
   using I = typename L::I;
   using U = typename L::U;
   const VP vp(nodes);
-  constexpr int kRefillLanes = N / 2;
+  constexpr int kRefillLanes = N;  // see the file comment
   const I lane = L::iota();
 
   F cx{}, cy{}, cz{}, bx{}, by{}, bz{};
