@@ -27,6 +27,7 @@
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/mesh.hpp"
 #include "voxcast/occlusion_packets.hpp"
+#include "voxcast/packet_caster.hpp"
 #include "voxcast/render.hpp"
 #include "voxcast/voxelize.hpp"
 
@@ -290,6 +291,16 @@ void check_effect_rays(const S& s, const char* name) {
   ASSERT_EQ(ao.rays.size(), pts.size() * 16);
   ASSERT_EQ(ao.normals.size(), pts.size());
   expect_same(s, shadow.rays, LodFootprint{}, 0, nullptr, std::string(name) + " shadow");
+  // What the effects trace them with (Structure::transmittance_batch):
+  // the packet caster's occluded_packets.
+  for (const std::vector<Ray>* rays : {&shadow.rays, &ao.rays}) {
+    const std::vector<uint8_t> want = scalar_answers(s, *rays, LodFootprint{});
+    for (const Isa isa : isas()) {
+      std::vector<uint8_t> got(rays->size(), 7);
+      occluded_packets(s, rays->data(), rays->size(), LodFootprint{}, got.data(), isa);
+      EXPECT_EQ(got, want) << name << " occluded_packets " << isa_name(isa);
+    }
+  }
   const AnyHitStats st =
       expect_same(s, ao.rays, LodFootprint{}, 16, ao.normals.data(), std::string(name) + " ao");
   EXPECT_GT(st.deep_points, 0u) << name;

@@ -57,8 +57,8 @@ struct EffectOptions {
   uint32_t seed = 0;              // per-image seed of the per-pixel sample hashes
   // ---- how the rays are traced (the images are the same either way) ----
   // true: AO rays of a point and the hard shadow rays of a batch of pixels go
-  // to the occluder together (Occluder::transmittance_batch: any-hit packets
-  // on the octree family); false: one ray at a time.
+  // to the occluder together (Occluder::transmittance_batch: packets of 16
+  // rays on the octree family); false: one ray at a time.
   bool packets = true;
 
   bool active() const { return shadows != ShadowMode::None || ao_rays > 0; }

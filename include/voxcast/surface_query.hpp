@@ -79,8 +79,9 @@ class SurfaceQuery {
   /// group > 0: rays [k group, (k + 1) group) share their origin (the AO rays
   /// of one point), and `normals` (may be null) holds one normal per group
   /// with dot(dir, normal) >= 0 for its rays; structures may use both to skip
-  /// work (the octree family: any-hit packets with the AO deep start,
-  /// voxcast/occlusion_packets.hpp). Default: one transmittance() per ray.
+  /// work (voxcast/occlusion_packets.hpp can start such groups deep; the
+  /// octree family answers batches with its packet caster,
+  /// voxcast/packet_caster.hpp). Default: one transmittance() per ray.
   virtual void transmittance_batch(const Ray* rays, size_t n, const LodFootprint& lod,
                                    TraceContext& ctx, float* out, int group = 0,
                                    const Vec3* normals = nullptr) const {

@@ -7,6 +7,7 @@
 #include "esvo/octree_nodes.hpp"
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/occlusion_packets.hpp"
+#include "voxcast/packet_caster.hpp"
 
 namespace voxcast {
 
@@ -21,9 +22,11 @@ void occluded_anyhit(const esvo::EsvoStructure& s, const Ray* rays, size_t n,
 void esvo::EsvoStructure::transmittance_batch(const Ray* rays, size_t n, const LodFootprint& lod,
                                               TraceContext& ctx, float* out, int group,
                                               const Vec3* normals) const {
-  ::voxcast::detail::structure_transmittance_batch<::voxcast::detail::EsvoNodes>(
-      *this, octree(), &::voxcast::detail::esvo_anyhit_kernel_avx2,
-      &::voxcast::detail::esvo_anyhit_kernel_avx512, rays, n, lod, ctx, out, group, normals);
+  (void)group, (void)normals;
+  auto occluded = [&](const Ray* r, size_t m, uint8_t* hit) {
+    occluded_packets(*this, r, m, lod, hit);
+  };
+  ::voxcast::detail::structure_transmittance_batch(*this, occluded, rays, n, lod, ctx, out);
 }
 
 }  // namespace voxcast

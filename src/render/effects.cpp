@@ -285,7 +285,8 @@ float ambient_occlusion(const Occluder& occ, TraceContext& ctx, const ShadingPoi
   float open = 0.f;  // sum of transmittances (exact integers for a surface)
   // o.packets: the point's rays are generated first and traced together (on
   // the octree family: packets of one point's rays, which share their origin
-  // and so the first nodes they read; voxcast/occlusion_packets.hpp), then
+  // and so the first nodes they read; docs/BENCHMARKS.md "Occlusion
+  // packets"), then
   // summed in the same order, so `open` is the same float.
   constexpr int kMaxRays = 4096;  // validate(): ao_rays <= 4096
   thread_local Ray group[kMaxRays];
