@@ -1,5 +1,6 @@
 // Primary and shadow rays per CPU second of the scalar octree caster and of
-// the packet casters (voxcast/packet_caster.hpp), ESVO and DAG of the bunny
+// the packet casters (voxcast/packet_caster.hpp), and occlusion rays of the
+// any-hit packets (voxcast/occlusion_packets.hpp), ESVO and DAG of the bunny
 // at 1024^3, one thread, the same rays for every caster. CPU time, not wall
 // time: on a shared machine it leaves out the time other processes ran, so
 // the casters' ratios stay comparable across runs (voxcast bench measures
@@ -12,9 +13,11 @@
 
 #include "voxcast/camera.hpp"
 #include "voxcast/dag.hpp"
+#include "voxcast/effects.hpp"
 #include "voxcast/esvo.hpp"
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/mesh.hpp"
+#include "voxcast/occlusion_packets.hpp"
 #include "voxcast/packet_caster.hpp"
 #include "voxcast/voxelize.hpp"
 
@@ -111,5 +114,104 @@ BENCHMARK(BM_PrimaryEsvo)->PACKET_ARGS;
 BENCHMARK(BM_PrimaryDag)->PACKET_ARGS;
 BENCHMARK(BM_ShadowEsvo)->ArgsProduct({{0, 1, 2}, {0}})->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ShadowDag)->ArgsProduct({{0, 1, 2}, {0}})->Unit(benchmark::kMillisecond);
+
+// ---- Occlusion packets (voxcast/occlusion_packets.hpp) ----
+
+// The AO rays the effects generate for the ESVO's hits (16 per point,
+// radius 5 % of the diagonal), point-major, and one normal per point.
+struct AoRays {
+  std::vector<voxcast::Ray> rays;
+  std::vector<voxcast::Vec3> normals;
+};
+class AoRecorder final : public voxcast::Occluder {
+ public:
+  float transmittance(const voxcast::Ray& ray, const voxcast::LodFootprint&, voxcast::TraceContext&,
+                      const voxcast::BeamStart*) const override {
+    rays->push_back(ray);
+    return 1.f;
+  }
+  std::vector<voxcast::Ray>* rays;
+};
+const AoRays& ao_rays() {
+  static const AoRays a = [] {
+    using namespace voxcast;
+    const Scene& sc = scene();
+    AoRays a;
+    EffectOptions fx;
+    fx.ao_rays = 16;
+    fx.packets = false;  // the recorder sees the rays one by one
+    const float radius = 0.05f * length(sc.esvo->bounds().extent());
+    AoRecorder rec;
+    rec.rays = &a.rays;
+    TraceContext ctx;
+    for (size_t i = 0; i < sc.primary.size(); ++i) {
+      const Ray& r = sc.primary[i];
+      SurfaceHit hit;
+      if (!sc.esvo->trace(r, LodFootprint{}, ctx, &hit)) continue;
+      Color c;
+      Vec3 n;
+      sc.esvo->attributes(hit, ctx, &c, &n);
+      if (dot(n, r.dir) > 0.f) n = -n;
+      const ShadingPoint p{hit.position, n, r.dir, hit.voxel_size};
+      ambient_occlusion(rec, ctx, p, fx, radius, uint32_t(i), nullptr);
+      a.normals.push_back(n);
+    }
+    return a;
+  }();
+  return a;
+}
+
+// Arg 0: 0 = scalar occluded(), 1 = occluded_packets (first-hit kernel),
+// 2 = occluded_anyhit, 3 = occluded_anyhit with the point groups and the
+// deep start, 4 = the same with a cull of 24 fetches; arg 1: 0 = AVX2,
+// 1 = AVX-512; arg 2: 0 = shadow rays, 1 = AO rays (point-major).
+template <class S>
+void run_occlusion(benchmark::State& state, const S& s) {
+  using namespace voxcast;
+  const int caster = int(state.range(0));
+  const Isa isa = state.range(1) == 1 ? Isa::Avx512 : Isa::Avx2;
+  const bool ao = state.range(2) == 1;
+  if (!cpu_supports(isa)) {
+    state.SkipWithError("ISA not supported");
+    return;
+  }
+  const std::vector<Ray>& rays = ao ? ao_rays().rays : scene().shadow;
+  std::vector<uint8_t> occ(rays.size());
+  TraceContext ctx;
+  AnyHitOptions o;
+  o.isa = isa;
+  const size_t chunk = 256;  // 16 points' AO rays, or a 16x16 tile's shadow rays
+  for (auto _ : state) {
+    for (size_t b = 0; b < rays.size(); b += chunk) {
+      const size_t n = std::min(chunk, rays.size() - b);
+      if (caster == 0) {
+        for (size_t i = b; i < b + n; ++i) occ[i] = s.occluded(rays[i], LodFootprint{}, ctx);
+      } else if (caster == 1) {
+        occluded_packets(s, rays.data() + b, n, LodFootprint{}, occ.data() + b, isa);
+      } else {
+        o.group = caster >= 3 && ao ? 16 : 0;
+        o.normals = o.group > 0 ? ao_rays().normals.data() + b / 16 : nullptr;
+        o.deep_start = caster >= 3;
+        o.cull_budget = caster == 4 ? 24 : 0;
+        occluded_anyhit(s, rays.data() + b, n, LodFootprint{}, occ.data() + b, o);
+      }
+    }
+    benchmark::DoNotOptimize(occ.data());
+  }
+  state.SetItemsProcessed(int64_t(state.iterations()) * int64_t(rays.size()));
+}
+
+void BM_OcclusionEsvo(benchmark::State& st) {
+  run_occlusion(st, *scene().esvo);
+}
+void BM_OcclusionDag(benchmark::State& st) {
+  run_occlusion(st, *scene().dag);
+}
+BENCHMARK(BM_OcclusionEsvo)
+    ->ArgsProduct({{0, 1, 2, 3, 4}, {0, 1}, {0, 1}})
+    ->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_OcclusionDag)
+    ->ArgsProduct({{0, 1, 2, 3, 4}, {0, 1}, {0, 1}})
+    ->Unit(benchmark::kMillisecond);
 
 }  // namespace

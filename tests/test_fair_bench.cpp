@@ -10,6 +10,7 @@
 #include <nlohmann/json.hpp>
 #include <set>
 #include <string>
+#include <vector>
 
 #include "support/cli_runner.hpp"
 #include "voxcast/camera.hpp"
@@ -152,6 +153,19 @@ TEST(FairBench, JsonHasEveryModeAndEmbreeModesAgree) {
       EXPECT_EQ(by_name[name]["occluded"], by_name["voxcast esvo"]["occluded"]) << kind << name;
     }
     EXPECT_EQ(occ["packet_equals_scalar"].get<uint64_t>(), n) << kind;
+    // So do the any-hit packets (from the root; AO also point-major from the
+    // root and with the deep start).
+    std::vector<std::string> anyhit = {"voxcast esvo anyhit", "voxcast dag anyhit"};
+    if (std::string(kind) == "ao")
+      for (const char* name :
+           {"voxcast esvo ao point", "voxcast dag ao point", "voxcast esvo ao deep",
+            "voxcast dag ao deep", "voxcast esvo ao deep+cull", "voxcast dag ao deep+cull"})
+        anyhit.push_back(name);
+    for (const std::string& name : anyhit) {
+      ASSERT_TRUE(by_name.count(name)) << kind << " " << name;
+      EXPECT_EQ(by_name[name]["occluded"], by_name["voxcast esvo"]["occluded"]) << kind << name;
+    }
+    EXPECT_EQ(occ["anyhit_equals_scalar"].get<uint64_t>(), n) << kind;
   }
   EXPECT_EQ(run["occlusion"]["ao"]["rays"].get<uint64_t>(),
             4u * run["occlusion"]["points"].get<uint64_t>());

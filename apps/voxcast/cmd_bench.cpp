@@ -28,10 +28,13 @@
 #include "render/beam.hpp"
 #include "render/bench_timing.hpp"
 #include "render/tiling.hpp"
+#include "voxcast/dag.hpp"
 #include "voxcast/effects.hpp"
 #include "voxcast/embree_reference.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/esvo_structure.hpp"
 #include "voxcast/format_registry.hpp"
+#include "voxcast/occlusion_packets.hpp"
 #include "voxcast/packet_caster.hpp"
 #include "voxcast/progress.hpp"
 #include "voxcast/render.hpp"
@@ -268,6 +271,65 @@ Timed occluded_all_packets(const SurfacePackets& s, const std::vector<Ray>& rays
     TraceContext ctx;
     s.occluded_packets(rays.data() + b, e - b, LodFootprint{}, ctx, o + b, active_isa());
   });
+}
+
+// The any-hit packet casters (occlusion_packets.hpp) of a structure: they
+// exist for the octree family only and are not part of SurfaceQuery (which
+// offers them through transmittance_batch), so the bench rows that time
+// them directly find them here. Empty for any other structure.
+using AnyHitCaster = std::function<void(const Ray* rays, size_t n, uint8_t* occluded,
+                                        const AnyHitOptions& o, AnyHitStats* stats)>;
+AnyHitCaster anyhit_caster(const Structure& st) {
+  if (const auto* e = dynamic_cast<const esvo::EsvoStructure*>(&st))
+    return [e](const Ray* rays, size_t n, uint8_t* occ, const AnyHitOptions& o, AnyHitStats* s) {
+      occluded_anyhit(*e, rays, n, LodFootprint{}, occ, o, s);
+    };
+  if (const auto* d = dynamic_cast<const dag::DagStructure*>(&st))
+    return [d](const Ray* rays, size_t n, uint8_t* occ, const AnyHitOptions& o, AnyHitStats* s) {
+      occluded_anyhit(*d, rays, n, LodFootprint{}, occ, o, s);
+    };
+  return {};
+}
+
+// The any-hit packets, every ray from the root: each chunk as one call.
+Timed occluded_all_anyhit(const AnyHitCaster& s, const std::vector<Ray>& rays,
+                          std::vector<uint8_t>* occ) {
+  return occluded_frame(rays, occ, [&](size_t b, size_t e, uint8_t* o) {
+    AnyHitOptions opt;
+    opt.deep_start = false;
+    s(rays.data() + b, e - b, o + b, opt, nullptr);
+  });
+}
+
+// The any-hit packets on point-major AO rays (k per point, rays[p k + j]),
+// with or without the deep start, chunks of whole points. The answers go
+// back to sample-major order (the other rows' order, occ[j np + p]) after
+// the timed loop. *stats (may be null): what the deep start did.
+Timed occluded_ao_groups(const AnyHitCaster& s, const std::vector<Ray>& rays,
+                         const std::vector<Vec3>& normals, size_t k, bool deep, int cull_budget,
+                         std::vector<uint8_t>* occ, AnyHitStats* stats) {
+  const size_t np = normals.size();
+  std::vector<uint8_t> point_major(rays.size(), 0);  // outside the timed loop
+  std::atomic<uint64_t> points{0}, deep_points{0}, depth{0}, culled{0}, root_rays{0};
+  const size_t per_chunk = std::max<size_t>(1, EmbreeScene::kOcclusionChunk / k);
+  Timed t;
+  t.rays = rays.size();
+  t.seconds = detail::for_each_chunk(np, per_chunk, [&](size_t b, size_t e) {
+    AnyHitOptions opt;
+    opt.group = int(k), opt.normals = normals.data() + b, opt.deep_start = deep;
+    opt.cull_budget = cull_budget;
+    AnyHitStats st;
+    s(rays.data() + b * k, (e - b) * k, point_major.data() + b * k, opt, &st);
+    points += st.points, deep_points += st.deep_points, depth += st.depth_sum;
+    culled += st.culled, root_rays += st.root_rays;
+  });
+  occ->assign(rays.size(), 0);
+  for (size_t p = 0; p < np; ++p)
+    for (size_t j = 0; j < k; ++j) (*occ)[j * np + p] = point_major[p * k + j];
+  for (uint8_t v : *occ) t.hits += v;
+  if (stats != nullptr)
+    *stats = {points.load(), deep_points.load(), depth.load(), culled.load(), root_rays.load()};
+  return t;
 }
 
 // Records the rays shadow_visibility() / ambient_occlusion() would trace
@@ -951,6 +1013,8 @@ Runner add_bench(CLI::App& app) {
         }
         // AO rays sample-major (ray k of consecutive points next to each
         // other), so a packet holds the same sample of neighbouring pixels.
+        std::vector<Vec3> ao_normals;  // one per point: the AO hemisphere's
+        for (const ShadingPoint& p : points) ao_normals.push_back(p.normal);
         std::vector<Ray> ao_rays = ao_rec.rays;
         if (ao_uniform) {
           const size_t np = points.size(), k = size_t(args->ao_rays);
@@ -1005,6 +1069,48 @@ Runner add_bench(CLI::App& app) {
                             },
                             {},
                             {}});
+          }
+          // The any-hit packets (issue 10 item 5), same arrays, from the root;
+          // then for AO the same rays point-major, 16 (8) rays of one point
+          // per packet, from the root, with the deep start (ball / hemisphere
+          // cull), and deep start + a cull of up to 24 node fetches per point
+          // (AnyHitOptions::cull_budget). anyhit_rows: (row, structure).
+          const std::string any_how = std::string("occluded_anyhit ") + isa_name(active_isa()) +
+                                      " x" + std::to_string(packet_width(active_isa()));
+          std::vector<std::pair<size_t, size_t>> anyhit_rows;
+          std::vector<AnyHitStats> deep_stats(structures.size());
+          const bool ao_groups = kind == 1 && ao_uniform;
+          for (size_t k = 0; k < structures.size(); ++k) {
+            const AnyHitCaster anyhit = anyhit_caster(*structures[k].structure);
+            if (!anyhit) continue;
+            anyhit_rows.push_back({rows.size(), k});
+            rows.push_back({structures[k].caster + " anyhit",
+                            any_how,
+                            false,
+                            [&, anyhit, i = rows.size()] {
+                              return occluded_all_anyhit(anyhit, rs, &rows[i].answers);
+                            },
+                            {},
+                            {}});
+            if (!ao_groups) continue;
+            for (const int variant : {0, 1, 2}) {
+              static const char* const names[] = {" ao point", " ao deep", " ao deep+cull"};
+              static const char* const hows[] = {", point-major, root start",
+                                                 ", point-major, deep start",
+                                                 ", point-major, deep start, cull budget 24"};
+              anyhit_rows.push_back({rows.size(), k});
+              rows.push_back({structures[k].caster + names[variant],
+                              any_how + hows[variant],
+                              false,
+                              [&, anyhit, variant, k, i = rows.size()] {
+                                AnyHitStats* stats = variant == 2 ? &deep_stats[k] : nullptr;
+                                return occluded_ao_groups(
+                                    anyhit, ao_rec.rays, ao_normals, size_t(args->ao_rays),
+                                    variant > 0, variant == 2 ? 24 : 0, &rows[i].answers, stats);
+                              },
+                              {},
+                              {}});
+            }
           }
           const size_t embree_x1 = rows.size();  // the first of kOcclusionModes
           for (const EmbreeScene::Mode m : EmbreeScene::kOcclusionModes) {
@@ -1069,13 +1175,47 @@ Runner add_bench(CLI::App& app) {
             agree += all;
             packet_same += packets;
           }
-          std::printf("  %s on %.3f%% of the rays, packet == scalar on %.3f%%\n\n", names.c_str(),
-                      100.0 * double(agree) / double(std::max<size_t>(rs.size(), 1)),
-                      100.0 * double(packet_same) / double(std::max<size_t>(rs.size(), 1)));
+          // Each any-hit packet row against its structure's scalar caster.
+          size_t anyhit_same = 0;
+          for (size_t i = 0; i < rs.size(); ++i) {
+            bool same = true;
+            for (const auto& [row, k] : anyhit_rows)
+              same &= rows[row].answers[i] == rows[scalar_row[k]].answers[i];
+            anyhit_same += same;
+          }
+          const double nrs = double(std::max<size_t>(rs.size(), 1));
+          std::printf(
+              "  %s on %.3f%% of the rays, packet == scalar on %.3f%%, any-hit packets == scalar "
+              "on %.3f%%\n",
+              names.c_str(), 100.0 * double(agree) / nrs, 100.0 * double(packet_same) / nrs,
+              100.0 * double(anyhit_same) / nrs);
+          nlohmann::json deep_json;
+          if (ao_groups) {
+            for (size_t k = 0; k < structures.size(); ++k) {
+              if (!anyhit_caster(*structures[k].structure)) continue;
+              const AnyHitStats& d = deep_stats[k];
+              const uint64_t traced = d.deep_points - d.culled;
+              const std::string& fname = structures[k].format->name;
+              std::printf(
+                  "  %s deep start + cull: %llu of %llu points started deep, %.2f levels down on "
+                  "average, %llu answered by the cull alone, %llu rays from the root\n",
+                  fname.c_str(), (unsigned long long)d.deep_points, (unsigned long long)d.points,
+                  traced ? double(d.depth_sum) / double(traced) : 0.0, (unsigned long long)d.culled,
+                  (unsigned long long)d.root_rays);
+              deep_json[fname] = {{"points", d.points},
+                                  {"deep_points", d.deep_points},
+                                  {"depth_sum", d.depth_sum},
+                                  {"culled", d.culled},
+                                  {"root_rays", d.root_rays}};
+            }
+          }
+          std::printf("\n");
           occ_json[kind_name] = {{"rays", rs.size()},
                                  {"fastest_embree", fastest_occ_name},
                                  {"structures_agree", agree},
                                  {"packet_equals_scalar", packet_same},
+                                 {"anyhit_equals_scalar", anyhit_same},
+                                 {"deep_start", deep_json},
                                  {"casters", kj}};
         }
         occ_json["points"] = points.size();

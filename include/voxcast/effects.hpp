@@ -11,6 +11,7 @@
 //
 // Determinism: every random number of a pixel comes from a hash of (x, y,
 // seed), so an image does not depend on the thread count or the tile order.
+#include <cstddef>
 #include <cstdint>
 
 #include "voxcast/math.hpp"
@@ -54,6 +55,11 @@ struct EffectOptions {
   float ao_radius = 0.f;          // world units; <= 0: 5% of the structure's bounds diagonal
   float ao_cone_angle_deg = 0.f;  // > 0: AO rays stop at nodes subtending this angle (svdag §4)
   uint32_t seed = 0;              // per-image seed of the per-pixel sample hashes
+  // ---- how the rays are traced (the images are the same either way) ----
+  // true: AO rays of a point and the hard shadow rays of a batch of pixels go
+  // to the occluder together (Occluder::transmittance_batch: packets of 16
+  // rays on the octree family); false: one ray at a time.
+  bool packets = true;
 
   bool active() const { return shadows != ShadowMode::None || ao_rays > 0; }
 };
@@ -93,6 +99,14 @@ class Occluder {
   /// work, the answer is the same.
   virtual float transmittance(const Ray& ray, const LodFootprint& lod, TraceContext& ctx,
                               const BeamStart* beam) const = 0;
+  /// out[i] = transmittance(rays[i], lod, ctx, nullptr) for i < n, the same
+  /// values; group / normals as SurfaceQuery::transmittance_batch.
+  virtual void transmittance_batch(const Ray* rays, size_t n, const LodFootprint& lod,
+                                   TraceContext& ctx, float* out, int group,
+                                   const Vec3* normals) const {
+    (void)group, (void)normals;
+    for (size_t i = 0; i < n; ++i) out[i] = transmittance(rays[i], lod, ctx, nullptr);
+  }
   /// Conservative beam pass (esvo §6.2 / svdag §4); default: no information.
   virtual void beam_start(const BeamFrustum& beam, TraceContext& ctx, BeamStart* start) const {
     (void)beam, (void)ctx;
@@ -110,6 +124,10 @@ class StructureOccluder final : public Occluder {
   }
   void beam_start(const BeamFrustum& beam, TraceContext& ctx, BeamStart* start) const override {
     q_.beam_start(beam, ctx, start);
+  }
+  void transmittance_batch(const Ray* rays, size_t n, const LodFootprint& lod, TraceContext& ctx,
+                           float* out, int group, const Vec3* normals) const override {
+    q_.transmittance_batch(rays, n, lod, ctx, out, group, normals);
   }
 
  private:
@@ -143,6 +161,14 @@ Vec3 direction_to_light(const EffectOptions& o, Vec3 light_dir, Vec3 p, float* d
 float shadow_visibility(const Occluder& occ, TraceContext& ctx, const ShadingPoint& p,
                         const EffectOptions& o, Vec3 light_dir, uint32_t seed,
                         EffectCounters* counters);
+
+/// shadow_visibility() of points[i] with seeds[i] into out[i] for i < n, the
+/// same values. Hard shadows (and every non-area light) with o.packets: the
+/// rays of all n points go to the occluder as one batch (under a directional
+/// light the shadow rays of neighbouring pixels are parallel: one packet).
+void shadow_visibility_batch(const Occluder& occ, TraceContext& ctx, const ShadingPoint* points,
+                             int n, const EffectOptions& o, Vec3 light_dir, const uint32_t* seeds,
+                             EffectCounters* counters, float* out);
 
 /// Ambient occlusion (1 = open, 0 = fully occluded) of `p` with o.ao_rays
 /// rays, falloff in sampling (Laine & Karras 2010b): the occlusion sought is

@@ -103,6 +103,19 @@ class SurfaceQuery {
                 const BeamStart* beam = nullptr) const {
     return transmittance(ray, lod, ctx, beam) < 1.f;
   }
+  /// out[i] = transmittance(rays[i], lod, ctx) for i < n, the same values.
+  /// group > 0: rays [k group, (k + 1) group) share their origin (the AO rays
+  /// of one point), and `normals` (may be null) holds one normal per group
+  /// with dot(dir, normal) >= 0 for its rays; structures may use both to skip
+  /// work (voxcast/occlusion_packets.hpp can start such groups deep; the
+  /// octree family answers batches with its packet caster,
+  /// voxcast/packet_caster.hpp). Default: one transmittance() per ray.
+  virtual void transmittance_batch(const Ray* rays, size_t n, const LodFootprint& lod,
+                                   TraceContext& ctx, float* out, int group = 0,
+                                   const Vec3* normals = nullptr) const {
+    (void)group, (void)normals;
+    for (size_t i = 0; i < n; ++i) out[i] = transmittance(rays[i], lod, ctx);
+  }
 
   /// Linear color and unit normal of the hit voxel; adds the bytes read to
   /// ctx.counters.attribute_bytes while counting.

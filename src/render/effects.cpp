@@ -230,6 +230,44 @@ float shadow_visibility(const Occluder& occ, TraceContext& ctx, const ShadingPoi
   return lit / float(n);
 }
 
+void shadow_visibility_batch(const Occluder& occ, TraceContext& ctx, const ShadingPoint* points,
+                             int n, const EffectOptions& o, Vec3 light_dir, const uint32_t* seeds,
+                             EffectCounters* counters, float* out) {
+  if (!o.packets || (o.shadows != ShadowMode::Hard && o.light == LightKind::Area)) {
+    for (int i = 0; i < n; ++i)
+      out[i] = shadow_visibility(occ, ctx, points[i], o, light_dir, seeds[i], counters);
+    return;
+  }
+  // shadow_visibility's one ray per point, all traced in one batch: the
+  // batch's answers are the single rays' (Occluder::transmittance_batch).
+  constexpr int kMax = 64;
+  Ray rays[kMax];
+  int slot[kMax];
+  float vis[kMax];
+  EffectCounters c;
+  for (int b = 0; b < n; b += kMax) {
+    const int m = std::min(kMax, n - b);
+    int k = 0;
+    for (int i = 0; i < m; ++i) {
+      const ShadingPoint& p = points[b + i];
+      const Vec3 origin = offset_origin(p);
+      float dist;
+      const Vec3 d = direction_to_light(o, light_dir, origin, &dist);
+      out[b + i] = 0.f;
+      slot[i] = -1;
+      if (dot(d, p.normal) > 0.f && dist > 0.f) {  // below the horizon: occluded, no ray
+        slot[i] = k;
+        rays[k++] = Ray{origin, d, dist};
+      }
+    }
+    c.shadow_rays += uint64_t(k);
+    occ.transmittance_batch(rays, size_t(k), LodFootprint{}, ctx, vis, 0, nullptr);
+    for (int i = 0; i < m; ++i)
+      if (slot[i] >= 0) out[b + i] = vis[slot[i]];
+  }
+  if (counters) *counters += c;
+}
+
 float ambient_occlusion(const Occluder& occ, TraceContext& ctx, const ShadingPoint& p,
                         const EffectOptions& o, float radius, uint32_t seed,
                         EffectCounters* counters) {
@@ -245,6 +283,14 @@ float ambient_occlusion(const Occluder& occ, TraceContext& ctx, const ShadingPoi
   if (o.ao_cone_angle_deg > 0.f)
     lod.size_per_t = 2.f * std::tan(0.5f * o.ao_cone_angle_deg * 3.14159265358979f / 180.f);
   float open = 0.f;  // sum of transmittances (exact integers for a surface)
+  // o.packets: the point's rays are generated first and traced together (on
+  // the octree family: packets of one point's rays, which share their origin
+  // and so the first nodes they read; docs/BENCHMARKS.md "Occlusion
+  // packets"), then
+  // summed in the same order, so `open` is the same float.
+  constexpr int kMaxRays = 4096;  // validate(): ao_rays <= 4096
+  thread_local Ray group[kMaxRays];
+  thread_local float trans[kMaxRays];
   for (int i = 0; i < n; ++i) {
     // Cosine-weighted direction (Malley): uniform on the disc, lifted.
     const float u1 = sample(i, n, 0, seed), u2 = sample(i, n, 1, seed), u3 = sample(i, n, 2, seed);
@@ -254,7 +300,14 @@ float ambient_occlusion(const Occluder& occ, TraceContext& ctx, const ShadingPoi
     // Falloff in sampling (Laine & Karras 2010b): length R*sqrt(u) has
     // P(L > d) = 1 - (d/R)^2 = f(d), so a ray is occluded with probability f.
     const float len = radius * std::sqrt(u3);
-    open += occ.transmittance(Ray{origin, d, len}, lod, ctx, nullptr);
+    if (o.packets)
+      group[i] = Ray{origin, d, len};
+    else
+      open += occ.transmittance(Ray{origin, d, len}, lod, ctx, nullptr);
+  }
+  if (o.packets) {
+    occ.transmittance_batch(group, size_t(n), lod, ctx, trans, n, &p.normal);
+    for (int i = 0; i < n; ++i) open += trans[i];
   }
   if (counters) counters->ao_rays += uint64_t(n);
   return open / float(n);

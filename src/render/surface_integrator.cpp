@@ -80,26 +80,43 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
   // Hits are shaded in groups of up to kShadeLanes: first every hit's
   // attributes are fetched (mostly cache misses: the values live far from
   // the descriptors; issued back to back they overlap in the memory system
-  // instead of stalling one hit at a time), then per hit the normal is
-  // turned to the viewer and the effects are traced, then the group's
+  // instead of stalling one hit at a time), then the group's shadow rays are
+  // traced together (effects.hpp: one packet of parallel rays under a
+  // directional light), then per hit the AO rays, then the group's
   // Blinn-Phong runs in vector lanes (render/shade_kernel.hpp), and the
   // AOVs are written.
   const detail::ShadeKernel phong = detail::shade_kernel(isa_);
   detail::ShadeBatch sb{};
   Color group_c[detail::kShadeLanes];
   Vec3 group_n[detail::kShadeLanes];
+  ShadingPoint group_point[detail::kShadeLanes];
+  uint32_t group_seed[detail::kShadeLanes];
+  float group_vis[detail::kShadeLanes];
   auto shade_group = [&](const SurfaceHit* const* hits, const int* xs, const int* ys,
                          const Vec3* dirs, int m) {
-    for (int i = 0; i < m; ++i)
-      q.attributes(*hits[i], ctx, &group_c[i], &group_n[i]);  // counts its bytes while collecting
+    for (int i = 0; i < m; ++i) {
+      const SurfaceHit& hit = *hits[i];
+      q.attributes(hit, ctx, &group_c[i], &group_n[i]);  // counts its bytes while collecting
+      // Voxel normals are averages over the surface inside the voxel and may
+      // face away from the viewer; shade the side we see.
+      if (dot(group_n[i], dirs[i]) > 0.f) group_n[i] = -group_n[i];
+      group_point[i] = ShadingPoint{hit.position, group_n[i], dirs[i], hit.voxel_size};
+      group_seed[i] = pixel_seed(xs[i], ys[i], fx.seed);
+    }
+    if (effects && fx.shadows != ShadowMode::None) {
+      // The Table 6 counters describe primary rays; secondary rays are
+      // counted by EffectCounters.
+      const bool counting = ctx.counting;
+      ctx.counting = false;
+      shadow_visibility_batch(occluder, ctx, group_point, m, fx, options_.light_dir, group_seed,
+                              &ts.effects, group_vis);
+      ctx.counting = counting;
+    }
     for (int i = 0; i < m; ++i) {
       const SurfaceHit& hit = *hits[i];
       const int x = xs[i], y = ys[i];
       const Vec3 dir = dirs[i];
-      Vec3 n = group_n[i];
-      // Voxel normals are averages over the surface inside the voxel and may
-      // face away from the viewer; shade the side we see.
-      if (dot(n, dir) > 0.f) n = -n;
+      const Vec3 n = group_n[i];
       Vec3 light = to_light;
       float visibility = 1.f, ao = 1.f;
       if (fx.light != LightKind::Directional) {
@@ -107,18 +124,12 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
         light = direction_to_light(fx, options_.light_dir, hit.position, &dist);
       }
       if (effects) {
-        // The Table 6 counters describe primary rays; secondary rays are
-        // counted by EffectCounters.
         const bool counting = ctx.counting;
         ctx.counting = false;
-        const ShadingPoint sp{hit.position, n, dir, hit.voxel_size};
-        const uint32_t seed = pixel_seed(x, y, fx.seed);
-        if (fx.shadows != ShadowMode::None)
-          *film.shadow.at(x, y) = visibility =
-              shadow_visibility(occluder, ctx, sp, fx, options_.light_dir, seed, &ts.effects);
+        if (fx.shadows != ShadowMode::None) *film.shadow.at(x, y) = visibility = group_vis[i];
         if (fx.ao_rays > 0)
-          *film.ao.at(x, y) = ao =
-              ambient_occlusion(occluder, ctx, sp, fx, fx.ao_radius, seed, &ts.effects);
+          *film.ao.at(x, y) = ao = ambient_occlusion(occluder, ctx, group_point[i], fx,
+                                                     fx.ao_radius, group_seed[i], &ts.effects);
         ctx.counting = counting;
       }
       const Color c = group_c[i];

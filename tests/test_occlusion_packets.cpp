@@ -1,0 +1,361 @@
+// Any-hit packets and the AO deep start (voxcast/occlusion_packets.hpp)
+// against the scalar caster they must reproduce: occluded_anyhit == occluded()
+// on every ray, for the ESVO (raw and compressed attributes, far pointers,
+// contours) and the DAG built from a shipped mesh, on random rays (inside and
+// outside the root, along grid planes, tiny components, non-finite input),
+// on groups of rays sharing an origin (random points, origins on grid planes,
+// normals some rays violate), and on the shadow and AO rays the effects
+// generate for real shading points, for every kernel ISA this CPU runs, with
+// and without the deep start; and renders with effects through the packets
+// are byte-identical to one ray at a time.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <memory>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "support/octree_rays.hpp"
+#include "support/test_data.hpp"
+#include "voxcast/camera.hpp"
+#include "voxcast/dag.hpp"
+#include "voxcast/effects.hpp"
+#include "voxcast/esvo.hpp"
+#include "voxcast/esvo_structure.hpp"
+#include "voxcast/mesh.hpp"
+#include "voxcast/occlusion_packets.hpp"
+#include "voxcast/packet_caster.hpp"
+#include "voxcast/render.hpp"
+#include "voxcast/voxelize.hpp"
+
+namespace voxcast {
+namespace {
+
+std::vector<Isa> isas() {
+  std::vector<Isa> v{Isa::Avx2};
+  if (cpu_supports(Isa::Avx512))
+    v.push_back(Isa::Avx512);
+  else
+    std::printf("CPU without AVX-512: AVX2 kernels only\n");
+  return v;
+}
+
+struct Scenes {
+  Mesh mesh;
+  GridTransform grid;
+  std::unique_ptr<esvo::EsvoStructure> esvo, esvo_compressed, esvo_far, esvo_contours;
+  std::unique_ptr<dag::DagStructure> dag;
+};
+
+const Scenes& scenes() {
+  static const Scenes s = [] {
+    Scenes s;
+    s.mesh = load_mesh(testing::test_mesh("spot.obj"));
+    s.grid = GridTransform::fit(s.mesh.bounds(), 256);
+    const VoxelSet v = voxelize(s.mesh, s.grid, {});
+    auto esvo = [&](const esvo::BuildOptions& o, bool with_mesh) {
+      return std::make_unique<esvo::EsvoStructure>(std::make_shared<const esvo::EsvoOctree>(
+          with_mesh ? esvo::build_octree(v, s.mesh, o) : esvo::build_octree(v, o)));
+    };
+    s.esvo = esvo({}, false);
+    esvo::BuildOptions compressed;
+    compressed.attributes = esvo::AttributeFormat::Compressed;
+    s.esvo_compressed = esvo(compressed, false);
+    esvo::BuildOptions small;  // many blocks: far pointers between them
+    small.max_block_slots = 64;
+    s.esvo_far = esvo(small, false);
+    esvo::BuildOptions contours;
+    contours.contours = true;
+    s.esvo_contours = esvo(contours, true);
+    s.dag = std::make_unique<dag::DagStructure>(
+        std::make_shared<const dag::SparseVoxelDag>(dag::build_dag(v)));
+    return s;
+  }();
+  return s;
+}
+
+// Independent rays around the grid's cube, world space.
+std::vector<Ray> random_rays(const GridTransform& grid, size_t n, uint64_t seed) {
+  testing::OctreeRayRng rng(seed, 8);
+  const float side = float(grid.side());
+  std::vector<Ray> rays;
+  for (size_t i = 0; i < n; ++i) {
+    Vec3 o{rng.uni(-0.5f, 1.5f), rng.uni(-0.5f, 1.5f), rng.uni(-0.5f, 1.5f)};
+    Vec3 d = rng.sphere();
+    switch (rng.pick(5)) {
+      case 0:  // aimed at a point inside
+        d = normalize(Vec3{rng.uni(0.2f, 0.8f), rng.uni(0.2f, 0.8f), rng.uni(0.2f, 0.8f)} - o);
+        break;
+      case 1: {  // along an axis, on grid planes
+        const int a = rng.pick(3);
+        d = {0, 0, 0};
+        d[a] = rng.pick(2) ? 1.f : -1.f;
+        o[(a + 1) % 3] = rng.grid_line() - 1.f, o[(a + 2) % 3] = rng.grid_line() - 1.f;
+        break;
+      }
+      case 2:  // a tiny component
+        d[rng.pick(3)] = rng.uni(-1e-9f, 1e-9f);
+        d = normalize(d);
+        break;
+      default:
+        break;
+    }
+    Ray r{grid.origin + o * side, d, INFINITY};
+    if (rng.pick(3) == 0) r.tmax = rng.uni(0.f, 0.5f) * side;
+    if (i % 997 == 5) r.origin.x = NAN;
+    if (i % 991 == 7) r.dir.y = INFINITY;
+    rays.push_back(r);
+  }
+  return rays;
+}
+
+// Groups of `g` rays sharing an origin (AO-like: short, in a hemisphere),
+// with one normal per group. Origins: random inside the cube, some on grid
+// planes (ties of the deep start's descent), some near the cube's faces; a
+// few groups have a ray below their normal's horizon (the half-space cull
+// must notice and not use it), a few have long or infinite rays.
+struct Groups {
+  std::vector<Ray> rays;
+  std::vector<Vec3> normals;
+};
+Groups random_groups(const GridTransform& grid, size_t count, int g, uint64_t seed) {
+  testing::OctreeRayRng rng(seed, 8);
+  const float side = float(grid.side());
+  Groups out;
+  for (size_t k = 0; k < count; ++k) {
+    Vec3 o{rng.uni(0.05f, 0.95f), rng.uni(0.05f, 0.95f), rng.uni(0.05f, 0.95f)};
+    if (rng.pick(3) == 0) o[rng.pick(3)] = rng.grid_line() - 1.f;
+    if (rng.pick(4) == 0) o[rng.pick(3)] = rng.uni(0.f, 0.02f);
+    const Vec3 n = rng.sphere();
+    const float radius = rng.uni(0.002f, 0.15f) * side;
+    const bool rogue = rng.pick(8) == 0;
+    for (int i = 0; i < g; ++i) {
+      Vec3 d = rng.sphere();
+      if (dot(d, n) < 0.f && !(rogue && i == g / 2)) d = -d;
+      float len = radius * std::sqrt(rng.uni(0.f, 1.f));
+      if (rng.pick(50) == 0) len = rng.pick(2) ? INFINITY : 2.f * side;
+      out.rays.push_back({grid.origin + o * side, d, len});
+    }
+    out.normals.push_back(n);
+  }
+  return out;
+}
+
+template <class S>
+std::vector<uint8_t> scalar_answers(const S& s, const std::vector<Ray>& rays,
+                                    const LodFootprint& lod) {
+  std::vector<uint8_t> want(rays.size());
+  TraceContext ctx;
+  for (size_t i = 0; i < rays.size(); ++i) want[i] = s.occluded(rays[i], lod, ctx);
+  return want;
+}
+
+// occluded_anyhit == occluded() on every ray, each ISA, deep start on and off.
+template <class S>
+AnyHitStats expect_same(const S& s, const std::vector<Ray>& rays, const LodFootprint& lod,
+                        int group, const Vec3* normals, const std::string& what) {
+  const std::vector<uint8_t> want = scalar_answers(s, rays, lod);
+  size_t occluded = 0;
+  for (uint8_t w : want) occluded += w;
+  // Both answers must occur, or the comparison says little.
+  EXPECT_GT(occluded, 0u) << what;
+  EXPECT_LT(occluded, rays.size()) << what;
+  AnyHitStats stats;
+  for (const Isa isa : isas()) {
+    // Deep start with the cull, without it, and every ray from the root.
+    for (const int variant : {0, 1, 2}) {
+      const bool deep = variant < 2;
+      AnyHitOptions o;
+      o.group = group, o.normals = normals, o.deep_start = deep, o.isa = isa;
+      o.cull_budget = variant == 0 ? 24 : 0;
+      std::vector<uint8_t> got(rays.size(), 7);
+      AnyHitStats st;
+      occluded_anyhit(s, rays.data(), rays.size(), lod, got.data(), o, &st);
+      if (variant == 0 && isa == Isa::Avx2) stats = st;
+      size_t bad = 0;
+      for (size_t i = 0; i < rays.size(); ++i)
+        if (got[i] != want[i] && ++bad <= 5)
+          ADD_FAILURE() << what << " " << isa_name(isa)
+                        << (variant == 0 ? " deep+cull"
+                            : deep       ? " deep"
+                                         : " root")
+                        << " ray " << i << ": " << int(got[i]) << " want " << int(want[i]);
+      EXPECT_EQ(bad, 0u) << what << " " << isa_name(isa)
+                         << (variant == 0 ? " deep+cull"
+                             : deep       ? " deep"
+                                          : " root");
+    }
+  }
+  return stats;
+}
+
+void print_stats(const std::string& what, const AnyHitStats& st) {
+  const uint64_t traced = st.deep_points - st.culled;
+  std::printf("%s: %llu groups, %llu started deep (%llu culled, the others %.2f levels down)\n",
+              what.c_str(), (unsigned long long)st.points, (unsigned long long)st.deep_points,
+              (unsigned long long)st.culled, traced ? double(st.depth_sum) / double(traced) : 0.0);
+}
+
+template <class S>
+void check_random(const S& s, const char* name) {
+  const Scenes& sc = scenes();
+  const std::vector<Ray> rnd = random_rays(sc.grid, 20000, 5);
+  expect_same(s, rnd, LodFootprint{}, 0, nullptr, std::string(name) + " random");
+  LodFootprint lod;
+  lod.size_at_origin = float(sc.grid.voxel_size) * 3.f;
+  lod.size_per_t = 0.01f;
+  expect_same(s, rnd, lod, 0, nullptr, std::string(name) + " random lod");
+  const Groups g = random_groups(sc.grid, 1500, 16, 9);
+  const AnyHitStats st =
+      expect_same(s, g.rays, LodFootprint{}, 16, g.normals.data(), std::string(name) + " groups");
+  // The deep start and the cull must actually have run on these groups.
+  EXPECT_GT(st.deep_points, st.points / 4) << name;
+  EXPECT_GT(st.culled, 0u) << name;
+  print_stats(std::string(name) + " groups", st);
+  expect_same(s, g.rays, lod, 16, g.normals.data(), std::string(name) + " groups lod");
+  // Groups of 5 (not a divisor of the queue) without normals.
+  const Groups g5 = random_groups(sc.grid, 600, 5, 13);
+  expect_same(s, g5.rays, LodFootprint{}, 5, nullptr, std::string(name) + " groups of 5");
+}
+
+TEST(OcclusionPackets, EsvoEqualsScalarOccluded) {
+  check_random(*scenes().esvo, "esvo");
+}
+TEST(OcclusionPackets, EsvoCompressedEqualsScalarOccluded) {
+  check_random(*scenes().esvo_compressed, "esvo compressed");
+}
+TEST(OcclusionPackets, EsvoFarPointersEqualScalarOccluded) {
+  ASSERT_GT(scenes().esvo_far->octree().memory_stats().far_pointer_bytes, 0u);
+  check_random(*scenes().esvo_far, "esvo far");
+}
+TEST(OcclusionPackets, EsvoContoursEqualScalarOccluded) {
+  check_random(*scenes().esvo_contours, "esvo contours");
+}
+TEST(OcclusionPackets, DagEqualsScalarOccluded) {
+  check_random(*scenes().dag, "dag");
+}
+
+// Records the rays the effects trace (in batches, as with packets on).
+class Recorder final : public Occluder {
+ public:
+  float transmittance(const Ray& ray, const LodFootprint&, TraceContext&,
+                      const BeamStart*) const override {
+    rays.push_back(ray);
+    return 1.f;
+  }
+  void transmittance_batch(const Ray* r, size_t n, const LodFootprint&, TraceContext&, float* out,
+                           int group, const Vec3* normals) const override {
+    for (size_t i = 0; i < n; ++i) rays.push_back(r[i]), out[i] = 1.f;
+    if (group > 0 && normals != nullptr) this->normals.push_back(*normals);
+  }
+  mutable std::vector<Ray> rays;
+  mutable std::vector<Vec3> normals;
+};
+
+// The shadow (directional) and AO rays of the shading points of a camera
+// view, as shadow_visibility_batch / ambient_occlusion generate them.
+template <class S>
+void check_effect_rays(const S& s, const char* name) {
+  const int W = 64, H = 48;
+  const CameraRays cam(Camera::orbit(s.bounds(), W, H, 30.f, 20.f), W, H);
+  std::vector<ShadingPoint> pts;
+  std::vector<uint32_t> seeds;
+  TraceContext ctx;
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) {
+      const Ray r = cam.ray(x, y);
+      SurfaceHit hit;
+      if (!s.trace(r, LodFootprint{}, ctx, &hit)) continue;
+      Color c;
+      Vec3 n;
+      s.attributes(hit, ctx, &c, &n);
+      if (dot(n, r.dir) > 0.f) n = -n;
+      pts.push_back({hit.position, n, r.dir, hit.voxel_size});
+      seeds.push_back(pixel_seed(x, y, 0));
+    }
+  ASSERT_GT(pts.size(), 200u) << name;
+  EffectOptions fx;
+  fx.shadows = ShadowMode::Hard;
+  fx.ao_rays = 16;
+  const float radius = 0.05f * length(s.bounds().extent());
+  Recorder shadow, ao;
+  std::vector<float> vis(pts.size());
+  const Vec3 light_dir = normalize(Vec3{-0.4f, -1.f, -0.3f});
+  shadow_visibility_batch(shadow, ctx, pts.data(), int(pts.size()), fx, light_dir, seeds.data(),
+                          nullptr, vis.data());
+  for (size_t i = 0; i < pts.size(); ++i)
+    ambient_occlusion(ao, ctx, pts[i], fx, radius, seeds[i], nullptr);
+  ASSERT_EQ(ao.rays.size(), pts.size() * 16);
+  ASSERT_EQ(ao.normals.size(), pts.size());
+  expect_same(s, shadow.rays, LodFootprint{}, 0, nullptr, std::string(name) + " shadow");
+  // What the effects trace them with (Structure::transmittance_batch):
+  // the packet caster's occluded_packets.
+  for (const std::vector<Ray>* rays : {&shadow.rays, &ao.rays}) {
+    const std::vector<uint8_t> want = scalar_answers(s, *rays, LodFootprint{});
+    for (const Isa isa : isas()) {
+      std::vector<uint8_t> got(rays->size(), 7);
+      occluded_packets(s, rays->data(), rays->size(), LodFootprint{}, got.data(), isa);
+      EXPECT_EQ(got, want) << name << " occluded_packets " << isa_name(isa);
+    }
+  }
+  const AnyHitStats st =
+      expect_same(s, ao.rays, LodFootprint{}, 16, ao.normals.data(), std::string(name) + " ao");
+  EXPECT_GT(st.deep_points, 0u) << name;
+  print_stats(std::string(name) + " AO", st);
+}
+
+TEST(OcclusionPackets, EffectRaysEqualScalarOccluded) {
+  check_effect_rays(*scenes().esvo, "esvo");
+  check_effect_rays(*scenes().esvo_contours, "esvo contours");
+  check_effect_rays(*scenes().dag, "dag");
+}
+
+// Renders with hard shadows (directional and point light) and AO: the
+// packet path (effects packets on, the default) gives the same bytes as one
+// ray at a time, and the frame's effect counters agree.
+TEST(OcclusionPackets, EffectImagesAreByteIdenticalToTheScalarPath) {
+  const Scenes& sc = scenes();
+  RenderOptions ro;
+  ro.width = 80;
+  ro.height = 60;
+  ro.camera = Camera::orbit(sc.mesh.bounds(), ro.width, ro.height, 40.f, 25.f);
+  ro.lod_pixels = 0.f;
+  ro.effects.shadows = ShadowMode::Hard;
+  ro.effects.ao_rays = 16;
+  const Vec3 c = sc.mesh.bounds().center();
+  const float diag = length(sc.mesh.bounds().extent());
+  const Structure* structures[] = {sc.esvo.get(), sc.esvo_contours.get(), sc.dag.get()};
+  for (const Structure* st : structures) {
+    for (const LightKind light : {LightKind::Directional, LightKind::Point}) {
+      for (const int beam : {0, 4}) {
+        ro.effects.light = light;
+        ro.effects.light_position = c + Vec3{0.4f, 1.1f, 0.3f} * diag;
+        ro.beam = beam;
+        ro.effects.packets = false;
+        const RenderResult a = render(*st, ro);
+        ro.effects.packets = true;
+        const RenderResult b = render(*st, ro);
+        const std::string what = st->name() + (light == LightKind::Point ? " point" : " dir") +
+                                 " beam " + std::to_string(beam);
+        ASSERT_EQ(a.color.pixels.size(), size_t(ro.width) * ro.height * 3) << what;
+        EXPECT_EQ(a.color.pixels, b.color.pixels) << what;
+        EXPECT_EQ(a.shadow.pixels, b.shadow.pixels) << what;
+        EXPECT_EQ(a.ao.pixels, b.ao.pixels) << what;
+        EXPECT_EQ(a.effect_counters.shadow_rays, b.effect_counters.shadow_rays) << what;
+        EXPECT_EQ(a.effect_counters.ao_rays, b.effect_counters.ao_rays) << what;
+        // The images show shadow and occlusion, not only light.
+        size_t shadowed = 0, dark = 0;
+        for (float v : a.shadow.pixels) shadowed += v == 0.f;
+        for (float v : a.ao.pixels) dark += v < 1.f;
+        EXPECT_GT(shadowed, 20u) << what;
+        EXPECT_GT(dark, 30u) << what;
+      }
+    }
+  }
+}
+
+}  // namespace
+}  // namespace voxcast
