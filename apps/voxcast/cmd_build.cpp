@@ -56,7 +56,8 @@ Runner add_build(CLI::App& app) {
                   "dag: 16 Morton-order voxels per 24 B block)")
       ->capture_default_str();
   cmd->add_option("--format", args->format,
-                  "Structure: esvo (ESVO octree) | dag (sparse voxel DAG, svdag paper section 3)")
+                  "Structure: esvo (ESVO octree) | dag (sparse voxel DAG, svdag paper section 3) | "
+                  "brickmap (brickmap world, van Wingerden 2015)")
       ->capture_default_str();
   cmd->add_option("--memory-budget", args->memory_budget,
                   "Refuse builds estimated to need more (e.g. 8G; default 90% of free memory)");
@@ -108,9 +109,15 @@ Runner add_build(CLI::App& app) {
     s.attributes = parse_attribute_format(args->attributes);
     if (!args->memory_budget.empty()) s.memory_budget = parse_memory_budget(args->memory_budget);
     s.verbose = args->verbose;
-    if (args->format != "esvo" && args->format != "dag")
-      throw UsageError("--format: '" + printable(args->format) + "' is not esvo or dag");
+    if (args->format != "esvo" && args->format != "dag" && args->format != "brickmap")
+      throw UsageError("--format: '" + printable(args->format) + "' is not esvo, dag or brickmap");
     s.dag = args->format == "dag";
+    s.brickmap = args->format == "brickmap";
+    if (s.brickmap && (args->contours || args->no_attributes || args->out_of_core ||
+                       args->cell_size_opt->count() || s.attributes != esvo::AttributeFormat::Raw))
+      throw UsageError(
+          "--format brickmap takes none of --contours, --no-attributes, --out-of-core, "
+          "--cell-size, --attributes compressed");
     const bool variable = args->max_level_opt->count() || args->geometry_error_opt->count() ||
                           args->color_error_opt->count() || args->normal_error_opt->count();
     if (variable && !args->contours) throw UsageError("--max-level and --*-error need --contours");
@@ -157,6 +164,22 @@ Runner add_build(CLI::App& app) {
     info.voxelization = voxelization_name(s.mode);
     info.source_triangles = built.mesh.triangle_count();
     info.leaf_voxels = built.leaf_voxels;
+    if (s.brickmap) {
+      outputs.write(args->output, [&](const std::filesystem::path& to) {
+        brickmap::save_scene(to, *built.brickmap, info);
+      });
+      outputs.commit();
+      timer.mark("write scene");
+      const brickmap::WorldStats st = built.brickmap->stats();
+      std::printf(
+          "%s: %u^3 grid (%d levels), %llu leaf voxels, %llu bricks, %s (%.2f bits/leaf "
+          "voxel), %.2f s\n",
+          printable(args->output).c_str(), built.brickmap->grid().resolution,
+          built.brickmap->grid().levels, (unsigned long long)st.voxels,
+          (unsigned long long)st.bricks, format_bytes(double(st.total_bytes())).c_str(),
+          st.bits_per_voxel(), total.mark("total"));
+      return 0;
+    }
     if (s.dag) {
       outputs.write(args->output,
                     [&](const std::filesystem::path& to) { save_dag_scene(to, built.dag, info); });

@@ -6,6 +6,7 @@
 
 #include "cli_io.hpp"
 #include "commands.hpp"
+#include "voxcast/brickmap.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/scene_file.hpp"
@@ -125,6 +126,53 @@ int print_dag_info(const InfoArgs& args, const LoadedScene& scene) {
         d.wide_words);
   return 0;
 }
+
+// Brickmap worlds: bricks and memory per component (brickmap §5.1, Table 2).
+int print_brickmap_info(const InfoArgs& args, const LoadedScene& scene) {
+  const brickmap::World* w = brickmap::adapted_world(*scene.structure);
+  if (w == nullptr) throw Error("internal: a brickmap scene without its world");
+  const brickmap::WorldStats st = w->stats();
+  const uint64_t file_bytes = std::filesystem::file_size(args.input);
+  nlohmann::json j = scene_json(args.input, file_bytes, brickmap::kFormatName, scene, w->grid());
+  j["leaf_voxels"] = st.voxels;
+  j["bricks"] = st.bricks;
+  j["brickgrid_dims"] = {w->dims()[0], w->dims()[1], w->dims()[2]};
+  j["occupancy_dims"] = {w->occupancy_dims()[0], w->occupancy_dims()[1], w->occupancy_dims()[2]};
+  j["normals"] = w->has_normals();
+  j["memory"] = {{"brickgrid", st.grid_bytes}, {"occupancy", st.occupancy_bytes},
+                 {"bricks", st.brick_bytes},   {"colors", st.color_bytes},
+                 {"normals", st.normal_bytes}, {"total", st.total_bytes()}};
+  j["bits_per_voxel"] = st.bits_per_voxel();
+  if (args.json) {
+    std::printf("%s\n", j.dump(2).c_str());
+    return 0;
+  }
+  const SceneInfo& info = scene.info;
+  std::printf("%s: %s, from %s (%llu triangles, %s voxelization)\n", printable(args.input).c_str(),
+              format_bytes(double(file_bytes)).c_str(), printable(info.source).c_str(),
+              (unsigned long long)info.source_triangles, info.voxelization.c_str());
+  std::printf("structure   brickmap world: 8^3 brickmaps, brickgrid %ux%ux%u, occupancy %ux%ux%u\n",
+              w->dims()[0], w->dims()[1], w->dims()[2], w->occupancy_dims()[0],
+              w->occupancy_dims()[1], w->occupancy_dims()[2]);
+  std::printf("grid        %u^3 (%d levels), voxel size %g\n", w->grid().resolution,
+              w->grid().levels, w->grid().voxel_size);
+  std::printf("voxels      %llu in %llu bricks (%.1f per brick)\n", (unsigned long long)st.voxels,
+              (unsigned long long)st.bricks,
+              st.bricks ? double(st.voxels) / double(st.bricks) : 0.0);
+  const double v = st.voxels ? double(st.voxels) : 1.0;
+  std::printf("\nmemory                    bytes   bits/voxel\n");
+  const auto row = [&](const char* name, uint64_t bytes) {
+    std::printf("  %-14s %14s  %10.3f\n", name, format_bytes(double(bytes)).c_str(),
+                double(bytes) * 8 / v);
+  };
+  row("brickgrid", st.grid_bytes);
+  row("occupancy", st.occupancy_bytes);
+  row("bricks", st.brick_bytes);
+  row("colors", st.color_bytes);
+  row("normals", st.normal_bytes);
+  row("total", st.total_bytes());
+  return 0;
+}
 }  // namespace
 
 Runner add_info(CLI::App& app) {
@@ -138,6 +186,7 @@ Runner add_info(CLI::App& app) {
     // refuse a file alike, and the file is read once.
     const LoadedScene scene = load_scene(args->input);
     if (scene.format == "dag") return print_dag_info(*args, scene);
+    if (scene.format == brickmap::kFormatName) return print_brickmap_info(*args, scene);
     const SceneInfo& info = scene.info;
     const esvo::EsvoOctree& octree =
         dynamic_cast<const esvo::EsvoStructure&>(*scene.structure).octree();

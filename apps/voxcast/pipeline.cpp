@@ -185,6 +185,11 @@ BuiltScene build_scene(const BuildSettings& s) {
   out.voxelize_seconds = timer.mark("voxelize");
   out.leaf_voxels = voxels.size();
   if (voxels.size() == 0) throw Error("the mesh produced no voxels");
+  if (s.brickmap) {
+    out.brickmap = std::make_shared<brickmap::World>(brickmap::build_world(voxels));
+    out.octree_seconds = timer.mark("brickmap build");
+    return out;
+  }
   if (s.dag) {
     out.dag = dag::build_dag(voxels);
     if (s.attributes == esvo::AttributeFormat::Compressed) out.dag.compress_attributes();

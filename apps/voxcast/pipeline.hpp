@@ -1,8 +1,10 @@
 #pragma once
 // mesh file -> voxels -> ESVO, shared by `build` and `bench`.
+#include <memory>
 #include <string>
 
 #include "esvo/build_cells.hpp"
+#include "voxcast/brickmap.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/esvo.hpp"
 #include "voxcast/mesh.hpp"
@@ -18,7 +20,8 @@ struct BuildSettings {
   uint64_t memory_budget = 0;                                     // 0: 90% of available memory
   esvo::AttributeFormat attributes = esvo::AttributeFormat::Raw;  // esvo §5.4 / §5.5
   bool verbose = false;
-  bool dag = false;  // build a sparse voxel DAG (BuiltScene::dag) instead of the ESVO
+  bool dag = false;       // build a sparse voxel DAG (BuiltScene::dag) instead of the ESVO
+  bool brickmap = false;  // build a brickmap world (BuiltScene::brickmap) instead
   // DAG: colors + normals per voxel (DATR); the out-of-core path
   // (build_dag_out_of_core) when asked or when the in-core estimate exceeds
   // the budget; cell_size 0 = chosen from the budget. ESVO with contours: the
@@ -35,8 +38,9 @@ struct BuildSettings {
 struct BuiltScene {
   Mesh mesh;
   MeshLoadStats mesh_stats;
-  esvo::EsvoOctree octree;  // empty when BuildSettings::dag
-  dag::SparseVoxelDag dag;  // only when BuildSettings::dag
+  esvo::EsvoOctree octree;                    // empty when BuildSettings::dag
+  dag::SparseVoxelDag dag;                    // only when BuildSettings::dag
+  std::shared_ptr<brickmap::World> brickmap;  // only when BuildSettings::brickmap
   uint64_t leaf_voxels = 0;
   double load_seconds = 0, voxelize_seconds = 0, octree_seconds = 0;
   bool out_of_core = false;         // the DAG came from build_dag_out_of_core, or the ESVO

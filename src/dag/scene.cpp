@@ -24,6 +24,7 @@
 #include <string>
 
 #include "io/meta_json.hpp"
+#include "voxcast/brickmap.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/scene_file.hpp"
@@ -184,6 +185,10 @@ LoadedScene load_scene(const Container& c) {
     auto d = std::make_shared<dag::SparseVoxelDag>(dag_scene_from_container(c, &out.info));
     out.occupied = dag::occupied_bounds(*d);
     out.structure = std::make_unique<dag::DagStructure>(std::move(d));
+  } else if (format == brickmap::kFormatName) {
+    auto w = std::make_shared<brickmap::World>(brickmap::load_world(c, &out.info));
+    out.occupied = w->occupied_bounds();
+    out.structure = brickmap::make_voxel_structure(std::move(w));
   } else {
     throw Error("unknown scene format '" + format + "'");
   }
