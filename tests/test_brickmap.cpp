@@ -8,6 +8,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cmath>
 #include <cstdio>
@@ -560,6 +561,143 @@ TEST(BrickmapFile, LoadSceneRendersABrickmapFile) {
   o.camera = Camera::frame(scene.structure->bounds(), o.width, o.height);
   const RenderResult r = render(*scene.structure, o);
   EXPECT_GT(r.hits, 100u);
+}
+
+// ---------------------------------------------------------------------------
+// Editing (§3.2.2, §4.4) against a dense-grid oracle applying the same edits.
+
+struct OracleEdit {
+  bool sphere;
+  double p[6];  // sphere: center, radius; box: lo, hi
+  EditOp op;
+  Color color;
+};
+
+// The rule of brickmap.hpp, written out: a voxel is in the brush when its
+// center is (closed ball / closed box).
+bool oracle_inside(const OracleEdit& e, double x, double y, double z) {
+  if (e.sphere) {
+    const double dx = x - e.p[0], dy = y - e.p[1], dz = z - e.p[2];
+    return dx * dx + dy * dy + dz * dz <= e.p[3] * e.p[3];
+  }
+  return x >= e.p[0] && x <= e.p[3] && y >= e.p[1] && y <= e.p[4] && z >= e.p[2] && z <= e.p[5];
+}
+
+TEST(BrickmapEdit, EditsThenReloadGiveExactlyTheEditedVoxelSet) {
+  VoxelSet set = testing::make_placed_case(6, 0, 0, 1);  // sphere shell, origin (-3,1,2), side 2
+  const GridTransform& g = set.grid;
+  World w = build_world(set);
+  // Oracle: voxel (x, y, z) -> ABGR color, from the set directly.
+  std::map<std::array<uint32_t, 3>, uint32_t> dense;
+  for (size_t i = 0; i < set.size(); ++i) {
+    const MortonCoord c = morton_decode(set.codes[i]);
+    dense[{c.x, c.y, c.z}] = esvo::encode_color_abgr(set.colors[i]);
+  }
+  const auto at = [&](double f, int a) { return double(g.origin[a]) + f * g.side(); };
+  const std::vector<OracleEdit> edits = {
+      {true, {at(0.5, 0), at(0.5, 1), at(0.9, 2), 0.3, 0, 0}, EditOp::Remove, {}},
+      {false,
+       {at(0.1, 0), at(0.4, 1), at(0.1, 2), at(0.35, 0), at(0.6, 1), at(0.5, 2)},
+       EditOp::Add,
+       {0.9f, 0.2f, 0.1f, 1}},
+      {true,
+       {at(0.3, 0), at(0.5, 1), at(0.5, 2), 0.45, 0, 0},
+       EditOp::Paint,
+       {0.1f, 0.8f, 0.3f, 1}},
+      {false,
+       {at(0.6, 0), at(-0.2, 1), at(0.6, 2), at(1.3, 0), at(0.3, 1), at(0.7, 2)},
+       EditOp::Add,
+       {0.2f, 0.2f, 0.9f, 1}},
+      {true, {at(2.0, 0), at(2.0, 1), at(2.0, 2), 0.1, 0, 0}, EditOp::Remove, {}},  // outside
+  };
+  for (const OracleEdit& e : edits) {
+    const Brush brush = e.sphere ? Brush::sphere({e.p[0], e.p[1], e.p[2]}, e.p[3])
+                                 : Brush::box({e.p[0], e.p[1], e.p[2]}, {e.p[3], e.p[4], e.p[5]});
+    const EditResult r = edit(w, brush, e.op, e.color);
+    const uint32_t abgr = esvo::encode_color_abgr(e.color);
+    uint64_t changed = 0;
+    for (uint32_t z = 0; z < g.resolution; ++z)
+      for (uint32_t y = 0; y < g.resolution; ++y)
+        for (uint32_t x = 0; x < g.resolution; ++x) {
+          const double vs = g.voxel_size;
+          if (!oracle_inside(e, g.origin.x + (x + 0.5) * vs, g.origin.y + (y + 0.5) * vs,
+                             g.origin.z + (z + 0.5) * vs))
+            continue;
+          const auto it = dense.find({x, y, z});
+          if (e.op == EditOp::Remove && it != dense.end()) dense.erase(it), ++changed;
+          if (e.op == EditOp::Paint && it != dense.end() && it->second != abgr)
+            it->second = abgr, ++changed;
+          if (e.op == EditOp::Add) dense[{x, y, z}] = abgr, ++changed;
+        }
+    // Add counts only voxels whose state, color or normal changed.
+    if (e.op == EditOp::Add) {
+      EXPECT_LE(r.voxels, changed);
+    } else {
+      EXPECT_EQ(r.voxels, changed);
+    }
+    for (uint64_t cell : r.cells) {
+      if (w.cell(cell) != 0) {
+        EXPECT_EQ(CellFlags::get(w.cell(cell)), kFlagEdited);
+      }
+    }
+  }
+  const auto expect_equal = [&](const World& world, const char* what) {
+    std::vector<uint64_t> want;
+    for (const auto& [c, color] : dense) want.push_back(morton_encode(c[0], c[1], c[2]));
+    std::sort(want.begin(), want.end());
+    ASSERT_EQ(world.decode_voxels(), want) << what;
+    for (const auto& [c, color] : dense) {
+      uint32_t got = 0, normal = 0;
+      ASSERT_TRUE(world_voxel(world, c[0], c[1], c[2], &got, &normal));
+      ASSERT_EQ(got, color) << what << " voxel " << c[0] << "," << c[1] << "," << c[2];
+    }
+  };
+  expect_equal(w, "after the edits");
+  const std::vector<uint8_t> bytes = save_world(w, SceneInfo{}).serialize();
+  const World back = load_world(Container::parse(bytes.data(), bytes.size()));
+  expect_equal(back, "after save and reload");
+  // The rendered world shows the edit: a ray into the removed cap misses
+  // the shell there and hits the far side.
+  const BrickmapStructure s(std::make_shared<World>(build_world(set)));
+  const BrickmapStructure e(std::make_shared<World>(back));
+  const Ray down{{float(at(0.5, 0)) + 1e-4f, float(at(0.5, 1)) + 1e-4f, float(at(1.2, 2))},
+                 {0, 0, -1}};
+  const Traced t0 = trace(s, down), t1 = trace(e, down);
+  ASSERT_TRUE(t0.hit && t1.hit);
+  EXPECT_GT(t1.h.t, t0.h.t + 0.5f * float(g.side()));
+}
+
+TEST(BrickmapEdit, RefusesBadBrushesAndNotResidentBricks) {
+  World w = build_world(testing::make_sphere_shell(5));
+  EXPECT_THROW(edit(w, Brush::sphere({0, 0, NAN}, 1), EditOp::Add), Error);
+  EXPECT_THROW(edit(w, Brush::sphere({0, 0, 0}, -1), EditOp::Add), Error);
+  EXPECT_THROW(edit(w, Brush::box({1, 0, 0}, {0, 1, 1}), EditOp::Add), Error);
+  uint64_t cell = 0;
+  while (w.cell(cell) == 0) ++cell;
+  w.set_not_resident(cell, 0xFF808080u);
+  EXPECT_THROW(edit(w, Brush::box({0, 0, 0}, {1, 1, 1}), EditOp::Paint), Error);
+}
+
+TEST(BrickmapCli, EditRemovesWhatTheLibraryRemoves) {
+  testing::TempDir dir;
+  const std::string world = dir.file("w.vxc"), edited = dir.file("e.vxc");
+  save_scene(world, build_world(testing::make_sphere_shell(6)), SceneInfo{"t", "c", 0, 0});
+  const testing::CliResult r = testing::run_cli("edit '" + world +
+                                                "' --sphere 0.5,0.5,0.9,0.3 "
+                                                "--remove -o '" +
+                                                edited + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  World want = load_world(Container::read(world));
+  const EditResult er = edit(want, Brush::sphere({0.5f, 0.5f, 0.9f}, 0.3f), EditOp::Remove);
+  EXPECT_GT(er.voxels, 100u);
+  EXPECT_NE(r.output.find(std::to_string(er.voxels) + " voxels changed"), std::string::npos)
+      << r.output;
+  EXPECT_EQ(load_world(Container::read(edited)).decode_voxels(), want.decode_voxels());
+  // In place, then a paint; usage errors exit 2 with one line.
+  ASSERT_EQ(testing::run_cli("edit '" + world + "' --box 0,0,0,1,1,0.5 --paint 1,0,0").exit_code,
+            0);
+  EXPECT_EQ(testing::run_cli("edit '" + world + "' --sphere 1,2,3 --remove").exit_code, 2);
+  EXPECT_EQ(testing::run_cli("edit '" + world + "' --sphere 1,2,3,1").exit_code, 2);
 }
 
 // ---------------------------------------------------------------------------

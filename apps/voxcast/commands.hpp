@@ -16,6 +16,7 @@ Runner add_render(CLI::App& app);
 Runner add_info(CLI::App& app);
 Runner add_bench(CLI::App& app);
 Runner add_generate(CLI::App& app);
+Runner add_edit(CLI::App& app);
 
 /// "x,y,z" -> Vec3; throws voxcast::Error.
 Vec3 parse_vec3(const std::string& text, const char* what);

@@ -91,6 +91,7 @@ int main(int argc, char** argv) {
   add(add_info);
   add(add_bench);
   add(add_generate);
+  add(add_edit);
   // One convention (README "Command line"): a usage error is one line and
   // exit 2, a runtime error one line and exit 1; --help prints the help.
   auto error_line = [](const std::string& message) {

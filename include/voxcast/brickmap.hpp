@@ -293,6 +293,39 @@ class BrickmapStructure final : public Structure, public SurfaceQuery {
   std::shared_ptr<const World> world_;
 };
 
+// ---- Editing (§3.2.2, §4.4; src/brickmap/edit.cpp) ----
+
+enum class EditOp {
+  Add,     // make the voxels solid with the brush color (normals facing away from its center)
+  Remove,  // make them empty
+  Paint,   // recolor the solid ones
+};
+
+/// A brush in world coordinates. A voxel is inside when its center is (a
+/// sphere's closed ball, a box's closed box).
+struct Brush {
+  enum class Shape { Sphere, Box };
+  Shape shape = Shape::Sphere;
+  Vec3d a;            // sphere: center; box: min corner
+  Vec3d b;            // box: max corner
+  double radius = 0;  // sphere
+  static Brush sphere(Vec3d center, double radius) { return {Shape::Sphere, center, {}, radius}; }
+  static Brush box(Vec3d lo, Vec3d hi) { return {Shape::Box, lo, hi, 0}; }
+  bool contains(const Vec3d& p) const;
+};
+
+struct EditResult {
+  uint64_t voxels = 0;          // voxels whose state or color changed
+  std::vector<uint64_t> cells;  // brickgrid cells rewritten (the bricks to re-upload, §4.4)
+};
+
+/// Applies one brush to the voxels of the grid (outside voxels are
+/// ignored). Every brick that changes is stored anew (set_brick: pool slot
+/// and color run released and reallocated, LOD color recomputed) and flagged
+/// Edited. Throws voxcast::Error for a non-finite or inverted brush, or when
+/// the brush touches a brick that is not resident.
+EditResult edit(World& world, const Brush& brush, EditOp op, const Color& color = {});
+
 /// The world as the renderer's VoxelStructure (render() on main still takes
 /// one; an adapter until the renderer takes a Structure): each call traces
 /// with a TraceContext of its own (no counters, requests dropped).
