@@ -48,6 +48,7 @@ struct BenchArgs {
   bool contours = false;
   // --effects (svdag §4): shadow and AO occlusion rays
   bool effects = false;
+  bool brickmap = false;
   int ao_rays = 64;
   float ao_radius = 0.f;
   std::string json;  // --json FILE: every figure
@@ -255,6 +256,8 @@ Runner add_bench(CLI::App& app) {
       "--effects", args->effects,
       "Also measure the DAG of the same voxels, and shadow and AO rays (svdag section 4), "
       "generated once, on the ESVO, the DAG and Embree rtcOccluded1/8/16/1M");
+  cmd->add_flag("--brickmap", args->brickmap,
+                "Also measure the brickmap world of the same voxels (van Wingerden 2015)");
   cmd->add_option("--ao-rays", args->ao_rays, "AO rays per hit pixel for --effects")
       ->capture_default_str();
   cmd->add_option("--ao-radius", args->ao_radius,
@@ -463,6 +466,20 @@ Runner add_bench(CLI::App& app) {
                            [&] { return timed(render(*dag_voxels, dag_beam)); },
                            {}});
       }
+      // With --brickmap: the brickmap world of the same voxels, same camera
+      // (through the VoxelStructure adapter render() takes today).
+      std::unique_ptr<VoxelStructure> brick_voxels;
+      brickmap::WorldStats brick_stats;
+      if (args->brickmap && size_index == 0) {
+        BuildSettings bs = s;
+        bs.brickmap = true;
+        bs.dag = bs.contours = bs.out_of_core = false;
+        bs.verbose = false;
+        BuiltScene brick_built = build_scene(bs);  // the same mesh, grid and voxelization
+        brick_stats = brick_built.brickmap->stats();
+        brick_voxels = brickmap::make_voxel_structure(std::move(brick_built.brickmap));
+        add_voxel_rows("voxcast brickmap", *brick_voxels);
+      }
       measure_interleaved(primary, args->repeat);
       const double cov = double(primary[0].t.hits) / rays;
       // Ratios against the fastest Embree mode of the same comparison.
@@ -550,6 +567,11 @@ Runner add_bench(CLI::App& app) {
         std::printf("primary dag %8.2f Mrays/s, with beam 8x8 %.2f Mrays/s (%s DAG)\n", t->mrays(),
                     find("voxcast dag+beam", true, args->lod)->mrays(),
                     format_bytes(double(dag_voxels->dag().stats().dag_bytes)).c_str());
+      if (const Timed* t = find("voxcast brickmap", true, args->lod))
+        std::printf("brickmap    %8.2f Mrays/s (%llu bricks, %s, %.2f bits/voxel)\n", t->mrays(),
+                    (unsigned long long)brick_stats.bricks,
+                    format_bytes(double(brick_stats.total_bytes())).c_str(),
+                    brick_stats.bits_per_voxel());
       std::printf("ratio voxcast/embree: %.3f\n", best_voxcast / fastest[0]);
 
       run["coverage"] = cov;

@@ -121,10 +121,12 @@ bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod,
   const int ohi[3] = {int(odims[0]) - 1, int(odims[1]) - 1, int(odims[2]) - 1};
   int oc[3];
   start_cell(r, t, float(kOccSide), olo, ohi, oc);
+  // Exit planes of the current cell per level; a step recomputes only the
+  // stepped axis's (the same expression, so the levels stay consistent).
+  float on[3];
+  for (int a = 0; a < 3; ++a) on[a] = plane_t(r, a, float((oc[a] + r.up[a]) * kOccSide));
   for (;;) {
     if constexpr (kCount) ++ctx.counters.iterations;
-    float on[3];
-    for (int a = 0; a < 3; ++a) on[a] = plane_t(r, a, float((oc[a] + r.up[a]) * kOccSide));
     const uint64_t ob =
         uint64_t(oc[0]) +
         uint64_t(odims[0]) * (uint64_t(oc[1]) + uint64_t(odims[1]) * uint64_t(oc[2]));
@@ -136,11 +138,13 @@ bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod,
         bhi[a] = std::min(int(dims[a]), blo[a] + (1 << kOccupancyLog2)) - 1;
       }
       start_cell(r, t, float(kBrickSide), blo, bhi, bc);
+      float bn[3];
+      for (int a = 0; a < 3; ++a) bn[a] = plane_t(r, a, float((bc[a] + r.up[a]) * kBrickSide));
+      const int64_t stride[3] = {r.step[0], r.step[1] * int64_t(dims[0]),
+                                 r.step[2] * int64_t(dims[0]) * int64_t(dims[1])};
+      uint64_t ci = w.cell_index(uint32_t(bc[0]), uint32_t(bc[1]), uint32_t(bc[2]));
       for (;;) {
         if constexpr (kCount) ++ctx.counters.iterations;
-        float bn[3];
-        for (int a = 0; a < 3; ++a) bn[a] = plane_t(r, a, float((bc[a] + r.up[a]) * kBrickSide));
-        const uint64_t ci = w.cell_index(uint32_t(bc[0]), uint32_t(bc[1]), uint32_t(bc[2]));
         const uint32_t cell = cells[ci];
         if (cell != 0) {
           const float exit = bn[argmin3(bn)];
@@ -200,6 +204,8 @@ bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod,
         bc[ax] += r.step[ax];
         if (bc[ax] < blo[ax] || bc[ax] > bhi[ax]) break;
         if (t > t1) return false;
+        ci = uint64_t(int64_t(ci) + stride[ax]);
+        bn[ax] = plane_t(r, ax, float((bc[ax] + r.up[ax]) * kBrickSide));
       }
     }
     const int ax = argmin3(on);
@@ -208,6 +214,7 @@ bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod,
     oc[ax] += r.step[ax];
     if (oc[ax] < 0 || oc[ax] > ohi[ax]) return false;
     if (t > t1) return false;
+    on[ax] = plane_t(r, ax, float((oc[ax] + r.up[ax]) * kOccSide));
   }
 }
 
