@@ -445,6 +445,15 @@ TEST(BrickmapLod, NotResidentBricksAnswerWithTheirLodColorAndAskOnce) {
   ctx.requests.clear();
   ASSERT_TRUE(s.trace(ray, LodFootprint{float(g.voxel_size * 8), 0.f}, ctx, &h));
   EXPECT_TRUE(ctx.requests.empty());
+  // A 4^3 grid is one brick clipped to the grid: its LOD hit is the root cube.
+  auto tiny = std::make_shared<World>(build_world(testing::make_random_voxels(2, 20, 4)));
+  tiny->set_not_resident(0, 0xFF112233u);
+  const Traced th = trace(BrickmapStructure(tiny), Ray{{0.3f, 0.6f, -1.f}, {0, 0, 1}});
+  ASSERT_TRUE(th.hit);
+  EXPECT_EQ(th.h.level, 0);
+  EXPECT_FLOAT_EQ(th.h.voxel_size, 1.f);
+  EXPECT_FLOAT_EQ(th.h.t, 1.f);
+  for (int a = 0; a < 3; ++a) EXPECT_TRUE(th.h.position[a] >= 0.f && th.h.position[a] < 1.f);
 }
 
 // ---------------------------------------------------------------------------

@@ -266,7 +266,8 @@ World build_world(const VoxelSet& voxels, const BuildOptions& options = {});
 /// (the same plane t is computed the same way on every level, so a level is
 /// left where its parent says). Hits are voxel cubes: SurfaceHit::t is the
 /// voxel's entry t (0 for an origin inside it), level = grid.levels for a
-/// voxel, grid.levels - 3 for a brick answered by its LOD color; a brick
+/// voxel, grid.levels - 3 for a brick answered by its LOD color (0 in grids
+/// below 8^3, whose one brick is clipped to the grid); a brick
 /// answers with its LOD color when its side is <= the footprint at its exit
 /// t (the LOD rule of esvo::cast_ray), or when it is not resident (then a
 /// Request{kind kRequestBrick, key = cell index} is pushed). voxel_ref:

@@ -11,6 +11,8 @@
 // the cell holding the entry point, clamped into its parent (rounding of the
 // entry point can only move it across a plane within float slack of it: a
 // near tie in the oracle's sense, tests/support/dda_oracle.hpp).
+#include <algorithm>
+#include <array>
 #include <bit>
 #include <cmath>
 
@@ -248,13 +250,14 @@ bool BrickmapStructure::trace(const Ray& ray, const LodFootprint& lod, TraceCont
                                   : walk<false>(*world_, r, ray.tmax, lod, ctx, &f);
   if (!found) return false;
   const GridTransform& g = world_->grid();
-  const int cube = f.level == 0 ? 1 : kBrickSide;  // side in voxels
+  // Side in voxels; a grid smaller than one brick (N < 8) is its own brick.
+  const int cube = f.level == 0 ? 1 : std::min(kBrickSide, int(g.resolution));
   const double side = double(cube) * g.voxel_size;
   hit->t = f.t;
   hit->voxel_size = float(side);
   hit->voxel_ref = f.ref;
   hit->child = uint32_t(f.face);
-  hit->level = f.level == 0 ? g.levels : g.levels - kBrickLog2;
+  hit->level = f.level == 0 ? g.levels : std::max(0, g.levels - kBrickLog2);
   const Vec3 p = ray.origin + ray.dir * f.t;
   for (int a = 0; a < 3; ++a) {
     // Clamped into the cube [lo, hi) as the floats inside it (when the cube
