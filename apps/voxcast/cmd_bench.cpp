@@ -27,6 +27,7 @@
 #include "render/beam.hpp"
 #include "render/bench_timing.hpp"
 #include "render/tiling.hpp"
+#include "voxcast/brickmap.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/effects.hpp"
 #include "voxcast/embree_reference.hpp"
@@ -50,6 +51,7 @@ struct BenchArgs {
   bool contours = false;
   // --effects (svdag §4): shadow and AO occlusion rays
   bool effects = false;
+  bool brickmap = false;
   int ao_rays = 64;
   float ao_radius = 0.f;
   std::string json;  // --json FILE: every figure
@@ -390,6 +392,8 @@ Runner add_bench(CLI::App& app) {
       "--effects", args->effects,
       "Also measure the DAG of the same voxels, and shadow and AO rays (svdag section 4), "
       "generated once, on the ESVO, the DAG and Embree rtcOccluded1/8/16/1M");
+  cmd->add_flag("--brickmap", args->brickmap,
+                "Also measure the brickmap world of the same voxels (van Wingerden 2015)");
   cmd->add_option("--ao-rays", args->ao_rays, "AO rays per hit pixel for --effects")
       ->capture_default_str();
   cmd->add_option("--ao-radius", args->ao_radius,
@@ -442,7 +446,7 @@ Runner add_bench(CLI::App& app) {
       const GridTransform grid = build_grid(s, mesh.bounds());
       const uint64_t build = estimate_build_bytes(mesh, grid), one_mesh = mesh_bytes(mesh);
       // The ESVO build's mesh, and the copy later builds start from.
-      held.mesh = one_mesh * (args->contours || args->effects ? 2 : 1);
+      held.mesh = one_mesh * (args->contours || args->effects || args->brickmap ? 2 : 1);
       held.esvo = build;
       held.embree = uint64_t(mesh.triangle_count()) * kEmbreeBytesPerTriangle;
       if (args->contours) held.contours = build + one_mesh;
@@ -453,7 +457,7 @@ Runner add_bench(CLI::App& app) {
       parts += " and the images";
       require_within_budget(held.total(), budget, parts);
     }
-    const Mesh mesh_copy = (args->contours || args->effects) ? mesh : Mesh();
+    const Mesh mesh_copy = (args->contours || args->effects || args->brickmap) ? mesh : Mesh();
     BuiltScene built = build_scene(s, std::move(mesh), mesh_stats);  // BuildSettings::format: esvo
     const esvo::EsvoStructure& voxels = dynamic_cast<const esvo::EsvoStructure&>(*built.structure);
     const esvo::EsvoOctree* octree = &voxels.octree();
@@ -672,6 +676,35 @@ Runner add_bench(CLI::App& app) {
                            [&] { return timed(render(*dag_voxels, dag_beam)); },
                            {}});
       }
+      // With --brickmap: the brickmap world of the same voxels, same camera:
+      // trace only and render() (no packet kernel for brickmaps).
+      LoadedStructure brick_structure;
+      const brickmap::BrickmapStructure* brick_voxels = nullptr;
+      brickmap::WorldStats brick_stats;
+      if (args->brickmap && size_index == 0) {
+        BuildSettings bs = s;
+        bs.format = "brickmap";
+        bs.verbose = false;
+        bs.memory_budget = left_after(held.total());
+        // The same mesh, grid and voxelization.
+        BuiltScene brick_built = build_scene(bs, mesh_copy, mesh_stats);
+        brick_structure = std::move(brick_built.structure);
+        brick_voxels = &dynamic_cast<const brickmap::BrickmapStructure&>(*brick_structure);
+        brick_stats = brick_voxels->world().stats();
+        for (float lod : lods) {
+          RenderOptions rl = ro;
+          rl.lod_pixels = lod;
+          primary.push_back({"voxcast brickmap", "trace, depth only", lod, false,
+                             [brick_voxels, rl] {
+                               Image depth;
+                               return trace_depth(*brick_voxels, rl, &depth);
+                             },
+                             {}});
+          primary.push_back({"voxcast brickmap", "render(): attributes + Phong", lod, true,
+                             [brick_voxels, rl] { return timed(render(*brick_voxels, rl)); },
+                             {}});
+        }
+      }
       measure_interleaved(primary, args->repeat);
       const double cov = double(primary[0].t.hits) / rays;
       // Ratios against the fastest Embree mode of the same comparison.
@@ -759,6 +792,11 @@ Runner add_bench(CLI::App& app) {
         std::printf("primary dag %8.2f Mrays/s, with beam 8x8 %.2f Mrays/s (%s DAG)\n", t->mrays(),
                     find("voxcast dag+beam", true, args->lod)->mrays(),
                     format_bytes(double(dag_voxels->dag().stats().dag_bytes)).c_str());
+      if (const Timed* t = find("voxcast brickmap", true, args->lod))
+        std::printf("brickmap    %8.2f Mrays/s (%llu bricks, %s, %.2f bits/voxel)\n", t->mrays(),
+                    (unsigned long long)brick_stats.bricks,
+                    format_bytes(double(brick_stats.total_bytes())).c_str(),
+                    brick_stats.bits_per_voxel());
       std::printf("ratio voxcast/embree: %.3f\n", best_voxcast / fastest[0]);
 
       run["coverage"] = cov;

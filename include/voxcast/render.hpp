@@ -27,6 +27,8 @@ struct RenderOptions : SurfaceOptions {
   /// a streaming structure serve what the rays asked for and render the
   /// asking tiles again. A static structure always renders one pass.
   int max_passes = 1;
+  /// Frame number (FrameView::frame): the usage stamp of streaming structures.
+  uint32_t frame = 0;
 };
 
 struct RenderResult {
