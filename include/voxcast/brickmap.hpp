@@ -334,6 +334,27 @@ class BrickmapStructure final : public Structure, public SurfaceQuery {
   std::vector<uint32_t>* seen_;
 };
 
+/// The queries of a world that its owner changes between passes (the
+/// streamer, brickmap_stream.hpp; the live editor, brickmap_live.hpp):
+/// answered by a BrickmapStructure the derived class creates in query_.
+class BrickmapView : public Structure, public SurfaceQuery {
+ public:
+  std::string name() const override { return "brickmap"; }
+  Aabb bounds() const override { return query_->bounds(); }
+  const SurfaceQuery* surface() const override { return this; }
+  bool trace(const Ray& ray, const LodFootprint& lod, TraceContext& ctx, SurfaceHit* hit,
+             const BeamStart* beam = nullptr) const override {
+    return query_->trace(ray, lod, ctx, hit, beam);
+  }
+  void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
+                  Vec3* normal) const override {
+    query_->attributes(hit, ctx, color, normal);
+  }
+
+ protected:
+  std::unique_ptr<BrickmapStructure> query_;
+};
+
 // ---- Editing (§3.2.2, §4.4; src/brickmap/edit.cpp) ----
 
 enum class EditOp {

@@ -24,7 +24,7 @@
 
 namespace voxcast::brickmap {
 
-class LiveWorld final : public Structure, public SurfaceQuery {
+class LiveWorld final : public BrickmapView {
  public:
   explicit LiveWorld(World world);
   ~LiveWorld() override;  // finishes the queued edits, then stops the worker
@@ -52,17 +52,6 @@ class LiveWorld final : public Structure, public SurfaceQuery {
   Throughput throughput() const;
   std::string last_error() const;
 
-  std::string name() const override { return "brickmap"; }
-  Aabb bounds() const override { return query_->bounds(); }
-  const SurfaceQuery* surface() const override { return this; }
-  bool trace(const Ray& ray, const LodFootprint& lod, TraceContext& ctx, SurfaceHit* hit,
-             const BeamStart* beam = nullptr) const override {
-    return query_->trace(ray, lod, ctx, hit, beam);
-  }
-  void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
-                  Vec3* normal) const override {
-    query_->attributes(hit, ctx, color, normal);
-  }
   void begin_frame(const FrameView& view) override;
   PassOutcome end_pass(std::span<const Request> requests) override;
   /// The rendered world.
@@ -90,7 +79,6 @@ class LiveWorld final : public Structure, public SurfaceQuery {
 
   std::shared_ptr<World> front_;
   World back_;
-  std::unique_ptr<BrickmapStructure> query_;
   mutable std::mutex mutex_;
   std::condition_variable wake_, idle_;
   std::deque<Job> queue_;

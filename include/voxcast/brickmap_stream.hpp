@@ -60,24 +60,12 @@ struct StreamStats {
   std::vector<ChunkFailure> refused;  // chunks that failed their checksum or decoding
 };
 
-class StreamingWorld final : public Structure, public SurfaceQuery {
+class StreamingWorld final : public BrickmapView {
  public:
   /// Throws voxcast::Error for a file that is not a valid brickmap world (a
   /// damaged META, header or chunk table) or that has an edit journal.
   StreamingWorld(const std::filesystem::path& path, const StreamOptions& options);
   ~StreamingWorld() override;
-
-  std::string name() const override { return "brickmap"; }
-  Aabb bounds() const override { return query_->bounds(); }
-  const SurfaceQuery* surface() const override { return this; }
-  bool trace(const Ray& ray, const LodFootprint& lod, TraceContext& ctx, SurfaceHit* hit,
-             const BeamStart* beam = nullptr) const override {
-    return query_->trace(ray, lod, ctx, hit, beam);
-  }
-  void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
-                  Vec3* normal) const override {
-    query_->attributes(hit, ctx, color, normal);
-  }
 
   void begin_frame(const FrameView& view) override;
   PassOutcome end_pass(std::span<const Request> requests) override;
@@ -102,8 +90,7 @@ class StreamingWorld final : public Structure, public SurfaceQuery {
   std::vector<uint32_t> header_;  // the BMGH cells (LOD colors)
   std::vector<uint8_t> table_;    // BMCT
   uint64_t chunk_data_offset_ = 0, chunk_data_size_ = 0;
-  std::vector<uint32_t> seen_;  // per brick slot (BrickmapStructure)
-  std::unique_ptr<BrickmapStructure> query_;
+  std::vector<uint32_t> seen_;      // per brick slot (BrickmapStructure)
   std::vector<uint64_t> resident_;  // resident cells
   std::list<uint64_t> lru_;         // cached chunks, most recent first
   std::unordered_map<uint64_t, std::pair<std::unique_ptr<Chunk>, std::list<uint64_t>::iterator>>
