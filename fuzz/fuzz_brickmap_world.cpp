@@ -1,13 +1,18 @@
-// libFuzzer target for the brickmap scene reader (src/brickmap/format.cpp).
+// libFuzzer target for the brickmap scene reader (src/brickmap/format.cpp)
+// and the edit journal's replay (src/brickmap/persist.cpp).
 // Structure-aware without a custom mutator: the first input byte picks one
-// section of a valid brickmap world built here (META, BMGH, BMCT or BMCK),
-// the rest of the input replaces that section's bytes, and the container is
+// section of a valid brickmap world built here (META, BMGH, BMCT or BMCK)
+// whose bytes the rest of the input replaces, or (byte % 5 == 4) the
+// world's edit journal: the rest is replayed onto the world after a valid
+// journal head, so that the records are reached. The container is
 // handed to brickmap::load_world with every other section intact, so the
 // fuzzer's effort goes into the LZ4 blocks, the chunk table and the brick
 // records instead of dying at a container hash. An accepted world is traced
 // with a few rays (and its statistics computed); a clean voxcast::Error is
 // the expected outcome for most inputs, anything else (a crash, an ASan or
 // UBSan report, another exception) is a finding.
+#include <xxhash.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstddef>
@@ -16,6 +21,7 @@
 #include <vector>
 
 #include "voxcast/brickmap.hpp"
+#include "voxcast/brickmap_file.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/morton.hpp"
 #include "voxcast/scene_file.hpp"
@@ -59,9 +65,24 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (size == 0) return 0;
   static const uint32_t ids[4] = {fourcc("META"), fourcc("BMGH"), fourcc("BMCT"), fourcc("BMCK")};
   Container c = seed_world();
-  c.add(ids[data[0] % 4], std::vector<uint8_t>(data + 1, data + size));
+  const bool journal = data[0] % 5 == 4;
+  if (!journal) c.add(ids[data[0] % 5], std::vector<uint8_t>(data + 1, data + size));
   try {
     const auto w = std::make_shared<brickmap::World>(brickmap::load_world(c));
+    if (journal) {
+      // The journal head of this world (brickmap_file.hpp), then the input.
+      static const std::vector<uint8_t> head = [&] {
+        std::vector<uint8_t> h = {'V', 'X', 'B', 'M', 'J', 'R', 'N', '1'};
+        const uint64_t cells = w->cells().size();
+        for (int i = 0; i < 8; ++i) h.push_back(uint8_t(cells >> (8 * i)));
+        const uint64_t hash = XXH64(h.data(), h.size(), 0);
+        for (int i = 0; i < 8; ++i) h.push_back(uint8_t(hash >> (8 * i)));
+        return h;
+      }();
+      std::vector<uint8_t> j = head;
+      j.insert(j.end(), data + 1, data + size);
+      brickmap::replay_journal_bytes(j, *w, nullptr, nullptr);
+    }
     (void)w->stats();
     (void)w->occupied_bounds();
     const brickmap::BrickmapStructure s(w);

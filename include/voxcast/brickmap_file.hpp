@@ -86,6 +86,11 @@ World open_world(const std::filesystem::path& path, SceneInfo* info = nullptr,
 /// scene file's state (open_world and the format's load_file hook).
 void replay_journal(const std::filesystem::path& path, World& world, SceneInfo* info,
                     OpenReport* report);
+/// The same from the journal's bytes (`name` for messages): what the fuzz
+/// target feeds. Throws voxcast::Error for a journal of another world or a
+/// committed transaction that does not decode; a torn tail is ignored.
+void replay_journal_bytes(const std::vector<uint8_t>& journal, World& world, SceneInfo* info,
+                          OpenReport* report, const std::string& name = "journal");
 
 /// Appends the chunks holding `cells` (brickgrid cell indices, e.g. the
 /// EditResult::cells of the edits since the last save) and the brickgrid

@@ -293,9 +293,10 @@ SceneDescription describe(const Structure& s, const DescribeStyle& style) {
   j["brickgrid_dims"] = {w.dims()[0], w.dims()[1], w.dims()[2]};
   j["occupancy_dims"] = {w.occupancy_dims()[0], w.occupancy_dims()[1], w.occupancy_dims()[2]};
   j["normals"] = w.has_normals();
-  j["memory"] = {{"brickgrid", st.grid_bytes}, {"occupancy", st.occupancy_bytes},
-                 {"bricks", st.brick_bytes},   {"colors", st.color_bytes},
-                 {"normals", st.normal_bytes}, {"total", st.total_bytes()}};
+  j["memory"] = {{"brickgrid", st.grid_bytes},  {"occupancy", st.occupancy_bytes},
+                 {"pyramid", st.pyramid_bytes}, {"bricks", st.brick_bytes},
+                 {"colors", st.color_bytes},    {"normals", st.normal_bytes},
+                 {"total", st.total_bytes()}};
   j["bits_per_voxel"] = st.bits_per_voxel();
   SceneDescription out;
   out.grid = w.grid();
@@ -316,6 +317,7 @@ SceneDescription describe(const Structure& s, const DescribeStyle& style) {
   };
   row("brickgrid", st.grid_bytes);
   row("occupancy", st.occupancy_bytes);
+  row("pyramid", st.pyramid_bytes);
   row("bricks", st.brick_bytes);
   row("colors", st.color_bytes);
   row("normals", st.normal_bytes);

@@ -126,12 +126,10 @@ struct Parsed {
   uint64_t last_txn = 0;
 };
 
-Parsed parse_journal(const std::vector<uint8_t>& j, const World& w,
-                     const std::filesystem::path& p) {
+Parsed parse_journal(const std::vector<uint8_t>& j, const World& w, const std::string& p) {
   const std::vector<uint8_t> want = file_head(w);
   if (j.size() < kFileHead || !std::equal(want.begin(), want.end(), j.begin()))
-    throw Error("journal '" + p.string() +
-                "' does not belong to this world (or its head is damaged)");
+    throw Error("journal '" + p + "' does not belong to this world (or its head is damaged)");
   Parsed out;
   out.end = kFileHead;
   std::vector<Record> pending;
@@ -231,8 +229,12 @@ void replay_journal(const std::filesystem::path& path, World& w, SceneInfo* si,
   const std::filesystem::path jp = journal_path(path);
   std::error_code ec;
   if (!std::filesystem::exists(jp, ec)) return;
-  const std::vector<uint8_t> bytes = read_file(jp);
-  const Parsed parsed = parse_journal(bytes, w, jp);
+  replay_journal_bytes(read_file(jp), w, si, report, jp.string());
+}
+
+void replay_journal_bytes(const std::vector<uint8_t>& bytes, World& w, SceneInfo* si,
+                          OpenReport* report, const std::string& name) {
+  const Parsed parsed = parse_journal(bytes, w, name);
   for (const std::vector<Record>& txn : parsed.txns) {
     const std::vector<uint64_t> chunks = apply(w, txn, si);
     if (report) {
@@ -288,7 +290,7 @@ uint64_t commit_edits(const std::filesystem::path& path, const World& w,
     step("journal renamed");
   } else {
     const std::vector<uint8_t> bytes = read_file(jp);
-    const Parsed parsed = parse_journal(bytes, w, jp);
+    const Parsed parsed = parse_journal(bytes, w, jp.string());
     txn = parsed.last_txn + 1;
     if (parsed.end != bytes.size()) {
       // An unacknowledged save cut off by a crash: not part of the world.
