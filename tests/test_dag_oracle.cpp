@@ -148,17 +148,11 @@ TEST(DagOracle, RandomSetsShellsAndFullGridLevels3To9) {
   const Case cases[] = {{3, SIZE_MAX}, {4, 2000},  {4, 0},     {5, 8000}, {5, 0},
                         {6, 20000},    {6, 0},     {7, 60000}, {7, 0},    {8, 60000},
                         {8, 0},        {9, 60000}, {9, 0}};
-  const Vec3 origins[] = {{0, 0, 0}, {-3.f, 1.f, 2.f}, {1000.5f, -20.25f, 7.f}};
   // Large sides: WorldScaleDoesNotTiltAxisRays below.
-  const double sides[] = {1.0, 2.0, 0.375};
   OracleRun run;
   int k = 0;
   for (const Case& c : cases) {
-    VoxelSet set = c.count == SIZE_MAX ? testing::make_full_grid(c.levels)
-                   : c.count == 0      ? testing::make_sphere_shell(c.levels)
-                                       : testing::make_random_voxels(c.levels, c.count, 500 + k);
-    set.grid.origin = origins[k % 3];
-    set.grid.voxel_size = sides[k % 3] / double(set.grid.resolution);
+    const VoxelSet set = testing::make_placed_case(c.levels, c.count, 500 + k, k);
     SCOPED_TRACE("levels " + std::to_string(c.levels) + " count " + std::to_string(c.count));
     run_dag_oracle(set, 8000, 61 + k, &run);
     if (HasFailure()) return;

@@ -49,7 +49,7 @@ TEST(FormatRegistry, EveryBuiltinFormatIsRegistered) {
   const std::vector<std::string> names = format_registry().names();
   const std::set<std::string> unique(names.begin(), names.end());
   EXPECT_EQ(unique.size(), names.size()) << "registered twice";
-  for (const char* expected : {"esvo", "dag"})
+  for (const char* expected : {"esvo", "dag", "brickmap"})
     EXPECT_TRUE(unique.count(expected)) << expected << " is not registered";
   for (const SceneFormat& f : format_registry().formats()) {
     EXPECT_FALSE(f.description.empty()) << f.name;

@@ -53,6 +53,7 @@ struct BenchArgs {
   bool contours = false;
   // --effects (svdag §4): shadow and AO occlusion rays
   bool effects = false;
+  bool brickmap = false;
   int ao_rays = 64;
   float ao_radius = 0.f;
   std::string json;  // --json FILE: every figure
@@ -476,9 +477,12 @@ Runner add_bench(CLI::App& app) {
       "and without the beam (the shape of esvo Table 4)");
   cmd->add_flag(
       "--effects", args->effects,
-      "Also measure every other registered structure of the same voxels (the DAG), and shadow "
-      "and AO rays (svdag section 4), generated once, on every structure and Embree "
-      "rtcOccluded1/8/16/1M");
+      "Also measure every other registered structure of the same voxels (the DAG, the "
+      "brickmap world), and shadow and AO rays (svdag section 4), generated once, on every "
+      "structure and Embree rtcOccluded1/8/16/1M");
+  cmd->add_flag("--brickmap", args->brickmap,
+                "Also measure the brickmap world of the same voxels (van Wingerden 2015), without "
+                "--effects");
   cmd->add_option("--ao-rays", args->ao_rays, "AO rays per hit pixel for --effects")
       ->capture_default_str();
   cmd->add_option("--ao-radius", args->ao_radius,
@@ -542,7 +546,7 @@ Runner add_bench(CLI::App& app) {
     {
       const uint64_t build = estimate_build_bytes(mesh, grid), one_mesh = mesh_bytes(mesh);
       // The first build's mesh, and the copy later builds start from.
-      held.mesh = one_mesh * (args->contours || args->effects ? 2 : 1);
+      held.mesh = one_mesh * (args->contours || args->effects || args->brickmap ? 2 : 1);
       held.primary = build;
       held.embree = uint64_t(mesh.triangle_count()) * kEmbreeBytesPerTriangle;
       if (args->contours) held.contours = build + one_mesh;
@@ -553,7 +557,7 @@ Runner add_bench(CLI::App& app) {
       parts += " and the images";
       require_within_budget(held.total(), budget, parts);
     }
-    const Mesh mesh_copy = (args->contours || args->effects) ? mesh : Mesh();
+    const Mesh mesh_copy = (args->contours || args->effects || args->brickmap) ? mesh : Mesh();
     BuiltScene built = build_scene(s, std::move(mesh), mesh_stats);
     const size_t triangles = built.mesh.triangle_count();
     std::optional<Measured> primary_or = measured(first, std::move(built));
@@ -579,8 +583,9 @@ Runner add_bench(CLI::App& app) {
     }
     // With --effects: every other registered format of the same voxels
     // (svdag §4: the DAG), same mesh, grid and voxelization.
-    if (args->effects)
-      for (size_t i = 1; i < formats.size(); ++i) {
+    // With --brickmap alone: the brickmap world only (van Wingerden 2015).
+    for (size_t i = 1; i < formats.size(); ++i)
+      if (args->effects || (args->brickmap && formats[i].name == "brickmap")) {
         BuildSettings ds = s;
         ds.format = formats[i].name;
         ds.verbose = false;

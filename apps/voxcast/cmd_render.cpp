@@ -9,6 +9,7 @@
 
 #include "camera_options.hpp"
 #include "cli_io.hpp"
+#include "stream_render.hpp"
 #include "commands.hpp"
 #include "exr_output.hpp"
 #include "view/camera_path.hpp"
@@ -42,6 +43,7 @@ struct RenderArgs {
   uint32_t seed = 0;
   std::string memory_budget;
   std::string path, frame;  // camera path (src/view/camera_path.hpp) and one keyframe of it
+  StreamArgs stream;        // --stream: brickmap worlds streamed (cmd_stream.cpp)
 };
 
 // The output for keyframe `index` of `count` when a whole path is rendered:
@@ -155,6 +157,7 @@ Runner add_render(CLI::App& app) {
       ->check(not_negative());
   cmd->add_option("--memory-budget", args->memory_budget,
                   "Refuse renders estimated to need more (e.g. 2G; default 90% of free memory)");
+  add_stream_options(cmd, args->stream);
   return [args]() {
     ThreadLimit limit(args->threads);
     // Every option value first (usage errors, exit 2), then the files.
@@ -288,6 +291,18 @@ Runner add_render(CLI::App& app) {
       }
     } else {
       views.push_back({std::nullopt, files_for({}, 1)});
+    }
+    if (args->stream.enabled) {
+      // Brickmap worlds streamed over --frames frames (cmd_stream.cpp).
+      std::vector<Camera> path_cameras;
+      for (const View& v : views)
+        if (v.camera) path_cameras.push_back(*v.camera);
+      const CameraArgs camera = args->camera;
+      return render_stream(args->stream, args->input, args->output, opt, path_cameras,
+                           [camera](const Aabb& b, int w, int h) {
+                             bool derived = false;
+                             return resolve_camera(camera, b, w, h, &derived);
+                           });
     }
     OutputSet outputs(inputs);
     for (const View& v : views)

@@ -19,6 +19,7 @@ Runner add_generate(CLI::App& app);
 Runner add_view(CLI::App& app);
 Runner add_volume(CLI::App& app);  // cmd_volume.cpp: voxcast volume render
 Runner add_convert(CLI::App& app);
+Runner add_edit(CLI::App& app);
 
 /// "x,y,z" -> Vec3; throws voxcast::Error.
 Vec3 parse_vec3(const std::string& text, const char* what);

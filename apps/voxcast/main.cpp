@@ -100,6 +100,7 @@ int main(int argc, char** argv) {
   add(add_view);
   add(add_volume);
   add(add_convert);
+  add(add_edit);
   // One convention (README "Command line"): a usage error is one line and
   // exit 2, a runtime error one line and exit 1; --help prints the help.
   auto error_line = [](const std::string& message) {

@@ -122,6 +122,12 @@ struct SceneFormat {
   /// Reads and fully validates a container whose META names this format;
   /// throws voxcast::Error with a one-line reason.
   std::function<LoadedStructure(const ContainerReader&, SceneInfo*)> load;
+  /// Optional: loads a scene file by its path, for a format whose saved state
+  /// is more than the container (brickmap worlds: the container and the edit
+  /// journal beside it, brickmap_file.hpp). load_scene(path) calls it instead
+  /// of `load` when set; it validates as `load` does.
+  std::function<LoadedStructure(const std::filesystem::path&, const ContainerReader&, SceneInfo*)>
+      load_file;
   /// Bounds of the occupied voxels (automatic cameras).
   std::function<Aabb(const Structure&)> occupied;
   std::function<SceneDescription(const Structure&, const DescribeStyle&)> describe;

@@ -31,6 +31,8 @@ struct RenderOptions : SurfaceOptions {
   int max_passes = 1;
   /// Progress bar of the frame loop, advanced per tile (progress.hpp); optional.
   Progress* progress = nullptr;
+  /// Frame number (FrameView::frame): the usage stamp of streaming structures.
+  uint32_t frame = 0;
 };
 
 struct RenderResult {

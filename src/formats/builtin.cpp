@@ -3,6 +3,7 @@
 // this module, not src/io, is the one that links every structure.
 #include <mutex>
 
+#include "voxcast/brickmap.hpp"
 #include "voxcast/dag_format.hpp"
 #include "voxcast/esvo_format.hpp"
 #include "voxcast/format_registry.hpp"
@@ -15,6 +16,7 @@ void register_builtin_formats() {
     FormatRegistry& r = format_registry();
     esvo::register_format(r);
     dag::register_format(r);
+    brickmap::register_format(r);
   });
 }
 

@@ -72,9 +72,13 @@ void save_scene(const std::filesystem::path& path, const std::string& format,
   writer.commit();
 }
 
+namespace {
+LoadedScene load_from(const ContainerReader& reader, const std::filesystem::path* path);
+}  // namespace
+
 LoadedScene load_scene(const std::filesystem::path& path) {
   try {
-    return load_scene(ContainerReader::open(path));
+    return load_from(ContainerReader::open(path), &path);
   } catch (const Error& e) {
     // One line naming the file and what is wrong (the container's own
     // open/read errors already name it).
@@ -85,6 +89,11 @@ LoadedScene load_scene(const std::filesystem::path& path) {
 }
 
 LoadedScene load_scene(const ContainerReader& reader) {
+  return load_from(reader, nullptr);
+}
+
+namespace {
+LoadedScene load_from(const ContainerReader& reader, const std::filesystem::path* path) {
   // The one gate between a file and every reader (render, info): the
   // format's full validator, then every chunk it did not read (so a file
   // with a damaged extra section is refused as before, when the whole file
@@ -94,11 +103,13 @@ LoadedScene load_scene(const ContainerReader& reader) {
   out.format = scene_format(reader);
   const SceneFormat& f = format_registry().get(out.format);
   out.sections = reader.section_ids();
-  out.structure = f.load(reader, &out.info);
+  out.structure = path && f.load_file ? f.load_file(*path, reader, &out.info)
+                                      : f.load(reader, &out.info);
   reader.verify_all();
   out.occupied = f.occupied(*out.structure);
   return out;
 }
+}  // namespace
 
 LoadedScene load_scene(const Container& c) {
   return load_scene(ContainerReader::from_bytes(c.serialize()));

@@ -28,6 +28,7 @@ RenderResult render_with(Structure& structure, const RenderOptions& options, int
   view.camera = options.camera;
   view.width = options.width, view.height = options.height;
   view.lod_pixels = options.lod_pixels;
+  view.frame = options.frame;
   FrameOptions fo;
   fo.tile_size = options.tile_size;
   fo.max_passes = max_passes;

@@ -28,6 +28,7 @@
 #include <string>
 #include <vector>
 
+#include "voxcast/brickmap.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/dag_format.hpp"
 #include "voxcast/esvo.hpp"
@@ -99,6 +100,14 @@ inline const std::vector<StructureFactory>& conformance_structures() {
     // dag.hpp: compressed LOD means are means of the decoded leaf values.
     f.push_back(
         {"dag_compressed", false, VoxelGeometry::Cubes, LodColors::MeanOfLeaves, dag_with(true)});
+    // brickmap.hpp: a brick's LOD color is the mean of its voxels' linear
+    // colors, coarser cubes' the voxel-weighted mean of their bricks'; no
+    // promise is made for the cubes inside a brick (they show the brick's).
+    f.push_back({"brickmap", false, VoxelGeometry::Cubes, LodColors::None,
+                 [](const VoxelSet& v, const Mesh*, const std::filesystem::path& path) {
+                   brickmap::save_scene(path, brickmap::build_world(v),
+                                        SceneInfo{"conformance", "conservative", 0, v.size()});
+                 }});
     return f;
   }();
   return factories;

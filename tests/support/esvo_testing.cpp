@@ -142,6 +142,17 @@ VoxelSet make_full_grid(int levels) {
   return make_dense_grid(levels, [](uint32_t, uint32_t, uint32_t) { return true; });
 }
 
+VoxelSet make_placed_case(int levels, size_t count, uint64_t seed, int placement) {
+  VoxelSet set = count == SIZE_MAX ? make_full_grid(levels)
+                 : count == 0      ? make_sphere_shell(levels)
+                                   : make_random_voxels(levels, count, seed);
+  const Vec3 origins[] = {{0, 0, 0}, {-3.f, 1.f, 2.f}, {1000.5f, -20.25f, 7.f}};
+  const double sides[] = {1.0, 2.0, 0.375};
+  set.grid.origin = origins[placement % 3];
+  set.grid.voxel_size = sides[placement % 3] / double(set.grid.resolution);
+  return set;
+}
+
 bool query_leaf(const esvo::EsvoOctree& octree, uint32_t x, uint32_t y, uint32_t z,
                 uint32_t* parent_slot, int* child) {
   const int levels = octree.levels();

@@ -38,6 +38,13 @@ VoxelSet make_dense_grid(int levels,
 /// The full 2^levels grid (all N^3 voxels).
 VoxelSet make_full_grid(int levels);
 
+/// A caster oracle case: `count` random voxels (seed `seed`), or the sphere
+/// shell (count 0), or the full grid (count SIZE_MAX), moved to world
+/// placement `placement` % 3 -- the unit cube, origin (-3, 1, 2) side 2, or
+/// origin (1000.5, -20.25, 7) side 0.375 -- so that a caster test checks the
+/// world <-> grid mapping too.
+VoxelSet make_placed_case(int levels, size_t count, uint64_t seed, int placement);
+
 /// Top-down point query through the descriptors, written independently of the
 /// builder (follows child pointers / far pointers as in esvo.hpp): true if the
 /// leaf voxel (x,y,z) of the finest level exists. If `parent_slot`/`child` are

@@ -1,0 +1,367 @@
+// Saving brickmap edits without loss: the edit journal, its replay and the
+// checkpoint (layout and rules: include/voxcast/brickmap_file.hpp).
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+#include <xxhash.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cstring>
+#include <fstream>
+#include <iterator>
+#include <mutex>
+#include <set>
+#include <string>
+
+#include "brickmap/codec.hpp"
+#include "voxcast/brickmap_file.hpp"
+#include "voxcast/error.hpp"
+
+namespace voxcast::brickmap {
+namespace {
+
+using namespace codec;
+
+constexpr char kMagic[8] = {'V', 'X', 'B', 'M', 'J', 'R', 'N', '1'};
+constexpr size_t kFileHead = 24, kRecordHead = 40, kCellBits = kChunkCells / 8;
+constexpr uint32_t kRecordMagic = fourcc("JREC");
+constexpr uint32_t kChunkRecord = 1, kHeaderRecord = 2, kCommitRecord = 3;
+
+std::mutex hook_mutex;
+std::function<void(const char*)> save_hook;
+
+void step(const char* name) {
+  std::function<void(const char*)> h;
+  {
+    std::lock_guard<std::mutex> lock(hook_mutex);
+    h = save_hook;
+  }
+  if (h) h(name);
+}
+
+[[noreturn]] void io_fail(const std::string& what, const std::filesystem::path& p, int err) {
+  throw Error("journal '" + p.string() + "': " + what + ": " + std::strerror(err));
+}
+
+class Fd {
+ public:
+  Fd(const std::filesystem::path& p, int flags) : path_(p), fd_(::open(p.c_str(), flags, 0644)) {
+    if (fd_ < 0) io_fail("cannot open", p, errno);
+  }
+  ~Fd() {
+    if (fd_ >= 0) ::close(fd_);
+  }
+  Fd(const Fd&) = delete;
+  Fd& operator=(const Fd&) = delete;
+  void write_all(const uint8_t* data, size_t n) {
+    while (n > 0) {
+      const ssize_t k = ::write(fd_, data, n);
+      if (k < 0 && errno == EINTR) continue;
+      if (k <= 0) io_fail("write failed", path_, errno);
+      data += k, n -= size_t(k);
+    }
+  }
+  void sync() {
+    if (::fsync(fd_) != 0) io_fail("fsync failed", path_, errno);
+  }
+  void truncate(uint64_t size) {
+    if (::ftruncate(fd_, off_t(size)) != 0) io_fail("truncate failed", path_, errno);
+  }
+  void seek_end() {
+    if (::lseek(fd_, 0, SEEK_END) < 0) io_fail("seek failed", path_, errno);
+  }
+
+ private:
+  std::filesystem::path path_;
+  int fd_;
+};
+
+void sync_directory(const std::filesystem::path& file) {
+  const std::filesystem::path dir = file.has_parent_path() ? file.parent_path() : ".";
+  const int fd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY);
+  if (fd < 0) io_fail("cannot open its directory", file, errno);
+  const int r = ::fsync(fd);
+  const int err = errno;
+  ::close(fd);
+  if (r != 0) io_fail("directory fsync failed", file, err);
+}
+
+std::vector<uint8_t> read_file(const std::filesystem::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  if (!in) throw Error("journal '" + p.string() + "': cannot read");
+  return std::vector<uint8_t>(std::istreambuf_iterator<char>(in), {});
+}
+
+std::vector<uint8_t> file_head(const World& w) {
+  std::vector<uint8_t> h(kMagic, kMagic + 8);
+  put_le<uint64_t>(h, w.cells().size());
+  put_le<uint64_t>(h, XXH64(h.data(), h.size(), 0));
+  return h;
+}
+
+struct Record {
+  uint32_t type = 0;
+  uint64_t txn = 0;
+  const uint8_t* payload = nullptr;
+  uint64_t size = 0;
+};
+
+std::vector<uint8_t> record_head(uint32_t type, uint64_t txn, const std::vector<uint8_t>& payload) {
+  std::vector<uint8_t> h;
+  put_le<uint32_t>(h, kRecordMagic);
+  put_le<uint32_t>(h, type);
+  put_le<uint64_t>(h, txn);
+  put_le<uint64_t>(h, payload.size());
+  put_le<uint64_t>(h, XXH64(payload.data(), payload.size(), 0));
+  put_le<uint64_t>(h, XXH64(h.data(), h.size(), 0));
+  return h;
+}
+
+// The journal's committed transactions, in order; `end`: the byte after the
+// last intact commit record (what a writer keeps).
+struct Parsed {
+  std::vector<std::vector<Record>> txns;  // each without its commit record
+  uint64_t end = 0;
+  uint64_t last_txn = 0;
+};
+
+Parsed parse_journal(const std::vector<uint8_t>& j, const World& w, const std::string& p) {
+  const std::vector<uint8_t> want = file_head(w);
+  if (j.size() < kFileHead || !std::equal(want.begin(), want.end(), j.begin()))
+    throw Error("journal '" + p + "' does not belong to this world (or its head is damaged)");
+  Parsed out;
+  out.end = kFileHead;
+  std::vector<Record> pending;
+  size_t at = kFileHead;
+  while (j.size() - at >= kRecordHead) {
+    const uint8_t* h = &j[at];
+    if (load_le<uint32_t>(h) != kRecordMagic || XXH64(h, 32, 0) != load_le<uint64_t>(h + 32)) break;
+    Record r;
+    r.type = load_le<uint32_t>(h + 4);
+    r.txn = load_le<uint64_t>(h + 8);
+    r.size = load_le<uint64_t>(h + 16);
+    if (r.size > j.size() - at - kRecordHead) break;  // cut off
+    r.payload = h + kRecordHead;
+    if (XXH64(r.payload, size_t(r.size), 0) != load_le<uint64_t>(h + 24)) break;
+    if (r.txn <= out.last_txn) break;  // out of order: not written by commit_edits
+    at += kRecordHead + size_t(r.size);
+    if (!pending.empty() && pending.front().txn != r.txn) pending.clear();  // never committed
+    if (r.type == kCommitRecord) {
+      if (r.size != 8 || load_le<uint64_t>(r.payload) != pending.size()) break;
+      out.txns.push_back(std::move(pending));
+      pending.clear();
+      out.end = at;
+      out.last_txn = r.txn;
+    } else if (r.type == kChunkRecord || r.type == kHeaderRecord) {
+      pending.push_back(r);
+    } else {
+      break;
+    }
+  }
+  return out;
+}
+
+// One transaction into the world (the header checked against the chunks
+// it replaces); returns the chunks it replaced.
+std::vector<uint64_t> apply(World& w, const std::vector<Record>& txn, SceneInfo* si) {
+  const ChunkGrid cg = chunk_grid(w.dims());
+  std::vector<uint64_t> chunks;
+  const Record* header = nullptr;
+  for (const Record& r : txn) {
+    if (r.type == kHeaderRecord) {
+      header = &r;
+      continue;
+    }
+    const std::string name = "journal transaction " + std::to_string(r.txn);
+    if (r.size < 8 + kCellBits + 8) corrupt(name + ": short chunk record");
+    const uint64_t chunk = load_le<uint64_t>(r.payload);
+    if (chunk >= cg.count()) corrupt(name + ": chunk index out of range");
+    const uint8_t* bits = r.payload + 8;
+    const uint64_t rs = load_le<uint32_t>(r.payload + 8 + kCellBits);
+    const uint64_t zs = load_le<uint32_t>(r.payload + 12 + kCellBits);
+    if (zs != r.size - (16 + kCellBits) || rs > kMaxChunkRaw) corrupt(name + ": bad chunk sizes");
+    const std::vector<uint8_t> raw =
+        rs ? decompress(r.payload + 16 + kCellBits, size_t(zs), size_t(rs), name)
+           : std::vector<uint8_t>{};
+    const auto present = [&](uint64_t, uint32_t pos) { return (bits[pos >> 3] >> (pos & 7)) & 1; };
+    std::vector<ChunkBrick> got =
+        decode_chunk(w, cg, chunk, raw, name + " " + chunk_name(cg, chunk), present);
+    for_chunk_cells(w, cg, chunk, [&](uint64_t ci, uint32_t pos) {
+      if (!present(ci, pos) && w.cell(ci) != 0)
+        w.set_brick(ci, std::array<uint64_t, 8>{}.data(), nullptr, nullptr);
+    });
+    for (const ChunkBrick& b : got) w.set_brick(b.cell, b.mask, b.colors.data(), b.normals.data());
+    chunks.push_back(chunk);
+  }
+  if (header == nullptr) corrupt("journal transaction without a brickgrid header");
+  if (header->size < 16) corrupt("journal: short header record");
+  const std::vector<uint32_t> cells = decode_grid_header(
+      header->payload + 16, size_t(header->size - 16), w.cells().size(), "journal header");
+  for (uint64_t chunk : chunks)
+    for_chunk_cells(w, cg, chunk, [&](uint64_t ci, uint32_t) {
+      const uint32_t c = w.cell(ci);
+      const bool ok = c == 0 ? cells[ci] == 0
+                             : cells[ci] != 0 && CellPayload::get(w.brick(cell_brick(c)).lod) ==
+                                                     CellPayload::get(cells[ci]);
+      if (!ok)
+        corrupt("journal: a replayed chunk disagrees with its transaction's brickgrid header");
+    });
+  if (si) si->leaf_voxels = load_le<uint64_t>(header->payload + 8);
+  return chunks;
+}
+
+}  // namespace
+
+std::filesystem::path journal_path(const std::filesystem::path& world) {
+  std::filesystem::path p = world;
+  p += ".journal";
+  return p;
+}
+
+void set_save_step_hook(std::function<void(const char*)> hook) {
+  std::lock_guard<std::mutex> lock(hook_mutex);
+  save_hook = std::move(hook);
+}
+
+void replay_journal(const std::filesystem::path& path, World& w, SceneInfo* si,
+                    OpenReport* report) {
+  const std::filesystem::path jp = journal_path(path);
+  std::error_code ec;
+  if (!std::filesystem::exists(jp, ec)) return;
+  replay_journal_bytes(read_file(jp), w, si, report, jp.string());
+}
+
+void replay_journal_bytes(const std::vector<uint8_t>& bytes, World& w, SceneInfo* si,
+                          OpenReport* report, const std::string& name) {
+  const Parsed parsed = parse_journal(bytes, w, name);
+  for (const std::vector<Record>& txn : parsed.txns) {
+    const std::vector<uint64_t> chunks = apply(w, txn, si);
+    if (report) {
+      ++report->transactions;
+      report->chunk_records += chunks.size();
+      // A chunk replayed whole replaces a refused one.
+      std::erase_if(report->refused, [&](const ChunkFailure& f) {
+        return std::find(chunks.begin(), chunks.end(), f.chunk) != chunks.end();
+      });
+    }
+  }
+  if (report) report->ignored_bytes = bytes.size() - parsed.end;
+}
+
+World open_world(const std::filesystem::path& path, SceneInfo* info, OpenReport* report,
+                 bool tolerant) {
+  OpenReport local;
+  OpenReport* rep = report ? report : &local;
+  *rep = OpenReport{};
+  const ContainerReader reader = ContainerReader::open(path);
+  SceneInfo si;
+  World w = read_world(reader, &si, tolerant ? &rep->refused : nullptr, &path);
+  if (!tolerant) reader.verify_all();
+  replay_journal(path, w, &si, rep);
+  if (info) *info = std::move(si);
+  return w;
+}
+
+uint64_t commit_edits(const std::filesystem::path& path, const World& w,
+                      const std::vector<uint64_t>& cells) {
+  const ChunkGrid cg = chunk_grid(w.dims());
+  std::set<uint64_t> chunks;
+  for (uint64_t ci : cells) {
+    if (ci >= w.cells().size()) throw Error("brickmap: commit_edits: cell index out of range");
+    chunks.insert(chunk_of(w, ci));
+  }
+  const std::filesystem::path jp = journal_path(path);
+  std::error_code ec;
+  uint64_t txn = 1;
+  if (!std::filesystem::exists(jp, ec)) {
+    // Created whole under a temporary name: a journal file always has its head.
+    std::filesystem::path tmp = jp;
+    tmp += ".tmp";
+    {
+      Fd f(tmp, O_WRONLY | O_CREAT | O_TRUNC);
+      const std::vector<uint8_t> head = file_head(w);
+      f.write_all(head.data(), head.size());
+      f.sync();
+    }
+    step("journal created");
+    std::filesystem::rename(tmp, jp);
+    sync_directory(jp);
+    step("journal renamed");
+  } else {
+    const std::vector<uint8_t> bytes = read_file(jp);
+    const Parsed parsed = parse_journal(bytes, w, jp.string());
+    txn = parsed.last_txn + 1;
+    if (parsed.end != bytes.size()) {
+      // An unacknowledged save cut off by a crash: not part of the world.
+      Fd f(jp, O_WRONLY);
+      f.truncate(parsed.end);
+      f.sync();
+      step("journal tail cut");
+    }
+  }
+  Fd f(jp, O_WRONLY);
+  f.seek_end();
+  uint64_t records = 0;
+  const auto put = [&](uint32_t type, const std::vector<uint8_t>& payload) {
+    const std::vector<uint8_t> head = record_head(type, txn, payload);
+    f.write_all(head.data(), head.size());
+    step("record head written");
+    f.write_all(payload.data(), payload.size());
+    step("record written");
+    ++records;
+  };
+  std::vector<uint8_t> raw;
+  for (uint64_t chunk : chunks) {
+    encode_chunk(w, cg, chunk, &raw);
+    std::vector<uint8_t> p;
+    put_le<uint64_t>(p, chunk);
+    std::vector<uint8_t> bits(kCellBits, 0);
+    for_chunk_cells(w, cg, chunk, [&](uint64_t ci, uint32_t pos) {
+      if (w.cell(ci) != 0) bits[pos >> 3] |= uint8_t(1u << (pos & 7));
+    });
+    p.insert(p.end(), bits.begin(), bits.end());
+    const std::vector<uint8_t> z =
+        raw.empty() ? std::vector<uint8_t>{} : compress(raw.data(), raw.size());
+    put_le<uint32_t>(p, uint32_t(raw.size()));
+    put_le<uint32_t>(p, uint32_t(z.size()));
+    p.insert(p.end(), z.begin(), z.end());
+    put(kChunkRecord, p);
+  }
+  const WorldStats st = w.stats();
+  std::vector<uint8_t> h;
+  put_le<uint64_t>(h, st.bricks);
+  put_le<uint64_t>(h, st.voxels);
+  const std::vector<uint8_t> gh = encode_grid_header(w);
+  h.insert(h.end(), gh.begin(), gh.end());
+  put(kHeaderRecord, h);
+  std::vector<uint8_t> c;
+  put_le<uint64_t>(c, records);
+  const std::vector<uint8_t> head = record_head(kCommitRecord, txn, c);
+  f.write_all(head.data(), head.size());
+  step("commit head written");
+  f.write_all(c.data(), c.size());
+  step("commit written");
+  f.sync();
+  step("journal synced");  // acknowledged from here on
+  return std::filesystem::file_size(jp);
+}
+
+void checkpoint_world(const std::filesystem::path& path, const World& w, const SceneInfo& info) {
+  step("checkpoint begins");
+  {
+    ContainerWriter writer(path);
+    write_world(writer, w, info);
+    step("checkpoint written");
+    writer.commit();  // fsync, rename, directory fsync
+  }
+  step("checkpoint renamed");
+  const std::filesystem::path jp = journal_path(path);
+  std::error_code ec;
+  if (std::filesystem::remove(jp, ec)) {
+    sync_directory(jp);
+    step("journal removed");
+  }
+}
+
+}  // namespace voxcast::brickmap

@@ -1,0 +1,286 @@
+// Streaming a brickmap world from its scene file (brickmap_stream.hpp).
+#include <xxhash.h>
+
+#include <algorithm>
+#include <fstream>
+
+#include "brickmap/codec.hpp"
+#include "io/meta_json.hpp"
+#include "voxcast/brickmap_stream.hpp"
+#include "voxcast/error.hpp"
+#include "voxcast/integrator.hpp"
+
+namespace voxcast::brickmap {
+
+using namespace codec;
+
+namespace {
+constexpr uint32_t kHeaderSection = fourcc("BMGH");
+constexpr uint32_t kTableSection = fourcc("BMCT");
+constexpr uint32_t kChunkSection = fourcc("BMCK");
+constexpr size_t kTablePrefix = 8, kEntryBytes = 24;
+}  // namespace
+
+// A decoded chunk: its raw bytes and where each present cell's brick starts.
+struct StreamingWorld::Chunk {
+  std::vector<uint8_t> raw;
+  std::vector<uint32_t> at;  // per position in the chunk: offset in raw, or UINT32_MAX
+  uint64_t bytes() const { return raw.size() + at.size() * 4; }
+  const uint64_t* mask(uint32_t pos) const {
+    return at[pos] == UINT32_MAX ? nullptr : reinterpret_cast<const uint64_t*>(&raw[at[pos]]);
+  }
+};
+
+StreamingWorld::StreamingWorld(const std::filesystem::path& path, const StreamOptions& options)
+    : path_(path), options_(options) {
+  std::error_code ec;
+  if (std::filesystem::exists(journal_path(path), ec))
+    throw Error("'" + path.string() +
+                "' has an edit journal; fold it in first (voxcast edit --checkpoint)");
+  brick_budget_ = options.budget_bytes / 2;
+  cache_budget_ = options.budget_bytes - brick_budget_;
+  const ContainerReader reader = ContainerReader::open(path);
+  // META, header and table as the strict loader checks them, without the
+  // chunks: the world of an empty chunk section (every brick not resident).
+  const nlohmann::json meta = meta::parse(reader);
+  GridTransform grid;
+  bool normals = false;
+  try {
+    using namespace meta;
+    if (get_string(meta, "format") != kFormatName) bad("format is not 'brickmap'");
+    grid = grid_from_json(meta, 0);
+    const nlohmann::json& nj = field(meta, "normals");
+    if (!nj.is_boolean()) bad("'normals' is not a boolean");
+    normals = nj.get<bool>();
+  } catch (const nlohmann::json::exception& e) {
+    throw Error("corrupt scene: META section: " + meta::json_error_text(e));
+  }
+  if (!grid.placement_is_valid()) meta::bad("'grid' is not a valid placement");
+  world_ = std::make_shared<World>(grid, normals);
+  const std::vector<uint8_t> gh = reader.read(kHeaderSection);
+  header_ = decode_grid_header(gh.data(), gh.size(), world_->cells().size(), "BMGH section");
+  const ChunkGrid cg = chunk_grid(world_->dims());
+  table_ = reader.read(kTableSection);
+  if (table_.size() != kTablePrefix + kEntryBytes * cg.count() ||
+      load_le<uint32_t>(&table_[0]) != cg.count())
+    corrupt("BMCT section is not a table of " + std::to_string(cg.count()) + " chunks");
+  const SectionInfo& data = reader.section(kChunkSection);
+  chunk_data_offset_ = data.offset, chunk_data_size_ = data.size;
+  for (uint64_t ci = 0; ci < header_.size(); ++ci)
+    if (header_[ci] != 0) world_->set_not_resident(ci, cell_lod_abgr(header_[ci]));
+  refused_chunk_.assign(size_t(cg.count()), 0);
+  query_ = std::make_unique<BrickmapStructure>(world_, &seen_);
+}
+
+StreamingWorld::~StreamingWorld() = default;
+
+uint64_t StreamingWorld::missing() const {
+  uint64_t n = 0;
+  for (uint32_t c : world_->cells()) n += cell_state(c) == kStateNotResident;
+  return n;
+}
+
+void StreamingWorld::begin_frame(const FrameView& view) {
+  frame_ = view.frame;
+}
+
+uint64_t StreamingWorld::brick_bytes(uint32_t voxels) const {
+  return sizeof(Brick) +
+         uint64_t(ColorAllocator::class_size(voxels)) * (world_->has_normals() ? 8 : 4);
+}
+
+const StreamingWorld::Chunk* StreamingWorld::chunk(uint64_t index) {
+  if (refused_chunk_[size_t(index)]) return nullptr;
+  const auto it = cache_.find(index);
+  if (it != cache_.end()) {
+    lru_.splice(lru_.begin(), lru_, it->second.second);
+    return it->second.first.get();
+  }
+  const ChunkGrid cg = chunk_grid(world_->dims());
+  const std::string name = "BMCK " + chunk_name(cg, index);
+  auto c = std::make_unique<Chunk>();
+  try {
+    const uint64_t e = kTablePrefix + kEntryBytes * index;
+    const uint64_t offset = load_le<uint64_t>(&table_[e]);
+    const uint64_t zs = load_le<uint32_t>(&table_[e + 8]), rs = load_le<uint32_t>(&table_[e + 12]);
+    if (zs == 0 || offset > chunk_data_size_ || zs > chunk_data_size_ - offset || rs > kMaxChunkRaw)
+      corrupt(name + " lies outside the BMCK section");
+    std::vector<uint8_t> z(static_cast<size_t>(zs));
+    std::ifstream in(path_, std::ios::binary);
+    in.seekg(std::streamoff(chunk_data_offset_ + offset));
+    if (!in.read(reinterpret_cast<char*>(z.data()), std::streamsize(zs)))
+      throw Error(name + " cannot be read from the file");
+    if (XXH64(z.data(), z.size(), 0) != load_le<uint64_t>(&table_[e + 16]))
+      corrupt(name + " checksum mismatch");
+    c->raw = decompress(z.data(), z.size(), size_t(rs), name);
+    c->at.assign(kChunkCells, UINT32_MAX);
+    // The offsets of the bricks, validated as the loader does.
+    size_t at = 0;
+    const size_t per = world_->has_normals() ? 8 : 4;
+    for_chunk_cells(*world_, cg, index, [&](uint64_t ci, uint32_t pos) {
+      if (header_[ci] == 0) return;
+      if (c->raw.size() - at < 64) corrupt(name + " ends inside a brick mask");
+      uint64_t mask[8];
+      std::memcpy(mask, &c->raw[at], 64);
+      size_t count = 0;
+      for (uint64_t m : mask) count += size_t(std::popcount(m));
+      if (count == 0 || c->raw.size() - at - 64 < count * per)
+        corrupt(name + " holds a brick that is empty or cut short");
+      c->at[pos] = uint32_t(at);
+      at += 64 + count * per;
+    });
+    if (at != c->raw.size()) corrupt(name + " has bytes after its last brick");
+  } catch (const Error& err) {
+    // Refused: its bricks will not come; the rest streams on.
+    refused_chunk_[size_t(index)] = 1;
+    stats_.refused.push_back({index, err.what()});
+    for_chunk_cells(*world_, cg, index, [&](uint64_t ci, uint32_t) {
+      if (cell_state(world_->cell(ci)) == kStateNotResident)
+        world_->set_brick(ci, std::array<uint64_t, 8>{}.data(), nullptr, nullptr);
+    });
+    return nullptr;
+  }
+  ++stats_.chunk_loads;
+  stats_.cache_bytes += c->bytes();
+  lru_.push_front(index);
+  const Chunk* out = c.get();
+  cache_.emplace(index, std::make_pair(std::move(c), lru_.begin()));
+  // Least recently used chunks out, never the one just loaded.
+  while (stats_.cache_bytes > cache_budget_ && lru_.size() > 1) {
+    const uint64_t victim = lru_.back();
+    lru_.pop_back();
+    const auto v = cache_.find(victim);
+    stats_.cache_bytes -= v->second.first->bytes();
+    cache_.erase(v);
+    ++stats_.chunk_evictions;
+  }
+  stats_.peak_cache_bytes = std::max(stats_.peak_cache_bytes, stats_.cache_bytes);
+  return out;
+}
+
+bool StreamingWorld::upload(uint64_t cell) {
+  const ChunkGrid cg = chunk_grid(world_->dims());
+  const uint64_t ci = chunk_of(*world_, cell);
+  const Chunk* c = chunk(ci);
+  if (!c) return true;  // refused: the cell was emptied
+  const std::array<uint32_t, 3>& d = world_->dims();
+  const uint32_t i = uint32_t(cell % d[0]), j = uint32_t(cell / d[0] % d[1]),
+                 k = uint32_t(cell / d[0] / d[1]);
+  const uint32_t x0 = i & (kChunkSide - 1), y0 = j & (kChunkSide - 1), z0 = k & (kChunkSide - 1);
+  const uint32_t pos = x0 + kChunkSide * (y0 + kChunkSide * z0);
+  const uint64_t* mask = c->mask(pos);
+  uint64_t keep[8];
+  std::memcpy(keep, mask, 64);
+  uint32_t count = 0;
+  for (uint64_t m : keep) count += uint32_t(std::popcount(m));
+  if (options_.hidden_voxel_removal) {
+    // A voxel is hidden when its six neighbours are solid; neighbours in the
+    // adjacent bricks of the same chunk come from their masks, those beyond
+    // the chunk count as empty.
+    const auto neighbour = [&](int dx, int dy, int dz) -> const uint64_t* {
+      const int x = int(x0) + dx, y = int(y0) + dy, z = int(z0) + dz;
+      if (x < 0 || y < 0 || z < 0 || x >= int(kChunkSide) || y >= int(kChunkSide) ||
+          z >= int(kChunkSide))
+        return nullptr;
+      return c->mask(uint32_t(x) + kChunkSide * (uint32_t(y) + kChunkSide * uint32_t(z)));
+    };
+    const uint64_t* nb[6] = {neighbour(-1, 0, 0), neighbour(1, 0, 0),  neighbour(0, -1, 0),
+                             neighbour(0, 1, 0),  neighbour(0, 0, -1), neighbour(0, 0, 1)};
+    const auto solid = [&](int x, int y, int z) {
+      const uint64_t* m = mask;
+      if (x < 0)
+        m = nb[0], x += 8;
+      else if (x > 7)
+        m = nb[1], x -= 8;
+      else if (y < 0)
+        m = nb[2], y += 8;
+      else if (y > 7)
+        m = nb[3], y -= 8;
+      else if (z < 0)
+        m = nb[4], z += 8;
+      else if (z > 7)
+        m = nb[5], z -= 8;
+      return m != nullptr && ((m[z] >> voxel_bit(uint32_t(x), uint32_t(y), 0)) & 1);
+    };
+    uint64_t visible[8] = {};
+    for (int z = 0; z < 8; ++z)
+      for (uint64_t m = mask[z]; m != 0; m &= m - 1) {
+        const int bit = std::countr_zero(m), x = bit & 7, y = bit >> 3;
+        if (!(solid(x - 1, y, z) && solid(x + 1, y, z) && solid(x, y - 1, z) &&
+              solid(x, y + 1, z) && solid(x, y, z - 1) && solid(x, y, z + 1)))
+          visible[z] |= uint64_t(1) << bit;
+      }
+    uint32_t shown = 0;
+    for (uint64_t m : visible) shown += uint32_t(std::popcount(m));
+    if (shown > 0 && shown < count) {
+      stats_.hidden_voxels += count - shown;
+      std::memcpy(keep, visible, 64);
+    }
+  }
+  // The kept voxels' colors (and normals), in bit order.
+  const uint32_t* colors = reinterpret_cast<const uint32_t*>(&c->raw[c->at[pos] + 64]);
+  const uint32_t* normals = colors + count;
+  std::vector<uint32_t> kc, kn;
+  uint32_t n = 0;
+  for (int w = 0; w < 8; ++w)
+    for (uint64_t m = mask[w]; m != 0; m &= m - 1, ++n)
+      if ((keep[w] >> std::countr_zero(m)) & 1) {
+        kc.push_back(colors[n]);
+        kn.push_back(world_->has_normals() ? normals[n] : 0);
+      }
+  const uint64_t need = brick_bytes(uint32_t(kc.size()));
+  if (stats_.resident_bytes + need > brick_budget_) {
+    // Evict the least recently seen bricks, never one seen in this frame.
+    std::vector<std::pair<uint32_t, uint64_t>> order;
+    order.reserve(resident_.size());
+    for (uint64_t r : resident_) order.push_back({seen_[cell_brick(world_->cell(r))], r});
+    std::sort(order.begin(), order.end());
+    std::vector<char> gone(resident_.size(), 0);
+    size_t evicted = 0;
+    for (const auto& [when, r] : order) {
+      if (stats_.resident_bytes + need <= brick_budget_ || when >= frame_) break;
+      const Brick& b = world_->brick(cell_brick(world_->cell(r)));
+      stats_.resident_bytes -= brick_bytes(uint32_t(brick_popcount(b)));
+      world_->set_not_resident(r, cell_lod_abgr(header_[r]));
+      ++stats_.evicted, ++evicted;
+    }
+    if (evicted)
+      std::erase_if(resident_,
+                    [&](uint64_t r) { return cell_state(world_->cell(r)) != kStateResident; });
+    if (stats_.resident_bytes + need > brick_budget_) return false;
+  }
+  const uint32_t lod = cell_lod_abgr(header_[cell]);
+  world_->set_brick(cell, keep, kc.data(), kn.data(), 0, &lod);
+  const uint32_t slot = cell_brick(world_->cell(cell));
+  if (seen_.size() < world_->bricks().extent()) seen_.resize(world_->bricks().extent(), 0);
+  seen_[slot] = frame_;
+  resident_.push_back(cell);
+  stats_.resident_bytes += need;
+  stats_.peak_resident_bytes = std::max(stats_.peak_resident_bytes, stats_.resident_bytes);
+  ++stats_.uploaded;
+  (void)cg;
+  return true;
+}
+
+PassOutcome StreamingWorld::end_pass(std::span<const Request> requests) {
+  // The most urgent first (nearest, brickmap.hpp), ties by cell: the same
+  // order whatever the thread count.
+  std::vector<Request> want;
+  for (const Request& r : requests)
+    if (r.kind == BrickmapStructure::kRequestBrick && r.key < world_->cells().size() &&
+        cell_state(world_->cell(r.key)) == kStateNotResident)
+      want.push_back(r);
+  std::sort(want.begin(), want.end(), [](const Request& a, const Request& b) {
+    return a.priority != b.priority ? a.priority > b.priority : a.key < b.key;
+  });
+  PassOutcome out;
+  for (const Request& r : want) {
+    if (out.served >= options_.uploads_per_pass || !upload(r.key)) break;
+    ++out.served;
+  }
+  out.pending = want.size() - out.served;
+  out.changed = out.served > 0;
+  return out;
+}
+
+}  // namespace voxcast::brickmap

@@ -1,0 +1,339 @@
+// Brickmap ray casting (§3.3, §4.1): a 3-D DDA (Amanatides & Woo 1987) per
+// level, occupancy layer -> brickgrid -> brick mask, in grid units (voxel
+// (x, y, z) = [x, x+1] x [y, y+1] x [z, z+1]; t is the world distance, as the
+// grid map p -> (p - origin) / voxel_size scales the direction with it).
+//
+// Consistency between levels: the t of a plane is always computed as
+// (plane - o) * inv_d from the same float plane coordinate, whichever level
+// asks, and every level breaks ties between axes the same way (argmin3), so
+// when a finer walk leaves its parent cell through a plane, the parent's walk
+// steps through exactly that plane at exactly that t. A finer walk starts in
+// the cell holding the entry point, clamped into its parent (rounding of the
+// entry point can only move it across a plane within float slack of it: a
+// near tie in the oracle's sense, tests/support/dda_oracle.hpp).
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <bit>
+#include <cmath>
+
+#include "voxcast/brickmap.hpp"
+#include "voxcast/esvo.hpp"
+
+namespace voxcast::brickmap {
+namespace {
+
+// Fixed tie break (x, then y, then z) shared by every level.
+inline int argmin3(const float v[3]) {
+  return v[0] <= v[1] ? (v[0] <= v[2] ? 0 : 2) : (v[1] <= v[2] ? 1 : 2);
+}
+
+struct GridRay {
+  float o[3], d[3], inv[3];
+  int step[3];  // +1 / -1: the side the ray moves to (the sign bit for a zero component)
+  int up[3];    // 1 if step > 0: the exit plane of cell c is c + up
+};
+
+// The ray in grid units; false for non-finite input. Direction components
+// below 2^-23 of the largest are replaced by +-2^-23 of it (sign kept, also
+// for -0): such a ray cannot cross that axis's next plane inside a grid of
+// fewer than 2^23 voxels, so it stays on the side its sign picks, and the
+// arithmetic below stays finite.
+bool to_grid(const GridTransform& g, const Ray& ray, GridRay* r) {
+  if (!is_finite(ray.origin) || !is_finite(ray.dir)) return false;
+  const double inv_vs = 1.0 / g.voxel_size;
+  float big = 0.f;
+  for (int a = 0; a < 3; ++a) {
+    r->o[a] = float((double(ray.origin[a]) - g.origin[a]) * inv_vs);
+    r->d[a] = float(double(ray.dir[a]) * inv_vs);
+    big = std::fmax(big, std::fabs(r->d[a]));
+  }
+  if (!(big > 0.f) || !std::isfinite(big)) return false;
+  const float tiny = big * 0x1p-23f;
+  for (int a = 0; a < 3; ++a) {
+    if (std::fabs(r->d[a]) < tiny) r->d[a] = std::copysign(tiny, r->d[a]);
+    r->inv[a] = 1.f / r->d[a];
+    r->step[a] = std::signbit(r->d[a]) ? -1 : 1;
+    r->up[a] = r->step[a] > 0;
+  }
+  return true;
+}
+
+inline float plane_t(const GridRay& r, int a, float coord) {
+  return (coord - r.o[a]) * r.inv[a];
+}
+
+// Cell of side `side` (grid units) holding o + d t, ties towards the side the
+// ray moves to, clamped to [lo[a], hi[a]].
+inline void start_cell(const GridRay& r, float t, float side, const int lo[3], const int hi[3],
+                       int c[3]) {
+  const float inv_side = 1.f / side;  // a power of two: exact
+  for (int a = 0; a < 3; ++a) {
+    const float p = (r.o[a] + r.d[a] * t) * inv_side;
+    const float f = r.up[a] ? std::floor(p) : std::ceil(p) - 1.f;
+    const float clamped = std::fmin(std::fmax(f, float(lo[a])), float(hi[a]));
+    c[a] = int(clamped);
+  }
+}
+
+struct Found {
+  float t;
+  int face;   // entered face (axis * 2 + (outward normal negative ? 1 : 0))
+  int level;  // cube level of the hit (grid.levels = a voxel)
+  int c[3];   // the cube's coordinates at that level
+  uint64_t ref;
+};
+
+inline int face_of(const GridRay& r, int axis) {
+  return axis * 2 + (r.up[axis] ? 1 : 0);
+}
+
+// Solid bits of a 2x2x2 / 4x4x4 block of brick-local voxels at (x, y, z)
+// (multiples of the side): true if any is solid.
+inline bool block_solid(const Brick& b, int side, int x, int y, int z) {
+  const uint64_t row = side == 2 ? 0x3u : 0xFu;
+  uint64_t plane = 0;  // the block's x-y footprint within one z slice
+  for (int dy = 0; dy < side; ++dy) plane |= row << ((y + dy) * 8 + x);
+  for (int dz = 0; dz < side; ++dz)
+    if (b.mask[z + dz] & plane) return true;
+  return false;
+}
+
+enum class Step { Hit, Exit, Done };
+
+// The walk over the level hierarchy (brickmap.hpp, BrickmapStructure): the
+// pyramid levels (ratio 2; one level at a time while the footprint may stop
+// there, else straight to the brickgrid from two levels above it), the
+// brickgrid, the cubes inside a brick and the voxels. Every level is a DDA of
+// the same kind over the children of one cube of the level above.
+template <bool kCount>
+struct Walker {
+  const World& w;
+  const GridRay& r;
+  const LodFootprint& lod;
+  TraceContext& ctx;
+  float t1;  // end of the ray inside the grid
+  int L;     // grid levels (voxel level)
+  int B;     // brick level L - 3 (negative in grids below 8^3)
+  double voxel_world;
+  uint32_t* seen;  // per brick slot: frame of the last ray that entered it (or null)
+  float t;
+  int face;
+  Found* f;
+
+  float side_world(int level) const { return float(std::ldexp(voxel_world, L - level)); }
+  bool lod_stop(int level, float exit) const {
+    return side_world(level) <= lod.size_at_origin + lod.size_per_t * exit;
+  }
+
+  // Occupancy of cube `c` at `level`; `cell`: the brickgrid cell holding it
+  // (levels >= the brick level), `node`: its pyramid node (levels above).
+  bool occupied(int level, const int c[3], uint32_t* cell, const PyramidNode** node) const {
+    if (level < B) {
+      const int k = B - level;
+      const uint64_t d = w.pyramid_dim(k);
+      *node = &w.pyramid_node(k, uint64_t(c[0]) + d * (uint64_t(c[1]) + d * uint64_t(c[2])));
+      return (*node)->bricks != 0;
+    }
+    const int s = L - level;  // log2 of the cube's side in voxels (<= 3)
+    *cell =
+        w.cell(w.cell_index(uint32_t(c[0] << s >> kBrickLog2), uint32_t(c[1] << s >> kBrickLog2),
+                            uint32_t(c[2] << s >> kBrickLog2)));
+    if (*cell == 0) return false;
+    if (level <= std::max(B, 0) || cell_state(*cell) != kStateResident) return true;
+    const Brick& b = w.brick(cell_brick(*cell));
+    const int x = (c[0] << s) & 7, y = (c[1] << s) & 7, z = (c[2] << s) & 7;
+    if (s == 0) return (b.mask[z] >> voxel_bit(uint32_t(x), uint32_t(y), 0)) & 1;
+    return block_solid(b, 1 << s, x, y, z);
+  }
+
+  // An occupied cube the walk stops at: a voxel, or an LOD answer.
+  void stop(int level, const int c[3], uint32_t cell, const PyramidNode* node) {
+    uint64_t ref;
+    if (level == L) {
+      ref = uint64_t(cell_brick(cell)) << 9 |
+            voxel_bit(uint32_t(c[0] & 7), uint32_t(c[1] & 7), uint32_t(c[2] & 7));
+    } else if (level < B) {
+      ref = uint64_t(1) << 63 | node->abgr;
+    } else {
+      ref = uint64_t(1) << 63 | (cell_state(cell) == kStateResident ? w.brick(cell_brick(cell)).lod
+                                                                    : cell_lod_abgr(cell));
+    }
+    *f = {t, face, level, {c[0], c[1], c[2]}, ref};
+  }
+
+  // The level the walk descends to from an occupied `level` cube it does not
+  // stop at: the next level, or (when the footprint at the cube's exit is too
+  // small for any level in between to stop at) the brickgrid / the voxels.
+  int child_level(int level, float exit) const {
+    if (level < B - 2) return level + 1;
+    if (level < B) return lod_stop(B - 1, exit) ? level + 1 : B;
+    return lod_stop(L - 1, exit) ? level + 1 : L;
+  }
+
+  // Walks the children of the occupied cube (level, pc) from t; Exit when the
+  // ray leaves it (t, face at its exit plane).
+  Step visit(int level, const int pc[3], float exit) {
+    const int cl = child_level(level, exit);
+    const int ratio_log2 = cl - level;
+    const float side = float(1 << (L - cl));  // child side in grid units
+    int lo[3], hi[3], c[3];
+    const int top = (1 << cl) - 1;
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = pc[a] << ratio_log2;
+      hi[a] = std::min(top, lo[a] + (1 << ratio_log2) - 1);
+    }
+    start_cell(r, t, side, lo, hi, c);
+    float n[3];
+    for (int a = 0; a < 3; ++a) n[a] = plane_t(r, a, float(c[a] + r.up[a]) * side);
+    if constexpr (kCount) ++ctx.counters.pushes;
+    for (;;) {
+      if constexpr (kCount) {
+        ++ctx.counters.iterations;
+        if (cl == L) ++ctx.counters.intersects;
+      }
+      uint32_t cell = 0;
+      const PyramidNode* node = nullptr;
+      if (occupied(cl, c, &cell, &node)) {
+        if (seen && cl == std::max(B, 0) && cell_state(cell) == kStateResident)
+          std::atomic_ref<uint32_t>(seen[cell_brick(cell)])
+              .store(ctx.frame, std::memory_order_relaxed);
+        const float cexit = n[argmin3(n)];
+        const bool want = cl == L || lod_stop(cl, cexit);
+        if (want) {
+          stop(cl, c, cell, node);
+          return Step::Hit;
+        }
+        if (cl == std::max(B, 0) && cell_state(cell) != kStateResident) {
+          // §3.2.1: the brick is needed; nearer is more urgent. Until it
+          // arrives the cube answers with its LOD color.
+          ctx.requests.push(BrickmapStructure::kRequestBrick,
+                            w.cell_index(uint32_t(c[0]), uint32_t(c[1]), uint32_t(c[2])),
+                            1.f / (1.f + t));
+          stop(cl, c, cell, node);
+          return Step::Hit;
+        }
+        const Step s = visit(cl, c, cexit);
+        if (s != Step::Exit) return s;
+      }
+      const int ax = argmin3(n);
+      t = n[ax];
+      face = face_of(r, ax);
+      c[ax] += r.step[ax];
+      if (c[ax] < lo[ax] || c[ax] > hi[ax]) return Step::Exit;
+      if (t > t1) return Step::Done;
+      n[ax] = plane_t(r, ax, float(c[ax] + r.up[ax]) * side);
+    }
+  }
+};
+
+// The walk; true with `f` filled on a hit within [0, tmax].
+template <bool kCount>
+bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod, TraceContext& ctx,
+          uint32_t* seen, Found* f) {
+  const GridTransform& g = w.grid();
+  const float n = float(g.resolution);
+  // Clip to the grid box [0, N]^3.
+  float t0 = 0.f, t1 = tmax;
+  int face = -1;
+  float exit = INFINITY;
+  for (int a = 0; a < 3; ++a) {
+    const float ta = plane_t(r, a, r.up[a] ? 0.f : n), tb = plane_t(r, a, r.up[a] ? n : 0.f);
+    if (ta > t0) t0 = ta, face = face_of(r, a);
+    t1 = std::fmin(t1, tb);
+    exit = std::fmin(exit, tb);
+  }
+  if (!(t0 <= t1)) return false;
+  if (face < 0) {
+    // The ray starts inside the box: the face the ray looks at.
+    const float ad[3] = {-std::fabs(r.d[0]), -std::fabs(r.d[1]), -std::fabs(r.d[2])};
+    face = face_of(r, argmin3(ad));
+  }
+  Walker<kCount> wk{w,    r,  lod,  ctx, t1, g.levels, g.levels - kBrickLog2, g.voxel_size,
+                    seen, t0, face, f};
+  const int root[3] = {0, 0, 0};
+  uint32_t cell = 0;
+  const PyramidNode* node = nullptr;
+  if constexpr (kCount) ++ctx.counters.iterations;
+  if (!wk.occupied(0, root, &cell, &node)) return false;
+  if (g.levels == 0 || wk.lod_stop(0, exit)) {
+    wk.stop(0, root, cell, node);
+    return true;
+  }
+  if (wk.B <= 0 && cell_state(cell) != kStateResident) {
+    ctx.requests.push(BrickmapStructure::kRequestBrick, 0, 1.f / (1.f + t0));
+    wk.stop(0, root, cell, node);
+    return true;
+  }
+  return wk.visit(0, root, exit) == Step::Hit;
+}
+
+Vec3 face_normal(int face) {
+  Vec3 n{0, 0, 0};
+  n[face >> 1] = (face & 1) ? -1.f : 1.f;
+  return n;
+}
+
+}  // namespace
+
+BrickmapStructure::BrickmapStructure(std::shared_ptr<const World> world,
+                                     std::vector<uint32_t>* brick_seen)
+    : world_(std::move(world)), seen_(brick_seen) {}
+
+Aabb BrickmapStructure::bounds() const {
+  const GridTransform& g = world_->grid();
+  Aabb b;
+  b.lo = g.origin;
+  const float side = float(g.side());
+  b.hi = g.origin + Vec3{side, side, side};
+  return b;
+}
+
+bool BrickmapStructure::trace(const Ray& ray, const LodFootprint& lod, TraceContext& ctx,
+                              SurfaceHit* hit, const BeamStart* beam) const {
+  (void)beam;  // no beam optimization: every ray starts at the grid
+  GridRay r;
+  if (!to_grid(world_->grid(), ray, &r)) return false;
+  Found f;
+  uint32_t* seen = seen_ ? seen_->data() : nullptr;
+  const bool found = ctx.counting ? walk<true>(*world_, r, ray.tmax, lod, ctx, seen, &f)
+                                  : walk<false>(*world_, r, ray.tmax, lod, ctx, seen, &f);
+  if (!found) return false;
+  const GridTransform& g = world_->grid();
+  const double side = std::ldexp(g.voxel_size, g.levels - f.level);
+  hit->t = f.t;
+  hit->voxel_size = float(side);
+  hit->voxel_ref = f.ref;
+  hit->child = uint32_t(f.face);
+  hit->level = f.level;
+  const Vec3 p = ray.origin + ray.dir * f.t;
+  for (int a = 0; a < 3; ++a) {
+    // Clamped into the cube [lo, hi) as the floats inside it (when the cube
+    // holds any float at all), so that the position names the hit voxel.
+    const double lo = double(g.origin[a]) + double(f.c[a]) * side;
+    const double hi = double(g.origin[a]) + std::min(double(f.c[a] + 1) * side, g.side());
+    float lo_f = float(lo), hi_f = float(hi);
+    if (double(lo_f) < lo) lo_f = std::nextafter(lo_f, INFINITY);
+    if (double(hi_f) >= hi) hi_f = std::nextafter(hi_f, -INFINITY);
+    hit->position[a] = std::fmax(std::fmin(p[a], hi_f), lo_f);
+  }
+  return true;
+}
+
+void BrickmapStructure::attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
+                                   Vec3* normal) const {
+  const Vec3 face = face_normal(int(hit.child % 6));
+  if (hit.voxel_ref >> 63) {
+    if (color) *color = esvo::decode_color_abgr(uint32_t(hit.voxel_ref));
+    if (normal) *normal = face;
+    return;
+  }
+  const World& w = *world_;
+  const Brick& b = w.brick(uint32_t(hit.voxel_ref >> 9));
+  const uint32_t index = b.color + uint32_t(rank_below(b, uint32_t(hit.voxel_ref & 511)));
+  if (color) *color = esvo::decode_color_abgr(w.colors()[index]);
+  if (normal) *normal = w.has_normals() ? esvo::decode_normal_cube(w.normals()[index]) : face;
+  if (ctx.counting) ctx.counters.attribute_bytes += sizeof(Brick) + (w.has_normals() ? 8 : 4);
+}
+
+}  // namespace voxcast::brickmap

@@ -1,0 +1,311 @@
+// Brickmap world storage (layout: include/voxcast/brickmap.hpp): the brick
+// pool, the size-class color allocator (§3.1.4, §4.3) and the brickgrid with
+// its occupancy layer.
+#include <algorithm>
+#include <bit>
+#include <cstring>
+#include <string>
+
+#include "voxcast/brickmap.hpp"
+#include "voxcast/error.hpp"
+#include "voxcast/esvo.hpp"
+#include "voxcast/morton.hpp"
+
+namespace voxcast::brickmap {
+
+int brick_popcount(const Brick& b) {
+  int n = 0;
+  for (uint64_t w : b.mask) n += std::popcount(w);
+  return n;
+}
+
+int rank_below(const Brick& b, uint32_t bit) {
+  const uint32_t word = bit >> 6;
+  int n = std::popcount(b.mask[word] & ((uint64_t(1) << (bit & 63)) - 1));
+  for (uint32_t w = 0; w < word; ++w) n += std::popcount(b.mask[w]);
+  return n;
+}
+
+// ---- BrickPool ----
+
+uint32_t BrickPool::allocate() {
+  if (!free_.empty()) {
+    const uint32_t i = free_.back();
+    free_.pop_back();
+    bricks_[i] = Brick{};
+    return i;
+  }
+  if (bricks_.size() >= kMaxBricks)
+    throw Error("brickmap: more than " + std::to_string(kMaxBricks) +
+                " resident bricks (the 24-bit brick index of a brickgrid cell)");
+  bricks_.emplace_back();
+  return uint32_t(bricks_.size() - 1);
+}
+
+void BrickPool::release(uint32_t index) {
+  free_.push_back(index);
+}
+
+// ---- ColorAllocator ----
+
+int ColorAllocator::class_of(uint32_t count) {
+  const int log2 = count <= 1 ? 0 : int(std::bit_width(count - 1));  // ceil(log2(count))
+  return std::max(0, log2 - kMinLog2);
+}
+
+uint32_t ColorAllocator::class_size(uint32_t count) {
+  return uint32_t(1) << (class_of(count) + kMinLog2);
+}
+
+uint32_t ColorAllocator::allocate(uint32_t count) {
+  const int c = class_of(count);
+  int k = c;
+  while (k < kClasses && free_[size_t(k)].empty()) ++k;
+  if (k == kClasses) {
+    // Before the pool grows: merge every class, smallest first (what the
+    // threshold would do eventually), and look again.
+    for (int m = 0; m + 1 < kClasses; ++m) merge(m, false);
+    for (k = c; k < kClasses && free_[size_t(k)].empty(); ++k) {
+    }
+  }
+  uint32_t node;
+  if (k == kClasses) {
+    // No free node large enough: the pool grows by one top-class node.
+    node = extent_;
+    extent_ += uint32_t(1) << kMaxLog2;
+    k = kClasses - 1;
+  } else {
+    node = free_[size_t(k)].back();
+    free_[size_t(k)].pop_back();
+  }
+  // Split down to the requested class, keeping the lower half each time.
+  for (; k > c; --k) free_[size_t(k - 1)].push_back(node + (uint32_t(1) << (k - 1 + kMinLog2)));
+  return node;
+}
+
+void ColorAllocator::release(uint32_t first, uint32_t count) {
+  const int c = class_of(count);
+  free_[size_t(c)].push_back(first);
+  if (free_[size_t(c)].size() > kMergeThreshold && c + 1 < kClasses) merge(c, true);
+}
+
+void ColorAllocator::merge(int c, bool cascade) {
+  // Sort the class's free nodes; a node aligned to the next class's size
+  // whose upper neighbour is free too becomes one node of the next class.
+  std::vector<uint32_t>& f = free_[size_t(c)];
+  std::sort(f.begin(), f.end());
+  const uint32_t size = uint32_t(1) << (c + kMinLog2);
+  std::vector<uint32_t> keep;
+  for (size_t i = 0; i < f.size(); ++i) {
+    if (i + 1 < f.size() && f[i] % (2 * size) == 0 && f[i + 1] == f[i] + size) {
+      free_[size_t(c + 1)].push_back(f[i]);
+      ++i;
+    } else {
+      keep.push_back(f[i]);
+    }
+  }
+  f = std::move(keep);
+  if (cascade && free_[size_t(c + 1)].size() > kMergeThreshold && c + 2 < kClasses)
+    merge(c + 1, true);
+}
+
+uint64_t ColorAllocator::free_entries() const {
+  uint64_t n = 0;
+  for (int c = 0; c < kClasses; ++c) n += uint64_t(free_[size_t(c)].size()) << (c + kMinLog2);
+  return n;
+}
+
+// ---- World ----
+
+World::World(const GridTransform& grid, bool normals) : grid_(grid), normals_(normals) {
+  if (grid.levels < 0 || grid.levels > kMaxGridLevels || grid.resolution != (1u << grid.levels) ||
+      !grid.placement_is_valid())
+    throw Error("brickmap: invalid grid placement");
+  const uint32_t n = (grid.resolution + kBrickSide - 1) >> kBrickLog2;
+  const uint64_t cells = uint64_t(n) * n * n;
+  if (cells > kMaxGridCells)
+    throw Error("brickmap: a " + std::to_string(grid.resolution) + "^3 grid needs " +
+                std::to_string(cells) + " brickgrid cells, more than the " +
+                std::to_string(kMaxGridCells) + " supported");
+  dims_ = {n, n, n};
+  const uint32_t o = (n + (1u << kOccupancyLog2) - 1) >> kOccupancyLog2;
+  occ_dims_ = {o, o, o};
+  cells_.assign(size_t(cells), 0);
+  occupancy_.assign(size_t((uint64_t(o) * o * o + 63) / 64), 0);
+  // dims are a power of two (N = 2^L, N / 8 or 1): log2(n) levels above.
+  for (uint32_t d = n >> 1; d >= 1; d >>= 1) pyramid_.emplace_back(size_t(uint64_t(d) * d * d));
+}
+
+void World::set_brick(uint64_t index, const uint64_t mask[8], const uint32_t* colors,
+                      const uint32_t* normals, uint32_t flags, const uint32_t* lod) {
+  uint32_t& cell = cells_[size_t(index)];
+  uint32_t b = 0;
+  Brick* brick = nullptr;
+  if (cell_state(cell) == kStateResident) {
+    b = cell_brick(cell);
+    brick = &pool_[b];
+    const int old = brick_popcount(*brick);
+    if (old > 0) color_alloc_.release(brick->color, uint32_t(old));
+  }
+  int count = 0;
+  for (int w = 0; w < 8; ++w) count += std::popcount(mask[w]);
+  if (count == 0) {
+    if (brick != nullptr) pool_.release(b);
+    cell = 0;
+    update_occupancy(index);
+    return;
+  }
+  if (brick == nullptr) {
+    b = pool_.allocate();
+    brick = &pool_[b];
+  }
+  std::memcpy(brick->mask, mask, sizeof brick->mask);
+  brick->color = color_alloc_.allocate(uint32_t(count));
+  if (colors_.size() < color_alloc_.extent()) {
+    colors_.resize(color_alloc_.extent());
+    if (normals_) normals_data_.resize(color_alloc_.extent());
+  }
+  std::copy(colors, colors + count, colors_.begin() + brick->color);
+  if (normals_) std::copy(normals, normals + count, normals_data_.begin() + brick->color);
+  // LOD color: the mean of the voxels' linear colors (what they show at full
+  // resolution), re-encoded.
+  double sum[3] = {0, 0, 0};
+  for (int i = 0; i < count; ++i) {
+    const Color c = esvo::decode_color_abgr(colors[i]);
+    sum[0] += c.r, sum[1] += c.g, sum[2] += c.b;
+  }
+  const double inv = 1.0 / count;
+  brick->lod = lod ? *lod
+                   : esvo::encode_color_abgr(
+                         {float(sum[0] * inv), float(sum[1] * inv), float(sum[2] * inv), 1.f});
+  cell = resident_cell(b, flags);
+  update_occupancy(index);
+}
+
+void World::set_not_resident(uint64_t index, uint32_t abgr, uint32_t flags) {
+  uint32_t& cell = cells_[size_t(index)];
+  if (cell_state(cell) == kStateResident) {
+    const uint32_t b = cell_brick(cell);
+    const int old = brick_popcount(pool_[b]);
+    if (old > 0) color_alloc_.release(pool_[b].color, uint32_t(old));
+    pool_.release(b);
+  }
+  cell = not_resident_cell(abgr, flags);
+  update_occupancy(index);
+}
+
+void World::update_occupancy(uint64_t index) {
+  const uint32_t i = uint32_t(index % dims_[0]);
+  const uint32_t j = uint32_t(index / dims_[0] % dims_[1]);
+  const uint32_t k = uint32_t(index / dims_[0] / dims_[1]);
+  const uint32_t oi = i >> kOccupancyLog2, oj = j >> kOccupancyLog2, ok = k >> kOccupancyLog2;
+  constexpr uint32_t s = 1u << kOccupancyLog2;
+  bool any = false;
+  for (uint32_t z = ok * s; z < std::min(dims_[2], ok * s + s) && !any; ++z)
+    for (uint32_t y = oj * s; y < std::min(dims_[1], oj * s + s) && !any; ++y)
+      for (uint32_t x = oi * s; x < std::min(dims_[0], oi * s + s) && !any; ++x)
+        any = cells_[size_t(cell_index(x, y, z))] != 0;
+  const uint64_t b = oi + uint64_t(occ_dims_[0]) * (oj + uint64_t(occ_dims_[1]) * ok);
+  if (any)
+    occupancy_[size_t(b >> 6)] |= uint64_t(1) << (b & 63);
+  else
+    occupancy_[size_t(b >> 6)] &= ~(uint64_t(1) << (b & 63));
+  // The pyramid, level by level from the cell up: each node from its 8
+  // children (a brick counts once, whatever its voxels, so that a brick
+  // evicted with its LOD color changes nothing above it).
+  for (int q = 1; q <= pyramid_levels(); ++q) {
+    const uint32_t d = pyramid_dim(q), x = i >> q, y = j >> q, z = k >> q;
+    double sum[3] = {0, 0, 0};
+    uint32_t bricks = 0;
+    for (uint32_t c = 0; c < 8; ++c) {
+      const uint32_t cx = 2 * x + (c & 1), cy = 2 * y + (c >> 1 & 1), cz = 2 * z + (c >> 2);
+      uint32_t nb, abgr;
+      if (q == 1) {
+        const uint32_t cell = cells_[size_t(cell_index(cx, cy, cz))];
+        if (cell == 0) continue;
+        nb = 1;
+        abgr =
+            cell_state(cell) == kStateResident ? pool_[cell_brick(cell)].lod : cell_lod_abgr(cell);
+      } else {
+        const uint32_t cd = pyramid_dim(q - 1);
+        const PyramidNode& p =
+            pyramid_[size_t(q - 2)][size_t(cx + uint64_t(cd) * (cy + uint64_t(cd) * cz))];
+        if (p.bricks == 0) continue;
+        nb = p.bricks, abgr = p.abgr;
+      }
+      const Color col = esvo::decode_color_abgr(abgr);
+      sum[0] += double(nb) * col.r, sum[1] += double(nb) * col.g, sum[2] += double(nb) * col.b;
+      bricks += nb;
+    }
+    PyramidNode& node = pyramid_[size_t(q - 1)][size_t(x + uint64_t(d) * (y + uint64_t(d) * z))];
+    node.bricks = bricks;
+    node.abgr = bricks == 0
+                    ? 0
+                    : esvo::encode_color_abgr({float(sum[0] / bricks), float(sum[1] / bricks),
+                                               float(sum[2] / bricks), 1.f});
+  }
+}
+
+bool World::voxel(uint32_t x, uint32_t y, uint32_t z) const {
+  if (x >= grid_.resolution || y >= grid_.resolution || z >= grid_.resolution) return false;
+  const uint32_t c = cells_[size_t(cell_index(x >> 3, y >> 3, z >> 3))];
+  if (cell_state(c) != kStateResident) return false;
+  return test_voxel(pool_[cell_brick(c)], voxel_bit(x & 7, y & 7, z & 7));
+}
+
+std::vector<uint64_t> World::decode_voxels() const {
+  std::vector<uint64_t> out;
+  for (uint32_t k = 0; k < dims_[2]; ++k)
+    for (uint32_t j = 0; j < dims_[1]; ++j)
+      for (uint32_t i = 0; i < dims_[0]; ++i) {
+        const uint32_t c = cells_[size_t(cell_index(i, j, k))];
+        if (cell_state(c) != kStateResident) continue;
+        const Brick& b = pool_[cell_brick(c)];
+        for (uint32_t w = 0; w < 8; ++w)
+          for (uint64_t m = b.mask[w]; m != 0; m &= m - 1) {
+            const uint32_t bit = uint32_t(std::countr_zero(m));
+            out.push_back(morton_encode(i * 8 + (bit & 7), j * 8 + (bit >> 3), k * 8 + w));
+          }
+      }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+WorldStats World::stats() const {
+  WorldStats s;
+  s.bricks = pool_.live();
+  for (uint32_t c : cells_)
+    if (cell_state(c) == kStateResident) s.voxels += uint64_t(brick_popcount(pool_[cell_brick(c)]));
+  s.grid_bytes = uint64_t(cells_.size()) * 4;
+  s.occupancy_bytes = uint64_t(occupancy_.size()) * 8;
+  for (const std::vector<PyramidNode>& level : pyramid_)
+    s.pyramid_bytes += uint64_t(level.size()) * sizeof(PyramidNode);
+  s.brick_bytes = uint64_t(pool_.extent()) * sizeof(Brick);
+  s.color_bytes = uint64_t(color_alloc_.extent()) * 4;
+  s.normal_bytes = normals_ ? s.color_bytes : 0;
+  return s;
+}
+
+Aabb World::occupied_bounds() const {
+  uint32_t lo[3] = {UINT32_MAX, UINT32_MAX, UINT32_MAX}, hi[3] = {0, 0, 0};
+  bool any = false;
+  for (uint32_t k = 0; k < dims_[2]; ++k)
+    for (uint32_t j = 0; j < dims_[1]; ++j)
+      for (uint32_t i = 0; i < dims_[0]; ++i) {
+        if (cells_[size_t(cell_index(i, j, k))] == 0) continue;
+        any = true;
+        const uint32_t v[3] = {i, j, k};
+        for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], v[a]), hi[a] = std::max(hi[a], v[a]);
+      }
+  Aabb box;
+  if (!any) return box;
+  const double n = grid_.resolution;
+  for (int a = 0; a < 3; ++a) {
+    const double l = std::min(n, 8.0 * lo[a]), h = std::min(n, 8.0 * (hi[a] + 1));
+    box.lo[a] = float(grid_.origin[a] + l * grid_.voxel_size);
+    box.hi[a] = float(grid_.origin[a] + h * grid_.voxel_size);
+  }
+  return box;
+}
+
+}  // namespace voxcast::brickmap
