@@ -8,6 +8,8 @@
 #include "commands.hpp"
 #include "pipeline.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/esvo_slices.hpp"
+#include "voxcast/esvo_structure.hpp"
 #include "voxcast/format_registry.hpp"
 #include "voxcast/progress.hpp"
 #include "voxcast/scene_file.hpp"
@@ -31,6 +33,8 @@ struct BuildArgs {
   double geometry_error = 0, color_error = 0, normal_error = 0;
   bool out_of_core = false, no_attributes = false;
   uint32_t cell_size = 0;
+  bool slices = false;  // esvo §7: write a slice file (.vxs)
+  std::string slice_size = "1M";
   // Presence, not a sentinel value: "--voxel-size nan" must be refused, not
   // taken for "not given".
   CLI::Option *voxel_size_opt = nullptr, *max_level_opt = nullptr, *geometry_error_opt = nullptr,
@@ -102,6 +106,10 @@ Runner add_build(CLI::App& app) {
       cmd->add_option("--normal-error", args->normal_error,
                       "With --contours: variable depth; the same for normals (degrees)");
   cmd->add_flag("-v,--verbose", args->verbose, "Print timings per stage");
+  cmd->add_flag("--slices", args->slices,
+                "Write the ESVO as a slice file (-o X.vxs) for streaming (esvo section 7)");
+  cmd->add_option("--slice-size", args->slice_size, "With --slices: target bytes per slice")
+      ->capture_default_str();
   return [args]() {
     ThreadLimit limit(args->threads);
     // Every option value first (usage errors, exit 2), then the files.
@@ -167,8 +175,15 @@ Runner add_build(CLI::App& app) {
           "a voxel file input is built as it is: no --contours, --fill or --out-of-core");
     s.cell_size = args->cell_size;
     s.dag_attributes = !args->no_attributes;
+    if (args->slices && (s.format != "esvo" || s.attributes != esvo::AttributeFormat::Raw))
+      throw UsageError("--slices needs --format esvo with --attributes raw");
+    esvo::SliceOptions slice_options;
+    if (args->slices) slice_options.slice_bytes = parse_byte_size(args->slice_size.c_str());
     OutputSet outputs({args->input});
-    outputs.add("-o", args->output, {".vxc"});
+    if (args->slices)
+      outputs.add("-o", args->output, {".vxs"});
+    else
+      outputs.add("-o", args->output, {".vxc"});
     require_regular_input(args->input, is_voxel_input(args->input) ? "voxel file" : "mesh");
     StageTimer total(false);
     BuiltScene built = build_scene(s);
@@ -182,7 +197,11 @@ Runner add_build(CLI::App& app) {
     info.source_triangles = built.mesh.triangle_count();
     info.leaf_voxels = built.leaf_voxels;
     outputs.write(args->output, [&](const std::filesystem::path& to) {
-      save_scene(to, s.format, *built.structure, info);
+      if (args->slices)
+        esvo::write_slices(dynamic_cast<const esvo::EsvoStructure&>(*built.structure).octree(), to,
+                           slice_options);
+      else
+        save_scene(to, s.format, *built.structure, info);
     });
     outputs.commit();
     timer.mark("write scene");

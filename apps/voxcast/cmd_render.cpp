@@ -9,10 +9,12 @@
 
 #include "camera_options.hpp"
 #include "cli_io.hpp"
+#include "cmd_render_sliced.hpp"
 #include "commands.hpp"
 #include "view/camera_path.hpp"
 #include "exr_output.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/esvo_slices.hpp"
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/progress.hpp"
 #include "voxcast/render.hpp"
@@ -41,6 +43,8 @@ struct RenderArgs {
   uint32_t seed = 0;
   std::string memory_budget;
   std::string path, frame;  // camera path (src/view/camera_path.hpp) and one keyframe of it
+  std::string budget;       // slice files (esvo §7): streaming budget
+  int frames = 1;           // slice files: frames rendered
 };
 
 // The output for keyframe `index` of `count` when a whole path is rendered:
@@ -149,6 +153,12 @@ Runner add_render(CLI::App& app) {
       ->check(not_negative());
   cmd->add_option("--memory-budget", args->memory_budget,
                   "Refuse renders estimated to need more (e.g. 2G; default 90% of free memory)");
+  cmd->add_option("--budget", args->budget,
+                  "Slice files (esvo section 7): memory for resident slices, e.g. 512M "
+                  "(default unlimited)");
+  cmd->add_option("--frames", args->frames,
+                  "Slice files: frames to render (one pass each; along --path when given)")
+      ->capture_default_str();
   return [args]() {
     ThreadLimit limit(args->threads);
     // Every option value first (usage errors, exit 2), then the files.
@@ -227,6 +237,14 @@ Runner add_render(CLI::App& app) {
     check_camera_options(args->camera, opt.width, opt.height);
     refuse_camera_options_with_path(args->camera, args->path);
     if (!args->frame.empty() && args->path.empty()) throw UsageError("--frame needs --path");
+    if (!args->budget.empty() || args->frames != 1 ||
+        (std::filesystem::is_regular_file(args->input) && esvo::is_slice_file(args->input))) {
+      // A slice file streams (cmd_render_sliced.cpp); --budget and --frames are its options.
+      if (!esvo::is_slice_file(args->input))
+        throw UsageError("--budget and --frames apply to slice files (build --slices)");
+      return render_sliced(
+          {args->input, args->output, args->path, args->budget, &args->camera, args->frames}, opt);
+    }
     uint64_t budget = 0;
     if (!args->memory_budget.empty()) budget = parse_memory_budget(args->memory_budget);
     // All outputs are checked before the scene is read, and written together
