@@ -20,6 +20,7 @@
 #include "support/cli_runner.hpp"
 #include "support/file_bytes.hpp"
 #include "support/independent_decoders.hpp"
+#include "support/slice_check.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
 #include "voxcast/esvo_slices.hpp"
@@ -231,6 +232,37 @@ TEST(EsvoSlices, DamagedHeaderOrDirectoryRefused) {
   std::filesystem::remove(path);
 }
 
+// Committed regression inputs (tests/data/regress/slices, also the fuzz
+// target's checks): "accept-*" files open (a damaged slice among them is
+// refused while streaming, the rest streams with every invariant intact),
+// any other is refused at open with a one-line error.
+TEST(EsvoSlices, RegressionInputs) {
+  const auto dir = std::filesystem::path(VOXCAST_TEST_DATA_DIR) / "regress" / "slices";
+  int files = 0;
+  for (const auto& entry : std::filesystem::directory_iterator(dir)) {
+    ++files;
+    const std::vector<uint8_t> bytes = testing::read_bytes(entry.path());
+    const std::string error = testing::check_slice_file(bytes);
+    const bool expect_accept = entry.path().filename().string().rfind("accept-", 0) == 0;
+    EXPECT_EQ(error.empty(), expect_accept) << entry.path() << ": " << error;
+    EXPECT_EQ(error.find('\n'), std::string::npos) << error;
+  }
+  EXPECT_GE(files, 5);
+  // Re-hashing keeps a good file good, and the damaged slices are refused
+  // while streaming, not at open.
+  auto good = testing::read_bytes(dir / "accept-slices-bunny16.vxs");
+  testing::rehash_slice_file(good);
+  EXPECT_EQ(good, testing::read_bytes(dir / "accept-slices-bunny16.vxs"));
+  for (const char* name : {"accept-slices-contour-bit-in-a-file-without-contours.vxs",
+                           "accept-slices-slice-hash-mismatch.vxs"}) {
+    esvo::StreamedEsvo s(esvo::SliceFile::open(dir / name));
+    s.load_all();
+    s.check_invariants();
+    EXPECT_GT(s.stats().refused, 0u) << name;
+    EXPECT_LT(s.stats().resident_slices, s.file().slices().size()) << name;
+  }
+}
+
 // ---- Streaming ----
 
 RenderOptions view_options(const Aabb& bounds, int size, float lod, float azimuth = 30.f,
@@ -407,6 +439,58 @@ INSTANTIATE_TEST_SUITE_P(Contours, Streamed, ::testing::Values(false, true),
                          [](const ::testing::TestParamInfo<bool>& i) {
                            return i.param ? std::string("contours") : std::string("cubes");
                          });
+
+}  // namespace
+}  // namespace voxcast
+
+namespace voxcast {
+namespace {
+
+// The CLI: build --slices, info on a slice file, render --budget --frames
+// (per-frame streaming lines; the budget bounds the resident MiB printed).
+TEST(EsvoSlicesCli, BuildInfoRender) {
+  testing::TempDir dir;
+  const std::string mesh = (kMeshes / "stanford-bunny.obj").string();
+  const std::string out = dir.file("b.vxs");
+  auto r = testing::run_cli("build '" + mesh + "' --resolution 64 --slices --slice-size 2K -o '" +
+                            out + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find(" slices (target 2.00 KiB)"), std::string::npos) << r.output;
+  const auto file = esvo::SliceFile::open(out);
+  r = testing::run_cli("info '" + out + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("slice hierarchy (esvo §7): " + std::to_string(file->slices().size()) +
+                          " slices"),
+            std::string::npos)
+      << r.output;
+  r = testing::run_cli("render '" + out + "' --budget 40K --frames 5 --size 64x64 -o '" +
+                       dir.file("b.png") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  for (int f = 0; f < 5; ++f)
+    EXPECT_NE(r.output.find("frame " + std::to_string(f) + ": loaded "), std::string::npos)
+        << r.output;
+  EXPECT_TRUE(std::filesystem::exists(dir.file("b.png")));
+  // Every frame's resident size within the 40 KiB budget.
+  int frames = 0;
+  for (size_t at = 0; (at = r.output.find(" slices ", at)) != std::string::npos; ++at) {
+    const size_t mib = r.output.find(" MiB", at);
+    if (mib == std::string::npos || r.output.compare(at, 8, " slices ") != 0) continue;
+    const double resident = std::stod(r.output.substr(at + 8, mib - at - 8));
+    EXPECT_LE(resident, 40.0 / 1024.0 + 0.005) << r.output;
+    ++frames;
+  }
+  EXPECT_EQ(frames, 5) << r.output;
+  // Usage errors: --slices with compressed attributes; --budget on a .vxc.
+  r = testing::run_cli("build '" + mesh +
+                       "' --resolution 16 --slices --attributes compressed -o '" +
+                       dir.file("c.vxs") + "'");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  r = testing::run_cli("build '" + mesh + "' --resolution 16 -o '" + dir.file("d.vxc") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  r = testing::run_cli("render '" + dir.file("d.vxc") + "' --budget 1M -o '" + dir.file("d.png") +
+                       "'");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+}
 
 }  // namespace
 }  // namespace voxcast

@@ -214,6 +214,13 @@ Runner add_build(CLI::App& app) {
       std::printf("out-of-core: %llu cells of %u^3 (%llu planned below their root), %.2f s\n",
                   (unsigned long long)built.esvo_cells.cells, built.esvo_cells.cell_size,
                   (unsigned long long)built.esvo_cells.refined_cells, built.octree_seconds);
+    if (args->slices) {
+      const auto file = esvo::SliceFile::open(args->output);
+      std::printf("%s: %zu slices (target %s), %s, %.2f s\n", printable(args->output).c_str(),
+                  file->slices().size(), format_bytes(double(slice_options.slice_bytes)).c_str(),
+                  format_bytes(double(file->header().file_bytes)).c_str(), total.mark("total"));
+      return 0;
+    }
     DescribeStyle style;
     style.bytes = [](double b) { return format_bytes(b); };
     std::printf("%s: %s, %.2f s\n", printable(args->output).c_str(),
