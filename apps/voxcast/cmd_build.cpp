@@ -161,7 +161,8 @@ Runner add_build(CLI::App& app) {
           if (f.attributes_optional) n += (n.empty() ? "" : ", ") + f.name;
         return n;
       }() + ")");
-    if (s.format != "dag" && !s.contours && (args->out_of_core || args->cell_size_opt->count()))
+    if (s.format != "dag" && !s.contours && !args->slices &&
+        (args->out_of_core || args->cell_size_opt->count()))
       throw UsageError("--out-of-core and --cell-size apply to --format dag or --contours");
     // The grid decides the upper bound (the library checks it against the
     // resolution); a non-power of two or a cell below 4^3 is never valid.
@@ -186,6 +187,32 @@ Runner add_build(CLI::App& app) {
       outputs.add("-o", args->output, {".vxc"});
     require_regular_input(args->input, is_voxel_input(args->input) ? "voxel file" : "mesh");
     StageTimer total(false);
+    if (args->slices && !s.contours && !s.fill_solid && !is_voxel_input(args->input)) {
+      // Full depth: the top-down slice builder (esvo §7.1), which never holds
+      // the octree; contours (and voxel files) slice the in-core build below.
+      MeshLoadStats mesh_stats;
+      const Mesh mesh =
+          load_build_mesh(s.mesh_path, effective_budget(s.memory_budget), &mesh_stats, s.verbose);
+      const GridTransform grid = build_grid(s, mesh.bounds());
+      VoxelizeOptions vo;
+      vo.mode = s.mode;
+      vo.attributes = true;
+      esvo::SliceBuildOptions bo;
+      bo.slice_bytes = slice_options.slice_bytes;
+      bo.memory_budget = s.memory_budget;
+      bo.cell_size = s.cell_size;
+      esvo::SliceBuildStats st;
+      outputs.write(args->output, [&](const std::filesystem::path& to) {
+        esvo::build_slices(mesh, grid, vo, to, bo, &st);
+      });
+      outputs.commit();
+      std::printf("%s: %llu slices (target %s), %s, top-down from %llu cells of %u^3, %.2f s\n",
+                  printable(args->output).c_str(), (unsigned long long)st.slices,
+                  format_bytes(double(bo.slice_bytes)).c_str(),
+                  format_bytes(double(st.file_bytes)).c_str(), (unsigned long long)st.cells,
+                  st.cell_size, total.mark("total"));
+      return 0;
+    }
     BuiltScene built = build_scene(s);
     StageTimer timer(args->verbose);
     SceneInfo info;

@@ -51,7 +51,9 @@
 #include "voxcast/bitfield.hpp"
 #include "voxcast/esvo.hpp"
 #include "voxcast/integrator.hpp"
+#include "voxcast/mesh.hpp"
 #include "voxcast/structure.hpp"
+#include "voxcast/voxelize.hpp"
 
 namespace voxcast::esvo {
 
@@ -139,6 +141,34 @@ struct SliceOptions {
 /// Written to a temporary file and renamed into place. Throws voxcast::Error.
 void write_slices(const EsvoOctree& octree, const std::filesystem::path& path,
                   const SliceOptions& options = {});
+
+struct SliceBuildOptions {
+  uint64_t slice_bytes = uint64_t(1) << 20;  // as SliceOptions::slice_bytes
+  /// Bytes the build may use (0 = 90% of free memory): picks the cell size.
+  uint64_t memory_budget = 0;
+  /// Voxels per side of the cells a region is voxelized in (a power of two;
+  /// 0 = the largest whose working set per worker fits half the budget).
+  uint32_t cell_size = 0;
+};
+struct SliceBuildStats {
+  uint64_t slices = 0;
+  uint32_t cell_size = 0;
+  uint64_t cells = 0;            // cell voxelizations (over all levels)
+  uint64_t voxels_streamed = 0;  // finest voxels reduced (over all levels)
+  uint64_t max_cell_voxels = 0;
+  uint64_t file_bytes = 0;
+};
+
+/// The top-down slice builder (§7.1): the slice file of `mesh` voxelized
+/// into `grid`, never holding the octree: level by level, the slices of a
+/// level built in parallel with no dependencies between them, each from the
+/// voxels of its region (voxelized cell by cell) and written when done. The
+/// file equals write_slices(build_octree(voxelize(mesh, grid, voxelize)))
+/// byte for byte (full depth, raw attributes; contours and variable depth
+/// are not built top-down yet). Throws voxcast::Error.
+void build_slices(const Mesh& mesh, const GridTransform& grid, const VoxelizeOptions& voxelize,
+                  const std::filesystem::path& path, const SliceBuildOptions& options = {},
+                  SliceBuildStats* stats = nullptr);
 
 /// True if `path` starts with the slice file magic (cheap: reads 8 bytes).
 bool is_slice_file(const std::filesystem::path& path);

@@ -15,6 +15,7 @@
 #include <sstream>
 
 #include "esvo/layout_internal.hpp"
+#include "esvo/slice_plan.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_slices.hpp"
 
@@ -109,6 +110,77 @@ std::string io_error(const std::filesystem::path& path, const std::string& what)
 
 }  // namespace
 
+namespace detail {
+
+void plan_child_slices(std::span<const PlanNode> next, int n, int r, uint32_t parent,
+                       uint64_t slice_bytes, std::vector<sl::SliceEntry>* out) {
+  if (next.empty()) return;
+  // Shallowest split depth k at which every non-empty sub-cube fits.
+  int k = r;
+  for (; k <= n + 1; ++k) {
+    bool fits = true;
+    const int shift = 3 * (n + 1 - k);
+    for (size_t a = 0; a < next.size() && fits;) {
+      const uint64_t key = next[a].code >> shift;
+      uint64_t bytes = 0, count = 0;
+      size_t b = a;
+      for (; b < next.size() && (next[b].code >> shift) == key; ++b)
+        bytes += next[b].bytes, ++count;
+      fits = bytes <= slice_bytes && count <= sl::kMaxSliceNodes;
+      a = b;
+    }
+    if (fits) break;
+  }
+  k = std::min(k, n + 1);
+  const int shift = 3 * (n + 1 - k);
+  for (size_t a = 0; a < next.size();) {
+    const uint64_t key = next[a].code >> shift;
+    size_t b = a;
+    while (b < next.size() && (next[b].code >> shift) == key) ++b;
+    sl::SliceEntry e{};
+    e.region_code = key;
+    e.parent = parent;
+    e.node_level = uint8_t(n + 1);
+    e.region_depth = uint8_t(k);
+    out->push_back(e);
+    a = b;
+  }
+}
+
+sl::FileHeader slice_file_header(const GridTransform& grid, bool contours, uint64_t slice_bytes,
+                                 const std::vector<sl::SliceEntry>& slices) {
+  sl::FileHeader h{};
+  std::memcpy(h.magic, sl::kMagic, sizeof h.magic);
+  h.version = sl::kVersion;
+  h.header_bytes = sizeof(sl::FileHeader);
+  h.entry_bytes = sizeof(sl::SliceEntry);
+  h.flags = contours ? sl::kFlagContours : 0u;
+  h.slice_count = uint32_t(slices.size());
+  h.levels = uint32_t(grid.levels);
+  h.resolution = grid.resolution;
+  h.voxel_size = grid.voxel_size;
+  h.origin[0] = grid.origin.x;
+  h.origin[1] = grid.origin.y;
+  h.origin[2] = grid.origin.z;
+  h.slice_bytes = slice_bytes;
+  h.data_offset = sizeof(sl::FileHeader) + sizeof(sl::SliceEntry) * slices.size();
+  h.file_bytes = h.data_offset;
+  for (const sl::SliceEntry& e : slices) {
+    h.file_bytes += e.data_bytes;
+    h.total_nodes += e.node_count;
+    h.total_voxels += e.voxel_count;
+  }
+  XXH64_state_t* state = XXH64_createState();
+  XXH64_reset(state, 0);
+  XXH64_update(state, &h, sl::kHashedHeaderBytes);
+  XXH64_update(state, slices.data(), slices.size() * sizeof(sl::SliceEntry));
+  h.directory_hash = XXH64_digest(state);
+  XXH64_freeState(state);
+  return h;
+}
+
+}  // namespace detail
+
 void write_slices(const EsvoOctree& octree, const std::filesystem::path& path,
                   const SliceOptions& options) {
   if (octree.attribute_format() != AttributeFormat::Raw)
@@ -130,36 +202,10 @@ void write_slices(const EsvoOctree& octree, const std::filesystem::path& path,
     const std::vector<LevelNode>& next = levels[size_t(n + 1)];
     const auto [lo, hi] = region_range(next, n + 1, r, R);
     if (lo == hi) continue;
-    // Shallowest split depth k at which every non-empty sub-cube fits.
-    int k = r;
-    for (; k <= n + 1; ++k) {
-      bool fits = true;
-      const int shift = 3 * (n + 1 - k);
-      for (size_t a = lo; a < hi && fits;) {
-        const uint64_t key = next[a].code >> shift;
-        uint64_t bytes = 0, count = 0;
-        size_t b = a;
-        for (; b < hi && (next[b].code >> shift) == key; ++b) bytes += next[b].bytes, ++count;
-        fits = bytes <= options.slice_bytes && count <= sl::kMaxSliceNodes;
-        a = b;
-      }
-      if (fits) break;
-    }
-    k = std::min(k, n + 1);
-    const int shift = 3 * (n + 1 - k);
+    std::vector<detail::PlanNode> plan;
+    for (size_t a = lo; a < hi; ++a) plan.push_back({next[a].code, next[a].bytes});
     slices[i].first_child = uint32_t(slices.size());
-    for (size_t a = lo; a < hi;) {
-      const uint64_t key = next[a].code >> shift;
-      size_t b = a;
-      while (b < hi && (next[b].code >> shift) == key) ++b;
-      sl::SliceEntry e{};
-      e.region_code = key;
-      e.parent = uint32_t(i);
-      e.node_level = uint8_t(n + 1);
-      e.region_depth = uint8_t(k);
-      slices.push_back(e);
-      a = b;
-    }
+    detail::plan_child_slices(plan, n, r, uint32_t(i), options.slice_bytes, &slices);
     slices[i].child_count = uint32_t(slices.size()) - slices[i].first_child;
   }
 
@@ -170,7 +216,7 @@ void write_slices(const EsvoOctree& octree, const std::filesystem::path& path,
   const uint64_t data_offset = sizeof(sl::FileHeader) + sizeof(sl::SliceEntry) * slices.size();
   out.seekp(std::streamoff(data_offset));
   const uint32_t* w = octree.words.data();
-  uint64_t offset = data_offset, total_nodes = 0, total_voxels = 0;
+  uint64_t offset = data_offset;
   std::vector<uint32_t> data;
   for (sl::SliceEntry& e : slices) {
     const std::vector<LevelNode>& level = levels[e.node_level];
@@ -206,34 +252,10 @@ void write_slices(const EsvoOctree& octree, const std::filesystem::path& path,
     e.hash = XXH64(data.data(), data.size() * 4, 0);
     write_all(out, data.data(), data.size() * 4);
     offset += e.data_bytes;
-    total_nodes += e.node_count;
-    total_voxels += e.voxel_count;
   }
 
-  sl::FileHeader h{};
-  std::memcpy(h.magic, sl::kMagic, sizeof h.magic);
-  h.version = sl::kVersion;
-  h.header_bytes = sizeof(sl::FileHeader);
-  h.entry_bytes = sizeof(sl::SliceEntry);
-  h.flags = contours ? sl::kFlagContours : 0u;
-  h.slice_count = uint32_t(slices.size());
-  h.levels = uint32_t(octree.grid.levels);
-  h.resolution = octree.grid.resolution;
-  h.voxel_size = octree.grid.voxel_size;
-  h.origin[0] = octree.grid.origin.x;
-  h.origin[1] = octree.grid.origin.y;
-  h.origin[2] = octree.grid.origin.z;
-  h.slice_bytes = options.slice_bytes;
-  h.data_offset = data_offset;
-  h.file_bytes = offset;
-  h.total_nodes = total_nodes;
-  h.total_voxels = total_voxels;
-  XXH64_state_t* state = XXH64_createState();
-  XXH64_reset(state, 0);
-  XXH64_update(state, &h, sl::kHashedHeaderBytes);
-  XXH64_update(state, slices.data(), slices.size() * sizeof(sl::SliceEntry));
-  h.directory_hash = XXH64_digest(state);
-  XXH64_freeState(state);
+  const sl::FileHeader h =
+      detail::slice_file_header(octree.grid, contours, options.slice_bytes, slices);
   out.seekp(0);
   write_all(out, &h, sizeof h);
   write_all(out, slices.data(), slices.size() * sizeof(sl::SliceEntry));
