@@ -437,6 +437,33 @@ TEST_P(Streamed, SmallBudgetConvergesWhenTheViewStops) {
   EXPECT_TRUE(same_pixels(got.depth, want.depth));
 }
 
+// A budget far below what the view needs: the resident set settles (no
+// slice is loaded and unloaded again and again) and stays within the budget.
+TEST_P(Streamed, TooSmallBudgetSettlesWithoutThrashing) {
+  const SlicedBunny b(256, GetParam(), 8192, "thrash");
+  const RenderOptions still = view_options(b.in_core.bounds(), 80, 0.5f, 120.f, 10.f);
+  uint64_t needed = 0;
+  {
+    esvo::StreamedEsvo s(esvo::SliceFile::open(b.path));
+    int frames = 0;
+    stream_until_still(s, still, &frames);
+    needed = s.stats().resident_bytes;
+  }
+  esvo::StreamOptions opt;
+  opt.budget_bytes = needed / 3;
+  esvo::StreamedEsvo s(esvo::SliceFile::open(b.path), opt);
+  int quiet = 0, frames = 0;
+  for (; frames < 60 && quiet < 4; ++frames) {
+    const uint64_t before = s.stats().loaded + s.stats().unloaded;
+    render(static_cast<Structure&>(s), still);
+    s.check_invariants();
+    quiet = s.stats().loaded + s.stats().unloaded == before ? quiet + 1 : 0;
+  }
+  EXPECT_EQ(quiet, 4) << "still loading and unloading after " << frames << " frames";
+  EXPECT_GT(s.stats().pending, 0u);  // it did run out of budget
+  EXPECT_LE(s.stats().peak_resident_bytes, opt.budget_bytes);
+}
+
 TEST_P(Streamed, CorruptedSliceRefusedTheRestRenders) {
   const SlicedBunny b(128, GetParam(), 4096, "corrupt");
   const auto& path = b.path;

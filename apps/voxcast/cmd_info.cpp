@@ -47,6 +47,9 @@ Runner add_info(CLI::App& app) {
         j["contours"] = file->has_contours();
         j["resolution"] = grid.resolution;
         j["levels"] = grid.levels;
+        uint64_t resident = 0;
+        for (const auto& e : file->slices()) resident += esvo::StreamedEsvo::block_bytes(e);
+        j["resident_bytes_all"] = resident;
         std::printf("%s\n",
                     j.dump(2, ' ', false, nlohmann::json::error_handler_t::replace).c_str());
         return 0;
@@ -58,6 +61,10 @@ Runner add_info(CLI::App& app) {
                   grid.resolution, grid.levels, grid.voxel_size, grid.origin.x, grid.origin.y,
                   grid.origin.z);
       std::printf("%s", file->describe().c_str());
+      uint64_t resident = 0;
+      for (const auto& e : file->slices()) resident += esvo::StreamedEsvo::block_bytes(e);
+      std::printf("all slices resident (streamed blocks): %s\n",
+                  format_bytes(double(resident)).c_str());
       return 0;
     }
     // The same loader (and so the same validator) as render: both accept or

@@ -267,6 +267,9 @@ class StreamedEsvo final : public SurfaceQuery, public Structure {
   /// throws voxcast::Error when the whole file does not fit).
   void load_all();
 
+  /// The bytes slice `e` occupies while resident (its block; what the budget counts).
+  static uint64_t block_bytes(const slice_layout::SliceEntry& e);
+
   const StreamStats& stats() const { return stats_; }
   const SliceFile& file() const { return *file_; }
   bool resident(uint32_t slice) const;

@@ -52,6 +52,9 @@ struct BlockRef {
 struct StreamSource {
   GridTransform grid;
   const BlockRef* table = nullptr;
+  // Usage stamps per block (written by the rays, relaxed) and this frame's stamp.
+  std::atomic<uint32_t>* used = nullptr;
+  uint32_t stamp = 0;
 };
 
 }  // namespace voxcast::esvo
@@ -70,7 +73,7 @@ struct StreamedEsvoNodes {
   static constexpr bool kResidency = true;
   static constexpr bool kEnteredFace = false;
 
-  explicit StreamedEsvoNodes(const Source& s) : table(s.table) {}
+  explicit StreamedEsvoNodes(const Source& s) : table(s.table), used(s.used), stamp(s.stamp) {}
   static uint32_t root() { return 0; }
 
   template <class C>
@@ -99,9 +102,15 @@ struct StreamedEsvoNodes {
   bool resident(const Desc& d, uint32_t node, int c, int) const {
     return (link(table, d, node, c) & esvo::kAbsent) == 0;
   }
+  /// Entering a child block stamps it as used in this frame (a load and a
+  /// compare per PUSH; the store once per block and frame): a resident slice
+  /// no ray entered adds nothing to the image and may be unloaded first.
   template <class I, class C>
   uint32_t descend(const Desc& d, uint32_t node, int c, int, I&, C&) const {
-    return link(table, d, node, c);
+    const uint32_t l = link(table, d, node, c);
+    std::atomic<uint32_t>& u = used[l >> esvo::kLocalBits];
+    if (u.load(std::memory_order_relaxed) != stamp) u.store(stamp, std::memory_order_relaxed);
+    return l;
   }
   static void name_hit(const OctreeCast<Index>& r, SurfaceHit* hit) {
     hit->voxel_ref = r.node;
@@ -115,6 +124,8 @@ struct StreamedEsvoNodes {
   }
 
   const esvo::BlockRef* table;
+  std::atomic<uint32_t>* used;
+  uint32_t stamp;
 };
 
 }  // namespace voxcast::detail
@@ -196,9 +207,10 @@ struct StreamedEsvo::Impl {
   std::vector<uint16_t> block_of;           // per slice: its block id while resident
   std::vector<uint32_t> resident_children;  // per slice
   uint64_t resident_bytes = 0;
-  // Usage (gigavoxels §3.6.2-style stamps): attributes() stamps the block a
-  // hit came from with the frame's stamp. A resident leaf slice no ray hit
-  // in this frame adds nothing to the image: its score counts as 0.
+  // Usage (gigavoxels §3.6.2-style stamps): a ray entering a block stamps
+  // it with the frame's stamp (StreamedEsvoNodes::descend). A resident leaf
+  // slice no ray entered in this frame adds nothing to the image: its score
+  // counts as 0.
   std::vector<std::atomic<uint32_t>> used = std::vector<std::atomic<uint32_t>>(kMaxBlocks);
   uint32_t stamp = 0;
   // The frame's view (begin_frame), for the scores.
@@ -375,7 +387,7 @@ StreamedEsvo::StreamedEsvo(std::shared_ptr<const SliceFile> file, const StreamOp
   Impl& m = *impl_;
   m.file = file_;
   m.options = options;
-  m.source = {file_->grid(), m.table.data()};
+  m.source = {file_->grid(), m.table.data(), m.used.data(), 0};
   const size_t n = file_->slices().size();
   m.state.assign(n, State::kOnDisk);
   m.block_of.assign(n, 0);
@@ -419,6 +431,10 @@ StreamedEsvo::StreamedEsvo(std::shared_ptr<const SliceFile> file, const StreamOp
 
 StreamedEsvo::~StreamedEsvo() = default;
 
+uint64_t StreamedEsvo::block_bytes(const sl::SliceEntry& e) {
+  return ::voxcast::esvo::block_bytes(e);
+}
+
 Aabb StreamedEsvo::bounds() const {
   return ::voxcast::detail::OctreeWorld<::voxcast::detail::StreamedEsvoNodes>(impl_->source)
       .bounds();
@@ -444,9 +460,6 @@ void StreamedEsvo::attributes(const SurfaceHit& hit, TraceContext& ctx, Color* c
   const uint32_t index =
       d.attr + uint32_t(std::popcount(sl::SliceValid::get(d.masks) & ((1u << hit.child) - 1)));
   if (ctx.counting) ctx.counters.attribute_bytes += 8;  // the raw pair (§5.4)
-  std::atomic<uint32_t>& used = impl_->used[node >> kLocalBits];
-  if (used.load(std::memory_order_relaxed) != impl_->stamp)
-    used.store(impl_->stamp, std::memory_order_relaxed);
   if (color) *color = decode_color_abgr(b.attrs[size_t(index) * 2]);
   if (normal) *normal = decode_normal_cube(b.attrs[size_t(index) * 2 + 1]);
 }
@@ -454,7 +467,7 @@ void StreamedEsvo::attributes(const SurfaceHit& hit, TraceContext& ctx, Color* c
 void StreamedEsvo::begin_frame(const FrameView& view) {
   Impl& m = *impl_;
   m.has_view = true;
-  ++m.stamp;
+  m.source.stamp = ++m.stamp;
   m.rays = view.rays();
   m.lod = view.lod();
 }
