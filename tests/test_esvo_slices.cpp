@@ -563,6 +563,12 @@ TEST(EsvoSlicesCli, BuildInfoRender) {
   r = testing::run_cli("render '" + dir.file("d.vxc") + "' --budget 1M -o '" + dir.file("d.png") +
                        "'");
   EXPECT_EQ(r.exit_code, 2) << r.output;
+  r = testing::run_cli("render '" + out + "' --budget lots -o '" + dir.file("e.png") + "'");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  r = testing::run_cli("render '" + out + "' --depth '" + dir.file("e.pfm") + "' -o '" +
+                       dir.file("e.png") + "'");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(dir.file("e.png")));
 }
 
 }  // namespace

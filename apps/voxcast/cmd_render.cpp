@@ -242,6 +242,12 @@ Runner add_render(CLI::App& app) {
       // A slice file streams (cmd_render_sliced.cpp); --budget and --frames are its options.
       if (!esvo::is_slice_file(args->input))
         throw UsageError("--budget and --frames apply to slice files (build --slices)");
+      if (!args->depth.empty() || !args->normal.empty() || !args->heatmap.empty() ||
+          !args->aov.empty() || !args->ao_output.empty() || args->stats || args->beam != 0 ||
+          args->filter || !args->frame.empty())
+        throw UsageError(
+            "a slice file renders color only: no --depth, --normals, --heatmap, --aov, "
+            "--ao-output, --stats, --beam, --filter or --frame");
       return render_sliced(
           {args->input, args->output, args->path, args->budget, &args->camera, args->frames}, opt);
     }

@@ -12,6 +12,7 @@
 #include "cli_io.hpp"
 #include "commands.hpp"
 #include "view/camera_path.hpp"
+#include "voxcast/error.hpp"
 #include "voxcast/esvo_slices.hpp"
 #include "voxcast/system.hpp"
 
@@ -29,7 +30,13 @@ double peak_rss_bytes() {
 int render_sliced(const SlicedRender& a, RenderOptions opt) {
   if (a.frames < 1 || a.frames > 1000000) throw UsageError("--frames must be in 1..1000000");
   esvo::StreamOptions so;
-  if (!a.budget.empty()) so.budget_bytes = parse_byte_size(a.budget.c_str());
+  if (!a.budget.empty()) {
+    try {
+      so.budget_bytes = parse_byte_size(a.budget.c_str());
+    } catch (const Error& e) {
+      throw UsageError(std::string("--budget: ") + e.what());
+    }
+  }
   OutputSet outputs(a.path.empty() ? std::vector<std::string>{a.input}
                                    : std::vector<std::string>{a.input, a.path});
   outputs.add("-o", a.output, {".png", ".pfm"});
