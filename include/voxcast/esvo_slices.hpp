@@ -231,8 +231,9 @@ struct StreamStats {
 /// slice through its TraceContext. end_pass loads the requested slices on
 /// worker threads, in order of their score (the projected size of their
 /// voxels in LOD footprints for the frame's camera: a constant
-/// voxel-to-pixel ratio), within the budget, unloading lower-scoring
-/// resident leaf slices when that makes room for a higher-scoring one. A
+/// voxel-to-pixel ratio), within the budget, unloading resident leaf slices
+/// (no resident children) that no ray entered in this frame or that score
+/// lower, when that makes room for a higher-scoring one. A
 /// slice whose hash or structure is wrong is refused once and for all; its
 /// parent's voxels keep standing in for it.
 ///
@@ -240,8 +241,9 @@ struct StreamStats {
 /// slice: 16-byte descriptors (masks + offsets into the block's attributes,
 /// contours and links), per subdivided child a 32-bit link (the child's node
 /// id, or "absent" + the slice to request), the children's raw attributes
-/// and contours, and the Morton codes of the descriptors (positions live in
-/// memory only, derived from the parent when a slice is linked in).
+/// and contours, the Morton codes of the descriptors (positions live in
+/// memory only, derived from the parent when a slice is linked in) and, per
+/// descriptor, the index of the parent link that points at it.
 class StreamedEsvo final : public SurfaceQuery, public Structure {
  public:
   StreamedEsvo(std::shared_ptr<const SliceFile> file, const StreamOptions& options = {});
