@@ -8,6 +8,8 @@
 #include "commands.hpp"
 #include "pipeline.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/esvo_slices.hpp"
+#include "voxcast/esvo_structure.hpp"
 #include "voxcast/format_registry.hpp"
 #include "voxcast/progress.hpp"
 #include "voxcast/scene_file.hpp"
@@ -31,6 +33,8 @@ struct BuildArgs {
   double geometry_error = 0, color_error = 0, normal_error = 0;
   bool out_of_core = false, no_attributes = false;
   uint32_t cell_size = 0;
+  bool slices = false;  // esvo §7: write a slice file (.vxs)
+  std::string slice_size = "1M";
   // Presence, not a sentinel value: "--voxel-size nan" must be refused, not
   // taken for "not given".
   CLI::Option *voxel_size_opt = nullptr, *max_level_opt = nullptr, *geometry_error_opt = nullptr,
@@ -125,6 +129,10 @@ Runner add_build(CLI::App& app) {
       cmd->add_option("--normal-error", args->normal_error,
                       "With --contours: variable depth; the same for normals (degrees)");
   cmd->add_flag("-v,--verbose", args->verbose, "Print timings per stage");
+  cmd->add_flag("--slices", args->slices,
+                "Write the ESVO as a slice file (-o X.vxs) for streaming (esvo section 7)");
+  cmd->add_option("--slice-size", args->slice_size, "With --slices: target bytes per slice")
+      ->capture_default_str();
   return [args]() {
     ThreadLimit limit(args->threads);
     // Every option value first (usage errors, exit 2), then the files.
@@ -175,7 +183,7 @@ Runner add_build(CLI::App& app) {
                        names_of([](const SceneFormat& f) { return f.attributes_optional; }) + ")");
     // Whether the format's mesh build can bound its memory may depend on the
     // options (a format may have a cell build only with contours).
-    if ((args->out_of_core || args->cell_size_opt->count()) &&
+    if (!args->slices && (args->out_of_core || args->cell_size_opt->count()) &&
         !(format->bounded_mesh_build &&
           format->bounded_mesh_build(format_build_options(s, nullptr))))
       throw UsageError("--out-of-core and --cell-size apply to " + bounded_builds());
@@ -191,10 +199,43 @@ Runner add_build(CLI::App& app) {
           "a voxel file input is built as it is: no --contours, --fill or --out-of-core");
     s.cell_size = args->cell_size;
     s.dag_attributes = !args->no_attributes;
+    if (args->slices && (s.format != "esvo" || s.attributes != esvo::AttributeFormat::Raw))
+      throw UsageError("--slices needs --format esvo with --attributes raw");
+    esvo::SliceOptions slice_options;
+    if (args->slices) slice_options.slice_bytes = parse_byte_size(args->slice_size.c_str());
     OutputSet outputs({args->input});
-    outputs.add("-o", args->output, {".vxc"});
+    if (args->slices)
+      outputs.add("-o", args->output, {".vxs"});
+    else
+      outputs.add("-o", args->output, {".vxc"});
     require_regular_input(args->input, is_voxel_input(args->input) ? "voxel file" : "mesh");
     StageTimer total(false);
+    if (args->slices && !s.contours && !s.fill_solid && !is_voxel_input(args->input)) {
+      // Full depth: the top-down slice builder (esvo §7.1), which never holds
+      // the octree; contours (and voxel files) slice the in-core build below.
+      MeshLoadStats mesh_stats;
+      const Mesh mesh =
+          load_build_mesh(s.mesh_path, effective_budget(s.memory_budget), &mesh_stats, s.verbose);
+      const GridTransform grid = build_grid(s, mesh.bounds());
+      VoxelizeOptions vo;
+      vo.mode = s.mode;
+      vo.attributes = true;
+      esvo::SliceBuildOptions bo;
+      bo.slice_bytes = slice_options.slice_bytes;
+      bo.memory_budget = s.memory_budget;
+      bo.cell_size = s.cell_size;
+      esvo::SliceBuildStats st;
+      outputs.write(args->output, [&](const std::filesystem::path& to) {
+        esvo::build_slices(mesh, grid, vo, to, bo, &st);
+      });
+      outputs.commit();
+      std::printf("%s: %llu slices (target %s), %s, top-down from %llu cells of %u^3, %.2f s\n",
+                  printable(args->output).c_str(), (unsigned long long)st.slices,
+                  format_bytes(double(bo.slice_bytes)).c_str(),
+                  format_bytes(double(st.file_bytes)).c_str(), (unsigned long long)st.cells,
+                  st.cell_size, total.mark("total"));
+      return 0;
+    }
     BuiltScene built = build_scene(s);
     StageTimer timer(args->verbose);
     SceneInfo info;
@@ -206,7 +247,11 @@ Runner add_build(CLI::App& app) {
     info.source_triangles = built.mesh.triangle_count();
     info.leaf_voxels = built.leaf_voxels;
     outputs.write(args->output, [&](const std::filesystem::path& to) {
-      save_scene(to, s.format, *built.structure, info);
+      if (args->slices)
+        esvo::write_slices(dynamic_cast<const esvo::EsvoStructure&>(*built.structure).octree(), to,
+                           slice_options);
+      else
+        save_scene(to, s.format, *built.structure, info);
     });
     outputs.commit();
     timer.mark("write scene");
@@ -216,6 +261,13 @@ Runner add_build(CLI::App& app) {
       for (const BuildStat& st : built.build_stats)
         std::fprintf(stderr, "build: %s: %s\n", printable(st.key).c_str(),
                      printable(st.value).c_str());
+    if (args->slices) {
+      const auto file = esvo::SliceFile::open(args->output);
+      std::printf("%s: %zu slices (target %s), %s, %.2f s\n", printable(args->output).c_str(),
+                  file->slices().size(), format_bytes(double(slice_options.slice_bytes)).c_str(),
+                  format_bytes(double(file->header().file_bytes)).c_str(), total.mark("total"));
+      return 0;
+    }
     DescribeStyle style;
     style.bytes = [](double b) { return format_bytes(b); };
     std::printf("%s: %s, %.2f s\n", printable(args->output).c_str(),

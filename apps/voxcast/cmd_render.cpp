@@ -10,10 +10,12 @@
 #include "camera_options.hpp"
 #include "cli_io.hpp"
 #include "stream_render.hpp"
+#include "cmd_render_sliced.hpp"
 #include "commands.hpp"
 #include "exr_output.hpp"
 #include "view/camera_path.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/esvo_slices.hpp"
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/progress.hpp"
 #include "voxcast/render.hpp"
@@ -44,6 +46,8 @@ struct RenderArgs {
   std::string memory_budget;
   std::string path, frame;  // camera path (src/view/camera_path.hpp) and one keyframe of it
   StreamArgs stream;        // --stream: brickmap worlds streamed (cmd_stream.cpp)
+  // --budget and --frames (stream.budget / stream.frames) also drive slice
+  // files (esvo §7): cmd_render_sliced.cpp.
 };
 
 // The output for keyframe `index` of `count` when a whole path is rendered:
@@ -237,6 +241,27 @@ Runner add_render(CLI::App& app) {
     check_camera_options(args->camera, opt.width, opt.height);
     refuse_camera_options_with_path(args->camera, args->path);
     if (!args->frame.empty() && args->path.empty()) throw UsageError("--frame needs --path");
+    const bool slice_file =
+        std::filesystem::is_regular_file(args->input) && esvo::is_slice_file(args->input);
+    if (!args->stream.enabled && !slice_file &&
+        (!args->stream.budget.empty() || args->stream.frames != 1))
+      throw UsageError(
+          "--budget and --frames apply to slice files (build --slices) and to --stream");
+    if (slice_file) {
+      // A slice file streams (cmd_render_sliced.cpp); --budget and --frames are its options.
+      if (args->stream.enabled)
+        throw UsageError("--stream applies to brickmap worlds; a slice file always streams");
+      if (!args->depth.empty() || !args->normal.empty() || !args->heatmap.empty() ||
+          !args->aov.empty() || !args->ao_output.empty() || args->stats || args->beam != 0 ||
+          args->filter || !args->frame.empty())
+        throw UsageError(
+            "a slice file renders color only: no --depth, --normals, --heatmap, --aov, "
+            "--ao-output, --stats, --beam, --filter or --frame");
+      return render_sliced(
+          {args->input, args->output, args->path, args->stream.budget, &args->camera,
+           args->stream.frames},
+          opt);
+    }
     uint64_t budget = 0;
     if (!args->memory_budget.empty()) budget = parse_memory_budget(args->memory_budget);
     // All outputs are checked before the scene is read, and written together

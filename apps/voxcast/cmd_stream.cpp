@@ -14,11 +14,12 @@ void add_stream_options(CLI::App* cmd, StreamArgs& a) {
   cmd->add_flag("--stream", a.enabled,
                 "Brickmap worlds: stream the bricks the rays ask for from the file within "
                 "--budget, over --frames frames (per-frame Mrays/s and uploads printed)");
-  cmd->add_option("--frames", a.frames, "With --stream: frames to render (the last is written)")
+  cmd->add_option("--frames", a.frames,
+                  "With --stream or a slice file: frames to render (the last is written)")
       ->capture_default_str();
   cmd->add_option("--budget", a.budget,
-                  "With --stream: RAM for resident bricks and the chunk cache (half each)")
-      ->capture_default_str();
+                  "With --stream: RAM for resident bricks and the chunk cache (half each; default "
+                  "512M); slice files: memory for resident slices (default unlimited)");
   cmd->add_option("--uploads", a.uploads, "With --stream: bricks uploaded per pass at most")
       ->capture_default_str();
   cmd->add_option("--passes", a.passes,
@@ -36,7 +37,7 @@ int render_stream(const StreamArgs& a, const std::string& world, const std::stri
   require_range("--uploads", a.uploads, 1, 1 << 24);
   require_range("--passes", a.passes, 1, 1000);
   brickmap::StreamOptions so;
-  so.budget_bytes = parse_memory_budget(a.budget);
+  so.budget_bytes = parse_memory_budget(a.budget.empty() ? std::string("512M") : a.budget);
   so.uploads_per_pass = uint32_t(a.uploads);
   so.hidden_voxel_removal = !a.no_hidden_removal;
   OutputSet outputs({world});

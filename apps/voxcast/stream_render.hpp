@@ -16,7 +16,7 @@ namespace voxcast::cli {
 struct StreamArgs {
   bool enabled = false;
   int frames = 1;
-  std::string budget = "512M";
+  std::string budget;  // empty: 512M for brickmap worlds, unlimited for slice files
   int uploads = 4096;
   int passes = 1;
   bool no_hidden_removal = false;

@@ -588,6 +588,11 @@ struct OctreeWorld {
             ? cast_octree<P, true, false>(source, p, d, ray.tmax, coef, bias, region, &ctx.counters)
             : cast_octree<P, false, false>(source, p, d, ray.tmax, coef, bias, region, nullptr);
     if (!r.hit) return false;
+    // A streaming policy asks for what stopped the ray (esvo §7: the slice
+    // of a non-resident child); the coarser voxel is the hit meanwhile.
+    if constexpr (requires(TraceContext & c) { P::report(source, r, c); }) {
+      if (r.stop == CastStop::kNotResident) P::report(source, r, ctx);
+    }
     frame.hit_to_world(p, d, r.t, r.pos, r.scale, hit);
     P::name_hit(r, hit);
     return true;

@@ -65,6 +65,7 @@
 #include "esvo/compress.hpp"
 #include "esvo/contours.hpp"
 #include "esvo/layout_internal.hpp"
+#include "esvo/reduce.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
 #include "voxcast/morton.hpp"
@@ -77,10 +78,8 @@ namespace {
 
 using detail::kMaxNearPointer;
 
-// Without input attributes every voxel gets this (documented in esvo.hpp):
-// linear mid gray, normal +z, weight 1.
-constexpr Color kDefaultColor{0.5f, 0.5f, 0.5f, 1.f};
-constexpr Vec3 kDefaultNormal{0.f, 0.f, 1.f};
+using detail::kDefaultColor;  // esvo/reduce.hpp
+using detail::kDefaultNormal;
 
 /// Nodes of one octree level that own a descriptor (levels 0..L-1).
 struct Level {
@@ -153,26 +152,9 @@ void reduce_attributes(const std::vector<Color>& cc, const std::vector<Vec3>& cn
       tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t i = r.begin(); i != r.end(); ++i) {
           const uint32_t first = p.first_child[i];
-          const int k = std::popcount(unsigned(p.mask[i]));
-          double w = 0, r4[4] = {0, 0, 0, 0}, u4[4] = {0, 0, 0, 0};
-          double nx = 0, ny = 0, nz = 0;
-          for (int j = 0; j < k; ++j) {
-            const Color& c = cc[first + j];
-            const double wj = cw[first + j];
-            w += wj;
-            r4[0] += wj * c.r, r4[1] += wj * c.g, r4[2] += wj * c.b, r4[3] += wj * c.a;
-            u4[0] += c.r, u4[1] += c.g, u4[2] += c.b, u4[3] += c.a;
-            nx += wj * cn[first + j].x, ny += wj * cn[first + j].y, nz += wj * cn[first + j].z;
-          }
-          // Zero total weight (degenerate input) falls back to the plain mean.
-          const double* s = w > 0 ? r4 : u4;
-          const double inv = w > 0 ? 1.0 / w : 1.0 / k;
-          p.color[i] = {float(s[0] * inv), float(s[1] * inv), float(s[2] * inv), float(s[3] * inv)};
-          const double len = std::sqrt(nx * nx + ny * ny + nz * nz);
-          // Opposite normals can cancel exactly; keep the first child's normal then.
-          p.normal[i] =
-              len > 1e-12 ? Vec3{float(nx / len), float(ny / len), float(nz / len)} : cn[first];
-          p.weight[i] = float(w);
+          detail::reduce_node(&cc[first], &cn[first], &cw[first],
+                              std::popcount(unsigned(p.mask[i])), &p.color[i], &p.normal[i],
+                              &p.weight[i]);
         }
       });
 }

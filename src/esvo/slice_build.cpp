@@ -1,0 +1,337 @@
+// The top-down slice builder (esvo §7.1): the slice file of a mesh without
+// ever holding its octree. Slices are built one octree level at a time; the
+// slices of a level have no dependencies between them and are built in
+// parallel, each written as soon as it is done. A slice's "build data" is
+// its region: the builder voxelizes the region cell by cell
+// (voxelize/cell.hpp, exact restriction of voxelize()) and reduces the
+// voxels, streamed in Morton order, up to the slice's level with the in-core
+// builder's own reduction (esvo/reduce.hpp), so that the file equals
+// write_slices(build_octree(voxelize(mesh))) byte for byte. The same pass
+// yields the exact sizes of the next level, from which the slice plans its
+// children (slice_plan.hpp) before they are built.
+//
+// Cost: every level streams the voxels of the regions it covers, i.e. the
+// scene is voxelized once per level (the paper passes triangle lists down
+// instead; see README "Slices"). Memory: the mesh, its triangle bins, the
+// directory and per worker one cell's voxels plus one slice.
+#include <fcntl.h>
+#include <tbb/parallel_for.h>
+#include <unistd.h>
+#include <xxhash.h>
+
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <bit>
+#include <cerrno>
+#include <cstring>
+#include <fstream>
+#include <thread>
+
+#include "esvo/reduce.hpp"
+#include "esvo/slice_plan.hpp"
+#include "voxcast/error.hpp"
+#include "voxcast/esvo_slices.hpp"
+#include "voxcast/morton.hpp"
+#include "voxcast/system.hpp"
+#include "voxelize/cell.hpp"
+
+namespace voxcast::esvo {
+namespace sl = slice_layout;
+
+namespace {
+
+/// A node of the slice's child level (n + 1) as the reduction emits it.
+struct OutNode {
+  uint64_t code;
+  Color color;
+  Vec3 normal;
+  uint8_t mask;  // its children (0 at the finest level)
+};
+
+/// Streaming bottom-up reduction of Morton-ordered voxels up to level `top`:
+/// one open sibling group per level; a group is reduced when the next node
+/// has another parent, which in Morton order means it is complete. Every
+/// node is reduced from exactly its children's floats, as build_octree does.
+class Reducer {
+ public:
+  Reducer(int levels, int top) : levels_(levels), top_(top), open_(size_t(levels) + 1) {}
+
+  void push(int d, uint64_t code, const Color& c, Vec3 n, float w, uint8_t mask) {
+    if (d == top_) {
+      out.push_back({code, c, n, mask});
+      return;
+    }
+    Open& o = open_[size_t(d)];
+    if (o.k > 0 && o.parent != code >> 3) flush(d);
+    o.parent = code >> 3;
+    o.color[o.k] = c, o.normal[o.k] = n, o.weight[o.k] = w;
+    o.mask |= uint8_t(1u << (code & 7));
+    ++o.k;
+  }
+  void finish() {
+    for (int d = levels_; d > top_; --d)
+      if (open_[size_t(d)].k > 0) flush(d);
+  }
+
+  std::vector<OutNode> out;
+
+ private:
+  struct Open {
+    uint64_t parent = 0;
+    int k = 0;
+    uint8_t mask = 0;
+    Color color[8];
+    Vec3 normal[8];
+    float weight[8];
+  };
+  void flush(int d) {
+    Open& o = open_[size_t(d)];
+    Color c;
+    Vec3 n;
+    float w;
+    detail::reduce_node(o.color, o.normal, o.weight, o.k, &c, &n, &w);
+    const uint64_t parent = o.parent;
+    const uint8_t mask = o.mask;
+    o.k = 0, o.mask = 0;
+    push(d - 1, parent, c, n, w, mask);
+  }
+  int levels_, top_;
+  std::vector<Open> open_;
+};
+
+struct Builder {
+  const Mesh& mesh;
+  const GridTransform& grid;
+  const VoxelizeOptions& vo;
+  std::vector<std::array<double, 3>> gv;
+  std::vector<voxcast::detail::CellBin> bins;
+  int cell_bits = 0;
+  int cell_level = 0;  // depth of a cell cube
+  int fd = -1;         // the data file
+  std::filesystem::path data_path;
+  std::atomic<uint64_t> cells{0}, voxels{0}, max_cell_voxels{0};
+
+  /// Voxelizes the aligned cube (depth `depth`, code `code`) with the
+  /// triangles of the bins [b0, b1) and streams its voxels into `red`.
+  void stream_cube(int depth, uint64_t code, size_t b0, size_t b1, Reducer& red) {
+    if (b0 == b1) return;
+    std::vector<uint32_t> tris;
+    tris.reserve(b1 - b0);
+    for (size_t b = b0; b < b1; ++b) tris.push_back(bins[b].tri);
+    std::sort(tris.begin(), tris.end());
+    tris.erase(std::unique(tris.begin(), tris.end()), tris.end());
+    const MortonCoord m = morton_decode(code);
+    const uint32_t side = 1u << (grid.levels - depth);
+    const uint32_t lo[3] = {uint32_t(m.x) * side, uint32_t(m.y) * side, uint32_t(m.z) * side};
+    const VoxelSet v =
+        voxcast::detail::voxelize_cell(mesh, grid, gv, tris.data(), tris.size(), lo, side, vo);
+    ++cells;
+    voxels += v.size();
+    uint64_t seen = max_cell_voxels.load();
+    while (v.size() > seen && !max_cell_voxels.compare_exchange_weak(seen, v.size())) {
+    }
+    const bool attr = !v.colors.empty();
+    for (size_t i = 0; i < v.size(); ++i)
+      red.push(grid.levels, v.codes[i], attr ? v.colors[i] : detail::kDefaultColor,
+               attr ? v.normals[i] : detail::kDefaultNormal, v.weights.empty() ? 1.f : v.weights[i],
+               0);
+  }
+
+  /// The bins of the cells with codes in [lo, hi) (cell level).
+  std::pair<size_t, size_t> bin_range(uint64_t lo, uint64_t hi) const {
+    auto cmp = [](const voxcast::detail::CellBin& b, uint64_t v) { return b.cell < v; };
+    return {size_t(std::lower_bound(bins.begin(), bins.end(), lo, cmp) - bins.begin()),
+            size_t(std::lower_bound(bins.begin(), bins.end(), hi, cmp) - bins.begin())};
+  }
+
+  /// Builds slice `e` (index i): its data written at `relative` in the data
+  /// file, its counts and hash set, its children (planned from the exact
+  /// next level) returned with their counts and sizes.
+  std::vector<sl::SliceEntry> build(uint32_t i, sl::SliceEntry& e, uint64_t slice_bytes) {
+    const int L = grid.levels, n = e.node_level, r = e.region_depth;
+    Reducer red(L, n + 1);
+    if (r >= cell_level) {
+      // The region lies in one cell: its triangles are a superset of the region's.
+      const uint64_t cell = e.region_code >> (3 * (r - cell_level));
+      const auto [b0, b1] = bin_range(cell, cell + 1);
+      stream_cube(r, e.region_code, b0, b1, red);
+    } else {
+      const int s = 3 * (cell_level - r);
+      const auto [b0, b1] = bin_range(e.region_code << s, (e.region_code + 1) << s);
+      for (size_t a = b0; a < b1;) {
+        size_t b = a;
+        while (b < b1 && bins[b].cell == bins[a].cell) ++b;
+        stream_cube(cell_level, bins[a].cell, a, b, red);
+        a = b;
+      }
+    }
+    red.finish();
+    // The slice: level-n descriptors (the parents of the emitted nodes) and
+    // the emitted nodes' attributes.
+    const bool finest = n + 1 == L;
+    std::vector<uint32_t> words, attrs;
+    std::vector<detail::PlanNode> next;
+    for (size_t a = 0; a < red.out.size();) {
+      uint32_t valid = 0;
+      size_t b = a;
+      for (; b < red.out.size() && (red.out[b].code >> 3) == (red.out[a].code >> 3); ++b) {
+        valid |= 1u << (red.out[b].code & 7);
+        attrs.push_back(encode_color_abgr(red.out[b].color));
+        attrs.push_back(encode_normal_cube(red.out[b].normal));
+        if (!finest)
+          next.push_back({red.out[b].code, uint32_t(4 + 8 * std::popcount(red.out[b].mask))});
+      }
+      words.push_back(sl::SliceValid::put(valid) | sl::SliceLeaf::put(finest ? valid : 0u));
+      a = b;
+    }
+    if (words.size() != e.node_count && i != 0)
+      throw Error("slice builder: slice " + std::to_string(i) + " holds " +
+                  std::to_string(words.size()) + " descriptors, its parent planned " +
+                  std::to_string(e.node_count));
+    e.node_count = uint32_t(words.size());
+    e.voxel_count = uint32_t(attrs.size() / 2);
+    e.link_count = finest ? 0u : e.voxel_count;
+    e.contour_count = 0;
+    words.insert(words.end(), attrs.begin(), attrs.end());
+    e.data_bytes = uint32_t(words.size() * 4);
+    e.hash = XXH64(words.data(), words.size() * 4, 0);
+    // Written as soon as it is done, at the offset its parent's plan gave it
+    // (e.data_offset is relative to the data until the file is assembled).
+    const char* p = reinterpret_cast<const char*>(words.data());
+    for (size_t done = 0; done < e.data_bytes;) {
+      const ssize_t w = ::pwrite(fd, p + done, e.data_bytes - done, off_t(e.data_offset + done));
+      if (w < 0 && errno == EINTR) continue;
+      if (w <= 0) throw Error("slice builder: cannot write '" + data_path.string() + "'");
+      done += size_t(w);
+    }
+    // The children, with the sizes the next level will have.
+    std::vector<sl::SliceEntry> children;
+    detail::plan_child_slices(next, n, r, i, slice_bytes, &children);
+    for (sl::SliceEntry& c : children) {
+      const int shift = 3 * (n + 1 - c.region_depth);
+      for (const detail::PlanNode& q : next)
+        if ((q.code >> shift) == c.region_code) {
+          ++c.node_count;
+          c.data_bytes += q.bytes;
+        }
+    }
+    return children;
+  }
+};
+
+}  // namespace
+
+void build_slices(const Mesh& mesh, const GridTransform& grid, const VoxelizeOptions& voxelize,
+                  const std::filesystem::path& path, const SliceBuildOptions& options,
+                  SliceBuildStats* stats) {
+  if (options.slice_bytes < 64) throw Error("slices: the slice size must be at least 64 bytes");
+  if (grid.levels < 1 || grid.levels > 20 || grid.resolution != (1u << grid.levels))
+    throw Error("slice builder: grid levels outside 1..20");
+  Builder b{mesh, grid, voxelize, {}, {}, 0, 0, -1, {}, {}, {}, {}};
+  b.gv = voxcast::detail::grid_vertices(mesh, grid);
+  // Cells: the largest whose working set, once per worker, fits half the
+  // budget next to the mesh and the bins (or options.cell_size).
+  const uint64_t budget = options.memory_budget ? options.memory_budget
+                                                : uint64_t(double(available_memory_bytes()) * 0.9);
+  const int workers = std::max(1, int(std::thread::hardware_concurrency()));
+  if (options.cell_size != 0) {
+    if (!std::has_single_bit(options.cell_size) || options.cell_size > grid.resolution)
+      throw Error("slice builder: the cell size must be a power of two up to the resolution");
+    b.cell_bits = std::countr_zero(options.cell_size);
+  } else {
+    b.cell_bits = std::min(grid.levels, 4);
+    for (int bits = b.cell_bits + 1; bits <= grid.levels; ++bits) {
+      constexpr double kBytesPerPair = 64.0;  // voxel codes, attributes and sort scratch
+      const auto plan = voxcast::detail::plan_cells(mesh, b.gv, grid, bits, kBytesPerPair);
+      if (double(plan.fixed_bytes) + double(workers) * double(plan.cell_bytes) >
+          0.5 * double(budget))
+        break;
+      b.cell_bits = bits;
+    }
+  }
+  b.cell_level = grid.levels - b.cell_bits;
+  b.bins = voxcast::detail::bin_triangles(mesh, b.gv, grid, b.cell_bits);
+
+  b.data_path = path.string() + ".data.tmp";
+  b.fd = ::open(b.data_path.c_str(), O_RDWR | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (b.fd < 0)
+    throw Error("slice builder: cannot create '" + b.data_path.string() +
+                "': " + std::strerror(errno));
+  struct Cleanup {
+    Builder& b;
+    ~Cleanup() {
+      ::close(b.fd);
+      std::error_code ec;
+      std::filesystem::remove(b.data_path, ec);
+    }
+  } cleanup{b};
+
+  // Level by level (breadth-first, the directory order of write_slices):
+  // the slices of one level in parallel, then their children appended in
+  // order, with data offsets from the sizes their parents computed.
+  std::vector<sl::SliceEntry> slices(1);
+  slices[0].parent = sl::kNoParent;
+  uint64_t data_end = 0;
+  size_t level_begin = 0;
+  while (level_begin < slices.size()) {
+    const size_t level_end = slices.size();
+    std::vector<std::vector<sl::SliceEntry>> children(level_end - level_begin);
+    if (level_begin == 0) {
+      children[0] = b.build(0, slices[0], options.slice_bytes);  // sizes only known after it
+      data_end = slices[0].data_bytes;
+    } else {
+      tbb::parallel_for(level_begin, level_end, [&](size_t i) {
+        children[i - level_begin] = b.build(uint32_t(i), slices[i], options.slice_bytes);
+      });
+    }
+    for (size_t i = level_begin; i < level_end; ++i) {
+      std::vector<sl::SliceEntry>& c = children[i - level_begin];
+      slices[i].first_child = c.empty() ? 0u : uint32_t(slices.size());
+      slices[i].child_count = uint32_t(c.size());
+      for (sl::SliceEntry& e : c) {
+        e.data_offset = data_end;
+        data_end += e.data_bytes;
+        slices.push_back(e);
+      }
+    }
+    level_begin = level_end;
+  }
+
+  // Assemble: header, directory, then the data file's bytes.
+  sl::FileHeader h = detail::slice_file_header(grid, false, options.slice_bytes, slices);
+  for (sl::SliceEntry& e : slices) e.data_offset += h.data_offset;
+  h = detail::slice_file_header(grid, false, options.slice_bytes, slices);
+  const std::filesystem::path tmp = path.string() + ".tmp";
+  {
+    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
+    if (!out) throw Error("slice builder: cannot create '" + tmp.string() + "'");
+    out.write(reinterpret_cast<const char*>(&h), sizeof h);
+    out.write(reinterpret_cast<const char*>(slices.data()),
+              std::streamsize(slices.size() * sizeof(sl::SliceEntry)));
+    std::vector<char> buf(size_t(1) << 20);
+    for (uint64_t at = 0; at < data_end;) {
+      const ssize_t got =
+          ::pread(b.fd, buf.data(), std::min<uint64_t>(buf.size(), data_end - at), off_t(at));
+      if (got < 0 && errno == EINTR) continue;
+      if (got <= 0) throw Error("slice builder: cannot read back '" + b.data_path.string() + "'");
+      out.write(buf.data(), got);
+      at += uint64_t(got);
+    }
+    out.close();
+    if (!out) throw Error("slice builder: write failed: '" + tmp.string() + "'");
+  }
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) throw Error("slice builder: cannot rename into place: " + ec.message());
+  if (stats) {
+    stats->slices = slices.size();
+    stats->cell_size = 1u << b.cell_bits;
+    stats->cells = b.cells;
+    stats->voxels_streamed = b.voxels;
+    stats->max_cell_voxels = b.max_cell_voxels;
+    stats->file_bytes = h.file_bytes;
+  }
+}
+
+}  // namespace voxcast::esvo

@@ -1,0 +1,36 @@
+#pragma once
+// What the two slice writers share (private to src/esvo): the split plan of
+// a slice's next level (§7.1, planned by the parent) and the file header
+// with its directory hash. Layout: include/voxcast/esvo_slices.hpp.
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "voxcast/esvo_slices.hpp"
+
+namespace voxcast::esvo::detail {
+
+/// A descriptor of the next level as the planner sees it: its Morton code
+/// (at its level) and the bytes of its slice record.
+struct PlanNode {
+  uint64_t code;
+  uint32_t bytes;
+};
+
+/// The child slices of slice `parent` (index in the directory) whose node
+/// level is n and region depth r: `next` are the descriptors of level n + 1
+/// inside its region, in Morton order. The region is split at the shallowest
+/// depth k (r <= k <= n + 1) where every non-empty sub-cube holds at most
+/// `slice_bytes` of records and kMaxSliceNodes descriptors; one child per
+/// non-empty sub-cube, in Morton order, appended to `out` (only region,
+/// level, depth and parent are set).
+void plan_child_slices(std::span<const PlanNode> next, int n, int r, uint32_t parent,
+                       uint64_t slice_bytes, std::vector<slice_layout::SliceEntry>* out);
+
+/// The header of a slice file with these slices (data right after the
+/// directory), its totals and directory hash filled in.
+slice_layout::FileHeader slice_file_header(const GridTransform& grid, bool contours,
+                                           uint64_t slice_bytes,
+                                           const std::vector<slice_layout::SliceEntry>& slices);
+
+}  // namespace voxcast::esvo::detail

@@ -1,0 +1,575 @@
+// ESVO data management (esvo §7): slices on disk and the streamed ESVO.
+//  * the slice file holds exactly the in-core octree's voxels, attributes and
+//    contours (decoded here from the documented byte layout, independently of
+//    the library, against the independent ESVO decoder of tests/support);
+//  * streamed renders equal in-core renders once what they asked for is
+//    resident; a small budget converges to the in-core image when the view
+//    stops; the budget and the load/unload invariants hold after every pass;
+//  * corrupted slices are refused and the rest still renders.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <tuple>
+#include <vector>
+
+#include "support/cli_runner.hpp"
+#include "support/file_bytes.hpp"
+#include "support/independent_decoders.hpp"
+#include "support/slice_check.hpp"
+#include "voxcast/error.hpp"
+#include "voxcast/esvo.hpp"
+#include "voxcast/esvo_slices.hpp"
+#include "voxcast/esvo_structure.hpp"
+#include "voxcast/mesh.hpp"
+#include "voxcast/render.hpp"
+#include "voxcast/voxelize.hpp"
+
+namespace voxcast {
+namespace {
+
+const std::filesystem::path kMeshes = std::filesystem::path(VOXCAST_TEST_DATA_DIR) / "meshes";
+
+std::filesystem::path temp_file(const std::string& name) {
+  const auto dir = std::filesystem::temp_directory_path() / "voxcast_test_slices";
+  std::filesystem::create_directories(dir);
+  return dir /
+         (name + "-" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) + ".vxs");
+}
+
+std::shared_ptr<const esvo::EsvoOctree> bunny(uint32_t resolution, bool contours) {
+  const Mesh mesh = load_mesh(kMeshes / "stanford-bunny.obj");
+  const GridTransform grid = GridTransform::fit(mesh.bounds(), resolution);
+  VoxelizeOptions vo;
+  vo.attributes = true;
+  const VoxelSet v = voxelize(mesh, grid, vo);
+  esvo::BuildOptions o;
+  o.contours = contours;
+  if (contours) o.geometry_error = 0.5;  // variable depth: leaves above the finest level
+  return std::make_shared<esvo::EsvoOctree>(contours ? esvo::build_octree(v, mesh, o)
+                                                     : esvo::build_octree(v, o));
+}
+
+// ---- Independent decoder of the slice file (byte offsets as documented) ----
+
+template <class T>
+T get(const std::vector<uint8_t>& b, size_t at) {
+  T v;
+  std::memcpy(&v, b.data() + at, sizeof v);
+  return v;
+}
+
+struct Voxel {
+  bool leaf = false;
+  bool has_contour = false;
+  uint32_t contour = 0;
+  testing::independent::BlockSlot attributes;
+};
+using Key = std::tuple<int, uint32_t, uint32_t, uint32_t>;  // depth, x, y, z
+
+void unspread(uint64_t code, uint32_t* x, uint32_t* y, uint32_t* z) {
+  *x = *y = *z = 0;
+  for (int i = 0; i < 21; ++i) {
+    *x |= uint32_t(code >> (3 * i) & 1u) << i;
+    *y |= uint32_t(code >> (3 * i + 1) & 1u) << i;
+    *z |= uint32_t(code >> (3 * i + 2) & 1u) << i;
+  }
+}
+
+struct DecodedSlices {
+  std::map<Key, Voxel> voxels;
+  std::vector<uint32_t> data_bytes, child_counts;
+};
+
+// Walks the hierarchy from the root: a slice's descriptors are the
+// subdivided children, inside its region, of its parent's descriptors.
+DecodedSlices decode_slice_file(const std::vector<uint8_t>& f) {
+  DecodedSlices out;
+  const uint32_t count = get<uint32_t>(f, 24);
+  // Per slice: the Morton codes of its descriptors and their subdivided
+  // children (codes at the next level).
+  std::vector<std::vector<uint64_t>> sub(count);
+  for (uint32_t i = 0; i < count; ++i) {
+    const size_t e = 128 + 64 * size_t(i);
+    const uint64_t region = get<uint64_t>(f, e), offset = get<uint64_t>(f, e + 8);
+    const uint32_t parent = get<uint32_t>(f, e + 28), nodes = get<uint32_t>(f, e + 40);
+    const uint32_t voxels = get<uint32_t>(f, e + 44);
+    const int level = f[e + 56], depth = f[e + 57];
+    out.data_bytes.push_back(get<uint32_t>(f, e + 24));
+    out.child_counts.push_back(get<uint32_t>(f, e + 36));
+    std::vector<uint64_t> codes;
+    if (i == 0) {
+      codes.push_back(0);
+    } else {
+      for (uint64_t c : sub[parent])
+        if ((c >> (3 * (level - depth))) == region) codes.push_back(c);
+    }
+    EXPECT_EQ(codes.size(), nodes) << "slice " << i;
+    size_t attr = offset + 4 * size_t(nodes), contour = attr + 8 * size_t(voxels);
+    for (uint32_t n = 0; n < nodes && n < codes.size(); ++n) {
+      const uint32_t d = get<uint32_t>(f, offset + 4 * size_t(n));
+      const uint32_t leaf = d & 0xFF, valid = d >> 8 & 0xFF, cm = d >> 16 & 0xFF;
+      for (int c = 0; c < 8; ++c) {
+        if ((valid >> c & 1u) == 0) continue;
+        const uint64_t code = codes[n] << 3 | uint64_t(c);
+        Voxel v;
+        v.leaf = (leaf >> c & 1u) != 0;
+        v.attributes.color = testing::independent::decode_abgr(get<uint32_t>(f, attr));
+        v.attributes.normal = testing::independent::decode_cube_normal(get<uint32_t>(f, attr + 4));
+        attr += 8;
+        if (cm >> c & 1u) {
+          v.has_contour = true;
+          v.contour = get<uint32_t>(f, contour);
+          contour += 4;
+        }
+        if (!v.leaf) sub[i].push_back(code);
+        uint32_t x, y, z;
+        unspread(code, &x, &y, &z);
+        out.voxels[{level + 1, x, y, z}] = v;
+      }
+    }
+  }
+  return out;
+}
+
+void expect_same_voxels(const esvo::EsvoOctree& octree, const DecodedSlices& got) {
+  const testing::independent::EsvoScan scan = testing::independent::scan_esvo(octree.words);
+  ASSERT_EQ(scan.voxels.size(), got.voxels.size());
+  size_t contours = 0, bad = 0;
+  for (const testing::independent::EsvoVoxel& v : scan.voxels) {
+    const auto it = got.voxels.find({v.depth, v.x, v.y, v.z});
+    if (it == got.voxels.end()) {
+      ++bad;
+      continue;
+    }
+    const Voxel& s = it->second;
+    contours += v.has_contour;
+    bad += s.leaf != v.leaf || s.has_contour != v.has_contour ||
+           (v.has_contour && s.contour != v.contour_value) ||
+           s.attributes.color.r != v.attributes.color.r ||
+           s.attributes.color.g != v.attributes.color.g ||
+           s.attributes.color.b != v.attributes.color.b ||
+           s.attributes.color.a != v.attributes.color.a ||
+           s.attributes.normal.x != v.attributes.normal.x ||
+           s.attributes.normal.y != v.attributes.normal.y ||
+           s.attributes.normal.z != v.attributes.normal.z;
+  }
+  EXPECT_EQ(bad, 0u);
+  EXPECT_EQ(contours > 0, octree.has_contours());
+}
+
+TEST(EsvoSlices, FileHoldsTheInCoreVoxels) {
+  for (const bool contours : {false, true}) {
+    const auto octree = bunny(128, contours);
+    for (const uint64_t slice_bytes : {uint64_t(2048), uint64_t(1) << 20}) {
+      SCOPED_TRACE(std::string(contours ? "contours " : "cubes ") + std::to_string(slice_bytes));
+      const auto path = temp_file("voxels");
+      esvo::SliceOptions so;
+      so.slice_bytes = slice_bytes;
+      esvo::write_slices(*octree, path, so);
+      const std::vector<uint8_t> bytes = testing::read_bytes(path);
+      const DecodedSlices d = decode_slice_file(bytes);
+      expect_same_voxels(*octree, d);
+      // Every slice within the target (one descriptor record is at most
+      // 4 + 8 * 8 + 4 * 8 = 100 bytes, below these targets); small slices
+      // split into more than eight children somewhere (§7.1).
+      EXPECT_LE(*std::max_element(d.data_bytes.begin(), d.data_bytes.end()), slice_bytes);
+      if (slice_bytes == 2048) {
+        EXPECT_GT(*std::max_element(d.child_counts.begin(), d.child_counts.end()), 8u);
+        EXPECT_GT(d.data_bytes.size(), 50u);
+      } else {
+        EXPECT_LT(d.data_bytes.size(), size_t(octree->levels() + 1));  // one slice per level
+      }
+      // The library's reader accepts it and agrees on the hierarchy.
+      const auto file = esvo::SliceFile::open(path);
+      EXPECT_EQ(file->slices().size(), d.data_bytes.size());
+      EXPECT_EQ(file->has_contours(), contours);
+      EXPECT_NE(file->describe().find("slice hierarchy"), std::string::npos);
+      std::filesystem::remove(path);
+    }
+  }
+}
+
+// The top-down slice builder (§7.1) writes the same bytes as slicing the
+// in-core build, for several cell sizes (regions larger and smaller than a
+// cell), slice sizes and with or without attributes.
+TEST(EsvoSlices, TopDownBuilderEqualsSlicingTheInCoreBuild) {
+  const Mesh mesh = load_mesh(kMeshes / "stanford-bunny.obj");
+  struct Case {
+    uint32_t resolution;
+    bool attributes;
+    uint64_t slice_bytes;
+    std::vector<uint32_t> cells;  // 0 = from the budget
+  };
+  const Case cases[] = {{64, true, 2048, {8, 32, 0}},
+                        {64, false, 1024, {16}},
+                        {128, true, 4096, {16, 0}},
+                        {128, true, uint64_t(1) << 20, {32}}};
+  for (const Case& cs : cases) {
+    const GridTransform grid = GridTransform::fit(mesh.bounds(), cs.resolution);
+    VoxelizeOptions vo;
+    vo.attributes = cs.attributes;
+    const esvo::EsvoOctree octree = esvo::build_octree(voxelize(mesh, grid, vo));
+    const auto want_path = temp_file("in-core");
+    esvo::SliceOptions so;
+    so.slice_bytes = cs.slice_bytes;
+    esvo::write_slices(octree, want_path, so);
+    const std::vector<uint8_t> want = testing::read_bytes(want_path);
+    std::filesystem::remove(want_path);
+    for (const uint32_t cell : cs.cells) {
+      SCOPED_TRACE(std::to_string(cs.resolution) + (cs.attributes ? " attributes" : " geometry") +
+                   " slice " + std::to_string(cs.slice_bytes) + " cell " + std::to_string(cell));
+      const auto path = temp_file("top-down");
+      esvo::SliceBuildOptions bo;
+      bo.slice_bytes = cs.slice_bytes;
+      bo.cell_size = cell;
+      esvo::SliceBuildStats st;
+      esvo::build_slices(mesh, grid, vo, path, bo, &st);
+      EXPECT_TRUE(testing::read_bytes(path) == want);
+      EXPECT_EQ(st.file_bytes, want.size());
+      if (cell != 0) {
+        EXPECT_EQ(st.cell_size, cell);
+      }
+      EXPECT_GT(st.cells, 1u);
+      std::filesystem::remove(path);
+    }
+  }
+}
+
+TEST(EsvoSlices, CompressedAttributesRefused) {
+  const Mesh mesh = load_mesh(kMeshes / "stanford-bunny.obj");
+  VoxelizeOptions vo;
+  vo.attributes = true;
+  const VoxelSet v = voxelize(mesh, GridTransform::fit(mesh.bounds(), 32), vo);
+  esvo::BuildOptions o;
+  o.attributes = esvo::AttributeFormat::Compressed;
+  const esvo::EsvoOctree octree = esvo::build_octree(v, o);
+  const auto path = temp_file("compressed");
+  EXPECT_THROW(esvo::write_slices(octree, path), Error);
+  EXPECT_FALSE(std::filesystem::exists(path));
+}
+
+TEST(EsvoSlices, DamagedHeaderOrDirectoryRefused) {
+  const auto octree = bunny(64, false);
+  const auto path = temp_file("damaged");
+  esvo::SliceOptions so;
+  so.slice_bytes = 1024;
+  esvo::write_slices(*octree, path, so);
+  const std::vector<uint8_t> good = testing::read_bytes(path);
+  EXPECT_NO_THROW(esvo::SliceFile::open(path));
+  // Every byte of the header and the directory is covered by the directory
+  // hash or checked: flipping any one of a sample is refused at open.
+  const size_t dir_end = 128 + 64 * size_t(get<uint32_t>(good, 24));
+  // (About 300 positions spread over the header and directory.)
+  const size_t step = std::max<size_t>(7, dir_end / 300) | 1;
+  for (size_t at = 0; at < dir_end; at += step) {
+    std::vector<uint8_t> bad = good;
+    bad[at] ^= 0x10;
+    testing::write_bytes(path, bad);
+    EXPECT_THROW(esvo::SliceFile::open(path), Error) << "byte " << at;
+  }
+  std::vector<uint8_t> cut(good.begin(), good.end() - 4);
+  testing::write_bytes(path, cut);
+  EXPECT_THROW(esvo::SliceFile::open(path), Error);
+  std::filesystem::remove(path);
+}
+
+// Committed regression inputs (tests/data/regress/slices, also the fuzz
+// target's checks): "accept-*" files open (a damaged slice among them is
+// refused while streaming, the rest streams with every invariant intact),
+// any other is refused at open with a one-line error.
+TEST(EsvoSlices, RegressionInputs) {
+  const auto dir = std::filesystem::path(VOXCAST_TEST_DATA_DIR) / "regress" / "slices";
+  int files = 0;
+  for (const auto& entry : std::filesystem::directory_iterator(dir)) {
+    ++files;
+    const std::vector<uint8_t> bytes = testing::read_bytes(entry.path());
+    const std::string error = testing::check_slice_file(bytes);
+    const bool expect_accept = entry.path().filename().string().rfind("accept-", 0) == 0;
+    EXPECT_EQ(error.empty(), expect_accept) << entry.path() << ": " << error;
+    EXPECT_EQ(error.find('\n'), std::string::npos) << error;
+  }
+  EXPECT_GE(files, 5);
+  // Re-hashing keeps a good file good, and the damaged slices are refused
+  // while streaming, not at open.
+  auto good = testing::read_bytes(dir / "accept-slices-bunny16.vxs");
+  testing::rehash_slice_file(good);
+  EXPECT_EQ(good, testing::read_bytes(dir / "accept-slices-bunny16.vxs"));
+  for (const char* name : {"accept-slices-contour-bit-in-a-file-without-contours.vxs",
+                           "accept-slices-slice-hash-mismatch.vxs"}) {
+    esvo::StreamedEsvo s(esvo::SliceFile::open(dir / name));
+    s.load_all();
+    s.check_invariants();
+    EXPECT_GT(s.stats().refused, 0u) << name;
+    EXPECT_LT(s.stats().resident_slices, s.file().slices().size()) << name;
+  }
+}
+
+// ---- Streaming ----
+
+RenderOptions view_options(const Aabb& bounds, int size, float lod, float azimuth = 30.f,
+                           float elevation = 20.f, float distance = 0.f) {
+  RenderOptions ro;
+  ro.width = ro.height = size;
+  ro.camera = Camera::orbit(bounds, size, size, azimuth, elevation, distance);
+  ro.lod_pixels = lod;
+  ro.want_depth = true;
+  return ro;
+}
+
+bool same_pixels(const Image& a, const Image& b) {
+  return a.width == b.width && a.height == b.height && a.pixels.size() == b.pixels.size() &&
+         std::memcmp(a.pixels.data(), b.pixels.data(), a.pixels.size() * sizeof(float)) == 0;
+}
+
+/// Renders frames of `ro` (one pass each) until a frame loads nothing,
+/// checking the invariants after every pass; returns the last render.
+RenderResult stream_until_still(esvo::StreamedEsvo& s, const RenderOptions& ro, int* frames,
+                                int limit = 64) {
+  RenderResult r;
+  for (*frames = 0; *frames < limit; ++*frames) {
+    const uint64_t before = s.stats().loaded + s.stats().unloaded + s.stats().refused;
+    r = render(static_cast<Structure&>(s), ro);
+    s.check_invariants();
+    if (s.stats().loaded + s.stats().unloaded + s.stats().refused == before &&
+        s.stats().pending == 0)
+      break;
+  }
+  return r;
+}
+
+/// The bunny at `resolution`, in core and as a slice file (removed at the end).
+struct SlicedBunny {
+  SlicedBunny(uint32_t resolution, bool contours, uint64_t slice_bytes, const std::string& name)
+      : octree(bunny(resolution, contours)),
+        path(temp_file(name + (contours ? "-c" : ""))),
+        in_core(octree) {
+    esvo::SliceOptions so;
+    so.slice_bytes = slice_bytes;
+    esvo::write_slices(*octree, path, so);
+  }
+  ~SlicedBunny() { std::filesystem::remove(path); }
+  std::shared_ptr<const esvo::EsvoOctree> octree;
+  std::filesystem::path path;
+  esvo::EsvoStructure in_core;
+};
+
+class Streamed : public ::testing::TestWithParam<bool> {};  // contours
+
+TEST_P(Streamed, UnlimitedBudgetEqualsInCore) {
+  const SlicedBunny b(128, GetParam(), 4096, "unlimited");  // many slices, deep hierarchy
+  const auto& path = b.path;
+  const esvo::EsvoStructure& in_core = b.in_core;
+  for (const float lod : {0.f, 1.f}) {
+    SCOPED_TRACE("lod " + std::to_string(lod));
+    const RenderOptions ro = view_options(in_core.bounds(), 96, lod);
+    const RenderResult want = render(in_core, ro);
+    ASSERT_GT(want.hits, want.rays / 10);  // a picture worth comparing
+    esvo::StreamedEsvo s(esvo::SliceFile::open(path));
+    int frames = 0;
+    const RenderResult got = stream_until_still(s, ro, &frames);
+    EXPECT_LT(frames, 64);
+    EXPECT_GT(frames, 2);  // it did stream: the first frame only had the root slice
+    EXPECT_TRUE(same_pixels(got.color, want.color));
+    EXPECT_TRUE(same_pixels(got.depth, want.depth));
+    EXPECT_EQ(s.stats().refused, 0u);
+    // The multi-pass mode reaches the same image within one frame.
+    esvo::StreamedEsvo s2(esvo::SliceFile::open(path));
+    RenderOptions multi = ro;
+    multi.max_passes = 64;
+    const RenderResult one = render(static_cast<Structure&>(s2), multi);
+    EXPECT_TRUE(same_pixels(one.color, want.color));
+    EXPECT_GT(one.passes, 2);
+    // Everything resident: the same image as well.
+    esvo::StreamedEsvo all(esvo::SliceFile::open(path));
+    all.load_all();
+    all.check_invariants();
+    EXPECT_EQ(all.stats().resident_slices, all.file().slices().size());
+    EXPECT_TRUE(same_pixels(render(static_cast<Structure&>(all), ro).color, want.color));
+  }
+}
+
+TEST_P(Streamed, SmallBudgetConvergesWhenTheViewStops) {
+  const SlicedBunny b(256, GetParam(), 8192, "budget");
+  const auto& path = b.path;
+  const esvo::EsvoStructure& in_core = b.in_core;
+  const Aabb box = in_core.bounds();
+  // The final view: the whole bunny, 1-pixel LOD. What it needs resident:
+  const RenderOptions still = view_options(box, 80, 1.f, 30.f, 20.f);
+  const RenderResult want = render(in_core, still);
+  uint64_t needed = 0;
+  {
+    esvo::StreamedEsvo s(esvo::SliceFile::open(path));
+    int frames = 0;
+    stream_until_still(s, still, &frames);
+    needed = s.stats().resident_bytes;
+  }
+  uint64_t total = 0;
+  {
+    esvo::StreamedEsvo s(esvo::SliceFile::open(path));
+    s.load_all();
+    total = s.stats().resident_bytes;
+  }
+  ASSERT_LT(3 * needed, total);  // the budget below is well under the scene
+  esvo::StreamOptions opt;
+  opt.budget_bytes = needed;
+  esvo::StreamedEsvo s(esvo::SliceFile::open(path), opt);
+  // Fly first: close-ups from other sides fill the budget with slices the
+  // final view does not need (invariants and the budget after every pass).
+  int frames = 0;
+  for (const float az : {200.f, 250.f, 300.f}) {
+    const RenderOptions fly = view_options(box, 80, 0.5f, az, -10.f, 0.35f * length(box.extent()));
+    for (int k = 0; k < 6; ++k) {
+      render(static_cast<Structure&>(s), fly);
+      s.check_invariants();
+      EXPECT_LE(s.stats().resident_bytes, opt.budget_bytes);
+    }
+  }
+  EXPECT_GT(s.stats().unloaded, 0u);  // the fly-through had to unload
+  const RenderResult got = stream_until_still(s, still, &frames);
+  EXPECT_LT(frames, 64);
+  EXPECT_LE(s.stats().peak_resident_bytes, opt.budget_bytes);
+  EXPECT_TRUE(same_pixels(got.color, want.color));
+  EXPECT_TRUE(same_pixels(got.depth, want.depth));
+}
+
+// A budget far below what the view needs: the resident set settles (no
+// slice is loaded and unloaded again and again) and stays within the budget.
+TEST_P(Streamed, TooSmallBudgetSettlesWithoutThrashing) {
+  const SlicedBunny b(256, GetParam(), 8192, "thrash");
+  const RenderOptions still = view_options(b.in_core.bounds(), 80, 0.5f, 120.f, 10.f);
+  uint64_t needed = 0;
+  {
+    esvo::StreamedEsvo s(esvo::SliceFile::open(b.path));
+    int frames = 0;
+    stream_until_still(s, still, &frames);
+    needed = s.stats().resident_bytes;
+  }
+  esvo::StreamOptions opt;
+  opt.budget_bytes = needed / 3;
+  esvo::StreamedEsvo s(esvo::SliceFile::open(b.path), opt);
+  int quiet = 0, frames = 0;
+  for (; frames < 60 && quiet < 4; ++frames) {
+    const uint64_t before = s.stats().loaded + s.stats().unloaded;
+    render(static_cast<Structure&>(s), still);
+    s.check_invariants();
+    quiet = s.stats().loaded + s.stats().unloaded == before ? quiet + 1 : 0;
+  }
+  EXPECT_EQ(quiet, 4) << "still loading and unloading after " << frames << " frames";
+  EXPECT_GT(s.stats().pending, 0u);  // it did run out of budget
+  EXPECT_LE(s.stats().peak_resident_bytes, opt.budget_bytes);
+}
+
+TEST_P(Streamed, CorruptedSliceRefusedTheRestRenders) {
+  const SlicedBunny b(128, GetParam(), 4096, "corrupt");
+  const auto& path = b.path;
+  const esvo::EsvoStructure& in_core = b.in_core;
+  const RenderOptions ro = view_options(in_core.bounds(), 96, 0.f);
+  const RenderResult want = render(in_core, ro);
+  // Which slices the view loads, then damage one of the deepest level's.
+  std::vector<uint32_t> used;
+  {
+    esvo::StreamedEsvo s(esvo::SliceFile::open(path));
+    int frames = 0;
+    stream_until_still(s, ro, &frames);
+    int deepest = 0;
+    for (uint32_t i = 1; i < s.file().slices().size(); ++i)
+      if (s.resident(i)) deepest = std::max<int>(deepest, s.file().slices()[i].node_level);
+    for (uint32_t i = 1; i < s.file().slices().size(); ++i)
+      if (s.resident(i) && s.file().slices()[i].node_level == deepest) used.push_back(i);
+  }
+  ASSERT_FALSE(used.empty());
+  const uint32_t victim = used[used.size() / 2];
+  std::vector<uint8_t> bytes = testing::read_bytes(path);
+  const size_t e = 128 + 64 * size_t(victim);
+  bytes[get<uint64_t>(bytes, e + 8) + get<uint32_t>(bytes, e + 24) / 2] ^= 0x01;
+  testing::write_bytes(path, bytes);
+
+  esvo::StreamedEsvo s(esvo::SliceFile::open(path));  // the directory is intact
+  int frames = 0;
+  const RenderResult got = stream_until_still(s, ro, &frames);
+  EXPECT_TRUE(s.refused(victim));
+  EXPECT_EQ(s.stats().refused, 1u);
+  EXPECT_FALSE(s.resident(victim));
+  // The coarser voxel stands in: every in-core hit is still a hit (its
+  // shape contains the finer one's), and most of the image is unchanged.
+  size_t lost = 0, differ = 0;
+  const size_t n = size_t(ro.width) * size_t(ro.height);
+  for (size_t p = 0; p < n; ++p) {
+    lost += std::isfinite(want.depth.pixels[p]) && !std::isfinite(got.depth.pixels[p]);
+    differ += std::memcmp(&want.color.pixels[3 * p], &got.color.pixels[3 * p], 12) != 0;
+  }
+  EXPECT_EQ(lost, 0u);
+  EXPECT_GT(differ, 0u);
+  EXPECT_LT(differ, n / 10);
+}
+
+INSTANTIATE_TEST_SUITE_P(Contours, Streamed, ::testing::Values(false, true),
+                         [](const ::testing::TestParamInfo<bool>& i) {
+                           return i.param ? std::string("contours") : std::string("cubes");
+                         });
+
+}  // namespace
+}  // namespace voxcast
+
+namespace voxcast {
+namespace {
+
+// The CLI: build --slices, info on a slice file, render --budget --frames
+// (per-frame streaming lines; the budget bounds the resident MiB printed).
+TEST(EsvoSlicesCli, BuildInfoRender) {
+  testing::TempDir dir;
+  const std::string mesh = (kMeshes / "stanford-bunny.obj").string();
+  const std::string out = dir.file("b.vxs");
+  auto r = testing::run_cli("build '" + mesh + "' --resolution 64 --slices --slice-size 2K -o '" +
+                            out + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find(" slices (target 2.00 KiB)"), std::string::npos) << r.output;
+  const auto file = esvo::SliceFile::open(out);
+  r = testing::run_cli("info '" + out + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("slice hierarchy (esvo §7): " + std::to_string(file->slices().size()) +
+                          " slices"),
+            std::string::npos)
+      << r.output;
+  r = testing::run_cli("render '" + out + "' --budget 40K --frames 5 --size 64x64 -o '" +
+                       dir.file("b.png") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  for (int f = 0; f < 5; ++f)
+    EXPECT_NE(r.output.find("frame " + std::to_string(f) + ": loaded "), std::string::npos)
+        << r.output;
+  EXPECT_TRUE(std::filesystem::exists(dir.file("b.png")));
+  // Every frame's resident size within the 40 KiB budget.
+  int frames = 0;
+  for (size_t at = 0; (at = r.output.find(" slices ", at)) != std::string::npos; ++at) {
+    const size_t mib = r.output.find(" MiB", at);
+    if (mib == std::string::npos || r.output.compare(at, 8, " slices ") != 0) continue;
+    const double resident = std::stod(r.output.substr(at + 8, mib - at - 8));
+    EXPECT_LE(resident, 40.0 / 1024.0 + 0.005) << r.output;
+    ++frames;
+  }
+  EXPECT_EQ(frames, 5) << r.output;
+  // Usage errors: --slices with compressed attributes; --budget on a .vxc.
+  r = testing::run_cli("build '" + mesh +
+                       "' --resolution 16 --slices --attributes compressed -o '" +
+                       dir.file("c.vxs") + "'");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  r = testing::run_cli("build '" + mesh + "' --resolution 16 -o '" + dir.file("d.vxc") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  r = testing::run_cli("render '" + dir.file("d.vxc") + "' --budget 1M -o '" + dir.file("d.png") +
+                       "'");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  r = testing::run_cli("render '" + out + "' --budget lots -o '" + dir.file("e.png") + "'");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  r = testing::run_cli("render '" + out + "' --depth '" + dir.file("e.pfm") + "' -o '" +
+                       dir.file("e.png") + "'");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(dir.file("e.png")));
+}
+
+}  // namespace
+}  // namespace voxcast
