@@ -33,7 +33,7 @@ void SurfaceIntegrator::begin_frame(const Structure& structure, const FrameView&
   query_ = structure.surface();
   if (query_ == nullptr)
     throw Error("render: the " + structure.name() + " structure has no surface query");
-  cam_.emplace(view.camera, view.width, view.height);
+  cam_.emplace(view.rays());
   // Pixel cone (esvo §6.1 ray_size_coef/bias): a voxel may stand for the
   // surface once it projects to <= lod_pixels pixels; 0 keeps the finest
   // level. Perspective: the footprint grows with t; orthographic: constant.
