@@ -286,6 +286,13 @@ TEST(Gi, SameBytesOnOneAndTwoThreadsAndAcrossFrameSplits) {
   gi.reset();
   render_frame(*sc.esvo, gi, view, FrameOptions{}, &film);
   EXPECT_EQ(gi.samples(), 2u);
+  // So does another camera.
+  FrameView moved = view;
+  moved.camera.eye = moved.camera.eye * 1.01f;
+  render_frame(*sc.esvo, gi, moved, FrameOptions{}, &film);
+  EXPECT_EQ(gi.samples(), 2u);
+  render_frame(*sc.esvo, gi, view, FrameOptions{}, &film);
+  EXPECT_EQ(gi.samples(), 2u);
   EXPECT_NE(std::memcmp(film.color.pixels.data(), one.data(), one.size() * sizeof(float)), 0);
 }
 

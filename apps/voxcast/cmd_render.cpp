@@ -313,6 +313,7 @@ Runner add_render(CLI::App& app) {
     for (const View& v : views)
       for (size_t i = 0; i < given.size(); ++i) add_output(outputs, i, v.files[i]);
     require_regular_input(args->input, "scene");
+    if (use_gi) load_gi_environment(args->gi, &gi);
     {
       // Checked before anything large is allocated: the file as read, its
       // parsed copy, and per pixel the float buffers the renderer fills plus

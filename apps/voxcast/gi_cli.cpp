@@ -59,14 +59,15 @@ GiOptions gi_options(const GiArgs& a, const std::string& surface_only, uint32_t 
     o.sun_dir = normalize(d);
     o.sun_irradiance = {a.sun_intensity, a.sun_intensity, a.sun_intensity, 1.f};
   }
-  if (!a.env.empty()) {
-    require_regular_input(a.env, "environment map");
-    o.environment = std::make_shared<const Environment>(load_environment(a.env, a.env_scale));
-  } else {
-    const float s = a.env_scale;
-    o.environment = std::make_shared<const Environment>(Color{s, s, s, 1.f});
-  }
+  const float s = a.env_scale;
+  o.environment = std::make_shared<const Environment>(Color{s, s, s, 1.f});
   return o;
+}
+
+void load_gi_environment(const GiArgs& a, GiOptions* o) {
+  if (a.env.empty()) return;
+  require_regular_input(a.env, "environment map");
+  o->environment = std::make_shared<const Environment>(load_environment(a.env, a.env_scale));
 }
 
 RenderResult render_gi_view(const Structure& structure, const RenderOptions& options, GiOptions gi,

@@ -21,8 +21,12 @@ void add_gi_options(CLI::App* cmd, GiArgs& args);
 
 /// The GI options for the command line (usage errors for bad values, and
 /// for surface-integrator options that GI does not use: `surface_only`
-/// names the first of those given, empty when none). Loads --env.
+/// names the first of those given, empty when none). Reads no file: the
+/// environment is the uniform sky until load_gi_environment().
 GiOptions gi_options(const GiArgs& args, const std::string& surface_only, uint32_t seed);
+/// Reads --env (when given) into o->environment; voxcast::Error for a
+/// missing or malformed file.
+void load_gi_environment(const GiArgs& args, GiOptions* o);
 
 /// One view: `options` (size, camera, LOD, AOVs) rendered with GI, in frames
 /// of a few samples so that a progress bar can follow (the result does not

@@ -75,7 +75,7 @@ class GiIntegrator final : public Integrator {
 
   uint32_t aovs() const override;
   /// Throws voxcast::Error when the structure has no surface query. A frame
-  /// of another size than the accumulated one starts over.
+  /// of another size, camera or LOD than the accumulated ones starts over.
   void begin_frame(const Structure& structure, const FrameView& view, Film& film) override;
   void render_tile(const Structure& structure, const FrameView& view, const TileRect& tile,
                    TraceContext& ctx, Film& film) override;
@@ -99,6 +99,8 @@ class GiIntegrator final : public Integrator {
   std::vector<double> base_, sum_;
   std::vector<float> depth_, normal_;  // sample 0's primary hit (the AOVs)
   int width_ = 0, height_ = 0;
+  Camera camera_;  // the view the sums belong to
+  float lod_pixels_ = -1.f;
   uint32_t samples_ = 0;  // before this frame
   // Per frame:
   const SurfaceQuery* query_ = nullptr;

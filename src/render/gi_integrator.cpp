@@ -106,8 +106,19 @@ void GiIntegrator::begin_frame(const Structure& structure, const FrameView& view
   query_ = structure.surface();
   if (query_ == nullptr)
     throw Error("gi: the " + structure.name() + " structure has no surface query");
-  if (view.width != width_ || view.height != height_) reset();
+  // Samples of another view must not be averaged in: a new size, camera or
+  // LOD starts over (the viewer also calls reset() itself).
+  const Camera& c = view.camera;
+  auto same = [](Vec3 a, Vec3 b) { return a.x == b.x && a.y == b.y && a.z == b.z; };
+  const bool same_view = view.width == width_ && view.height == height_ &&
+                         view.lod_pixels == lod_pixels_ && same(c.eye, camera_.eye) &&
+                         same(c.target, camera_.target) && same(c.up, camera_.up) &&
+                         c.fovy_degrees == camera_.fovy_degrees &&
+                         c.projection == camera_.projection && c.ortho_width == camera_.ortho_width;
+  if (!same_view) reset();
   width_ = view.width, height_ = view.height;
+  camera_ = c;
+  lod_pixels_ = view.lod_pixels;
   const size_t n = size_t(width_) * size_t(height_);
   if (samples_ == 0) {
     base_.assign(n * 3, 0.0);
