@@ -118,6 +118,39 @@ int lit_pixels(const Image& im) {
   return n;
 }
 
+// Runs `voxcast ARGS` writing the PFM `out` and adds its pixels to `sum`
+// (the first image is kept in `single`).
+void add_render(const std::string& args, const std::string& out, std::vector<double>* sum,
+                Image* single) {
+  const CliResult r = run_cli(args);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const Image im = read_pfm(out);  // bottom row first in the file; read_pfm flips it back
+  if (sum->empty()) sum->assign(im.pixels.size(), 0.0), *single = im;
+  for (size_t i = 0; i < im.pixels.size(); ++i) (*sum)[i] += im.pixels[i];
+}
+
+// The viewer's screenshot `shot` shows the mean of five passes whose sums
+// (double) are `sum`, and not just the first pass `single`: both
+// sRGB-encoded like the viewer's texture; the viewer sums in float, so one
+// 8-bit step is allowed.
+void expect_shows_the_mean(const std::string& shot, const std::vector<double>& sum,
+                           const Image& single) {
+  Image mean = single;
+  for (size_t i = 0; i < sum.size(); ++i) mean.pixels[i] = float(sum[i] / 5.0);
+  const std::vector<uint8_t> expected = voxcast::png_bytes(mean);
+  const std::vector<uint8_t> one_pass = voxcast::png_bytes(single);
+  const Image shown = read_png(shot);
+  ASSERT_EQ(shown.pixels.size(), expected.size());
+  size_t off = 0, differs_from_one_pass = 0;
+  for (size_t i = 0; i < expected.size(); ++i) {
+    const int got = int(std::lround(shown.pixels[i] * 255.f));
+    off += std::abs(got - int(expected[i])) > 1;
+    differs_from_one_pass += got != int(one_pass[i]);
+  }
+  EXPECT_EQ(off, 0u);
+  EXPECT_GT(differs_from_one_pass, 100u);
+}
+
 }  // namespace
 
 TEST_F(ViewWindow, ScreenshotsAtPathKeyframesEqualRender) {
@@ -192,30 +225,35 @@ TEST_F(ViewWindow, StillFramesAverageAmbientOcclusionPasses) {
   Image single;
   for (int seed = 0; seed < 5; ++seed) {
     const std::string out = dir.file("seed" + std::to_string(seed) + ".pfm");
-    const CliResult r = run_cli("render '" + scene + "'" + common + " --frame end --seed " +
-                                std::to_string(seed) + " -o '" + out + "'");
-    ASSERT_EQ(r.exit_code, 0) << r.output;
-    const Image im = read_pfm(out);  // bottom row first in the file; read_pfm flips it back
-    if (sum.empty()) sum.assign(im.pixels.size(), 0.0), single = im;
-    for (size_t i = 0; i < im.pixels.size(); ++i) sum[i] += im.pixels[i];
+    add_render("render '" + scene + "'" + common + " --frame end --seed " + std::to_string(seed) +
+                   " -o '" + out + "'",
+               out, &sum, &single);
   }
-  Image mean = single;
-  for (size_t i = 0; i < sum.size(); ++i) mean.pixels[i] = float(sum[i] / 5.0);
-  // sRGB-encode both like the viewer's texture; the viewer sums in float, so
-  // allow one 8-bit step.
-  const std::vector<uint8_t> expected = voxcast::png_bytes(mean);
-  const std::vector<uint8_t> one_pass = voxcast::png_bytes(single);
-  const Image shown = read_png(shot);
-  ASSERT_EQ(shown.pixels.size(), expected.size());
-  size_t off = 0, differs_from_one_pass = 0;
-  for (size_t i = 0; i < expected.size(); ++i) {
-    const int got = int(std::lround(shown.pixels[i] * 255.f));
-    off += std::abs(got - int(expected[i])) > 1;
-    differs_from_one_pass += got != int(one_pass[i]);
-  }
-  EXPECT_EQ(off, 0u);
   // The average is not just the first pass (AO noise differs per seed).
-  EXPECT_GT(differs_from_one_pass, 100u);
+  expect_shows_the_mean(shot, sum, single);
+}
+
+TEST_F(ViewWindow, StillFramesAccumulateGiPasses) {
+  // --gi: every still pass is kGiSamplesPerPass (2) path-traced samples with
+  // seed base + k; frames 4..8 are five passes, averaged. The oracle: five
+  // `render --gi 2` runs with those seeds, the viewer's sun (the default
+  // light direction) and sky (uniform 1), averaged here in double.
+  const std::string common = " --size 96x72 --path '" + path + "'";
+  const std::string shot = dir.file("view.png");
+  const CliResult v = run_cli("view '" + scene + "'" + common + " --gi --bounces 3 --fps 4 " +
+                              "--frames 9 --screenshot '" + shot + "'");
+  ASSERT_EQ(v.exit_code, 0) << v.output;
+  EXPECT_NE(v.output.find("5 passes"), std::string::npos) << v.output;
+  std::vector<double> sum;
+  Image single;
+  for (int seed = 0; seed < 5; ++seed) {
+    const std::string out = dir.file("gi" + std::to_string(seed) + ".pfm");
+    add_render("render '" + scene + "'" + common +
+                   " --frame end --gi 2 --bounces 3 --sun -0.4,-1,-0.6 --seed " +
+                   std::to_string(seed) + " -o '" + out + "'",
+               out, &sum, &single);
+  }
+  expect_shows_the_mean(shot, sum, single);  // path-tracing noise differs per seed
 }
 
 TEST_F(ViewWindow, ScreenshotWithThePanelShowsIt) {

@@ -1,12 +1,15 @@
 // voxcast generate hairball|menger|terrain -o MESH: procedural stress meshes
-// for the voxelizer and the DAG (generate.hpp).
+// for the voxelizer and the DAG (generate.hpp); generate sky -o ENV.hdr: the
+// procedural environment map of environment.hpp.
 #include <cstdio>
 #include <filesystem>
 #include <memory>
 
 #include "cli_io.hpp"
 #include "commands.hpp"
+#include "voxcast/environment.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/exr.hpp"
 #include "voxcast/generate.hpp"
 #include "voxcast/system.hpp"
 
@@ -19,7 +22,30 @@ struct GenerateArgs {
   int tubes = 200, segments = 64, sides = 6, level = 3, size = 256, octaves = 6;
   double radius = 0.004, step = 0.04, height = 0.25, persistence = 0.5;
   std::string memory_budget;
+  std::string sky_size = "256x128", sun;  // sky
 };
+
+// generate sky: a lat-long HDR environment map for `render --gi --env`.
+int generate_sky(const GenerateArgs& a) {
+  int w = 0, h = 0;
+  parse_size(a.sky_size, &w, &h);
+  Vec3 sun = normalize(Vec3{-0.4f, -1.0f, -0.6f});  // the default light direction
+  if (!a.sun.empty()) {
+    sun = parse_vec3(a.sun, "--sun");
+    if (!(length(sun) > 0) || !std::isfinite(length(sun)))
+      throw UsageError("--sun must be a non-zero, finite vector");
+  }
+  OutputSet outputs({});
+  outputs.add("-o", a.output, {".hdr", ".exr"});
+  const Image sky = procedural_sky(w, h, sun);
+  const bool exr = std::filesystem::path(a.output).extension() == ".exr";
+  outputs.write(a.output, [&](const std::filesystem::path& to) {
+    exr ? write_exr_image(to, sky) : write_hdr(to, sky);
+  });
+  outputs.commit();
+  std::printf("%s: sky, %dx%d lat-long\n", printable(a.output).c_str(), w, h);
+  return 0;
+}
 
 // Bytes the mesh and its file text take, from the vertex and triangle counts
 // generate.hpp documents; 0 while the parameters are outside the documented
@@ -50,9 +76,13 @@ Runner add_generate(CLI::App& app) {
   CLI::App* cmd = app.add_subcommand(
       "generate",
       "Write a procedural stress mesh: hairball (random tubes), menger (sponge), "
-      "terrain (fBm height field)");
-  cmd->add_option("KIND", args->kind, "hairball | menger | terrain")->required();
-  cmd->add_option("-o,--output", args->output, "Output mesh (.obj or binary .ply)")->required();
+      "terrain (fBm height field); or an HDR environment map: sky");
+  cmd->add_option("KIND", args->kind, "hairball | menger | terrain | sky")->required();
+  cmd->add_option("-o,--output", args->output,
+                  "Output mesh (.obj or binary .ply); sky: .hdr or .exr")
+      ->required();
+  cmd->add_option("--sky-size", args->sky_size, "sky: image size WxH")->capture_default_str();
+  cmd->add_option("--sun", args->sun, "sky: glow around the sun travelling along dx,dy,dz");
   cmd->add_option("--seed", args->seed, "Random seed (hairball, terrain)")
       ->capture_default_str()
       ->check(not_negative());  // an unsigned option would take "-1" as 2^64-1
@@ -74,9 +104,10 @@ Runner add_generate(CLI::App& app) {
   cmd->add_option("--memory-budget", args->memory_budget,
                   "Refuse meshes estimated to need more (e.g. 2G; default 90% of free memory)");
   return [args]() {
+    if (args->kind == "sky") return generate_sky(*args);
     if (args->kind != "hairball" && args->kind != "menger" && args->kind != "terrain")
       throw UsageError("generate: '" + printable(args->kind) +
-                       "' is not hairball, menger or terrain");
+                       "' is not hairball, menger, terrain or sky");
     uint64_t budget = 0;
     if (!args->memory_budget.empty()) budget = parse_memory_budget(args->memory_budget);
     OutputSet outputs({});

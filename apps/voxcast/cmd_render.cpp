@@ -14,6 +14,7 @@
 #include "commands.hpp"
 #include "exr_output.hpp"
 #include "view/camera_path.hpp"
+#include "gi_cli.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_slices.hpp"
 #include "voxcast/esvo_structure.hpp"
@@ -48,6 +49,8 @@ struct RenderArgs {
   StreamArgs stream;        // --stream: brickmap worlds streamed (cmd_stream.cpp)
   // --budget and --frames (stream.budget / stream.frames) also drive slice
   // files (esvo §7): cmd_render_sliced.cpp.
+  int spp = 1;              // antialiasing: jittered camera rays per pixel (render.hpp)
+  GiArgs gi;                // --gi SPP and its options (gi_cli.hpp)
 };
 
 // The output for keyframe `index` of `count` when a whole path is rendered:
@@ -159,10 +162,15 @@ Runner add_render(CLI::App& app) {
   cmd->add_option("--seed", args->seed, "Seed of the per-pixel effect samples")
       ->capture_default_str()
       ->check(not_negative());
+  cmd->add_option("--spp", args->spp,
+                  "Antialiasing: camera rays per pixel at jittered sub-pixel offsets, the same "
+                  "on every structure (1 = pixel centers)")
+      ->capture_default_str();
+  add_gi_options(cmd, args->gi);
   cmd->add_option("--memory-budget", args->memory_budget,
                   "Refuse renders estimated to need more (e.g. 2G; default 90% of free memory)");
   add_stream_options(cmd, args->stream);
-  return [args]() {
+  return [args, cmd]() {
     ThreadLimit limit(args->threads);
     // Every option value first (usage errors, exit 2), then the files.
     RenderOptions opt;
@@ -261,6 +269,23 @@ Runner add_render(CLI::App& app) {
           {args->input, args->output, args->path, args->stream.budget, &args->camera,
            args->stream.frames},
           opt);
+    require_range("--spp", args->spp, 1, 4096);
+    opt.spp = args->spp;
+    // --gi: the GI integrator instead of the surface shading (gi_cli.hpp).
+    GiOptions gi;
+    const bool use_gi = args->gi.spp != 0;
+    if (use_gi) {
+      std::string surface_only;
+      for (const char* o :
+           {"--beam", "--stats", "--heatmap", "--filter", "--shadows", "--point-light",
+            "--area-light", "--light", "--shadow-rays", "--shadow-beam", "--ao", "--ao-radius",
+            "--ao-cone-angle", "--ao-output", "--spp"})
+        if (surface_only.empty() && cmd->count(o) > 0) surface_only = o;
+      gi = gi_options(args->gi, surface_only, args->seed);
+    } else {
+      for (const char* o :
+           {"--bounces", "--env", "--env-scale", "--sun", "--sun-intensity", "--bounce-cone"})
+        if (cmd->count(o) > 0) throw UsageError(std::string(o) + " needs --gi SPP");
     }
     uint64_t budget = 0;
     if (!args->memory_budget.empty()) budget = parse_memory_budget(args->memory_budget);
@@ -268,6 +293,7 @@ Runner add_render(CLI::App& app) {
     // at the end (OutputSet): a failure leaves every one of them untouched.
     std::vector<std::string> inputs = {args->input};
     if (!args->path.empty()) inputs.push_back(args->path);
+    if (!args->gi.env.empty()) inputs.push_back(args->gi.env);
     // Every image of one view, in this order: -o, --depth, --normals,
     // --heatmap, --ao-output (the paths as given; empty where not asked).
     const std::vector<std::string> given = {args->output, args->depth, args->normal, args->heatmap,
@@ -333,6 +359,7 @@ Runner add_render(CLI::App& app) {
     for (const View& v : views)
       for (size_t i = 0; i < given.size(); ++i) add_output(outputs, i, v.files[i]);
     require_regular_input(args->input, "scene");
+    if (use_gi) load_gi_environment(args->gi, &gi);
     {
       // Checked before anything large is allocated: the file as read, its
       // parsed copy, and per pixel the float buffers the renderer fills plus
@@ -345,6 +372,7 @@ Runner add_render(CLI::App& app) {
       if (!args->normal.empty() || layers.normal) per_pixel += 12 + 12;
       if (opt.collect_stats) per_pixel += 4 + 12 + 12;  // iterations, heat map, PNG
       if (fx.ao_rays > 0) per_pixel += 4 + 4;
+      if (use_gi) per_pixel += 24 + 24 + 16;  // two double RGB sums, sample 0's depth and normal
       // One view at a time: the images of earlier views are written before
       // the next is rendered (staged, not yet renamed into place).
       const double need = scene_bytes + per_pixel * double(opt.width) * double(opt.height);
@@ -376,7 +404,7 @@ Runner add_render(CLI::App& app) {
       {
         Progress progress("render", uint64_t(0));  // the frame loop adds the tiles
         opt.progress = &progress;
-        result = render(structure, opt);
+        result = use_gi ? render_gi_view(structure, opt, gi, args->verbose) : render(structure, opt);
         opt.progress = nullptr;
       }
       timer.mark("ray cast");
@@ -401,9 +429,13 @@ Runner add_render(CLI::App& app) {
       if (!args->heatmap.empty())
         std::printf("heatmap: %s, inferno ramp, black = 0, pale yellow = %g iterations\n",
                     printable(f[3]).c_str(), double(args->heatmap_max));
-      std::printf("%s: %dx%d, %.1f%% of pixels hit, %.2f Mrays/s\n", printable(f[0]).c_str(),
-                  opt.width, opt.height, 100.0 * double(result.hits) / double(result.rays),
-                  double(result.rays) / result.seconds * 1e-6);
+      if (use_gi)  // the rates are on render_gi_view's "gi:" line
+        std::printf("%s: %dx%d, %.1f%% of pixels hit\n", printable(f[0]).c_str(), opt.width,
+                    opt.height, 100.0 * double(result.hits) / double(result.rays));
+      else
+        std::printf("%s: %dx%d, %.1f%% of pixels hit, %.2f Mrays/s\n", printable(f[0]).c_str(),
+                    opt.width, opt.height, 100.0 * double(result.hits) / double(result.rays),
+                    double(result.rays) / result.seconds * 1e-6);
       if (fx.active()) {
         const EffectCounters& ec = result.effect_counters;
         const double secondary = double(ec.shadow_rays + ec.ao_rays);

@@ -25,6 +25,8 @@ struct ViewArgs {
   bool screenshot_ui = false, no_panel = false, filter = false, heatmap = false;
   float lod = 1.f, ao_radius = 0.f, heatmap_max = 64.f;
   int beam = 0, ao = 0, passes = 16, threads = 0;
+  bool gi = false, no_sun = false;  // progressive GI (G toggles it in the panel)
+  int bounces = 8;
   uint32_t seed = 0;
   CLI::Option* frames_option = nullptr;
 };
@@ -66,11 +68,17 @@ Runner add_view(CLI::App& app) {
   cmd->add_option("--heatmap-max", args->heatmap_max, "Iterations at the top of the ramp")
       ->capture_default_str();
   cmd->add_option("--passes", args->passes,
-                  "Passes averaged once the camera stops (AO samples refine; 1..256)")
+                  "Passes averaged once the camera stops (AO and GI samples refine; 1..256)")
       ->capture_default_str();
   cmd->add_option("--seed", args->seed, "Effect seed of the first pass (pass k: seed + k)")
       ->capture_default_str()
       ->check(not_negative());
+  cmd->add_flag("--gi", args->gi,
+                "Progressive diffuse GI: path-traced samples accumulate while the camera "
+                "stands still (up to --passes passes)");
+  cmd->add_option("--bounces", args->bounces, "With --gi: diffuse bounces at most")
+      ->capture_default_str();
+  cmd->add_flag("--no-sun", args->no_sun, "With --gi: the uniform sky alone, no sun");
   cmd->add_option("--threads", args->threads, "Render threads (0 = all cores)");
   return [args]() {
     ThreadLimit limit(args->threads);
@@ -90,6 +98,7 @@ Runner add_view(CLI::App& app) {
     require_range("--ao-radius", args->ao_radius, 0, 1e30);
     require_range("--heatmap-max", args->heatmap_max, 1e-6, 1e9);
     require_range("--passes", args->passes, 1, 256);
+    require_range("--bounces", args->bounces, 0, 1024);
     if (args->screenshot_ui && !scripted)
       throw UsageError("--screenshot-ui is for scripted runs (--frames N)");
     refuse_camera_options_with_path(args->camera, args->path);
@@ -104,6 +113,9 @@ Runner add_view(CLI::App& app) {
     s.heatmap = args->heatmap;
     s.heatmap_max = args->heatmap_max;
     s.seed = args->seed;
+    s.gi = args->gi;
+    s.gi_bounces = args->bounces;
+    s.gi_sun = !args->no_sun;
     o.max_passes = args->passes;
     o.show_panel = !args->no_panel;
     o.screenshot_ui = args->screenshot_ui;

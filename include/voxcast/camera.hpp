@@ -76,15 +76,24 @@ struct CameraRays {
   bool ortho = false;
   float half_width = 0, half_height = 0;  // orthographic: half the view in world units
   int width, height;
+  /// Where in its pixel a ray passes, in pixel units from the pixel's
+  /// top-left corner: (0.5, 0.5) = the center (the camera contract above);
+  /// antialiasing moves it (render.hpp RenderOptions::spp).
+  Vec2 sample{0.5f, 0.5f};
   CameraRays(const Camera& camera, int width, int height);
+  CameraRays(const Camera& camera, int width, int height, Vec2 sample_offset)
+      : CameraRays(camera, width, height) {
+    sample = sample_offset;
+  }
   /// Unit direction of pixel (x, y)'s ray (forward for every orthographic ray).
   Vec3 direction(int x, int y) const {
     return ortho ? forward
-                 : perspective_direction(screen_x(float(x) + 0.5f), screen_y(float(y) + 0.5f));
+                 : perspective_direction(screen_x(float(x) + sample.x),
+                                         screen_y(float(y) + sample.y));
   }
   /// Origin of pixel (x, y)'s ray (the eye for a perspective camera).
   Vec3 origin(int x, int y) const {
-    return ortho ? ortho_origin(screen_x(float(x) + 0.5f), screen_y(float(y) + 0.5f)) : eye;
+    return ortho ? ortho_origin(screen_x(float(x) + sample.x), screen_y(float(y) + sample.y)) : eye;
   }
   Ray ray(int x, int y) const { return {origin(x, y), direction(x, y), INFINITY}; }
   /// Pixel footprint = pixel_size() + pixel_angle() * t at distance t along

@@ -46,6 +46,7 @@ class EmbreeScene final : public Occluder {
     float t = INFINITY;  // distance along the unit direction, +inf on a miss
     Vec3 ng;             // Embree's geometric normal (RTCHit Ng): unnormalized, winding-oriented
     uint32_t triangle = UINT32_MAX;  // primitive index into the mesh's triangles
+    float u = 0.f, v = 0.f;          // barycentrics of the hit (Mesh::surface_color's u, v)
   };
   /// rtcIntersect1 with the hit triangle and its geometric normal.
   Hit intersect_hit(const Ray& ray) const;

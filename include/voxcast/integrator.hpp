@@ -42,8 +42,11 @@ struct FrameView {
   /// LOD: stop at voxels whose projection is <= this many pixels (0 = finest).
   float lod_pixels = 1.f;
   uint32_t frame = 0;  // frame number (usage timestamps of streaming structures)
+  /// Where in its pixel each camera ray passes (CameraRays::sample; (0.5,
+  /// 0.5) = the center). The antialiasing of render.hpp moves it per frame.
+  Vec2 sample{0.5f, 0.5f};
 
-  CameraRays rays() const { return CameraRays(camera, width, height); }
+  CameraRays rays() const { return CameraRays(camera, width, height, sample); }
   /// The pixel cone of esvo §6.1 for lod_pixels (perspective: grows with t;
   /// orthographic: constant).
   LodFootprint lod() const {

@@ -33,7 +33,17 @@ struct RenderOptions : SurfaceOptions {
   Progress* progress = nullptr;
   /// Frame number (FrameView::frame): the usage stamp of streaming structures.
   uint32_t frame = 0;
+  /// Antialiasing: camera rays per pixel (1..4096). Sample k passes through
+  /// the point (frac(0.5 + k a1), frac(0.5 + k a2)) of every pixel (the R2
+  /// low-discrepancy sequence, a1 = 0.7548776662, a2 = 0.5698402910; sample
+  /// 0 is the center), with effect seed effects.seed + k; the color, AO and
+  /// shadow images are the means, depth, normal and iterations are sample
+  /// 0's. The offsets depend on k alone: the same on every structure.
+  int spp = 1;
 };
+
+/// Sub-pixel position of antialiasing sample k (RenderOptions::spp).
+Vec2 antialias_sample(int k);
 
 struct RenderResult {
   Image color;   // linear RGB

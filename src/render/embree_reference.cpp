@@ -163,6 +163,7 @@ EmbreeScene::Hit EmbreeScene::intersect_hit(const Ray& ray) const {
   h.t = rh.ray.tfar;
   h.ng = {rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z};
   h.triangle = rh.hit.primID;
+  h.u = rh.hit.u, h.v = rh.hit.v;
   return h;
 }
 

@@ -40,7 +40,7 @@ void SurfaceIntegrator::begin_frame(const Structure& structure, const FrameView&
   isa_ = options_.isa ? *options_.isa : active_isa();
   if (!cpu_supports(isa_))
     throw Error(std::string("render: this CPU does not support ") + isa_name(isa_));
-  cam_.emplace(view.camera, view.width, view.height);
+  cam_.emplace(view.rays());
   // Pixel cone (esvo §6.1 ray_size_coef/bias): a voxel may stand for the
   // surface once it projects to <= lod_pixels pixels; 0 keeps the finest
   // level. Perspective: the footprint grows with t; orthographic: constant.

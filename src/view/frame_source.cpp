@@ -3,6 +3,8 @@
 
 #include <utility>
 
+#include "voxcast/gi_integrator.hpp"
+
 namespace voxcast::view {
 
 RenderOptions render_options(const ViewSettings& s, const Camera& camera, int width, int height,
@@ -28,6 +30,24 @@ RenderOptions render_options(const ViewSettings& s, const Camera& camera, int wi
 
 ViewFrame render_frame(const Structure& structure, const RenderOptions& options,
                        const ViewSettings& settings) {
+  if (settings.gi && !settings.heatmap) {
+    GiOptions gi;
+    gi.spp = kGiSamplesPerPass;
+    gi.bounces = settings.gi_bounces;
+    gi.sun = settings.gi_sun;
+    gi.sun_dir = options.light_dir;
+    // Every pass its own seed (render_options: the accumulator's next seed),
+    // so the viewer's running mean is the many-sample image.
+    gi.seed = options.effects.seed;
+    GiResult g =
+        render_gi(structure, options.camera, options.width, options.height, options.lod_pixels, gi);
+    ViewFrame f;
+    f.color = std::move(g.film.color);
+    f.rays = g.stats.samples;
+    f.secondary_rays = g.stats.bounce_rays + g.stats.shadow_rays;
+    f.seconds = g.stats.seconds;
+    return f;
+  }
   RenderResult r = render(structure, options);
   ViewFrame f;
   f.color =

@@ -23,6 +23,13 @@ struct ViewSettings {
   bool heatmap = false;   // show the iteration heat map instead of the colors
   float heatmap_max = 64.f;
   uint32_t seed = 0;  // seed of the first pass (pass k uses seed + k)
+  /// Progressive diffuse GI (gi_integrator.hpp) instead of the surface
+  /// shading: each pass is kGiSamplesPerPass path-traced samples with the
+  /// pass's seed under a uniform sky of radiance 1, with the sun along the
+  /// surface shading's light direction when gi_sun.
+  bool gi = false;
+  int gi_bounces = 8;
+  bool gi_sun = true;
   bool operator==(const ViewSettings&) const = default;
 };
 
@@ -37,7 +44,14 @@ struct ViewFrame {
   double seconds = 0;  // the renderer's ray-cast time
 };
 
-/// Renders one frame (a heat map when settings.heatmap).
+inline constexpr int kGiSamplesPerPass = 2;
+
+/// Whether passes after the first add anything (stochastic samples: AO or GI).
+inline bool refines(const ViewSettings& s) {
+  return !s.heatmap && (s.ao_rays > 0 || s.gi);
+}
+
+/// Renders one frame (a heat map when settings.heatmap, GI when settings.gi).
 ViewFrame render_frame(const Structure& structure, const RenderOptions& options,
                        const ViewSettings& settings);
 

@@ -82,6 +82,11 @@ PanelActions Gui::panel(bool show_panel, const SceneStats& scene, ViewSettings* 
     ImGui::Checkbox("post-filter", &s->filter);
     ImGui::Checkbox("heat map (H)", &s->heatmap);
     if (s->heatmap) ImGui::SliderFloat("heat max", &s->heatmap_max, 1.f, 512.f, "%.0f");
+    ImGui::Checkbox("GI (path traced)", &s->gi);
+    if (s->gi) {
+      ImGui::SliderInt("GI bounces", &s->gi_bounces, 0, 16);
+      ImGui::Checkbox("GI sun", &s->gi_sun);
+    }
     ImGui::SliderInt("passes", max_passes, 1, 256);
   }
   if (ImGui::CollapsingHeader("Camera", ImGuiTreeNodeFlags_DefaultOpen)) {

@@ -234,8 +234,8 @@ ViewerReport run_viewer(const LoadedScene& scene, const ViewerOptions& o) {
     }
 
     // ---- progressive render ----
-    // Only AO samples change with the seed; other frames are final after one pass.
-    accumulator.set_max_passes(settings.ao_rays > 0 && !settings.heatmap ? max_passes : 1);
+    // Only AO and GI samples change with the seed; other frames are final after one pass.
+    accumulator.set_max_passes(refines(settings) ? max_passes : 1);
     const bool view_changed = !have_shown || !same_camera(camera, shown_camera) ||
                               !(settings == shown_settings) || W != shown_width ||
                               H != shown_height;
