@@ -794,5 +794,82 @@ TEST(Giga, SoftShadowsCostFewerSamplesThanHardOnes) {
   EXPECT_LT(soft_sum, 0.95 * lit);
 }
 
+// ---- Synthesis: recursive node graphs (§3.7-3.8) ----
+
+/// Oracle: a point of the unit cube is in the Menger sponge of depth D when
+/// none of its first D base-3 digit triples has two or more 1s.
+bool in_sponge(const double p[3], int depth) {
+  double q[3] = {p[0], p[1], p[2]};
+  for (int k = 0; k < depth; ++k) {
+    int ones = 0;
+    for (double& c : q) {
+      const int digit = std::min(2, int(c * 3));
+      ones += digit == 1;
+      c = c * 3 - digit;
+    }
+    if (ones >= 2) return false;
+  }
+  return true;
+}
+
+TEST(Giga, RecursiveSpongeIsBoundedAndMatchesDigitOracle) {
+  EXPECT_THROW(RecursiveVolume::menger(0, 1.f), Error);
+  EXPECT_THROW(RecursiveVolume::menger(kMaxRecursionDepth + 1, 1.f), Error);
+  GraphNode bad;
+  bad.child.fill(3);  // names no node
+  EXPECT_THROW(RecursiveVolume({bad}, 2, 1.f), Error);
+  for (int depth : {1, 3}) {
+    const RecursiveVolume sponge = RecursiveVolume::menger(depth, 1.f);
+    EXPECT_NEAR(sponge.coverage(0, 0), std::pow(20.0 / 27.0, depth), 1e-6);
+    std::mt19937 rng(depth);
+    std::uniform_real_distribution<float> u(0.f, 1.f);
+    TraceContext ctx;
+    double worst = 0;
+    for (int i = 0; i < 60; ++i) {
+      const Vec3 from{-0.5f, u(rng), u(rng)}, to{1.5f, u(rng), u(rng)};
+      const Ray ray{from, normalize(to - from), INFINITY};
+      // Optical depth from the spans: every one is a whole cell no finer
+      // than the bound (3^-depth), constant 1 inside the sponge.
+      VolumeSpan spans[4096];
+      const int n = sponge.march(ray, 0.f, {}, ctx, spans);
+      ASSERT_LT(n, 4096) << "the march must end";
+      double tau = 0;
+      for (int k = 0; k < n; ++k) {
+        EXPECT_LE(spans[k].level, depth);
+        EXPECT_GE(spans[k].voxel_size, std::pow(3.f, -float(depth)) * 0.999f);
+        tau += double(spans[k].value.density) * (spans[k].t1 - spans[k].t0);
+      }
+      // The digit oracle by fine steps along the chord.
+      double oracle = 0;
+      const double dt = 1e-4;
+      for (double t = dt / 2; t < 3; t += dt) {
+        const double p[3] = {from.x + ray.dir.x * t, from.y + ray.dir.y * t,
+                             from.z + ray.dir.z * t};
+        if (p[0] < 0 || p[0] >= 1 || p[1] < 0 || p[1] >= 1 || p[2] < 0 || p[2] >= 1) continue;
+        oracle += in_sponge(p, depth) ? dt : 0;
+      }
+      worst = std::max(worst, std::fabs(tau - oracle));
+      // The integrator over the same spans: transmittance e^-tau.
+      VolumeIntegratorOptions o;
+      o.opacity_cutoff = 1.f;
+      const VolumeRayResult r = VolumeIntegrator(o).integrate(sponge, ray, {}, ctx);
+      EXPECT_NEAR(r.transmittance, std::exp(-tau), 1e-4);
+    }
+    EXPECT_LT(worst, 0.01) << "depth " << depth;
+  }
+  // A wide pixel cone stops at the root's children: their spans hold the
+  // prefiltered mean of the cut recursion.
+  const RecursiveVolume deep = RecursiveVolume::menger(kMaxRecursionDepth, 2.f);
+  TraceContext ctx;
+  VolumeSpan spans[64];
+  const Ray ray{{-1.f, 0.2f, 0.2f}, {1.f, 0.f, 0.f}, INFINITY};
+  const int n = deep.march(ray, 0.f, LodFootprint{0.4f, 0.f}, ctx, spans);
+  ASSERT_GT(n, 0);
+  for (int k = 0; k < n; ++k) {
+    EXPECT_EQ(spans[k].level, 1);
+    EXPECT_NEAR(spans[k].value.density, 2.f * deep.coverage(0, 1), 1e-6f);
+  }
+}
+
 }  // namespace
 }  // namespace voxcast::giga

@@ -283,7 +283,7 @@ Runner add_volume(CLI::App& app) {
     double later_seconds = 0;
     uint64_t later_rays = 0;
     // Per-pass statistics of the frames after the first (the warm ones).
-    uint64_t later_passes = 0, later_requests = 0, later_uploads = 0, later_hits = 0;
+    uint64_t later_passes = 0, later_requests = 0, later_uploads = 0;
     // One bar phase per frame; each pass adds its tiles to the frame's work.
     Progress progress("volume render",
                       std::vector<Progress::Phase>(size_t(args->frames), Progress::Phase{"", 1}));
@@ -303,7 +303,7 @@ Runner add_volume(CLI::App& app) {
         later_passes += fs.passes.size();
         for (const giga::GigaPassStats& g : volume.pass_stats())
           later_requests += g.data_requests + g.subdivide_requests,
-              later_uploads += g.bricks_uploaded + g.constants, later_hits += g.bricks_used;
+              later_uploads += g.bricks_uploaded + g.constants;
       }
       if (f + 1 == args->frames && fo.max_passes > 1 && !fs.passes.empty() &&
           fs.passes.back().requests != 0 && !Progress::quiet())
@@ -330,10 +330,9 @@ Runner add_volume(CLI::App& app) {
       const double k = double(args->frames - 1);
       std::printf(
           "%d frames after the first: %.2f frames/s, %.2f Mrays/s; per frame %.2f passes, "
-          "%.0f requests, %.0f uploads, %.0f bricks used\n",
+          "%.0f requests, %.0f uploads\n",
           args->frames - 1, k / later_seconds, double(later_rays) / later_seconds * 1e-6,
-          double(later_passes) / k, double(later_requests) / k, double(later_uploads) / k,
-          double(later_hits) / k);
+          double(later_passes) / k, double(later_requests) / k, double(later_uploads) / k);
     }
     return 0;
   };

@@ -26,6 +26,7 @@
 //
 // FrameView::frame must change from one frame to the next: the timestamps
 // tell this pass's use from older use by (frame, pass).
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <functional>
@@ -308,6 +309,55 @@ class GigaVoxels : public Structure, public VolumeQuery {
   std::vector<VolumeSample> constants_;
   uint32_t frame_ = 0, pass_ = 0;
   std::vector<GigaPassStats> passes_;
+};
+
+/// Synthesis (§3.7-3.8): a volume made of a node graph instead of stored
+/// voxels. Each node is an N^3-tree node with N = 3: 27 children, x fastest
+/// (child (x, y, z) at x + 3 (y + 3 z)), each empty, solid, or a node of the
+/// graph, so a subtree is instanced wherever the graph names it and a node
+/// naming itself recurses. The recursion is bounded: at depth max_depth a
+/// node reference counts as solid (depth 1 = the root's children). march()
+/// descends by point location (child int(3x)) and stops at a leaf, at the
+/// bound, or where the cell is no larger than the pixel cone, answering
+/// with the subtree's mean coverage (its prefiltered value) x density as a
+/// constant span: the integrator integrates every span in closed form.
+constexpr int32_t kGraphEmpty = -1, kGraphSolid = -2;
+constexpr int kMaxRecursionDepth = 16;
+struct GraphNode {
+  std::array<int32_t, 27> child{};  // kGraphEmpty, kGraphSolid or a node index
+};
+class RecursiveVolume : public Structure, public VolumeQuery {
+ public:
+  /// Node 0 is the root. Throws voxcast::Error for an empty graph, a child
+  /// naming no node, a depth outside 1..kMaxRecursionDepth, a negative
+  /// density or a non-positive size.
+  RecursiveVolume(std::vector<GraphNode> nodes, int max_depth, float density,
+                  Color color = {1.f, 1.f, 1.f, 1.f}, Vec3 origin = {0, 0, 0}, float size = 1.f);
+  /// The Menger sponge as a graph of one node: its 20 corner and edge
+  /// cells name the node itself, the 7 middle cells are empty.
+  static RecursiveVolume menger(int max_depth, float density, Color color = {1.f, 1.f, 1.f, 1.f});
+  std::string name() const override { return "recursive"; }
+  Aabb bounds() const override;
+  const VolumeQuery* volume() const override { return this; }
+  int march(const Ray& ray, float t_begin, const LodFootprint& lod, TraceContext& ctx,
+            std::span<VolumeSpan> out) const override;
+  /// The finest-level medium at p (every span is constant, so the
+  /// integrator samples nothing; for tests and tools).
+  VolumeSample sample(Vec3 p, float level, TraceContext& ctx,
+                      const VolumeSpan* span = nullptr) const override;
+  /// Mean solid fraction of `node` placed at `depth` (0 = the root), with
+  /// the recursion cut at max_depth.
+  float coverage(int32_t node, int depth) const;
+  int max_depth() const { return max_depth_; }
+
+ private:
+  std::vector<GraphNode> nodes_;
+  int max_depth_;
+  float density_;
+  Color color_;
+  Vec3 origin_;
+  float size_;
+  std::vector<float> coverage_;  // [levels left][node]
 };
 
 }  // namespace voxcast::giga

@@ -8,17 +8,19 @@
 // accumulated color C and transmittance T by
 //     C += T (1 - exp(-sigma dt)) c,   T *= exp(-sigma dt),
 // from C = 0, T = 1. Constant spans apply this once over their whole length
-// (exact); brick spans are marched by steps of step_scale x the span's voxel
-// size, each step using the sample at its midpoint (the last step is cut at
-// the span's end). A ray stops early once its opacity 1 - T reaches
-// `opacity_cutoff` (gigavoxels §3.5.1).
+// (exact); brick spans are marched by steps of step_scale x the larger of
+// the span's voxel size and the pixel cone at the span's entry, each step
+// using the sample at its midpoint (the last step is cut at the span's end),
+// the samples taken in chunks through VolumeQuery::sample_span. A ray stops early once its opacity
+// 1 - T reaches `opacity_cutoff` (gigavoxels §3.5.1).
 //
-// The level handed to VolumeQuery::sample is the pixel cone's own level
+// The level handed to VolumeQuery::sample_span is the pixel cone's own level
 // (gigavoxels §3.5.4): with footprint f(t) = lod.size_at_origin +
 // lod.size_per_t t and a span of voxel size v at level L, the voxel size
 // that matches the cone is reached at level L + log2(v / f(t)), clamped to
 // [L - 1, L], so samples blend a brick with its parent's as the cone widens
-// (quadrilinear filtering without steps at node boundaries).
+// (quadrilinear filtering without steps at node boundaries); log2 f is
+// interpolated linearly between the span's ends, where it is exact.
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -59,7 +61,8 @@ class TransferFunction {
 struct VolumeIntegratorOptions {
   /// Stop a ray once 1 - T >= this (gigavoxels §3.5.1); 1 disables it.
   float opacity_cutoff = 0.99f;
-  /// Brick spans are marched in steps of step_scale x the span's voxel size.
+  /// Brick spans are marched in steps of step_scale x max(span's voxel size,
+  /// pixel cone at the span's entry).
   float step_scale = 0.5f;
   /// The depth AOV holds the t at which the opacity first reaches this
   /// (+inf when it never does).

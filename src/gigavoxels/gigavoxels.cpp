@@ -6,6 +6,8 @@
 #include <tbb/parallel_reduce.h>
 #include <tbb/parallel_scan.h>
 
+#include "unit_cube.hpp"
+
 #if defined(__AVX2__) && defined(__FMA__)
 #include <immintrin.h>
 #endif
@@ -279,16 +281,7 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
   // The ray in unit-cube coordinates (t stays the world t).
   const Vec3 o = (ray.origin - options_.origin) * inv_size_, d = ray.dir * inv_size_;
   float t0 = std::max(0.f, t_begin), t1 = ray.tmax;
-  for (int a = 0; a < 3; ++a) {
-    if (d[a] == 0.f) {
-      if (!(o[a] >= 0.f && o[a] <= 1.f)) return 0;
-      continue;
-    }
-    float ta = -o[a] / d[a], tb = (1.f - o[a]) / d[a];
-    if (ta > tb) std::swap(ta, tb);
-    t0 = std::max(t0, ta), t1 = std::min(t1, tb);
-  }
-  if (!(t1 > t0)) return 0;
+  if (!detail::clip_unit_cube(o, d, &t0, &t1)) return 0;
   const uint32_t s = stamp(ctx.frame, ctx.pass);
   const int max_level = producer_->max_level();
   // Each node is located from a point slightly past its entry, so that the
@@ -306,15 +299,12 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
   int depth = 0;
   path[0] = 0;
   int n = 0;
-  float t = t0;
-  while (t < t1 && n < int(out.size())) {
-    const float tp = std::min(t + eps, 0.5f * (t + t1));
-    float x[3];
-    for (int a = 0; a < 3; ++a) x[a] = std::clamp(o[a] + d[a] * tp, 0.f, 1.f);
-    const float foot = lod.size_at_origin + lod.size_per_t * t;
+  uint32_t fallback = kNoNode;  // the located node's deepest ancestor with data
+  int fallback_level = 0;
+  auto locate = [&](float, const float* x, float foot) {
     // Descent by point location (§3.5.3): the child at level l + 1 is bit 0
     // of the cell floor(x 2^(l+1)), the paper's c + int(2x) unrolled.
-    auto cell_at = [&](int a, int l) {
+    auto cell_at = [x](int a, int l) {
       return std::min(uint32_t(x[a] * pow2f(l)), (uint32_t(1) << l) - 1);
     };
     // Resume at the deepest common ancestor whose ancestors all still stand
@@ -329,7 +319,7 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
       for (int a = 0; a < 3; ++a) cell[a] >>= (depth - level);
     }
     uint32_t node = path[level];
-    uint32_t fallback = level > 0 ? with[level - 1] : kNoNode;
+    fallback = level > 0 ? with[level - 1] : kNoNode;
     bool asked = false;
     for (;;) {
       const uint32_t kind = NodeDataKind::get(data_[node]);
@@ -354,7 +344,7 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
       node = tile * 8 + c, ++level;
     }
     depth = level;
-    int fallback_level = 0;
+    fallback_level = 0;
     if (fallback != kNoNode)
       while (path[fallback_level] != fallback) ++fallback_level;
     if (fallback != node && !asked) push_request(ctx, this, kRequestData, node, level);
@@ -365,7 +355,9 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
       if (d[a] > 0.f) te = std::min(te, (float(cell[a] + 1) * scale - o[a]) * inv_d[a]);
       if (d[a] < 0.f) te = std::min(te, (float(cell[a]) * scale - o[a]) * inv_d[a]);
     }
-    if (!(te > t)) te = std::min(t1, t + eps);
+    return te;
+  };
+  auto emit = [&](float t, float te) {
     if (fallback != kNoNode) {
       const uint32_t dw = data_[fallback];
       VolumeSpan span;
@@ -381,8 +373,9 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
         out[size_t(n++)] = span;
       }
     }
-    t = te;
-  }
+    return n < int(out.size());
+  };
+  detail::walk_cells(o, d, t0, t1, eps, lod.size_at_origin, lod.size_per_t, locate, emit);
   return n;
 }
 
