@@ -170,17 +170,23 @@ TEST(SceneDamageRegression, LeafOnlyDescriptorWithFarBitIsRefused) {
     const uint32_t s = stack.back();
     stack.pop_back();
     const uint32_t w0 = o.words[size_t(s) * 2];
-    const uint32_t valid = (w0 >> 8) & 0xFFu, nl = valid & ~(w0 & 0xFFu);
+    namespace L = esvo::layout;
+    const uint32_t valid = L::ValidMask::get(w0), nl = valid & ~L::LeafMask::get(w0);
     if (!nl) {
       target = s;
       break;
     }
-    uint32_t g = s + (w0 >> 17);
-    if (w0 & 0x10000u) g = uint32_t(int64_t(s) + int32_t(o.words[size_t(g) * 2]));
+    uint32_t g = s + L::ChildPointer::get(w0);
+    if (L::FarBit::test(w0)) g = uint32_t(int64_t(s) + int32_t(o.words[size_t(g) * 2]));
     for (int k = 0; k < std::popcount(nl); ++k) stack.push_back(g + uint32_t(k));
   }
   ASSERT_NE(target, 0u);
-  for (const uint32_t field : {0xFFFF0000u, 0x00010000u, 0x7FFE0000u}) {
+  // A child pointer with the far bit, the far bit alone, a near pointer of
+  // all but its top bit: each points below a descriptor without non-leaf
+  // children.
+  namespace L = esvo::layout;
+  for (const uint32_t field : {L::ChildPointer::mask | L::FarBit::mask, L::FarBit::mask,
+                               L::ChildPointer::put(L::ChildPointer::max >> 1)}) {
     testing::Mutation m;
     m.section = kEsvo;
     m.word = uint64_t(target) * 2;

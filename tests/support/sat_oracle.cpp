@@ -3,23 +3,18 @@
 #include <algorithm>
 #include <cmath>
 
+#include "voxcast/math.hpp"
 #include "voxcast/morton.hpp"
 
 namespace voxcast::testing {
 
 namespace {
 
-struct D3 {
-  double x, y, z;
-};
+// The engine's one vector type in double (math.hpp): its arithmetic is
+// plain componentwise code, nothing of the voxelizer's under test.
+using D3 = Vec3d;
 D3 sub(D3 a, D3 b) {
-  return {a.x - b.x, a.y - b.y, a.z - b.z};
-}
-D3 cross(D3 a, D3 b) {
-  return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
-}
-double dot(D3 a, D3 b) {
-  return a.x * b.x + a.y * b.y + a.z * b.z;
+  return a - b;
 }
 
 // Separated along `axis` iff the triangle's projection interval and the box's
