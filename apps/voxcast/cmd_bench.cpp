@@ -21,6 +21,7 @@
 #include <thread>
 #include <vector>
 
+#include "bench_anyhit.hpp"
 #include "camera_options.hpp"
 #include "cli_io.hpp"
 #include "commands.hpp"
@@ -28,13 +29,10 @@
 #include "render/beam.hpp"
 #include "render/bench_timing.hpp"
 #include "render/tiling.hpp"
-#include "voxcast/dag.hpp"
 #include "voxcast/effects.hpp"
 #include "voxcast/embree_reference.hpp"
 #include "voxcast/error.hpp"
-#include "voxcast/esvo_structure.hpp"
 #include "voxcast/format_registry.hpp"
-#include "voxcast/occlusion_packets.hpp"
 #include "voxcast/packet_caster.hpp"
 #include "voxcast/progress.hpp"
 #include "voxcast/render.hpp"
@@ -272,24 +270,6 @@ Timed occluded_all_packets(const SurfacePackets& s, const std::vector<Ray>& rays
     TraceContext ctx;
     s.occluded_packets(rays.data() + b, e - b, LodFootprint{}, ctx, o + b, active_isa());
   });
-}
-
-// The any-hit packet casters (occlusion_packets.hpp) of a structure: they
-// exist for the octree family only and are not part of SurfaceQuery (which
-// offers them through transmittance_batch), so the bench rows that time
-// them directly find them here. Empty for any other structure.
-using AnyHitCaster = std::function<void(const Ray* rays, size_t n, uint8_t* occluded,
-                                        const AnyHitOptions& o, AnyHitStats* stats)>;
-AnyHitCaster anyhit_caster(const Structure& st) {
-  if (const auto* e = dynamic_cast<const esvo::EsvoStructure*>(&st))
-    return [e](const Ray* rays, size_t n, uint8_t* occ, const AnyHitOptions& o, AnyHitStats* s) {
-      occluded_anyhit(*e, rays, n, LodFootprint{}, occ, o, s);
-    };
-  if (const auto* d = dynamic_cast<const dag::DagStructure*>(&st))
-    return [d](const Ray* rays, size_t n, uint8_t* occ, const AnyHitOptions& o, AnyHitStats* s) {
-      occluded_anyhit(*d, rays, n, LodFootprint{}, occ, o, s);
-    };
-  return {};
 }
 
 // The any-hit packets, every ray from the root: each chunk as one call.

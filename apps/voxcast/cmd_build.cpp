@@ -4,12 +4,11 @@
 #include <cstdio>
 #include <filesystem>
 
+#include "build_slices.hpp"
 #include "cli_io.hpp"
 #include "commands.hpp"
 #include "pipeline.hpp"
 #include "voxcast/error.hpp"
-#include "voxcast/esvo_slices.hpp"
-#include "voxcast/esvo_structure.hpp"
 #include "voxcast/format_registry.hpp"
 #include "voxcast/progress.hpp"
 #include "voxcast/scene_file.hpp"
@@ -199,10 +198,11 @@ Runner add_build(CLI::App& app) {
           "a voxel file input is built as it is: no --contours, --fill or --out-of-core");
     s.cell_size = args->cell_size;
     s.dag_attributes = !args->no_attributes;
-    if (args->slices && (s.format != "esvo" || s.attributes != esvo::AttributeFormat::Raw))
-      throw UsageError("--slices needs --format esvo with --attributes raw");
-    esvo::SliceOptions slice_options;
-    if (args->slices) slice_options.slice_bytes = parse_byte_size(args->slice_size.c_str());
+    uint64_t slice_bytes = 0;
+    if (args->slices) {
+      check_slice_settings(s);
+      slice_bytes = parse_byte_size(args->slice_size.c_str());
+    }
     OutputSet outputs({args->input});
     if (args->slices)
       outputs.add("-o", args->output, {".vxs"});
@@ -213,27 +213,13 @@ Runner add_build(CLI::App& app) {
     if (args->slices && !s.contours && !s.fill_solid && !is_voxel_input(args->input)) {
       // Full depth: the top-down slice builder (esvo §7.1), which never holds
       // the octree; contours (and voxel files) slice the in-core build below.
-      MeshLoadStats mesh_stats;
-      const Mesh mesh =
-          load_build_mesh(s.mesh_path, effective_budget(s.memory_budget), &mesh_stats, s.verbose);
-      const GridTransform grid = build_grid(s, mesh.bounds());
-      VoxelizeOptions vo;
-      vo.mode = s.mode;
-      vo.attributes = true;
-      esvo::SliceBuildOptions bo;
-      bo.slice_bytes = slice_options.slice_bytes;
-      bo.memory_budget = s.memory_budget;
-      bo.cell_size = s.cell_size;
-      esvo::SliceBuildStats st;
+      std::string summary;
       outputs.write(args->output, [&](const std::filesystem::path& to) {
-        esvo::build_slices(mesh, grid, vo, to, bo, &st);
+        summary = build_slices_top_down(s, slice_bytes, to);
       });
       outputs.commit();
-      std::printf("%s: %llu slices (target %s), %s, top-down from %llu cells of %u^3, %.2f s\n",
-                  printable(args->output).c_str(), (unsigned long long)st.slices,
-                  format_bytes(double(bo.slice_bytes)).c_str(),
-                  format_bytes(double(st.file_bytes)).c_str(), (unsigned long long)st.cells,
-                  st.cell_size, total.mark("total"));
+      std::printf("%s: %s, %.2f s\n", printable(args->output).c_str(), summary.c_str(),
+                  total.mark("total"));
       return 0;
     }
     BuiltScene built = build_scene(s);
@@ -248,8 +234,7 @@ Runner add_build(CLI::App& app) {
     info.leaf_voxels = built.leaf_voxels;
     outputs.write(args->output, [&](const std::filesystem::path& to) {
       if (args->slices)
-        esvo::write_slices(dynamic_cast<const esvo::EsvoStructure&>(*built.structure).octree(), to,
-                           slice_options);
+        write_slice_file(*built.structure, slice_bytes, to);
       else
         save_scene(to, s.format, *built.structure, info);
     });
@@ -262,10 +247,8 @@ Runner add_build(CLI::App& app) {
         std::fprintf(stderr, "build: %s: %s\n", printable(st.key).c_str(),
                      printable(st.value).c_str());
     if (args->slices) {
-      const auto file = esvo::SliceFile::open(args->output);
-      std::printf("%s: %zu slices (target %s), %s, %.2f s\n", printable(args->output).c_str(),
-                  file->slices().size(), format_bytes(double(slice_options.slice_bytes)).c_str(),
-                  format_bytes(double(file->header().file_bytes)).c_str(), total.mark("total"));
+      std::printf("%s: %s, %.2f s\n", printable(args->output).c_str(),
+                  describe_slice_file(args->output, slice_bytes).c_str(), total.mark("total"));
       return 0;
     }
     DescribeStyle style;

@@ -9,12 +9,12 @@
 
 #include "camera_options.hpp"
 #include "cli_io.hpp"
-#include "stream_render.hpp"
 #include "cmd_render_sliced.hpp"
 #include "commands.hpp"
 #include "exr_output.hpp"
-#include "view/camera_path.hpp"
 #include "gi_cli.hpp"
+#include "stream_render.hpp"
+#include "view/camera_path.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_slices.hpp"
 #include "voxcast/esvo_structure.hpp"
@@ -49,8 +49,8 @@ struct RenderArgs {
   StreamArgs stream;        // --stream: brickmap worlds streamed (cmd_stream.cpp)
   // --budget and --frames (stream.budget / stream.frames) also drive slice
   // files (esvo §7): cmd_render_sliced.cpp.
-  int spp = 1;              // antialiasing: jittered camera rays per pixel (render.hpp)
-  GiArgs gi;                // --gi SPP and its options (gi_cli.hpp)
+  int spp = 1;  // antialiasing: jittered camera rays per pixel (render.hpp)
+  GiArgs gi;    // --gi SPP and its options (gi_cli.hpp)
 };
 
 // The output for keyframe `index` of `count` when a whole path is rendered:
@@ -265,10 +265,10 @@ Runner add_render(CLI::App& app) {
         throw UsageError(
             "a slice file renders color only: no --depth, --normals, --heatmap, --aov, "
             "--ao-output, --stats, --beam, --filter or --frame");
-      return render_sliced(
-          {args->input, args->output, args->path, args->stream.budget, &args->camera,
-           args->stream.frames},
-          opt);
+      return render_sliced({args->input, args->output, args->path, args->stream.budget,
+                            &args->camera, args->stream.frames},
+                           opt);
+    }
     require_range("--spp", args->spp, 1, 4096);
     opt.spp = args->spp;
     // --gi: the GI integrator instead of the surface shading (gi_cli.hpp).
@@ -404,7 +404,8 @@ Runner add_render(CLI::App& app) {
       {
         Progress progress("render", uint64_t(0));  // the frame loop adds the tiles
         opt.progress = &progress;
-        result = use_gi ? render_gi_view(structure, opt, gi, args->verbose) : render(structure, opt);
+        result =
+            use_gi ? render_gi_view(structure, opt, gi, args->verbose) : render(structure, opt);
         opt.progress = nullptr;
       }
       timer.mark("ray cast");

@@ -24,7 +24,7 @@ void esvo::EsvoStructure::transmittance_batch(const Ray* rays, size_t n, const L
                                               const Vec3* normals) const {
   (void)group, (void)normals;
   auto occluded = [&](const Ray* r, size_t m, uint8_t* hit) {
-    occluded_packets(*this, r, m, lod, hit);
+    ::voxcast::occluded_packets(*this, r, m, lod, hit);
   };
   ::voxcast::detail::structure_transmittance_batch(*this, occluded, rays, n, lod, ctx, out);
 }

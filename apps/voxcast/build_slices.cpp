@@ -1,0 +1,59 @@
+#include "build_slices.hpp"
+
+#include <cstdio>
+
+#include "cli_io.hpp"
+#include "commands.hpp"
+#include "voxcast/error.hpp"
+#include "voxcast/esvo_slices.hpp"
+#include "voxcast/esvo_structure.hpp"
+
+namespace voxcast::cli {
+
+void check_slice_settings(const BuildSettings& s) {
+  if (s.format != "esvo" || s.compress_attributes)
+    throw UsageError("--slices needs --format esvo with --attributes raw");
+}
+
+std::string build_slices_top_down(const BuildSettings& s, uint64_t slice_bytes,
+                                  const std::filesystem::path& to) {
+  MeshLoadStats mesh_stats;
+  const Mesh mesh =
+      load_build_mesh(s.mesh_path, effective_budget(s.memory_budget), &mesh_stats, s.verbose);
+  const GridTransform grid = build_grid(s, mesh.bounds());
+  VoxelizeOptions vo;
+  vo.mode = s.mode;
+  vo.attributes = true;
+  esvo::SliceBuildOptions bo;
+  bo.slice_bytes = slice_bytes;
+  bo.memory_budget = s.memory_budget;
+  bo.cell_size = s.cell_size;
+  esvo::SliceBuildStats st;
+  esvo::build_slices(mesh, grid, vo, to, bo, &st);
+  char line[256];
+  std::snprintf(line, sizeof line, "%llu slices (target %s), %s, top-down from %llu cells of %u^3",
+                (unsigned long long)st.slices, format_bytes(double(slice_bytes)).c_str(),
+                format_bytes(double(st.file_bytes)).c_str(), (unsigned long long)st.cells,
+                st.cell_size);
+  return line;
+}
+
+void write_slice_file(const Structure& structure, uint64_t slice_bytes,
+                      const std::filesystem::path& to) {
+  const auto* e = dynamic_cast<const esvo::EsvoStructure*>(&structure);
+  if (!e) throw Error("--slices: the built structure is not an ESVO octree");
+  esvo::SliceOptions o;
+  o.slice_bytes = slice_bytes;
+  esvo::write_slices(e->octree(), to, o);
+}
+
+std::string describe_slice_file(const std::string& path, uint64_t slice_bytes) {
+  const auto file = esvo::SliceFile::open(path);
+  char line[256];
+  std::snprintf(line, sizeof line, "%zu slices (target %s), %s", file->slices().size(),
+                format_bytes(double(slice_bytes)).c_str(),
+                format_bytes(double(file->header().file_bytes)).c_str());
+  return line;
+}
+
+}  // namespace voxcast::cli
