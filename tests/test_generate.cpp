@@ -188,7 +188,7 @@ TEST(Generate, CliWritesAndRejectsBadInput) {
     std::string args, message;
   };
   for (const Bad& b :
-       {Bad{"generate donut -o " + dir.file("x.obj"), "not hairball, menger or terrain"},
+       {Bad{"generate donut -o " + dir.file("x.obj"), "not hairball, menger, terrain or sky"},
         Bad{"generate menger --level 9 -o " + dir.file("x.obj"), "level 9 is outside"},
         Bad{"generate terrain --size 1 -o " + dir.file("x.obj"), "size 1 is outside"},
         Bad{"generate hairball --sides 2 -o " + dir.file("x.obj"), "sides 2"},
