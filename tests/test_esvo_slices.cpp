@@ -309,6 +309,38 @@ TEST(EsvoSlices, RegressionInputs) {
   }
 }
 
+// Damage behind recomputed hashes (a buggy writer, a hostile file): 32-bit
+// words of the header, directory and slice data set to 0xFFFFFFFF, 0,
+// 0x80000000 and +1, every hash recomputed, then opened and streamed
+// (check_slice_file aborts on a broken invariant or a crash would end the
+// test). Each file is refused in one line or streams with its invariants.
+TEST(EsvoSlices, RehashedWordEditsAreRefusedOrStreamSafely) {
+  const auto dir = std::filesystem::path(VOXCAST_TEST_DATA_DIR) / "regress" / "slices";
+  const std::vector<uint8_t> good = testing::read_bytes(dir / "accept-slices-bunny16.vxs");
+  ASSERT_GT(good.size(), 256u);
+  // Every word of the first 4 KiB (header and directory), then a stride
+  // through the slice data: ~1,200 files.
+  std::vector<size_t> at;
+  for (size_t o = 0; o + 4 <= good.size() && o < 4096; o += 4) at.push_back(o);
+  const size_t stride = std::max<size_t>(4, (good.size() / 300) & ~size_t(3));
+  for (size_t o = 4096; o + 4 <= good.size(); o += stride) at.push_back(o);
+  size_t refused = 0, accepted = 0;
+  for (size_t o : at)
+    for (const uint32_t edit : {0xFFFFFFFFu, 0u, 0x80000000u, 1u}) {
+      std::vector<uint8_t> b = good;
+      uint32_t w;
+      std::memcpy(&w, b.data() + o, 4);
+      const uint32_t v = edit == 1u ? w + 1 : edit;
+      if (v == w) continue;
+      std::memcpy(b.data() + o, &v, 4);
+      testing::rehash_slice_file(b);
+      const std::string error = testing::check_slice_file(b);
+      EXPECT_EQ(error.find('\n'), std::string::npos) << o << ": " << error;
+      (error.empty() ? accepted : refused) += 1;
+    }
+  EXPECT_GT(refused, 0u);  // the validators behind the hashes do refuse
+}
+
 // ---- Streaming ----
 
 RenderOptions view_options(const Aabb& bounds, int size, float lod, float azimuth = 30.f,

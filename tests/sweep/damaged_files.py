@@ -54,6 +54,7 @@ SCENE_FORMATS = {
     'esvo_variable_depth': '--resolution 64 --contours --geometry-error 1',
     'dag_raw': '--resolution 64 --format dag',
     'dag_compressed': '--resolution 64 --format dag --attributes compressed',
+    'brickmap': '--resolution 64 --format brickmap',
 }
 EDITS = (0xFFFFFFFF, 0, 0x80000000, 'random', '+1', '-1', 'bit')
 
