@@ -273,6 +273,85 @@ TEST(DagCompressed, LodMeansAreMeansOfDecodedValues) {
   EXPECT_EQ(n.x, mn.x);
 }
 
+TEST(DagLodMeans, TableHoldsEveryLargeCubeWithItsBruteForceMean) {
+  // dag.hpp `cube_means`: every cube of more than kCubeMeanMin voxels at
+  // levels 0 .. L-3, and no other, with the mean of its leaves (summed here
+  // in double from voxel_attributes) and exactly mean_attributes' floats.
+  const SparseVoxelDag raw = dag::build_dag(smooth_shell(7));
+  const SparseVoxelDag cmp = compressed(raw);
+  for (const SparseVoxelDag* d : {&raw, &cmp}) {
+    const int L = d->levels();
+    size_t large = 0, checked = 0;
+    for (int level = 0; level <= L; ++level) {
+      for (uint64_t v = 0; v < d->leaf_voxels;) {
+        const dag::VoxelRange r = d->cube_range(v, level);
+        v += r.count;
+        const SparseVoxelDag::CubeMean* e = d->cached_mean(r.first, level);
+        if (level > L - 3 || r.count <= SparseVoxelDag::kCubeMeanMin) {
+          EXPECT_EQ(e, nullptr) << "level " << level << " first " << r.first;
+          continue;
+        }
+        ++large;
+        ASSERT_NE(e, nullptr) << "level " << level << " first " << r.first;
+        EXPECT_EQ(d->cached_mean(r.first + 1, level), nullptr);  // not a cube's first voxel
+        double s[7] = {};
+        for (uint64_t i = r.first; i < r.first + r.count; ++i) {
+          Color c;
+          Vec3 n;
+          d->voxel_attributes(i, &c, &n);
+          const double x[7] = {c.r, c.g, c.b, c.a, n.x, n.y, n.z};
+          for (int k = 0; k < 7; ++k) s[k] += x[k];
+        }
+        const double inv = 1.0 / double(r.count);
+        EXPECT_NEAR(e->color.r, s[0] * inv, 1e-5) << "level " << level << " first " << r.first;
+        EXPECT_NEAR(e->color.g, s[1] * inv, 1e-5);
+        EXPECT_NEAR(e->color.b, s[2] * inv, 1e-5);
+        EXPECT_NEAR(e->color.a, s[3] * inv, 1e-5);
+        const double len = std::sqrt(s[4] * s[4] + s[5] * s[5] + s[6] * s[6]);
+        if (len * inv > 1e-3) {
+          ++checked;
+          EXPECT_NEAR(e->normal.x, s[4] / len, 1e-4) << "level " << level << " first " << r.first;
+          EXPECT_NEAR(e->normal.y, s[5] / len, 1e-4);
+          EXPECT_NEAR(e->normal.z, s[6] / len, 1e-4);
+        }
+        Color m;
+        Vec3 mn;
+        d->mean_attributes(r, &m, &mn);
+        EXPECT_TRUE(std::memcmp(&m, &e->color, sizeof m) == 0 &&
+                    std::memcmp(&mn, &e->normal, sizeof mn) == 0)
+            << "level " << level << " first " << r.first;
+      }
+    }
+    size_t entries = 0;
+    for (const SparseVoxelDag::CubeMean& e : d->cube_means) entries += e.level >= 0;
+    EXPECT_EQ(entries, large);
+    EXPECT_GT(large, 100u);
+    EXPECT_GT(checked, large / 2);
+    EXPECT_LE(4 * entries, 3 * d->cube_means.size());  // load <= 3/4
+    // The structure shades a cached cube's hit with the table's entry.
+    dag::DagStructure st(std::make_shared<SparseVoxelDag>(*d));
+    const dag::VoxelRange r = d->cube_range(d->leaf_voxels / 2, L - 3);
+    ASSERT_NE(d->cached_mean(r.first, L - 3), nullptr);
+    SurfaceHit hit{};
+    hit.voxel_ref = r.first;
+    hit.level = L - 3;
+    TraceContext ctx;
+    Color c, m;
+    Vec3 n, mn;
+    st.attributes(hit, ctx, &c, &n);
+    d->mean_attributes(r, &m, &mn);
+    EXPECT_EQ(c.r, m.r);
+    EXPECT_EQ(c.b, m.b);
+    EXPECT_EQ(n.x, mn.x);
+    EXPECT_EQ(n.z, mn.z);
+  }
+  // Without attributes: no table.
+  SparseVoxelDag bare = raw;
+  bare.colors.clear(), bare.normals.clear();
+  bare.finalize();
+  EXPECT_TRUE(bare.cube_means.empty());
+}
+
 TEST(DagCompressed, DeterministicForOneAndTwoThreads) {
   const SparseVoxelDag raw = dag::build_dag(testing::make_random_voxels(8, 80000, 5));
   SparseVoxelDag one = raw, two = raw;

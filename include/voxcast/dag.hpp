@@ -208,6 +208,46 @@ class SparseVoxelDag {
   static constexpr int kAttributeBlock = 64;
   static constexpr double kAttributeSumOne = 16777216.0;  // 2^24
   std::vector<std::array<int64_t, 7>> attribute_prefix;
+
+  // Derived by finalize() when there are attributes (never stored in files):
+  // the LOD means of every cube of more than kCubeMeanMin leaf voxels at
+  // levels 0 .. L - 3 (the 8^3 cubes and up: finer ones, at most 64 voxels,
+  // keep the direct sum and skip the probe, a likely cache miss), so that a coarse hit
+  // on one of them costs one hashed lookup instead of cube_range's descent
+  // and mean_attributes' sums. Open addressing (linear probing) on (first
+  // voxel, level), load <= 3/4, empty slots have level -1; each entry is
+  // mean_attributes(cube_range(first, level)), so the answer is the same
+  // floats either way. Smaller cubes keep the direct path (<= 32 voxels
+  // summed). Entries are filled in Morton order, so the table is the same
+  // for every thread count.
+  struct CubeMean {
+    uint64_t first = 0;
+    int32_t level = -1;
+    Color color;
+    Vec3 normal;
+  };
+  static constexpr uint64_t kCubeMeanMin = 32;
+  std::vector<CubeMean> cube_means;  // 4/3 slots per entry (+1), or none
+  /// The table's entry for the cube at `level` whose first leaf voxel is
+  /// `first`, or null (a cube of <= kCubeMeanMin voxels, or `first` is not
+  /// the first voxel of a cube at that level).
+  const CubeMean* cached_mean(uint64_t first, int level) const {
+    const size_t n = cube_means.size();
+    if (n == 0 || level > grid.levels - 3) return nullptr;
+    for (size_t s = cube_mean_slot(first, level, n);;) {
+      const CubeMean& e = cube_means[s];
+      if (e.level < 0) return nullptr;
+      if (e.first == first && e.level == level) return &e;
+      if (++s == n) s = 0;
+    }
+  }
+  /// Home slot of (first, level) in a table of n slots (multiply-shift hash
+  /// mapped to [0, n) by a 64 x 64 -> 128-bit product).
+  static size_t cube_mean_slot(uint64_t first, int level, size_t n) {
+    uint64_t h = (first ^ uint64_t(level) << 58) * 0x9E3779B97F4A7C15ull;
+    h ^= h >> 29;
+    return size_t((unsigned __int128)h * n >> 64);
+  }
 };
 
 /// Builds the DAG of `voxels` (L >= 2; throws voxcast::Error otherwise):

@@ -71,6 +71,48 @@ void derive_attribute_prefix(SparseVoxelDag& d) {
       d.attribute_prefix[b][size_t(k)] += d.attribute_prefix[b - 1][size_t(k)];
 }
 
+// The LOD mean table (dag.hpp `cube_means`): the cubes of more than
+// kCubeMeanMin voxels, found by a depth-first walk by position (a node's
+// subtree count is its header's prefix entry; children hold fewer voxels, so
+// the walk stops at the first cube that is too small), their means computed
+// in parallel by mean_attributes itself, then inserted in walk order.
+void derive_cube_means(SparseVoxelDag& d) {
+  d.cube_means.clear();
+  if (!d.has_attributes()) return;
+  const int L = d.grid.levels;
+  if (L < 3) return;
+  std::vector<std::pair<uint64_t, int>> cubes;  // (first voxel, level)
+  std::vector<uint64_t> counts;
+  auto visit = [&](auto&& self, uint32_t w, int level, uint64_t first) -> void {
+    const uint64_t count = d.prefix_entry(w);  // level <= L - 3: an interior node
+    if (count <= SparseVoxelDag::kCubeMeanMin) return;
+    cubes.push_back({first, level});
+    counts.push_back(count);
+    if (level == L - 3) return;
+    const int k = std::popcount(layout::ChildMask::get(d.words[w]));
+    for (int j = 0; j < k; ++j) {
+      const uint32_t p = w + 1 + uint32_t(j);
+      self(self, d.words[p], level + 1, first + (j == 0 ? 0 : d.prefix_entry(p)));
+    }
+  };
+  visit(visit, 0, 0, 0);
+  if (cubes.empty()) return;
+  std::vector<SparseVoxelDag::CubeMean> means(cubes.size());
+  tbb::parallel_for(size_t(0), cubes.size(), [&](size_t i) {
+    SparseVoxelDag::CubeMean& e = means[i];
+    e.first = cubes[i].first, e.level = cubes[i].second;
+    d.mean_attributes({e.first, counts[i]}, &e.color, &e.normal);
+  });
+  const size_t slots = cubes.size() + cubes.size() / 3 + 1;
+  d.cube_means.assign(slots, {});
+  for (const SparseVoxelDag::CubeMean& e : means) {
+    size_t s = SparseVoxelDag::cube_mean_slot(e.first, e.level, slots);
+    while (d.cube_means[s].level >= 0)
+      if (++s == slots) s = 0;
+    d.cube_means[s] = e;
+  }
+}
+
 }  // namespace
 
 void SparseVoxelDag::finalize() {
@@ -204,6 +246,7 @@ void SparseVoxelDag::finalize() {
               std::to_string(leaf_voxels) + " voxels");
   }
   derive_attribute_prefix(*this);
+  derive_cube_means(*this);
 }
 
 void SparseVoxelDag::compress_attributes() {
@@ -225,6 +268,7 @@ void SparseVoxelDag::compress_attributes() {
   colors = {};
   normals = {};
   derive_attribute_prefix(*this);
+  derive_cube_means(*this);
 }
 
 DagStats SparseVoxelDag::stats() const {
@@ -263,7 +307,8 @@ DagStats SparseVoxelDag::stats() const {
   st.svo_bytes = st.svo_nodes;
   st.esvo_bytes = st.svo_nodes * 8;
   st.index_bytes = uint64_t(voxel_prefix.size()) * 4 + uint64_t(voxel_prefix_wide.size()) * 8 +
-                   uint64_t(attribute_prefix.size()) * sizeof(attribute_prefix[0]);
+                   uint64_t(attribute_prefix.size()) * sizeof(attribute_prefix[0]) +
+                   uint64_t(cube_means.size()) * sizeof(CubeMean);
   st.attribute_bytes = uint64_t(colors.size() + normals.size() + attribute_blocks.size()) * 4;
   st.compressed_attributes = compressed_attributes();
   st.bits_per_voxel = st.leaf_voxels ? double(st.dag_bytes) * 8.0 / double(st.leaf_voxels) : 0.0;

@@ -65,10 +65,16 @@ void DagStructure::attributes(const SurfaceHit& hit, TraceContext& ctx, Color* c
   if (dag_->has_attributes()) {
     // A coarse (LOD) hit shows the mean of all its leaf voxels (dag.hpp),
     // as an ESVO parent shows its children's average (esvo §5.4).
-    if (hit.level < dag_->levels() && hit.voxel_ref < dag_->leaf_voxels)
+    // Cubes of more than kCubeMeanMin voxels: one lookup in the mean table.
+    if (hit.level < dag_->levels() && hit.voxel_ref < dag_->leaf_voxels) {
+      if (const SparseVoxelDag::CubeMean* m = dag_->cached_mean(hit.voxel_ref, hit.level)) {
+        *color = m->color, *normal = m->normal;
+        return;
+      }
       dag_->mean_attributes(dag_->cube_range(hit.voxel_ref, hit.level), color, normal);
-    else
+    } else {
       dag_->voxel_attributes(hit.voxel_ref, color, normal);
+    }
     return;
   }
   // Geometry-only DAG: gray, normal of the entered cube face.
