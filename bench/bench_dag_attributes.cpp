@@ -107,6 +107,44 @@ void BM_DagMeanAttributesLod3(benchmark::State& state) {
 }
 BENCHMARK(BM_DagMeanAttributesLod3)->Arg(0)->Arg(1);
 
+/// ns per coarse (LOD) hit's attributes, `range(0)` levels above the leaves:
+/// range(1) = 0 the path without the mean table (cube_range's descent, then
+/// mean_attributes), 1 DagStructure::attributes (the table's lookup for cubes
+/// of more than kCubeMeanMin voxels at levels <= L-3, dag.hpp `cube_means`).
+void BM_DagLodHitAttributes(benchmark::State& state) {
+  const SparseVoxelDag& d = bench_dag(false);
+  const int level = d.levels() - int(state.range(0));
+  const bool table = state.range(1) != 0;
+  static std::map<const SparseVoxelDag*, std::unique_ptr<voxcast::dag::DagStructure>> structures;
+  auto& st = structures[&d];
+  if (!st)
+    st = std::make_unique<voxcast::dag::DagStructure>(std::shared_ptr<const SparseVoxelDag>(
+        std::shared_ptr<const SparseVoxelDag>{}, &d));  // not owned: bench_dag keeps it
+  std::vector<voxcast::SurfaceHit> hits;
+  for (uint64_t i : random_indices(d.leaf_voxels, 1 << 12)) {
+    voxcast::SurfaceHit h{};
+    h.voxel_ref = d.cube_range(i, level).first;
+    h.level = level;
+    hits.push_back(h);
+  }
+  voxcast::TraceContext ctx;
+  size_t k = 0;
+  for (auto _ : state) {
+    voxcast::Color c;
+    voxcast::Vec3 n;
+    const voxcast::SurfaceHit& h = hits[k];
+    if (table)
+      st->attributes(h, ctx, &c, &n);
+    else
+      d.mean_attributes(d.cube_range(h.voxel_ref, h.level), &c, &n);
+    benchmark::DoNotOptimize(c);
+    benchmark::DoNotOptimize(n);
+    k = (k + 1) & (hits.size() - 1);
+  }
+  state.SetLabel(table ? "mean table" : "cube_range + mean_attributes");
+}
+BENCHMARK(BM_DagLodHitAttributes)->ArgsProduct({{1, 2, 3, 4, 5}, {0, 1}});
+
 /// Not a timing: the compression error of the §5.5 blocks over every leaf
 /// voxel, compressed vs raw, as counters (docs/BENCHMARKS.md "DAG
 /// attributes"): colors as the largest 8-bit sRGB channel difference, normals
