@@ -71,39 +71,72 @@ void derive_attribute_prefix(SparseVoxelDag& d) {
       d.attribute_prefix[b][size_t(k)] += d.attribute_prefix[b - 1][size_t(k)];
 }
 
+// The mean of voxels `range` from their fixed-point sum: mean_attributes'
+// result, and the LOD mean table's entries (derive_cube_means), the same
+// floats from the same integers.
+void mean_of_sum(const SparseVoxelDag& d, const AttributeSum& sum, VoxelRange range, Color* color,
+                 Vec3* normal) {
+  const double scale = 1.0 / (SparseVoxelDag::kAttributeSumOne * double(range.count));
+  *color = {float(double(sum[0]) * scale), float(double(sum[1]) * scale),
+            float(double(sum[2]) * scale), float(double(sum[3]) * scale)};
+  const Vec3 n{float(double(sum[4]) * scale), float(double(sum[5]) * scale),
+               float(double(sum[6]) * scale)};
+  const float len = length(n);
+  // Opposed normals can cancel; then the first voxel's normal stands in.
+  if (len > 1e-6f) {
+    *normal = n * (1.0f / len);
+  } else {
+    Color first;
+    d.voxel_attributes(range.first, &first, normal);
+  }
+}
+
 // The LOD mean table (dag.hpp `cube_means`): the cubes of more than
-// kCubeMeanMin voxels, found by a depth-first walk by position (a node's
-// subtree count is its header's prefix entry; children hold fewer voxels, so
-// the walk stops at the first cube that is too small), their means computed
-// in parallel by mean_attributes itself, then inserted in walk order.
+// kCubeMeanMin voxels at levels <= L - 3, found by a depth-first walk by
+// position (a node's subtree count is its header's prefix entry; children
+// hold fewer voxels, so the walk stops at the first cube that is too small).
+// Each cube's fixed-point sum is the sum of its children's (exact integers):
+// a child in the table contributes its own sum, any other child its voxels
+// summed directly, so every voxel under the table is decoded once. The mean
+// is mean_of_sum of that sum, as in mean_attributes. Entries are inserted in
+// walk order.
 void derive_cube_means(SparseVoxelDag& d) {
   d.cube_means.clear();
   if (!d.has_attributes()) return;
   const int L = d.grid.levels;
   if (L < 3) return;
-  std::vector<std::pair<uint64_t, int>> cubes;  // (first voxel, level)
-  std::vector<uint64_t> counts;
-  auto visit = [&](auto&& self, uint32_t w, int level, uint64_t first) -> void {
+  std::vector<SparseVoxelDag::CubeMean> means;
+  // Returns the cube's sum; appends it to `means` if it belongs in the table.
+  auto visit = [&](auto&& self, uint32_t w, int level, uint64_t first) -> AttributeSum {
     const uint64_t count = d.prefix_entry(w);  // level <= L - 3: an interior node
-    if (count <= SparseVoxelDag::kCubeMeanMin) return;
-    cubes.push_back({first, level});
-    counts.push_back(count);
-    if (level == L - 3) return;
+    if (count <= SparseVoxelDag::kCubeMeanMin || level == L - 3) {
+      const AttributeSum sum = range_sum(d, size_t(first), size_t(count));
+      if (count > SparseVoxelDag::kCubeMeanMin) {
+        SparseVoxelDag::CubeMean e;
+        e.first = first, e.level = level;
+        mean_of_sum(d, sum, {first, count}, &e.color, &e.normal);
+        means.push_back(e);
+      }
+      return sum;
+    }
+    const size_t at = means.size();
+    means.emplace_back();  // the cube's entry precedes its children's
+    AttributeSum sum{};
     const int k = std::popcount(layout::ChildMask::get(d.words[w]));
     for (int j = 0; j < k; ++j) {
       const uint32_t p = w + 1 + uint32_t(j);
-      self(self, d.words[p], level + 1, first + (j == 0 ? 0 : d.prefix_entry(p)));
+      const AttributeSum c =
+          self(self, d.words[p], level + 1, first + (j == 0 ? 0 : d.prefix_entry(p)));
+      for (int i = 0; i < 7; ++i) sum[size_t(i)] += c[size_t(i)];
     }
+    SparseVoxelDag::CubeMean& e = means[at];
+    e.first = first, e.level = level;
+    mean_of_sum(d, sum, {first, count}, &e.color, &e.normal);
+    return sum;
   };
   visit(visit, 0, 0, 0);
-  if (cubes.empty()) return;
-  std::vector<SparseVoxelDag::CubeMean> means(cubes.size());
-  tbb::parallel_for(size_t(0), cubes.size(), [&](size_t i) {
-    SparseVoxelDag::CubeMean& e = means[i];
-    e.first = cubes[i].first, e.level = cubes[i].second;
-    d.mean_attributes({e.first, counts[i]}, &e.color, &e.normal);
-  });
-  const size_t slots = cubes.size() + cubes.size() / 3 + 1;
+  if (means.empty()) return;
+  const size_t slots = means.size() + means.size() / 3 + 1;
   d.cube_means.assign(slots, {});
   for (const SparseVoxelDag::CubeMean& e : means) {
     size_t s = SparseVoxelDag::cube_mean_slot(e.first, e.level, slots);
@@ -487,19 +520,7 @@ void SparseVoxelDag::mean_attributes(VoxelRange range, Color* color, Vec3* norma
     const AttributeSum pa = prefix_at(a), pe = prefix_at(e);
     for (int k = 0; k < 7; ++k) sum[size_t(k)] = pe[size_t(k)] - pa[size_t(k)];
   }
-  const double scale = 1.0 / (kAttributeSumOne * double(range.count));
-  *color = {float(double(sum[0]) * scale), float(double(sum[1]) * scale),
-            float(double(sum[2]) * scale), float(double(sum[3]) * scale)};
-  const Vec3 n{float(double(sum[4]) * scale), float(double(sum[5]) * scale),
-               float(double(sum[6]) * scale)};
-  const float len = length(n);
-  // Opposed normals can cancel; then the first voxel's normal stands in.
-  if (len > 1e-6f) {
-    *normal = n * (1.0f / len);
-  } else {
-    Color first;
-    voxel_attributes(a, &first, normal);
-  }
+  mean_of_sum(*this, sum, range, color, normal);
 }
 
 Aabb occupied_bounds(const SparseVoxelDag& dag, int max_level) {
