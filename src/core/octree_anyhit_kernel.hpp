@@ -40,7 +40,8 @@ void anyhit_loop(const typename VP::Scalar& nodes, const AnyHitQueue& q, float s
   using I = typename L::I;
   using U = typename L::U;
   const VP vp(nodes);
-  constexpr int kRefillLanes = N;  // see the file comment
+  const bool contours = may_narrow_spans(nodes);  // the loop's early miss exit when false
+  constexpr int kRefillLanes = N;                 // see the file comment
   const I lane = L::iota();
 
   F cx{}, cy{}, cz{}, bx{}, by{}, bz{};
@@ -105,18 +106,19 @@ void anyhit_loop(const typename VP::Scalar& nodes, const AnyHitQueue& q, float s
       const I lod = valid & (tc_max * size_coef + size_bias >= sexp);
       const I inside = valid & ~lod;
       F tv_max = L::min(t_max, tc_max);
-      if constexpr (VP::kContours) {
-        const I contoured = inside & vp.contour_lanes(desc, c);
-        for (uint32_t b = L::bits(contoured); b != 0; b &= b - 1) {
-          const int l = std::countr_zero(b);
-          const int k = slot[l];
-          float tl = t_min[l], tv = tv_max[l];
-          contour_span(vp.contour_value(desc, l, parent[l], c[l]), {cx[l], cy[l], cz[l]},
-                       {q.dx[k], q.dy[k], q.dz[k]}, tx_corner[l], ty_corner[l], tz_corner[l],
-                       sexp[l], &tl, &tv);
-          t_min[l] = tl, tv_max[l] = tv;
+      if constexpr (VP::kContours)
+        if (contours) {
+          const I contoured = inside & vp.contour_lanes(desc, c);
+          for (uint32_t b = L::bits(contoured); b != 0; b &= b - 1) {
+            const int l = std::countr_zero(b);
+            const int k = slot[l];
+            float tl = t_min[l], tv = tv_max[l];
+            contour_span(vp.contour_value(desc, l, parent[l], c[l]), {cx[l], cy[l], cz[l]},
+                         {q.dx[k], q.dy[k], q.dz[k]}, tx_corner[l], ty_corner[l], tz_corner[l],
+                         sexp[l], &tl, &tv);
+            t_min[l] = tl, tv_max[l] = tv;
+          }
         }
-      }
       const I intersect = inside & (t_min <= tv_max);
       const I leaf = intersect & vp.leaf(desc, c, scale);
       push = intersect & ~leaf;
@@ -160,7 +162,7 @@ void anyhit_loop(const typename VP::Scalar& nodes, const AnyHitQueue& q, float s
       t_min = advance ? tc_max : t_min;
       idx ^= step;
       I miss{};
-      if constexpr (!VP::kContours) miss = advance & (t_min > t_max);
+      if (!contours) miss = advance & (t_min > t_max);
       const I pop = advance & ~miss & ((idx & step) != 0u);
       if (L::bits(pop) != 0) {
         const U zero{};

@@ -94,6 +94,20 @@ struct CounterFlush {
 
 // ---- The Appendix A loop ----------------------------------------------------
 
+/// Whether contours may narrow a span in this structure: P::kContours and,
+/// for a policy with a runtime `contours` flag (the ESVO's: false when the
+/// octree has no contour attachment, so no contour mask is set, validate()),
+/// that flag. False allows the loop's early miss exit (below).
+template <class P>
+[[gnu::always_inline]] inline bool may_narrow_spans(const P& nodes) {
+  if constexpr (!P::kContours)
+    return false;
+  else if constexpr (requires { nodes.contours; })
+    return nodes.contours;
+  else
+    return true;
+}
+
 /// Where a ray starts in the root cube (the loop's set-up, shared with the
 /// packet caster, core/octree_packet_caster.hpp, so that both start from the
 /// same floats): the active span, the stack-write threshold h and the first
@@ -309,6 +323,7 @@ auto cast_octree(const typename P::Source& source, Vec3 p, Vec3 d, float tmax, f
   if (!enter_root(ray, tmax, region, &entry)) return result;
   float t_min = entry.t_min, t_max = entry.t_max, h = entry.h;
 
+  const bool contours = may_narrow_spans(nodes);
   uint32_t parent = nodes.root();
   Desc desc{};  // P::fetched(desc) == false: fetch at the next iteration
   [[maybe_unused]] Index index{};
@@ -346,7 +361,7 @@ auto cast_octree(const typename P::Source& source, Vec3 p, Vec3 d, float tmax, f
       if constexpr (P::kContours) {
         // Contour (§5.2, §6.1, Appendix A): contour_span, above.
         uint32_t value;
-        if (nodes.contour(desc, parent, c, &value)) {
+        if (contours && nodes.contour(desc, parent, c, &value)) {
           contour_span(value, {ray.tx_coef, ray.ty_coef, ray.tz_coef}, d, tx_corner, ty_corner,
                        tz_corner, scale_exp2, &t_min, &tv_max);
         }
@@ -408,8 +423,9 @@ auto cast_octree(const typename P::Source& source, Vec3 p, Vec3 d, float tmax, f
     t_min = tc_max;
     idx ^= step_mask;
 
-    if constexpr (!P::kContours) {
-      // Past the end of the span: a miss. Without contours (svdag §4) every
+    if (!contours) {
+      // Past the end of the span: a miss. Without contours (svdag §4; for the
+      // ESVO: an octree without a contour attachment, may_narrow_spans) every
       // active t_max is min(E, exit t of the current parent cube) with E the
       // end of [0, tmax] clipped to the root and the region, and a child's
       // exit t is <= its parent's (fma is monotone), so t_min > t_max means

@@ -146,6 +146,7 @@ void packet_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float
   using I = typename L::I;
   using U = typename L::U;
   const VP vp(nodes);
+  const bool contours = may_narrow_spans(nodes);  // the loop's early miss exit when false
   constexpr int kRefillLanes = N;
 
   const I lane = L::iota();
@@ -226,18 +227,19 @@ void packet_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float
       const I lod = valid & (tc_max * size_coef + size_bias >= sexp);
       const I inside = valid & ~lod;
       F tv_max = L::min(t_max, tc_max);
-      if constexpr (VP::kContours) {
-        const I contoured = inside & vp.contour_lanes(desc, c);
-        for (uint32_t b = L::bits(contoured); b != 0; b &= b - 1) {
-          const int l = std::countr_zero(b);
-          const int k = slot[l];
-          float tl = t_min[l], tv = tv_max[l];
-          contour_span(vp.contour_value(desc, l, parent[l], c[l]), {cx[l], cy[l], cz[l]},
-                       {q.dx[k], q.dy[k], q.dz[k]}, tx_corner[l], ty_corner[l], tz_corner[l],
-                       sexp[l], &tl, &tv);
-          t_min[l] = tl, tv_max[l] = tv;
+      if constexpr (VP::kContours)
+        if (contours) {
+          const I contoured = inside & vp.contour_lanes(desc, c);
+          for (uint32_t b = L::bits(contoured); b != 0; b &= b - 1) {
+            const int l = std::countr_zero(b);
+            const int k = slot[l];
+            float tl = t_min[l], tv = tv_max[l];
+            contour_span(vp.contour_value(desc, l, parent[l], c[l]), {cx[l], cy[l], cz[l]},
+                         {q.dx[k], q.dy[k], q.dz[k]}, tx_corner[l], ty_corner[l], tz_corner[l],
+                         sexp[l], &tl, &tv);
+            t_min[l] = tl, tv_max[l] = tv;
+          }
         }
-      }
       const I intersect = inside & (t_min <= tv_max);
       const I leaf = intersect & vp.leaf(desc, c, scale);
       push = intersect & ~leaf;
@@ -297,7 +299,7 @@ void packet_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float
       idx ^= step;
       I miss{};
       // Past the end of the span: a miss (cast_octree: without contours only).
-      if constexpr (!VP::kContours) miss = advance & (t_min > t_max);
+      if (!contours) miss = advance & (t_min > t_max);
       const I pop = advance & ~miss & ((idx & step) != 0u);
       if (L::bits(pop) != 0) {
         // Highest differing bit between the old and new positions = new

@@ -20,7 +20,9 @@ static_assert(esvo::kMaxScale == kOctreeMaxScale);
 /// depth (§7.1) needs nothing here.
 struct EsvoNodes {
   explicit EsvoNodes(const esvo::EsvoOctree& octree)
-      : words(octree.words.data()), root_slot(octree.root_slot()) {}
+      : words(octree.words.data()),
+        root_slot(octree.root_slot()),
+        contours(octree.has_contours()) {}
 
   /// Word 0 (pointer | far | valid mask | leaf mask) and word 1 (contour
   /// pointer | contour mask) of a descriptor, fetched together.
@@ -88,6 +90,9 @@ struct EsvoNodes {
 
   const uint32_t* words;
   uint32_t root_slot;
+  /// The octree has contours (a contour attachment; without one validate()
+  /// allows no contour mask): core/octree_caster.hpp may_narrow_spans.
+  bool contours;
 };
 
 }  // namespace voxcast::detail
