@@ -107,18 +107,9 @@ void anyhit_loop(const typename VP::Scalar& nodes, const AnyHitQueue& q, float s
       const I inside = valid & ~lod;
       F tv_max = L::min(t_max, tc_max);
       if constexpr (VP::kContours)
-        if (contours) {
-          const I contoured = inside & vp.contour_lanes(desc, c);
-          for (uint32_t b = L::bits(contoured); b != 0; b &= b - 1) {
-            const int l = std::countr_zero(b);
-            const int k = slot[l];
-            float tl = t_min[l], tv = tv_max[l];
-            contour_span(vp.contour_value(desc, l, parent[l], c[l]), {cx[l], cy[l], cz[l]},
-                         {q.dx[k], q.dy[k], q.dz[k]}, tx_corner[l], ty_corner[l], tz_corner[l],
-                         sexp[l], &tl, &tv);
-            t_min[l] = tl, tv_max[l] = tv;
-          }
-        }
+        if (contours)
+          lane_contours(vp, q, desc, inside, c, parent, slot, cx, cy, cz, tx_corner, ty_corner,
+                        tz_corner, sexp, &t_min, &tv_max);
       const I intersect = inside & (t_min <= tv_max);
       const I leaf = intersect & vp.leaf(desc, c, scale);
       push = intersect & ~leaf;

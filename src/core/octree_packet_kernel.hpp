@@ -136,6 +136,27 @@ constexpr std::array<int32_t, kPacketQueue> kSequence = [] {
   return a;
 }();
 
+/// The contour slabs (cast_octree's contour_span) of the lanes of `inside`
+/// whose child c has one, narrowing t_min and tv_max lane by lane; shared by
+/// the first-hit and the any-hit kernel (q: its queue, whose dx, dy, dz are
+/// the rays' unmirrored directions).
+template <class VP, class Q, class D, class F, class I, class U>
+[[gnu::always_inline]] inline void lane_contours(const VP& vp, const Q& q, const D& desc, I inside,
+                                                 U c, U parent, I slot, F cx, F cy, F cz,
+                                                 F tx_corner, F ty_corner, F tz_corner, F sexp,
+                                                 F* t_min, F* tv_max) {
+  const I contoured = inside & vp.contour_lanes(desc, c);
+  for (uint32_t b = Lanes<VP::N>::bits(contoured); b != 0; b &= b - 1) {
+    const int l = std::countr_zero(b);
+    const int k = slot[l];
+    float tl = (*t_min)[l], tv = (*tv_max)[l];
+    contour_span(vp.contour_value(desc, l, parent[l], c[l]), {cx[l], cy[l], cz[l]},
+                 {q.dx[k], q.dy[k], q.dz[k]}, tx_corner[l], ty_corner[l], tz_corner[l], sexp[l],
+                 &tl, &tv);
+    (*t_min)[l] = tl, (*tv_max)[l] = tv;
+  }
+}
+
 template <class VP>
 void packet_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float size_coef,
                    float size_bias, PacketOut* out) {
@@ -228,18 +249,9 @@ void packet_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float
       const I inside = valid & ~lod;
       F tv_max = L::min(t_max, tc_max);
       if constexpr (VP::kContours)
-        if (contours) {
-          const I contoured = inside & vp.contour_lanes(desc, c);
-          for (uint32_t b = L::bits(contoured); b != 0; b &= b - 1) {
-            const int l = std::countr_zero(b);
-            const int k = slot[l];
-            float tl = t_min[l], tv = tv_max[l];
-            contour_span(vp.contour_value(desc, l, parent[l], c[l]), {cx[l], cy[l], cz[l]},
-                         {q.dx[k], q.dy[k], q.dz[k]}, tx_corner[l], ty_corner[l], tz_corner[l],
-                         sexp[l], &tl, &tv);
-            t_min[l] = tl, tv_max[l] = tv;
-          }
-        }
+        if (contours)
+          lane_contours(vp, q, desc, inside, c, parent, slot, cx, cy, cz, tx_corner, ty_corner,
+                        tz_corner, sexp, &t_min, &tv_max);
       const I intersect = inside & (t_min <= tv_max);
       const I leaf = intersect & vp.leaf(desc, c, scale);
       push = intersect & ~leaf;
