@@ -29,7 +29,10 @@
 //                              validate() checks it)
 //   using Index                per-level payload carried down and saved on the
 //                              stack (the DAG's voxel rank), or NoIndex
-//   kContours                  contour(...) exists and may narrow a span
+//   kContours                  contour(...) exists and may narrow a span; a
+//                              runtime `bool contours` member, if the policy has
+//                              one, says whether this structure has any
+//                              (may_narrow_spans)
 //   kResidency                 resident(...) exists; false = all resident
 //   kEnteredFace               report the cube face the ray entered
 //   uint32_t root()
