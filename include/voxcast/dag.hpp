@@ -211,15 +211,15 @@ class SparseVoxelDag {
 
   // Derived by finalize() when there are attributes (never stored in files):
   // the LOD means of every cube of more than kCubeMeanMin leaf voxels at
-  // levels 0 .. L - 3 (the 8^3 cubes and up: finer ones, at most 64 voxels,
-  // keep the direct sum and skip the probe, a likely cache miss), so that a coarse hit
-  // on one of them costs one hashed lookup instead of cube_range's descent
-  // and mean_attributes' sums. Open addressing (linear probing) on (first
-  // voxel, level), load <= 3/4, empty slots have level -1; each entry is
-  // mean_attributes(cube_range(first, level)), so the answer is the same
-  // floats either way. Smaller cubes keep the direct path (<= 32 voxels
-  // summed). Entries are filled in Morton order, so the table is the same
-  // for every thread count.
+  // levels 0 .. L - 3, so that a coarse hit on one of them costs one hashed
+  // lookup instead of cube_range's descent and mean_attributes' sums. Finer
+  // cubes (levels L - 2 and L - 1, at most 64 voxels) skip the probe, a
+  // likely cache miss, and keep that path, as do cubes of <= kCubeMeanMin
+  // voxels. Open addressing (linear probing) on (first voxel, level), load
+  // <= 3/4, empty slots have level -1. Each entry's mean comes from the
+  // cube's exact fixed-point sum through mean_attributes' own sum-to-mean
+  // step, so the answer is the same floats either way; entries are inserted
+  // in Morton order, so the table is the same for every thread count.
   struct CubeMean {
     uint64_t first = 0;
     int32_t level = -1;
