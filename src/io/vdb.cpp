@@ -1,19 +1,24 @@
 // OpenVDB .vdb in and out (voxel_io.hpp) through libopenvdb.
 #include <fmt/format.h>
 #include <openvdb/openvdb.h>
+#include <sys/mman.h>
+#include <unistd.h>
 #include <xxhash.h>
 
 #include <algorithm>
 #include <bit>
 #include <cctype>
+#include <cerrno>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <fstream>
 #include <mutex>
 #include <optional>
 #include <string>
 #include <vector>
 
+#include "io/vdb_check.hpp"
 #include "io/voxel_io_internal.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/morton.hpp"
@@ -47,72 +52,6 @@ std::vector<openvdb::Coord> occupied(const GridT& grid, Keep keep, uint64_t max_
     for (auto c = box.begin(); c; ++c) out.push_back(*c);
   }
   return out;
-}
-
-// OpenVDB's reader allocates every string its file declares (a 32-bit
-// length) before reading it: a 33 KB file declaring a 1.9 GB grid name made
-// read_vdb allocate 1.9 GB (found by fuzz_vdb; tests/data/regress/vdb). The
-// file-level structure OpenVDB reads first — header, file metadata, grid
-// descriptors — is walked here, every declared length and offset checked
-// against the file's size. Layouts of other file versions are left to
-// OpenVDB. (Per-grid data — grid metadata, transform, tree — is not walked.)
-void precheck_vdb(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::error_code ec;
-  const uint64_t size = std::filesystem::file_size(path, ec);
-  if (!in || ec) return;  // OpenVDB reports it
-  auto fail = [&](const std::string& what) {
-    throw Error(fmt::format("'{}': not a readable .vdb file ({})", path.string(), what));
-  };
-  uint64_t at = 0;
-  auto read = [&](void* out, uint64_t n, const char* what) {
-    if (n > size - at) fail(fmt::format("{} runs past the end of the file", what));
-    in.seekg(std::streamoff(at));
-    in.read(static_cast<char*>(out), std::streamsize(n));
-    if (!in) fail(fmt::format("cannot read its {}", what));
-    at += n;
-  };
-  auto u32 = [&](const char* what) {
-    uint32_t v = 0;
-    read(&v, 4, what);
-    return v;
-  };
-  auto skip = [&](uint64_t n, const char* what) {
-    if (n > size - at)
-      fail(fmt::format("its {} declares {} bytes, more than the file's remaining {}", what, n,
-                       size - at));
-    at += n;
-  };
-  auto string = [&](const char* what) { skip(u32(what), what); };
-  if (size < 8) return;
-  uint64_t magic = 0;
-  read(&magic, 8, "header");
-  if (magic != 0x56444220) return;  // not a VDB: OpenVDB says so
-  const uint32_t version = u32("header");
-  if (version < 222 || version > 224) return;
-  u32("header"), u32("header");  // library major and minor version
-  uint8_t offsets = 0;
-  read(&offsets, 1, "header");
-  skip(36, "UUID");
-  const uint32_t metas = u32("metadata count");
-  for (uint32_t m = 0; m < metas; ++m) {
-    string("metadata name");
-    string("metadata type name");
-    skip(u32("metadata value"), "metadata value");
-  }
-  if (!offsets) return;  // written as a stream: read sequentially by OpenVDB
-  const uint32_t grids = u32("grid count");
-  for (uint32_t g = 0; g < grids; ++g) {
-    string("grid name");
-    string("grid type name");
-    string("grid instance name");
-    int64_t pos[3];  // grid, data block and end offsets
-    read(pos, sizeof pos, "grid descriptor");
-    if (pos[0] < int64_t(at) || pos[1] < pos[0] || pos[2] < pos[1] || uint64_t(pos[2]) > size)
-      fail(fmt::format("grid {} has offsets {}, {}, {} outside the {}-byte file", g, pos[0], pos[1],
-                       pos[2], size));
-    at = uint64_t(pos[2]);
-  }
 }
 
 // OpenVDB's io::File writes a random UUID into every file header (for its
@@ -168,10 +107,35 @@ VoxelSet read_vdb(const std::filesystem::path& path, const VoxelReadOptions& opt
   const uint64_t budget = detail::voxel_budget(options);
   const uint64_t max_voxels = budget / kVoxelSetBytesPerVoxel;
   init_openvdb();
-  openvdb::GridPtrVecPtr grids;
-  precheck_vdb(path);
+  // The whole file is walked first (vdb_check.cpp: libopenvdb trusts every
+  // size a file declares), then OpenVDB reads these same checked bytes from
+  // a private in-memory file, so the file cannot change in between.
+  const std::vector<uint8_t> bytes = detail::read_file_bytes(path, budget);
   try {
-    openvdb::io::File file(path.string());
+    detail::check_vdb_bytes(bytes.data(), bytes.size(), [](const std::string& type) {
+      return openvdb::Metadata::isRegisteredType(type);
+    });
+  } catch (const Error& e) {
+    throw Error(fmt::format("'{}': not a readable .vdb file ({})", path.string(), e.what()));
+  }
+  const int fd = memfd_create("voxcast-vdb", MFD_CLOEXEC);
+  if (fd < 0)
+    throw Error(fmt::format("'{}': cannot read it: no in-memory file ({})", path.string(),
+                            std::strerror(errno)));
+  struct Closer {
+    int fd;
+    ~Closer() { ::close(fd); }
+  } closer{fd};
+  for (size_t done = 0; done < bytes.size();) {
+    const ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
+    if (n <= 0)
+      throw Error(fmt::format("'{}': cannot read it: in-memory copy failed ({})", path.string(),
+                              std::strerror(errno)));
+    done += size_t(n);
+  }
+  openvdb::GridPtrVecPtr grids;
+  try {
+    openvdb::io::File file("/proc/self/fd/" + std::to_string(fd));
     file.open(false);  // no delayed loading: the whole file is read and checked now
     grids = file.getGrids();
     file.close();

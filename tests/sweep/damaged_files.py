@@ -3,14 +3,17 @@
 reads a file, every stored scene format and every interop input format.
 
     tests/sweep/damaged_files.py VOXCAST [--per-file N] [--seed S] [--timeout T]
-                                 [--work DIR] [--only scenes,voxels,volumes,meshes]
+                                 [--work DIR]
+                                 [--only scenes,slices,voxels,volumes,envmaps,meshes]
 
 Samples (built with VOXCAST from tests/data, small): the seven scene formats
 (ESVO raw, compressed, contours, contours + compressed, variable depth, DAG
-raw, DAG compressed), the voxel inputs .vox, .binvox and .vdb (written by
-`convert`, plus a MagicaVoxel-written .vox from tests/data/vox), an INRIMAGE
-volume (tests/data/volumes) and the mesh formats OBJ, OFF, PLY, STL, glTF
-(tests/data/meshes and the seeds of fuzz/corpus/mesh).
+raw, DAG compressed) and a brickmap world, an ESVO slice file (.vxs), the
+voxel inputs .vox, .binvox and .vdb (written by `convert`, plus a
+MagicaVoxel-written .vox from tests/data/vox), the volumes INRIMAGE
+(tests/data/volumes) and MetaImage (.mha, written here), environment maps
+(.hdr and .exr, written by `generate sky`) and the mesh formats OBJ, OFF,
+PLY, STL, glTF (tests/data/meshes and the seeds of fuzz/corpus/mesh).
 
 Damage, N per sample: scene files get 32-bit payload words set (0xFFFFFFFF,
 0, 0x80000000, random, +-1, one bit flipped) with the section hash
@@ -21,9 +24,11 @@ flips, random 32-bit words and inserted/deleted byte runs.
 Each damaged file goes through every subcommand that reads it:
   scenes: info, info --json, render (auto camera, beam, hard shadows, AO,
           post-filter; also --depth/--normals and an .exr with layers)
+  slice files: info, render (--frames 1, streaming within --budget)
   voxel files: convert to .vox/.binvox/.vdb/.raw, build (ESVO and DAG), and
           render of what build accepted
   volumes: volume render
+  environment maps: render --gi 1 --env of a small scene
   meshes: build (ESVO, DAG), convert to .vox, bench (tiny)
 It must exit 0 (then stderr holds only warnings), or exit 1 or 2 with exactly
 one stderr line "voxcast: error: ..."; a signal, a timeout, another status or
@@ -163,7 +168,7 @@ def main():
     ap.add_argument('--seed', type=int, default=2026)
     ap.add_argument('--timeout', type=float, default=60)
     ap.add_argument('--work')
-    ap.add_argument('--only', default='scenes,voxels,volumes,meshes',
+    ap.add_argument('--only', default='scenes,slices,voxels,volumes,envmaps,meshes',
                     help='comma-separated parts of the sweep to run')
     a = ap.parse_args()
     rng = random.Random(a.seed)
@@ -199,6 +204,20 @@ def main():
                     '16x12'], label)
         tally('scene ' + name, before)
 
+    # ---- slice files ----
+    if 'slices' in only:
+        src = sw.out('sample.vxs')
+        if not sw.run(['build', spot, '-o', src, '--resolution', '32', '--slices',
+                       '--slice-size', '8K'], 'sample vxs'):
+            raise SystemExit('cannot build the .vxs sample')
+        before = state()
+        for i, f in damaged_files(sw, src, rng, a.per_file):
+            label = f'vxs #{i}'
+            sw.run(['info', f], label)
+            sw.run(['render', f, '-o', sw.out('s.png'), '--size', '16x12', '--frames', '1',
+                    '--budget', '1M'], label)
+        tally('slices vxs', before)
+
     # ---- voxel files ----
     voxel_samples = []
     for ext in ('vox', 'binvox', 'vdb') if 'voxels' in only else []:
@@ -232,6 +251,36 @@ def main():
             sw.run(['volume', 'render', f, '-o', sw.out('vol.png'), '--size', '24x18'],
                    f'{v} #{i}')
         tally('volume ' + v, before)
+
+    # MetaImage: a small sphere of bytes after a local-data header.
+    if 'volumes' in only:
+        mha = sw.out('sample.mha')
+        with open(mha, 'wb') as out:
+            out.write(b'ObjectType = Image\nNDims = 3\nDimSize = 8 8 8\n'
+                      b'ElementType = MET_UCHAR\nElementDataFile = LOCAL\n')
+            out.write(bytes(((x * 7 + y * 3 + z) % 256 if (x - 4) ** 2 + (y - 4) ** 2 +
+                             (z - 4) ** 2 < 10 else 0)
+                            for z in range(8) for y in range(8) for x in range(8)))
+        before = state()
+        for i, f in damaged_files(sw, mha, rng, a.per_file):
+            sw.run(['volume', 'render', f, '-o', sw.out('vol.png'), '--size', '24x18'],
+                   f'mha #{i}')
+        tally('volume sample.mha', before)
+
+    # ---- environment maps ----
+    if 'envmaps' in only:
+        scene = sw.out('env-scene.vxc')
+        if not sw.run(['build', spot, '-o', scene, '--resolution', '16'], 'env scene'):
+            raise SystemExit('cannot build the environment map scene')
+        for ext in ('hdr', 'exr'):
+            src = sw.out('sky.' + ext)
+            if not sw.run(['generate', 'sky', '-o', src, '--sky-size', '32x16'], 'sky ' + ext):
+                raise SystemExit(f'cannot write the .{ext} sky')
+            before = state()
+            for i, f in damaged_files(sw, src, rng, a.per_file):
+                sw.run(['render', scene, '-o', sw.out('g.png'), '--size', '16x12', '--gi', '1',
+                        '--env', f], f'{ext} #{i}')
+            tally('environment .' + ext, before)
 
     # ---- meshes ----
     meshes = [os.path.join(DATA, 'meshes', 'spot.obj'),
