@@ -201,10 +201,14 @@ class World {
  public:
   /// An empty world over `grid` (brickgrid of ceil(N / 8)^3 cells). Throws
   /// voxcast::Error for an invalid placement or past kMaxGridCells.
-  explicit World(const GridTransform& grid, bool normals = true);
+  /// `height_cells` (1 .. ceil(N / 8); 0 = all): a brickgrid cut off above
+  /// that many cells in y, the up axis of cameras (a terrain far wider than
+  /// high): the grid stays the N^3 cube, the voxels above the cut are empty
+  /// and take no memory.
+  explicit World(const GridTransform& grid, bool normals = true, uint32_t height_cells = 0);
 
   const GridTransform& grid() const { return grid_; }
-  /// Brickgrid cells per axis; occupancy cells per axis.
+  /// Brickgrid cells per axis (y may be cut off, World()); occupancy cells per axis.
   const std::array<uint32_t, 3>& dims() const { return dims_; }
   const std::array<uint32_t, 3>& occupancy_dims() const { return occ_dims_; }
   bool has_normals() const { return normals_; }
@@ -222,12 +226,19 @@ class World {
 
   /// The occupancy pyramid: the coarse levels an LOD footprint can stop at
   /// above the bricks and the empty space the walk skips. Level k (1 ..
-  /// pyramid_levels()) has pyramid_dim(k)^3 nodes, node (i, j, l) covering
-  /// brickgrid cells [i 2^k, (i+1) 2^k) x ... (index i + d (j + d l), d =
-  /// pyramid_dim(k)); level 0 is the brickgrid itself and the top level is
-  /// one node. Kept up to date by set_brick / set_not_resident.
+  /// pyramid_levels()) has pyramid_dim(k)^2 pyramid_dim_y(k) nodes, node (i,
+  /// j, l) covering brickgrid cells [i 2^k, (i+1) 2^k) x ... (pyramid_index:
+  /// i + d (j + e l), d = pyramid_dim(k), e = pyramid_dim_y(k) = d unless the
+  /// brickgrid is cut off in y; nodes above the cut are empty and not
+  /// stored); level 0 is the brickgrid itself
+  /// and the top level is one node. Kept up to date by set_brick /
+  /// set_not_resident.
   int pyramid_levels() const { return int(pyramid_.size()); }
   uint32_t pyramid_dim(int k) const { return dims_[0] >> k; }
+  uint32_t pyramid_dim_y(int k) const { return (dims_[1] + (1u << k) - 1) >> k; }
+  uint64_t pyramid_index(int k, uint32_t i, uint32_t j, uint32_t l) const {
+    return i + uint64_t(pyramid_dim(k)) * (j + uint64_t(pyramid_dim_y(k)) * l);
+  }
   const PyramidNode& pyramid_node(int k, uint64_t index) const {
     return pyramid_[size_t(k - 1)][size_t(index)];
   }

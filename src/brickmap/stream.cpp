@@ -45,10 +45,12 @@ StreamingWorld::StreamingWorld(const std::filesystem::path& path, const StreamOp
   const nlohmann::json meta = meta::parse(reader);
   GridTransform grid;
   bool normals = false;
+  uint32_t height_cells = 0;
   try {
     using namespace meta;
     if (get_string(meta, "format") != kFormatName) bad("format is not 'brickmap'");
     grid = grid_from_json(meta, 0);
+    height_cells = meta_height_cells(meta, grid);
     const nlohmann::json& nj = field(meta, "normals");
     if (!nj.is_boolean()) bad("'normals' is not a boolean");
     normals = nj.get<bool>();
@@ -56,7 +58,7 @@ StreamingWorld::StreamingWorld(const std::filesystem::path& path, const StreamOp
     throw Error("corrupt scene: META section: " + meta::json_error_text(e));
   }
   if (!grid.placement_is_valid()) meta::bad("'grid' is not a valid placement");
-  world_ = std::make_shared<World>(grid, normals);
+  world_ = std::make_shared<World>(grid, normals, height_cells);
   const std::vector<uint8_t> gh = reader.read(kHeaderSection);
   header_ = decode_grid_header(gh.data(), gh.size(), world_->cells().size(), "BMGH section");
   const ChunkGrid cg = chunk_grid(world_->dims());

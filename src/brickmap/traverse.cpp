@@ -131,11 +131,13 @@ struct Walker {
   bool occupied(int level, const int c[3], uint32_t* cell, const PyramidNode** node) const {
     if (level < B) {
       const int k = B - level;
-      const uint64_t d = w.pyramid_dim(k);
-      *node = &w.pyramid_node(k, uint64_t(c[0]) + d * (uint64_t(c[1]) + d * uint64_t(c[2])));
+      if (uint32_t(c[1]) >= w.pyramid_dim_y(k)) return false;  // above a cut-off brickgrid
+      *node =
+          &w.pyramid_node(k, w.pyramid_index(k, uint32_t(c[0]), uint32_t(c[1]), uint32_t(c[2])));
       return (*node)->bricks != 0;
     }
     const int s = L - level;  // log2 of the cube's side in voxels (<= 3)
+    if (uint32_t(c[1] << s >> kBrickLog2) >= w.dims()[1]) return false;
     *cell =
         w.cell(w.cell_index(uint32_t(c[0] << s >> kBrickLog2), uint32_t(c[1] << s >> kBrickLog2),
                             uint32_t(c[2] << s >> kBrickLog2)));

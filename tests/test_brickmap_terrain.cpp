@@ -1,0 +1,234 @@
+// Procedural brickmap terrain (include/voxcast/brickmap_terrain.hpp, issue 11
+// item 7): the voxels, colors and normals written chunk by chunk equal a
+// brute-force evaluation of the density function voxel by voxel; the bytes
+// are the same on 1, 2 and 3 threads; the world loads, renders and streams;
+// the generator's memory does not grow with the world (only its brickgrid
+// header does); the CLI writes it and refuses bad sizes with one line.
+#include <gtest/gtest.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <string>
+#include <vector>
+
+#include "support/cli_runner.hpp"
+#include "support/esvo_testing.hpp"
+#include "voxcast/brickmap.hpp"
+#include "voxcast/brickmap_stream.hpp"
+#include "voxcast/brickmap_terrain.hpp"
+#include "voxcast/camera.hpp"
+#include "voxcast/container.hpp"
+#include "voxcast/esvo.hpp"
+#include "voxcast/morton.hpp"
+#include "voxcast/render.hpp"
+#include "voxcast/scene_file.hpp"
+
+namespace voxcast {
+namespace {
+
+using namespace brickmap;
+namespace fs = std::filesystem;
+
+TerrainOptions terrain(uint32_t x, uint32_t y, uint32_t z, uint64_t seed = 7, int threads = 2) {
+  TerrainOptions o;
+  o.size[0] = x, o.size[1] = y, o.size[2] = z;
+  o.seed = seed;
+  o.threads = threads;
+  return o;
+}
+
+std::vector<uint8_t> bytes_of(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), {}};
+}
+
+TEST(BrickmapTerrain, VoxelsColorsAndNormalsEqualABruteForceEvaluationOfTheDensity) {
+  testing::TempDir dir;
+  const fs::path path = dir.file("t.vxc");
+  // Not whole chunks in x and z (128 voxels), not whole bricks in y.
+  const TerrainOptions o = terrain(150, 44, 136);
+  const TerrainStats st = write_terrain(path, o);
+  const World w = load_world(ContainerReader::open(path));
+  // The oracle: terrain_solid voxel by voxel over the box and one voxel
+  // around it, then the voxels with an empty 6-neighbour.
+  const int X = 150, Y = 44, Z = 136;
+  const auto at = [&](int x, int y, int z) {
+    return (size_t(z + 1) * (Y + 2) + size_t(y + 1)) * (X + 2) + size_t(x + 1);
+  };
+  std::vector<uint8_t> solid(size_t(X + 2) * (Y + 2) * (Z + 2));
+  for (int z = -1; z <= Z; ++z)
+    for (int y = -1; y <= Y; ++y)
+      for (int x = -1; x <= X; ++x) solid[at(x, y, z)] = terrain_solid(o, x, y, z);
+  std::vector<uint64_t> want;
+  uint64_t solid_count = 0, under_something = 0;
+  for (int z = 0; z < Z; ++z)
+    for (int x = 0; x < X; ++x) {
+      bool roof = false;  // a solid voxel above this one in the column
+      for (int y = Y - 1; y >= 0; --y) {
+        if (!solid[at(x, y, z)]) {
+          under_something += roof;
+          continue;
+        }
+        roof = true;
+        ++solid_count;
+        if (solid[at(x - 1, y, z)] && solid[at(x + 1, y, z)] && solid[at(x, y - 1, z)] &&
+            solid[at(x, y + 1, z)] && solid[at(x, y, z - 1)] && solid[at(x, y, z + 1)])
+          continue;
+        want.push_back(morton_encode(uint32_t(x), uint32_t(y), uint32_t(z)));
+      }
+    }
+  std::sort(want.begin(), want.end());
+  EXPECT_GT(under_something, 100u) << "overhangs and caves: empty voxels below solid ones";
+  EXPECT_LT(want.size() * 2, solid_count) << "the hidden voxels are not stored";
+  const std::vector<uint64_t> got = w.decode_voxels();
+  ASSERT_EQ(got.size(), want.size());
+  EXPECT_TRUE(got == want);
+  EXPECT_EQ(st.voxels, want.size());
+  EXPECT_EQ(st.bricks, w.stats().bricks);
+  // Colors and normals: every 7th voxel against the functions.
+  size_t checked = 0, mismatched = 0;
+  for (size_t i = 0; i < want.size(); i += 7) {
+    const MortonCoord c = morton_decode(want[i]);
+    const uint32_t cell = w.cell(w.cell_index(c.x >> 3, c.y >> 3, c.z >> 3));
+    ASSERT_EQ(cell_state(cell), kStateResident);
+    const Brick& b = w.brick(cell_brick(cell));
+    const uint32_t k = b.color + uint32_t(rank_below(b, voxel_bit(c.x & 7, c.y & 7, c.z & 7)));
+    ++checked;
+    mismatched += w.colors()[k] != terrain_color(o, c.x, c.y, c.z) ||
+                  w.normals()[k] != terrain_normal(o, c.x, c.y, c.z);
+  }
+  EXPECT_GT(checked, 1000u);
+  EXPECT_EQ(mismatched, 0u);
+  // More than one material on the tops.
+  std::vector<uint32_t> colors;
+  for (size_t i = 0; i < want.size(); i += 97) {
+    const MortonCoord c = morton_decode(want[i]);
+    colors.push_back(terrain_color(o, c.x, c.y, c.z) & 0xC0C0C0);
+  }
+  std::sort(colors.begin(), colors.end());
+  EXPECT_GE(std::unique(colors.begin(), colors.end()) - colors.begin(), 3);
+}
+
+TEST(BrickmapTerrain, SameBytesOnOneTwoAndThreeThreads) {
+  testing::TempDir dir;
+  std::vector<uint8_t> first;
+  for (const char* name : {"1", "2", "3"}) {
+    const int threads = name[0] - '0';
+    const fs::path p = dir.file(std::string(name) + ".vxc");
+    write_terrain(p, terrain(300, 64, 260, 3, threads));
+    const std::vector<uint8_t> b = bytes_of(p);
+    ASSERT_GT(b.size(), 10000u);
+    if (first.empty())
+      first = b;
+    else
+      EXPECT_TRUE(b == first) << threads << " threads";
+  }
+  // Another seed, another world.
+  write_terrain(dir.file("s.vxc"), terrain(300, 64, 260, 4, 2));
+  EXPECT_FALSE(bytes_of(dir.file("s.vxc")) == first);
+}
+
+TEST(BrickmapTerrain, TheWorldLoadsRendersAndStreamsToTheSameImage) {
+  testing::TempDir dir;
+  const fs::path path = dir.file("t.vxc");
+  write_terrain(path, terrain(256, 96, 256));
+  const LoadedScene scene = load_scene(path);
+  const auto world = std::make_shared<World>(load_world(ContainerReader::open(path)));
+  const BrickmapStructure in_ram(world);
+  RenderOptions o;
+  o.width = 96, o.height = 64;
+  o.camera = Camera::orbit(world->occupied_bounds(), o.width, o.height, 35.f, 30.f);
+  const RenderResult want = render(in_ram, o);
+  EXPECT_GT(want.hits, uint64_t(o.width * o.height / 4));
+  EXPECT_EQ(render(*scene.structure, o).color.pixels, want.color.pixels);
+  StreamOptions so;
+  so.budget_bytes = 8u << 20;
+  so.uploads_per_pass = 64;
+  StreamingWorld s(path, so);
+  RenderResult last;
+  int frames = 0;
+  for (; frames < 400; ++frames) {
+    o.frame = uint32_t(frames);
+    const uint64_t before = s.stats().uploaded;
+    last = render(s, o);
+    if (frames > 0 && s.stats().uploaded == before) break;
+  }
+  EXPECT_GT(frames, 2);
+  EXPECT_EQ(last.color.pixels, want.color.pixels);
+}
+
+// Peak resident memory of a child process writing the terrain (KiB).
+long child_peak_kib(const fs::path& path, const TerrainOptions& o, TerrainStats* st) {
+  int fd[2];
+  if (pipe(fd) != 0) return -1;
+  const pid_t pid = fork();
+  if (pid == 0) {
+    close(fd[0]);
+    TerrainStats s = write_terrain(path, o);
+    const ssize_t n = write(fd[1], &s, sizeof s);
+    _exit(n == ssize_t(sizeof s) ? 0 : 1);
+  }
+  close(fd[1]);
+  const ssize_t n = read(fd[0], st, sizeof *st);
+  close(fd[0]);
+  int status = 0;
+  rusage ru{};
+  wait4(pid, &status, 0, &ru);
+  if (n != ssize_t(sizeof *st) || !WIFEXITED(status) || WEXITSTATUS(status) != 0) return -1;
+  return ru.ru_maxrss;
+}
+
+TEST(BrickmapTerrain, GeneratorMemoryDoesNotGrowWithTheWorldButItsHeader) {
+  testing::TempDir dir;
+  TerrainStats small, big;
+  const long a = child_peak_kib(dir.file("a.vxc"), terrain(512, 128, 512, 5, 2), &small);
+  const long b = child_peak_kib(dir.file("b.vxc"), terrain(1536, 128, 1536, 5, 2), &big);
+  ASSERT_GT(a, 0);
+  ASSERT_GT(b, 0);
+  // 9x the area: the chunks' raw bytes (what a world in RAM holds) grow by
+  // tens of MB, the generator by the brickgrid header only (4 B per cell)
+  // plus slack.
+  const double grown = double(b - a) * 1024, header = 4.0 * double(big.header_cells);
+  const double raw_grown = double(big.raw_bytes - small.raw_bytes);
+  std::printf("peak RSS %.1f MiB -> %.1f MiB; raw chunk bytes %.1f MiB -> %.1f MiB\n", a / 1024.0,
+              b / 1024.0, double(small.raw_bytes) / 1048576.0, double(big.raw_bytes) / 1048576.0);
+  EXPECT_GT(raw_grown, 30e6);
+  EXPECT_LT(grown, header + 8e6);
+  EXPECT_LT(grown * 3, raw_grown);
+}
+
+TEST(BrickmapTerrain, CliWritesAWorldAndRefusesBadSizes) {
+  testing::TempDir dir;
+  const std::string out = dir.file("w.vxc");
+  const testing::CliResult g =
+      testing::run_cli("generate terrain --size 160x144x48 --seed 2 -q -o '" + out + "'");
+  ASSERT_EQ(g.exit_code, 0) << g.output;
+  EXPECT_NE(g.output.find("brickmap terrain 160x144x48"), std::string::npos) << g.output;
+  TerrainOptions o = terrain(160, 48, 144, 2);
+  write_terrain(dir.file("lib.vxc"), o);
+  EXPECT_TRUE(bytes_of(out) == bytes_of(dir.file("lib.vxc")))
+      << "the CLI writes what the library does";
+  const testing::CliResult i = testing::run_cli("info '" + out + "'");
+  ASSERT_EQ(i.exit_code, 0) << i.output;
+  EXPECT_NE(i.output.find("brickgrid 32x6x32"), std::string::npos) << i.output;
+  for (const char* bad : {"8x8x8", "100x100", "100x100x0", "70000x64x64", "axbxc"}) {
+    const testing::CliResult r = testing::run_cli_split(std::string("generate terrain --size ") +
+                                                        bad + " -o '" + dir.file("bad.vxc") + "'");
+    EXPECT_NE(r.exit_code, 0) << bad;
+    EXPECT_EQ(std::count(r.errors.begin(), r.errors.end(), '\n'), 1) << bad << ": " << r.errors;
+    EXPECT_FALSE(fs::exists(dir.file("bad.vxc")));
+  }
+  // A mesh still comes out for .obj.
+  const testing::CliResult m =
+      testing::run_cli("generate terrain --size 33 -q -o '" + dir.file("t.obj") + "'");
+  ASSERT_EQ(m.exit_code, 0) << m.output;
+  EXPECT_TRUE(fs::exists(dir.file("t.obj")));
+}
+
+}  // namespace
+}  // namespace voxcast
