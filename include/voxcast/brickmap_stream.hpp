@@ -57,6 +57,10 @@ struct StreamStats {
   uint64_t hidden_voxels = 0;  // voxels dropped by hidden-voxel removal
   uint64_t resident_bytes = 0, peak_resident_bytes = 0;
   uint64_t cache_bytes = 0, peak_cache_bytes = 0;
+  // Chunk decoding (checksum, LZ4, brick index; not the file read): raw bytes
+  // produced and the wall time it took, the decode rate of the benchmark.
+  uint64_t decoded_bytes = 0;
+  double decode_seconds = 0;
   std::vector<ChunkFailure> refused;  // chunks that failed their checksum or decoding
 };
 

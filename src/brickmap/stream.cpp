@@ -2,6 +2,7 @@
 #include <xxhash.h>
 
 #include <algorithm>
+#include <chrono>
 #include <fstream>
 
 #include "brickmap/codec.hpp"
@@ -112,6 +113,7 @@ const StreamingWorld::Chunk* StreamingWorld::chunk(uint64_t index) {
     in.seekg(std::streamoff(chunk_data_offset_ + offset));
     if (!in.read(reinterpret_cast<char*>(z.data()), std::streamsize(zs)))
       throw Error(name + " cannot be read from the file");
+    const auto t0 = std::chrono::steady_clock::now();
     if (XXH64(z.data(), z.size(), 0) != load_le<uint64_t>(&table_[e + 16]))
       corrupt(name + " checksum mismatch");
     c->raw = decompress(z.data(), z.size(), size_t(rs), name);
@@ -132,6 +134,9 @@ const StreamingWorld::Chunk* StreamingWorld::chunk(uint64_t index) {
       at += 64 + count * per;
     });
     if (at != c->raw.size()) corrupt(name + " has bytes after its last brick");
+    stats_.decode_seconds +=
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    stats_.decoded_bytes += c->raw.size();
   } catch (const Error& err) {
     // Refused: its bricks will not come; the rest streams on.
     refused_chunk_[size_t(index)] = 1;
