@@ -4,6 +4,9 @@
 // are the same on 1, 2 and 3 threads; the world loads, renders and streams;
 // the generator's memory does not grow with the world (only its brickgrid
 // header does); the CLI writes it and refuses bad sizes with one line.
+// DXT1 colors of the render-side pool (brickmap.hpp, §3.1.3): blocks within
+// their error bounds; a streamed terrain with DXT1 colors has the same hits,
+// depths and normals as with raw colors and close colors.
 #include <gtest/gtest.h>
 #include <sys/resource.h>
 #include <sys/wait.h>
@@ -13,6 +16,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -228,6 +232,115 @@ TEST(BrickmapTerrain, CliWritesAWorldAndRefusesBadSizes) {
       testing::run_cli("generate terrain --size 33 -q -o '" + dir.file("t.obj") + "'");
   ASSERT_EQ(m.exit_code, 0) << m.output;
   EXPECT_TRUE(fs::exists(dir.file("t.obj")));
+}
+
+// Per-channel |a - b| of two ABGR8 colors, the largest.
+int channel_error(uint32_t a, uint32_t b) {
+  int e = 0;
+  for (int s = 0; s < 24; s += 8) e = std::max(e, std::abs(int(a >> s & 255) - int(b >> s & 255)));
+  return e;
+}
+
+TEST(BrickmapDxt1, BlocksStayWithinTheirErrorBounds) {
+  std::mt19937 rng(11);
+  const auto color = [&] { return uint32_t(rng()) & 0xFFFFFF; };
+  double dxt_err2 = 0, mean_err2 = 0;
+  for (int trial = 0; trial < 2000; ++trial) {
+    const int count = 1 + int(rng() % 16);
+    uint32_t c[16];
+    const int kind = trial % 4;
+    const uint32_t a = color(), b = color();
+    for (int i = 0; i < count; ++i) {
+      if (kind == 0) {
+        c[i] = a;  // one color
+      } else if (kind == 1) {
+        c[i] = (rng() & 1) ? a : b;  // two colors
+      } else if (kind == 2) {
+        // A gradient between a and b.
+        const int t = int(rng() % 256);
+        uint32_t v = 0;
+        for (int s = 0; s < 24; s += 8)
+          v |= uint32_t(((int(a >> s & 255) * (255 - t) + int(b >> s & 255) * t) / 255)) << s;
+        c[i] = v;
+      } else {
+        c[i] = color();
+      }
+      c[i] |= 0xFF000000u;
+    }
+    const uint64_t block = dxt1_encode(c, count);
+    int lo[3] = {255, 255, 255}, hi[3] = {0, 0, 0};
+    double mean[3] = {0, 0, 0};
+    for (int i = 0; i < count; ++i)
+      for (int k = 0; k < 3; ++k) {
+        const int v = int(c[i] >> (8 * k) & 255);
+        lo[k] = std::min(lo[k], v), hi[k] = std::max(hi[k], v), mean[k] += v / double(count);
+      }
+    for (int i = 0; i < count; ++i) {
+      const uint32_t d = dxt1_decode(block, i);
+      ASSERT_EQ(d >> 24, 255u);
+      // Quantization to 5/6/5 bits moves a channel by at most 4.
+      if (kind <= 1) {
+        ASSERT_LE(channel_error(d, c[i]), 4) << "trial " << trial;
+      }
+      int range = 0;
+      for (int k = 0; k < 3; ++k) {
+        const int v = int(d >> (8 * k) & 255);
+        ASSERT_GE(v, lo[k] - 4) << "trial " << trial;
+        ASSERT_LE(v, hi[k] + 4) << "trial " << trial;
+        range = std::max(range, hi[k] - lo[k]);
+        const double e = v - double(c[i] >> (8 * k) & 255),
+                     m = mean[k] - double(c[i] >> (8 * k) & 255);
+        dxt_err2 += e * e, mean_err2 += m * m;
+      }
+      // On a line the palette's 4 points are at most a sixth of the range apart from any color.
+      if (kind == 2) {
+        ASSERT_LE(channel_error(d, c[i]), range / 6 + 5) << "trial " << trial;
+      }
+    }
+  }
+  EXPECT_LT(dxt_err2, 0.5 * mean_err2) << "4 palette colors beat the block's mean color";
+}
+
+TEST(BrickmapDxt1, StreamedTerrainKeepsItsHitsDepthsAndNormalsWithCloseColors) {
+  testing::TempDir dir;
+  const fs::path path = dir.file("t.vxc");
+  write_terrain(path, terrain(256, 96, 256));
+  RenderOptions o;
+  o.width = 128, o.height = 96;
+  o.want_depth = true;
+  o.want_normal = true;
+  o.max_passes = 1000;  // until nothing is asked for
+  o.lod_pixels = 0;     // every hit a voxel (its color from the pool)
+  RenderResult r[2];
+  uint64_t color_bytes[2], resident[2];
+  for (int dxt = 0; dxt < 2; ++dxt) {
+    StreamOptions so;
+    so.budget_bytes = 64u << 20;
+    so.dxt1 = dxt == 1;
+    StreamingWorld s(path, so);
+    o.camera = Camera::orbit(s.world().occupied_bounds(), o.width, o.height, 35.f, 30.f);
+    r[dxt] = render(s, o);
+    color_bytes[dxt] = s.world().stats().color_bytes;
+    resident[dxt] = s.stats().resident_bytes;
+    EXPECT_EQ(s.world().dxt1(), dxt == 1);
+  }
+  EXPECT_GT(r[0].hits, uint64_t(o.width * o.height / 4));
+  EXPECT_EQ(r[1].hits, r[0].hits);
+  EXPECT_EQ(r[1].depth.pixels, r[0].depth.pixels);
+  EXPECT_EQ(r[1].normal.pixels, r[0].normal.pixels);
+  double sum = 0, worst = 0;
+  for (size_t i = 0; i < r[0].color.pixels.size(); ++i) {
+    const double d = std::fabs(double(r[1].color.pixels[i]) - double(r[0].color.pixels[i]));
+    sum += d, worst = std::max(worst, d);
+  }
+  const double mean = sum / double(r[0].color.pixels.size());
+  std::printf("DXT1 vs raw: mean |linear difference| %.5f, largest %.4f; colors %llu vs %llu B\n",
+              mean, worst, (unsigned long long)color_bytes[1], (unsigned long long)color_bytes[0]);
+  EXPECT_GT(sum, 0) << "DXT1 is lossy on varied colors";
+  EXPECT_LT(mean, 0.01);
+  EXPECT_LT(worst, 0.25);
+  EXPECT_EQ(color_bytes[1] * 8, color_bytes[0]);
+  EXPECT_LT(resident[1], resident[0]);
 }
 
 }  // namespace

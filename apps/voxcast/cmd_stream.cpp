@@ -28,6 +28,9 @@ void add_stream_options(CLI::App* cmd, StreamArgs& a) {
       ->capture_default_str();
   cmd->add_flag("--no-hidden-removal", a.no_hidden_removal,
                 "With --stream: upload voxels enclosed by solid neighbours too");
+  cmd->add_flag("--dxt1", a.dxt1,
+                "With --stream: keep the uploaded bricks' colors as DXT1 blocks (0.5 B per voxel "
+                "instead of 4)");
 }
 
 int render_stream(const StreamArgs& a, const std::string& world, const std::string& output,
@@ -40,6 +43,7 @@ int render_stream(const StreamArgs& a, const std::string& world, const std::stri
   so.budget_bytes = parse_memory_budget(a.budget.empty() ? std::string("512M") : a.budget);
   so.uploads_per_pass = uint32_t(a.uploads);
   so.hidden_voxel_removal = !a.no_hidden_removal;
+  so.dxt1 = a.dxt1;
   OutputSet outputs({world});
   outputs.add("-o", output, {".png", ".pfm"});
   require_regular_input(world, "world");

@@ -47,6 +47,9 @@ struct StreamOptions {
   uint64_t budget_bytes = uint64_t(512) << 20;
   uint32_t uploads_per_pass = 4096;  // N: bricks made resident per end_pass
   bool hidden_voxel_removal = true;
+  /// Colors of the uploaded bricks as DXT1 blocks (§3.1.3, brickmap.hpp;
+  /// World::use_dxt1): 0.5 B per voxel instead of 4 in the brick budget.
+  bool dxt1 = false;
 };
 
 struct StreamStats {

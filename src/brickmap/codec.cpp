@@ -60,6 +60,7 @@ void encode_chunk(const World& w, const ChunkGrid& g, uint64_t chunk, std::vecto
     if (c == 0) return;
     if (cell_state(c) != kStateResident)
       throw Error("brickmap: cannot save a world with bricks that are not resident");
+    if (w.dxt1()) throw Error("brickmap: a world with DXT1 colors is render-side only");
     const Brick& b = w.brick(cell_brick(c));
     append_brick(raw, b.mask, &w.colors()[b.color],
                  w.has_normals() ? &w.normals()[b.color] : nullptr, size_t(brick_popcount(b)));

@@ -32,7 +32,7 @@ void expand(const World& w, uint32_t cell, BrickVoxels* out) {
   for (uint32_t word = 0; word < 8; ++word)
     for (uint64_t m = b.mask[word]; m != 0; m &= m - 1, ++k) {
       const uint32_t bit = word * 64 + uint32_t(std::countr_zero(m));
-      out->color[bit] = w.colors()[k];
+      out->color[bit] = w.color_of(b, uint32_t(k - b.color));
       if (w.has_normals()) out->normal[bit] = w.normals()[k];
     }
 }

@@ -60,6 +60,7 @@ StreamingWorld::StreamingWorld(const std::filesystem::path& path, const StreamOp
   }
   if (!grid.placement_is_valid()) meta::bad("'grid' is not a valid placement");
   world_ = std::make_shared<World>(grid, normals, height_cells);
+  if (options.dxt1) world_->use_dxt1();
   const std::vector<uint8_t> gh = reader.read(kHeaderSection);
   header_ = decode_grid_header(gh.data(), gh.size(), world_->cells().size(), "BMGH section");
   const ChunkGrid cg = chunk_grid(world_->dims());
@@ -88,8 +89,11 @@ void StreamingWorld::begin_frame(const FrameView& view) {
 }
 
 uint64_t StreamingWorld::brick_bytes(uint32_t voxels) const {
-  return sizeof(Brick) +
-         uint64_t(ColorAllocator::class_size(voxels)) * (world_->has_normals() ? 8 : 4);
+  // Per entry of the run's size class: a color (4 B, or DXT1's 8 B per 16)
+  // and a normal.
+  const uint64_t entries = ColorAllocator::class_size(voxels);
+  return sizeof(Brick) + (world_->dxt1() ? entries / 2 : entries * 4) +
+         (world_->has_normals() ? entries * 4 : 0);
 }
 
 const StreamingWorld::Chunk* StreamingWorld::chunk(uint64_t index) {

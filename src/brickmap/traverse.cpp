@@ -333,7 +333,7 @@ void BrickmapStructure::attributes(const SurfaceHit& hit, TraceContext& ctx, Col
   const World& w = *world_;
   const Brick& b = w.brick(uint32_t(hit.voxel_ref >> 9));
   const uint32_t index = b.color + uint32_t(rank_below(b, uint32_t(hit.voxel_ref & 511)));
-  if (color) *color = esvo::decode_color_abgr(w.colors()[index]);
+  if (color) *color = esvo::decode_color_abgr(w.color_of(b, index - b.color));
   if (normal) *normal = w.has_normals() ? esvo::decode_normal_cube(w.normals()[index]) : face;
   if (ctx.counting) ctx.counters.attribute_bytes += sizeof(Brick) + (w.has_normals() ? 8 : 4);
 }

@@ -169,17 +169,29 @@ void World::set_brick(uint64_t index, const uint64_t mask[8], const uint32_t* co
   }
   std::memcpy(brick->mask, mask, sizeof brick->mask);
   brick->color = color_alloc_.allocate(uint32_t(count));
-  if (colors_.size() < color_alloc_.extent()) {
-    colors_.resize(color_alloc_.extent());
+  if (normals_data_.size() < color_alloc_.extent() || colors_.size() < color_alloc_.extent()) {
+    if (!dxt1_) colors_.resize(color_alloc_.extent());
     if (normals_) normals_data_.resize(color_alloc_.extent());
   }
-  std::copy(colors, colors + count, colors_.begin() + brick->color);
+  if (dxt1_) {
+    if (blocks_.size() < color_alloc_.extent() / 16) blocks_.resize(color_alloc_.extent() / 16);
+    for (int b = 0; b * 16 < count; ++b)
+      blocks_[brick->color / 16 + uint32_t(b)] =
+          dxt1_encode(colors + 16 * b, std::min(16, count - 16 * b));
+  } else {
+    std::copy(colors, colors + count, colors_.begin() + brick->color);
+  }
   if (normals_) std::copy(normals, normals + count, normals_data_.begin() + brick->color);
   // LOD color: the mean of the voxels' linear colors (what they show at full
   // resolution), re-encoded.
   brick->lod = lod ? *lod : codec::mean_color_abgr(colors, size_t(count));
   cell = resident_cell(b, flags);
   update_occupancy(index);
+}
+
+void World::use_dxt1() {
+  if (pool_.extent() != 0) throw Error("brickmap: DXT1 colors are chosen before any brick");
+  dxt1_ = true;
 }
 
 void World::set_not_resident(uint64_t index, uint32_t abgr, uint32_t flags) {
@@ -281,8 +293,8 @@ WorldStats World::stats() const {
   for (const std::vector<PyramidNode>& level : pyramid_)
     s.pyramid_bytes += uint64_t(level.size()) * sizeof(PyramidNode);
   s.brick_bytes = uint64_t(pool_.extent()) * sizeof(Brick);
-  s.color_bytes = uint64_t(color_alloc_.extent()) * 4;
-  s.normal_bytes = normals_ ? s.color_bytes : 0;
+  s.color_bytes = dxt1_ ? uint64_t(blocks_.size()) * 8 : uint64_t(color_alloc_.extent()) * 4;
+  s.normal_bytes = normals_ ? uint64_t(color_alloc_.extent()) * 4 : 0;
   return s;
 }
 
