@@ -6,7 +6,9 @@
 // header does); the CLI writes it and refuses bad sizes with one line.
 // DXT1 colors of the render-side pool (brickmap.hpp, §3.1.3): blocks within
 // their error bounds; a streamed terrain with DXT1 colors has the same hits,
-// depths and normals as with raw colors and close colors.
+// depths and normals as with raw colors and close colors. Snowfall (§5.5)
+// lands only on the open tops of the columns, piles up, and persists
+// through the CLI's journal.
 #include <gtest/gtest.h>
 #include <sys/resource.h>
 #include <sys/wait.h>
@@ -16,17 +18,21 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <map>
 #include <random>
+#include <set>
 #include <string>
 #include <vector>
 
 #include "support/cli_runner.hpp"
 #include "support/esvo_testing.hpp"
 #include "voxcast/brickmap.hpp"
+#include "voxcast/brickmap_file.hpp"
 #include "voxcast/brickmap_stream.hpp"
 #include "voxcast/brickmap_terrain.hpp"
 #include "voxcast/camera.hpp"
 #include "voxcast/container.hpp"
+#include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
 #include "voxcast/morton.hpp"
 #include "voxcast/render.hpp"
@@ -341,6 +347,87 @@ TEST(BrickmapDxt1, StreamedTerrainKeepsItsHitsDepthsAndNormalsWithCloseColors) {
   EXPECT_LT(worst, 0.25);
   EXPECT_EQ(color_bytes[1] * 8, color_bytes[0]);
   EXPECT_LT(resident[1], resident[0]);
+}
+
+// Highest solid voxel per column (x, z) of a set of Morton codes.
+std::map<std::pair<uint32_t, uint32_t>, uint32_t> column_tops(const std::vector<uint64_t>& codes) {
+  std::map<std::pair<uint32_t, uint32_t>, uint32_t> top;
+  for (uint64_t c : codes) {
+    const MortonCoord m = morton_decode(c);
+    auto [it, fresh] = top.try_emplace({m.x, m.z}, m.y);
+    if (!fresh) it->second = std::max(it->second, m.y);
+  }
+  return top;
+}
+
+TEST(BrickmapSnow, SnowLandsOnlyOnTheOpenTopsAndPilesUp) {
+  testing::TempDir dir;
+  const fs::path path = dir.file("t.vxc");
+  write_terrain(path, terrain(160, 64, 144, 9));
+  const World start = load_world(ContainerReader::open(path));
+  const std::vector<uint64_t> before = start.decode_voxels();
+  const auto tops = column_tops(before);
+  // Rate 1: every column grows by one voxel per step.
+  {
+    World w = start;
+    SnowOptions o;
+    o.rate = 1;
+    for (uint32_t s = 0; s < 3; ++s) EXPECT_GT(snow_step(w, s, o).voxels, 0u);
+    std::set<uint64_t> want(before.begin(), before.end());
+    for (const auto& [xz, y] : tops)
+      for (uint32_t s = 1; s <= 3; ++s)
+        if (y + s < 64) want.insert(morton_encode(xz.first, y + s, xz.second));
+    const std::vector<uint64_t> got = w.decode_voxels();
+    EXPECT_TRUE(got == std::vector<uint64_t>(want.begin(), want.end()));
+  }
+  // Rate 0.5: about half the columns per step; every snow voxel rests on a
+  // solid one and has nothing above it; nothing else changed.
+  World w = start;
+  uint64_t added = 0;
+  for (uint32_t s = 0; s < 4; ++s) added += snow_step(w, s).voxels;
+  const std::vector<uint64_t> after = w.decode_voxels();
+  std::vector<uint64_t> snow;
+  std::set_difference(after.begin(), after.end(), before.begin(), before.end(),
+                      std::back_inserter(snow));
+  EXPECT_TRUE(std::includes(after.begin(), after.end(), before.begin(), before.end()));
+  EXPECT_EQ(snow.size(), added);
+  EXPECT_GT(double(added), 0.35 * 4 * double(tops.size()));
+  EXPECT_LT(double(added), 0.65 * 4 * double(tops.size()));
+  const auto after_tops = column_tops(after);
+  const std::set<uint64_t> solid(after.begin(), after.end());
+  for (uint64_t c : snow) {
+    const MortonCoord m = morton_decode(c);
+    ASSERT_TRUE(solid.count(morton_encode(m.x, m.y - 1, m.z))) << "snow rests on something";
+    ASSERT_EQ(after_tops.at({m.x, m.z}) >= m.y, true);
+    ASSERT_GT(m.y, tops.at({m.x, m.z})) << "no snow under an overhang or in a cave";
+  }
+  // Its color and +y normal.
+  const MortonCoord m = morton_decode(snow.front());
+  const uint32_t cell = w.cell(w.cell_index(m.x >> 3, m.y >> 3, m.z >> 3));
+  const Brick& b = w.brick(cell_brick(cell));
+  const uint32_t k = b.color + uint32_t(rank_below(b, voxel_bit(m.x & 7, m.y & 7, m.z & 7)));
+  EXPECT_EQ(w.colors()[k], esvo::encode_color_abgr(SnowOptions{}.color));
+  EXPECT_EQ(w.normals()[k], esvo::encode_normal_cube({0, 1, 0}));
+  EXPECT_THROW(snow_step(w, 0, SnowOptions{1, 1.5}), Error);
+}
+
+TEST(BrickmapSnow, CliSnowfallPersistsAfterReload) {
+  testing::TempDir dir;
+  const std::string path = dir.file("w.vxc");
+  write_terrain(path, terrain(128, 48, 128, 4));
+  World want = load_world(ContainerReader::open(path));
+  SnowOptions o;
+  o.rate = 0.3;
+  for (uint32_t s = 0; s < 3; ++s) snow_step(want, s, o);
+  const testing::CliResult r = testing::run_cli("edit '" + path + "' --snow 3 --snow-rate 0.3 -q");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_TRUE(fs::exists(path + ".journal"));
+  const World got = open_world(path);
+  EXPECT_TRUE(got.decode_voxels() == want.decode_voxels());
+  EXPECT_EQ(got.stats().voxels, want.stats().voxels);
+  const testing::CliResult bad = testing::run_cli_split("edit '" + path + "' --snow 2 --remove");
+  EXPECT_NE(bad.exit_code, 0);
+  EXPECT_EQ(std::count(bad.errors.begin(), bad.errors.end(), '\n'), 1) << bad.errors;
 }
 
 }  // namespace

@@ -32,11 +32,14 @@ struct EditArgs {
   std::string input, output, sphere, box, mesh, at, paint, color = "0.8,0.8,0.8", batch;
   double size = 0;
   bool add = false, remove = false, checkpoint = false;
+  int snow = 0;  // --snow STEPS
+  double snow_rate = 0.5;
 };
 
 // One edit of the command line or of a batch file.
 struct EditStep {
-  enum class Kind { Brush, Mesh } kind = Kind::Brush;
+  enum class Kind { Brush, Mesh, Snow } kind = Kind::Brush;
+  uint32_t step = 0;  // Snow: the step's number
   brickmap::Brush brush;
   std::string mesh;  // Mesh: file, placed with its box center at `at`, largest side `size`
   Vec3d at;
@@ -181,6 +184,11 @@ Runner add_edit(CLI::App& app) {
                   "A file of edits, one per line: sphere X,Y,Z,R | box X0,Y0,Z0,X1,Y1,Z1 | mesh "
                   "FILE X,Y,Z SIZE, then add|remove|paint [R,G,B] ('#' comments); saved as one "
                   "transaction");
+  cmd->add_option("--snow", args->snow,
+                  "Snowfall (brickmap paper 5.5): this many steps, each one voxel of snow on top "
+                  "of the highest solid voxel of --snow-rate of the columns");
+  cmd->add_option("--snow-rate", args->snow_rate, "With --snow: share of the columns per step")
+      ->capture_default_str();
   cmd->add_flag("--add", args->add, "Make the brush's voxels solid (color: --color)");
   cmd->add_flag("--remove", args->remove, "Make the brush's voxels empty");
   cmd->add_option("--paint", args->paint, "Recolor the brush's solid voxels, r,g,b (sRGB, 0..1)");
@@ -191,7 +199,19 @@ Runner add_edit(CLI::App& app) {
                 "anyway once it is larger than the file and 16 MiB)");
   return [args]() {
     std::vector<EditStep> steps;
-    if (!args->batch.empty()) {
+    if (args->snow != 0) {
+      require_range("--snow", args->snow, 1, 1000000);
+      require_range("--snow-rate", args->snow_rate, 0, 1);
+      if (!args->batch.empty() || !args->sphere.empty() || !args->box.empty() ||
+          !args->mesh.empty() || args->add || args->remove || !args->paint.empty())
+        throw UsageError("--snow takes no brush or operation");
+      for (int s = 0; s < args->snow; ++s) {
+        EditStep e;
+        e.kind = EditStep::Kind::Snow;
+        e.step = uint32_t(s);
+        steps.push_back(e);
+      }
+    } else if (!args->batch.empty()) {
       if (!args->sphere.empty() || !args->box.empty() || !args->mesh.empty() || args->add ||
           args->remove || !args->paint.empty())
         throw UsageError("--batch takes its brushes and operations from the file");
@@ -225,7 +245,7 @@ Runner add_edit(CLI::App& app) {
       outputs = std::make_unique<OutputSet>(std::vector<std::string>{args->input});
       outputs->add("-o", args->output, {".vxc"});
     }
-    if (!args->batch.empty()) steps = parse_batch(args->batch);
+    if (!args->batch.empty() && args->snow == 0) steps = parse_batch(args->batch);
     require_regular_input(args->input, "world");
     const std::string format = scene_format(ContainerReader::open(args->input));
     if (format != brickmap::kFormatName)
@@ -241,9 +261,12 @@ Runner add_edit(CLI::App& app) {
       const VoxelSet stamp =
           e.kind == EditStep::Kind::Mesh ? stamp_voxels(e, world.grid()) : VoxelSet{};
       const auto t0 = std::chrono::steady_clock::now();
-      const brickmap::EditResult r = e.kind == EditStep::Kind::Mesh
-                                         ? brickmap::stamp(world, stamp, e.op, e.color)
-                                         : brickmap::edit(world, e.brush, e.op, e.color);
+      brickmap::SnowOptions snow;
+      snow.rate = args->snow_rate;
+      const brickmap::EditResult r =
+          e.kind == EditStep::Kind::Snow   ? brickmap::snow_step(world, e.step, snow)
+          : e.kind == EditStep::Kind::Mesh ? brickmap::stamp(world, stamp, e.op, e.color)
+                                           : brickmap::edit(world, e.brush, e.op, e.color);
       seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
       voxels += r.voxels;
       cells.insert(r.cells.begin(), r.cells.end());

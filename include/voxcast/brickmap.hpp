@@ -440,6 +440,21 @@ EditResult edit(World& world, const Brush& brush, EditOp op, const Color& color 
 /// edit(); throws voxcast::Error for a set on another grid.
 EditResult stamp(World& world, const VoxelSet& voxels, EditOp op, const Color& color = {});
 
+/// World-scale snowfall (§5.5).
+struct SnowOptions {
+  uint64_t seed = 1;
+  double rate = 0.5;                      // share of the columns a step snows on, [0, 1]
+  Color color{0.86f, 0.88f, 0.92f, 1.f};  // linear
+};
+/// One step of snowfall: in every voxel column (x, z) that has a solid voxel
+/// and is chosen this step (a hash of x, z, `step` and the seed below
+/// `rate`), one snow voxel (normal +y) on top of the column's highest solid
+/// voxel: snow lands only where the sky is open above, on upward-facing
+/// surfaces, never under overhangs or in caves, and piles up step by step.
+/// Applied through stamp() (the bricks it rewrote in the result). Throws
+/// voxcast::Error for a rate outside [0, 1] or a brick that is not resident.
+EditResult snow_step(World& world, uint32_t step, const SnowOptions& options = {});
+
 // ---- Scene files (src/brickmap/format.cpp; layout documented there) ----
 
 /// META "format" of a brickmap scene.
