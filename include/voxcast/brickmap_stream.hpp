@@ -28,8 +28,10 @@
 // (decoded bytes; it keeps at least the chunk in use). The brickgrid header
 // and the pyramid are outside the budget.
 //
-// Limits: a world with an edit journal must be checkpointed first (the
-// streamer reads the scene file only).
+// A world with an edit journal streams in its saved state: the journal's
+// last committed brickgrid header and the latest image of each chunk it
+// rewrote (kept LZ4-compressed in RAM, outside the budget) replace the
+// file's.
 #include <cstdint>
 #include <filesystem>
 #include <list>
@@ -70,7 +72,7 @@ struct StreamStats {
 class StreamingWorld final : public BrickmapView {
  public:
   /// Throws voxcast::Error for a file that is not a valid brickmap world (a
-  /// damaged META, header or chunk table) or that has an edit journal.
+  /// damaged META, header or chunk table, or a damaged edit journal).
   StreamingWorld(const std::filesystem::path& path, const StreamOptions& options);
   ~StreamingWorld() override;
 
@@ -96,6 +98,8 @@ class StreamingWorld final : public BrickmapView {
   std::shared_ptr<World> world_;
   std::vector<uint32_t> header_;  // the BMGH cells (LOD colors)
   std::vector<uint8_t> table_;    // BMCT
+  // Chunk images of the edit journal: chunk -> (raw size, LZ4 block).
+  std::unordered_map<uint64_t, std::pair<uint32_t, std::vector<uint8_t>>> journal_;
   uint64_t chunk_data_offset_ = 0, chunk_data_size_ = 0;
   std::vector<uint32_t> seen_;      // per brick slot (BrickmapStructure)
   std::vector<uint64_t> resident_;  // resident cells

@@ -7,8 +7,10 @@
 #include <bit>
 #include <cstdint>
 #include <cstring>
+#include <filesystem>
 #include <nlohmann/json_fwd.hpp>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 #include "voxcast/brickmap.hpp"
@@ -90,6 +92,18 @@ void append_brick(std::vector<uint8_t>* raw, const uint64_t mask[8], const uint3
 /// The LOD color of a brick (World::set_brick): the mean of its voxels'
 /// linear colors, ABGR8 sRGB.
 uint32_t mean_color_abgr(const uint32_t* colors, size_t count);
+
+/// What a streamer needs of a world's edit journal (persist.cpp): the
+/// brickgrid header of the last committed transaction (empty without one)
+/// and the latest image of every chunk the transactions rewrote, as its LZ4
+/// block and raw size (raw 0: the chunk lost all its bricks). Records are
+/// validated as replay_journal does; a damaged journal head throws.
+struct JournalChunks {
+  std::vector<uint32_t> header;
+  std::unordered_map<uint64_t, std::pair<uint32_t, std::vector<uint8_t>>> chunks;
+  uint64_t transactions = 0;
+};
+JournalChunks read_journal_chunks(const std::filesystem::path& world_path, const World& w);
 
 /// One decoded brick of a chunk.
 struct ChunkBrick {

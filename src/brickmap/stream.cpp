@@ -34,10 +34,6 @@ struct StreamingWorld::Chunk {
 
 StreamingWorld::StreamingWorld(const std::filesystem::path& path, const StreamOptions& options)
     : path_(path), options_(options) {
-  std::error_code ec;
-  if (std::filesystem::exists(journal_path(path), ec))
-    throw Error("'" + path.string() +
-                "' has an edit journal; fold it in first (voxcast edit --checkpoint)");
   brick_budget_ = options.budget_bytes / 2;
   cache_budget_ = options.budget_bytes - brick_budget_;
   const ContainerReader reader = ContainerReader::open(path);
@@ -70,6 +66,11 @@ StreamingWorld::StreamingWorld(const std::filesystem::path& path, const StreamOp
     corrupt("BMCT section is not a table of " + std::to_string(cg.count()) + " chunks");
   const SectionInfo& data = reader.section(kChunkSection);
   chunk_data_offset_ = data.offset, chunk_data_size_ = data.size;
+  // The edit journal's committed transactions: their last header and the
+  // latest image of each chunk they rewrote replace the file's.
+  JournalChunks journal = read_journal_chunks(path, *world_);
+  if (!journal.header.empty()) header_ = std::move(journal.header);
+  journal_ = std::move(journal.chunks);
   for (uint64_t ci = 0; ci < header_.size(); ++ci)
     if (header_[ci] != 0) world_->set_not_resident(ci, cell_lod_abgr(header_[ci]));
   refused_chunk_.assign(size_t(cg.count()), 0);
@@ -107,20 +108,33 @@ const StreamingWorld::Chunk* StreamingWorld::chunk(uint64_t index) {
   const std::string name = "BMCK " + chunk_name(cg, index);
   auto c = std::make_unique<Chunk>();
   try {
-    const uint64_t e = kTablePrefix + kEntryBytes * index;
-    const uint64_t offset = load_le<uint64_t>(&table_[e]);
-    const uint64_t zs = load_le<uint32_t>(&table_[e + 8]), rs = load_le<uint32_t>(&table_[e + 12]);
-    if (zs == 0 || offset > chunk_data_size_ || zs > chunk_data_size_ - offset || rs > kMaxChunkRaw)
-      corrupt(name + " lies outside the BMCK section");
-    std::vector<uint8_t> z(static_cast<size_t>(zs));
-    std::ifstream in(path_, std::ios::binary);
-    in.seekg(std::streamoff(chunk_data_offset_ + offset));
-    if (!in.read(reinterpret_cast<char*>(z.data()), std::streamsize(zs)))
-      throw Error(name + " cannot be read from the file");
-    const auto t0 = std::chrono::steady_clock::now();
-    if (XXH64(z.data(), z.size(), 0) != load_le<uint64_t>(&table_[e + 16]))
-      corrupt(name + " checksum mismatch");
-    c->raw = decompress(z.data(), z.size(), size_t(rs), name);
+    const auto journaled = journal_.find(index);
+    std::vector<uint8_t> z;
+    auto t0 = std::chrono::steady_clock::now();
+    if (journaled != journal_.end()) {
+      // The journal's image (its record checksummed when the journal was read).
+      c->raw = journaled->second.first
+                   ? decompress(journaled->second.second.data(), journaled->second.second.size(),
+                                journaled->second.first, name + " (journal)")
+                   : std::vector<uint8_t>{};
+    } else {
+      const uint64_t e = kTablePrefix + kEntryBytes * index;
+      const uint64_t offset = load_le<uint64_t>(&table_[e]);
+      const uint64_t zs = load_le<uint32_t>(&table_[e + 8]),
+                     rs = load_le<uint32_t>(&table_[e + 12]);
+      if (zs == 0 || offset > chunk_data_size_ || zs > chunk_data_size_ - offset ||
+          rs > kMaxChunkRaw)
+        corrupt(name + " lies outside the BMCK section");
+      z.resize(static_cast<size_t>(zs));
+      std::ifstream in(path_, std::ios::binary);
+      in.seekg(std::streamoff(chunk_data_offset_ + offset));
+      if (!in.read(reinterpret_cast<char*>(z.data()), std::streamsize(zs)))
+        throw Error(name + " cannot be read from the file");
+      t0 = std::chrono::steady_clock::now();
+      if (XXH64(z.data(), z.size(), 0) != load_le<uint64_t>(&table_[e + 16]))
+        corrupt(name + " checksum mismatch");
+      c->raw = decompress(z.data(), z.size(), size_t(rs), name);
+    }
     c->at.assign(kChunkCells, UINT32_MAX);
     // The offsets of the bricks, validated as the loader does.
     size_t at = 0;
