@@ -28,6 +28,7 @@
 #include "support/esvo_testing.hpp"
 #include "voxcast/brickmap.hpp"
 #include "voxcast/brickmap_file.hpp"
+#include "voxcast/brickmap_live.hpp"
 #include "voxcast/brickmap_stream.hpp"
 #include "voxcast/brickmap_terrain.hpp"
 #include "voxcast/camera.hpp"
@@ -425,9 +426,56 @@ TEST(BrickmapSnow, CliSnowfallPersistsAfterReload) {
   const World got = open_world(path);
   EXPECT_TRUE(got.decode_voxels() == want.decode_voxels());
   EXPECT_EQ(got.stats().voxels, want.stats().voxels);
+  // The same steps on LiveWorld's worker while frames render.
+  const std::string live = dir.file("live.vxc");
+  write_terrain(live, terrain(128, 48, 128, 4));
+  const testing::CliResult l =
+      testing::run_cli("edit '" + live + "' --snow 3 --snow-rate 0.3 --render '" +
+                       dir.file("f.png") + "' --render-size 64x48");
+  ASSERT_EQ(l.exit_code, 0) << l.output;
+  EXPECT_NE(l.output.find("3 of 3 snow steps visible"), std::string::npos) << l.output;
+  EXPECT_TRUE(fs::exists(dir.file("f.png")));
+  EXPECT_TRUE(open_world(live).decode_voxels() == want.decode_voxels());
   const testing::CliResult bad = testing::run_cli_split("edit '" + path + "' --snow 2 --remove");
   EXPECT_NE(bad.exit_code, 0);
   EXPECT_EQ(std::count(bad.errors.begin(), bad.errors.end(), '\n'), 1) << bad.errors;
+}
+
+TEST(BrickmapSnow, FramesRenderedWhileTheWorkerSnowsShowWholeStepsInOrder) {
+  testing::TempDir dir;
+  const fs::path path = dir.file("t.vxc");
+  write_terrain(path, terrain(128, 64, 128, 6));
+  const World start = load_world(ContainerReader::open(path));
+  RenderOptions o;
+  o.width = 64, o.height = 48;
+  o.lod_pixels = 0;
+  o.camera = Camera::orbit(start.occupied_bounds(), o.width, o.height, 30.f, 40.f);
+  constexpr uint32_t kSteps = 6;
+  // The oracle: the image after each number of steps, applied directly.
+  std::vector<std::vector<float>> states;
+  {
+    auto w = std::make_shared<World>(start);
+    states.push_back(render(BrickmapStructure(w), o).color.pixels);
+    for (uint32_t s = 0; s < kSteps; ++s) {
+      snow_step(*w, s);
+      states.push_back(render(BrickmapStructure(w), o).color.pixels);
+    }
+  }
+  LiveWorld live(start);
+  for (uint32_t s = 0; s < kSteps; ++s) live.submit_snow(s);
+  size_t last = 0;
+  for (uint32_t f = 0; live.applied() < kSteps && f < 100000; ++f) {
+    o.frame = f;
+    const RenderResult r = render(live, o);
+    const size_t k = size_t(live.applied());
+    ASSERT_GE(k, last);
+    EXPECT_EQ(r.color.pixels, states[k]) << "frame " << f << " after " << k << " steps";
+    last = k;
+  }
+  EXPECT_EQ(live.applied(), kSteps);
+  EXPECT_EQ(render(live, o).color.pixels, states.back());
+  EXPECT_NE(states.back(), states.front());
+  EXPECT_GT(live.throughput().voxels, 1000u);
 }
 
 }  // namespace
