@@ -169,7 +169,11 @@ Runner add_generate(CLI::App& app) {
     uint64_t budget = 0;
     if (!args->memory_budget.empty()) budget = parse_memory_budget(args->memory_budget);
     OutputSet outputs({});
-    outputs.add("-o", args->output, {".obj", ".ply"});
+    // (A terrain's .vxc went to generate_terrain_world above.)
+    if (args->kind == "terrain")
+      outputs.add("-o", args->output, {".obj", ".ply", ".vxc"});
+    else
+      outputs.add("-o", args->output, {".obj", ".ply"});
     {
       if (budget == 0) budget = uint64_t(double(available_memory_bytes()) * 0.9);
       const bool obj = std::filesystem::path(args->output).extension() != ".ply" &&
