@@ -251,5 +251,51 @@ TEST(BrickmapStream, AWorldWithAnEditJournalStreamsItsSavedState) {
   EXPECT_TRUE(s.stats().refused.empty());
 }
 
+TEST(BrickmapStream, HiddenVoxelsAreRemovedAcrossChunkBorders) {
+  testing::TempDir dir;
+  const fs::path path = dir.file("box.vxc");
+  // A solid box across the border of chunks x = 0 and x = 1 (voxel 128).
+  VoxelSet v = testing::make_dense_grid(8, [](uint32_t x, uint32_t y, uint32_t z) {
+    return x >= 100 && x < 156 && y >= 100 && y < 140 && z >= 100 && z < 140;
+  });
+  testing::fill_random_attributes(v, 3);
+  const World full = build_world(v);
+  save_scene(path, full, SceneInfo{"t", "c", 0, full.stats().voxels});
+  StreamOptions so;
+  so.budget_bytes = 64u << 20;
+  so.uploads_per_pass = 1u << 20;
+  StreamingWorld s(path, so);
+  RenderOptions o = view_of(full, 30.f);
+  o.max_passes = 1000;
+  o.lod_pixels = 0;
+  const RenderResult r = render(s, o);
+  EXPECT_EQ(r.color.pixels,
+            render(BrickmapStructure(std::make_shared<World>(full)), o).color.pixels);
+  // Every resident brick holds exactly the world's voxels that have an empty
+  // 6-neighbour, also where the neighbour is in the other chunk.
+  const World& w = s.world();
+  size_t bricks = 0, at_border = 0, wrong = 0;
+  for (uint64_t ci = 0; ci < w.cells().size(); ++ci) {
+    const uint32_t cell = w.cell(ci);
+    if (cell_state(cell) != kStateResident) continue;
+    ++bricks;
+    const uint32_t i = uint32_t(ci % w.dims()[0]), j = uint32_t(ci / w.dims()[0] % w.dims()[1]),
+                   k = uint32_t(ci / w.dims()[0] / w.dims()[1]);
+    at_border += i == 15 || i == 16;
+    const Brick& b = w.brick(cell_brick(cell));
+    for (uint32_t bit = 0; bit < 512; ++bit) {
+      const uint32_t x = i * 8 + (bit & 7), y = j * 8 + (bit >> 3 & 7), z = k * 8 + (bit >> 6);
+      const bool exposed =
+          full.voxel(x, y, z) &&
+          !(full.voxel(x - 1, y, z) && full.voxel(x + 1, y, z) && full.voxel(x, y - 1, z) &&
+            full.voxel(x, y + 1, z) && full.voxel(x, y, z - 1) && full.voxel(x, y, z + 1));
+      wrong += test_voxel(b, bit) != exposed;
+    }
+  }
+  EXPECT_GT(bricks, 20u);
+  EXPECT_GT(at_border, 4u) << "bricks on both sides of the chunk border were uploaded";
+  EXPECT_EQ(wrong, 0u);
+}
+
 }  // namespace
 }  // namespace voxcast

@@ -16,7 +16,9 @@
 //     chunk that fails is refused: its bricks are left out (their cells
 //     emptied), the rest of the world streams on;
 //   * hidden-voxel removal (§4.2): voxels whose six neighbours are solid
-//     (neighbours in other chunks count as empty) are dropped before upload,
+//     (a neighbour brick in another chunk is read through the chunk cache,
+//     loading its chunk if needed; outside the world or in a refused chunk
+//     it counts as empty) are dropped before upload,
 //     unless that would drop the whole brick; the brick keeps the LOD color
 //     of all its voxels, so that coarse hits do not change;
 //   * when the resident bricks would exceed their budget, the bricks seen

@@ -186,12 +186,37 @@ const StreamingWorld::Chunk* StreamingWorld::chunk(uint64_t index) {
 bool StreamingWorld::upload(uint64_t cell) {
   const ChunkGrid cg = chunk_grid(world_->dims());
   const uint64_t ci = chunk_of(*world_, cell);
-  const Chunk* c = chunk(ci);
-  if (!c) return true;  // refused: the cell was emptied
   const std::array<uint32_t, 3>& d = world_->dims();
   const uint32_t i = uint32_t(cell % d[0]), j = uint32_t(cell / d[0] % d[1]),
                  k = uint32_t(cell / d[0] / d[1]);
   const uint32_t x0 = i & (kChunkSide - 1), y0 = j & (kChunkSide - 1), z0 = k & (kChunkSide - 1);
+  // Hidden-voxel removal across chunk borders: the masks of the neighbour
+  // bricks in other chunks, copied before this brick's chunk is fetched
+  // (loading a chunk may evict another; the brick's own chunk is fetched
+  // last, so it stays).
+  uint64_t across[6][8];
+  bool has_across[6] = {false, false, false, false, false, false};
+  if (options_.hidden_voxel_removal) {
+    const int step[6][3] = {{-1, 0, 0}, {1, 0, 0}, {0, -1, 0}, {0, 1, 0}, {0, 0, -1}, {0, 0, 1}};
+    for (int n = 0; n < 6; ++n) {
+      const int64_t ni = int64_t(i) + step[n][0], nj = int64_t(j) + step[n][1],
+                    nk = int64_t(k) + step[n][2];
+      if (ni < 0 || nj < 0 || nk < 0 || ni >= d[0] || nj >= d[1] || nk >= d[2]) continue;
+      const uint64_t ncell = world_->cell_index(uint32_t(ni), uint32_t(nj), uint32_t(nk));
+      const uint64_t nci = chunk_of(*world_, ncell);
+      if (nci == ci || header_[ncell] == 0) continue;
+      const Chunk* nc = chunk(nci);
+      const uint32_t npos = uint32_t(ni & (kChunkSide - 1)) +
+                            kChunkSide * (uint32_t(nj & (kChunkSide - 1)) +
+                                          kChunkSide * uint32_t(nk & (kChunkSide - 1)));
+      if (const uint64_t* m = nc ? nc->mask(npos) : nullptr) {
+        std::memcpy(across[n], m, 64);
+        has_across[n] = true;
+      }
+    }
+  }
+  const Chunk* c = chunk(ci);
+  if (!c) return true;  // refused: the cell was emptied
   const uint32_t pos = x0 + kChunkSide * (y0 + kChunkSide * z0);
   const uint64_t* mask = c->mask(pos);
   uint64_t keep[8];
@@ -200,17 +225,22 @@ bool StreamingWorld::upload(uint64_t cell) {
   for (uint64_t m : keep) count += uint32_t(std::popcount(m));
   if (options_.hidden_voxel_removal) {
     // A voxel is hidden when its six neighbours are solid; neighbours in the
-    // adjacent bricks of the same chunk come from their masks, those beyond
-    // the chunk count as empty.
+    // adjacent bricks come from their masks (of this chunk, or copied above
+    // from the neighbour chunks), those outside the world or in refused
+    // chunks count as empty.
+    int side = 0;
     const auto neighbour = [&](int dx, int dy, int dz) -> const uint64_t* {
+      const int n = side++;
+      if (has_across[n]) return across[n];
       const int x = int(x0) + dx, y = int(y0) + dy, z = int(z0) + dz;
       if (x < 0 || y < 0 || z < 0 || x >= int(kChunkSide) || y >= int(kChunkSide) ||
           z >= int(kChunkSide))
         return nullptr;
       return c->mask(uint32_t(x) + kChunkSide * (uint32_t(y) + kChunkSide * uint32_t(z)));
     };
-    const uint64_t* nb[6] = {neighbour(-1, 0, 0), neighbour(1, 0, 0),  neighbour(0, -1, 0),
-                             neighbour(0, 1, 0),  neighbour(0, 0, -1), neighbour(0, 0, 1)};
+    const uint64_t* nb[6];
+    nb[0] = neighbour(-1, 0, 0), nb[1] = neighbour(1, 0, 0), nb[2] = neighbour(0, -1, 0);
+    nb[3] = neighbour(0, 1, 0), nb[4] = neighbour(0, 0, -1), nb[5] = neighbour(0, 0, 1);
     const auto solid = [&](int x, int y, int z) {
       const uint64_t* m = mask;
       if (x < 0)
