@@ -213,6 +213,31 @@ TEST(BrickmapTerrain, GeneratorMemoryDoesNotGrowWithTheWorldButItsHeader) {
   EXPECT_LT(grown * 3, raw_grown);
 }
 
+TEST(BrickmapTerrain, BadBrickgridDimsAreRefusedWithOneLine) {
+  testing::TempDir dir;
+  const fs::path path = dir.file("t.vxc");
+  write_terrain(path, terrain(128, 40, 128));  // brickgrid 16 x 5 x 16
+  const Container good = Container::read(path);
+  EXPECT_EQ(load_world(good).dims()[1], 5u);
+  const std::string meta(good.get(fourcc("META")).begin(), good.get(fourcc("META")).end());
+  const size_t at = meta.find("\"dims\"");
+  ASSERT_NE(at, std::string::npos) << meta;
+  const size_t end = meta.find(']', at);
+  for (const char* dims :
+       {"[16, 17, 16]", "[16, 0, 16]", "[16, 5, 8]", "[8, 5, 16]", "[16, 4, 16]"}) {
+    Container bad = good;
+    const std::string m = meta.substr(0, at) + "\"dims\": " + dims + meta.substr(end + 1);
+    bad.add(fourcc("META"), std::vector<uint8_t>(m.begin(), m.end()));
+    try {
+      load_world(bad);
+      ADD_FAILURE() << dims << " was accepted";
+    } catch (const Error& e) {
+      EXPECT_EQ(std::string(e.what()).find('\n'), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("corrupt scene"), std::string::npos) << e.what();
+    }
+  }
+}
+
 TEST(BrickmapTerrain, CliWritesAWorldAndRefusesBadSizes) {
   testing::TempDir dir;
   const std::string out = dir.file("w.vxc");
