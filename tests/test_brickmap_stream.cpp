@@ -205,15 +205,96 @@ TEST(BrickmapStream, RenderStreamPrintsEveryFrame) {
     EXPECT_NE(r.output.find("frame " + std::to_string(k) + ": "), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("bricks uploaded"), std::string::npos) << r.output;
   EXPECT_TRUE(fs::exists(dir.file("s.png")));
-  // A world with an edit journal is refused until checkpointed.
+  // A world with an edit journal streams too (its saved state).
   World w = load_world(Container::read(path));
   const EditResult e =
       edit(w, Brush::sphere({0.5, 0.5, 0.5}, 0.1), EditOp::Paint, Color{1, 0, 0, 1});
   commit_edits(path, w, e.cells);
   const testing::CliResult j =
-      testing::run_cli("render '" + path + "' --stream -o '" + dir.file("t.png") + "'");
-  EXPECT_EQ(j.exit_code, 1) << j.output;
-  EXPECT_NE(j.output.find("checkpoint"), std::string::npos) << j.output;
+      testing::run_cli("render '" + path + "' --stream --frames 3 -o '" + dir.file("t.png") + "'");
+  EXPECT_EQ(j.exit_code, 0) << j.output;
+}
+
+TEST(BrickmapStream, AWorldWithAnEditJournalStreamsItsSavedState) {
+  testing::TempDir dir;
+  const fs::path path = dir.file("shell.vxc");
+  const World full = build_world(testing::make_sphere_shell(8));  // 256^3: 8 chunks
+  save_scene(path, full, SceneInfo{"t", "c", 0, full.stats().voxels});
+  const RenderOptions o = view_of(full, 30.f);
+  const RenderResult before = render(BrickmapStructure(std::make_shared<World>(full)), o);
+  // Two transactions: a hole, then a painted cap and a new blob.
+  World w = full;
+  const GridTransform& g = w.grid();
+  const auto at = [&](double x, double y, double z) {
+    return Vec3d{g.origin.x + x * g.side(), g.origin.y + y * g.side(), g.origin.z + z * g.side()};
+  };
+  EditResult e = edit(w, Brush::sphere(at(0.5, 0.5, 0.9), 0.15 * g.side()), EditOp::Remove);
+  commit_edits(path, w, e.cells);
+  std::vector<uint64_t> cells =
+      edit(w, Brush::sphere(at(0.6, 0.7, 0.8), 0.1 * g.side()), EditOp::Paint, Color{1, 0, 0, 1})
+          .cells;
+  e = edit(w, Brush::box(at(0.02, 0.02, 0.02), at(0.1, 0.1, 0.1)), EditOp::Add, Color{0, 1, 0, 1});
+  cells.insert(cells.end(), e.cells.begin(), e.cells.end());
+  commit_edits(path, w, cells);
+  const auto saved = std::make_shared<World>(open_world(path));
+  EXPECT_TRUE(saved->decode_voxels() == w.decode_voxels());
+  const RenderResult want = render(BrickmapStructure(saved), o);
+  EXPECT_NE(want.color.pixels, before.color.pixels) << "the edits show in this view";
+  StreamOptions so;
+  so.budget_bytes = all_brick_bytes(full) * 3;  // the whole view fits: the frames converge
+  so.uploads_per_pass = 512;
+  StreamingWorld s(path, so);
+  RenderResult last;
+  converge(s, o, 0, &last);
+  EXPECT_EQ(last.color.pixels, want.color.pixels);
+  EXPECT_EQ(last.depth.pixels, want.depth.pixels);
+  EXPECT_TRUE(s.stats().refused.empty());
+}
+
+TEST(BrickmapStream, HiddenVoxelsAreRemovedAcrossChunkBorders) {
+  testing::TempDir dir;
+  const fs::path path = dir.file("box.vxc");
+  // A solid box across the border of chunks x = 0 and x = 1 (voxel 128).
+  VoxelSet v = testing::make_dense_grid(8, [](uint32_t x, uint32_t y, uint32_t z) {
+    return x >= 100 && x < 156 && y >= 100 && y < 140 && z >= 100 && z < 140;
+  });
+  testing::fill_random_attributes(v, 3);
+  const World full = build_world(v);
+  save_scene(path, full, SceneInfo{"t", "c", 0, full.stats().voxels});
+  StreamOptions so;
+  so.budget_bytes = 64u << 20;
+  so.uploads_per_pass = 1u << 20;
+  StreamingWorld s(path, so);
+  RenderOptions o = view_of(full, 30.f);
+  o.max_passes = 1000;
+  o.lod_pixels = 0;
+  const RenderResult r = render(s, o);
+  EXPECT_EQ(r.color.pixels,
+            render(BrickmapStructure(std::make_shared<World>(full)), o).color.pixels);
+  // Every resident brick holds exactly the world's voxels that have an empty
+  // 6-neighbour, also where the neighbour is in the other chunk.
+  const World& w = s.world();
+  size_t bricks = 0, at_border = 0, wrong = 0;
+  for (uint64_t ci = 0; ci < w.cells().size(); ++ci) {
+    const uint32_t cell = w.cell(ci);
+    if (cell_state(cell) != kStateResident) continue;
+    ++bricks;
+    const uint32_t i = uint32_t(ci % w.dims()[0]), j = uint32_t(ci / w.dims()[0] % w.dims()[1]),
+                   k = uint32_t(ci / w.dims()[0] / w.dims()[1]);
+    at_border += i == 15 || i == 16;
+    const Brick& b = w.brick(cell_brick(cell));
+    for (uint32_t bit = 0; bit < 512; ++bit) {
+      const uint32_t x = i * 8 + (bit & 7), y = j * 8 + (bit >> 3 & 7), z = k * 8 + (bit >> 6);
+      const bool exposed =
+          full.voxel(x, y, z) &&
+          !(full.voxel(x - 1, y, z) && full.voxel(x + 1, y, z) && full.voxel(x, y - 1, z) &&
+            full.voxel(x, y + 1, z) && full.voxel(x, y, z - 1) && full.voxel(x, y, z + 1));
+      wrong += test_voxel(b, bit) != exposed;
+    }
+  }
+  EXPECT_GT(bricks, 20u);
+  EXPECT_GT(at_border, 4u) << "bricks on both sides of the chunk border were uploaded";
+  EXPECT_EQ(wrong, 0u);
 }
 
 }  // namespace

@@ -19,9 +19,12 @@
 #include "commands.hpp"
 #include "voxcast/brickmap.hpp"
 #include "voxcast/brickmap_file.hpp"
+#include "voxcast/brickmap_live.hpp"
+#include "voxcast/camera.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/image.hpp"
 #include "voxcast/mesh.hpp"
+#include "voxcast/render.hpp"
 #include "voxcast/scene_file.hpp"
 #include "voxcast/voxelize.hpp"
 
@@ -32,11 +35,15 @@ struct EditArgs {
   std::string input, output, sphere, box, mesh, at, paint, color = "0.8,0.8,0.8", batch;
   double size = 0;
   bool add = false, remove = false, checkpoint = false;
+  int snow = 0;  // --snow STEPS
+  double snow_rate = 0.5;
+  std::string render, render_size = "320x240";  // --snow --render: frames while it snows
 };
 
 // One edit of the command line or of a batch file.
 struct EditStep {
-  enum class Kind { Brush, Mesh } kind = Kind::Brush;
+  enum class Kind { Brush, Mesh, Snow } kind = Kind::Brush;
+  uint32_t step = 0;  // Snow: the step's number
   brickmap::Brush brush;
   std::string mesh;  // Mesh: file, placed with its box center at `at`, largest side `size`
   Vec3d at;
@@ -181,6 +188,16 @@ Runner add_edit(CLI::App& app) {
                   "A file of edits, one per line: sphere X,Y,Z,R | box X0,Y0,Z0,X1,Y1,Z1 | mesh "
                   "FILE X,Y,Z SIZE, then add|remove|paint [R,G,B] ('#' comments); saved as one "
                   "transaction");
+  cmd->add_option("--snow", args->snow,
+                  "Snowfall (brickmap paper 5.5): this many steps, each one voxel of snow on top "
+                  "of the highest solid voxel of --snow-rate of the columns");
+  cmd->add_option("--snow-rate", args->snow_rate, "With --snow: share of the columns per step")
+      ->capture_default_str();
+  cmd->add_option("--render", args->render,
+                  "With --snow: render frames while a worker thread snows (the steps become "
+                  "visible between frames), writing the last frame to this PNG");
+  cmd->add_option("--render-size", args->render_size, "With --render: image size WxH")
+      ->capture_default_str();
   cmd->add_flag("--add", args->add, "Make the brush's voxels solid (color: --color)");
   cmd->add_flag("--remove", args->remove, "Make the brush's voxels empty");
   cmd->add_option("--paint", args->paint, "Recolor the brush's solid voxels, r,g,b (sRGB, 0..1)");
@@ -191,7 +208,20 @@ Runner add_edit(CLI::App& app) {
                 "anyway once it is larger than the file and 16 MiB)");
   return [args]() {
     std::vector<EditStep> steps;
-    if (!args->batch.empty()) {
+    if (!args->render.empty() && args->snow == 0) throw UsageError("--render needs --snow");
+    if (args->snow != 0) {
+      require_range("--snow", args->snow, 1, 1000000);
+      require_range("--snow-rate", args->snow_rate, 0, 1);
+      if (!args->batch.empty() || !args->sphere.empty() || !args->box.empty() ||
+          !args->mesh.empty() || args->add || args->remove || !args->paint.empty())
+        throw UsageError("--snow takes no brush or operation");
+      for (int s = 0; s < args->snow; ++s) {
+        EditStep e;
+        e.kind = EditStep::Kind::Snow;
+        e.step = uint32_t(s);
+        steps.push_back(e);
+      }
+    } else if (!args->batch.empty()) {
       if (!args->sphere.empty() || !args->box.empty() || !args->mesh.empty() || args->add ||
           args->remove || !args->paint.empty())
         throw UsageError("--batch takes its brushes and operations from the file");
@@ -225,7 +255,14 @@ Runner add_edit(CLI::App& app) {
       outputs = std::make_unique<OutputSet>(std::vector<std::string>{args->input});
       outputs->add("-o", args->output, {".vxc"});
     }
-    if (!args->batch.empty()) steps = parse_batch(args->batch);
+    std::unique_ptr<OutputSet> frame_out;
+    RenderOptions ro;
+    if (!args->render.empty()) {
+      parse_size(args->render_size, &ro.width, &ro.height);
+      frame_out = std::make_unique<OutputSet>(std::vector<std::string>{args->input});
+      frame_out->add("--render", args->render, {".png"});
+    }
+    if (!args->batch.empty() && args->snow == 0) steps = parse_batch(args->batch);
     require_regular_input(args->input, "world");
     const std::string format = scene_format(ContainerReader::open(args->input));
     if (format != brickmap::kFormatName)
@@ -237,13 +274,42 @@ Runner add_edit(CLI::App& app) {
     uint64_t voxels = 0;
     std::set<uint64_t> cells;
     double seconds = 0;
-    for (const EditStep& e : steps) {
+    if (frame_out) {
+      // The simulation on LiveWorld's worker while frames render (§5.5).
+      brickmap::LiveWorld live(world);
+      brickmap::SnowOptions snow;
+      snow.rate = args->snow_rate;
+      for (const EditStep& e : steps) live.submit_snow(e.step, snow);
+      ro.camera = Camera::orbit(world.occupied_bounds(), ro.width, ro.height, 30.f, 35.f);
+      RenderResult last;
+      for (uint32_t f = 0;; ++f) {
+        const bool done = live.applied() == steps.size();
+        ro.frame = f;
+        last = render(live, ro);  // publishes the finished steps first
+        std::printf("frame %u: %llu of %zu snow steps visible, %.2f Mrays/s\n", f,
+                    (unsigned long long)live.applied(), steps.size(),
+                    last.seconds > 0 ? double(last.rays) / last.seconds * 1e-6 : 0.0);
+        if (done) break;
+      }
+      frame_out->write(args->render,
+                       [&](const std::filesystem::path& to) { write_image(to, last.color); });
+      frame_out->commit();
+      const brickmap::LiveWorld::Throughput t = live.throughput();
+      voxels = t.voxels, seconds = t.seconds;
+      world = live.world();
+      for (uint64_t c = 0; c < world.cells().size(); ++c)
+        if (brickmap::CellFlags::get(world.cell(c)) & brickmap::kFlagEdited) cells.insert(c);
+    }
+    for (const EditStep& e : frame_out ? std::vector<EditStep>{} : steps) {
       const VoxelSet stamp =
           e.kind == EditStep::Kind::Mesh ? stamp_voxels(e, world.grid()) : VoxelSet{};
       const auto t0 = std::chrono::steady_clock::now();
-      const brickmap::EditResult r = e.kind == EditStep::Kind::Mesh
-                                         ? brickmap::stamp(world, stamp, e.op, e.color)
-                                         : brickmap::edit(world, e.brush, e.op, e.color);
+      brickmap::SnowOptions snow;
+      snow.rate = args->snow_rate;
+      const brickmap::EditResult r =
+          e.kind == EditStep::Kind::Snow   ? brickmap::snow_step(world, e.step, snow)
+          : e.kind == EditStep::Kind::Mesh ? brickmap::stamp(world, stamp, e.op, e.color)
+                                           : brickmap::edit(world, e.brush, e.op, e.color);
       seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
       voxels += r.voxels;
       cells.insert(r.cells.begin(), r.cells.end());

@@ -1,16 +1,19 @@
 // voxcast generate hairball|menger|terrain -o MESH: procedural stress meshes
-// for the voxelizer and the DAG (generate.hpp); generate sky -o ENV.hdr: the
-// procedural environment map of environment.hpp.
+// for the voxelizer and the DAG (generate.hpp); generate terrain -o WORLD.vxc
+// --size WxDxH: a brickmap world written chunk by chunk (brickmap_terrain.hpp);
+// generate sky -o ENV.hdr: the procedural environment map of environment.hpp.
 #include <cstdio>
 #include <filesystem>
 #include <memory>
 
 #include "cli_io.hpp"
 #include "commands.hpp"
+#include "voxcast/brickmap_terrain.hpp"
 #include "voxcast/environment.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/exr.hpp"
 #include "voxcast/generate.hpp"
+#include "voxcast/progress.hpp"
 #include "voxcast/system.hpp"
 
 namespace voxcast::cli {
@@ -19,7 +22,8 @@ namespace {
 struct GenerateArgs {
   std::string kind, output;
   uint64_t seed = 1;
-  int tubes = 200, segments = 64, sides = 6, level = 3, size = 256, octaves = 6;
+  int tubes = 200, segments = 64, sides = 6, level = 3, size = 256, octaves = 6, threads = 0;
+  std::string size_text = "256";
   double radius = 0.004, step = 0.04, height = 0.25, persistence = 0.5;
   std::string memory_budget;
   std::string sky_size = "256x128", sun;  // sky
@@ -44,6 +48,47 @@ int generate_sky(const GenerateArgs& a) {
   });
   outputs.commit();
   std::printf("%s: sky, %dx%d lat-long\n", printable(a.output).c_str(), w, h);
+  return 0;
+}
+
+// generate terrain -o WORLD.vxc: the brickmap terrain, --size WxDxH voxels
+// (x, z, then the height along y, the up axis).
+int generate_terrain_world(const GenerateArgs& a) {
+  brickmap::TerrainOptions o;
+  unsigned w = 0, d = 0, h = 0;
+  char x1 = 0, x2 = 0, rest = 0;
+  if (std::sscanf(a.size_text.c_str(), "%u%c%u%c%u%c", &w, &x1, &d, &x2, &h, &rest) != 5 ||
+      (x1 != 'x' && x1 != 'X') || (x2 != 'x' && x2 != 'X') || w < 16 || d < 16 || h < 16 ||
+      w > 65536 || d > 65536 || h > 65536)
+    throw UsageError("--size: '" + printable(a.size_text) +
+                     "' is not WxDxH voxels (each 16 .. 65536) for a brickmap terrain");
+  require_range("--threads", a.threads, 0, 4096);
+  o.size[0] = w, o.size[1] = h, o.size[2] = d;
+  o.seed = a.seed;
+  o.threads = a.threads;
+  uint64_t columns = 0;
+  try {
+    brickmap::terrain_grid(o);  // size limits
+    columns = uint64_t((w + 127) / 128) * ((d + 127) / 128);
+  } catch (const Error& e) {
+    throw UsageError(e.what());
+  }
+  OutputSet outputs({});
+  outputs.add("-o", a.output, {".vxc"});
+  brickmap::TerrainStats st;
+  Progress progress("terrain", columns);
+  o.progress = &progress;
+  outputs.write(a.output,
+                [&](const std::filesystem::path& to) { st = brickmap::write_terrain(to, o); });
+  outputs.commit();
+  std::printf(
+      "%s: brickmap terrain %ux%ux%u, %llu voxels in %llu bricks, %llu chunks, %s of LZ4 chunks "
+      "(%.2f x), brickgrid header %s\n",
+      printable(a.output).c_str(), w, d, h, (unsigned long long)st.voxels,
+      (unsigned long long)st.bricks, (unsigned long long)st.chunks,
+      format_bytes(double(st.chunk_bytes)).c_str(),
+      st.chunk_bytes ? double(st.raw_bytes) / double(st.chunk_bytes) : 0.0,
+      format_bytes(4.0 * double(st.header_cells)).c_str());
   return 0;
 }
 
@@ -79,7 +124,8 @@ Runner add_generate(CLI::App& app) {
       "terrain (fBm height field); or an HDR environment map: sky");
   cmd->add_option("KIND", args->kind, "hairball | menger | terrain | sky")->required();
   cmd->add_option("-o,--output", args->output,
-                  "Output mesh (.obj or binary .ply); sky: .hdr or .exr")
+                  "Output mesh (.obj or binary .ply); terrain also a brickmap world (.vxc); "
+                  "sky: .hdr or .exr")
       ->required();
   cmd->add_option("--sky-size", args->sky_size, "sky: image size WxH")->capture_default_str();
   cmd->add_option("--sun", args->sun, "sky: glow around the sun travelling along dx,dy,dz");
@@ -94,8 +140,12 @@ Runner add_generate(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--step", args->step, "hairball: random-walk step length")->capture_default_str();
   cmd->add_option("--level", args->level, "menger: recursion level 0..5")->capture_default_str();
-  cmd->add_option("--size", args->size, "terrain: vertices per side (N x N)")
+  cmd->add_option("--size", args->size_text,
+                  "terrain: vertices per side N (a mesh); WxDxH voxels (a .vxc brickmap world, "
+                  "H the height)")
       ->capture_default_str();
+  cmd->add_option("--threads", args->threads,
+                  "terrain .vxc: worker threads (0 = all cores; same bytes for any count)");
   cmd->add_option("--octaves", args->octaves, "terrain: fBm octaves")->capture_default_str();
   cmd->add_option("--height", args->height, "terrain: height scale (extent 1)")
       ->capture_default_str();
@@ -108,10 +158,22 @@ Runner add_generate(CLI::App& app) {
     if (args->kind != "hairball" && args->kind != "menger" && args->kind != "terrain")
       throw UsageError("generate: '" + printable(args->kind) +
                        "' is not hairball, menger, terrain or sky");
+    if (args->kind == "terrain" && std::filesystem::path(args->output).extension() == ".vxc")
+      return generate_terrain_world(*args);
+    {
+      char rest = 0;
+      if (std::sscanf(args->size_text.c_str(), "%d%c", &args->size, &rest) != 1)
+        throw UsageError("--size: '" + printable(args->size_text) +
+                         "' is not a vertex count (WxDxH is for a .vxc terrain)");
+    }
     uint64_t budget = 0;
     if (!args->memory_budget.empty()) budget = parse_memory_budget(args->memory_budget);
     OutputSet outputs({});
-    outputs.add("-o", args->output, {".obj", ".ply"});
+    // (A terrain's .vxc went to generate_terrain_world above.)
+    if (args->kind == "terrain")
+      outputs.add("-o", args->output, {".obj", ".ply", ".vxc"});
+    else
+      outputs.add("-o", args->output, {".obj", ".ply"});
     {
       if (budget == 0) budget = uint64_t(double(available_memory_bytes()) * 0.9);
       const bool obj = std::filesystem::path(args->output).extension() != ".ply" &&

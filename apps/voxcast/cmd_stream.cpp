@@ -28,6 +28,9 @@ void add_stream_options(CLI::App* cmd, StreamArgs& a) {
       ->capture_default_str();
   cmd->add_flag("--no-hidden-removal", a.no_hidden_removal,
                 "With --stream: upload voxels enclosed by solid neighbours too");
+  cmd->add_flag("--dxt1", a.dxt1,
+                "With --stream: keep the uploaded bricks' colors as DXT1 blocks (0.5 B per voxel "
+                "instead of 4)");
 }
 
 int render_stream(const StreamArgs& a, const std::string& world, const std::string& output,
@@ -40,6 +43,7 @@ int render_stream(const StreamArgs& a, const std::string& world, const std::stri
   so.budget_bytes = parse_memory_budget(a.budget.empty() ? std::string("512M") : a.budget);
   so.uploads_per_pass = uint32_t(a.uploads);
   so.hidden_voxel_removal = !a.no_hidden_removal;
+  so.dxt1 = a.dxt1;
   OutputSet outputs({world});
   outputs.add("-o", output, {".png", ".pfm"});
   require_regular_input(world, "world");
@@ -70,13 +74,15 @@ int render_stream(const StreamArgs& a, const std::string& world, const std::stri
                  printable(f.reason).c_str());
   std::printf(
       "stream: %llu uploads, %llu evictions, %llu chunk loads, %llu hidden voxels dropped, peak "
-      "resident %s of %s, peak cache %s of %s\n",
+      "resident %s of %s, peak cache %s of %s; chunk decode %s in %.3f s (%.2f GB/s)\n",
       (unsigned long long)st.uploaded, (unsigned long long)st.evicted,
       (unsigned long long)st.chunk_loads, (unsigned long long)st.hidden_voxels,
       format_bytes(double(st.peak_resident_bytes)).c_str(),
       format_bytes(double(s.brick_budget())).c_str(),
       format_bytes(double(st.peak_cache_bytes)).c_str(),
-      format_bytes(double(s.cache_budget())).c_str());
+      format_bytes(double(s.cache_budget())).c_str(),
+      format_bytes(double(st.decoded_bytes)).c_str(), st.decode_seconds,
+      st.decode_seconds > 0 ? double(st.decoded_bytes) / st.decode_seconds * 1e-9 : 0.0);
   outputs.write(output, [&](const std::filesystem::path& to) { write_image(to, last.color); });
   outputs.commit();
   return 0;

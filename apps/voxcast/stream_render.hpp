@@ -20,6 +20,7 @@ struct StreamArgs {
   int uploads = 4096;
   int passes = 1;
   bool no_hidden_removal = false;
+  bool dxt1 = false;
 };
 
 void add_stream_options(CLI::App* cmd, StreamArgs& args);

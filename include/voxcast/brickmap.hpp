@@ -47,6 +47,17 @@
 //   index of a parallel array. Colors stay raw in the world (§3.1.3: "colors
 //   can be stored in raw format in RAM which makes editing ... easier").
 //   Runs are allocated by size class (ColorAllocator below).
+//
+// ---- DXT1 colors (§3.1.3; a render-side world, World::use_dxt1) -----------
+//   Instead of the u32 colors, one 64-bit DXT1 (BC1) block per 16 voxels of
+//   a brick's run: block b of the brick holds the colors of its voxels with
+//   rank 16 b .. 16 b + 15 and sits at color_blocks()[Brick::color / 16 + b]
+//   (runs start at multiples of 16, their size class). Block bits 0..15 and
+//   16..31: endpoint colors c0, c1 as RGB565 of the 8-bit sRGB values (R in
+//   the high bits); bits 32 + 2 i .. 33 + 2 i: the palette index of the
+//   block's voxel i. c0 > c1: palette c0, c1, (2 c0 + c1) / 3, (c0 + 2 c1) / 3;
+//   else c0, c1, (c0 + c1) / 2, black (the encoder never uses black). 0.5 B
+//   per voxel instead of 4; normals stay raw.
 #include <array>
 #include <cstddef>
 #include <cstdint>
@@ -124,6 +135,13 @@ constexpr bool test_voxel(const Brick& b, uint32_t bit) {
 }
 /// Solid voxels of the brick.
 int brick_popcount(const Brick& b);
+
+/// The DXT1 block (layout above) of `count` (1..16) ABGR8 colors: endpoints
+/// the extreme colors along the colors' principal axis, each voxel the
+/// nearest palette entry. Deterministic (integer arithmetic but the axis).
+uint64_t dxt1_encode(const uint32_t* abgr, int count);
+/// Voxel i's color (ABGR8, A = 255) of a DXT1 block.
+uint32_t dxt1_decode(uint64_t block, int i);
 /// Solid voxels of the brick whose bit index is below `bit` (§4.1): the
 /// voxel's offset in the brick's color run.
 int rank_below(const Brick& b, uint32_t bit);
@@ -187,7 +205,8 @@ struct WorldStats {
   uint64_t occupancy_bytes = 0;
   uint64_t pyramid_bytes = 0;  // the coarse levels above the brickgrid (8 B per node)
   uint64_t brick_bytes = 0;    // brick pool extent x 72 B
-  uint64_t color_bytes = 0;    // color pool extent x 4 B (size-class slack included)
+  uint64_t color_bytes = 0;    // color pool extent x 4 B (size-class slack included;
+                               // DXT1: 8 B per 16 entries)
   uint64_t normal_bytes = 0;   // the same for normals (0 without stored normals)
   uint64_t total_bytes() const {
     return grid_bytes + occupancy_bytes + pyramid_bytes + brick_bytes + color_bytes + normal_bytes;
@@ -201,10 +220,14 @@ class World {
  public:
   /// An empty world over `grid` (brickgrid of ceil(N / 8)^3 cells). Throws
   /// voxcast::Error for an invalid placement or past kMaxGridCells.
-  explicit World(const GridTransform& grid, bool normals = true);
+  /// `height_cells` (1 .. ceil(N / 8); 0 = all): a brickgrid cut off above
+  /// that many cells in y, the up axis of cameras (a terrain far wider than
+  /// high): the grid stays the N^3 cube, the voxels above the cut are empty
+  /// and take no memory.
+  explicit World(const GridTransform& grid, bool normals = true, uint32_t height_cells = 0);
 
   const GridTransform& grid() const { return grid_; }
-  /// Brickgrid cells per axis; occupancy cells per axis.
+  /// Brickgrid cells per axis (y may be cut off, World()); occupancy cells per axis.
   const std::array<uint32_t, 3>& dims() const { return dims_; }
   const std::array<uint32_t, 3>& occupancy_dims() const { return occ_dims_; }
   bool has_normals() const { return normals_; }
@@ -222,12 +245,19 @@ class World {
 
   /// The occupancy pyramid: the coarse levels an LOD footprint can stop at
   /// above the bricks and the empty space the walk skips. Level k (1 ..
-  /// pyramid_levels()) has pyramid_dim(k)^3 nodes, node (i, j, l) covering
-  /// brickgrid cells [i 2^k, (i+1) 2^k) x ... (index i + d (j + d l), d =
-  /// pyramid_dim(k)); level 0 is the brickgrid itself and the top level is
-  /// one node. Kept up to date by set_brick / set_not_resident.
+  /// pyramid_levels()) has pyramid_dim(k)^2 pyramid_dim_y(k) nodes, node (i,
+  /// j, l) covering brickgrid cells [i 2^k, (i+1) 2^k) x ... (pyramid_index:
+  /// i + d (j + e l), d = pyramid_dim(k), e = pyramid_dim_y(k) = d unless the
+  /// brickgrid is cut off in y; nodes above the cut are empty and not
+  /// stored); level 0 is the brickgrid itself
+  /// and the top level is one node. Kept up to date by set_brick /
+  /// set_not_resident.
   int pyramid_levels() const { return int(pyramid_.size()); }
   uint32_t pyramid_dim(int k) const { return dims_[0] >> k; }
+  uint32_t pyramid_dim_y(int k) const { return (dims_[1] + (1u << k) - 1) >> k; }
+  uint64_t pyramid_index(int k, uint32_t i, uint32_t j, uint32_t l) const {
+    return i + uint64_t(pyramid_dim(k)) * (j + uint64_t(pyramid_dim_y(k)) * l);
+  }
   const PyramidNode& pyramid_node(int k, uint64_t index) const {
     return pyramid_[size_t(k - 1)][size_t(index)];
   }
@@ -235,6 +265,18 @@ class World {
   const BrickPool& bricks() const { return pool_; }
   const Brick& brick(uint32_t index) const { return pool_[index]; }
   const std::vector<uint32_t>& colors() const { return colors_; }
+  /// Store colors as DXT1 blocks from now on (layout above; colors() stays
+  /// empty): only an empty world, a render-side one (a streamer's); such a
+  /// world cannot be saved (edits re-encode its blocks). Throws
+  /// voxcast::Error for a world that has bricks.
+  void use_dxt1();
+  bool dxt1() const { return dxt1_; }
+  const std::vector<uint64_t>& color_blocks() const { return blocks_; }
+  /// The ABGR8 color of the voxel of rank `rank` in brick `b` (raw or DXT1).
+  uint32_t color_of(const Brick& b, uint32_t rank) const {
+    return dxt1_ ? dxt1_decode(blocks_[(b.color + rank) >> 4], int((b.color + rank) & 15))
+                 : colors_[b.color + rank];
+  }
   const std::vector<uint32_t>& normals() const { return normals_data_; }
 
   /// Stores a brick in cell `index` (replacing what was there, releasing its
@@ -271,6 +313,8 @@ class World {
   BrickPool pool_;
   ColorAllocator color_alloc_;
   std::vector<uint32_t> colors_, normals_data_;
+  bool dxt1_ = false;
+  std::vector<uint64_t> blocks_;  // DXT1 colors, one block per 16 entries
 };
 
 struct BuildOptions {
@@ -395,6 +439,21 @@ EditResult edit(World& world, const Brush& brush, EditOp op, const Color& color 
 /// ones with their colors (or `color`). Same bookkeeping and refusals as
 /// edit(); throws voxcast::Error for a set on another grid.
 EditResult stamp(World& world, const VoxelSet& voxels, EditOp op, const Color& color = {});
+
+/// World-scale snowfall (§5.5).
+struct SnowOptions {
+  uint64_t seed = 1;
+  double rate = 0.5;                      // share of the columns a step snows on, [0, 1]
+  Color color{0.86f, 0.88f, 0.92f, 1.f};  // linear
+};
+/// One step of snowfall: in every voxel column (x, z) that has a solid voxel
+/// and is chosen this step (a hash of x, z, `step` and the seed below
+/// `rate`), one snow voxel (normal +y) on top of the column's highest solid
+/// voxel: snow lands only where the sky is open above, on upward-facing
+/// surfaces, never under overhangs or in caves, and piles up step by step.
+/// Applied through stamp() (the bricks it rewrote in the result). Throws
+/// voxcast::Error for a rate outside [0, 1] or a brick that is not resident.
+EditResult snow_step(World& world, uint32_t step, const SnowOptions& options = {});
 
 // ---- Scene files (src/brickmap/format.cpp; layout documented there) ----
 

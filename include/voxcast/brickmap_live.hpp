@@ -36,6 +36,9 @@ class LiveWorld final : public BrickmapView {
   /// as applied; its message is kept (last_error()).
   uint64_t submit(const Brush& brush, EditOp op, const Color& color = {});
   uint64_t submit(VoxelSet stamp, EditOp op, const Color& color = {});
+  /// Queue one step of snowfall (snow_step on the worker's copy: the
+  /// world-scale simulation of §5.5 while frames render).
+  uint64_t submit_snow(uint32_t step, const SnowOptions& options = {});
   /// Blocks until the worker has finished every submitted edit (they may
   /// still wait for the next frame to become visible).
   void wait_worker();
@@ -58,9 +61,13 @@ class LiveWorld final : public BrickmapView {
   const World& world() const { return *front_; }
 
  private:
+  struct SnowJob {
+    uint32_t step;
+    SnowOptions options;
+  };
   struct Job {
     uint64_t number;
-    std::variant<Brush, VoxelSet> brush;
+    std::variant<Brush, VoxelSet, SnowJob> brush;
     EditOp op;
     Color color;
   };

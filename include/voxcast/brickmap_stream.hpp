@@ -16,7 +16,9 @@
 //     chunk that fails is refused: its bricks are left out (their cells
 //     emptied), the rest of the world streams on;
 //   * hidden-voxel removal (§4.2): voxels whose six neighbours are solid
-//     (neighbours in other chunks count as empty) are dropped before upload,
+//     (a neighbour brick in another chunk is read through the chunk cache,
+//     loading its chunk if needed; outside the world or in a refused chunk
+//     it counts as empty) are dropped before upload,
 //     unless that would drop the whole brick; the brick keeps the LOD color
 //     of all its voxels, so that coarse hits do not change;
 //   * when the resident bricks would exceed their budget, the bricks seen
@@ -28,8 +30,10 @@
 // (decoded bytes; it keeps at least the chunk in use). The brickgrid header
 // and the pyramid are outside the budget.
 //
-// Limits: a world with an edit journal must be checkpointed first (the
-// streamer reads the scene file only).
+// A world with an edit journal streams in its saved state: the journal's
+// last committed brickgrid header and the latest image of each chunk it
+// rewrote (kept LZ4-compressed in RAM, outside the budget) replace the
+// file's.
 #include <cstdint>
 #include <filesystem>
 #include <list>
@@ -47,6 +51,9 @@ struct StreamOptions {
   uint64_t budget_bytes = uint64_t(512) << 20;
   uint32_t uploads_per_pass = 4096;  // N: bricks made resident per end_pass
   bool hidden_voxel_removal = true;
+  /// Colors of the uploaded bricks as DXT1 blocks (§3.1.3, brickmap.hpp;
+  /// World::use_dxt1): 0.5 B per voxel instead of 4 in the brick budget.
+  bool dxt1 = false;
 };
 
 struct StreamStats {
@@ -57,13 +64,17 @@ struct StreamStats {
   uint64_t hidden_voxels = 0;  // voxels dropped by hidden-voxel removal
   uint64_t resident_bytes = 0, peak_resident_bytes = 0;
   uint64_t cache_bytes = 0, peak_cache_bytes = 0;
+  // Chunk decoding (checksum, LZ4, brick index; not the file read): raw bytes
+  // produced and the wall time it took, the decode rate of the benchmark.
+  uint64_t decoded_bytes = 0;
+  double decode_seconds = 0;
   std::vector<ChunkFailure> refused;  // chunks that failed their checksum or decoding
 };
 
 class StreamingWorld final : public BrickmapView {
  public:
   /// Throws voxcast::Error for a file that is not a valid brickmap world (a
-  /// damaged META, header or chunk table) or that has an edit journal.
+  /// damaged META, header or chunk table, or a damaged edit journal).
   StreamingWorld(const std::filesystem::path& path, const StreamOptions& options);
   ~StreamingWorld() override;
 
@@ -89,6 +100,8 @@ class StreamingWorld final : public BrickmapView {
   std::shared_ptr<World> world_;
   std::vector<uint32_t> header_;  // the BMGH cells (LOD colors)
   std::vector<uint8_t> table_;    // BMCT
+  // Chunk images of the edit journal: chunk -> (raw size, LZ4 block).
+  std::unordered_map<uint64_t, std::pair<uint32_t, std::vector<uint8_t>>> journal_;
   uint64_t chunk_data_offset_ = 0, chunk_data_size_ = 0;
   std::vector<uint32_t> seen_;      // per brick slot (BrickmapStructure)
   std::vector<uint64_t> resident_;  // resident cells

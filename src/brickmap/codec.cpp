@@ -7,6 +7,7 @@
 #include <algorithm>
 
 #include "voxcast/error.hpp"
+#include "voxcast/esvo.hpp"
 
 namespace voxcast::brickmap::codec {
 
@@ -59,15 +60,31 @@ void encode_chunk(const World& w, const ChunkGrid& g, uint64_t chunk, std::vecto
     if (c == 0) return;
     if (cell_state(c) != kStateResident)
       throw Error("brickmap: cannot save a world with bricks that are not resident");
+    if (w.dxt1()) throw Error("brickmap: a world with DXT1 colors is render-side only");
     const Brick& b = w.brick(cell_brick(c));
-    const size_t count = size_t(brick_popcount(b));
-    const size_t at = raw->size();
-    raw->resize(at + 64 + count * (w.has_normals() ? 8 : 4));
-    std::memcpy(&(*raw)[at], b.mask, 64);
-    std::memcpy(&(*raw)[at + 64], &w.colors()[b.color], count * 4);
-    if (w.has_normals())
-      std::memcpy(&(*raw)[at + 64 + count * 4], &w.normals()[b.color], count * 4);
+    append_brick(raw, b.mask, &w.colors()[b.color],
+                 w.has_normals() ? &w.normals()[b.color] : nullptr, size_t(brick_popcount(b)));
   });
+}
+
+void append_brick(std::vector<uint8_t>* raw, const uint64_t mask[8], const uint32_t* colors,
+                  const uint32_t* normals, size_t count) {
+  const size_t at = raw->size();
+  raw->resize(at + 64 + count * (normals ? 8 : 4));
+  std::memcpy(&(*raw)[at], mask, 64);
+  std::memcpy(&(*raw)[at + 64], colors, count * 4);
+  if (normals) std::memcpy(&(*raw)[at + 64 + count * 4], normals, count * 4);
+}
+
+uint32_t mean_color_abgr(const uint32_t* colors, size_t count) {
+  double sum[3] = {0, 0, 0};
+  for (size_t i = 0; i < count; ++i) {
+    const Color c = esvo::decode_color_abgr(colors[i]);
+    sum[0] += c.r, sum[1] += c.g, sum[2] += c.b;
+  }
+  const double inv = 1.0 / double(count);
+  return esvo::encode_color_abgr(
+      {float(sum[0] * inv), float(sum[1] * inv), float(sum[2] * inv), 1.f});
 }
 
 std::vector<uint8_t> encode_grid_header(const World& w) {
@@ -78,6 +95,10 @@ std::vector<uint8_t> encode_grid_header(const World& w) {
     header[i] = not_resident_cell(cell_state(c) == kStateResident ? w.brick(cell_brick(c)).lod
                                                                   : cell_lod_abgr(c));
   }
+  return pack_grid_header(header);
+}
+
+std::vector<uint8_t> pack_grid_header(const std::vector<uint32_t>& header) {
   const uint8_t* hb = reinterpret_cast<const uint8_t*>(header.data());
   const size_t hbytes = header.size() * 4;
   std::vector<uint8_t> gh;

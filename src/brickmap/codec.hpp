@@ -7,7 +7,10 @@
 #include <bit>
 #include <cstdint>
 #include <cstring>
+#include <filesystem>
+#include <nlohmann/json_fwd.hpp>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 #include "voxcast/brickmap.hpp"
@@ -34,6 +37,11 @@ void put_le(std::vector<uint8_t>& out, T v) {
   out.resize(at + sizeof(T));
   std::memcpy(&out[at], &v, sizeof(T));
 }
+
+/// The brickgrid height (cells in z) of META "dims", validated against
+/// `grid` (the x and z dims are ceil(N / 8), y in 1 .. ceil(N / 8)), or a
+/// one-line META error.
+uint32_t meta_height_cells(const nlohmann::json& meta, const GridTransform& grid);
 
 /// Throws voxcast::Error("corrupt scene: " + what).
 [[noreturn]] void corrupt(const std::string& what);
@@ -76,6 +84,26 @@ void for_chunk_cells(const World& w, const ChunkGrid& g, uint64_t chunk, Fn&& fn
 /// solid voxel in bit order, then (with normals) one u32 normal each. Every
 /// non-empty cell must be resident.
 void encode_chunk(const World& w, const ChunkGrid& g, uint64_t chunk, std::vector<uint8_t>* raw);
+
+/// Appends one brick's bytes (its mask, `count` colors, then `count`
+/// normals unless `normals` is null) to a chunk's raw bytes.
+void append_brick(std::vector<uint8_t>* raw, const uint64_t mask[8], const uint32_t* colors,
+                  const uint32_t* normals, size_t count);
+/// The LOD color of a brick (World::set_brick): the mean of its voxels'
+/// linear colors, ABGR8 sRGB.
+uint32_t mean_color_abgr(const uint32_t* colors, size_t count);
+
+/// What a streamer needs of a world's edit journal (persist.cpp): the
+/// brickgrid header of the last committed transaction (empty without one)
+/// and the latest image of every chunk the transactions rewrote, as its LZ4
+/// block and raw size (raw 0: the chunk lost all its bricks). Records are
+/// validated as replay_journal does; a damaged journal head throws.
+struct JournalChunks {
+  std::vector<uint32_t> header;
+  std::unordered_map<uint64_t, std::pair<uint32_t, std::vector<uint8_t>>> chunks;
+  uint64_t transactions = 0;
+};
+JournalChunks read_journal_chunks(const std::filesystem::path& world_path, const World& w);
 
 /// One decoded brick of a chunk.
 struct ChunkBrick {
@@ -125,6 +153,8 @@ std::vector<ChunkBrick> decode_chunk(const World& w, const ChunkGrid& g, uint64_
 /// cell 0 (empty) or not resident (state 2, flags 0) with the brick's LOD
 /// color.
 std::vector<uint8_t> encode_grid_header(const World& w);
+/// The same bytes for the header cells themselves (each 0 or not resident).
+std::vector<uint8_t> pack_grid_header(const std::vector<uint32_t>& header);
 /// The header's cells, validated (`cells` of them, each empty or a plain
 /// LOD color), or corrupt() naming `what`.
 std::vector<uint32_t> decode_grid_header(const uint8_t* bytes, size_t size, uint64_t cells,

@@ -32,7 +32,7 @@ void expand(const World& w, uint32_t cell, BrickVoxels* out) {
   for (uint32_t word = 0; word < 8; ++word)
     for (uint64_t m = b.mask[word]; m != 0; m &= m - 1, ++k) {
       const uint32_t bit = word * 64 + uint32_t(std::countr_zero(m));
-      out->color[bit] = w.colors()[k];
+      out->color[bit] = w.color_of(b, uint32_t(k - b.color));
       if (w.has_normals()) out->normal[bit] = w.normals()[k];
     }
 }
@@ -103,6 +103,7 @@ EditResult edit(World& w, const Brush& brush, EditOp op, const Color& color) {
     const double h = (hi[a] - double(g.origin[a])) / g.voxel_size - 0.5;
     vlo[a] = int64_t(std::ceil(std::clamp(l, 0.0, n)));
     vhi[a] = int64_t(std::floor(std::clamp(h, -1.0, n - 1)));
+    if (a == 1) vhi[a] = std::min<int64_t>(vhi[a], int64_t(w.dims()[1]) * kBrickSide - 1);
     if (vlo[a] > vhi[a]) return {};
   }
   const uint32_t abgr = esvo::encode_color_abgr(color);
@@ -159,10 +160,13 @@ EditResult stamp(World& w, const VoxelSet& voxels, EditOp op, const Color& color
   const bool own = !voxels.colors.empty();
   const uint32_t fallback = esvo::encode_color_abgr(color);
   // The voxels grouped by brickgrid cell, in cell order.
-  std::vector<std::pair<uint64_t, size_t>> order(voxels.size());
+  // (Voxels above a cut-off brickgrid are outside the world: ignored.)
+  std::vector<std::pair<uint64_t, size_t>> order;
+  order.reserve(voxels.size());
   for (size_t i = 0; i < voxels.size(); ++i) {
     const MortonCoord c = morton_decode(voxels.codes[i]);
-    order[i] = {w.cell_index(c.x >> kBrickLog2, c.y >> kBrickLog2, c.z >> kBrickLog2), i};
+    if ((c.y >> kBrickLog2) >= w.dims()[1]) continue;
+    order.push_back({w.cell_index(c.x >> kBrickLog2, c.y >> kBrickLog2, c.z >> kBrickLog2), i});
   }
   std::sort(order.begin(), order.end());
   EditResult result;

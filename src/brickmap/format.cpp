@@ -1,6 +1,7 @@
 // Brickmap scene files (§4.5): a Container (scene_file.hpp) with
 //
-//   'META' UTF-8 JSON: {"format": "brickmap", "grid": {...}, "dims": [X,Y,Z],
+//   'META' UTF-8 JSON: {"format": "brickmap", "grid": {...}, "dims": [X,Y,Z]
+//          (X = Z = ceil(N / 8); Y <= X: a brickgrid cut off in y, World()),
 //          "bricks": B, "leaf_voxels": V, "normals": bool, "chunk_log2": 4,
 //          "source": ..., "voxelization": ..., "source_triangles": ...}
 //   'BMGH' the brickgrid header, what a streaming reader loads first (§4.5:
@@ -129,6 +130,21 @@ bool read_chunk_bytes(const ContainerReader& c, uint64_t offset, uint64_t size,
 
 }  // namespace
 
+uint32_t codec::meta_height_cells(const nlohmann::json& meta, const GridTransform& grid) {
+  using namespace meta;
+  const nlohmann::json& dj = field(meta, "dims");
+  if (!dj.is_array() || dj.size() != 3) bad("'dims' is not an array of 3 integers");
+  uint64_t dims[3];
+  for (size_t a = 0; a < 3; ++a) {
+    if (!dj[a].is_number_unsigned()) bad("'dims' is not an array of 3 integers");
+    dims[a] = dj[a].get<uint64_t>();
+  }
+  const uint64_t n = (uint64_t(grid.resolution) + kBrickSide - 1) >> kBrickLog2;
+  if (dims[0] != n || dims[2] != n || dims[1] < 1 || dims[1] > n)
+    bad("'dims' does not match the grid");
+  return uint32_t(dims[1]);
+}
+
 Container save_world(const World& w, const SceneInfo& info) {
   Container c;
   for (Section& s : world_sections(w, info)) c.add(s.id, std::move(s.bytes));
@@ -160,18 +176,13 @@ World read_world(const ContainerReader& c, SceneInfo* info, std::vector<ChunkFai
   SceneInfo si;
   bool normals = false;
   uint64_t bricks = 0, voxels = 0;
-  std::array<uint64_t, 3> dims{};
+  uint32_t height_cells = 0;
   try {
     using namespace meta;
     if (get_string(meta, "format") != kFormatName) bad("format is not 'brickmap'");
     grid = grid_from_json(meta, 0);
     info_from_json(meta, &si);
-    const nlohmann::json& dj = field(meta, "dims");
-    if (!dj.is_array() || dj.size() != 3) bad("'dims' is not an array of 3 integers");
-    for (size_t a = 0; a < 3; ++a) {
-      if (!dj[a].is_number_unsigned()) bad("'dims' is not an array of 3 integers");
-      dims[a] = dj[a].get<uint64_t>();
-    }
+    height_cells = meta_height_cells(meta, grid);
     bricks = get_uint(meta, "bricks", 0, kMaxBricks);
     voxels = get_uint(meta, "leaf_voxels", 0, bricks * kBrickVoxels);
     const nlohmann::json& nj = field(meta, "normals");
@@ -182,9 +193,7 @@ World read_world(const ContainerReader& c, SceneInfo* info, std::vector<ChunkFai
     throw Error("corrupt scene: META section: " + meta::json_error_text(e));
   }
   if (!grid.placement_is_valid()) meta::bad("'grid' is not a valid placement");
-  World w(grid, normals);  // throws for grids past kMaxGridCells
-  for (size_t a = 0; a < 3; ++a)
-    if (dims[a] != w.dims()[a]) meta::bad("'dims' does not match the grid");
+  World w(grid, normals, height_cells);  // throws for grids past kMaxGridCells
 
   const std::vector<uint8_t> gh = c.read(kHeaderSection);
   const std::vector<uint32_t> header =

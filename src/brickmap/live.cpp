@@ -38,6 +38,10 @@ uint64_t LiveWorld::submit(VoxelSet stamp, EditOp op, const Color& color) {
   return enqueue(Job{0, std::move(stamp), op, color});
 }
 
+uint64_t LiveWorld::submit_snow(uint32_t step, const SnowOptions& options) {
+  return enqueue(Job{0, SnowJob{step, options}, EditOp::Add, options.color});
+}
+
 void LiveWorld::run() {
   for (;;) {
     Job job;
@@ -55,9 +59,12 @@ void LiveWorld::run() {
     std::string error;
     EditResult r;
     try {
-      r = std::holds_alternative<Brush>(job.brush)
-              ? edit(back_, std::get<Brush>(job.brush), job.op, job.color)
-              : stamp(back_, std::get<VoxelSet>(job.brush), job.op, job.color);
+      if (const SnowJob* snow = std::get_if<SnowJob>(&job.brush))
+        r = snow_step(back_, snow->step, snow->options);
+      else if (const Brush* brush = std::get_if<Brush>(&job.brush))
+        r = edit(back_, *brush, job.op, job.color);
+      else
+        r = stamp(back_, std::get<VoxelSet>(job.brush), job.op, job.color);
     } catch (const Error& e) {
       error = e.what();
     }

@@ -162,6 +162,35 @@ Parsed parse_journal(const std::vector<uint8_t>& j, const World& w, const std::s
   return out;
 }
 
+// A chunk record's fields (payload: u64 chunk, the cells' presence bits,
+// u32 raw size, u32 LZ4 size, the LZ4 block), validated.
+struct ChunkRecord {
+  uint64_t chunk = 0;
+  const uint8_t* bits = nullptr;
+  const uint8_t* z = nullptr;
+  size_t z_size = 0, raw = 0;
+};
+ChunkRecord chunk_record(const Record& r, const ChunkGrid& cg, const std::string& name) {
+  if (r.size < 8 + kCellBits + 8) corrupt(name + ": short chunk record");
+  ChunkRecord c;
+  c.chunk = load_le<uint64_t>(r.payload);
+  if (c.chunk >= cg.count()) corrupt(name + ": chunk index out of range");
+  c.bits = r.payload + 8;
+  const uint64_t rs = load_le<uint32_t>(r.payload + 8 + kCellBits);
+  const uint64_t zs = load_le<uint32_t>(r.payload + 12 + kCellBits);
+  if (zs != r.size - (16 + kCellBits) || rs > kMaxChunkRaw) corrupt(name + ": bad chunk sizes");
+  c.z = r.payload + 16 + kCellBits, c.z_size = size_t(zs), c.raw = size_t(rs);
+  return c;
+}
+
+// The brickgrid header of a transaction's header record.
+std::vector<uint32_t> header_record(const Record* header, const World& w) {
+  if (header == nullptr) corrupt("journal transaction without a brickgrid header");
+  if (header->size < 16) corrupt("journal: short header record");
+  return decode_grid_header(header->payload + 16, size_t(header->size - 16), w.cells().size(),
+                            "journal header");
+}
+
 // One transaction into the world (the header checked against the chunks
 // it replaces); returns the chunks it replaced.
 std::vector<uint64_t> apply(World& w, const std::vector<Record>& txn, SceneInfo* si) {
@@ -174,16 +203,11 @@ std::vector<uint64_t> apply(World& w, const std::vector<Record>& txn, SceneInfo*
       continue;
     }
     const std::string name = "journal transaction " + std::to_string(r.txn);
-    if (r.size < 8 + kCellBits + 8) corrupt(name + ": short chunk record");
-    const uint64_t chunk = load_le<uint64_t>(r.payload);
-    if (chunk >= cg.count()) corrupt(name + ": chunk index out of range");
-    const uint8_t* bits = r.payload + 8;
-    const uint64_t rs = load_le<uint32_t>(r.payload + 8 + kCellBits);
-    const uint64_t zs = load_le<uint32_t>(r.payload + 12 + kCellBits);
-    if (zs != r.size - (16 + kCellBits) || rs > kMaxChunkRaw) corrupt(name + ": bad chunk sizes");
+    const ChunkRecord cr = chunk_record(r, cg, name);
+    const uint64_t chunk = cr.chunk;
+    const uint8_t* bits = cr.bits;
     const std::vector<uint8_t> raw =
-        rs ? decompress(r.payload + 16 + kCellBits, size_t(zs), size_t(rs), name)
-           : std::vector<uint8_t>{};
+        cr.raw ? decompress(cr.z, cr.z_size, cr.raw, name) : std::vector<uint8_t>{};
     const auto present = [&](uint64_t, uint32_t pos) { return (bits[pos >> 3] >> (pos & 7)) & 1; };
     std::vector<ChunkBrick> got =
         decode_chunk(w, cg, chunk, raw, name + " " + chunk_name(cg, chunk), present);
@@ -194,10 +218,7 @@ std::vector<uint64_t> apply(World& w, const std::vector<Record>& txn, SceneInfo*
     for (const ChunkBrick& b : got) w.set_brick(b.cell, b.mask, b.colors.data(), b.normals.data());
     chunks.push_back(chunk);
   }
-  if (header == nullptr) corrupt("journal transaction without a brickgrid header");
-  if (header->size < 16) corrupt("journal: short header record");
-  const std::vector<uint32_t> cells = decode_grid_header(
-      header->payload + 16, size_t(header->size - 16), w.cells().size(), "journal header");
+  const std::vector<uint32_t> cells = header_record(header, w);
   for (uint64_t chunk : chunks)
     for_chunk_cells(w, cg, chunk, [&](uint64_t ci, uint32_t) {
       const uint32_t c = w.cell(ci);
@@ -212,6 +233,30 @@ std::vector<uint64_t> apply(World& w, const std::vector<Record>& txn, SceneInfo*
 }
 
 }  // namespace
+
+JournalChunks codec::read_journal_chunks(const std::filesystem::path& path, const World& w) {
+  JournalChunks out;
+  const std::filesystem::path jp = journal_path(path);
+  std::error_code ec;
+  if (!std::filesystem::exists(jp, ec)) return out;
+  const std::vector<uint8_t> bytes = read_file(jp);
+  const Parsed parsed = parse_journal(bytes, w, jp.string());
+  const ChunkGrid cg = chunk_grid(w.dims());
+  for (const std::vector<Record>& txn : parsed.txns) {
+    const Record* header = nullptr;
+    for (const Record& r : txn) {
+      if (r.type == kHeaderRecord) {
+        header = &r;
+        continue;
+      }
+      const ChunkRecord c = chunk_record(r, cg, "journal transaction " + std::to_string(r.txn));
+      out.chunks[c.chunk] = {uint32_t(c.raw), std::vector<uint8_t>(c.z, c.z + c.z_size)};
+    }
+    out.header = header_record(header, w);
+    ++out.transactions;
+  }
+  return out;
+}
 
 std::filesystem::path journal_path(const std::filesystem::path& world) {
   std::filesystem::path p = world;

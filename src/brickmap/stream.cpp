@@ -2,6 +2,7 @@
 #include <xxhash.h>
 
 #include <algorithm>
+#include <chrono>
 #include <fstream>
 
 #include "brickmap/codec.hpp"
@@ -33,10 +34,6 @@ struct StreamingWorld::Chunk {
 
 StreamingWorld::StreamingWorld(const std::filesystem::path& path, const StreamOptions& options)
     : path_(path), options_(options) {
-  std::error_code ec;
-  if (std::filesystem::exists(journal_path(path), ec))
-    throw Error("'" + path.string() +
-                "' has an edit journal; fold it in first (voxcast edit --checkpoint)");
   brick_budget_ = options.budget_bytes / 2;
   cache_budget_ = options.budget_bytes - brick_budget_;
   const ContainerReader reader = ContainerReader::open(path);
@@ -45,10 +42,12 @@ StreamingWorld::StreamingWorld(const std::filesystem::path& path, const StreamOp
   const nlohmann::json meta = meta::parse(reader);
   GridTransform grid;
   bool normals = false;
+  uint32_t height_cells = 0;
   try {
     using namespace meta;
     if (get_string(meta, "format") != kFormatName) bad("format is not 'brickmap'");
     grid = grid_from_json(meta, 0);
+    height_cells = meta_height_cells(meta, grid);
     const nlohmann::json& nj = field(meta, "normals");
     if (!nj.is_boolean()) bad("'normals' is not a boolean");
     normals = nj.get<bool>();
@@ -56,7 +55,8 @@ StreamingWorld::StreamingWorld(const std::filesystem::path& path, const StreamOp
     throw Error("corrupt scene: META section: " + meta::json_error_text(e));
   }
   if (!grid.placement_is_valid()) meta::bad("'grid' is not a valid placement");
-  world_ = std::make_shared<World>(grid, normals);
+  world_ = std::make_shared<World>(grid, normals, height_cells);
+  if (options.dxt1) world_->use_dxt1();
   const std::vector<uint8_t> gh = reader.read(kHeaderSection);
   header_ = decode_grid_header(gh.data(), gh.size(), world_->cells().size(), "BMGH section");
   const ChunkGrid cg = chunk_grid(world_->dims());
@@ -66,6 +66,11 @@ StreamingWorld::StreamingWorld(const std::filesystem::path& path, const StreamOp
     corrupt("BMCT section is not a table of " + std::to_string(cg.count()) + " chunks");
   const SectionInfo& data = reader.section(kChunkSection);
   chunk_data_offset_ = data.offset, chunk_data_size_ = data.size;
+  // The edit journal's committed transactions: their last header and the
+  // latest image of each chunk they rewrote replace the file's.
+  JournalChunks journal = read_journal_chunks(path, *world_);
+  if (!journal.header.empty()) header_ = std::move(journal.header);
+  journal_ = std::move(journal.chunks);
   for (uint64_t ci = 0; ci < header_.size(); ++ci)
     if (header_[ci] != 0) world_->set_not_resident(ci, cell_lod_abgr(header_[ci]));
   refused_chunk_.assign(size_t(cg.count()), 0);
@@ -85,8 +90,11 @@ void StreamingWorld::begin_frame(const FrameView& view) {
 }
 
 uint64_t StreamingWorld::brick_bytes(uint32_t voxels) const {
-  return sizeof(Brick) +
-         uint64_t(ColorAllocator::class_size(voxels)) * (world_->has_normals() ? 8 : 4);
+  // Per entry of the run's size class: a color (4 B, or DXT1's 8 B per 16)
+  // and a normal.
+  const uint64_t entries = ColorAllocator::class_size(voxels);
+  return sizeof(Brick) + (world_->dxt1() ? entries / 2 : entries * 4) +
+         (world_->has_normals() ? entries * 4 : 0);
 }
 
 const StreamingWorld::Chunk* StreamingWorld::chunk(uint64_t index) {
@@ -100,19 +108,33 @@ const StreamingWorld::Chunk* StreamingWorld::chunk(uint64_t index) {
   const std::string name = "BMCK " + chunk_name(cg, index);
   auto c = std::make_unique<Chunk>();
   try {
-    const uint64_t e = kTablePrefix + kEntryBytes * index;
-    const uint64_t offset = load_le<uint64_t>(&table_[e]);
-    const uint64_t zs = load_le<uint32_t>(&table_[e + 8]), rs = load_le<uint32_t>(&table_[e + 12]);
-    if (zs == 0 || offset > chunk_data_size_ || zs > chunk_data_size_ - offset || rs > kMaxChunkRaw)
-      corrupt(name + " lies outside the BMCK section");
-    std::vector<uint8_t> z(static_cast<size_t>(zs));
-    std::ifstream in(path_, std::ios::binary);
-    in.seekg(std::streamoff(chunk_data_offset_ + offset));
-    if (!in.read(reinterpret_cast<char*>(z.data()), std::streamsize(zs)))
-      throw Error(name + " cannot be read from the file");
-    if (XXH64(z.data(), z.size(), 0) != load_le<uint64_t>(&table_[e + 16]))
-      corrupt(name + " checksum mismatch");
-    c->raw = decompress(z.data(), z.size(), size_t(rs), name);
+    const auto journaled = journal_.find(index);
+    std::vector<uint8_t> z;
+    auto t0 = std::chrono::steady_clock::now();
+    if (journaled != journal_.end()) {
+      // The journal's image (its record checksummed when the journal was read).
+      c->raw = journaled->second.first
+                   ? decompress(journaled->second.second.data(), journaled->second.second.size(),
+                                journaled->second.first, name + " (journal)")
+                   : std::vector<uint8_t>{};
+    } else {
+      const uint64_t e = kTablePrefix + kEntryBytes * index;
+      const uint64_t offset = load_le<uint64_t>(&table_[e]);
+      const uint64_t zs = load_le<uint32_t>(&table_[e + 8]),
+                     rs = load_le<uint32_t>(&table_[e + 12]);
+      if (zs == 0 || offset > chunk_data_size_ || zs > chunk_data_size_ - offset ||
+          rs > kMaxChunkRaw)
+        corrupt(name + " lies outside the BMCK section");
+      z.resize(static_cast<size_t>(zs));
+      std::ifstream in(path_, std::ios::binary);
+      in.seekg(std::streamoff(chunk_data_offset_ + offset));
+      if (!in.read(reinterpret_cast<char*>(z.data()), std::streamsize(zs)))
+        throw Error(name + " cannot be read from the file");
+      t0 = std::chrono::steady_clock::now();
+      if (XXH64(z.data(), z.size(), 0) != load_le<uint64_t>(&table_[e + 16]))
+        corrupt(name + " checksum mismatch");
+      c->raw = decompress(z.data(), z.size(), size_t(rs), name);
+    }
     c->at.assign(kChunkCells, UINT32_MAX);
     // The offsets of the bricks, validated as the loader does.
     size_t at = 0;
@@ -130,6 +152,9 @@ const StreamingWorld::Chunk* StreamingWorld::chunk(uint64_t index) {
       at += 64 + count * per;
     });
     if (at != c->raw.size()) corrupt(name + " has bytes after its last brick");
+    stats_.decode_seconds +=
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    stats_.decoded_bytes += c->raw.size();
   } catch (const Error& err) {
     // Refused: its bricks will not come; the rest streams on.
     refused_chunk_[size_t(index)] = 1;
@@ -161,12 +186,37 @@ const StreamingWorld::Chunk* StreamingWorld::chunk(uint64_t index) {
 bool StreamingWorld::upload(uint64_t cell) {
   const ChunkGrid cg = chunk_grid(world_->dims());
   const uint64_t ci = chunk_of(*world_, cell);
-  const Chunk* c = chunk(ci);
-  if (!c) return true;  // refused: the cell was emptied
   const std::array<uint32_t, 3>& d = world_->dims();
   const uint32_t i = uint32_t(cell % d[0]), j = uint32_t(cell / d[0] % d[1]),
                  k = uint32_t(cell / d[0] / d[1]);
   const uint32_t x0 = i & (kChunkSide - 1), y0 = j & (kChunkSide - 1), z0 = k & (kChunkSide - 1);
+  // Hidden-voxel removal across chunk borders: the masks of the neighbour
+  // bricks in other chunks, copied before this brick's chunk is fetched
+  // (loading a chunk may evict another; the brick's own chunk is fetched
+  // last, so it stays).
+  uint64_t across[6][8];
+  bool has_across[6] = {false, false, false, false, false, false};
+  if (options_.hidden_voxel_removal) {
+    const int step[6][3] = {{-1, 0, 0}, {1, 0, 0}, {0, -1, 0}, {0, 1, 0}, {0, 0, -1}, {0, 0, 1}};
+    for (int n = 0; n < 6; ++n) {
+      const int64_t ni = int64_t(i) + step[n][0], nj = int64_t(j) + step[n][1],
+                    nk = int64_t(k) + step[n][2];
+      if (ni < 0 || nj < 0 || nk < 0 || ni >= d[0] || nj >= d[1] || nk >= d[2]) continue;
+      const uint64_t ncell = world_->cell_index(uint32_t(ni), uint32_t(nj), uint32_t(nk));
+      const uint64_t nci = chunk_of(*world_, ncell);
+      if (nci == ci || header_[ncell] == 0) continue;
+      const Chunk* nc = chunk(nci);
+      const uint32_t npos = uint32_t(ni & (kChunkSide - 1)) +
+                            kChunkSide * (uint32_t(nj & (kChunkSide - 1)) +
+                                          kChunkSide * uint32_t(nk & (kChunkSide - 1)));
+      if (const uint64_t* m = nc ? nc->mask(npos) : nullptr) {
+        std::memcpy(across[n], m, 64);
+        has_across[n] = true;
+      }
+    }
+  }
+  const Chunk* c = chunk(ci);
+  if (!c) return true;  // refused: the cell was emptied
   const uint32_t pos = x0 + kChunkSide * (y0 + kChunkSide * z0);
   const uint64_t* mask = c->mask(pos);
   uint64_t keep[8];
@@ -175,17 +225,22 @@ bool StreamingWorld::upload(uint64_t cell) {
   for (uint64_t m : keep) count += uint32_t(std::popcount(m));
   if (options_.hidden_voxel_removal) {
     // A voxel is hidden when its six neighbours are solid; neighbours in the
-    // adjacent bricks of the same chunk come from their masks, those beyond
-    // the chunk count as empty.
+    // adjacent bricks come from their masks (of this chunk, or copied above
+    // from the neighbour chunks), those outside the world or in refused
+    // chunks count as empty.
+    int side = 0;
     const auto neighbour = [&](int dx, int dy, int dz) -> const uint64_t* {
+      const int n = side++;
+      if (has_across[n]) return across[n];
       const int x = int(x0) + dx, y = int(y0) + dy, z = int(z0) + dz;
       if (x < 0 || y < 0 || z < 0 || x >= int(kChunkSide) || y >= int(kChunkSide) ||
           z >= int(kChunkSide))
         return nullptr;
       return c->mask(uint32_t(x) + kChunkSide * (uint32_t(y) + kChunkSide * uint32_t(z)));
     };
-    const uint64_t* nb[6] = {neighbour(-1, 0, 0), neighbour(1, 0, 0),  neighbour(0, -1, 0),
-                             neighbour(0, 1, 0),  neighbour(0, 0, -1), neighbour(0, 0, 1)};
+    const uint64_t* nb[6];
+    nb[0] = neighbour(-1, 0, 0), nb[1] = neighbour(1, 0, 0), nb[2] = neighbour(0, -1, 0);
+    nb[3] = neighbour(0, 1, 0), nb[4] = neighbour(0, 0, -1), nb[5] = neighbour(0, 0, 1);
     const auto solid = [&](int x, int y, int z) {
       const uint64_t* m = mask;
       if (x < 0)

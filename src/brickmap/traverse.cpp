@@ -131,11 +131,13 @@ struct Walker {
   bool occupied(int level, const int c[3], uint32_t* cell, const PyramidNode** node) const {
     if (level < B) {
       const int k = B - level;
-      const uint64_t d = w.pyramid_dim(k);
-      *node = &w.pyramid_node(k, uint64_t(c[0]) + d * (uint64_t(c[1]) + d * uint64_t(c[2])));
+      if (uint32_t(c[1]) >= w.pyramid_dim_y(k)) return false;  // above a cut-off brickgrid
+      *node =
+          &w.pyramid_node(k, w.pyramid_index(k, uint32_t(c[0]), uint32_t(c[1]), uint32_t(c[2])));
       return (*node)->bricks != 0;
     }
     const int s = L - level;  // log2 of the cube's side in voxels (<= 3)
+    if (uint32_t(c[1] << s >> kBrickLog2) >= w.dims()[1]) return false;
     *cell =
         w.cell(w.cell_index(uint32_t(c[0] << s >> kBrickLog2), uint32_t(c[1] << s >> kBrickLog2),
                             uint32_t(c[2] << s >> kBrickLog2)));
@@ -331,7 +333,7 @@ void BrickmapStructure::attributes(const SurfaceHit& hit, TraceContext& ctx, Col
   const World& w = *world_;
   const Brick& b = w.brick(uint32_t(hit.voxel_ref >> 9));
   const uint32_t index = b.color + uint32_t(rank_below(b, uint32_t(hit.voxel_ref & 511)));
-  if (color) *color = esvo::decode_color_abgr(w.colors()[index]);
+  if (color) *color = esvo::decode_color_abgr(w.color_of(b, index - b.color));
   if (normal) *normal = w.has_normals() ? esvo::decode_normal_cube(w.normals()[index]) : face;
   if (ctx.counting) ctx.counters.attribute_bytes += sizeof(Brick) + (w.has_normals() ? 8 : 4);
 }

@@ -6,6 +6,7 @@
 #include <cstring>
 #include <string>
 
+#include "brickmap/codec.hpp"
 #include "voxcast/brickmap.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
@@ -117,23 +118,30 @@ uint64_t ColorAllocator::free_entries() const {
 
 // ---- World ----
 
-World::World(const GridTransform& grid, bool normals) : grid_(grid), normals_(normals) {
+World::World(const GridTransform& grid, bool normals, uint32_t height_cells)
+    : grid_(grid), normals_(normals) {
   if (grid.levels < 0 || grid.levels > kMaxGridLevels || grid.resolution != (1u << grid.levels) ||
       !grid.placement_is_valid())
     throw Error("brickmap: invalid grid placement");
   const uint32_t n = (grid.resolution + kBrickSide - 1) >> kBrickLog2;
-  const uint64_t cells = uint64_t(n) * n * n;
+  if (height_cells > n)
+    throw Error("brickmap: a brickgrid " + std::to_string(height_cells) +
+                " cells high does not fit the " + std::to_string(grid.resolution) + "^3 grid");
+  const uint32_t ny = height_cells ? height_cells : n;
+  const uint64_t cells = uint64_t(n) * ny * n;
   if (cells > kMaxGridCells)
     throw Error("brickmap: a " + std::to_string(grid.resolution) + "^3 grid needs " +
                 std::to_string(cells) + " brickgrid cells, more than the " +
                 std::to_string(kMaxGridCells) + " supported");
-  dims_ = {n, n, n};
-  const uint32_t o = (n + (1u << kOccupancyLog2) - 1) >> kOccupancyLog2;
-  occ_dims_ = {o, o, o};
+  dims_ = {n, ny, n};
+  const auto occ = [](uint32_t d) { return (d + (1u << kOccupancyLog2) - 1) >> kOccupancyLog2; };
+  occ_dims_ = {occ(n), occ(ny), occ(n)};
   cells_.assign(size_t(cells), 0);
-  occupancy_.assign(size_t((uint64_t(o) * o * o + 63) / 64), 0);
+  occupancy_.assign(size_t((uint64_t(occ_dims_[0]) * occ_dims_[1] * occ_dims_[2] + 63) / 64), 0);
   // dims are a power of two (N = 2^L, N / 8 or 1): log2(n) levels above.
-  for (uint32_t d = n >> 1; d >= 1; d >>= 1) pyramid_.emplace_back(size_t(uint64_t(d) * d * d));
+  int k = 1;
+  for (uint32_t d = n >> 1; d >= 1; d >>= 1, ++k)
+    pyramid_.emplace_back(size_t(uint64_t(d) * pyramid_dim_y(k) * d));
 }
 
 void World::set_brick(uint64_t index, const uint64_t mask[8], const uint32_t* colors,
@@ -161,25 +169,29 @@ void World::set_brick(uint64_t index, const uint64_t mask[8], const uint32_t* co
   }
   std::memcpy(brick->mask, mask, sizeof brick->mask);
   brick->color = color_alloc_.allocate(uint32_t(count));
-  if (colors_.size() < color_alloc_.extent()) {
-    colors_.resize(color_alloc_.extent());
+  if (normals_data_.size() < color_alloc_.extent() || colors_.size() < color_alloc_.extent()) {
+    if (!dxt1_) colors_.resize(color_alloc_.extent());
     if (normals_) normals_data_.resize(color_alloc_.extent());
   }
-  std::copy(colors, colors + count, colors_.begin() + brick->color);
+  if (dxt1_) {
+    if (blocks_.size() < color_alloc_.extent() / 16) blocks_.resize(color_alloc_.extent() / 16);
+    for (int b = 0; b * 16 < count; ++b)
+      blocks_[brick->color / 16 + uint32_t(b)] =
+          dxt1_encode(colors + 16 * b, std::min(16, count - 16 * b));
+  } else {
+    std::copy(colors, colors + count, colors_.begin() + brick->color);
+  }
   if (normals_) std::copy(normals, normals + count, normals_data_.begin() + brick->color);
   // LOD color: the mean of the voxels' linear colors (what they show at full
   // resolution), re-encoded.
-  double sum[3] = {0, 0, 0};
-  for (int i = 0; i < count; ++i) {
-    const Color c = esvo::decode_color_abgr(colors[i]);
-    sum[0] += c.r, sum[1] += c.g, sum[2] += c.b;
-  }
-  const double inv = 1.0 / count;
-  brick->lod = lod ? *lod
-                   : esvo::encode_color_abgr(
-                         {float(sum[0] * inv), float(sum[1] * inv), float(sum[2] * inv), 1.f});
+  brick->lod = lod ? *lod : codec::mean_color_abgr(colors, size_t(count));
   cell = resident_cell(b, flags);
   update_occupancy(index);
+}
+
+void World::use_dxt1() {
+  if (pool_.extent() != 0) throw Error("brickmap: DXT1 colors are chosen before any brick");
+  dxt1_ = true;
 }
 
 void World::set_not_resident(uint64_t index, uint32_t abgr, uint32_t flags) {
@@ -214,22 +226,22 @@ void World::update_occupancy(uint64_t index) {
   // children (a brick counts once, whatever its voxels, so that a brick
   // evicted with its LOD color changes nothing above it).
   for (int q = 1; q <= pyramid_levels(); ++q) {
-    const uint32_t d = pyramid_dim(q), x = i >> q, y = j >> q, z = k >> q;
+    const uint32_t x = i >> q, y = j >> q, z = k >> q;
     double sum[3] = {0, 0, 0};
     uint32_t bricks = 0;
     for (uint32_t c = 0; c < 8; ++c) {
       const uint32_t cx = 2 * x + (c & 1), cy = 2 * y + (c >> 1 & 1), cz = 2 * z + (c >> 2);
       uint32_t nb, abgr;
       if (q == 1) {
+        if (cy >= dims_[1]) continue;  // above a cut-off brickgrid
         const uint32_t cell = cells_[size_t(cell_index(cx, cy, cz))];
         if (cell == 0) continue;
         nb = 1;
         abgr =
             cell_state(cell) == kStateResident ? pool_[cell_brick(cell)].lod : cell_lod_abgr(cell);
       } else {
-        const uint32_t cd = pyramid_dim(q - 1);
-        const PyramidNode& p =
-            pyramid_[size_t(q - 2)][size_t(cx + uint64_t(cd) * (cy + uint64_t(cd) * cz))];
+        if (cy >= pyramid_dim_y(q - 1)) continue;
+        const PyramidNode& p = pyramid_[size_t(q - 2)][size_t(pyramid_index(q - 1, cx, cy, cz))];
         if (p.bricks == 0) continue;
         nb = p.bricks, abgr = p.abgr;
       }
@@ -237,7 +249,7 @@ void World::update_occupancy(uint64_t index) {
       sum[0] += double(nb) * col.r, sum[1] += double(nb) * col.g, sum[2] += double(nb) * col.b;
       bricks += nb;
     }
-    PyramidNode& node = pyramid_[size_t(q - 1)][size_t(x + uint64_t(d) * (y + uint64_t(d) * z))];
+    PyramidNode& node = pyramid_[size_t(q - 1)][size_t(pyramid_index(q, x, y, z))];
     node.bricks = bricks;
     node.abgr = bricks == 0
                     ? 0
@@ -247,7 +259,7 @@ void World::update_occupancy(uint64_t index) {
 }
 
 bool World::voxel(uint32_t x, uint32_t y, uint32_t z) const {
-  if (x >= grid_.resolution || y >= grid_.resolution || z >= grid_.resolution) return false;
+  if (x >= grid_.resolution || (y >> kBrickLog2) >= dims_[1] || z >= grid_.resolution) return false;
   const uint32_t c = cells_[size_t(cell_index(x >> 3, y >> 3, z >> 3))];
   if (cell_state(c) != kStateResident) return false;
   return test_voxel(pool_[cell_brick(c)], voxel_bit(x & 7, y & 7, z & 7));
@@ -281,8 +293,8 @@ WorldStats World::stats() const {
   for (const std::vector<PyramidNode>& level : pyramid_)
     s.pyramid_bytes += uint64_t(level.size()) * sizeof(PyramidNode);
   s.brick_bytes = uint64_t(pool_.extent()) * sizeof(Brick);
-  s.color_bytes = uint64_t(color_alloc_.extent()) * 4;
-  s.normal_bytes = normals_ ? s.color_bytes : 0;
+  s.color_bytes = dxt1_ ? uint64_t(blocks_.size()) * 8 : uint64_t(color_alloc_.extent()) * 4;
+  s.normal_bytes = normals_ ? uint64_t(color_alloc_.extent()) * 4 : 0;
   return s;
 }
 
