@@ -47,6 +47,17 @@ TEST_F(GiCli, RendersWithTheCommittedSkyAndTheSun) {
                 .exit_code,
             0);
   EXPECT_EQ(read_pfm(again).pixels, im.pixels);  // 1 thread vs all
+  // --no-env-sampling: cosine bounces alone, other samples, a similar mean.
+  const std::string cosine = dir.file("cosine.pfm");
+  ASSERT_EQ(run_cli("render '" + scene + "' --size 48x36 --gi 8 --bounces 3 --env '" + kSky +
+                    "' --sun -0.4,-1,-0.6 --no-env-sampling -o '" + cosine + "'")
+                .exit_code,
+            0);
+  const Image c = read_pfm(cosine);
+  EXPECT_NE(c.pixels, im.pixels);
+  double csum = 0;
+  for (float v : c.pixels) csum += v;
+  EXPECT_NEAR(csum / sum, 1.0, 0.05);
 }
 
 TEST_F(GiCli, AovsInOneExr) {
