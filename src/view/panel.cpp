@@ -2,6 +2,7 @@
 // backends are part of the library).
 #include "view/panel.hpp"
 
+#include <GLFW/glfw3.h>
 #include <backends/imgui_impl_glfw.h>
 #include <backends/imgui_impl_opengl3.h>
 #include <imgui.h>
@@ -112,6 +113,10 @@ PanelActions Gui::panel(bool show_panel, const SceneStats& scene, ViewSettings* 
   }
   ImGui::End();
   return a;
+}
+
+std::string view_library_versions() {
+  return std::string("GLFW ") + glfwGetVersionString() + "\nDear ImGui " + IMGUI_VERSION + "\n";
 }
 
 }  // namespace voxcast::view
