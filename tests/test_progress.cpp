@@ -271,6 +271,7 @@ TEST(ProgressCli, BarsOnATerminalAndNoneWhenQuiet) {
   EXPECT_NE(built.find("ETA"), std::string::npos) << built;
   EXPECT_NE(built.find("load spot.obj"), std::string::npos) << built;
   EXPECT_NE(built.find("esvo build (levels)"), std::string::npos) << built;
+  EXPECT_NE(built.find("write scene ["), std::string::npos) << built;
   const std::string dag = on_a_terminal("build " + mesh + " -o " + dir +
                                         "/progress-spot-dag.vxc --resolution 128 --format dag");
   EXPECT_NE(dag.find("dag build ("), std::string::npos) << dag;
