@@ -19,10 +19,12 @@
 #include "pipeline.hpp"  // apps/voxcast: the build `voxcast build` runs
 #include "voxcast/camera.hpp"
 #include "voxcast/dag.hpp"
+#include "voxcast/environment.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/format_registry.hpp"
+#include "voxcast/gi_integrator.hpp"
 #include "voxcast/image.hpp"
 #include "voxcast/mesh.hpp"
 #include "voxcast/morton.hpp"
@@ -397,10 +399,52 @@ Vec3 light_of(const std::optional<std::vector<float>>& light) {
   return normalize(l);
 }
 
+// GI's arguments of render() (the --gi options of `voxcast render`).
+struct GiArgs {
+  int spp = 0;  // 0 = the surface shading
+  int bounces = 8;
+  std::optional<std::string> env;
+  float env_scale = 1.f;
+  bool env_sampling = true;
+  std::optional<std::vector<float>> sun;
+  float sun_intensity = 3.f, bounce_cone = GiOptions{}.bounce_cone_deg;
+};
+
+GiOptions gi_options_of(const GiArgs& a, uint32_t seed, bool depth, bool normal) {
+  GiOptions o;
+  o.spp = a.spp;
+  o.bounces = a.bounces;
+  o.bounce_cone_deg = a.bounce_cone;
+  o.seed = seed;
+  o.env_sampling = a.env_sampling;
+  o.want_depth = depth, o.want_normal = normal;
+  if (!(a.env_scale >= 0) || !std::isfinite(a.env_scale))
+    throw Error("env_scale must be finite and >= 0");
+  if (a.sun) {
+    if (a.sun->size() != 3) throw py::value_error("sun must be (dx, dy, dz)");
+    const Vec3 d{(*a.sun)[0], (*a.sun)[1], (*a.sun)[2]};
+    if (!(length(d) > 0) || !std::isfinite(length(d)))
+      throw Error("sun must be a non-zero, finite vector");
+    o.sun = true;
+    o.sun_dir = normalize(d);  // as the CLI does
+    const float e = a.sun_intensity;
+    o.sun_irradiance = {e, e, e, 1.f};
+  }
+  o.environment =
+      a.env
+          ? std::make_shared<const Environment>(load_environment(*a.env, a.env_scale))
+          : std::make_shared<const Environment>(Color{a.env_scale, a.env_scale, a.env_scale, 1.f});
+  validate(o);
+  return o;
+}
+
 py::dict render_scene(const Scene& s, std::pair<int, int> size, const py::object& camera, float lod,
                       const std::string& shadows, int ao, float ao_radius,
                       const std::optional<std::vector<float>>& light, bool depth, bool normal,
-                      bool filter, int beam, uint32_t seed) {
+                      bool filter, int beam, uint32_t seed, int spp, int gi, int bounces,
+                      const std::optional<std::string>& env, float env_scale, bool env_sampling,
+                      const std::optional<std::vector<float>>& sun, float sun_intensity,
+                      float bounce_cone) {
   RenderOptions opt;
   std::tie(opt.width, opt.height) = size_of(size);
   if (!(lod >= 0 && lod <= 1e6)) throw Error("lod must be in 0..1e6");
@@ -409,6 +453,8 @@ py::dict render_scene(const Scene& s, std::pair<int, int> size, const py::object
   if (beam != 0 && (beam < 2 || beam > 64))
     throw Error("beam must be 0 (off) or a block size in 2..64");
   opt.beam = beam;
+  if (spp < 1 || spp > 4096) throw Error("spp must be in 1..4096");
+  opt.spp = spp;
   EffectOptions& fx = opt.effects;
   if (shadows == "none")
     fx.shadows = ShadowMode::None;
@@ -417,6 +463,15 @@ py::dict render_scene(const Scene& s, std::pair<int, int> size, const py::object
   else
     throw Error("shadows must be none or hard");
   if (ao < 0 || ao > 4096) throw Error("ao must be in 0..4096");
+  if (gi < 0 || gi > 65536) throw Error("gi must be 0 (off) or samples per pixel in 1..65536");
+  if (gi > 0) {
+    // As `voxcast render --gi`: the surface shading's options do not apply.
+    if (shadows != "none" || ao > 0 || filter || beam != 0 || spp != 1)
+      throw Error(
+          "shadows, ao, filter, beam and spp are options of the surface shading, not of gi");
+  } else if (env || sun) {
+    throw Error("env and sun are options of gi (gi=SPP)");
+  }
   fx.ao_rays = ao;
   // The CLI's default AO radius: 5% of the occupied bounds' diagonal.
   fx.ao_radius = ao > 0 ? (ao_radius > 0 ? ao_radius : 0.05f * length(s.occupied.extent())) : 0;
@@ -426,18 +481,32 @@ py::dict render_scene(const Scene& s, std::pair<int, int> size, const py::object
   opt.want_normal = normal;
   opt.filter = filter;
   RenderResult r;
-  {
+  py::dict d;
+  if (gi > 0) {
+    const GiArgs a{gi, bounces, env, env_scale, env_sampling, sun, sun_intensity, bounce_cone};
+    const GiOptions o = gi_options_of(a, seed, depth, normal);
+    GiResult g;
+    {
+      py::gil_scoped_release release;
+      g = render_gi(*s.structure, opt.camera, opt.width, opt.height, opt.lod_pixels, o);
+    }
+    r.color = std::move(g.film.color);
+    r.depth = std::move(g.film.depth);
+    r.normal = std::move(g.film.normal);
+    r.rays = g.stats.rays;
+    r.seconds = g.stats.seconds;
+    d["samples"] = g.stats.samples;
+  } else {
     py::gil_scoped_release release;
     r = voxcast::render(*s.structure, opt);
   }
-  py::dict d;
   d["color"] = image_array(r.color);
   if (depth) d["depth"] = image_array(r.depth);
   if (normal) d["normal"] = image_array(r.normal);
   if (ao > 0) d["ao"] = image_array(r.ao);
   d["camera"] = opt.camera.to_string();
   d["rays"] = r.rays;
-  d["hits"] = r.hits;
+  if (gi == 0) d["hits"] = r.hits;
   d["seconds"] = r.seconds;
   return d;
 }
@@ -614,9 +683,15 @@ PYBIND11_MODULE(voxcast, m) {
         py::arg("camera") = py::none(), py::arg("lod") = 1.f, py::arg("shadows") = "none",
         py::arg("ao") = 0, py::arg("ao_radius") = 0.f, py::arg("light") = py::none(),
         py::arg("depth") = false, py::arg("normal") = false, py::arg("filter") = false,
-        py::arg("beam") = 0, py::arg("seed") = 0u,
+        py::arg("beam") = 0, py::arg("seed") = 0u, py::arg("spp") = 1, py::arg("gi") = 0,
+        py::arg("bounces") = 8, py::arg("env") = py::none(), py::arg("env_scale") = 1.f,
+        py::arg("env_sampling") = true, py::arg("sun") = py::none(), py::arg("sun_intensity") = 3.f,
+        py::arg("bounce_cone") = GiOptions{}.bounce_cone_deg,
         "Ray cast the scene: dict with color (H x W x 3 float32, linear), depth/normal on "
-        "request, the camera used (--camera form) and ray counts");
+        "request, the camera used (--camera form) and ray counts. spp: antialiasing samples "
+        "per pixel (render --spp); gi=SPP: progressive diffuse GI (render --gi) with "
+        "bounces, env (a .hdr/.exr path), env_scale, env_sampling, sun (dx, dy, dz), "
+        "sun_intensity, bounce_cone");
   m.def("camera_rays", &camera_rays, py::arg("scene"), py::arg("size"),
         py::arg("camera") = py::none(),
         "The primary rays render() casts: origins, directions (H x W x 3), pixel_size, "

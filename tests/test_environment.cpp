@@ -3,6 +3,7 @@
 // malformed files refused) and the procedural sky.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -97,6 +98,88 @@ TEST(Environment, RefusesBadImages) {
   nan.pixels[1] = NAN;
   EXPECT_THROW(Environment{nan}, Error);
   EXPECT_THROW(Environment(Image(4, 2, 3), -1.f), Error);
+}
+
+// A dim map with one bright pixel block (a small "sun" painted in).
+Image spot_map(int w, int h) {
+  Image img(w, h, 3);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      float* p = img.at(x, y);
+      const bool bright = x >= w / 3 && x < w / 3 + 2 && y >= h / 4 && y < h / 4 + 2;
+      p[0] = bright ? 300.f : 0.2f + 0.1f * float(x % 5);
+      p[1] = bright ? 250.f : 0.3f;
+      p[2] = bright ? 200.f : 0.4f + 0.05f * float(y % 3);
+    }
+  return img;
+}
+
+TEST(Environment, ImportanceSamplingFollowsLuminanceAndItsDensity) {
+  const int W = 32, H = 16;
+  const Environment env(spot_map(W, H), 2.f);
+  ASSERT_TRUE(env.can_sample());
+  EXPECT_FALSE(Environment(Color{1, 1, 1, 1}).can_sample());
+  EXPECT_FALSE(Environment(spot_map(W, H), 0.f).can_sample());
+  // Oracle for a pixel's probability: the luminance of the lookups
+  // integrated over the pixel's (u, v) rectangle (midpoint rule on 8 x 8
+  // points, exact for bilinear pieces) times sin(theta) of its center (the
+  // rectangle's solid angle within 0.5 %), normalized.
+  std::vector<double> expect(size_t(W) * size_t(H));
+  double total = 0;
+  const double pi = 3.14159265358979;
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) {
+      double sum = 0;
+      for (int j = 0; j < 8; ++j)
+        for (int i = 0; i < 8; ++i) {
+          const float u = (float(x) + (float(i) + 0.5f) / 8) / W;
+          const float v = (float(y) + (float(j) + 0.5f) / 8) / H;
+          const Color c = env.radiance(latlong_direction(u, v));
+          sum += 0.2126 * c.r + 0.7152 * c.g + 0.0722 * c.b;
+        }
+      total += expect[size_t(y) * W + x] = sum * std::sin(pi * (y + 0.5) / H);
+    }
+  std::vector<double> count(expect.size(), 0.0);
+  const int n = 400000;
+  uint32_t state = 12345;
+  auto uniform = [&state] {
+    state = state * 1664525u + 1013904223u;
+    return float(state >> 8) * 0x1p-24f;
+  };
+  int checked_pdf = 0;
+  for (int i = 0; i < n; ++i) {
+    const Environment::Sample s = env.sample(uniform(), uniform());
+    ASSERT_GT(s.pdf, 0.f);
+    ASSERT_NEAR(length(s.dir), 1.f, 1e-5f);
+    const Vec2 uv = latlong_uv(s.dir);
+    const int x = std::clamp(int(uv.x * W), 0, W - 1), y = std::clamp(int(uv.y * H), 0, H - 1);
+    count[size_t(y) * W + x] += 1;
+    // pdf() of the sampled direction is the density sample() reported
+    // (away from pixel borders, where rounding may pick the neighbour).
+    const float fx = uv.x * W - float(x), fy = uv.y * H - float(y);
+    if (fx > 0.01f && fx < 0.99f && fy > 0.01f && fy < 0.99f) {
+      ASSERT_NEAR(env.pdf(s.dir), s.pdf, 1e-3f * s.pdf);
+      ++checked_pdf;
+    }
+  }
+  EXPECT_GT(checked_pdf, n / 2);
+  // Frequencies within 5 standard deviations (binomial) and float rounding.
+  for (size_t i = 0; i < expect.size(); ++i) {
+    const double p = expect[i] / total;
+    const double sd = std::sqrt(n * p * (1 - p));
+    EXPECT_NEAR(count[i], n * p, 5 * sd + 1e-3 * n * p) << "pixel " << i;
+  }
+  // The density integrates to 1 over the sphere (midpoint quadrature).
+  double integral = 0;
+  const int nt = 400, np = 800;
+  for (int i = 0; i < nt; ++i)
+    for (int j = 0; j < np; ++j) {
+      const double theta = (i + 0.5) * pi / nt, phi = (j + 0.5) * 2 * pi / np;
+      const Vec3 d{float(std::sin(theta) * std::sin(phi)), float(std::cos(theta)),
+                   float(-std::sin(theta) * std::cos(phi))};
+      integral += env.pdf(d) * std::sin(theta) * (pi / nt) * (2 * pi / np);
+    }
+  EXPECT_NEAR(integral, 1.0, 0.01);
 }
 
 TEST(Environment, HdrRoundTripWithinRgbeQuantization) {

@@ -1,7 +1,9 @@
 // `voxcast render --gi SPP [--bounces N] [--env ENV] [--sun DIR]`, `render
-// --spp N` and `voxcast generate sky` as a user runs them.
+// --spp N`, `voxcast generate sky` and `bench --gi` as a user runs them.
 #include <gtest/gtest.h>
 
+#include <fstream>
+#include <nlohmann/json.hpp>
 #include <string>
 
 #include "support/cli_runner.hpp"
@@ -47,6 +49,48 @@ TEST_F(GiCli, RendersWithTheCommittedSkyAndTheSun) {
                 .exit_code,
             0);
   EXPECT_EQ(read_pfm(again).pixels, im.pixels);  // 1 thread vs all
+  // --no-env-sampling: cosine bounces alone, other samples, a similar mean.
+  const std::string cosine = dir.file("cosine.pfm");
+  ASSERT_EQ(run_cli("render '" + scene + "' --size 48x36 --gi 8 --bounces 3 --env '" + kSky +
+                    "' --sun -0.4,-1,-0.6 --no-env-sampling -o '" + cosine + "'")
+                .exit_code,
+            0);
+  const Image c = read_pfm(cosine);
+  EXPECT_NE(c.pixels, im.pixels);
+  double csum = 0;
+  for (float v : c.pixels) csum += v;
+  EXPECT_NEAR(csum / sum, 1.0, 0.05);
+}
+
+TEST_F(GiCli, BenchGiRowsDoEqualWork) {
+  // bench --gi: the Embree path tracer of the mesh and the GI integrator on
+  // every structure trace the same camera samples (equal work); no timing
+  // is asserted.
+  const std::string json = dir.file("bench.json");
+  const CliResult r = run_cli("bench '" + kBunny +
+                              "' --resolution 64 --size 32x24 --repeat 1 --gi 2 --bounces 2 "
+                              "--effects --json '" +
+                              json + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("diffuse GI, 2 spp, 2 bounces at most"), std::string::npos) << r.output;
+  std::ifstream in(json);
+  const nlohmann::json j = nlohmann::json::parse(in);
+  const nlohmann::json& gi = j.at("runs").at(0).at("gi");
+  EXPECT_EQ(gi.at("spp"), 2);
+  std::vector<std::string> names;
+  for (const nlohmann::json& row : gi.at("renderers")) {
+    names.push_back(row.at("renderer"));
+    EXPECT_EQ(row.at("samples").get<uint64_t>(), 32u * 24u * 2u) << row;
+    EXPECT_GT(row.at("rays").get<uint64_t>(), row.at("samples").get<uint64_t>()) << row;
+    EXPECT_GT(row.at("ratio").get<double>(), 0.0) << row;
+  }
+  ASSERT_GE(names.size(), 3u);
+  EXPECT_EQ(names[0], "embree (mesh)");
+  EXPECT_EQ(names[1], "voxcast esvo");
+  EXPECT_EQ(names[2], "voxcast dag");
+  EXPECT_EQ(gi.at("renderers").at(0).at("ratio").get<double>(), 1.0);
+  EXPECT_EQ(run_cli("bench '" + kBunny + "' --gi -1").exit_code, 2);
+  EXPECT_EQ(run_cli("bench '" + kBunny + "' --gi 2 --bounces -1").exit_code, 2);
 }
 
 TEST_F(GiCli, AovsInOneExr) {

@@ -117,6 +117,9 @@ TEST(Isa, VersionReportsBuildAndIsa) {
     EXPECT_NE(r.output.find("oneTBB "), std::string::npos) << r.output;
     EXPECT_NE(r.output.find("OpenEXR 3."), std::string::npos) << r.output;
     EXPECT_NE(r.output.find("OpenVDB "), std::string::npos) << r.output;
+    EXPECT_NE(r.output.find("GLFW 3."), std::string::npos) << r.output;
+    EXPECT_NE(r.output.find("Dear ImGui 1."), std::string::npos) << r.output;
+    EXPECT_NE(r.output.find("stb_image "), std::string::npos) << r.output;
   }
   if (cpu_supports(Isa::Avx512)) {
     IsaEnv env("avx512");

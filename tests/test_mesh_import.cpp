@@ -9,6 +9,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <future>
 #include <nlohmann/json.hpp>
 #include <set>
 #include <sstream>
@@ -16,6 +17,7 @@
 #include <vector>
 
 #include "support/test_data.hpp"
+#include "voxcast/environment.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/image.hpp"
 #include "voxcast/mesh.hpp"
@@ -595,6 +597,60 @@ TEST(MeshImport, MissingTextureFallsBackToBaseColorWithAWarning) {
   EXPECT_TRUE(m.textures.empty());
   ASSERT_EQ(m.materials.size(), 1u);
   EXPECT_EQ(m.materials[0].texture, -1);
+}
+
+TEST(MeshImport, TruncatedTexturesAreRefusedQuickly) {
+  // Textures go through Debian's stb_image compiled into the importer (not
+  // the older copy libdraco exports, which never returned on some truncated
+  // files): a PNG and a run-length encoded .hdr cut in half are refused (a
+  // one-line warning, the base color kept) within seconds.
+  TempDir tmp;
+  Image img(64, 48, 3);
+  for (size_t i = 0; i < img.pixels.size(); ++i) img.pixels[i] = float((i * 37) % 101) / 100.f;
+  write_image(tmp.path / "full.png", img);
+  write_hdr(tmp.path / "full.hdr", img);
+  for (const char* name : {"png", "hdr"}) {
+    SCOPED_TRACE(name);
+    std::ifstream in(tmp.path / (std::string("full.") + name), std::ios::binary);
+    const std::string bytes{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+    ASSERT_GT(bytes.size(), 200u);
+    const std::string cut = std::string("cut.") + name;
+    tmp.write(cut, bytes.substr(0, bytes.size() / 2));
+    tmp.write("t.mtl", "newmtl m\nKd 0.5 0.5 0.5\nmap_Kd " + cut + "\n");
+    const fs::path p = tmp.write("t.obj",
+                                 "mtllib t.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\n"
+                                 "vt 0 1\nusemtl m\nf 1/1 2/2 3/3\n");
+    auto job = std::async(std::launch::async, [p] {
+      MeshLoadStats stats;
+      std::string what;
+      try {
+        const Mesh m = load_mesh(p, &stats);
+        what = m.textures.empty() && !stats.warnings.empty() ? stats.warnings[0] : "decoded";
+      } catch (const Error& e) {
+        what = e.what();
+      }
+      return what;
+    });
+    if (job.wait_for(std::chrono::seconds(20)) != std::future_status::ready) {
+      ADD_FAILURE() << "decoding a truncated ." << name << " texture did not return in 20 s";
+      std::_Exit(1);  // the decoder thread cannot be stopped
+    }
+    const std::string what = job.get();
+    EXPECT_NE(what, "decoded");
+    EXPECT_NE(what.find(cut), std::string::npos) << what;
+    EXPECT_EQ(what.find('\n'), std::string::npos) << what;
+  }
+  // The whole .hdr decodes, its radiance mapped to 8 bits as
+  // 255 x^(1/2.2) + 0.5 (the radiance as the .hdr reader decodes it).
+  tmp.write("t.mtl", "newmtl m\nKd 1 1 1\nmap_Kd full.hdr\n");
+  const Mesh m = load_mesh(tmp.path / "t.obj");
+  ASSERT_EQ(m.textures.size(), 1u);
+  ASSERT_EQ(m.textures[0].width, 64);
+  const Image decoded = load_environment(tmp.path / "full.hdr").image();
+  for (int i : {0, 5, 1000, 64 * 48 - 1}) {
+    const float v = decoded.pixels[3 * size_t(i)];
+    EXPECT_NEAR(m.textures[0].rgba[4 * size_t(i)], 255.f * std::pow(v, 1 / 2.2f), 0.51f) << i;
+  }
 }
 
 TEST(MeshImport, ObjUvsUseTopLeftOrigin) {

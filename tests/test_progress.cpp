@@ -12,6 +12,8 @@
 #include <vector>
 
 #include "support/cli_runner.hpp"
+#include "voxcast/dag.hpp"
+#include "voxcast/esvo.hpp"
 #include "voxcast/generate.hpp"
 #include "voxcast/progress.hpp"
 #include "voxcast/voxelize.hpp"
@@ -193,6 +195,52 @@ TEST(Progress, VoxelizeReportsItsPhasesInOrder) {
   EXPECT_EQ(last, 100.0);
 }
 
+// The ESVO and DAG builds re-plan the bar they are given into their phases,
+// draw them in order and leave the bar complete.
+TEST(Progress, EsvoAndDagBuildsReportTheirPhasesInOrder) {
+  const Mesh mesh = generate::menger(2);
+  VoxelizeOptions vo;
+  vo.attributes = true;
+  const VoxelSet v = voxelize(mesh, GridTransform::fit(mesh.bounds(), 128), vo);
+  auto phases_drawn = [](const FakeTerminal& term, const std::vector<std::string>& names) {
+    std::vector<std::string> seen;
+    for (const std::string& w : *term.writes)
+      for (const std::string& phase : names)
+        if (w.find("(" + phase + ")") != std::string::npos &&
+            (seen.empty() || seen.back() != phase))
+          seen.push_back(phase);
+    return seen;
+  };
+  {
+    FakeTerminal term;
+    auto now = term.now;
+    ProgressSink sink = term.sink();
+    sink.now_ns = [now] { return *now += 600 * kMs; };
+    Progress p("esvo build", {{"", 1}}, sink);
+    esvo::BuildOptions bo;
+    bo.progress = &p;
+    const esvo::EsvoOctree octree = esvo::build_octree(v, bo);
+    EXPECT_EQ(octree.words, esvo::build_octree(v).words);  // the bar changes nothing
+    EXPECT_DOUBLE_EQ(p.fraction(), 1.0);
+    EXPECT_EQ(phases_drawn(term, {"levels", "layout"}),
+              (std::vector<std::string>{"levels", "layout"}));
+  }
+  {
+    FakeTerminal term;
+    auto now = term.now;
+    ProgressSink sink = term.sink();
+    sink.now_ns = [now] { return *now += 600 * kMs; };
+    Progress p("dag build", {{"", 1}}, sink);
+    const dag::SparseVoxelDag d = dag::build_dag(v, &p);
+    EXPECT_EQ(d.words, dag::build_dag(v).words);
+    EXPECT_DOUBLE_EQ(p.fraction(), 1.0);
+    // Phases draw when they advance: the short ones (a single unit) may end
+    // before a draw, the others come in plan order.
+    EXPECT_EQ(phases_drawn(term, {"leaf masks", "levels", "layout", "attributes"}),
+              (std::vector<std::string>{"levels", "attributes"}));
+  }
+}
+
 // The CLI on a real pseudo-terminal (script(1) gives the child a pty as
 // stderr): build and render draw bars with an ETA; --quiet draws none.
 // VOXCAST_PROGRESS_DELAY_MS=0 so a quick task draws too.
@@ -222,6 +270,31 @@ TEST(ProgressCli, BarsOnATerminalAndNoneWhenQuiet) {
   EXPECT_NE(built.find("voxelize ("), std::string::npos) << built;
   EXPECT_NE(built.find("ETA"), std::string::npos) << built;
   EXPECT_NE(built.find("load spot.obj"), std::string::npos) << built;
+  EXPECT_NE(built.find("esvo build (levels)"), std::string::npos) << built;
+  EXPECT_NE(built.find("write scene ["), std::string::npos) << built;
+  const std::string dag = on_a_terminal("build " + mesh + " -o " + dir +
+                                        "/progress-spot-dag.vxc --resolution 128 --format dag");
+  EXPECT_NE(dag.find("dag build ("), std::string::npos) << dag;
+  const std::string dag_quiet =
+      on_a_terminal("build " + mesh + " -o " + dir +
+                    "/progress-spot-dag-q.vxc --resolution 128 --format dag --quiet");
+  EXPECT_EQ(dag_quiet.find("build ["), std::string::npos) << dag_quiet;
+  EXPECT_EQ(dag_quiet.find("build ("), std::string::npos) << dag_quiet;
+  // On a pipe: no bar either (stderr is not a terminal).
+  const std::string piped = std::string("VOXCAST_PROGRESS_DELAY_MS=0 ") + VOXCAST_CLI_PATH +
+                            " build " + mesh + " -o " + dir +
+                            "/progress-spot-pipe.vxc --resolution 128 --format dag 2>&1 | cat > " +
+                            dir + "/progress-pipe.log";
+  ASSERT_EQ(std::system(piped.c_str()), 0);
+  std::FILE* f = std::fopen((dir + "/progress-pipe.log").c_str(), "rb");
+  ASSERT_NE(f, nullptr);
+  std::string pipe_text;
+  char buf[4096];
+  for (size_t n; (n = std::fread(buf, 1, sizeof buf, f)) > 0;) pipe_text.append(buf, n);
+  std::fclose(f);
+  EXPECT_NE(pipe_text.find("progress-spot-pipe.vxc"), std::string::npos) << pipe_text;
+  EXPECT_EQ(pipe_text.find('\r'), std::string::npos) << pipe_text;
+  EXPECT_EQ(pipe_text.find("build ["), std::string::npos) << pipe_text;
   const std::string rendered =
       on_a_terminal("render " + scene + " -o " + dir + "/progress-spot.png --size 64x48");
   EXPECT_NE(rendered.find("render ["), std::string::npos) << rendered;

@@ -13,6 +13,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <nlohmann/json.hpp>
 #include <string>
@@ -233,27 +234,72 @@ TEST_F(ViewWindow, StillFramesAverageAmbientOcclusionPasses) {
   expect_shows_the_mean(shot, sum, single);
 }
 
-TEST_F(ViewWindow, StillFramesAccumulateGiPasses) {
-  // --gi: every still pass is kGiSamplesPerPass (2) path-traced samples with
-  // seed base + k; frames 4..8 are five passes, averaged. The oracle: five
-  // `render --gi 2` runs with those seeds, the viewer's sun (the default
-  // light direction) and sky (uniform 1), averaged here in double.
+namespace {
+
+// `view --gi VIEW_FLAGS` along `path`, still from frame 4 on (at 4 fps):
+// frames 4..8 are five passes of kGiSamplesPerPass (2) samples with seeds
+// base + k, averaged. The oracle: five `render --gi 2 RENDER_FLAGS --seed k`
+// runs, averaged here in double.
+void expect_view_shows_gi_passes(const std::string& scene, const std::string& path, TempDir& dir,
+                                 const std::string& view_flags, const std::string& render_flags) {
   const std::string common = " --size 96x72 --path '" + path + "'";
   const std::string shot = dir.file("view.png");
-  const CliResult v = run_cli("view '" + scene + "'" + common + " --gi --bounces 3 --fps 4 " +
-                              "--frames 9 --screenshot '" + shot + "'");
+  const CliResult v = run_cli("view '" + scene + "'" + common + " --gi" + view_flags +
+                              " --fps 4 --frames 9 --screenshot '" + shot + "'");
   ASSERT_EQ(v.exit_code, 0) << v.output;
   EXPECT_NE(v.output.find("5 passes"), std::string::npos) << v.output;
   std::vector<double> sum;
   Image single;
   for (int seed = 0; seed < 5; ++seed) {
     const std::string out = dir.file("gi" + std::to_string(seed) + ".pfm");
-    add_render("render '" + scene + "'" + common +
-                   " --frame end --gi 2 --bounces 3 --sun -0.4,-1,-0.6 --seed " +
-                   std::to_string(seed) + " -o '" + out + "'",
+    add_render("render '" + scene + "'" + common + " --frame end --gi 2" + render_flags +
+                   " --seed " + std::to_string(seed) + " -o '" + out + "'",
                out, &sum, &single);
   }
   expect_shows_the_mean(shot, sum, single);  // path-tracing noise differs per seed
+}
+
+}  // namespace
+
+TEST_F(ViewWindow, StillFramesAccumulateGiPasses) {
+  // The viewer's default sun is the default light direction, its sky uniform 1.
+  expect_view_shows_gi_passes(scene, path, dir, " --bounces 3", " --bounces 3 --sun -0.4,-1,-0.6");
+}
+
+TEST_F(ViewWindow, EnvironmentSunAndAntialiasingMeanWhatRendersFlagsMean) {
+  // --env, --env-scale, --sun, --sun-intensity and --bounce-cone are render
+  // --gi's.
+  const std::string sky = std::string(VOXCAST_SOURCE_DIR) + "/scenes/sky.hdr";
+  const std::string gi_flags = " --bounces 2 --env '" + sky +
+                               "' --env-scale 0.7 --sun 0.3,-1,0.2 --sun-intensity 2 "
+                               "--bounce-cone 2";
+  expect_view_shows_gi_passes(scene, path, dir, gi_flags, gi_flags);
+  // --spp: one pass without AO is final and is render --spp's image.
+  const std::string aa = dir.file("aa.png"), ref = dir.file("aa-render.png");
+  const CliResult a = run_cli("view '" + scene + "' --size 160x120 --camera auto --spp 4 " +
+                              "--frames 2 --screenshot '" + aa + "'");
+  ASSERT_EQ(a.exit_code, 0) << a.output;
+  EXPECT_NE(a.output.find("1 pass)"), std::string::npos) << a.output;
+  ASSERT_EQ(run_cli("render '" + scene + "' --size 160x120 --camera auto --spp 4 -o '" + ref + "'")
+                .exit_code,
+            0);
+  expect_same_pixels(read_png(aa), read_png(ref), 0.f);
+  ASSERT_EQ(run_cli("render '" + scene + "' --size 160x120 --camera auto -o '" +
+                    dir.file("plain.png") + "'")
+                .exit_code,
+            0);
+  EXPECT_NE(read_png(aa).pixels, read_png(dir.file("plain.png")).pixels);
+  // A broken environment map: one line, exit 1; --spp 0: usage, exit 2.
+  const std::string bad = dir.file("bad.hdr");
+  {
+    std::FILE* f = std::fopen(bad.c_str(), "wb");
+    std::fputs("#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 4 +X 4\n", f);
+    std::fclose(f);
+  }
+  const CliResult b = run_cli("view '" + scene + "' --frames 1 --gi --env '" + bad + "'");
+  EXPECT_EQ(b.exit_code, 1) << b.output;
+  EXPECT_EQ(std::count(b.output.begin(), b.output.end(), '\n'), 1) << b.output;
+  EXPECT_EQ(run_cli("view '" + scene + "' --frames 1 --spp 0").exit_code, 2);
 }
 
 TEST_F(ViewWindow, ScreenshotWithThePanelShowsIt) {

@@ -30,9 +30,12 @@
 #include "render/bench_timing.hpp"
 #include "render/tiling.hpp"
 #include "voxcast/effects.hpp"
+#include "voxcast/embree_path.hpp"
 #include "voxcast/embree_reference.hpp"
+#include "voxcast/environment.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/format_registry.hpp"
+#include "voxcast/gi_integrator.hpp"
 #include "voxcast/packet_caster.hpp"
 #include "voxcast/progress.hpp"
 #include "voxcast/render.hpp"
@@ -54,7 +57,8 @@ struct BenchArgs {
   bool brickmap = false;
   int ao_rays = 64;
   float ao_radius = 0.f;
-  std::string json;  // --json FILE: every figure
+  int gi = 0, bounces = 8;  // --gi SPP: diffuse path tracing against Embree's
+  std::string json;         // --json FILE: every figure
   std::string memory_budget;
 };
 
@@ -468,6 +472,13 @@ Runner add_bench(CLI::App& app) {
   cmd->add_option("--ao-radius", args->ao_radius,
                   "AO ray length for --effects (0 = 5% of the mesh bounds diagonal)")
       ->capture_default_str();
+  cmd->add_option("--gi", args->gi,
+                  "Also time diffuse GI with this many samples per pixel (render --gi, under "
+                  "the procedural sky and its sun) against the Embree path tracer of the mesh "
+                  "with the same sampling code (0 = off)")
+      ->capture_default_str();
+  cmd->add_option("--bounces", args->bounces, "With --gi: diffuse bounces at most")
+      ->capture_default_str();
   cmd->add_option("--json", args->json, "Also write every figure as JSON to this file");
   cmd->add_option("--memory-budget", args->memory_budget,
                   "Bytes every structure, image and ray array held at once may take (512M, 8G, "
@@ -488,6 +499,8 @@ Runner add_bench(CLI::App& app) {
     require_power_of_two("--resolution", args->resolution, 1, uint64_t(1) << 20);
     require_range("--lod", args->lod, 0, 1e6);
     require_range("--repeat", args->repeat, 1, 1000);
+    require_range("--gi", args->gi, 0, 65536);
+    require_range("--bounces", args->bounces, 0, 1024);
     if (args->beam != 0 && args->beam != 4 && args->beam != 8)
       throw UsageError("--beam must be 0, 4 or 8");
     require_range("--min-coverage", args->min_coverage, 0, 0.95);
@@ -1207,6 +1220,60 @@ Runner add_bench(CLI::App& app) {
         occ_json["ao_rays_per_point"] = args->ao_rays;
         occ_json["ao_radius"] = ao_fx.ao_radius;
         run["occlusion"] = occ_json;
+      }
+      // ---- --gi SPP: diffuse path tracing (README "Global illumination"):
+      // the GI integrator on every measured structure against the Embree
+      // path tracer of the mesh, same samples, bounces, sky, sun and random
+      // streams (embree_path.hpp: equal work up to the geometry). Timed
+      // fields here: rays = camera samples, hits = all rays traced.
+      if (args->gi > 0) {
+        GiOptions gi;
+        gi.spp = args->gi;
+        gi.bounces = args->bounces;
+        gi.sun = true;
+        gi.environment = std::make_shared<const Environment>(procedural_sky(256, 128, gi.sun_dir));
+        struct GiRow {
+          std::string caster;
+          std::function<Timed()> frame;
+          Timed t;
+        };
+        std::vector<GiRow> gi_rows;
+        gi_rows.push_back({"embree (mesh)",
+                           [&] {
+                             const EmbreePathResult e =
+                                 embree_path_trace(embree, built.mesh, camera, width, height, gi);
+                             return Timed{e.stats.seconds, e.stats.samples, e.stats.rays};
+                           },
+                           {}});
+        for (size_t i = 0; i < measured_here; ++i) {
+          const Measured& m = structures[i];
+          gi_rows.push_back({m.caster,
+                             [&] {
+                               const GiResult g =
+                                   render_gi(*m.structure, camera, width, height, args->lod, gi);
+                               return Timed{g.stats.seconds, g.stats.samples, g.stats.rays};
+                             },
+                             {}});
+        }
+        measure_interleaved(gi_rows, args->repeat, "bench gi");
+        const double embree_rate = gi_rows[0].t.mrays();
+        std::printf(
+            "diffuse GI, %d spp, %d bounces at most, procedural sky and sun (ratio: "
+            "samples/s over the Embree path tracer)\n",
+            args->gi, args->bounces);
+        std::printf("  %-22s %11s %9s %7s\n", "renderer", "Msamples/s", "Mrays/s", "ratio");
+        nlohmann::json gj = nlohmann::json::array();
+        for (const GiRow& r : gi_rows) {
+          std::printf("  %-22s %11.3f %9.3f %7.3f\n", r.caster.c_str(), r.t.mrays(), r.t.mhits(),
+                      r.t.mrays() / embree_rate);
+          gj.push_back({{"renderer", r.caster},
+                        {"seconds", r.t.seconds},
+                        {"samples", r.t.rays},
+                        {"rays", r.t.hits},
+                        {"ratio", r.t.mrays() / embree_rate}});
+        }
+        std::printf("\n");
+        run["gi"] = {{"spp", args->gi}, {"bounces", args->bounces}, {"renderers", gj}};
       }
       json_runs.push_back(run);
     }  // sizes

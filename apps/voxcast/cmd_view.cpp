@@ -8,6 +8,7 @@
 #include "camera_options.hpp"
 #include "cli_io.hpp"
 #include "commands.hpp"
+#include "gi_cli.hpp"
 #include "view/camera_path.hpp"
 #include "view/viewer.hpp"
 #include "voxcast/error.hpp"
@@ -26,7 +27,8 @@ struct ViewArgs {
   float lod = 1.f, ao_radius = 0.f, heatmap_max = 64.f;
   int beam = 0, ao = 0, passes = 16, threads = 0;
   bool gi = false, no_sun = false;  // progressive GI (G toggles it in the panel)
-  int bounces = 8;
+  int bounces = 8, spp = 1;
+  GiArgs gi_args;  // --env, --env-scale, --no-env-sampling, --sun, --sun-intensity, --bounce-cone
   uint32_t seed = 0;
   CLI::Option* frames_option = nullptr;
 };
@@ -78,7 +80,27 @@ Runner add_view(CLI::App& app) {
                 "stands still (up to --passes passes)");
   cmd->add_option("--bounces", args->bounces, "With --gi: diffuse bounces at most")
       ->capture_default_str();
-  cmd->add_flag("--no-sun", args->no_sun, "With --gi: the uniform sky alone, no sun");
+  cmd->add_flag("--no-sun", args->no_sun, "With --gi: no sun, the environment alone");
+  cmd->add_option("--env", args->gi_args.env,
+                  "With --gi: environment map (.hdr or .exr, latitude-longitude), as render "
+                  "--env; default a uniform sky of radiance 1");
+  cmd->add_option("--env-scale", args->gi_args.env_scale, "With --gi: multiplies the environment")
+      ->capture_default_str();
+  cmd->add_flag("--no-env-sampling", args->gi_args.no_env_sampling,
+                "With --env: cosine bounces alone (as render --no-env-sampling)");
+  cmd->add_option("--sun", args->gi_args.sun,
+                  "With --gi: the sun travels along dx,dy,dz (default -0.4,-1,-0.6, the "
+                  "surface shading's light)");
+  cmd->add_option("--sun-intensity", args->gi_args.sun_intensity,
+                  "With --gi: the sun's irradiance on a surface facing it")
+      ->capture_default_str();
+  cmd->add_option("--bounce-cone", args->gi_args.bounce_cone,
+                  "With --gi: LOD cone of the rays after the first hit, degrees (0 = finest)")
+      ->capture_default_str();
+  cmd->add_option("--spp", args->spp,
+                  "Antialiasing of the surface shading: jittered camera rays per pixel and "
+                  "pass, as render --spp (1..4096)")
+      ->capture_default_str();
   cmd->add_option("--threads", args->threads, "Render threads (0 = all cores)");
   return [args]() {
     ThreadLimit limit(args->threads);
@@ -99,6 +121,15 @@ Runner add_view(CLI::App& app) {
     require_range("--heatmap-max", args->heatmap_max, 1e-6, 1e9);
     require_range("--passes", args->passes, 1, 256);
     require_range("--bounces", args->bounces, 0, 1024);
+    require_range("--spp", args->spp, 1, 4096);
+    // The GI options through render's checks (gi_cli.hpp); the sun is on
+    // unless --no-sun, along the surface shading's light unless --sun.
+    GiArgs gi_args = args->gi_args;
+    gi_args.spp = 1;
+    if (gi_args.sun.empty()) gi_args.sun = "-0.4,-1,-0.6";
+    const GiOptions gi = gi_options(gi_args, "", args->seed);
+    if (args->no_sun && !args->gi_args.sun.empty())
+      throw UsageError("--sun and --no-sun exclude each other");
     if (args->screenshot_ui && !scripted)
       throw UsageError("--screenshot-ui is for scripted runs (--frames N)");
     refuse_camera_options_with_path(args->camera, args->path);
@@ -116,6 +147,12 @@ Runner add_view(CLI::App& app) {
     s.gi = args->gi;
     s.gi_bounces = args->bounces;
     s.gi_sun = !args->no_sun;
+    const Vec3 sun = parse_vec3(gi_args.sun, "--sun");  // as given: render_frame normalizes
+    s.gi_sun_dir = {sun.x, sun.y, sun.z};
+    s.gi_sun_intensity = gi_args.sun_intensity;
+    s.gi_bounce_cone = gi.bounce_cone_deg;
+    s.gi_env_sampling = gi.env_sampling;
+    s.spp = args->spp;
     o.max_passes = args->passes;
     o.show_panel = !args->no_panel;
     o.screenshot_ui = args->screenshot_ui;
@@ -123,6 +160,7 @@ Runner add_view(CLI::App& app) {
 
     std::vector<std::string> inputs = {args->input};
     if (!args->path.empty()) inputs.push_back(args->path);
+    if (!args->gi_args.env.empty()) inputs.push_back(args->gi_args.env);
     OutputSet outputs(inputs);
     if (scripted && !args->screenshot.empty())
       outputs.add("--screenshot", args->screenshot, {".png"});
@@ -136,6 +174,13 @@ Runner add_view(CLI::App& app) {
     if (!args->path.empty()) {
       require_regular_input(args->path, "camera path");
       o.path = view::CameraPath::load(args->path);
+    }
+    if (!args->gi_args.env.empty()) {
+      GiOptions loaded = gi;
+      load_gi_environment(gi_args, &loaded);
+      s.gi_environment = loaded.environment;
+    } else if (gi_args.env_scale != 1.f) {
+      s.gi_environment = gi.environment;  // the uniform sky times --env-scale
     }
     LoadedScene scene = load_scene(args->input);
     o.camera = o.path ? o.path->keyframes.front().camera

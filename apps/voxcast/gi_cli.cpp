@@ -25,6 +25,9 @@ void add_gi_options(CLI::App* cmd, GiArgs& a) {
   cmd->add_option("--env", a.env,
                   "With --gi: environment map (.hdr or .exr, latitude-longitude); default a "
                   "uniform sky of radiance 1");
+  cmd->add_flag("--no-env-sampling", a.no_env_sampling,
+                "With --env: find the map's light by cosine bounces alone (default: also "
+                "sample the map by luminance, with multiple importance sampling)");
   cmd->add_option("--env-scale", a.env_scale, "With --gi: multiplies the environment")
       ->capture_default_str();
   cmd->add_option("--sun", a.sun, "With --gi: a sun (directional light) travelling along dx,dy,dz");
@@ -51,6 +54,7 @@ GiOptions gi_options(const GiArgs& a, const std::string& surface_only, uint32_t 
   o.bounces = a.bounces;
   o.bounce_cone_deg = a.bounce_cone;
   o.seed = seed;
+  o.env_sampling = !a.no_env_sampling;
   if (!a.sun.empty()) {
     const Vec3 d = parse_vec3(a.sun, "--sun");
     if (!(length(d) > 0) || !std::isfinite(length(d)))

@@ -14,6 +14,7 @@ struct GiArgs {
   int spp = 0;  // 0 = the surface integrator
   int bounces = 8;
   std::string env, sun;
+  bool no_env_sampling = false;  // cosine bounces alone (no environment sampling)
   float env_scale = 1.f, sun_intensity = 3.f, bounce_cone = GiOptions{}.bounce_cone_deg;
 };
 

@@ -12,6 +12,7 @@
 
 #include "cli_io.hpp"
 #include "commands.hpp"
+#include "view/panel.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/format_registry.hpp"
 #include "voxcast/progress.hpp"
@@ -72,7 +73,9 @@ int main(int argc, char** argv) {
   // Version, build type, ISA (baseline and the dispatched kernels') and the
   // libraries linked in.
   app.set_version_flag("--version", [] {
-    return voxcast::build_description() + voxcast::io_library_versions() + "Embree " +
+    return voxcast::build_description() + voxcast::io_library_versions() +
+           voxcast::view::view_library_versions() +
+           "stb_image (Debian's libstb-dev header, compiled in)\nEmbree " +
            RTC_VERSION_STRING + " (oracle: bench only)\nCLI11 " + CLI11_VERSION;
   });
   app.get_formatter()->column_width(36);

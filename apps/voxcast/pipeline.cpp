@@ -54,6 +54,17 @@ const SceneFormat& format_of(const BuildSettings& s) {
   return format_registry().get(s.format);
 }
 
+namespace {
+// The format's build from a voxel set with a progress bar on a terminal
+// (the format plans its phases).
+LoadedStructure build_with_bar(const SceneFormat& format, const VoxelSet& voxels,
+                               FormatBuildOptions fo) {
+  Progress progress(format.name + " build", uint64_t(0));
+  fo.progress = &progress;
+  return format.build(voxels, fo);
+}
+}  // namespace
+
 FormatBuildOptions format_build_options(const BuildSettings& s, const Mesh* mesh) {
   FormatBuildOptions fo;
   fo.compress_attributes = s.compress_attributes;
@@ -180,7 +191,7 @@ BuiltScene build_from_voxel_file(const BuildSettings& s, uint64_t budget, StageT
   const SceneFormat& format = format_of(s);
   if (format.attributes_optional && !s.dag_attributes)
     voxels.colors.clear(), voxels.normals.clear(), voxels.weights.clear();
-  out.structure = format.build(voxels, format_build_options(s, nullptr));
+  out.structure = build_with_bar(format, voxels, format_build_options(s, nullptr));
   out.octree_seconds = timer.mark((format.name + " build").c_str());
   return out;
 }
@@ -195,7 +206,8 @@ void fill_interior(const BuildSettings& s, const Mesh& mesh, uint64_t budget, Vo
   *voxels = fill_solid(mesh, *voxels, &st, max_voxels);
   timer.mark("solid fill");
   if (s.verbose)
-    std::fprintf(stderr, "solid fill: %llu interior voxels, %llu of %llu columns by winding number\n",
+    std::fprintf(stderr,
+                 "solid fill: %llu interior voxels, %llu of %llu columns by winding number\n",
                  (unsigned long long)st.interior_voxels, (unsigned long long)st.ambiguous_columns,
                  (unsigned long long)st.columns);
 }
@@ -270,7 +282,7 @@ BuiltScene build_scene(const BuildSettings& s, Mesh mesh, const MeshLoadStats& m
   out.leaf_voxels = voxels.size();
   if (s.fill_solid && format.attributes_optional && !s.dag_attributes)
     voxels.colors.clear(), voxels.normals.clear(), voxels.weights.clear();
-  out.structure = format.build(voxels, fo);
+  out.structure = build_with_bar(format, voxels, fo);
   out.octree_seconds = timer.mark((format.name + " build").c_str());
   return out;
 }

@@ -46,6 +46,8 @@
 
 namespace voxcast {
 
+class Progress;
+
 /// The version ContainerWriter writes; ContainerReader reads 1 and 2.
 inline constexpr uint32_t kSceneFormatVersion = 2;
 /// Default chunk size of written sections: a reader that wants one piece of
@@ -211,6 +213,8 @@ class ContainerWriter {
   void commit();
 
   uint64_t bytes_written() const { return position_; }
+  /// Advance `progress` by every byte written from now on (optional).
+  void set_progress(Progress* progress) { progress_ = progress; }
 
   class Sink;  // the temporary file or memory (container.cpp)
 
@@ -230,6 +234,7 @@ class ContainerWriter {
   std::unique_ptr<HashState> hash_;
   uint64_t chunk_fill_ = 0;
   bool committed_ = false;
+  Progress* progress_ = nullptr;
 };
 
 /// A whole container in memory (tests, tools, small scenes): every section

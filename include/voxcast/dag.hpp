@@ -254,7 +254,9 @@ class SparseVoxelDag {
 /// 4^3 leaf masks, then one level at a time upward, identical nodes merged
 /// (svdag §3: parallel sort of the node keys, then compaction). Attributes are
 /// copied when the set has them. Deterministic for any thread count.
-SparseVoxelDag build_dag(const VoxelSet& voxels);
+/// `progress` (optional): the bar of the build, its phases re-planned
+/// (leaf masks, merged levels, layout and attributes).
+SparseVoxelDag build_dag(const VoxelSet& voxels, Progress* progress = nullptr);
 
 /// Out-of-core construction (svdag §3 "Implementation details"; src/dag/build_ooc.cpp).
 struct OutOfCoreOptions {

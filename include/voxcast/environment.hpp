@@ -9,11 +9,24 @@
 //   v = acos(d.y) / pi                     (v = 0 straight up, 1 straight down)
 // Lookups are bilinear, wrapping in u and clamped in v.
 //
+// Importance sampling (sample()/pdf()): a map's directions are drawn with
+// probability proportional to the luminance that lookups return, integrated
+// over each pixel's (u, v) rectangle (the (1, 6, 1) / 8 filter of the pixel
+// luminances, exact for bilinear lookups), times the rectangle's solid angle
+// (sin theta of its center): a piecewise-constant density over the pixels (a
+// marginal CDF over the rows, a conditional CDF within each row), uniform
+// within a rectangle. The density is per solid angle,
+//   pdf(d) = p_ij * W * H / (2 pi^2 sin theta),
+// p_ij the probability of pixel (i, j). A black region has density 0:
+// sampling is meant for multiple importance sampling with a second strategy
+// that covers every direction (the GI integrator's cosine bounce).
+//
 // Files: Radiance RGBE (.hdr, an own validated reader and writer) and
 // OpenEXR (.exr, the R, G, B channels through OpenEXR).
 #include <cstdint>
 #include <filesystem>
 #include <span>
+#include <vector>
 
 #include "voxcast/image.hpp"
 #include "voxcast/math.hpp"
@@ -34,10 +47,28 @@ class Environment {
   bool is_constant() const { return image_.pixels.empty(); }
   const Image& image() const { return image_; }
 
+  /// True for a map with some light (luminance > 0 somewhere) and scale > 0:
+  /// sample() and pdf() apply. False for a constant environment.
+  bool can_sample() const { return total_ > 0.0; }
+  struct Sample {
+    Vec3 dir;       // unit direction towards the environment
+    float pdf = 0;  // per solid angle (0: no sample, e.g. at a pole)
+  };
+  /// A direction for two uniform numbers in [0, 1) (can_sample() only).
+  Sample sample(float u1, float u2) const;
+  /// The density of sample() at unit direction `d` (0 when !can_sample()).
+  float pdf(Vec3 d) const;
+
  private:
+  void build_distribution();
   Color constant_{1.f, 1.f, 1.f, 1.f};
   Image image_;
   float scale_ = 1.f;
+  // The sampling distribution: row_cdf_ (H + 1 entries, 0..1), col_cdf_
+  // (H rows of W + 1 entries, 0..1), the pixel weights (luminance * sin of
+  // the row center's theta) and their total.
+  std::vector<float> row_cdf_, col_cdf_, weight_;
+  double total_ = 0.0;
 };
 
 /// The (u, v) of direction `d` in the mapping above.

@@ -43,6 +43,9 @@ struct FormatBuildOptions {
   /// The mesh the voxel set was voxelized from, when there is one (null for a
   /// voxel file): contours are shaped by its triangles (esvo §5.2).
   const Mesh* mesh = nullptr;
+  /// The caller's progress bar for the build (null: none); the format
+  /// re-plans its phases.
+  Progress* progress = nullptr;
 };
 
 /// What a build from a mesh (SceneFormat::build_from_mesh) is handed besides

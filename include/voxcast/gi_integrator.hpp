@@ -14,6 +14,11 @@
 //    multiplied by a) up to `bounces` times; a ray that leaves the scene
 //    picks up the environment (environment.hpp), the primary ray included
 //    (the background is the environment);
+//  * with an environment map (and `env_sampling`), next-event estimation to
+//    the environment too: a direction drawn by the map's luminance
+//    (Environment::sample), a shadow ray, and multiple importance sampling
+//    with the cosine bounce (power heuristic; a bounce ray that escapes is
+//    weighted by the other half), at every hit that may still bounce;
 //  * Russian roulette from bounce `rr_start` on: survive with
 //    q = min(1, max channel of the throughput), divide by q (unbiased);
 //  * bounce and shadow rays after the first hit are LOD-terminated: they stop
@@ -46,6 +51,9 @@ struct GiOptions {
   int rr_start = 3;  // Russian roulette from this bounce on (>= 1)
   /// Environment: constant radiance 1 when null.
   std::shared_ptr<const Environment> environment;
+  /// Importance-sample an environment map (MIS with the cosine bounce);
+  /// false = cosine bounces alone. No effect on a constant environment.
+  bool env_sampling = true;
   bool sun = false;
   Vec3 sun_dir = normalize(Vec3{-0.4f, -1.0f, -0.6f});  // direction the sunlight travels
   Color sun_irradiance{3.f, 3.f, 3.f, 1.f};
@@ -64,7 +72,7 @@ struct GiStats {
   uint64_t samples = 0;      // camera samples (paths)
   uint64_t rays = 0;         // rays traced: primary + bounce + shadow
   uint64_t bounce_rays = 0;  // of which bounce rays
-  uint64_t shadow_rays = 0;  // of which shadow rays
+  uint64_t shadow_rays = 0;  // of which shadow rays (sun and environment)
   double seconds = 0;        // filled by render_gi()
 };
 

@@ -10,6 +10,10 @@
 // in order of their first occurrence in Morton order, which keeps the nodes
 // a ray visits together close in memory and makes the output a function of
 // the voxel set alone.
+//
+// The bar (optional): the leaf masks and their merge, the levels above
+// (units: the nodes each groups, added as they become known), the layout
+// and the attributes.
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_sort.h>
 
@@ -21,6 +25,7 @@
 
 #include "voxcast/dag.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/progress.hpp"
 
 namespace voxcast::dag {
 namespace {
@@ -64,7 +69,7 @@ std::vector<uint32_t> merge_identical(const std::vector<Key>& keys, std::vector<
 
 }  // namespace
 
-SparseVoxelDag build_dag(const VoxelSet& voxels) {
+SparseVoxelDag build_dag(const VoxelSet& voxels, Progress* progress) {
   const int L = voxels.grid.levels;
   if (L < 2 || L > kMaxGridLevels)
     throw Error("DAG build: the grid must have 2.." + std::to_string(kMaxGridLevels) +
@@ -77,6 +82,13 @@ SparseVoxelDag build_dag(const VoxelSet& voxels) {
   SparseVoxelDag dag;
   dag.grid = voxels.grid;
 
+  // Weights: the phases' shares of the time (measured once on the bunny at
+  // 2048^3: masks 0.34 s, levels 0.14 s, layout 0.02 s, attributes 0.81 s).
+  if (progress) {
+    progress->set_phases(
+        {{"leaf masks", 0.27}, {"levels", 0.1}, {"layout", 0.02}, {"attributes", 0.61}});
+    progress->start_phase(0, 2);  // the masks, their merge
+  }
   // Level L-2: one 64-bit mask per occupied 4^3 block; bit = code & 63.
   std::vector<uint64_t> keys;  // Morton code of each node's cube at its level
   std::vector<uint64_t> masks;
@@ -90,6 +102,7 @@ SparseVoxelDag build_dag(const VoxelSet& voxels) {
       masks.back() |= 1ull << layout::LeafMaskBit::get(code);
     }
   }
+  if (progress) progress->advance();
   // Node positions and ids are 32-bit (merge_identical); the voxel count
   // itself is not limited (64-bit voxel index, dag.hpp).
   if (keys.size() > 0xFFFFFFFFull) throw Error("DAG build: more than 2^32 - 1 leaf-mask nodes");
@@ -103,8 +116,10 @@ SparseVoxelDag build_dag(const VoxelSet& voxels) {
     for (uint32_t f : firsts) unique_leaf.push_back(masks[f]);
     masks = {};
   }
+  if (progress) progress->start_phase(1, 0);  // (ends the merge of phase 0)
   std::vector<std::vector<NodeKey>> unique_inner(size_t(L - 2));
   for (int l = L - 3; l >= 0; --l) {
+    if (progress) progress->add_units(keys.size());
     // Group the level l+1 nodes (sorted by code) under their parents.
     std::vector<uint64_t> parent_keys;
     std::vector<NodeKey> nodes;
@@ -134,10 +149,12 @@ SparseVoxelDag build_dag(const VoxelSet& voxels) {
     auto& uniq = unique_inner[size_t(l)];
     uniq.reserve(firsts.size());
     for (uint32_t f : firsts) uniq.push_back(nodes[f]);
+    if (progress) progress->advance(keys.size());
     keys = std::move(parent_keys);
     ids = std::move(parent_ids);
   }
 
+  if (progress) progress->start_phase(2, 1);  // one unit: the layout loops
   // Layout: level 0 (the root) first, each level after the one above, so
   // every child pointer points forward.
   std::vector<std::vector<uint64_t>> node_offset(
@@ -184,6 +201,7 @@ SparseVoxelDag build_dag(const VoxelSet& voxels) {
     });
   }
 
+  if (progress) progress->start_phase(3, 1);  // (ends the layout)
   if (attrs) {
     dag.colors.resize(voxels.size());
     dag.normals.resize(voxels.size());
@@ -194,6 +212,10 @@ SparseVoxelDag build_dag(const VoxelSet& voxels) {
   }
   // Validates what was just built and derives the voxel index (cheap, linear).
   dag.finalize();
+  if (progress) {
+    progress->advance();
+    progress->finish();
+  }
   return dag;
 }
 

@@ -313,7 +313,7 @@ void register_format(FormatRegistry& registry) {
   f.description = "sparse voxel DAG (Kämpe et al. 2013)";
   f.attributes_optional = true;
   f.build = [](const VoxelSet& voxels, const FormatBuildOptions& o) -> LoadedStructure {
-    SparseVoxelDag d = build_dag(voxels);
+    SparseVoxelDag d = build_dag(voxels, o.progress);
     if (o.compress_attributes && d.has_attributes()) d.compress_attributes();
     return std::make_unique<DagStructure>(std::make_shared<SparseVoxelDag>(std::move(d)));
   };

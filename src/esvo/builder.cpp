@@ -211,6 +211,9 @@ class Layout {
          const BuildOptions& opt, const detail::ContourPlan* plan = nullptr)
       : lv_(levels), leaf_values_(leaf_values), opt_(opt), L_(int(levels.size())), plan_(plan) {}
 
+  /// Advance `progress` (its current phase) by the descriptors placed.
+  void set_progress(Progress* progress) { progress_ = progress; }
+
   EsvoOctree run(const GridTransform& grid) {
     uint64_t total_desc = 1 + lv_[0].desc_below[0];
     uint64_t total_values = lv_[0].values_below[0] + std::popcount(unsigned(lv_[0].mask[0]));
@@ -222,11 +225,15 @@ class Layout {
     const uint32_t root = alloc(1, 1);
     place_descriptor(root, 0, 0);
     stack_.push_back({0, 0, root, 0});
+    uint64_t visited = 0;
     while (!stack_.empty()) {
       const Node n = stack_.back();
       stack_.pop_back();
       visit(n);
+      // The bar follows the descriptors placed (one per visited node).
+      if (progress_ && ++visited % 4096 == 0) progress_->advance(4096);
     }
+    if (progress_) progress_->advance(visited % 4096);
     close_block();
     // Pad to whole pages: the array is a sequence of 8 KiB pages.
     out_.resize((out_.size() + kPageWords - 1) / kPageWords * kPageWords, 0);
@@ -489,6 +496,7 @@ class Layout {
   const std::vector<uint64_t>& leaf_values_;
   const BuildOptions& opt_;
   const int L_;
+  Progress* progress_ = nullptr;
   const detail::ContourPlan* plan_;  // null: full depth, no contours
   struct ContourRef {
     uint32_t slot;   // descriptor with a non-empty contour mask
@@ -521,7 +529,7 @@ void check_block_limits(const BuildOptions& options) {
 /// node there, which keeps its float attributes and code; lv[0..stop) stay
 /// empty).
 void build_levels(const VoxelSet& voxels, std::vector<Level>& lv,
-                  std::vector<uint64_t>& leaf_values, int stop = 0) {
+                  std::vector<uint64_t>& leaf_values, int stop = 0, Progress* progress = nullptr) {
   const int L = voxels.grid.levels;
   const size_t n = voxels.size();
 
@@ -542,8 +550,12 @@ void build_levels(const VoxelSet& voxels, std::vector<Level>& lv,
 
   // Phase 1: levels L-1 .. stop.
   lv.assign(static_cast<size_t>(L), Level{});
+  // The bar's units are the nodes each level reduces: the leaves first,
+  // then every level's own nodes, added once they are known.
+  if (progress) progress->start_phase(0, n);
   for (int d = L - 1; d >= stop; --d) {
     Level& p = lv[size_t(d)];
+    if (progress && d < L - 1) progress->add_units(lv[size_t(d) + 1].mask.size());
     if (d == L - 1) {
       reduce_codes(voxels.codes, p);
       reduce_attributes(leaf_color, leaf_normal, leaf_weight, p);
@@ -575,6 +587,7 @@ void build_levels(const VoxelSet& voxels, std::vector<Level>& lv,
         p.values_below[i] = vals;
       });
     }
+    if (progress) progress->advance(d == L - 1 ? n : lv[size_t(d) + 1].mask.size());
   }
   if (lv[size_t(stop)].mask.size() != 1)
     throw std::logic_error("esvo builder: root level is not a single node");
@@ -690,8 +703,19 @@ EsvoOctree build_octree(const VoxelSet& voxels, const BuildOptions& options) {
   check_block_limits(options);
   std::vector<Level> lv;
   std::vector<uint64_t> leaf_values;
-  build_levels(voxels, lv, leaf_values);
-  return Layout(lv, leaf_values, options).run(voxels.grid);
+  Progress* const progress = options.progress;
+  // Weights: the phases' shares of the time (measured once on the bunny at
+  // 2048^3, 14.3 M leaf voxels: levels 1.83 s, layout 0.91 s).
+  if (progress) progress->set_phases({{"levels", 0.67}, {"layout", 0.33}});
+  build_levels(voxels, lv, leaf_values, 0, progress);
+  Layout layout(lv, leaf_values, options);
+  if (progress) {
+    progress->start_phase(1, 1 + lv[0].desc_below[0]);
+    layout.set_progress(progress);
+  }
+  EsvoOctree octree = layout.run(voxels.grid);
+  if (progress) progress->finish();
+  return octree;
 }
 
 EsvoOctree build_octree(const VoxelSet& voxels, const Mesh& mesh, const BuildOptions& options) {

@@ -229,7 +229,8 @@ BuildOptions build_options(const FormatBuildOptions& o) {
 }
 
 LoadedStructure build(const VoxelSet& voxels, const FormatBuildOptions& o) {
-  const BuildOptions b = build_options(o);
+  BuildOptions b = build_options(o);
+  b.progress = o.progress;  // the full-depth build's bar (levels, layout)
   if (!b.contours)
     return std::make_unique<EsvoStructure>(std::make_shared<EsvoOctree>(build_octree(voxels, b)));
   // Contours are shaped by the mesh (esvo §5.2).

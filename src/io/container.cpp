@@ -20,6 +20,7 @@
 
 #include "io/atomic_file.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/progress.hpp"
 
 namespace voxcast {
 namespace {
@@ -414,6 +415,7 @@ ContainerWriter::~ContainerWriter() = default;  // the FileSink removes an uncom
 void ContainerWriter::put(const void* data, size_t size) {
   sink_->write_at(position_, data, size);
   position_ += size;
+  if (progress_) progress_->advance(size);
 }
 
 void ContainerWriter::begin_section(uint32_t id, uint64_t chunk_bytes) {

@@ -2,11 +2,12 @@
 // with an own reader and writer, OpenEXR through OpenEXR's scan-line
 // InputFile.
 //
-// Why not stb_image's HDR reader (Debian's libstb): in the CLI and the tests
-// its symbols resolve to an older copy of stb bundled inside libdraco (pulled
-// in by Assimp), which never returned on a truncated run-length encoded file
-// (seen while writing Environment.RefusesMalformedHdr). A reader of our own
-// checks every byte against the end of the buffer.
+// Why not stb_image's HDR reader: it never returns on a truncated run-length
+// encoded file (a run count read past the end is 0 and never advances), in
+// Debian's libstb-dev 2.27 as in the older copy libdraco exports (seen while
+// writing Environment.RefusesMalformedHdr and
+// MeshImport.TruncatedTexturesAreRefusedQuickly). A reader of our own checks
+// every byte against the end of the buffer; mesh textures in .hdr use it too.
 #include <OpenEXR/ImfChannelList.h>
 #include <OpenEXR/ImfFrameBuffer.h>
 #include <OpenEXR/ImfHeader.h>

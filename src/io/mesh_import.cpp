@@ -23,7 +23,6 @@
 #include <assimp/texture.h>
 #include <fcntl.h>
 #include <fmt/format.h>
-#include <stb_image.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -39,11 +38,30 @@
 #include <map>
 #include <mutex>
 #include <nlohmann/json.hpp>
+#include <span>
 #include <sstream>
 #include <string>
 #include <string_view>
 #include <type_traits>
 
+// stb_image from Debian's libstb-dev (/usr/include/stb), compiled into this
+// file with internal linkage: libstb.so's exported stbi_* symbols would be
+// interposed by the older stb copy that libdraco (pulled in by Assimp)
+// exports too, and that copy never returned on some truncated files. Static
+// functions cannot be interposed, so every call below is Debian's current
+// stb (MeshImport.TruncatedTexturesAreRefusedQuickly).
+#define STB_IMAGE_STATIC
+#define STB_IMAGE_IMPLEMENTATION
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wunused-function"
+#pragma GCC diagnostic ignored "-Wsign-compare"
+#pragma GCC diagnostic ignored "-Wmissing-field-initializers"
+#pragma GCC diagnostic ignored "-Wunused-but-set-variable"
+#pragma GCC diagnostic ignored "-Wimplicit-fallthrough"
+#include <stb_image.h>
+#pragma GCC diagnostic pop
+
+#include "voxcast/environment.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/image.hpp"
 #include "voxcast/mesh.hpp"
@@ -112,6 +130,33 @@ void require_texture_budget(uint64_t w, uint64_t h, uint64_t bytes_per_texel, ui
 // stb_image from Debian's libstb. The header is read first so that a
 // decompression bomb, or an image too large for the budget, is refused
 // before anything is allocated.
+// A Radiance .hdr texture: stb_image's run-length decoder (Debian's 2.27
+// too) loops forever on a truncated file (a run count read past the end is
+// 0 and never advances), so .hdr goes through our own validated reader
+// (environment.hpp's parse_hdr) and is mapped to 8 bits as stb_image maps
+// HDR to LDR by default: 255 * x^(1 / 2.2) + 0.5, clamped; alpha 255.
+Texture decode_hdr_texture(const uint8_t* data, size_t size, const std::string& what) {
+  Image im;
+  try {
+    im = parse_hdr(std::span<const uint8_t>(data, size));
+  } catch (const Error& e) {
+    throw Error(fmt::format("texture {}: {}", what, one_line(e.what())));
+  }
+  Texture tex;
+  tex.width = im.width;
+  tex.height = im.height;
+  tex.rgba.resize(size_t(im.width) * size_t(im.height) * 4);
+  for (size_t i = 0; i < size_t(im.width) * size_t(im.height); ++i) {
+    for (int c = 0; c < 3; ++c) {
+      const float v =
+          std::pow(std::max(0.f, im.pixels[3 * i + size_t(c)]), 1.f / 2.2f) * 255.f + 0.5f;
+      tex.rgba[4 * i + size_t(c)] = uint8_t(std::clamp(v, 0.f, 255.f));
+    }
+    tex.rgba[4 * i + 3] = 255;
+  }
+  return tex;
+}
+
 Texture decode_image(const uint8_t* data, size_t size, const std::string& what,
                      uint64_t budget_left, uint64_t held) {
   if (size == 0 || size > size_t(INT32_MAX))
@@ -123,6 +168,7 @@ Texture decode_image(const uint8_t* data, size_t size, const std::string& what,
   if (w <= 0 || h <= 0 || uint64_t(w) * uint64_t(h) > kMaxTexels)
     throw Error(fmt::format("texture {}: {}x{} texels is out of range", what, w, h));
   require_texture_budget(uint64_t(w), uint64_t(h), kDecodeBytesPerTexel, budget_left, held, what);
+  if (stbi_is_hdr_from_memory(data, int(size))) return decode_hdr_texture(data, size, what);
   stbi_uc* pixels = stbi_load_from_memory(data, int(size), &w, &h, &comp, 4);
   if (!pixels)
     throw Error(fmt::format("texture {}: cannot decode ({})", what,

@@ -10,6 +10,7 @@
 #include "io/meta_json.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/format_registry.hpp"
+#include "voxcast/progress.hpp"
 
 namespace voxcast {
 
@@ -68,8 +69,15 @@ void save_scene(const std::filesystem::path& path, const std::string& format,
                 const Structure& structure, const SceneInfo& info) {
   const SceneFormat& f = format_registry().get(format);
   ContainerWriter writer(path);
+  // A bar on a terminal: the bytes written against the structure's memory
+  // (the file holds about that much: the words and the attributes).
+  // (Named by the stage: the CLI writes to a temporary name, then renames.)
+  Progress progress("write scene",
+                    f.memory_bytes ? f.memory_bytes(structure) : 0);
+  writer.set_progress(&progress);
   f.save(writer, structure, info);
   writer.commit();
+  progress.finish();
 }
 
 namespace {
@@ -103,8 +111,8 @@ LoadedScene load_from(const ContainerReader& reader, const std::filesystem::path
   out.format = scene_format(reader);
   const SceneFormat& f = format_registry().get(out.format);
   out.sections = reader.section_ids();
-  out.structure = path && f.load_file ? f.load_file(*path, reader, &out.info)
-                                      : f.load(reader, &out.info);
+  out.structure =
+      path && f.load_file ? f.load_file(*path, reader, &out.info) : f.load(reader, &out.info);
   reader.verify_all();
   out.occupied = f.occupied(*out.structure);
   return out;

@@ -3,8 +3,8 @@
 // once over a Scene so that the Embree reference path tracer of the source
 // mesh (embree_path.hpp) runs exactly the same sampling math: same random
 // numbers in the same order, same jitter, bounce directions, next-event
-// estimation and Russian roulette. The two differ only in geometry (voxels
-// vs. triangles), which is what the convergence test measures.
+// estimation (sun and environment map) and Russian roulette. The two differ only in geometry
+// (voxels vs. triangles), which is what the convergence test measures.
 //
 // Scene concept:
 //   bool intersect(const Ray& ray, int depth, PathVertex* v) const;
@@ -90,13 +90,20 @@ Color trace_path(const Scene& scene, Ray ray, const GiOptions& o, const Environm
                  PathRng& rng, PathCounts* counts, PathVertex* first) {
   float L[3] = {0, 0, 0}, beta[3] = {1, 1, 1};
   const Vec3 to_sun = normalize(-o.sun_dir);
+  const bool env_nee = o.env_sampling && env.can_sample();
+  // The cosine density of the bounce that led to the current ray (MIS
+  // weight of an escaping bounce ray against the environment sample).
+  float bounce_pdf = 0.f;
+  // Power heuristic weight of the strategy with density a against b.
+  auto mis = [](float a, float b) { return a * a / (a * a + b * b); };
   for (int depth = 0;; ++depth) {
     PathVertex v;
     const bool hit = scene.intersect(ray, depth, &v);
     if (depth == 0 && first) *first = v;
     if (!hit) {
       const Color e = env.radiance(ray.dir);
-      L[0] += beta[0] * e.r, L[1] += beta[1] * e.g, L[2] += beta[2] * e.b;
+      const float w = env_nee && depth > 0 ? mis(bounce_pdf, env.pdf(ray.dir)) : 1.f;
+      L[0] += beta[0] * e.r * w, L[1] += beta[1] * e.g * w, L[2] += beta[2] * e.b * w;
       break;
     }
     const float a[3] = {v.albedo.r, v.albedo.g, v.albedo.b};
@@ -112,8 +119,27 @@ Color trace_path(const Scene& scene, Ray ray, const GiOptions& o, const Environm
       }
     }
     if (depth >= o.bounces) break;
+    if (env_nee) {
+      // The environment light this hit receives along an escaping bounce,
+      // estimated from a luminance-sampled direction (the bounce below
+      // carries the rest through its MIS weight).
+      const float e1 = rng.next(), e2 = rng.next();
+      const Environment::Sample es = env.sample(e1, e2);
+      const float c = dot(v.normal, es.dir);
+      if (es.pdf > 0.f && c > 0.f) {
+        ++counts->shadow_rays;
+        if (!scene.occluded(Ray{v.origin, es.dir, INFINITY}, depth)) {
+          const Color e = env.radiance(es.dir);
+          const float pc = c / kPathPi;
+          const float k = pc * mis(es.pdf, pc) / es.pdf;
+          L[0] += beta[0] * a[0] * e.r * k, L[1] += beta[1] * a[1] * e.g * k;
+          L[2] += beta[2] * a[2] * e.b * k;
+        }
+      }
+    }
     const float u1 = rng.next(), u2 = rng.next();
     const Vec3 dir = cosine_direction(v.normal, u1, u2);
+    bounce_pdf = std::max(0.f, dot(v.normal, dir)) / kPathPi;
     for (int i = 0; i < 3; ++i) beta[i] *= a[i];
     if (depth + 1 >= o.rr_start) {
       const float q = std::min(1.f, std::max({beta[0], beta[1], beta[2]}));

@@ -16,7 +16,8 @@ RenderOptions render_options(const ViewSettings& s, const Camera& camera, int wi
   opt.lod_pixels = s.lod_pixels;
   opt.beam = s.beam;
   opt.filter = s.filter;
-  opt.collect_stats = s.heatmap;  // the heat map needs the per-pixel iteration counts
+  opt.collect_stats = s.heatmap;
+  if (!s.heatmap && !s.gi) opt.spp = s.spp;  // the heat map needs the per-pixel iteration counts
   EffectOptions& fx = opt.effects;
   fx.shadows = s.hard_shadows ? ShadowMode::Hard : ShadowMode::None;
   fx.ao_rays = s.ao_rays;
@@ -35,7 +36,14 @@ ViewFrame render_frame(const Structure& structure, const RenderOptions& options,
     gi.spp = kGiSamplesPerPass;
     gi.bounces = settings.gi_bounces;
     gi.sun = settings.gi_sun;
-    gi.sun_dir = options.light_dir;
+    // Normalized once here and again by the integrator, as render --sun.
+    gi.sun_dir =
+        normalize(Vec3{settings.gi_sun_dir[0], settings.gi_sun_dir[1], settings.gi_sun_dir[2]});
+    const float e = settings.gi_sun_intensity;
+    gi.sun_irradiance = {e, e, e, 1.f};
+    gi.bounce_cone_deg = settings.gi_bounce_cone;
+    if (settings.gi_environment) gi.environment = settings.gi_environment;
+    gi.env_sampling = settings.gi_env_sampling;
     // Every pass its own seed (render_options: the accumulator's next seed),
     // so the viewer's running mean is the many-sample image.
     gi.seed = options.effects.seed;

@@ -2,9 +2,12 @@
 // The one place the viewer calls the renderer: what the panel's settings
 // mean as RenderOptions, and the call itself. The renderer's interface is
 // being redesigned (integrators, a pass loop); only this file needs to follow.
+#include <array>
 #include <cstdint>
+#include <memory>
 
 #include "voxcast/camera.hpp"
+#include "voxcast/environment.hpp"
 #include "voxcast/image.hpp"
 #include "voxcast/math.hpp"
 #include "voxcast/render.hpp"
@@ -22,14 +25,23 @@ struct ViewSettings {
   bool filter = false;    // esvo §6.3 post-filter
   bool heatmap = false;   // show the iteration heat map instead of the colors
   float heatmap_max = 64.f;
-  uint32_t seed = 0;  // seed of the first pass (pass k uses seed + k)
+  uint32_t seed = 0;  // seed of the first pass (pass k uses seed + k * seeds_per_pass)
+  /// Antialiasing of the surface shading: camera rays per pixel of every
+  /// pass (RenderOptions::spp, render --spp; pass k's sample j has effect
+  /// seed seed + k * spp + j, so no two samples share one).
+  int spp = 1;
   /// Progressive diffuse GI (gi_integrator.hpp) instead of the surface
   /// shading: each pass is kGiSamplesPerPass path-traced samples with the
-  /// pass's seed under a uniform sky of radiance 1, with the sun along the
-  /// surface shading's light direction when gi_sun.
+  /// pass's seed under gi_environment (null: a uniform sky of radiance 1),
+  /// with a sun of irradiance gi_sun_intensity along gi_sun_dir when gi_sun.
   bool gi = false;
   int gi_bounces = 8;
   bool gi_sun = true;
+  std::array<float, 3> gi_sun_dir{-0.4f, -1.f, -0.6f};  // render --sun's default in the viewer
+  float gi_sun_intensity = 3.f;
+  float gi_bounce_cone = 1.f;  // degrees (render --bounce-cone)
+  std::shared_ptr<const Environment> gi_environment;
+  bool gi_env_sampling = true;
   bool operator==(const ViewSettings&) const = default;
 };
 
@@ -45,6 +57,11 @@ struct ViewFrame {
 };
 
 inline constexpr int kGiSamplesPerPass = 2;
+
+/// Effect seeds a pass uses (pass k starts at seed + k * this).
+inline int seeds_per_pass(const ViewSettings& s) {
+  return s.gi || s.heatmap ? 1 : s.spp;
+}
 
 /// Whether passes after the first add anything (stochastic samples: AO or GI).
 inline bool refines(const ViewSettings& s) {

@@ -2,6 +2,7 @@
 // backends are part of the library).
 #include "view/panel.hpp"
 
+#include <GLFW/glfw3.h>
 #include <backends/imgui_impl_glfw.h>
 #include <backends/imgui_impl_opengl3.h>
 #include <imgui.h>
@@ -79,6 +80,7 @@ PanelActions Gui::panel(bool show_panel, const SceneStats& scene, ViewSettings* 
     if (ImGui::Combo("beam", &beam_index, beam_names, 4)) s->beam = beams[beam_index];
     ImGui::Checkbox("shadows (hard)", &s->hard_shadows);
     ImGui::SliderInt("AO rays", &s->ao_rays, 0, 64);
+    ImGui::SliderInt("AA samples", &s->spp, 1, 16);
     ImGui::Checkbox("post-filter", &s->filter);
     ImGui::Checkbox("heat map (H)", &s->heatmap);
     if (s->heatmap) ImGui::SliderFloat("heat max", &s->heatmap_max, 1.f, 512.f, "%.0f");
@@ -86,6 +88,8 @@ PanelActions Gui::panel(bool show_panel, const SceneStats& scene, ViewSettings* 
     if (s->gi) {
       ImGui::SliderInt("GI bounces", &s->gi_bounces, 0, 16);
       ImGui::Checkbox("GI sun", &s->gi_sun);
+      if (s->gi_environment && s->gi_environment->can_sample())
+        ImGui::Checkbox("GI env sampling", &s->gi_env_sampling);
     }
     ImGui::SliderInt("passes", max_passes, 1, 256);
   }
@@ -109,6 +113,10 @@ PanelActions Gui::panel(bool show_panel, const SceneStats& scene, ViewSettings* 
   }
   ImGui::End();
   return a;
+}
+
+std::string view_library_versions() {
+  return std::string("GLFW ") + glfwGetVersionString() + "\nDear ImGui " + IMGUI_VERSION + "\n";
 }
 
 }  // namespace voxcast::view

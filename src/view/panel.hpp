@@ -52,4 +52,8 @@ class Gui {
   bool wants_keyboard() const;
 };
 
+/// The viewer's libraries for `voxcast --version`: GLFW (run time) and
+/// Dear ImGui (header), one per line.
+std::string view_library_versions();
+
 }  // namespace voxcast::view

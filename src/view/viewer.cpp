@@ -247,7 +247,9 @@ ViewerReport run_viewer(const LoadedScene& scene, const ViewerOptions& o) {
       const int scale =
           !scripted && view_changed && have_shown ? preview_scale(seconds_per_pixel, W, H) : 1;
       const int rw = std::max(1, W / scale), rh = std::max(1, H / scale);
-      const uint32_t seed = scale == 1 ? accumulator.next_seed(settings.seed) : settings.seed;
+      const uint32_t seed =
+          scale == 1 ? settings.seed + uint32_t(accumulator.passes() * seeds_per_pass(settings))
+                     : settings.seed;
       const RenderOptions options = render_options(settings, camera, rw, rh, scene.occupied, seed);
       ViewFrame f = render_frame(structure, options, settings);
       seconds_per_pixel = f.seconds / (double(rw) * double(rh));

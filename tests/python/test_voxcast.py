@@ -23,6 +23,7 @@ DATA = os.environ.get(
     os.path.join(os.path.dirname(__file__), "..", "data"))
 MESH = os.path.join(DATA, "meshes", "spot.obj")
 CAMEL = os.path.join(DATA, "meshes", "camel.off")
+REPO = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
 SIZE = (96, 64)
 
 
@@ -127,6 +128,40 @@ class VoxcastModule(unittest.TestCase):
         self.assertTrue(np.all(ao["color"] <= plain["color"] + 1e-6))
         coarse = voxcast.render(self.scene, size=SIZE, lod=8)
         self.assertFalse(np.array_equal(coarse["color"], plain["color"]))
+
+    def test_gi_and_spp_equal_cli(self):
+        # gi=, bounces=, env=, sun=, seed= mean what `voxcast render --gi`'s
+        # flags mean (the same bytes), and spp= what --spp means.
+        sky = os.path.join(REPO, "scenes", "sky.hdr")
+        out = self.path("gi.pfm")
+        depth = self.path("gi_depth.pfm")
+        cli("render", self.cli_scene, "-o", out, "--depth", depth, "--size", "%dx%d" % SIZE,
+            "--gi", "6", "--bounces", "3", "--env", sky, "--env-scale", "0.8",
+            "--sun", "-0.4,-1,-0.6", "--sun-intensity", "2", "--seed", "3")
+        r = voxcast.render(self.scene, size=SIZE, gi=6, bounces=3, env=sky, env_scale=0.8,
+                           sun=(-0.4, -1, -0.6), sun_intensity=2, seed=3, depth=True)
+        self.assertEqual(r["samples"], 6 * SIZE[0] * SIZE[1])
+        np.testing.assert_array_equal(r["color"], read_pfm(out))
+        np.testing.assert_array_equal(r["depth"], read_pfm(depth))
+        # Without environment sampling: other samples, the same CLI bytes.
+        cli("render", self.cli_scene, "-o", out, "--size", "%dx%d" % SIZE, "--gi", "6",
+            "--env", sky, "--no-env-sampling")
+        cosine = voxcast.render(self.scene, size=SIZE, gi=6, env=sky, env_sampling=False)
+        np.testing.assert_array_equal(cosine["color"], read_pfm(out))
+        self.assertFalse(np.array_equal(cosine["color"],
+                                        voxcast.render(self.scene, size=SIZE, gi=6, env=sky)["color"]))
+        cli("render", self.cli_scene, "-o", out, "--size", "%dx%d" % SIZE, "--spp", "4")
+        aa = voxcast.render(self.scene, size=SIZE, spp=4)
+        np.testing.assert_array_equal(aa["color"], read_pfm(out))
+        self.assertFalse(np.array_equal(aa["color"], voxcast.render(self.scene, size=SIZE)["color"]))
+        with self.assertRaisesRegex(voxcast.Error, "surface shading"):
+            voxcast.render(self.scene, size=SIZE, gi=2, ao=4)
+        with self.assertRaisesRegex(voxcast.Error, "option of gi|options of gi"):
+            voxcast.render(self.scene, size=SIZE, env=sky)
+        with self.assertRaisesRegex(voxcast.Error, "bounces"):
+            voxcast.render(self.scene, size=SIZE, gi=2, bounces=-1)
+        with self.assertRaisesRegex(voxcast.Error, "no-such.hdr"):
+            voxcast.render(self.scene, size=SIZE, gi=2, env=self.path("no-such.hdr"))
 
     def test_trace_equals_render_depth(self):
         for cam in (None, "ortho"):
