@@ -58,17 +58,39 @@ giga::ScalarVolume read_source_volume(const std::string& source, int resolution)
   return giga::solid_volume(load_mesh(source), resolution);
 }
 
-/// The producer of a SOURCE: procedural:NAME, a volume file or a mesh.
-std::shared_ptr<giga::Producer> make_source(const std::string& source, int resolution) {
+bool is_vdb(const std::string& path) {
+  std::string lower = path;
+  for (char& c : lower) c = char(std::tolower(static_cast<unsigned char>(c)));
+  return lower.ends_with(".vdb");
+}
+
+/// A SOURCE's producer and where its unit cube lies in the world.
+struct Source {
+  std::shared_ptr<giga::Producer> producer;
+  Vec3 origin{0, 0, 0};
+  float size = 1.f;
+  std::optional<giga::VdbVolume> vdb;  // .vdb sources
+};
+
+/// The producer of a SOURCE: procedural:NAME, a volume file, a .vdb grid or a mesh.
+Source make_source(const std::string& source, int resolution) {
+  Source s;
   if (source.rfind("procedural:", 0) == 0) {
     try {
-      return giga::make_procedural(source.substr(11), resolution);
+      s.producer = giga::make_procedural(source.substr(11), resolution);
     } catch (const Error& e) {
       throw UsageError(e.what());
     }
+    return s;
   }
   require_regular_input(source, "volume");
-  return giga::make_volume_producer(read_source_volume(source, resolution));
+  if (is_vdb(source)) {
+    s.vdb = giga::read_vdb_volume(source);
+    s.producer = s.vdb->producer, s.origin = s.vdb->origin, s.size = s.vdb->size;
+    return s;
+  }
+  s.producer = giga::make_volume_producer(read_source_volume(source, resolution));
+  return s;
 }
 
 void print_pass_stats(uint32_t frame, const FrameStats& fs, const giga::GigaVoxels& g) {
@@ -101,8 +123,25 @@ void print_pass_stats(uint32_t frame, const FrameStats& fs, const giga::GigaVoxe
 int volume_info(const std::string& source, int resolution) {
   std::shared_ptr<giga::Producer> producer;
   if (source.rfind("procedural:", 0) == 0) {
-    producer = make_source(source, resolution);
+    producer = make_source(source, resolution).producer;
     std::printf("source      %s (procedural)\n", printable(source).c_str());
+  } else if (is_vdb(source)) {
+    const Source s = make_source(source, resolution);
+    const giga::VdbVolume& v = *s.vdb;
+    std::printf("source      %s (OpenVDB grid)\n", printable(source).c_str());
+    std::printf("grid        %s (%s)\n", printable(v.grid_name).c_str(),
+                v.level_set ? "level set, as coverage clamp(0.5 - phi/voxel, 0, 1)" : "fog volume");
+    std::printf("dimensions  %lld x %lld x %lld voxels of %g (non-zero box), %llu active\n",
+                (long long)v.extent[0], (long long)v.extent[1], (long long)v.extent[2],
+                v.voxel_size, (unsigned long long)v.active_voxels);
+    std::printf("range       %g .. %g (extinction per voxel)\n", double(v.min_density),
+                double(v.max_density));
+    std::printf("data        %s grid + %s coarser levels in memory\n",
+                format_bytes(double(v.grid_bytes)).c_str(),
+                format_bytes(double(v.pyramid_bytes)).c_str());
+    std::printf("placement   cube from %g,%g,%g, side %g\n", double(s.origin.x), double(s.origin.y),
+                double(s.origin.z), double(s.size));
+    producer = s.producer;
   } else {
     require_regular_input(source, "volume");
     const giga::ScalarVolume v = read_source_volume(source, resolution);
@@ -134,10 +173,10 @@ Runner add_volume(CLI::App& app) {
       app.add_subcommand("volume", "GigaVoxels volumes (see 'voxcast volume render --help')");
   vol->require_subcommand(1);
   CLI::App* cmd = vol->add_subcommand("render", "Render a volume file or a procedural volume");
-  cmd->add_option(
-         "SOURCE", args->source,
-         "A volume file (.inr, .inr.gz, .mhd, .mha), a mesh (voxelized solid at --resolution) or "
-         "procedural:cloud|mandelbulb|menger")
+  cmd->add_option("SOURCE", args->source,
+                  "A volume file (.inr, .inr.gz, .mhd, .mha), an OpenVDB FloatGrid (.vdb), a mesh "
+                  "(voxelized solid at --resolution) or "
+                  "procedural:cloud|mandelbulb|menger")
       ->required();
   cmd->add_option("-o,--output", args->output, "Output image (.png or .pfm)")->required();
   cmd->add_option("--depth", args->depth,
@@ -182,10 +221,10 @@ Runner add_volume(CLI::App& app) {
   cmd->add_flag("-v,--verbose", args->verbose, "Per-pass statistics on stderr");
   CLI::App* info =
       vol->add_subcommand("info", "Describe a volume source: dimensions, value range, bytes");
-  info->add_option(
-          "SOURCE", args->info_source,
-          "A volume file (.inr, .inr.gz, .mhd, .mha), a mesh (voxelized solid at --resolution) or "
-          "procedural:cloud|mandelbulb|menger")
+  info->add_option("SOURCE", args->info_source,
+                   "A volume file (.inr, .inr.gz, .mhd, .mha), an OpenVDB FloatGrid (.vdb), a mesh "
+                   "(voxelized solid at --resolution) or "
+                   "procedural:cloud|mandelbulb|menger")
       ->required();
   info->add_option("--resolution", args->info_resolution,
                    "Procedural sources: voxels per axis at the finest level")
@@ -248,7 +287,7 @@ Runner add_volume(CLI::App& app) {
     try {
       if (!args->transfer.empty())
         io.transfer = TransferFunction::parse(args->transfer);
-      else if (!procedural)
+      else if (!procedural && !is_vdb(args->source))  // a .vdb holds densities
         io.transfer = TransferFunction::parse(kDefaultTransfer);
     } catch (const Error& e) {
       throw UsageError(std::string("--transfer: ") + e.what());
@@ -272,7 +311,9 @@ Runner add_volume(CLI::App& app) {
       require_regular_input(args->path, "camera path");
       path = view::CameraPath::load(args->path);
     }
-    const std::shared_ptr<giga::Producer> producer = make_source(args->source, args->resolution);
+    const Source source = make_source(args->source, args->resolution);
+    const std::shared_ptr<giga::Producer>& producer = source.producer;
+    go.origin = source.origin, go.size = source.size;
     giga::GigaVoxels volume(producer, go);
     const Aabb bounds = volume.bounds();
     bool derived = false;

@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "io/vdb_grids.hpp"
 #include "io/voxel_io_internal.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/morton.hpp"
@@ -164,9 +165,7 @@ void content_uuid(const std::filesystem::path& path) {
 
 }  // namespace
 
-VoxelSet read_vdb(const std::filesystem::path& path, const VoxelReadOptions& options) {
-  const uint64_t budget = detail::voxel_budget(options);
-  const uint64_t max_voxels = budget / kVoxelSetBytesPerVoxel;
+openvdb::GridPtrVecPtr detail::read_vdb_grids(const std::filesystem::path& path) {
   init_openvdb();
   openvdb::GridPtrVecPtr grids;
   precheck_vdb(path);
@@ -178,6 +177,13 @@ VoxelSet read_vdb(const std::filesystem::path& path, const VoxelReadOptions& opt
   } catch (const std::exception& e) {
     throw Error(fmt::format("'{}': not a readable .vdb file ({})", path.string(), e.what()));
   }
+  return grids;
+}
+
+VoxelSet read_vdb(const std::filesystem::path& path, const VoxelReadOptions& options) {
+  const uint64_t budget = detail::voxel_budget(options);
+  const uint64_t max_voxels = budget / kVoxelSetBytesPerVoxel;
+  const openvdb::GridPtrVecPtr grids = detail::read_vdb_grids(path);
   // The first scalar or boolean grid is the geometry; a Vec3S grid named
   // Cd or color (the usual names) gives the colors.
   openvdb::GridBase::Ptr geometry;

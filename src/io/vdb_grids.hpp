@@ -1,0 +1,17 @@
+#pragma once
+// The grids of a .vdb file, read the way read_vdb reads them (vdb.cpp): the
+// file-level structure pre-walked first (every declared length and offset
+// checked against the file's size), then OpenVDB's reader without delayed
+// loading. For modules that need the grids themselves (the GigaVoxels VDB
+// producer); links libopenvdb.
+#include <openvdb/openvdb.h>
+
+#include <filesystem>
+
+namespace voxcast::detail {
+
+/// Every grid of the file. Throws voxcast::Error ("'PATH': not a readable
+/// .vdb file (...)") for a damaged or unreadable file.
+openvdb::GridPtrVecPtr read_vdb_grids(const std::filesystem::path& path);
+
+}  // namespace voxcast::detail
