@@ -285,3 +285,52 @@ TEST(GigaVdb, AgreesWithOpenVdbMarcherAtEqualStep) {
   EXPECT_LT(e_ours, 0.03) << "peer at step 0.5: " << e_theirs;
   EXPECT_LT(e_theirs, 0.03);
 }
+
+TEST(GigaVdb, ExportWritesTheFinestLevelDeterministically) {
+  TempDir dir;
+  const auto r =
+      voxcast::testing::run_cli_split("volume export procedural:menger --resolution 32 -o " +
+                                      dir.file("m.vdb") + " --density-scale 2");
+  ASSERT_EQ(r.exit_code, 0) << r.errors;
+  const auto again =
+      voxcast::testing::run_cli_split("volume export procedural:menger --resolution 32 -o " +
+                                      dir.file("m2.vdb") + " --density-scale 2");
+  ASSERT_EQ(again.exit_code, 0) << again.errors;
+  EXPECT_EQ(voxcast::testing::read_text(dir.file("m.vdb")),
+            voxcast::testing::read_text(dir.file("m2.vdb")));
+  openvdb::initialize();
+  openvdb::io::File f(dir.file("m.vdb"));
+  f.open();
+  auto grid = openvdb::gridPtrCast<openvdb::FloatGrid>(f.readGrid("density"));
+  f.close();
+  ASSERT_TRUE(grid);
+  EXPECT_NEAR(grid->voxelSize()[0], 1.0 / 32, 1e-9);
+  const auto menger = make_procedural("menger", 32);
+  auto acc = grid->getConstAccessor();
+  int solid = 0;
+  for (int z = 0; z < 32; ++z)
+    for (int y = 0; y < 32; ++y)
+      for (int x = 0; x < 32; ++x) {
+        const float want = menger->voxel(2, x, y, z).density * 2.f / 32.f;
+        ASSERT_FLOAT_EQ(acc.getValue(openvdb::Coord(x, y, z)), want) << x << "," << y << "," << z;
+        solid += want > 0.f;
+      }
+  EXPECT_GT(solid, 1000);
+  // Read back: a producer over the same voxels.
+  const VdbVolume v = read_vdb_volume(dir.file("m.vdb"));
+  EXPECT_EQ(v.producer->max_level(), 2);
+}
+
+TEST(GigaVdb, BenchPrintsBothRenderersAgainstTheReference) {
+  TempDir dir;
+  write_grid(dir.file("fog.vdb"), fog_grid());
+  const auto r = voxcast::testing::run_cli_split("volume bench " + dir.file("fog.vdb") +
+                                                 " --size 32x24 --frames 1 --threads 1");
+  ASSERT_EQ(r.exit_code, 0) << r.errors;
+  EXPECT_NE(r.output.find("  gigavoxels "), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("  openvdb VolumeRender "), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("RMSE"), std::string::npos) << r.output;
+  // The peer reads grids only.
+  const auto p = voxcast::testing::run_cli_split("volume bench procedural:cloud --size 8x8");
+  EXPECT_EQ(p.exit_code, 2) << p.output;
+}

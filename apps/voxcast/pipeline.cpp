@@ -195,7 +195,8 @@ void fill_interior(const BuildSettings& s, const Mesh& mesh, uint64_t budget, Vo
   *voxels = fill_solid(mesh, *voxels, &st, max_voxels);
   timer.mark("solid fill");
   if (s.verbose)
-    std::fprintf(stderr, "solid fill: %llu interior voxels, %llu of %llu columns by winding number\n",
+    std::fprintf(stderr,
+                 "solid fill: %llu interior voxels, %llu of %llu columns by winding number\n",
                  (unsigned long long)st.interior_voxels, (unsigned long long)st.ambiguous_columns,
                  (unsigned long long)st.columns);
 }

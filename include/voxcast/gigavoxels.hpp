@@ -237,6 +237,16 @@ struct VdbVolume {
 };
 VdbVolume read_vdb_volume(const std::string& path);
 
+/// Writes the finest level of `producer` as a .vdb fog volume: one FloatGrid
+/// "density" whose voxel (i, j, k) (centered at origin + (i + 1/2) h, h =
+/// size / voxels per side) holds the producer's density x density_scale per
+/// grid voxel (extinction per unit cube / voxels per side), zeros left
+/// inactive; the header's UUID derived from the content (same volume, same
+/// bytes). The finest level must be at most 1024 voxels per side. Throws
+/// voxcast::Error.
+void write_vdb_volume(const Producer& producer, const std::string& path, Vec3 origin = {0, 0, 0},
+                      float size = 1.f, float density_scale = 1.f);
+
 /// The benchmark peer (issue 12): OpenVDB's own ray marcher,
 /// openvdb::tools::VolumeRender with a VolumeRayIntersector, over the same
 /// density grid, through voxcast's camera rays (pixel centers). Its model:

@@ -5,6 +5,7 @@
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/RayIntersector.h>
 #include <openvdb/tools/RayTracer.h>
+#include <tbb/parallel_for.h>
 
 #include <algorithm>
 #include <atomic>
@@ -235,6 +236,45 @@ VdbVolume read_vdb_volume(const std::string& path) {
   out.pyramid_bytes = producer->pyramid_bytes();
   out.producer = producer;
   return out;
+}
+
+void write_vdb_volume(const Producer& producer, const std::string& path, Vec3 origin, float size,
+                      float density_scale) {
+  const int level = producer.max_level();
+  if (level > 7)
+    throw Error(
+        fmt::format("cannot write {}: the volume's finest level has {} voxels per side, "
+                    "more than 1024",
+                    path, kBrickSide << level));
+  if (!(size > 0.f) || !std::isfinite(size) || !is_finite(origin) ||
+      !std::isfinite(density_scale) || !(density_scale > 0.f))
+    throw Error(fmt::format("cannot write {}: bad placement or density scale", path));
+  openvdb::initialize();
+  const int n = kBrickSide << level;
+  const double h = double(size) / n;
+  auto grid = FloatGrid::create(0.f);
+  grid->setName("density");
+  grid->setGridClass(openvdb::GRID_FOG_VOLUME);
+  auto xf = openvdb::math::Transform::createLinearTransform(h);
+  xf->postTranslate(openvdb::Vec3d(origin.x + 0.5 * h, origin.y + 0.5 * h, origin.z + 0.5 * h));
+  grid->setTransform(xf);
+  const float scale = density_scale / float(n);
+  // Slabs of 8 z-planes: evaluated on all threads, stored in order.
+  std::vector<float> slab(size_t(n) * size_t(n) * 8);
+  auto acc = grid->getAccessor();
+  for (int z0 = 0; z0 < n; z0 += 8) {
+    tbb::parallel_for(0, 8 * n, [&](int row) {
+      const int z = z0 + row / n, y = row % n;
+      for (int x = 0; x < n; ++x)
+        slab[size_t(row) * size_t(n) + size_t(x)] = producer.voxel(level, x, y, z).density * scale;
+    });
+    for (int row = 0; row < 8 * n; ++row)
+      for (int x = 0; x < n; ++x) {
+        const float v = slab[size_t(row) * size_t(n) + size_t(x)];
+        if (v != 0.f) acc.setValue(openvdb::Coord(x, row % n, z0 + row / n), v);
+      }
+  }
+  detail::write_vdb_grids(path, {grid});
 }
 
 // ---- The peer: OpenVDB's VolumeRender ----

@@ -290,7 +290,11 @@ void write_vdb(const std::filesystem::path& path, const VoxelSet& voxels) {
     const Color& col = voxels.colors.empty() ? Color{1, 1, 1, 1} : voxels.colors[i];
     c.setValue(ijk, openvdb::Vec3s(col.r, col.g, col.b));
   }
-  openvdb::GridPtrVec grids{density, color};
+  detail::write_vdb_grids(path, {density, color});
+}
+
+void detail::write_vdb_grids(const std::filesystem::path& path, const openvdb::GridPtrVec& grids) {
+  init_openvdb();
   // Written beside the target and renamed into place, like every output.
   std::filesystem::path tmp = path;
   tmp += ".tmp";
