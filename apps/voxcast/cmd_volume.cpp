@@ -73,6 +73,8 @@ struct Source {
   Vec3 origin{0, 0, 0};
   float size = 1.f;
   std::optional<giga::VdbVolume> vdb;  // .vdb sources
+  /// procedural:menger-recursive: a node graph instead of a producer.
+  std::shared_ptr<giga::RecursiveVolume> recursive;
 };
 
 /// The producer of a SOURCE: procedural:NAME, a volume file, a .vdb grid or a mesh.
@@ -80,7 +82,11 @@ Source make_source(const std::string& source, int resolution) {
   Source s;
   if (source.rfind("procedural:", 0) == 0) {
     try {
-      s.producer = giga::make_procedural(source.substr(11), resolution);
+      if (source == "procedural:menger-recursive")
+        s.recursive =
+            std::make_shared<giga::RecursiveVolume>(giga::make_recursive_menger(resolution));
+      else
+        s.producer = giga::make_procedural(source.substr(11), resolution);
     } catch (const Error& e) {
       throw UsageError(e.what());
     }
@@ -267,8 +273,17 @@ void print_pass_stats(uint32_t frame, const FrameStats& fs, const giga::GigaVoxe
 int volume_info(const std::string& source, int resolution) {
   std::shared_ptr<giga::Producer> producer;
   if (source.rfind("procedural:", 0) == 0) {
-    producer = make_source(source, resolution).producer;
+    const Source s = make_source(source, resolution);
     std::printf("source      %s (procedural)\n", printable(source).c_str());
+    if (s.recursive) {
+      std::printf(
+          "graph       1 node of 3^3 children (20 name the node itself), recursion depth "
+          "%d: %.0f^3 finest cells, mean coverage %.4f\n",
+          s.recursive->max_depth(), std::pow(3.0, s.recursive->max_depth()),
+          double(s.recursive->coverage(0, 0)));
+      return 0;
+    }
+    producer = s.producer;
   } else if (is_vdb(source)) {
     const Source s = make_source(source, resolution);
     const giga::VdbVolume& v = *s.vdb;
@@ -320,7 +335,7 @@ Runner add_volume(CLI::App& app) {
   cmd->add_option("SOURCE", args->source,
                   "A volume file (.inr, .inr.gz, .mhd, .mha), an OpenVDB FloatGrid (.vdb), a mesh "
                   "(voxelized solid at --resolution) or "
-                  "procedural:cloud|mandelbulb|menger")
+                  "procedural:cloud|mandelbulb|menger|menger-recursive")
       ->required();
   cmd->add_option("-o,--output", args->output, "Output image (.png or .pfm)")->required();
   cmd->add_option("--depth", args->depth,
@@ -368,7 +383,7 @@ Runner add_volume(CLI::App& app) {
   info->add_option("SOURCE", args->info_source,
                    "A volume file (.inr, .inr.gz, .mhd, .mha), an OpenVDB FloatGrid (.vdb), a mesh "
                    "(voxelized solid at --resolution) or "
-                   "procedural:cloud|mandelbulb|menger")
+                   "procedural:cloud|mandelbulb|menger|menger-recursive")
       ->required();
   info->add_option("--resolution", args->info_resolution,
                    "Procedural sources: voxels per axis at the finest level")
@@ -428,6 +443,8 @@ Runner add_volume(CLI::App& app) {
                                    : std::vector<std::string>{eargs->source});
       outputs.add("-o", eargs->output, {".vdb"});
       const Source s = make_source(eargs->source, eargs->resolution);
+      if (!s.producer)
+        throw UsageError("volume export: procedural:menger-recursive is a node graph, not voxels");
       outputs.write(eargs->output, [&](const std::filesystem::path& to) {
         giga::write_vdb_volume(*s.producer, to.string(), s.origin, s.size, eargs->density_scale);
       });
@@ -514,14 +531,16 @@ Runner add_volume(CLI::App& app) {
     const Source source = make_source(args->source, args->resolution);
     const std::shared_ptr<giga::Producer>& producer = source.producer;
     go.origin = source.origin, go.size = source.size;
-    giga::GigaVoxels volume(producer, go);
+    std::optional<giga::GigaVoxels> giga_volume;
+    if (producer) giga_volume.emplace(producer, go);
+    Structure& volume = giga_volume ? static_cast<Structure&>(*giga_volume) : *source.recursive;
     const Aabb bounds = volume.bounds();
     bool derived = false;
     view.camera = resolve_camera(args->camera, bounds, view.width, view.height, &derived);
     if (derived) std::printf("camera: %s\n", view.camera.to_string().c_str());
     VolumeIntegrator integrator(io);
     Film film;
-    double later_seconds = 0;
+    double later_seconds = 0, later_cpu = 0;
     uint64_t later_rays = 0;
     // Per-pass statistics of the frames after the first (the warm ones).
     uint64_t later_passes = 0, later_requests = 0, later_uploads = 0;
@@ -535,16 +554,19 @@ Runner add_volume(CLI::App& app) {
       if (path)
         view.camera = path->at(path->start() + (path->end() - path->start()) * double(f) /
                                                    double(args->frames - 1));
+      const double c0 = cpu_seconds();
       const auto t0 = std::chrono::steady_clock::now();
       const FrameStats fs = render_frame(volume, integrator, view, fo, &film);
       const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-      if (args->verbose) print_pass_stats(uint32_t(f), fs, volume);
+      if (args->verbose && giga_volume) print_pass_stats(uint32_t(f), fs, *giga_volume);
       if (f > 0) {
         later_seconds += s, later_rays += integrator.stats().rays;
+        later_cpu += cpu_seconds() - c0;
         later_passes += fs.passes.size();
-        for (const giga::GigaPassStats& g : volume.pass_stats())
-          later_requests += g.data_requests + g.subdivide_requests,
-              later_uploads += g.bricks_uploaded + g.constants;
+        if (giga_volume)
+          for (const giga::GigaPassStats& g : giga_volume->pass_stats())
+            later_requests += g.data_requests + g.subdivide_requests,
+                later_uploads += g.bricks_uploaded + g.constants;
       }
       if (f + 1 == args->frames && fo.max_passes > 1 && !fs.passes.empty() &&
           fs.passes.back().requests != 0 && !Progress::quiet())
@@ -562,18 +584,25 @@ Runner add_volume(CLI::App& app) {
     outputs.commit();
     double covered = 0;
     for (float a : film.alpha.pixels) covered += a;
-    std::printf("%s: %dx%d, %s (max level %d), pools %s (%u bricks, %u tiles), mean opacity %.3f\n",
-                printable(args->output).c_str(), view.width, view.height, producer->name().c_str(),
-                producer->max_level(), format_bytes(double(volume.pool_bytes())).c_str(),
-                volume.brick_capacity(), volume.tile_capacity(),
-                covered / double(film.alpha.pixels.size()));
+    const double opacity = covered / double(film.alpha.pixels.size());
+    if (giga_volume)
+      std::printf(
+          "%s: %dx%d, %s (max level %d), pools %s (%u bricks, %u tiles), mean opacity %.3f\n",
+          printable(args->output).c_str(), view.width, view.height, producer->name().c_str(),
+          producer->max_level(), format_bytes(double(giga_volume->pool_bytes())).c_str(),
+          giga_volume->brick_capacity(), giga_volume->tile_capacity(), opacity);
+    else
+      std::printf("%s: %dx%d, recursive menger graph (depth %d), mean opacity %.3f\n",
+                  printable(args->output).c_str(), view.width, view.height,
+                  source.recursive->max_depth(), opacity);
     if (args->frames > 1) {
       const double k = double(args->frames - 1);
       std::printf(
-          "%d frames after the first: %.2f frames/s, %.2f Mrays/s; per frame %.2f passes, "
-          "%.0f requests, %.0f uploads\n",
+          "%d frames after the first: %.2f frames/s, %.2f Mrays/s, %.3f CPU s/frame; per frame "
+          "%.2f passes, %.0f requests, %.0f uploads\n",
           args->frames - 1, k / later_seconds, double(later_rays) / later_seconds * 1e-6,
-          double(later_passes) / k, double(later_requests) / k, double(later_uploads) / k);
+          later_cpu / k, double(later_passes) / k, double(later_requests) / k,
+          double(later_uploads) / k);
     }
     return 0;
   };

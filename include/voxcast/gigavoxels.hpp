@@ -409,7 +409,8 @@ class RecursiveVolume : public Structure, public VolumeQuery {
                   Color color = {1.f, 1.f, 1.f, 1.f}, Vec3 origin = {0, 0, 0}, float size = 1.f);
   /// The Menger sponge as a graph of one node: its 20 corner and edge
   /// cells name the node itself, the 7 middle cells are empty.
-  static RecursiveVolume menger(int max_depth, float density, Color color = {1.f, 1.f, 1.f, 1.f});
+  static RecursiveVolume menger(int max_depth, float density, Color color = {1.f, 1.f, 1.f, 1.f},
+                                Vec3 origin = {0, 0, 0}, float size = 1.f);
   std::string name() const override { return "recursive"; }
   Aabb bounds() const override;
   const VolumeQuery* volume() const override { return this; }
@@ -433,5 +434,12 @@ class RecursiveVolume : public Structure, public VolumeQuery {
   float size_;
   std::vector<float> coverage_;  // [levels left][node]
 };
+
+/// make_procedural("menger", resolution)'s sponge as a recursive node graph
+/// (the CLI's procedural:menger-recursive): the same placement ([0.1, 0.9]^3
+/// of the unit cube), density and color, its recursion depth the
+/// procedural sponge's iterations (until the finest bars are about one
+/// voxel of `resolution` wide). Throws voxcast::Error as make_procedural.
+RecursiveVolume make_recursive_menger(int resolution);
 
 }  // namespace voxcast::giga
