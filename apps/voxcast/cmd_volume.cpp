@@ -438,6 +438,7 @@ Runner add_volume(CLI::App& app) {
     if (info->parsed()) return volume_info(args->info_source, args->info_resolution);
     if (exp->parsed()) {
       require_range("--density-scale", eargs->density_scale, 1e-6, 1e6);
+      require_range("--resolution", eargs->resolution, 1, 1024);  // export's largest grid
       const bool procedural = eargs->source.rfind("procedural:", 0) == 0;
       OutputSet outputs(procedural ? std::vector<std::string>{}
                                    : std::vector<std::string>{eargs->source});
