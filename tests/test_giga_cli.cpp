@@ -5,6 +5,7 @@
 // line, exit 2 / exit 1, no output written).
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 
@@ -207,4 +208,32 @@ TEST(GigaCli, EffectsAndCameraPathFrames) {
 }
 
 }  // namespace
+// procedural:menger-recursive (RecursiveVolume, the sponge as a node graph
+// of N^3-tree nodes, N = 3) through the CLI: its recursion as deep as the
+// voxel sponge procedural:menger's iterations at the same resolution, and
+// the same coverage of the image (the geometry itself is checked voxel by
+// voxel in Giga.RecursiveMengerMatchesTheVoxelSponge).
+TEST(GigaCli, RecursiveMengerRendersTheVoxelSponge) {
+  TempDir dir;
+  auto opacity = [&](const std::string& source, const std::string& depth_line) {
+    const CliResult r =
+        run_cli_split("volume render " + source +
+                      " --resolution 64 --size 160x120 --orbit 35,25,1.9 -o " + dir.file("x.png"));
+    EXPECT_EQ(r.exit_code, 0) << r.errors;
+    EXPECT_NE(r.output.find(depth_line), std::string::npos) << r.output;
+    const size_t at = r.output.find("mean opacity ");
+    return at == std::string::npos ? -1.0 : std::stod(r.output.substr(at + 13));
+  };
+  const double graph = opacity("procedural:menger-recursive", "recursive menger graph (depth 3)");
+  const double voxels = opacity("procedural:menger", "menger (max level 3)");
+  EXPECT_GT(graph, 0.2);
+  EXPECT_NEAR(graph, voxels, 0.03);
+  // Not a producer: nothing to export.
+  EXPECT_EQ(
+      run_cli_split("volume export procedural:menger-recursive -o " + dir.file("x.vdb")).exit_code,
+      2);
+  const CliResult info = run_cli_split("volume info procedural:menger-recursive --resolution 81");
+  EXPECT_EQ(info.exit_code, 2) << info.output;  // a power of two, as procedural:menger
+}
+
 }  // namespace voxcast::testing

@@ -22,6 +22,7 @@
 #include <vector>
 
 #include "bench_anyhit.hpp"
+#include "bench_machine.hpp"
 #include "camera_options.hpp"
 #include "cli_io.hpp"
 #include "commands.hpp"
@@ -396,30 +397,6 @@ EmbreeScene::StageTicks profile_voxels(const SurfaceQuery& s, const RenderOption
   return st;
 }
 
-// The value of the first line of a /proc file that starts with `key`
-// ("key<TAB>: value"), or the whole first line for an empty key.
-std::string first_line_of(const char* path, const std::string& key) {
-  std::ifstream in(path);
-  std::string line;
-  while (std::getline(in, line)) {
-    if (key.empty()) return line;
-    if (line.rfind(key, 0) != 0) continue;
-    const size_t colon = line.find(':');
-    const size_t v = colon == std::string::npos ? colon : line.find_first_not_of(" \t", colon + 1);
-    return v == std::string::npos ? std::string() : line.substr(v);
-  }
-  return "unknown";
-}
-
-// The command line as the kernel has it (arguments NUL-separated).
-std::string command_line() {
-  std::ifstream in("/proc/self/cmdline", std::ios::binary);
-  std::string all((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>()), out;
-  for (char c : all) out += c ? c : ' ';
-  while (!out.empty() && out.back() == ' ') out.pop_back();
-  return out;
-}
-
 double coverage(const Image& depth) {
   size_t hits = 0;
   for (float d : depth.pixels) hits += std::isfinite(d);
@@ -594,18 +571,9 @@ Runner add_bench(CLI::App& app) {
       }
 
     // Machine and command line first: every figure below depends on them.
-    // "AMD EPYC" alone does not tell Zen generations apart: add family/model.
-    const std::string cpu = first_line_of("/proc/cpuinfo", "model name") + " (family " +
-                            first_line_of("/proc/cpuinfo", "cpu family") + ", model " +
-                            first_line_of("/proc/cpuinfo", "model\t") + ")";
     const std::string isa = EmbreeScene::probe_isa();
-    std::string load = first_line_of("/proc/loadavg", "");  // the 1, 5, 15 min averages
-    for (int spaces = 0, i = 0; i < int(load.size()); ++i)
-      if (load[size_t(i)] == ' ' && ++spaces == 3) load.resize(size_t(i));
-    const std::string cmdline = command_line();
-    std::printf("command     %s\n", printable(cmdline).c_str());
-    std::printf("machine     %s, %u logical CPUs, load average %s\n", cpu.c_str(),
-                std::thread::hardware_concurrency(), load.c_str());
+    const std::string cpu = cpu_description(), load = load_average(), cmdline = command_line();
+    print_bench_header();
     std::printf("embree      %s\n", isa.c_str());
     nlohmann::json json_runs = nlohmann::json::array();
     for (size_t size_index = 0; size_index < sizes.size(); ++size_index) {

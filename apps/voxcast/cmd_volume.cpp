@@ -1,6 +1,8 @@
 // voxcast volume render SOURCE -o IMAGE: GigaVoxels volume rendering
 // (gigavoxels.hpp) of a volume file or a procedural volume, through the
 // frame loop with the volume integrator.
+#include <sys/resource.h>
+
 #include <algorithm>
 #include <cctype>
 #include <chrono>
@@ -11,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "bench_machine.hpp"
 #include "camera_options.hpp"
 #include "cli_io.hpp"
 #include "commands.hpp"
@@ -58,17 +61,186 @@ giga::ScalarVolume read_source_volume(const std::string& source, int resolution)
   return giga::solid_volume(load_mesh(source), resolution);
 }
 
-/// The producer of a SOURCE: procedural:NAME, a volume file or a mesh.
-std::shared_ptr<giga::Producer> make_source(const std::string& source, int resolution) {
+bool is_vdb(const std::string& path) {
+  std::string lower = path;
+  for (char& c : lower) c = char(std::tolower(static_cast<unsigned char>(c)));
+  return lower.ends_with(".vdb");
+}
+
+/// A SOURCE's producer and where its unit cube lies in the world.
+struct Source {
+  std::shared_ptr<giga::Producer> producer;
+  Vec3 origin{0, 0, 0};
+  float size = 1.f;
+  std::optional<giga::VdbVolume> vdb;  // .vdb sources
+  /// procedural:menger-recursive: a node graph instead of a producer.
+  std::shared_ptr<giga::RecursiveVolume> recursive;
+};
+
+/// The producer of a SOURCE: procedural:NAME, a volume file, a .vdb grid or a mesh.
+Source make_source(const std::string& source, int resolution) {
+  Source s;
   if (source.rfind("procedural:", 0) == 0) {
     try {
-      return giga::make_procedural(source.substr(11), resolution);
+      if (source == "procedural:menger-recursive")
+        s.recursive =
+            std::make_shared<giga::RecursiveVolume>(giga::make_recursive_menger(resolution));
+      else
+        s.producer = giga::make_procedural(source.substr(11), resolution);
     } catch (const Error& e) {
       throw UsageError(e.what());
     }
+    return s;
   }
   require_regular_input(source, "volume");
-  return giga::make_volume_producer(read_source_volume(source, resolution));
+  if (is_vdb(source)) {
+    s.vdb = giga::read_vdb_volume(source);
+    s.producer = s.vdb->producer, s.origin = s.vdb->origin, s.size = s.vdb->size;
+    return s;
+  }
+  s.producer = giga::make_volume_producer(read_source_volume(source, resolution));
+  return s;
+}
+
+/// --budget through the shared memory-budget parser (which names its own option).
+uint64_t parse_budget(const std::string& text) {
+  try {
+    return parse_memory_budget(text);
+  } catch (const UsageError& e) {
+    std::string m = e.what();
+    if (m.rfind("--memory-budget", 0) == 0) m.replace(0, 15, "--budget");
+    throw UsageError(m);
+  }
+}
+
+/// Process CPU time (user + system) in seconds: frame costs that can be read
+/// for an idle machine when the wall clock is shared.
+double cpu_seconds() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return double(u.ru_utime.tv_sec + u.ru_stime.tv_sec) +
+         1e-6 * double(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+}
+
+double rmse(const Image& a, const Image& b) {
+  double s = 0;
+  for (size_t i = 0; i < a.pixels.size(); ++i) {
+    const double d = double(a.pixels[i]) - double(b.pixels[i]);
+    s += d * d;
+  }
+  return std::sqrt(s / double(std::max<size_t>(1, a.pixels.size())));
+}
+
+struct BenchArgs {
+  std::string source, output, peer_output, size = "640x480", budget = "256M", light;
+  CameraArgs camera;
+  int frames = 5, threads = 0;
+  float lod = 1.f, step = 0.5f, reference_step = 0.125f;
+};
+
+/// voxcast volume bench GRID.vdb: GigaVoxels against OpenVDB's own volume
+/// ray marcher (VolumeRender) on the same grid, view, step and light, in one
+/// run: frames/s, Mrays/s, CPU seconds per frame, and each image's RMSE
+/// against OpenVDB's marcher at a finer step (the reference).
+int volume_bench(const BenchArgs& a) {
+  ThreadLimit limit(a.threads);
+  FrameView view;
+  parse_size(a.size, &view.width, &view.height);
+  require_range("--frames", a.frames, 1, 100000);
+  require_range("--step", a.step, 0.01, 16);
+  require_range("--reference-step", a.reference_step, 0.01, 16);
+  require_range("--lod", a.lod, 0, 1e6);
+  view.lod_pixels = a.lod;
+  if (!is_vdb(a.source))
+    throw UsageError("volume bench needs a .vdb SOURCE (the peer, OpenVDB's marcher, reads grids)");
+  giga::GigaOptions go;
+  go.budget_bytes = parse_budget(a.budget);
+  VolumeIntegratorOptions io;
+  io.shadows = true, io.ambient = 0.f, io.step_scale = a.step;
+  if (!a.light.empty()) {
+    io.light_dir = parse_vec3(a.light, "--light");
+    if (!(length(io.light_dir) > 0.f)) throw UsageError("--light must not be zero");
+  }
+  check_camera_options(a.camera, view.width, view.height);
+  OutputSet outputs({a.source});
+  if (!a.output.empty()) outputs.add("-o", a.output, {".png", ".pfm"});
+  if (!a.peer_output.empty()) outputs.add("--peer-output", a.peer_output, {".png", ".pfm"});
+
+  const Source source = make_source(a.source, 0);
+  go.origin = source.origin, go.size = source.size;
+  giga::GigaVoxels volume(source.producer, go);
+  view.camera = resolve_camera(a.camera, volume.bounds(), view.width, view.height);
+  const giga::VdbVolume& v = *source.vdb;
+  print_bench_header();
+  std::printf("volume      %s: grid %s (%s), %lld x %lld x %lld voxels, %d levels, pools %s\n",
+              printable(a.source).c_str(), printable(v.grid_name).c_str(),
+              v.level_set ? "level set" : "fog", (long long)v.extent[0], (long long)v.extent[1],
+              (long long)v.extent[2], source.producer->max_level() + 1,
+              format_bytes(double(volume.pool_bytes())).c_str());
+  std::printf("camera      %s\n", view.camera.to_string().c_str());
+  std::printf(
+      "image       %dx%d, step %g voxels, hard shadows, %d timed frames after one warm-up\n",
+      view.width, view.height, double(a.step), a.frames);
+
+  struct Row {
+    std::string name;
+    double seconds = 0, cpu = 0, rays = 0;
+    Image image;
+  };
+  Row ours, peer_row;
+  ours.name = "gigavoxels", peer_row.name = "openvdb VolumeRender";
+  VolumeIntegrator integrator(io);
+  FrameOptions fo;
+  fo.max_passes = 100000;
+  Film film;
+  for (int f = 0; f <= a.frames; ++f) {
+    view.frame = uint32_t(f);
+    const double c0 = cpu_seconds();
+    const auto t0 = std::chrono::steady_clock::now();
+    render_frame(volume, integrator, view, fo, &film);
+    if (f == 0) continue;  // warm-up: the pools fill
+    ours.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    ours.cpu += cpu_seconds() - c0;
+    ours.rays += double(integrator.stats().rays);
+  }
+  ours.image = film.color;
+  giga::VdbPeer peer(v);
+  giga::VdbPeerOptions po;
+  po.light_dir = io.light_dir, po.step = a.step;
+  for (int f = 0; f <= a.frames; ++f) {
+    const double c0 = cpu_seconds();
+    const auto t0 = std::chrono::steady_clock::now();
+    Image img = peer.render(view.camera, view.width, view.height, po);
+    if (f == 0) continue;  // warm-up, as ours
+    peer_row.seconds +=
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    peer_row.cpu += cpu_seconds() - c0;
+    peer_row.rays += double(view.width) * view.height;
+    peer_row.image = std::move(img);
+  }
+  po.step = a.reference_step;
+  const Image reference = peer.render(view.camera, view.width, view.height, po);
+  std::printf("\nreference   openvdb VolumeRender at step %g voxels\n", double(a.reference_step));
+  std::printf("  %-22s %9s %9s %12s %10s %7s\n", "renderer", "frames/s", "Mrays/s", "CPU s/frame",
+              "RMSE ref", "ratio");
+  const double peer_fps = double(a.frames) / peer_row.seconds;
+  for (const Row* r : {&ours, &peer_row}) {
+    const double fps = double(a.frames) / r->seconds;
+    std::printf("  %-22s %9.3f %9.4f %12.3f %10.4f %7.3f\n", r->name.c_str(), fps,
+                r->rays / r->seconds * 1e-6, r->cpu / double(a.frames), rmse(r->image, reference),
+                fps / peer_fps);
+  }
+  std::printf(
+      "  (ratio: frames/s over openvdb VolumeRender's; RMSE of linear RGB; "
+      "gigavoxels vs openvdb at equal step: RMSE %.4f)\n",
+      rmse(ours.image, peer_row.image));
+  if (!a.output.empty())
+    outputs.write(a.output, [&](const std::filesystem::path& to) { write_image(to, ours.image); });
+  if (!a.peer_output.empty())
+    outputs.write(a.peer_output,
+                  [&](const std::filesystem::path& to) { write_image(to, peer_row.image); });
+  outputs.commit();
+  return 0;
 }
 
 void print_pass_stats(uint32_t frame, const FrameStats& fs, const giga::GigaVoxels& g) {
@@ -101,8 +273,34 @@ void print_pass_stats(uint32_t frame, const FrameStats& fs, const giga::GigaVoxe
 int volume_info(const std::string& source, int resolution) {
   std::shared_ptr<giga::Producer> producer;
   if (source.rfind("procedural:", 0) == 0) {
-    producer = make_source(source, resolution);
+    const Source s = make_source(source, resolution);
     std::printf("source      %s (procedural)\n", printable(source).c_str());
+    if (s.recursive) {
+      std::printf(
+          "graph       1 node of 3^3 children (20 name the node itself), recursion depth "
+          "%d: %.0f^3 finest cells, mean coverage %.4f\n",
+          s.recursive->max_depth(), std::pow(3.0, s.recursive->max_depth()),
+          double(s.recursive->coverage(0, 0)));
+      return 0;
+    }
+    producer = s.producer;
+  } else if (is_vdb(source)) {
+    const Source s = make_source(source, resolution);
+    const giga::VdbVolume& v = *s.vdb;
+    std::printf("source      %s (OpenVDB grid)\n", printable(source).c_str());
+    std::printf("grid        %s (%s)\n", printable(v.grid_name).c_str(),
+                v.level_set ? "level set, as coverage clamp(0.5 - phi/voxel, 0, 1)" : "fog volume");
+    std::printf("dimensions  %lld x %lld x %lld voxels of %g (non-zero box), %llu active\n",
+                (long long)v.extent[0], (long long)v.extent[1], (long long)v.extent[2],
+                v.voxel_size, (unsigned long long)v.active_voxels);
+    std::printf("range       %g .. %g (extinction per voxel)\n", double(v.min_density),
+                double(v.max_density));
+    std::printf("data        %s grid + %s coarser levels in memory\n",
+                format_bytes(double(v.grid_bytes)).c_str(),
+                format_bytes(double(v.pyramid_bytes)).c_str());
+    std::printf("placement   cube from %g,%g,%g, side %g\n", double(s.origin.x), double(s.origin.y),
+                double(s.origin.z), double(s.size));
+    producer = s.producer;
   } else {
     require_regular_input(source, "volume");
     const giga::ScalarVolume v = read_source_volume(source, resolution);
@@ -134,10 +332,10 @@ Runner add_volume(CLI::App& app) {
       app.add_subcommand("volume", "GigaVoxels volumes (see 'voxcast volume render --help')");
   vol->require_subcommand(1);
   CLI::App* cmd = vol->add_subcommand("render", "Render a volume file or a procedural volume");
-  cmd->add_option(
-         "SOURCE", args->source,
-         "A volume file (.inr, .inr.gz, .mhd, .mha), a mesh (voxelized solid at --resolution) or "
-         "procedural:cloud|mandelbulb|menger")
+  cmd->add_option("SOURCE", args->source,
+                  "A volume file (.inr, .inr.gz, .mhd, .mha), an OpenVDB FloatGrid (.vdb), a mesh "
+                  "(voxelized solid at --resolution) or "
+                  "procedural:cloud|mandelbulb|menger|menger-recursive")
       ->required();
   cmd->add_option("-o,--output", args->output, "Output image (.png or .pfm)")->required();
   cmd->add_option("--depth", args->depth,
@@ -182,16 +380,81 @@ Runner add_volume(CLI::App& app) {
   cmd->add_flag("-v,--verbose", args->verbose, "Per-pass statistics on stderr");
   CLI::App* info =
       vol->add_subcommand("info", "Describe a volume source: dimensions, value range, bytes");
-  info->add_option(
-          "SOURCE", args->info_source,
-          "A volume file (.inr, .inr.gz, .mhd, .mha), a mesh (voxelized solid at --resolution) or "
-          "procedural:cloud|mandelbulb|menger")
+  info->add_option("SOURCE", args->info_source,
+                   "A volume file (.inr, .inr.gz, .mhd, .mha), an OpenVDB FloatGrid (.vdb), a mesh "
+                   "(voxelized solid at --resolution) or "
+                   "procedural:cloud|mandelbulb|menger|menger-recursive")
       ->required();
   info->add_option("--resolution", args->info_resolution,
                    "Procedural sources: voxels per axis at the finest level")
       ->capture_default_str();
-  return [args, cmd, info]() {
+  auto bargs = std::make_shared<BenchArgs>();
+  CLI::App* bench = vol->add_subcommand(
+      "bench",
+      "GigaVoxels against OpenVDB's own volume ray marcher on a .vdb grid: frames/s, Mrays/s, "
+      "CPU s/frame, RMSE against a finer-step reference");
+  bench->add_option("SOURCE", bargs->source, "An OpenVDB FloatGrid (.vdb)")->required();
+  bench->add_option("--size", bargs->size, "Image size WxH")->capture_default_str();
+  add_camera_options(bench, bargs->camera);
+  bench->add_option("--budget", bargs->budget, "Memory for the node and brick pools")
+      ->capture_default_str();
+  bench->add_option("--frames", bargs->frames, "Timed frames of each renderer after one warm-up")
+      ->capture_default_str();
+  bench
+      ->add_option("--step", bargs->step,
+                   "Step of both renderers (GigaVoxels: x the voxel or pixel cone; OpenVDB: "
+                   "grid voxels), primary and shadow rays")
+      ->capture_default_str();
+  bench
+      ->add_option("--reference-step", bargs->reference_step,
+                   "Step of the reference image (OpenVDB's marcher), in grid voxels")
+      ->capture_default_str();
+  bench
+      ->add_option("--lod", bargs->lod, "GigaVoxels: voxels projecting to at most this many pixels")
+      ->capture_default_str();
+  bench->add_option("--light", bargs->light, "Direction towards the light x,y,z");
+  bench->add_option("-o,--output", bargs->output, "Also write GigaVoxels' last frame");
+  bench->add_option("--peer-output", bargs->peer_output, "Also write OpenVDB's last frame");
+  bench->add_option("--threads", bargs->threads, "Worker threads (0 = all cores)");
+  struct ExportArgs {
+    std::string source, output;
+    int resolution = 256;
+    float density_scale = 1.f;
+  };
+  auto eargs = std::make_shared<ExportArgs>();
+  CLI::App* exp = vol->add_subcommand(
+      "export", "Write a volume source's finest level as an OpenVDB fog volume (.vdb)");
+  exp->add_option("SOURCE", eargs->source,
+                  "A volume file, a .vdb grid, a mesh or procedural:cloud|mandelbulb|menger")
+      ->required();
+  exp->add_option("-o,--output", eargs->output, "Output .vdb")->required();
+  exp->add_option("--resolution", eargs->resolution,
+                  "Procedural and mesh sources: voxels per axis at the finest level (<= 1024)")
+      ->capture_default_str();
+  exp->add_option("--density-scale", eargs->density_scale,
+                  "Multiplies the densities (the grid holds extinction per voxel)")
+      ->capture_default_str();
+  return [args, bargs, eargs, cmd, info, bench, exp]() {
     if (info->parsed()) return volume_info(args->info_source, args->info_resolution);
+    if (exp->parsed()) {
+      require_range("--density-scale", eargs->density_scale, 1e-6, 1e6);
+      require_range("--resolution", eargs->resolution, 1, 1024);  // export's largest grid
+      const bool procedural = eargs->source.rfind("procedural:", 0) == 0;
+      OutputSet outputs(procedural ? std::vector<std::string>{}
+                                   : std::vector<std::string>{eargs->source});
+      outputs.add("-o", eargs->output, {".vdb"});
+      const Source s = make_source(eargs->source, eargs->resolution);
+      if (!s.producer)
+        throw UsageError("volume export: procedural:menger-recursive is a node graph, not voxels");
+      outputs.write(eargs->output, [&](const std::filesystem::path& to) {
+        giga::write_vdb_volume(*s.producer, to.string(), s.origin, s.size, eargs->density_scale);
+      });
+      outputs.commit();
+      std::printf("%s: %d^3 voxels from %s\n", printable(eargs->output).c_str(),
+                  giga::kBrickSide << s.producer->max_level(), s.producer->name().c_str());
+      return 0;
+    }
+    if (bench->parsed()) return volume_bench(*bargs);
     if (!cmd->parsed()) return 2;
     ThreadLimit limit(args->threads);
     // Every option first (usage errors, exit 2), then the source.
@@ -248,19 +511,13 @@ Runner add_volume(CLI::App& app) {
     try {
       if (!args->transfer.empty())
         io.transfer = TransferFunction::parse(args->transfer);
-      else if (!procedural)
+      else if (!procedural && !is_vdb(args->source))  // a .vdb holds densities
         io.transfer = TransferFunction::parse(kDefaultTransfer);
     } catch (const Error& e) {
       throw UsageError(std::string("--transfer: ") + e.what());
     }
     giga::GigaOptions go;
-    try {
-      go.budget_bytes = parse_memory_budget(args->budget);
-    } catch (const UsageError& e) {  // the shared parser names its own option
-      std::string m = e.what();
-      if (m.rfind("--memory-budget", 0) == 0) m.replace(0, 15, "--budget");
-      throw UsageError(m);
-    }
+    go.budget_bytes = parse_budget(args->budget);
     check_camera_options(args->camera, view.width, view.height);
     OutputSet outputs(procedural ? std::vector<std::string>{}
                                  : std::vector<std::string>{args->source});
@@ -272,15 +529,19 @@ Runner add_volume(CLI::App& app) {
       require_regular_input(args->path, "camera path");
       path = view::CameraPath::load(args->path);
     }
-    const std::shared_ptr<giga::Producer> producer = make_source(args->source, args->resolution);
-    giga::GigaVoxels volume(producer, go);
+    const Source source = make_source(args->source, args->resolution);
+    const std::shared_ptr<giga::Producer>& producer = source.producer;
+    go.origin = source.origin, go.size = source.size;
+    std::optional<giga::GigaVoxels> giga_volume;
+    if (producer) giga_volume.emplace(producer, go);
+    Structure& volume = giga_volume ? static_cast<Structure&>(*giga_volume) : *source.recursive;
     const Aabb bounds = volume.bounds();
     bool derived = false;
     view.camera = resolve_camera(args->camera, bounds, view.width, view.height, &derived);
     if (derived) std::printf("camera: %s\n", view.camera.to_string().c_str());
     VolumeIntegrator integrator(io);
     Film film;
-    double later_seconds = 0;
+    double later_seconds = 0, later_cpu = 0;
     uint64_t later_rays = 0;
     // Per-pass statistics of the frames after the first (the warm ones).
     uint64_t later_passes = 0, later_requests = 0, later_uploads = 0;
@@ -294,16 +555,19 @@ Runner add_volume(CLI::App& app) {
       if (path)
         view.camera = path->at(path->start() + (path->end() - path->start()) * double(f) /
                                                    double(args->frames - 1));
+      const double c0 = cpu_seconds();
       const auto t0 = std::chrono::steady_clock::now();
       const FrameStats fs = render_frame(volume, integrator, view, fo, &film);
       const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-      if (args->verbose) print_pass_stats(uint32_t(f), fs, volume);
+      if (args->verbose && giga_volume) print_pass_stats(uint32_t(f), fs, *giga_volume);
       if (f > 0) {
         later_seconds += s, later_rays += integrator.stats().rays;
+        later_cpu += cpu_seconds() - c0;
         later_passes += fs.passes.size();
-        for (const giga::GigaPassStats& g : volume.pass_stats())
-          later_requests += g.data_requests + g.subdivide_requests,
-              later_uploads += g.bricks_uploaded + g.constants;
+        if (giga_volume)
+          for (const giga::GigaPassStats& g : giga_volume->pass_stats())
+            later_requests += g.data_requests + g.subdivide_requests,
+                later_uploads += g.bricks_uploaded + g.constants;
       }
       if (f + 1 == args->frames && fo.max_passes > 1 && !fs.passes.empty() &&
           fs.passes.back().requests != 0 && !Progress::quiet())
@@ -321,18 +585,25 @@ Runner add_volume(CLI::App& app) {
     outputs.commit();
     double covered = 0;
     for (float a : film.alpha.pixels) covered += a;
-    std::printf("%s: %dx%d, %s (max level %d), pools %s (%u bricks, %u tiles), mean opacity %.3f\n",
-                printable(args->output).c_str(), view.width, view.height, producer->name().c_str(),
-                producer->max_level(), format_bytes(double(volume.pool_bytes())).c_str(),
-                volume.brick_capacity(), volume.tile_capacity(),
-                covered / double(film.alpha.pixels.size()));
+    const double opacity = covered / double(film.alpha.pixels.size());
+    if (giga_volume)
+      std::printf(
+          "%s: %dx%d, %s (max level %d), pools %s (%u bricks, %u tiles), mean opacity %.3f\n",
+          printable(args->output).c_str(), view.width, view.height, producer->name().c_str(),
+          producer->max_level(), format_bytes(double(giga_volume->pool_bytes())).c_str(),
+          giga_volume->brick_capacity(), giga_volume->tile_capacity(), opacity);
+    else
+      std::printf("%s: %dx%d, recursive menger graph (depth %d), mean opacity %.3f\n",
+                  printable(args->output).c_str(), view.width, view.height,
+                  source.recursive->max_depth(), opacity);
     if (args->frames > 1) {
       const double k = double(args->frames - 1);
       std::printf(
-          "%d frames after the first: %.2f frames/s, %.2f Mrays/s; per frame %.2f passes, "
-          "%.0f requests, %.0f uploads\n",
+          "%d frames after the first: %.2f frames/s, %.2f Mrays/s, %.3f CPU s/frame; per frame "
+          "%.2f passes, %.0f requests, %.0f uploads\n",
           args->frames - 1, k / later_seconds, double(later_rays) / later_seconds * 1e-6,
-          double(later_passes) / k, double(later_requests) / k, double(later_uploads) / k);
+          later_cpu / k, double(later_passes) / k, double(later_requests) / k,
+          double(later_uploads) / k);
     }
     return 0;
   };

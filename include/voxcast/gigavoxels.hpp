@@ -36,6 +36,8 @@
 #include <vector>
 
 #include "voxcast/bitfield.hpp"
+#include "voxcast/camera.hpp"
+#include "voxcast/image.hpp"
 #include "voxcast/structure.hpp"
 #include "voxcast/volume_query.hpp"
 
@@ -203,6 +205,78 @@ ScalarVolume solid_volume(const Mesh& mesh, int resolution);
 /// 2x2x2 voxels of the level below.
 std::shared_ptr<Producer> make_volume_producer(const ScalarVolume& v);
 
+/// An OpenVDB FloatGrid read from a .vdb file (vdb_volume.cpp), served brick
+/// by brick: the grid's first FloatGrid named "density", else its first
+/// FloatGrid. A fog volume's values are its densities; a level set's signed
+/// distance phi becomes the coverage clamp(0.5 - phi / voxel, 0, 1) (the
+/// procedural fractals' rule: 1 inside, 0 outside, a one-voxel ramp at the
+/// surface, the interior tiles 1). A density is extinction per grid voxel
+/// length (OpenVDB's VolumeRender convention with scattering + absorption =
+/// 1); the producer serves it per unit-cube length (x the cube's voxels per
+/// side). The cube is the bounding box of the grid's non-zero densities,
+/// centered, its side the next 8 x 2^L voxels; the finest level holds the
+/// grid's voxels exactly, every coarser level the 2x2x2 box filter (mean) of
+/// the one below, built sparsely at load. The file is read through
+/// read_vdb's checks (src/io/vdb_grids.hpp). Throws voxcast::Error with a
+/// one-line message: unreadable or damaged file, no FloatGrid, a rotated,
+/// non-uniform or non-linear transform, no non-zero density, an extent
+/// above 8192 voxels.
+struct VdbVolume {
+  std::shared_ptr<Producer> producer;
+  /// World placement of the unit cube (GigaOptions::origin, size): the grid's
+  /// own world coordinates.
+  Vec3 origin{0, 0, 0};
+  float size = 1.f;
+  std::string grid_name;
+  bool level_set = false;
+  uint64_t active_voxels = 0;
+  int64_t extent[3] = {0, 0, 0};  // non-zero bounding box, voxels per axis
+  double voxel_size = 1.0;        // world side of a grid voxel
+  float min_density = 0.f, max_density = 0.f;
+  uint64_t grid_bytes = 0, pyramid_bytes = 0;  // the grid and its coarser levels in memory
+};
+VdbVolume read_vdb_volume(const std::string& path);
+
+/// Writes the finest level of `producer` as a .vdb fog volume: one FloatGrid
+/// "density" whose voxel (i, j, k) (centered at origin + (i + 1/2) h, h =
+/// size / voxels per side) holds the producer's density x density_scale per
+/// grid voxel (extinction per unit cube / voxels per side), zeros left
+/// inactive; the header's UUID derived from the content (same volume, same
+/// bytes). The finest level must be at most 1024 voxels per side. Throws
+/// voxcast::Error.
+void write_vdb_volume(const Producer& producer, const std::string& path, Vec3 origin = {0, 0, 0},
+                      float size = 1.f, float density_scale = 1.f);
+
+/// The benchmark peer (issue 12): OpenVDB's own ray marcher,
+/// openvdb::tools::VolumeRender with a VolumeRayIntersector, over the same
+/// density grid, through voxcast's camera rays (pixel centers). Its model:
+/// steps of `step` grid voxels with trilinear samples, extinction = density
+/// per voxel, single scattering of a white directional light towards
+/// `light_dir` (albedo 1), a shadow ray per sample with the same step, no
+/// ambient; color = the scattered light, alpha = 1 - mean transmittance.
+/// The image is RGB, the scattered light composited over `background` by the
+/// mean transmittance.
+struct VdbPeerOptions {
+  double step = 0.5;  // primary and shadow steps, in grid voxels
+  Vec3 light_dir{0.4f, 0.8f, 0.45f};
+  Color background{0.f, 0.f, 0.f, 1.f};
+  bool threaded = true;  // TBB over rows (OpenVDB's render(true))
+};
+class VdbPeer {
+ public:
+  /// Throws voxcast::Error when `volume` is not from read_vdb_volume.
+  explicit VdbPeer(const VdbVolume& volume);
+  ~VdbPeer();
+  VdbPeer(const VdbPeer&) = delete;
+  VdbPeer& operator=(const VdbPeer&) = delete;
+  /// One frame of `camera` at width x height.
+  Image render(const Camera& camera, int width, int height, const VdbPeerOptions& options) const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
 struct GigaOptions {
   /// Memory for both pools (node tiles and bricks in equal numbers).
   uint64_t budget_bytes = uint64_t(256) << 20;
@@ -335,7 +409,8 @@ class RecursiveVolume : public Structure, public VolumeQuery {
                   Color color = {1.f, 1.f, 1.f, 1.f}, Vec3 origin = {0, 0, 0}, float size = 1.f);
   /// The Menger sponge as a graph of one node: its 20 corner and edge
   /// cells name the node itself, the 7 middle cells are empty.
-  static RecursiveVolume menger(int max_depth, float density, Color color = {1.f, 1.f, 1.f, 1.f});
+  static RecursiveVolume menger(int max_depth, float density, Color color = {1.f, 1.f, 1.f, 1.f},
+                                Vec3 origin = {0, 0, 0}, float size = 1.f);
   std::string name() const override { return "recursive"; }
   Aabb bounds() const override;
   const VolumeQuery* volume() const override { return this; }
@@ -359,5 +434,12 @@ class RecursiveVolume : public Structure, public VolumeQuery {
   float size_;
   std::vector<float> coverage_;  // [levels left][node]
 };
+
+/// make_procedural("menger", resolution)'s sponge as a recursive node graph
+/// (the CLI's procedural:menger-recursive): the same placement ([0.1, 0.9]^3
+/// of the unit cube), density and color, its recursion depth the
+/// procedural sponge's iterations (until the finest bars are about one
+/// voxel of `resolution` wide). Throws voxcast::Error as make_procedural.
+RecursiveVolume make_recursive_menger(int resolution);
 
 }  // namespace voxcast::giga

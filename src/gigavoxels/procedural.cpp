@@ -150,6 +150,16 @@ class DistanceSolid : public ProceduralBase {
   }
 };
 
+constexpr Color kMengerColor{0.85f, 0.72f, 0.55f, 1.f};
+
+/// Iterations of the sponge at `resolution` voxels per side: until the
+/// finest bars are about one voxel wide.
+int menger_iterations(int resolution) {
+  int iterations = 1;
+  while (iterations < 7 && std::pow(3.0, iterations) < resolution / 3.0) ++iterations;
+  return iterations;
+}
+
 /// The Menger sponge in [0.1, 0.9]^3: the cube minus, at every iteration
 /// k, the three square bars through the middle third of each of its 3^k
 /// cells (distance: the cube's, max the negated distance to each
@@ -160,7 +170,7 @@ class Menger final : public DistanceSolid {
   std::string name() const override { return "menger"; }
   double extent() const override { return 0.4 * std::sqrt(3.0) + 1e-9; }
   double distance(P3 p, Color* color) const override {
-    *color = {0.85f, 0.72f, 0.55f, 1.f};
+    *color = kMengerColor;
     const double s[3] = {(p.x - 0.1) / 0.8, (p.y - 0.1) / 0.8, (p.z - 0.1) / 0.8};
     // The cube [0, 1]^3.
     double q[3], outside = 0, inside = -1e9;
@@ -237,13 +247,15 @@ std::shared_ptr<Producer> make_procedural(const std::string& name, int resolutio
   while ((kBrickSide << level) < resolution) ++level;
   if (name == "cloud") return std::make_shared<Cloud>(level);
   if (name == "mandelbulb") return std::make_shared<Mandelbulb>(level);
-  if (name == "menger") {
-    // Iterations until the finest bars are about one voxel wide.
-    int iterations = 1;
-    while (iterations < 7 && std::pow(3.0, iterations) < resolution / 3.0) ++iterations;
-    return std::make_shared<Menger>(level, iterations);
-  }
-  throw Error("procedural volume '" + name + "': expected cloud, mandelbulb or menger");
+  if (name == "menger") return std::make_shared<Menger>(level, menger_iterations(resolution));
+  throw Error("procedural volume '" + name +
+              "': expected cloud, mandelbulb, menger or menger-recursive");
+}
+
+RecursiveVolume make_recursive_menger(int resolution) {
+  make_procedural("menger", resolution);  // the same resolution rules
+  return RecursiveVolume::menger(menger_iterations(resolution), float(DistanceSolid::kSigma),
+                                 kMengerColor, {0.1f, 0.1f, 0.1f}, 0.8f);
 }
 
 }  // namespace voxcast::giga

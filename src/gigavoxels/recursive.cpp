@@ -43,7 +43,8 @@ RecursiveVolume::RecursiveVolume(std::vector<GraphNode> nodes, int max_depth, fl
     }
 }
 
-RecursiveVolume RecursiveVolume::menger(int max_depth, float density, Color color) {
+RecursiveVolume RecursiveVolume::menger(int max_depth, float density, Color color, Vec3 origin,
+                                        float size) {
   // One node whose 20 corner and edge cells are the node itself and whose
   // 7 middle cells (center and face centers: two or more middle
   // coordinates) are empty: the sponge as a graph of one node.
@@ -53,7 +54,7 @@ RecursiveVolume RecursiveVolume::menger(int max_depth, float density, Color colo
       for (int x = 0; x < 3; ++x)
         n.child[size_t(x + 3 * (y + 3 * z))] =
             (x == 1) + (y == 1) + (z == 1) >= 2 ? kGraphEmpty : 0;
-  return RecursiveVolume({n}, max_depth, density, color);
+  return RecursiveVolume({n}, max_depth, density, color, origin, size);
 }
 
 Aabb RecursiveVolume::bounds() const {

@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "io/vdb_check.hpp"
+#include "io/vdb_grids.hpp"
 #include "io/voxel_io_internal.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/morton.hpp"
@@ -103,10 +104,10 @@ void content_uuid(const std::filesystem::path& path) {
 
 }  // namespace
 
-VoxelSet read_vdb(const std::filesystem::path& path, const VoxelReadOptions& options) {
-  const uint64_t budget = detail::voxel_budget(options);
-  const uint64_t max_voxels = budget / kVoxelSetBytesPerVoxel;
+openvdb::GridPtrVecPtr detail::read_vdb_grids(const std::filesystem::path& path,
+                                              uint64_t file_budget) {
   init_openvdb();
+  const uint64_t budget = file_budget ? file_budget : detail::voxel_budget(VoxelReadOptions{});
   // The whole file is walked first (vdb_check.cpp: libopenvdb trusts every
   // size a file declares), then OpenVDB reads these same checked bytes from
   // a private in-memory file, so the file cannot change in between.
@@ -142,6 +143,13 @@ VoxelSet read_vdb(const std::filesystem::path& path, const VoxelReadOptions& opt
   } catch (const std::exception& e) {
     throw Error(fmt::format("'{}': not a readable .vdb file ({})", path.string(), e.what()));
   }
+  return grids;
+}
+
+VoxelSet read_vdb(const std::filesystem::path& path, const VoxelReadOptions& options) {
+  const uint64_t budget = detail::voxel_budget(options);
+  const uint64_t max_voxels = budget / kVoxelSetBytesPerVoxel;
+  const openvdb::GridPtrVecPtr grids = detail::read_vdb_grids(path, budget);
   // The first scalar or boolean grid is the geometry; a Vec3S grid named
   // Cd or color (the usual names) gives the colors.
   openvdb::GridBase::Ptr geometry;
@@ -248,7 +256,11 @@ void write_vdb(const std::filesystem::path& path, const VoxelSet& voxels) {
     const Color& col = voxels.colors.empty() ? Color{1, 1, 1, 1} : voxels.colors[i];
     c.setValue(ijk, openvdb::Vec3s(col.r, col.g, col.b));
   }
-  openvdb::GridPtrVec grids{density, color};
+  detail::write_vdb_grids(path, {density, color});
+}
+
+void detail::write_vdb_grids(const std::filesystem::path& path, const openvdb::GridPtrVec& grids) {
+  init_openvdb();
   // Written beside the target and renamed into place, like every output.
   std::filesystem::path tmp = path;
   tmp += ".tmp";
