@@ -93,7 +93,8 @@ Runner add_build(CLI::App& app) {
   if (!format_registry().formats().empty()) args->format = format_registry().formats().front().name;
   std::string formats;
   for (const SceneFormat& f : format_registry().formats())
-    formats += (formats.empty() ? "" : " | ") + f.name + " (" + f.description + ")";
+    if (f.builds())  // not the file types of their own (slice files: --slices)
+      formats += (formats.empty() ? "" : " | ") + f.name + " (" + f.description + ")";
   cmd->add_option("--format", args->format, "Structure: " + formats)->capture_default_str();
   cmd->add_option("--memory-budget", args->memory_budget,
                   "Refuse builds estimated to need more (e.g. 8G; default 90% of free memory)");
@@ -143,10 +144,12 @@ Runner add_build(CLI::App& app) {
     if (!args->memory_budget.empty()) s.memory_budget = parse_memory_budget(args->memory_budget);
     s.verbose = args->verbose;
     const SceneFormat* format = format_registry().find(args->format);
+    if (format && !format->builds())
+      throw UsageError("--format: " + format->name + " files are written by --slices");
     if (!format) {
       std::string known;
-      for (const std::string& n : format_registry().names())
-        known += (known.empty() ? "" : ", ") + n;
+      for (const SceneFormat& f : format_registry().formats())
+        if (f.builds()) known += (known.empty() ? "" : ", ") + f.name;
       throw UsageError("--format: '" + printable(args->format) + "' is not a scene format (" +
                        known + ")");
     }

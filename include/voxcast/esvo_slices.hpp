@@ -55,6 +55,10 @@
 #include "voxcast/structure.hpp"
 #include "voxcast/voxelize.hpp"
 
+namespace voxcast {
+class FormatRegistry;
+}
+
 namespace voxcast::esvo {
 
 namespace slice_layout {
@@ -170,6 +174,10 @@ void build_slices(const Mesh& mesh, const GridTransform& grid, const VoxelizeOpt
                   const std::filesystem::path& path, const SliceBuildOptions& options = {},
                   SliceBuildStats* stats = nullptr);
 
+/// Adds the "esvo-sliced" format (slice files through load_scene(): a
+/// StreamedEsvo; called by register_builtin_formats()).
+void register_sliced_format(FormatRegistry& registry);
+
 /// True if `path` starts with the slice file magic (cheap: reads 8 bytes).
 bool is_slice_file(const std::filesystem::path& path);
 
@@ -268,9 +276,18 @@ class StreamedEsvo final : public SurfaceQuery, public Structure {
   /// Loads every slice (ignores the budget's ordering but not its size:
   /// throws voxcast::Error when the whole file does not fit).
   void load_all();
+  /// Whether load_all() can hold every slice (the budget, the block table).
+  bool fits_whole() const;
 
   /// The bytes slice `e` occupies while resident (its block; what the budget counts).
   static uint64_t block_bytes(const slice_layout::SliceEntry& e);
+
+  /// Bounds of the resident voxels that end a walk (leaves, and subdivided
+  /// voxels whose slice is not resident): with every slice resident, the
+  /// in-core octree's occupied_bounds(), bit for bit.
+  Aabb occupied() const;
+  /// Why the last refused slice was refused ("" when none was).
+  const std::string& last_refusal() const;
 
   const StreamStats& stats() const { return stats_; }
   const SliceFile& file() const { return *file_; }

@@ -555,6 +555,14 @@ PassOutcome StreamedEsvo::end_pass(std::span<const Request> requests) {
   return out;
 }
 
+bool StreamedEsvo::fits_whole() const {
+  const auto& all = file_->slices();
+  uint64_t total = 0;
+  for (const sl::SliceEntry& e : all) total += block_bytes(e);
+  return all.size() <= kMaxBlocks &&
+         (impl_->options.budget_bytes == 0 || total <= impl_->options.budget_bytes);
+}
+
 void StreamedEsvo::load_all() {
   Impl& m = *impl_;
   const auto& all = file_->slices();
@@ -577,6 +585,41 @@ void StreamedEsvo::load_all() {
   stats_.resident_bytes = m.resident_bytes;
   stats_.peak_resident_bytes = std::max(stats_.peak_resident_bytes, m.resident_bytes);
   stats_.resident_slices = uint32_t(kMaxBlocks - m.free_ids.size());
+}
+
+Aabb StreamedEsvo::occupied() const {
+  // As occupied_bounds() of the in-core octree (src/esvo/bounds.cpp): every
+  // voxel that ends a walk extends the box by its cube, in float.
+  const Impl& m = *impl_;
+  const GridTransform grid = file_->grid();
+  const double side = grid.side();
+  Aabb box;
+  for (uint32_t i = 0; i < file_->slices().size(); ++i) {
+    if (m.state[i] != State::kResident) continue;
+    const Block& b = *m.blocks[m.block_of[i]];
+    const int level = file_->slices()[i].node_level + 1;
+    const double size = side / double(uint64_t(1) << level);
+    for (size_t q = 0; q < b.nodes.size(); ++q) {
+      const StreamNode& d = b.nodes[q];
+      const uint32_t valid = sl::SliceValid::get(d.masks), leaf = sl::SliceLeaf::get(d.masks);
+      uint32_t rank = 0;
+      for (int c = 0; c < 8; ++c) {
+        if ((valid >> c & 1u) == 0) continue;
+        const bool ends = (leaf >> c & 1u) != 0 || (b.links[d.link + rank++] & kAbsent) != 0;
+        if (!ends) continue;
+        const MortonCoord p = morton_decode(b.codes[q] << 3 | uint64_t(c));
+        const Vec3 lo{float(grid.origin.x + p.x * size), float(grid.origin.y + p.y * size),
+                      float(grid.origin.z + p.z * size)};
+        box.extend(lo);
+        box.extend(lo + Vec3{float(size), float(size), float(size)});
+      }
+    }
+  }
+  return box;
+}
+
+const std::string& StreamedEsvo::last_refusal() const {
+  return impl_->last_error;
 }
 
 bool StreamedEsvo::resident(uint32_t slice) const {
