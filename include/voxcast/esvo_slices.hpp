@@ -229,6 +229,12 @@ struct StreamStats {
   uint64_t peak_resident_bytes = 0;
   uint32_t resident_slices = 0;  // now
   uint64_t pending = 0;          // requests left unserved by the last end_pass
+  uint64_t compactions = 0;      // arena allocations that had to compact
+  uint64_t bytes_moved = 0;      // by those compactions
+  /// What compacting everything after the first hole would have moved in
+  /// those compactions (the incremental compaction moves only what each
+  /// failed allocation needs: bytes_moved <= this).
+  uint64_t full_compaction_bytes = 0;
 };
 
 /// The streamed ESVO (§7 "Storage in memory", "Dynamic loading"): the
@@ -251,7 +257,9 @@ struct StreamStats {
 /// id, or "absent" + the slice to request), the children's raw attributes
 /// and contours, the Morton codes of the descriptors (positions live in
 /// memory only, derived from the parent when a slice is linked in) and, per
-/// descriptor, the index of the parent link that points at it.
+/// descriptor, the index of the parent link that points at it. The blocks
+/// are extents of one arena of the budget's size (a hard cap), compacted
+/// incrementally when an allocation finds no hole (StreamStats::compactions).
 class StreamedEsvo final : public SurfaceQuery, public Structure {
  public:
   StreamedEsvo(std::shared_ptr<const SliceFile> file, const StreamOptions& options = {});
