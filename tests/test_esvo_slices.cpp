@@ -647,9 +647,14 @@ TEST(EsvoSlicesCli, BuildInfoRender) {
                           " slices"),
             std::string::npos)
       << r.output;
-  r = testing::run_cli("render '" + out + "' --budget 40K --frames 5 --size 64x64 -o '" +
+  r = testing::run_cli("render '" + out +
+                       "' --budget 40K --frames 5 --size 64x64 --write-frames -o '" +
                        dir.file("b.png") + "'");
   ASSERT_EQ(r.exit_code, 0) << r.output;
+  // --write-frames: every frame, the last one equal to -o.
+  for (int f = 0; f < 5; ++f)
+    EXPECT_TRUE(std::filesystem::exists(dir.file("b-00" + std::to_string(f) + ".png"))) << f;
+  EXPECT_EQ(testing::read_bytes(dir.file("b-004.png")), testing::read_bytes(dir.file("b.png")));
   for (int f = 0; f < 5; ++f)
     EXPECT_NE(r.output.find("frame " + std::to_string(f) + ": loaded "), std::string::npos)
         << r.output;
@@ -675,6 +680,8 @@ TEST(EsvoSlicesCli, BuildInfoRender) {
                        "'");
   EXPECT_EQ(r.exit_code, 2) << r.output;
   r = testing::run_cli("render '" + out + "' --budget lots -o '" + dir.file("e.png") + "'");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  r = testing::run_cli("render '" + out + "' --write-frames -o '" + dir.file("e.png") + "'");
   EXPECT_EQ(r.exit_code, 2) << r.output;
   // Streamed frames render color only.
   r = testing::run_cli("render '" + out + "' --budget 40K --depth '" + dir.file("e.pfm") +

@@ -49,8 +49,9 @@ struct RenderArgs {
   StreamArgs stream;        // --stream: brickmap worlds streamed (cmd_stream.cpp)
   // --budget and --frames (stream.budget / stream.frames) also drive
   // streamed scene formats (slice files, esvo §7): cmd_render_sliced.cpp.
-  int spp = 1;  // antialiasing: jittered camera rays per pixel (render.hpp)
-  GiArgs gi;    // --gi SPP and its options (gi_cli.hpp)
+  bool write_frames = false;  // slice files with --frames: every frame, not only the last
+  int spp = 1;                // antialiasing: jittered camera rays per pixel (render.hpp)
+  GiArgs gi;                  // --gi SPP and its options (gi_cli.hpp)
 };
 
 // The output for keyframe `index` of `count` when a whole path is rendered:
@@ -170,6 +171,9 @@ Runner add_render(CLI::App& app) {
   cmd->add_option("--memory-budget", args->memory_budget,
                   "Refuse renders estimated to need more (e.g. 2G; default 90% of free memory)");
   add_stream_options(cmd, args->stream);
+  cmd->add_flag("--write-frames", args->write_frames,
+                "Slice file with --budget/--frames: write every frame, named like -o with -NNN "
+                "before the extension (out-000.png, ...), besides -o");
   return [args, cmd]() {
     ThreadLimit limit(args->threads);
     // Every option value first (usage errors, exit 2), then the files.
@@ -269,10 +273,17 @@ Runner add_render(CLI::App& app) {
         throw UsageError(
             "a slice file streamed with --budget or --frames renders color only: no --depth, "
             "--normals, --heatmap, --aov, --ao-output, --stats, --beam, --filter or --frame");
+      std::vector<std::string> frame_files;
+      if (args->write_frames)
+        for (int f = 0; f < args->stream.frames; ++f)
+          frame_files.push_back(
+              keyframe_file(args->output, size_t(f), size_t(args->stream.frames)));
       return render_sliced({args->input, args->output, args->path, args->stream.budget,
-                            &args->camera, args->stream.frames},
+                            &args->camera, args->stream.frames, frame_files},
                            opt);
     }
+    if (args->write_frames)
+      throw UsageError("--write-frames applies to slice files rendered with --budget or --frames");
     require_range("--spp", args->spp, 1, 4096);
     opt.spp = args->spp;
     // --gi: the GI integrator instead of the surface shading (gi_cli.hpp).

@@ -43,6 +43,7 @@ int render_sliced(const SlicedRender& a, RenderOptions opt) {
   OutputSet outputs(a.path.empty() ? std::vector<std::string>{a.input}
                                    : std::vector<std::string>{a.input, a.path});
   outputs.add("-o", a.output, {".png", ".pfm"});
+  for (const std::string& f : a.frame_files) outputs.add("--write-frames", f, {".png", ".pfm"});
   require_regular_input(a.input, "scene");
   std::optional<view::CameraPath> path;
   if (!a.path.empty()) {
@@ -89,6 +90,9 @@ int render_sliced(const SlicedRender& a, RenderOptions opt) {
         (unsigned)s.resident_parts, double(s.resident_bytes) / 1048576.0,
         double(s.bytes_read - before.bytes_read) / 1048576.0,
         double(result.rays) / result.seconds * 1e-6, seconds * 1e3);
+    if (!a.frame_files.empty())
+      outputs.write(a.frame_files[size_t(f)],
+                    [&](const std::filesystem::path& to) { write_image(to, result.color); });
   }
   const double total =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
