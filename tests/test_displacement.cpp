@@ -11,10 +11,15 @@
 
 #include <algorithm>
 #include <cmath>
+#include <fstream>
+#include <nlohmann/json.hpp>
 #include <set>
 
+#include "support/cli_runner.hpp"
 #include "voxcast/displacement.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/image.hpp"
+#include "voxcast/mesh.hpp"
 #include "voxcast/morton.hpp"
 #include "voxcast/voxelize.hpp"
 
@@ -177,6 +182,52 @@ TEST(Displacement, ThreadCountInvariance) {
     EXPECT_EQ(v[0].normals[i].x, v[1].normals[i].x);
     EXPECT_EQ(v[0].colors[i].r, v[1].colors[i].r);
   }
+}
+
+// The CLI: build --displacement MAP --displacement-scale S, the same voxels
+// as the library (leaf count), in a .vxc and a .vxs; usage errors.
+TEST(DisplacementCli, BuildDisplaced) {
+  testing::TempDir dir;
+  const std::string obj = dir.file("plate.obj"), png = dir.file("h.png");
+  {
+    std::ofstream o(obj);
+    o << "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 1\nvt 1 1\nvt 1 0\nvt 0 0\n"
+         "vn 0 0 1\nf 1/1/1 2/2/1 3/3/1\nf 1/1/1 3/3/1 4/4/1\n";
+  }
+  write_image(png, height_image(40, 24), /*already_srgb=*/true);  // the heights as stored
+  auto leaves = [&](const std::string& scene) {
+    const auto r = testing::run_cli("info --json '" + scene + "'");
+    EXPECT_EQ(r.exit_code, 0) << r.output;
+    return nlohmann::json::parse(r.output.substr(r.output.find('{'))).value("leaf_voxels", 0ull);
+  };
+  auto r = testing::run_cli("build '" + obj + "' --resolution 64 --displacement '" + png +
+                            "' --displacement-scale 0.15 -o '" + dir.file("d.vxc") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  // The library on the same inputs (the mesh as the CLI imports it).
+  const Mesh mesh = load_mesh(obj);
+  const DisplacementMap map(read_png(png));
+  const GridTransform grid = GridTransform::fit(displaced_bounds(mesh, map, 0.15f), 64);
+  EXPECT_EQ(leaves(dir.file("d.vxc")), voxelize_displaced(mesh, map, 0.15f, grid, {}).size());
+  r = testing::run_cli("build '" + obj + "' --resolution 64 -o '" + dir.file("f.vxc") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_LT(2 * leaves(dir.file("f.vxc")), leaves(dir.file("d.vxc")));
+  r = testing::run_cli("build '" + obj + "' --resolution 64 --displacement '" + png +
+                       "' --displacement-scale 0.15 --slices -o '" + dir.file("d.vxs") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  for (const char* bad : {" --displacement-scale 0.1", " --displacement h.png",
+                          " --displacement h.png --displacement-scale 0.1 --contours"}) {
+    std::string cmd = bad;
+    const size_t at = cmd.find("h.png");
+    if (at != std::string::npos) cmd.replace(at, 5, "'" + png + "'");
+    r = testing::run_cli("build '" + obj + "' --resolution 16" + cmd + " -o '" + dir.file("x.vxc") +
+                         "'");
+    EXPECT_EQ(r.exit_code, 2) << bad << ": " << r.output;
+  }
+  r = testing::run_cli("build '" + obj + "' --resolution 16 --displacement '" +
+                       dir.file("none.png") + "' --displacement-scale 0.1 -o '" +
+                       dir.file("x.vxc") + "'");
+  EXPECT_NE(r.exit_code, 0) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(dir.file("x.vxc")));
 }
 
 }  // namespace
