@@ -208,103 +208,135 @@ VoxelSet voxelize_displaced(const Mesh& mesh, const DisplacementMap& map, float 
   if (map.width() < 1) throw Error("displacement map: empty");
   const size_t triangles = mesh.triangle_count();
   const double N = double(grid.resolution);
-  constexpr size_t kChunk = 64;
-  const size_t chunks = (triangles + kChunk - 1) / kChunk;
+  // Tasks: every triangle cut (midpoint splits, no bound yet) into pieces of
+  // at most about 64 voxels a side, so that a large triangle is spread over
+  // the threads; marks are concatenated in task order (deterministic).
+  struct Task {
+    uint32_t t;
+    std::array<Corner, 3> piece;
+  };
+  std::vector<Task> tasks;
+  for (size_t t = 0; t < triangles; ++t) {
+    const Triangle tri = triangle_of(mesh, t, grid);
+    double edge = 0;
+    for (int k = 0; k < 3; ++k) edge = std::max(edge, length(tri.p[(k + 1) % 3] - tri.p[k]));
+    int depth = 0;
+    while (depth < 8 && edge > 64.0) edge /= 2, ++depth;
+    std::vector<std::array<Corner, 3>> level{{Corner{0, 0}, Corner{1, 0}, Corner{0, 1}}};
+    for (int d = 0; d < depth; ++d) {
+      std::vector<std::array<Corner, 3>> next;
+      for (const auto& q : level) {
+        const Corner m01{(q[0].u + q[1].u) / 2, (q[0].v + q[1].v) / 2};
+        const Corner m12{(q[1].u + q[2].u) / 2, (q[1].v + q[2].v) / 2};
+        const Corner m20{(q[2].u + q[0].u) / 2, (q[2].v + q[0].v) / 2};
+        next.push_back({q[0], m01, m20});
+        next.push_back({m01, q[1], m12});
+        next.push_back({m20, m12, q[2]});
+        next.push_back({m01, m12, m20});
+      }
+      level = std::move(next);
+    }
+    for (const auto& q : level) tasks.push_back({uint32_t(t), q});
+  }
+  // Sorts the marks by code and adds up equal codes, in their order.
+  auto merge = [](std::vector<Mark>& marks) {
+    std::stable_sort(marks.begin(), marks.end(),
+                     [](const Mark& a, const Mark& b) { return a.code < b.code; });
+    size_t keep = 0;
+    for (size_t i = 0; i < marks.size(); ++i) {
+      if (keep > 0 && marks[keep - 1].code == marks[i].code) {
+        Mark& m = marks[keep - 1];
+        m.r += marks[i].r, m.g += marks[i].g, m.b += marks[i].b, m.a += marks[i].a;
+        m.n = m.n + marks[i].n;
+        m.w += marks[i].w;
+      } else {
+        marks[keep++] = marks[i];
+      }
+    }
+    marks.resize(keep);
+  };
+  const size_t chunks = tasks.size();
   std::vector<std::vector<Mark>> out(chunks);
   std::vector<DisplacementStats> chunk_stats(chunks);
   tbb::parallel_for(size_t(0), chunks, [&](size_t c) {
     std::vector<Mark>& marks = out[c];
     DisplacementStats& st = chunk_stats[c];
-    std::vector<std::array<Corner, 3>> stack;
-    for (size_t t = c * kChunk; t < std::min(triangles, (c + 1) * kChunk); ++t) {
-      const Triangle tri = triangle_of(mesh, t, grid);
-      const size_t first = marks.size();
-      stack.push_back({Corner{0, 0}, Corner{1, 0}, Corner{0, 1}});
-      while (!stack.empty()) {
-        const std::array<Corner, 3> piece = stack.back();
-        stack.pop_back();
-        ++st.pieces;
-        // Its footprint in map space and the heights over it.
-        double u0 = INFINITY, v0 = INFINITY, u1 = -INFINITY, v1 = -INFINITY;
-        for (const Corner& b : piece) {
-          double u, v;
-          tri.uv(b, &u, &v);
-          u0 = std::min(u0, u), u1 = std::max(u1, u), v0 = std::min(v0, v), v1 = std::max(v1, v);
+    const size_t t = tasks[c].t;
+    const Triangle tri = triangle_of(mesh, t, grid);
+    std::vector<std::array<Corner, 3>> stack{tasks[c].piece};
+    while (!stack.empty()) {
+      // Bounded memory: duplicates merged as they pile up (at a count, so
+      // the sums do not depend on the threads).
+      if (marks.size() >= (size_t(1) << 20)) merge(marks);
+      const std::array<Corner, 3> piece = stack.back();
+      stack.pop_back();
+      ++st.pieces;
+      // Its footprint in map space and the heights over it.
+      double u0 = INFINITY, v0 = INFINITY, u1 = -INFINITY, v1 = -INFINITY;
+      for (const Corner& b : piece) {
+        double u, v;
+        tri.uv(b, &u, &v);
+        u0 = std::min(u0, u), u1 = std::max(u1, u), v0 = std::min(v0, v), v1 = std::max(v1, v);
+      }
+      float hlo, hhi;
+      map.range(u0, v0, u1, v1, &hlo, &hhi);
+      const double d0 = double(scale) * hlo, d1 = double(scale) * hhi;
+      Vec3d lo{INFINITY, INFINITY, INFINITY}, hi{-INFINITY, -INFINITY, -INFINITY};
+      for (const Corner& b : piece) {
+        const Vec3d p = tri.at(tri.p, b), n = tri.at(tri.n, b);
+        for (const double d : {d0, d1}) {
+          const Vec3d q = p + n * d;
+          lo = Vec3d{std::min(lo.x, q.x), std::min(lo.y, q.y), std::min(lo.z, q.z)};
+          hi = Vec3d{std::max(hi.x, q.x), std::max(hi.y, q.y), std::max(hi.z, q.z)};
         }
-        float hlo, hhi;
-        map.range(u0, v0, u1, v1, &hlo, &hhi);
-        const double d0 = double(scale) * hlo, d1 = double(scale) * hhi;
-        Vec3d lo{INFINITY, INFINITY, INFINITY}, hi{-INFINITY, -INFINITY, -INFINITY};
-        for (const Corner& b : piece) {
-          const Vec3d p = tri.at(tri.p, b), n = tri.at(tri.n, b);
-          for (const double d : {d0, d1}) {
-            const Vec3d q = p + n * d;
-            lo = Vec3d{std::min(lo.x, q.x), std::min(lo.y, q.y), std::min(lo.z, q.z)};
-            hi = Vec3d{std::max(hi.x, q.x), std::max(hi.y, q.y), std::max(hi.z, q.z)};
+      }
+      if (!(hi.x >= 0 && hi.y >= 0 && hi.z >= 0 && lo.x <= N && lo.y <= N && lo.z <= N)) {
+        ++st.culled;
+        continue;
+      }
+      const double extent = std::max({hi.x - lo.x, hi.y - lo.y, hi.z - lo.z});
+      const double piece_size =
+          std::max({std::abs(piece[1].u - piece[0].u), std::abs(piece[2].v - piece[0].v),
+                    std::abs(piece[2].u - piece[1].u), std::abs(piece[2].v - piece[1].v)});
+      if (extent > 0.5 && piece_size > 1e-9) {
+        // Split into four (the map footprint follows the triangle).
+        const Corner m01{(piece[0].u + piece[1].u) / 2, (piece[0].v + piece[1].v) / 2};
+        const Corner m12{(piece[1].u + piece[2].u) / 2, (piece[1].v + piece[2].v) / 2};
+        const Corner m20{(piece[2].u + piece[0].u) / 2, (piece[2].v + piece[0].v) / 2};
+        stack.push_back({m01, m12, m20});
+        stack.push_back({m20, m12, piece[2]});
+        stack.push_back({m01, piece[1], m12});
+        stack.push_back({piece[0], m01, m20});
+        continue;
+      }
+      // Half a voxel: mark every voxel the bound touches.
+      Vec3d D[3];
+      for (int k = 0; k < 3; ++k) {
+        double u, v;
+        tri.uv(piece[size_t(k)], &u, &v);
+        const double h = map.sample({float(u), float(v)});
+        D[k] = tri.at(tri.p, piece[size_t(k)]) + tri.at(tri.n, piece[size_t(k)]) * (scale * h);
+      }
+      const Vec3d cr = cross(D[1] - D[0], D[2] - D[0]);
+      const double len = length(cr);
+      const Corner mid{(piece[0].u + piece[1].u + piece[2].u) / 3,
+                       (piece[0].v + piece[1].v + piece[2].v) / 3};
+      Vec3 n = len > 1e-12 ? Vec3{float(cr.x / len), float(cr.y / len), float(cr.z / len)}
+                           : mesh.surface_normal(t, float(mid.u), float(mid.v));
+      const Color col = mesh.surface_color(t, float(mid.u), float(mid.v));
+      auto cell = [&](double x) { return uint32_t(std::clamp(std::floor(x), 0.0, N - 1)); };
+      const uint32_t x0 = cell(lo.x), x1 = cell(hi.x), y0 = cell(lo.y), y1 = cell(hi.y),
+                     z0 = cell(lo.z), z1 = cell(hi.z);
+      const float w = float(0.5 * len) / float((x1 - x0 + 1) * (y1 - y0 + 1) * (z1 - z0 + 1));
+      for (uint32_t z = z0; z <= z1; ++z)
+        for (uint32_t y = y0; y <= y1; ++y)
+          for (uint32_t x = x0; x <= x1; ++x) {
+            marks.push_back(
+                {morton_encode(x, y, z), col.r * w, col.g * w, col.b * w, col.a * w, n * w, w});
+            ++st.emitted;
           }
-        }
-        if (!(hi.x >= 0 && hi.y >= 0 && hi.z >= 0 && lo.x <= N && lo.y <= N && lo.z <= N)) {
-          ++st.culled;
-          continue;
-        }
-        const double extent = std::max({hi.x - lo.x, hi.y - lo.y, hi.z - lo.z});
-        const double piece_size =
-            std::max({std::abs(piece[1].u - piece[0].u), std::abs(piece[2].v - piece[0].v),
-                      std::abs(piece[2].u - piece[1].u), std::abs(piece[2].v - piece[1].v)});
-        if (extent > 0.5 && piece_size > 1e-9) {
-          // Split into four (the map footprint follows the triangle).
-          const Corner m01{(piece[0].u + piece[1].u) / 2, (piece[0].v + piece[1].v) / 2};
-          const Corner m12{(piece[1].u + piece[2].u) / 2, (piece[1].v + piece[2].v) / 2};
-          const Corner m20{(piece[2].u + piece[0].u) / 2, (piece[2].v + piece[0].v) / 2};
-          stack.push_back({m01, m12, m20});
-          stack.push_back({m20, m12, piece[2]});
-          stack.push_back({m01, piece[1], m12});
-          stack.push_back({piece[0], m01, m20});
-          continue;
-        }
-        // Half a voxel: mark every voxel the bound touches.
-        Vec3d D[3];
-        for (int k = 0; k < 3; ++k) {
-          double u, v;
-          tri.uv(piece[size_t(k)], &u, &v);
-          const double h = map.sample({float(u), float(v)});
-          D[k] = tri.at(tri.p, piece[size_t(k)]) + tri.at(tri.n, piece[size_t(k)]) * (scale * h);
-        }
-        const Vec3d cr = cross(D[1] - D[0], D[2] - D[0]);
-        const double len = length(cr);
-        const Corner mid{(piece[0].u + piece[1].u + piece[2].u) / 3,
-                         (piece[0].v + piece[1].v + piece[2].v) / 3};
-        Vec3 n = len > 1e-12 ? Vec3{float(cr.x / len), float(cr.y / len), float(cr.z / len)}
-                             : mesh.surface_normal(t, float(mid.u), float(mid.v));
-        const Color col = mesh.surface_color(t, float(mid.u), float(mid.v));
-        auto cell = [&](double x) { return uint32_t(std::clamp(std::floor(x), 0.0, N - 1)); };
-        const uint32_t x0 = cell(lo.x), x1 = cell(hi.x), y0 = cell(lo.y), y1 = cell(hi.y),
-                       z0 = cell(lo.z), z1 = cell(hi.z);
-        const float w = float(0.5 * len) / float((x1 - x0 + 1) * (y1 - y0 + 1) * (z1 - z0 + 1));
-        for (uint32_t z = z0; z <= z1; ++z)
-          for (uint32_t y = y0; y <= y1; ++y)
-            for (uint32_t x = x0; x <= x1; ++x) {
-              marks.push_back(
-                  {morton_encode(x, y, z), col.r * w, col.g * w, col.b * w, col.a * w, n * w, w});
-              ++st.emitted;
-            }
-      }
-      // Merge this triangle's duplicates (in a fixed order: deterministic).
-      std::stable_sort(marks.begin() + std::ptrdiff_t(first), marks.end(),
-                       [](const Mark& a, const Mark& b) { return a.code < b.code; });
-      size_t keep = first;
-      for (size_t i = first; i < marks.size(); ++i) {
-        if (keep > first && marks[keep - 1].code == marks[i].code) {
-          Mark& m = marks[keep - 1];
-          m.r += marks[i].r, m.g += marks[i].g, m.b += marks[i].b, m.a += marks[i].a;
-          m.n = m.n + marks[i].n;
-          m.w += marks[i].w;
-        } else {
-          marks[keep++] = marks[i];
-        }
-      }
-      marks.resize(keep);
     }
+    merge(marks);
   });
   std::vector<Mark> all;
   DisplacementStats total;
