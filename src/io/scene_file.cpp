@@ -94,8 +94,13 @@ LoadedScene load_from(const ContainerReader& reader, const std::filesystem::path
 
 LoadedScene load_scene(const std::filesystem::path& path, const SceneLoadOptions& options) {
   try {
-    // A file type of its own (SceneFormat::sniff), else a container.
-    if (const SceneFormat* f = format_registry().recognize(path)) {
+    // A file type of its own (SceneFormat::sniff), else a container. Only
+    // a regular file is sniffed (reading a FIFO's first bytes would block;
+    // the container's open refuses the rest with its own message).
+    std::error_code ec;
+    const SceneFormat* f =
+        std::filesystem::is_regular_file(path, ec) ? format_registry().recognize(path) : nullptr;
+    if (f != nullptr) {
       LoadedScene out;
       out.format = f->name;
       out.structure = f->open_file(path, options, &out.info);
