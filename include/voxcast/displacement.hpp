@@ -15,15 +15,16 @@
 //
 // voxelize_displaced() treats each triangle as a displacement primitive (the
 // triangle and its footprint in map space) and splits it into four as long
-// as its displaced bound is larger than half a voxel: the bound of a piece
+// as its displaced bound is not below a voxel a side: the bound of a piece
 // is the box around its corners displaced by the least and the largest
 // height of its footprint, which the min/max mip-map gives conservatively
 // for footprints of a texel or more (the power-of-two squares of texels
 // covering it) and exactly below (a bilinear patch has its extremes on the
 // corners of its cells). Pieces whose bound misses the grid are culled. A
-// piece of half a voxel marks every voxel its bound touches, so the result
-// has no holes: every point of the displaced surface is inside a marked
-// voxel, and every marked voxel is within one voxel of the surface.
+// piece below a voxel marks every voxel its bound touches (at most two per
+// axis), so the result has no holes: every point of the displaced surface is
+// inside a marked voxel, and every marked voxel is within one voxel (per
+// axis) of a voxel the surface passes through.
 #include <cstdint>
 #include <vector>
 

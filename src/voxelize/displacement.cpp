@@ -1,5 +1,5 @@
 // Displacement mapping (esvo §7.4): displacement primitives split until
-// their displaced bound is half a voxel, bounded by the height map's min/max
+// their displaced bound is below a voxel, bounded by the height map's min/max
 // mip-maps. Contract and definitions: include/voxcast/displacement.hpp.
 #include "voxcast/displacement.hpp"
 
@@ -202,6 +202,11 @@ Aabb displaced_bounds(const Mesh& mesh, const DisplacementMap& map, float scale)
   return box;
 }
 
+// A piece stops splitting when its bound is below this many voxels a side:
+// then it spans at most two voxels per axis, so every voxel it marks is
+// within one voxel (per axis) of a point of the surface inside it.
+constexpr double kStop = 0.99;
+
 VoxelSet voxelize_displaced(const Mesh& mesh, const DisplacementMap& map, float scale,
                             const GridTransform& grid, const VoxelizeOptions& options,
                             DisplacementStats* stats) {
@@ -298,7 +303,7 @@ VoxelSet voxelize_displaced(const Mesh& mesh, const DisplacementMap& map, float 
       const double piece_size =
           std::max({std::abs(piece[1].u - piece[0].u), std::abs(piece[2].v - piece[0].v),
                     std::abs(piece[2].u - piece[1].u), std::abs(piece[2].v - piece[1].v)});
-      if (extent > 0.5 && piece_size > 1e-9) {
+      if (extent > kStop && piece_size > 1e-9) {
         // Split into four (the map footprint follows the triangle).
         const Corner m01{(piece[0].u + piece[1].u) / 2, (piece[0].v + piece[1].v) / 2};
         const Corner m12{(piece[1].u + piece[2].u) / 2, (piece[1].v + piece[2].v) / 2};
@@ -337,6 +342,7 @@ VoxelSet voxelize_displaced(const Mesh& mesh, const DisplacementMap& map, float 
           }
     }
     merge(marks);
+    marks.shrink_to_fit();  // every task's marks are held until all are done
   });
   std::vector<Mark> all;
   DisplacementStats total;
