@@ -142,6 +142,7 @@ cli::BuildSettings settings(uint32_t resolution, double voxel_size, const std::s
     s.voxel_size = voxel_size;
   }
   const SceneFormat& f = format_registry().get(format);  // "unknown scene format ... (known: ...)"
+  if (!f.builds()) throw Error("format " + f.name + " is not built from a mesh here");
   s.format = f.name;
   s.compress_attributes = cli::parse_compressed_attributes(attributes);
   s.mode = cli::parse_voxelization(voxelization);

@@ -39,6 +39,7 @@
 #include "support/conformance.hpp"
 #include "support/dda_oracle.hpp"
 #include "support/esvo_testing.hpp"
+#include "support/slice_check.hpp"
 #include "support/test_data.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/image.hpp"
@@ -760,6 +761,23 @@ TEST_P(Conformance, LodStopsAreConsistent) {
   }
 }
 
+// The first `size` bytes of a scene file through the generic loader: a
+// container parsed in memory, or a file type of its own (own_file: slice
+// files) written to a file first (it is opened by path only).
+LoadedScene load_bytes(bool own_file, const std::vector<uint8_t>& bytes, size_t size) {
+  if (!own_file) return load_scene(Container::parse(bytes.data(), size));
+  const std::filesystem::path path = temp_scene("bytes");
+  {
+    std::ofstream out(path, std::ios::binary | std::ios::trunc);
+    out.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(size));
+  }
+  struct Remove {
+    std::filesystem::path p;
+    ~Remove() { std::filesystem::remove(p); }
+  } remove{path};
+  return load_scene(path);
+}
+
 TEST_P(Conformance, ThreadCountInvariance) {
   const Built& b = structure();
   if (!b.rejected.empty()) return;
@@ -771,7 +789,7 @@ TEST_P(Conformance, ThreadCountInvariance) {
     const CaseInputs in = make_inputs(vcase());
     file[k] = build_file(factory(), in.voxels, in.mesh ? &*in.mesh : nullptr,
                          factory().name + "_threads");
-    LoadedScene scene = load_scene(Container::parse(file[k].data(), file[k].size()));
+    LoadedScene scene = load_bytes(factory().own_file, file[k], file[k].size());
     image[k] = render_with(*scene.structure, test_cameras()[0], 4, 1.f, true);
   }
   EXPECT_TRUE(file[0] == file[1]) << "the saved file depends on the thread count";
@@ -786,11 +804,12 @@ TEST_P(Conformance, ThreadCountInvariance) {
 // Loads `bytes` with the generic loader; when accepted, renders and traces
 // with it. Any exception other than voxcast::Error is a failure.
 enum class Outcome { Rejected, Rendered, Failed };
-Outcome load_and_use(const std::vector<uint8_t>& bytes, size_t size, std::string* why) {
+Outcome load_and_use(bool own_file, const std::vector<uint8_t>& bytes, size_t size,
+                     std::string* why) {
   TraceContext ctx;
   LoadedScene scene;
   try {
-    scene = load_scene(Container::parse(bytes.data(), size));
+    scene = load_bytes(own_file, bytes, size);
   } catch (const Error&) {
     return Outcome::Rejected;
   } catch (const std::exception& e) {
@@ -841,7 +860,7 @@ TEST_P(Conformance, DamagedFilesAreRejectedCleanly) {
   size_t rejected = 0, failed = 0;
   std::string first;
   for (size_t n : lengths) {
-    const Outcome o = load_and_use(file, n, &why);
+    const Outcome o = load_and_use(factory().own_file, file, n, &why);
     rejected += o == Outcome::Rejected;
     if (o == Outcome::Failed && failed++ == 0) first = "length " + std::to_string(n) + ": " + why;
   }
@@ -854,29 +873,44 @@ TEST_P(Conformance, DamagedFilesAreRejectedCleanly) {
   for (int k = 0; k < 300; ++k) {
     std::vector<uint8_t> bad = file;
     bad[rng() % bad.size()] ^= uint8_t(1 + rng() % 255);
-    const Outcome o = load_and_use(bad, bad.size(), &why);
+    const Outcome o = load_and_use(factory().own_file, bad, bad.size(), &why);
     stale_rejected += o == Outcome::Rejected;
     if (o == Outcome::Failed && failed++ == 0) first = "stale-hash flip: " + why;
   }
   EXPECT_EQ(failed, 0u) << first;
   EXPECT_EQ(stale_rejected, 300u) << "a corrupted byte went unnoticed by the section hashes";
-  // Corruptions inside a section with its hash recomputed (Container::add +
-  // serialize rehash): the structure's own validation is what stands between
-  // them and the caster. Rejected, or accepted and rendered without harm.
-  const Container original = Container::parse(file.data(), file.size());
-  const std::vector<uint32_t> ids = original.section_ids();
+  // Corruptions with the hashes recomputed: the structure's own validation
+  // is what stands between them and the caster. Rejected, or accepted and
+  // rendered without harm. A container: inside a section (Container::add +
+  // serialize rehash); a file type of its own (slice files): anywhere, with
+  // every hash of the file recomputed (testing::rehash_slice_file).
+  const bool own = factory().own_file;
+  std::optional<Container> original;
+  std::vector<uint32_t> ids;
+  if (!own) {
+    original = Container::parse(file.data(), file.size());
+    ids = original->section_ids();
+  }
   size_t fresh_rejected = 0, fresh_rendered = 0;
   for (int k = 0; k < 400; ++k) {
-    Container c = original;
-    const uint32_t id = ids[rng() % ids.size()];
-    std::vector<uint8_t> sec = c.get(id);
-    if (sec.empty()) continue;
-    const int flips = 1 + int(rng() % 3);
-    for (int j = 0; j < flips; ++j) sec[rng() % sec.size()] ^= uint8_t(1u << (rng() % 8));
-    if (k % 10 == 0) sec.resize(rng() % sec.size());  // a section cut short, rehashed
-    c.add(id, std::move(sec));
-    const std::vector<uint8_t> bytes = c.serialize();
-    const Outcome o = load_and_use(bytes, bytes.size(), &why);
+    std::vector<uint8_t> bytes;
+    if (own) {
+      bytes = file;
+      const int flips = 1 + int(rng() % 3);
+      for (int j = 0; j < flips; ++j) bytes[rng() % bytes.size()] ^= uint8_t(1u << (rng() % 8));
+      testing::rehash_slice_file(bytes);
+    } else {
+      Container c = *original;
+      const uint32_t id = ids[rng() % ids.size()];
+      std::vector<uint8_t> sec = c.get(id);
+      if (sec.empty()) continue;
+      const int flips = 1 + int(rng() % 3);
+      for (int j = 0; j < flips; ++j) sec[rng() % sec.size()] ^= uint8_t(1u << (rng() % 8));
+      if (k % 10 == 0) sec.resize(rng() % sec.size());  // a section cut short, rehashed
+      c.add(id, std::move(sec));
+      bytes = c.serialize();
+    }
+    const Outcome o = load_and_use(own, bytes, bytes.size(), &why);
     fresh_rejected += o == Outcome::Rejected;
     fresh_rendered += o == Outcome::Rendered;
     if (o == Outcome::Failed && failed++ == 0) first = "rehashed flip: " + why;

@@ -23,10 +23,13 @@
 #include "support/slice_check.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
+#include "voxcast/esvo_format.hpp"
 #include "voxcast/esvo_slices.hpp"
 #include "voxcast/esvo_structure.hpp"
+#include "voxcast/format_registry.hpp"
 #include "voxcast/mesh.hpp"
 #include "voxcast/render.hpp"
+#include "voxcast/scene_file.hpp"
 #include "voxcast/voxelize.hpp"
 
 namespace voxcast {
@@ -425,6 +428,73 @@ TEST_P(Streamed, UnlimitedBudgetEqualsInCore) {
   }
 }
 
+// Slice files through the format registry (load_scene, every reader's
+// loader): opened whole they are the in-core octree (occupied bounds bit for
+// bit, the same images with depth, normals and the beam); info's open keeps
+// only the root; a damaged slice refuses the whole-file open (one line
+// naming the file) and is refused on its own when streaming.
+TEST_P(Streamed, LoadSceneOpensSliceFilesThroughTheRegistry) {
+  const SlicedBunny b(64, GetParam(), 2048, "registry");
+  const std::filesystem::path vxc = temp_file("registry-in-core").replace_extension(".vxc");
+  save_esvo_scene(vxc, *b.octree, SceneInfo{"bunny", "conservative", 0, 0});
+  const LoadedScene in_core = load_scene(vxc), sliced = load_scene(b.path);
+  std::filesystem::remove(vxc);
+  EXPECT_EQ(sliced.format, "esvo-sliced");
+  EXPECT_TRUE(sliced.sections.empty());
+  const auto& s = dynamic_cast<const esvo::StreamedEsvo&>(*sliced.structure);
+  EXPECT_EQ(s.stats().resident_slices, s.file().slices().size());
+  EXPECT_GT(s.file().slices().size(), 8u);
+  s.check_invariants();
+  for (int a = 0; a < 3; ++a) {
+    EXPECT_EQ(sliced.occupied.lo[a], in_core.occupied.lo[a]) << a;
+    EXPECT_EQ(sliced.occupied.hi[a], in_core.occupied.hi[a]) << a;
+  }
+  for (const int beam : {0, 4}) {
+    RenderOptions ro = view_options(in_core.occupied, 64, 1.f);
+    ro.want_normal = true;
+    ro.beam = beam;
+    const RenderResult want = render(*in_core.structure, ro), got = render(*sliced.structure, ro);
+    EXPECT_GT(want.hits, want.rays / 10);
+    EXPECT_TRUE(same_pixels(got.color, want.color)) << beam;
+    EXPECT_TRUE(same_pixels(got.depth, want.depth)) << beam;
+    EXPECT_TRUE(same_pixels(got.normal, want.normal)) << beam;
+  }
+  const SceneFormat& f = format_registry().get("esvo-sliced");
+  const SceneDescription d = f.describe(*sliced.structure, {});
+  EXPECT_EQ(d.grid.resolution, b.octree->grid.resolution);
+  EXPECT_NE(d.details.find("slice hierarchy"), std::string::npos);
+  EXPECT_EQ(f.memory_bytes(*sliced.structure), s.stats().resident_bytes);
+  EXPECT_EQ(f.stream_counters(*sliced.structure).resident_parts, s.file().slices().size());
+  // Saving it as a container is refused (its files come from --slices).
+  EXPECT_NE(testing::error_of([&] {
+              save_scene(temp_file("never"), "esvo-sliced", *sliced.structure, {});
+            }).find("not saved as a scene container"),
+            std::string::npos);
+  // The root only (info), and a budget the whole file does not fit: root only too.
+  SceneLoadOptions lazy;
+  lazy.load_all = false;
+  EXPECT_EQ(dynamic_cast<const esvo::StreamedEsvo&>(*load_scene(b.path, lazy).structure)
+                .stats()
+                .resident_slices,
+            1u);
+  SceneLoadOptions small;
+  small.stream_budget = esvo::StreamedEsvo::block_bytes(s.file().slices()[0]) + 1;
+  const LoadedScene partial = load_scene(b.path, small);
+  EXPECT_EQ(dynamic_cast<const esvo::StreamedEsvo&>(*partial.structure).stats().resident_slices,
+            1u);
+  // A damaged slice (its last data byte): the whole-file open refuses the file.
+  std::vector<uint8_t> bytes = testing::read_bytes(b.path);
+  bytes.back() ^= 0x40;
+  const std::filesystem::path bad = temp_file("registry-damaged");
+  testing::write_bytes(bad, bytes);
+  const std::string e = testing::error_of([&] { (void)load_scene(bad); });
+  EXPECT_NE(e.find(bad.string()), std::string::npos) << e;
+  EXPECT_NE(e.find("slice"), std::string::npos) << e;
+  EXPECT_EQ(e.find('\n'), std::string::npos) << e;
+  EXPECT_NO_THROW((void)load_scene(bad, lazy));
+  std::filesystem::remove(bad);
+}
+
 TEST_P(Streamed, SmallBudgetConvergesWhenTheViewStops) {
   const SlicedBunny b(256, GetParam(), 8192, "budget");
   const auto& path = b.path;
@@ -465,6 +535,15 @@ TEST_P(Streamed, SmallBudgetConvergesWhenTheViewStops) {
   const RenderResult got = stream_until_still(s, still, &frames);
   EXPECT_LT(frames, 64);
   EXPECT_LE(s.stats().peak_resident_bytes, opt.budget_bytes);
+  // The arena is the budget (a hard cap): the unloads left holes that later
+  // loads needed closed, and the incremental compaction moved less than
+  // compacting everything after the first hole would have.
+  const esvo::StreamStats& st = s.stats();
+  std::printf("arena: %llu compactions, %llu B moved, %llu B by full compactions\n",
+              (unsigned long long)st.compactions, (unsigned long long)st.bytes_moved,
+              (unsigned long long)st.full_compaction_bytes);
+  EXPECT_GT(st.compactions, 0u);
+  EXPECT_LT(st.bytes_moved, st.full_compaction_bytes);
   EXPECT_TRUE(same_pixels(got.color, want.color));
   EXPECT_TRUE(same_pixels(got.depth, want.depth));
 }
@@ -568,9 +647,14 @@ TEST(EsvoSlicesCli, BuildInfoRender) {
                           " slices"),
             std::string::npos)
       << r.output;
-  r = testing::run_cli("render '" + out + "' --budget 40K --frames 5 --size 64x64 -o '" +
+  r = testing::run_cli("render '" + out +
+                       "' --budget 40K --frames 5 --size 64x64 --write-frames -o '" +
                        dir.file("b.png") + "'");
   ASSERT_EQ(r.exit_code, 0) << r.output;
+  // --write-frames: every frame, the last one equal to -o.
+  for (int f = 0; f < 5; ++f)
+    EXPECT_TRUE(std::filesystem::exists(dir.file("b-00" + std::to_string(f) + ".png"))) << f;
+  EXPECT_EQ(testing::read_bytes(dir.file("b-004.png")), testing::read_bytes(dir.file("b.png")));
   for (int f = 0; f < 5; ++f)
     EXPECT_NE(r.output.find("frame " + std::to_string(f) + ": loaded "), std::string::npos)
         << r.output;
@@ -597,10 +681,34 @@ TEST(EsvoSlicesCli, BuildInfoRender) {
   EXPECT_EQ(r.exit_code, 2) << r.output;
   r = testing::run_cli("render '" + out + "' --budget lots -o '" + dir.file("e.png") + "'");
   EXPECT_EQ(r.exit_code, 2) << r.output;
-  r = testing::run_cli("render '" + out + "' --depth '" + dir.file("e.pfm") + "' -o '" +
-                       dir.file("e.png") + "'");
+  r = testing::run_cli("render '" + out + "' --write-frames -o '" + dir.file("e.png") + "'");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  // Streamed frames render color only.
+  r = testing::run_cli("render '" + out + "' --budget 40K --depth '" + dir.file("e.pfm") +
+                       "' -o '" + dir.file("e.png") + "'");
   EXPECT_EQ(r.exit_code, 2) << r.output;
   EXPECT_FALSE(std::filesystem::exists(dir.file("e.png")));
+  // Without --budget/--frames a slice file loads through the registry like
+  // any scene: the images of the in-core scene of the same octree.
+  r = testing::run_cli("build '" + mesh + "' --resolution 64 -o '" + dir.file("b.vxc") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  for (const char* in : {"b.vxs", "b.vxc"}) {
+    r = testing::run_cli("render '" + dir.file(in) + "' --size 48x40 --beam 4 --depth '" +
+                         dir.file(std::string(in) + ".pfm") + "' -o '" +
+                         dir.file(std::string(in) + ".png") + "'");
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+  }
+  EXPECT_EQ(testing::read_bytes(dir.file("b.vxs.png")), testing::read_bytes(dir.file("b.vxc.png")));
+  EXPECT_EQ(testing::read_bytes(dir.file("b.vxs.pfm")), testing::read_bytes(dir.file("b.vxc.pfm")));
+  r = testing::run_cli("info --json '" + out + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("\"format\": \"esvo-sliced\""), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("\"resident_slices\": 1"), std::string::npos) << r.output;
+  // Slice files are written by --slices, not by --format.
+  r = testing::run_cli("build '" + mesh + "' --resolution 16 --format esvo-sliced -o '" +
+                       dir.file("f.vxc") + "'");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("written by --slices"), std::string::npos) << r.output;
 }
 
 }  // namespace

@@ -49,11 +49,14 @@ TEST(FormatRegistry, EveryBuiltinFormatIsRegistered) {
   const std::vector<std::string> names = format_registry().names();
   const std::set<std::string> unique(names.begin(), names.end());
   EXPECT_EQ(unique.size(), names.size()) << "registered twice";
-  for (const char* expected : {"esvo", "dag", "brickmap"})
+  for (const char* expected : {"esvo", "dag", "brickmap", "esvo-sliced"})
     EXPECT_TRUE(unique.count(expected)) << expected << " is not registered";
   for (const SceneFormat& f : format_registry().formats()) {
     EXPECT_FALSE(f.description.empty()) << f.name;
-    EXPECT_EQ(f.extensions, std::vector<std::string>{".vxc"}) << f.name;
+    // Container formats build and save .vxc; a file type of its own (slice
+    // files) is recognized by sniff and opened by open_file instead.
+    EXPECT_EQ(f.builds(), !f.sniff) << f.name;
+    EXPECT_EQ(f.extensions, std::vector<std::string>{f.builds() ? ".vxc" : ".vxs"}) << f.name;
   }
 }
 
@@ -65,6 +68,7 @@ TEST(FormatRegistry, EveryFormatRoundTripsThroughTheRegistry) {
   info.voxelization = "conservative";
   info.leaf_voxels = voxels.size();
   for (const SceneFormat& f : format_registry().formats()) {
+    if (!f.builds()) continue;  // written by its own builder (FormatRegistry.SliceFiles...)
     SCOPED_TRACE(f.name);
     const LoadedStructure built = f.build(voxels, {});
     const std::string path = dir.file(f.name + ".vxc");
@@ -125,6 +129,15 @@ TEST(FormatRegistry, DuplicateOrIncompleteFormatsAreRefused) {
   half.name = "half";
   half.load = format_registry().get("esvo").load;
   EXPECT_NE(error_of([&] { r.add(half); }).find("lacks"), std::string::npos);
+  // A file type of its own needs both sniff and open_file, and no container build.
+  SceneFormat own = format_registry().get("esvo-sliced");
+  own.name = "own";
+  own.open_file = nullptr;
+  EXPECT_NE(error_of([&] { r.add(own); }).find("needs sniff and open_file"), std::string::npos);
+  own = format_registry().get("esvo-sliced");
+  own.name = "own";
+  own.build = format_registry().get("esvo").build;
+  EXPECT_NE(error_of([&] { r.add(own); }).find("no build, save or load"), std::string::npos);
   EXPECT_EQ(r.names(), std::vector<std::string>{"esvo"});
 }
 

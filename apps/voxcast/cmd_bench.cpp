@@ -555,7 +555,8 @@ Runner add_bench(CLI::App& app) {
     // (svdag §4: the DAG), same mesh, grid and voxelization.
     // With --brickmap alone: the brickmap world only (van Wingerden 2015).
     for (size_t i = 1; i < formats.size(); ++i)
-      if (args->effects || (args->brickmap && formats[i].name == "brickmap")) {
+      if (formats[i].builds() &&  // not a file type of its own (slice files)
+          (args->effects || (args->brickmap && formats[i].name == "brickmap"))) {
         BuildSettings ds = s;
         ds.format = formats[i].name;
         ds.verbose = false;

@@ -34,6 +34,9 @@ struct BuildArgs {
   uint32_t cell_size = 0;
   bool slices = false;  // esvo §7: write a slice file (.vxs)
   std::string slice_size = "1M";
+  std::string displacement;  // esvo §7.4: a height map (PNG/PFM)
+  double displacement_scale = 0;
+  CLI::Option* displacement_scale_opt = nullptr;
   // Presence, not a sentinel value: "--voxel-size nan" must be refused, not
   // taken for "not given".
   CLI::Option *voxel_size_opt = nullptr, *max_level_opt = nullptr, *geometry_error_opt = nullptr,
@@ -93,7 +96,8 @@ Runner add_build(CLI::App& app) {
   if (!format_registry().formats().empty()) args->format = format_registry().formats().front().name;
   std::string formats;
   for (const SceneFormat& f : format_registry().formats())
-    formats += (formats.empty() ? "" : " | ") + f.name + " (" + f.description + ")";
+    if (f.builds())  // not the file types of their own (slice files: --slices)
+      formats += (formats.empty() ? "" : " | ") + f.name + " (" + f.description + ")";
   cmd->add_option("--format", args->format, "Structure: " + formats)->capture_default_str();
   cmd->add_option("--memory-budget", args->memory_budget,
                   "Refuse builds estimated to need more (e.g. 8G; default 90% of free memory)");
@@ -132,6 +136,12 @@ Runner add_build(CLI::App& app) {
                 "Write the ESVO as a slice file (-o X.vxs) for streaming (esvo section 7)");
   cmd->add_option("--slice-size", args->slice_size, "With --slices: target bytes per slice")
       ->capture_default_str();
+  cmd->add_option("--displacement", args->displacement,
+                  "Height map (.png gray, or .pfm, values in [0,1]) displacing the mesh along its "
+                  "normals by the mesh's texture coordinates (esvo paper section 7.4)");
+  args->displacement_scale_opt = cmd->add_option(
+      "--displacement-scale", args->displacement_scale,
+      "With --displacement: world units of displacement at height 1 (negative: inwards)");
   return [args]() {
     ThreadLimit limit(args->threads);
     // Every option value first (usage errors, exit 2), then the files.
@@ -143,10 +153,12 @@ Runner add_build(CLI::App& app) {
     if (!args->memory_budget.empty()) s.memory_budget = parse_memory_budget(args->memory_budget);
     s.verbose = args->verbose;
     const SceneFormat* format = format_registry().find(args->format);
+    if (format && !format->builds())
+      throw UsageError("--format: " + format->name + " files are written by --slices");
     if (!format) {
       std::string known;
-      for (const std::string& n : format_registry().names())
-        known += (known.empty() ? "" : ", ") + n;
+      for (const SceneFormat& f : format_registry().formats())
+        if (f.builds()) known += (known.empty() ? "" : ", ") + f.name;
       throw UsageError("--format: '" + printable(args->format) + "' is not a scene format (" +
                        known + ")");
     }
@@ -198,21 +210,39 @@ Runner add_build(CLI::App& app) {
           "a voxel file input is built as it is: no --contours, --fill or --out-of-core");
     s.cell_size = args->cell_size;
     s.dag_attributes = !args->no_attributes;
+    if (args->displacement_scale_opt->count() && args->displacement.empty())
+      throw UsageError("--displacement-scale needs --displacement MAP");
+    if (!args->displacement.empty()) {
+      if (!args->displacement_scale_opt->count())
+        throw UsageError("--displacement needs --displacement-scale S");
+      require_range("--displacement-scale", args->displacement_scale, -1e30, 1e30);
+      if (s.contours || s.out_of_core || s.fill_solid || is_voxel_input(args->input))
+        throw UsageError(
+            "--displacement applies to in-core mesh builds: no --contours, --out-of-core, "
+            "--cell-size, --fill solid or voxel file input");
+      s.displacement = args->displacement;
+      s.displacement_scale = args->displacement_scale;
+    }
     uint64_t slice_bytes = 0;
     if (args->slices) {
       check_slice_settings(s);
       slice_bytes = parse_byte_size(args->slice_size.c_str());
     }
-    OutputSet outputs({args->input});
+    OutputSet outputs(s.displacement.empty()
+                          ? std::vector<std::string>{args->input}
+                          : std::vector<std::string>{args->input, s.displacement});
     if (args->slices)
       outputs.add("-o", args->output, {".vxs"});
     else
       outputs.add("-o", args->output, {".vxc"});
     require_regular_input(args->input, is_voxel_input(args->input) ? "voxel file" : "mesh");
+    if (!s.displacement.empty()) require_regular_input(s.displacement, "displacement map");
     StageTimer total(false);
-    if (args->slices && !s.contours && !s.fill_solid && !is_voxel_input(args->input)) {
+    if (args->slices && !s.contours && !s.fill_solid && s.displacement.empty() &&
+        !is_voxel_input(args->input)) {
       // Full depth: the top-down slice builder (esvo §7.1), which never holds
-      // the octree; contours (and voxel files) slice the in-core build below.
+      // the octree; contours, displacement and voxel files slice the in-core
+      // build below.
       std::string summary;
       outputs.write(args->output, [&](const std::filesystem::path& to) {
         summary = build_slices_top_down(s, slice_bytes, to);

@@ -9,7 +9,6 @@
 #include "cli_io.hpp"
 #include "commands.hpp"
 #include "voxcast/error.hpp"
-#include "voxcast/esvo_slices.hpp"
 #include "voxcast/format_registry.hpp"
 #include "voxcast/scene_file.hpp"
 
@@ -30,46 +29,13 @@ Runner add_info(CLI::App& app) {
   cmd->add_flag("--json", args->json, "Print the same facts as JSON");
   return [args]() {
     require_regular_input(args->input, "scene");
-    if (esvo::is_slice_file(args->input)) {
-      // A slice file (esvo §7): its grid and the slice hierarchy.
-      const auto file = esvo::SliceFile::open(args->input);
-      const GridTransform grid = file->grid();
-      const uint64_t bytes = std::filesystem::file_size(args->input);
-      if (args->json) {
-        nlohmann::json j;
-        j["file"] = printable(args->input);
-        j["file_bytes"] = bytes;
-        j["format"] = "esvo-sliced";
-        j["slices"] = file->slices().size();
-        j["slice_bytes"] = file->header().slice_bytes;
-        j["descriptors"] = file->header().total_nodes;
-        j["voxels"] = file->header().total_voxels;
-        j["contours"] = file->has_contours();
-        j["resolution"] = grid.resolution;
-        j["levels"] = grid.levels;
-        uint64_t resident = 0;
-        for (const auto& e : file->slices()) resident += esvo::StreamedEsvo::block_bytes(e);
-        j["resident_bytes_all"] = resident;
-        std::printf("%s\n",
-                    j.dump(2, ' ', false, nlohmann::json::error_handler_t::replace).c_str());
-        return 0;
-      }
-      std::printf("scene       %s (%s)\n", printable(args->input).c_str(),
-                  format_bytes(double(bytes)).c_str());
-      std::printf("format      esvo-sliced (slices on disk, esvo section 7)\n");
-      std::printf("grid        %u^3 (%d levels), voxel size %.6g, origin %.6g,%.6g,%.6g\n\n",
-                  grid.resolution, grid.levels, grid.voxel_size, grid.origin.x, grid.origin.y,
-                  grid.origin.z);
-      std::printf("%s", file->describe().c_str());
-      uint64_t resident = 0;
-      for (const auto& e : file->slices()) resident += esvo::StreamedEsvo::block_bytes(e);
-      std::printf("all slices resident (streamed blocks): %s\n",
-                  format_bytes(double(resident)).c_str());
-      return 0;
-    }
     // The same loader (and so the same validator) as render: both accept or
     // refuse a file alike, and the file is read once.
-    const LoadedScene scene = load_scene(args->input);
+    // A streamed scene (slice files) is described from what it keeps in
+    // memory at open (the hierarchy and the root), not loaded whole.
+    SceneLoadOptions lo;
+    lo.load_all = false;
+    const LoadedScene scene = load_scene(args->input, lo);
     DescribeStyle style;
     style.bytes = [](double b) { return format_bytes(b); };
     const SceneDescription d =
@@ -98,11 +64,18 @@ Runner add_info(CLI::App& app) {
     }
     std::printf("scene       %s (%s)\n", printable(args->input).c_str(),
                 format_bytes(double(file_bytes)).c_str());
-    std::printf("sections    ");
-    for (const std::string& name : sections) std::printf("%s ", name.c_str());
-    std::printf("\n%s", d.summary.c_str());
-    std::printf("source      %s, %llu triangles, %s voxelization\n", printable(info.source).c_str(),
-                (unsigned long long)info.source_triangles, info.voxelization.c_str());
+    if (!sections.empty()) {  // a container's (not a file type of its own, e.g. slices)
+      std::printf("sections    ");
+      for (const std::string& name : sections) std::printf("%s ", name.c_str());
+      std::printf("\n");
+    }
+    std::printf("%s", d.summary.c_str());
+    if (sections.empty() && info.source.empty())  // slice files record no source
+      std::printf("source      not recorded\n");
+    else
+      std::printf("source      %s, %llu triangles, %s voxelization\n",
+                  printable(info.source).c_str(), (unsigned long long)info.source_triangles,
+                  info.voxelization.c_str());
     std::printf("grid        %u^3 (%d levels), voxel size %.6g, origin %.6g,%.6g,%.6g\n",
                 grid.resolution, grid.levels, grid.voxel_size, grid.origin.x, grid.origin.y,
                 grid.origin.z);

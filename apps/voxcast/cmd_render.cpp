@@ -16,8 +16,8 @@
 #include "stream_render.hpp"
 #include "view/camera_path.hpp"
 #include "voxcast/error.hpp"
-#include "voxcast/esvo_slices.hpp"
 #include "voxcast/esvo_structure.hpp"
+#include "voxcast/format_registry.hpp"
 #include "voxcast/progress.hpp"
 #include "voxcast/render.hpp"
 #include "voxcast/scene_file.hpp"
@@ -47,10 +47,11 @@ struct RenderArgs {
   std::string memory_budget;
   std::string path, frame;  // camera path (src/view/camera_path.hpp) and one keyframe of it
   StreamArgs stream;        // --stream: brickmap worlds streamed (cmd_stream.cpp)
-  // --budget and --frames (stream.budget / stream.frames) also drive slice
-  // files (esvo §7): cmd_render_sliced.cpp.
-  int spp = 1;  // antialiasing: jittered camera rays per pixel (render.hpp)
-  GiArgs gi;    // --gi SPP and its options (gi_cli.hpp)
+  // --budget and --frames (stream.budget / stream.frames) also drive
+  // streamed scene formats (slice files, esvo §7): cmd_render_sliced.cpp.
+  bool write_frames = false;  // slice files with --frames: every frame, not only the last
+  int spp = 1;                // antialiasing: jittered camera rays per pixel (render.hpp)
+  GiArgs gi;                  // --gi SPP and its options (gi_cli.hpp)
 };
 
 // The output for keyframe `index` of `count` when a whole path is rendered:
@@ -170,6 +171,9 @@ Runner add_render(CLI::App& app) {
   cmd->add_option("--memory-budget", args->memory_budget,
                   "Refuse renders estimated to need more (e.g. 2G; default 90% of free memory)");
   add_stream_options(cmd, args->stream);
+  cmd->add_flag("--write-frames", args->write_frames,
+                "Slice file with --budget/--frames: write every frame, named like -o with -NNN "
+                "before the extension (out-000.png, ...), besides -o");
   return [args, cmd]() {
     ThreadLimit limit(args->threads);
     // Every option value first (usage errors, exit 2), then the files.
@@ -249,26 +253,37 @@ Runner add_render(CLI::App& app) {
     check_camera_options(args->camera, opt.width, opt.height);
     refuse_camera_options_with_path(args->camera, args->path);
     if (!args->frame.empty() && args->path.empty()) throw UsageError("--frame needs --path");
-    const bool slice_file =
-        std::filesystem::is_regular_file(args->input) && esvo::is_slice_file(args->input);
-    if (!args->stream.enabled && !slice_file &&
-        (!args->stream.budget.empty() || args->stream.frames != 1))
+    // A streamed structure (a format of its own files with stream counters,
+    // format_registry.hpp: slice files) streams frame by frame with --budget
+    // or --frames (cmd_render_sliced.cpp); without them it loads as any scene.
+    const SceneFormat* own = std::filesystem::is_regular_file(args->input)
+                                 ? format_registry().recognize(args->input)
+                                 : nullptr;
+    const bool streamed = own != nullptr && own->stream_counters;
+    const bool stream_frames = !args->stream.budget.empty() || args->stream.frames != 1;
+    if (!args->stream.enabled && !streamed && stream_frames)
       throw UsageError(
           "--budget and --frames apply to slice files (build --slices) and to --stream");
-    if (slice_file) {
-      // A slice file streams (cmd_render_sliced.cpp); --budget and --frames are its options.
-      if (args->stream.enabled)
-        throw UsageError("--stream applies to brickmap worlds; a slice file always streams");
+    if (streamed && args->stream.enabled)
+      throw UsageError("--stream applies to brickmap worlds; a slice file streams by itself");
+    if (streamed && stream_frames) {
       if (!args->depth.empty() || !args->normal.empty() || !args->heatmap.empty() ||
           !args->aov.empty() || !args->ao_output.empty() || args->stats || args->beam != 0 ||
           args->filter || !args->frame.empty())
         throw UsageError(
-            "a slice file renders color only: no --depth, --normals, --heatmap, --aov, "
-            "--ao-output, --stats, --beam, --filter or --frame");
+            "a slice file streamed with --budget or --frames renders color only: no --depth, "
+            "--normals, --heatmap, --aov, --ao-output, --stats, --beam, --filter or --frame");
+      std::vector<std::string> frame_files;
+      if (args->write_frames)
+        for (int f = 0; f < args->stream.frames; ++f)
+          frame_files.push_back(
+              keyframe_file(args->output, size_t(f), size_t(args->stream.frames)));
       return render_sliced({args->input, args->output, args->path, args->stream.budget,
-                            &args->camera, args->stream.frames},
+                            &args->camera, args->stream.frames, frame_files},
                            opt);
     }
+    if (args->write_frames)
+      throw UsageError("--write-frames applies to slice files rendered with --budget or --frames");
     require_range("--spp", args->spp, 1, 4096);
     opt.spp = args->spp;
     // --gi: the GI integrator instead of the surface shading (gi_cli.hpp).

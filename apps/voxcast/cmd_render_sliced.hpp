@@ -3,6 +3,7 @@
 // frame (cmd_render_sliced.cpp). cmd_render.cpp hands over when the scene
 // is a slice file.
 #include <string>
+#include <vector>
 
 #include "camera_options.hpp"
 #include "voxcast/render.hpp"
@@ -13,6 +14,7 @@ struct SlicedRender {
   std::string input, output, path, budget;
   const CameraArgs* camera = nullptr;
   int frames = 1;
+  std::vector<std::string> frame_files;  // empty, or one image per frame (--write-frames)
 };
 
 /// `opt`: the render options parsed by `voxcast render` (size, LOD, light);

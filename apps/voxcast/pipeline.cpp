@@ -5,11 +5,14 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <optional>
 #include <string>
 
 #include "cli_io.hpp"
 #include "commands.hpp"
+#include "voxcast/displacement.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/image.hpp"
 #include "voxcast/progress.hpp"
 #include "voxcast/solid.hpp"
 #include "voxcast/system.hpp"
@@ -232,7 +235,17 @@ BuiltScene build_scene(const BuildSettings& s, Mesh mesh, const MeshLoadStats& m
   out.mesh_stats = mesh_stats;
   StageTimer timer(s.verbose);
   const uint64_t budget = effective_budget(s.memory_budget);
-  const GridTransform grid = build_grid(s, out.mesh.bounds());
+  // Displacement (esvo §7.4): the grid holds the displaced surface.
+  std::optional<DisplacementMap> displacement;
+  if (!s.displacement.empty()) {
+    const std::string ext = std::filesystem::path(s.displacement).extension().string();
+    const Image image = ext == ".pfm" ? read_pfm(s.displacement) : read_png(s.displacement);
+    displacement.emplace(image);
+    timer.mark("load displacement map");
+  }
+  const GridTransform grid = build_grid(
+      s, displacement ? displaced_bounds(out.mesh, *displacement, float(s.displacement_scale))
+                      : out.mesh.bounds());
   const FormatBuildOptions fo = format_build_options(s, &out.mesh);
 
   // The mesh stays in memory for the whole build.
@@ -240,7 +253,7 @@ BuiltScene build_scene(const BuildSettings& s, Mesh mesh, const MeshLoadStats& m
   // A format's own build from the mesh (the memory-bounded ones: the DAG's
   // sub-volumes, ESVO's contour cells) decides whether this request is its;
   // the solid fill needs the whole surface in core first.
-  if (format.build_from_mesh && !s.fill_solid) {
+  if (format.build_from_mesh && !s.fill_solid && !displacement) {
     MeshBuildRequest r;
     r.mode = s.mode;
     r.attributes = !format.attributes_optional || s.dag_attributes;
@@ -274,7 +287,9 @@ BuiltScene build_scene(const BuildSettings& s, Mesh mesh, const MeshLoadStats& m
     vo.mode = s.mode;
     vo.progress = &progress;
     vo.attributes = !format.attributes_optional || s.dag_attributes || s.fill_solid;
-    voxels = voxelize(out.mesh, grid, vo);
+    voxels = displacement ? voxelize_displaced(out.mesh, *displacement, float(s.displacement_scale),
+                                               grid, vo)
+                          : voxelize(out.mesh, grid, vo);
   }
   out.voxelize_seconds = timer.mark("voxelize");
   if (voxels.size() == 0) throw Error("the mesh produced no voxels");

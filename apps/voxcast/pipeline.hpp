@@ -36,6 +36,11 @@ struct BuildSettings {
   // --fill solid: the surface plus the interior (fill_solid, solid.hpp);
   // in-core builds without contours only.
   bool fill_solid = false;
+  // --displacement MAP --displacement-scale S (esvo §7.4, displacement.hpp):
+  // the mesh displaced by the height map along its normals; in-core builds
+  // without contours only.
+  std::string displacement;
+  double displacement_scale = 0;
 };
 
 struct BuiltScene {

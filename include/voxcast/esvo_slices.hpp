@@ -55,6 +55,10 @@
 #include "voxcast/structure.hpp"
 #include "voxcast/voxelize.hpp"
 
+namespace voxcast {
+class FormatRegistry;
+}
+
 namespace voxcast::esvo {
 
 namespace slice_layout {
@@ -170,6 +174,10 @@ void build_slices(const Mesh& mesh, const GridTransform& grid, const VoxelizeOpt
                   const std::filesystem::path& path, const SliceBuildOptions& options = {},
                   SliceBuildStats* stats = nullptr);
 
+/// Adds the "esvo-sliced" format (slice files through load_scene(): a
+/// StreamedEsvo; called by register_builtin_formats()).
+void register_sliced_format(FormatRegistry& registry);
+
 /// True if `path` starts with the slice file magic (cheap: reads 8 bytes).
 bool is_slice_file(const std::filesystem::path& path);
 
@@ -221,6 +229,12 @@ struct StreamStats {
   uint64_t peak_resident_bytes = 0;
   uint32_t resident_slices = 0;  // now
   uint64_t pending = 0;          // requests left unserved by the last end_pass
+  uint64_t compactions = 0;      // arena allocations that had to compact
+  uint64_t bytes_moved = 0;      // by those compactions
+  /// What compacting everything after the first hole would have moved in
+  /// those compactions (the incremental compaction moves only what each
+  /// failed allocation needs: bytes_moved <= this).
+  uint64_t full_compaction_bytes = 0;
 };
 
 /// The streamed ESVO (§7 "Storage in memory", "Dynamic loading"): the
@@ -243,7 +257,9 @@ struct StreamStats {
 /// id, or "absent" + the slice to request), the children's raw attributes
 /// and contours, the Morton codes of the descriptors (positions live in
 /// memory only, derived from the parent when a slice is linked in) and, per
-/// descriptor, the index of the parent link that points at it.
+/// descriptor, the index of the parent link that points at it. The blocks
+/// are extents of one arena of the budget's size (a hard cap), compacted
+/// incrementally when an allocation finds no hole (StreamStats::compactions).
 class StreamedEsvo final : public SurfaceQuery, public Structure {
  public:
   StreamedEsvo(std::shared_ptr<const SliceFile> file, const StreamOptions& options = {});
@@ -268,9 +284,18 @@ class StreamedEsvo final : public SurfaceQuery, public Structure {
   /// Loads every slice (ignores the budget's ordering but not its size:
   /// throws voxcast::Error when the whole file does not fit).
   void load_all();
+  /// Whether load_all() can hold every slice (the budget, the block table).
+  bool fits_whole() const;
 
   /// The bytes slice `e` occupies while resident (its block; what the budget counts).
   static uint64_t block_bytes(const slice_layout::SliceEntry& e);
+
+  /// Bounds of the resident voxels that end a walk (leaves, and subdivided
+  /// voxels whose slice is not resident): with every slice resident, the
+  /// in-core octree's occupied_bounds(), bit for bit.
+  Aabb occupied() const;
+  /// Why the last refused slice was refused ("" when none was).
+  const std::string& last_refusal() const;
 
   const StreamStats& stats() const { return stats_; }
   const SliceFile& file() const { return *file_; }

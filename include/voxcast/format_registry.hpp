@@ -99,6 +99,17 @@ struct SceneDescription {
   std::string details;  // printed after the shared lines: per-level and memory tables
 };
 
+/// What a streamed structure's loading did (SceneFormat::stream_counters):
+/// counts since it was opened, sizes now.
+struct StreamCounters {
+  uint64_t loaded = 0, unloaded = 0, refused = 0;  // parts (ESVO: slices)
+  uint64_t pending = 0;                            // requests the last pass left unserved
+  uint64_t bytes_read = 0;                         // from the file
+  uint64_t resident_parts = 0;                     // now
+  uint64_t resident_bytes = 0;                     // now (what the budget counts)
+  uint64_t peak_resident_bytes = 0;
+};
+
 struct SceneFormat {
   std::string name;         // META "format" and `voxcast build --format`
   std::string description;  // one line, for --help
@@ -131,6 +142,21 @@ struct SceneFormat {
   /// of `load` when set; it validates as `load` does.
   std::function<LoadedStructure(const std::filesystem::path&, const ContainerReader&, SceneInfo*)>
       load_file;
+  /// Optional, for a format whose files are not containers but a file type
+  /// of their own (ESVO slice files, esvo_slices.hpp): whether the file at
+  /// the path is one (by its magic; cheap). load_scene(path) asks every
+  /// format's sniff before it reads the file as a container, and opens a
+  /// recognized file with open_file (full validation, one-line errors). Such
+  /// a format has no build, save or load: its files are written by its own
+  /// builder (`build --slices`), and `build --format`, bench and the Python
+  /// build skip it (builds() is false).
+  std::function<bool(const std::filesystem::path&)> sniff;
+  std::function<LoadedStructure(const std::filesystem::path&, const SceneLoadOptions&, SceneInfo*)>
+      open_file;
+  /// Optional, for a streamed structure: its streaming counters now
+  /// (`render --budget --frames` prints their per-frame differences).
+  std::function<StreamCounters(const Structure&)> stream_counters;
+  bool builds() const { return bool(build); }
   /// Bounds of the occupied voxels (automatic cameras).
   std::function<Aabb(const Structure&)> occupied;
   std::function<SceneDescription(const Structure&, const DescribeStyle&)> describe;
@@ -147,9 +173,14 @@ struct SceneFormat {
 /// only read: lookups from several threads are safe, registration is not.
 class FormatRegistry {
  public:
-  /// Throws voxcast::Error for a duplicate name or a missing function.
+  /// Throws voxcast::Error for a duplicate name or a missing function (a
+  /// container format needs build, save, load and build_summary, a format
+  /// of its own files sniff and open_file; both occupied and describe).
   void add(SceneFormat format);
   const SceneFormat* find(std::string_view name) const;
+  /// The format whose sniff recognizes the file at `path` (a file type of
+  /// its own, not a container), or null.
+  const SceneFormat* recognize(const std::filesystem::path& path) const;
   /// Throws voxcast::Error "unknown scene format 'X' (known: a, b)".
   const SceneFormat& get(std::string_view name) const;
   std::vector<std::string> names() const;  // in registration order

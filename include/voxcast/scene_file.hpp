@@ -43,11 +43,27 @@ struct LoadedScene {
   SceneInfo info;
   std::vector<uint32_t> sections;  // fourccs of the file's sections, ascending
 };
+/// How load_scene(path) opens a streamed structure (a format with
+/// SceneFormat::open_file: ESVO slice files, esvo_slices.hpp). Container
+/// formats ignore it.
+struct SceneLoadOptions {
+  /// Bytes the resident data may occupy (0: unlimited).
+  uint64_t stream_budget = 0;
+  /// true: every part is loaded and verified at open when it fits the budget
+  /// (the in-core equivalent; a damaged part refuses the file, as every
+  /// container format's loader does); a scene that does not fit opens with
+  /// its root resident and streams. false: the root only, the rest is loaded
+  /// on request between passes and a damaged part is refused on its own.
+  bool load_all = true;
+};
+
 /// Every subcommand reads scenes through this (one validator: a file is
 /// accepted by all of them or refused by all with the same one-line error,
-/// which names the file). The format comes from META through the registry;
-/// every chunk of the file is verified, also those the format did not read.
-LoadedScene load_scene(const std::filesystem::path& path);
+/// which names the file). The format comes from META through the registry,
+/// or, for a file that is not a container, from the format whose
+/// SceneFormat::sniff recognizes it; every chunk of a container is
+/// verified, also those the format did not read.
+LoadedScene load_scene(const std::filesystem::path& path, const SceneLoadOptions& options = {});
 /// The same from an open reader or an already parsed container.
 LoadedScene load_scene(const ContainerReader& reader);
 LoadedScene load_scene(const Container& container);

@@ -6,6 +6,10 @@
 #include <algorithm>
 #include <bit>
 #include <cmath>
+#include <cstring>
+#include <map>
+#include <memory>
+#include <span>
 #include <thread>
 
 #include "core/octree_caster.hpp"
@@ -134,41 +138,139 @@ namespace voxcast::esvo {
 
 namespace {
 
+/// The bytes a slice's block occupies in the arena: its arrays (below),
+/// rounded up to 16 so that every block starts 16-byte aligned.
+uint64_t block_bytes(const sl::SliceEntry& e) {
+  const uint64_t raw = uint64_t(e.node_count) * (sizeof(StreamNode) + 8 + 4) +
+                       uint64_t(e.link_count) * 4 + uint64_t(e.voxel_count) * 8 +
+                       uint64_t(e.contour_count) * 4;
+  return (raw + 15) & ~uint64_t(15);
+}
+
 /// A resident slice (§7 "blocks"): what the caster reads plus, in memory
 /// only, the descriptors' Morton codes and which parent links point at them.
+/// Its arrays live in one extent of the arena, in this order (each array's
+/// alignment holds: descriptors are 16 bytes, codes 8).
 struct Block {
   uint32_t slice = 0;
-  std::vector<StreamNode> nodes;
-  std::vector<uint64_t> codes;         // per descriptor, at the slice's node level
-  std::vector<uint32_t> parent_links;  // per descriptor: its link's index in the parent block
-  std::vector<uint32_t> links;         // per subdivided child
-  std::vector<uint32_t> attrs;         // per child: color, normal
-  std::vector<uint32_t> contours;
-  uint64_t bytes() const {
-    return nodes.size() * sizeof(StreamNode) + codes.size() * 8 + parent_links.size() * 4 +
-           links.size() * 4 + attrs.size() * 4 + contours.size() * 4;
+  uint64_t offset = 0, size = 0;  // its extent in the arena
+  std::span<StreamNode> nodes;
+  std::span<uint64_t> codes;         // per descriptor, at the slice's node level
+  std::span<uint32_t> parent_links;  // per descriptor: its link's index in the parent block
+  std::span<uint32_t> links;         // per subdivided child
+  std::span<uint32_t> attrs;         // per child: color, normal
+  std::span<uint32_t> contours;
+  uint64_t bytes() const { return size; }
+  /// Points the arrays at the extent starting at `base` (after a move, too).
+  void place(const sl::SliceEntry& e, std::byte* base) {
+    std::byte* p = base;
+    auto take = [&p]<class T>(std::span<T>& s, size_t n) {
+      s = {reinterpret_cast<T*>(p), n};
+      p += n * sizeof(T);
+    };
+    take(nodes, e.node_count);
+    take(codes, e.node_count);
+    take(parent_links, e.node_count);
+    take(links, e.link_count);
+    take(attrs, size_t(e.voxel_count) * 2);
+    take(contours, e.contour_count);
   }
 };
 
-/// The bytes a slice's block will occupy (equals Block::bytes() once loaded).
-uint64_t block_bytes(const sl::SliceEntry& e) {
-  return uint64_t(e.node_count) * (sizeof(StreamNode) + 8 + 4) + uint64_t(e.link_count) * 4 +
-         uint64_t(e.voxel_count) * 8 + uint64_t(e.contour_count) * 4;
-}
+/// The memory of the resident blocks (§7 "Storage in memory", issue 13
+/// item 3): one arena of `capacity` bytes (the budget, or every slice's
+/// block when that is less or the budget is unlimited), so the budget is a
+/// hard cap by construction. Blocks are placed first fit. When no gap fits
+/// but the free bytes do, the compaction is incremental: the blocks after the
+/// first gap slide down one at a time, and it stops as soon as the gap
+/// ahead of the next block fits the allocation -- only what the failed
+/// allocation needs moves. Moves happen in end_pass only (the pinning rule).
+class Arena {
+ public:
+  explicit Arena(uint64_t capacity)
+      : capacity_(capacity), memory_(new std::byte[std::max<uint64_t>(capacity, 16)]) {}
+  uint64_t capacity() const { return capacity_; }
+  uint64_t used() const { return used_; }
+  uint64_t moved_bytes() const { return moved_bytes_; }
+  uint64_t compactions() const { return compactions_; }
+  uint64_t full_compaction_bytes() const { return full_bytes_; }
+  std::byte* at(uint64_t offset) const { return memory_.get() + offset; }
+  /// Extents by offset: (block id, bytes).
+  const std::map<uint64_t, std::pair<uint32_t, uint64_t>>& extents() const { return extents_; }
 
-/// Slice data -> block contents (no links or codes yet): every descriptor
-/// word and count is checked against the directory, so that a block that
-/// parses cannot send a ray out of bounds.
-std::unique_ptr<Block> parse_slice(const SliceFile& file, uint32_t i) {
+  /// An extent of `bytes` for block `id`; `moved(id, to)` is called for every
+  /// block the compaction moved. Throws when the free bytes do not suffice
+  /// (the planner never asks for that).
+  template <class Moved>
+  uint64_t allocate(uint32_t id, uint64_t bytes, const Moved& moved) {
+    if (bytes > capacity_ - used_)
+      throw Error("streamed esvo arena: " + std::to_string(bytes) + " B asked for, " +
+                  std::to_string(capacity_ - used_) + " B free");
+    uint64_t end = 0;  // end of the previous extent
+    for (const auto& [off, ext] : extents_) {
+      if (off - end >= bytes) return insert(end, id, bytes);
+      end = off + ext.second;
+    }
+    if (capacity_ - end >= bytes) return insert(end, id, bytes);
+    // Incremental compaction: slide extents down from the first gap until
+    // the gap ahead of the next one (or the tail) fits.
+    ++compactions_;
+    uint64_t to = 0;
+    {
+      // What a full compaction would move: every extent after the first gap.
+      bool gap = false;
+      uint64_t at = 0;
+      for (const auto& [off, ext] : extents_) {
+        gap = gap || off != at;
+        if (gap) full_bytes_ += ext.second;
+        at = off + ext.second;
+      }
+    }
+    for (auto it = extents_.begin(); it != extents_.end();) {
+      const auto [off, ext] = *it;
+      if (off - to >= bytes) return insert(to, id, bytes);
+      if (off != to) {
+        std::memmove(memory_.get() + to, memory_.get() + off, ext.second);
+        moved_bytes_ += ext.second;
+        it = extents_.erase(it);
+        extents_.emplace_hint(it, to, ext);
+        moved(ext.first, to);
+      } else {
+        ++it;
+      }
+      to += ext.second;
+    }
+    return insert(to, id, bytes);  // the tail: capacity - used >= bytes
+  }
+  void release(uint64_t offset) {
+    const auto it = extents_.find(offset);
+    used_ -= it->second.second;
+    extents_.erase(it);
+  }
+
+ private:
+  uint64_t insert(uint64_t offset, uint32_t id, uint64_t bytes) {
+    extents_.emplace(offset, std::make_pair(id, bytes));
+    used_ += bytes;
+    return offset;
+  }
+  uint64_t capacity_;
+  std::unique_ptr<std::byte[]> memory_;  // not value-initialized: untouched pages stay virtual
+  std::map<uint64_t, std::pair<uint32_t, uint64_t>> extents_;
+  uint64_t used_ = 0, moved_bytes_ = 0, compactions_ = 0, full_bytes_ = 0;
+};
+
+/// Slice data -> the contents of `b` (placed; no links or codes yet): every
+/// descriptor word and count is checked against the directory, so that a
+/// block that parses cannot send a ray out of bounds.
+void parse_slice(const SliceFile& file, uint32_t i, Block& b) {
   const sl::SliceEntry& e = file.slices()[i];
   const std::vector<uint32_t> words = file.read(i);  // hash verified
   auto bad = [&](const char* why) {
     return Error("slice file '" + file.path().string() + "': slice " + std::to_string(i) + ": " +
                  why);
   };
-  auto b = std::make_unique<Block>();
-  b->slice = i;
-  b->nodes.resize(e.node_count);
+  b.slice = i;
   const bool deepest = e.node_level + 1u >= file.header().levels;
   uint32_t voxels = 0, contours = 0, links = 0;
   for (uint32_t n = 0; n < e.node_count; ++n) {
@@ -179,19 +281,17 @@ std::unique_ptr<Block> parse_slice(const SliceFile& file, uint32_t i) {
       throw bad("malformed descriptor");
     if (cm != 0 && !file.has_contours()) throw bad("contour in a file without contours");
     if (deepest && (valid & ~leaf) != 0) throw bad("subdivided voxel at the finest level");
-    b->nodes[n] = {d, voxels, contours, links};
+    b.nodes[n] = {d, voxels, contours, links};
     voxels += uint32_t(std::popcount(valid));
     contours += uint32_t(std::popcount(cm));
     links += uint32_t(std::popcount(valid & ~leaf));
   }
-  if (voxels != e.voxel_count || contours != e.contour_count || links != e.link_count)
+  if (voxels != e.voxel_count || contours != e.contour_count || links != e.link_count ||
+      words.size() != size_t(e.node_count) + 2 * size_t(voxels) + contours)
     throw bad("counts disagree with the directory");
-  b->attrs.assign(words.begin() + e.node_count, words.begin() + e.node_count + 2 * voxels);
-  b->contours.assign(words.begin() + e.node_count + 2 * voxels, words.end());
-  b->codes.resize(e.node_count);
-  b->parent_links.resize(e.node_count);
-  b->links.resize(links);
-  return b;
+  std::copy(words.begin() + e.node_count, words.begin() + e.node_count + 2 * voxels,
+            b.attrs.begin());
+  std::copy(words.begin() + e.node_count + 2 * voxels, words.end(), b.contours.begin());
 }
 
 }  // namespace
@@ -202,6 +302,7 @@ struct StreamedEsvo::Impl {
   StreamSource source;
   std::vector<BlockRef> table = std::vector<BlockRef>(kMaxBlocks);
   std::vector<std::unique_ptr<Block>> blocks = std::vector<std::unique_ptr<Block>>(kMaxBlocks);
+  std::unique_ptr<Arena> arena;    // every block's arrays
   std::vector<uint32_t> free_ids;  // block ids, used from the back
   std::vector<State> state;
   std::vector<uint16_t> block_of;           // per slice: its block id while resident
@@ -253,10 +354,39 @@ struct StreamedEsvo::Impl {
     return side_n / std::max(footprint, 1e-30);
   }
 
-  /// Links a parsed block into its parent block (which must be resident) and
-  /// fills its own links; throws (touching nothing) when the block does not
-  /// fit what the parent level implies.
-  void link(std::unique_ptr<Block> b) {
+  /// A block for slice i in the arena (compacting if need be), with a free
+  /// block id; not linked yet.
+  uint32_t allocate(uint32_t i) {
+    const uint32_t id = free_ids.back();
+    const sl::SliceEntry& e = entry(i);
+    auto b = std::make_unique<Block>();
+    b->slice = i;
+    b->size = block_bytes(e);
+    b->offset = arena->allocate(id, b->size, [&](uint32_t moved, uint64_t to) {
+      Block& m = *blocks[moved];
+      m.offset = to;
+      m.place(entry(m.slice), arena->at(to));
+      if (table[moved].nodes != nullptr)  // linked: the caster's view of it too
+        table[moved] = {m.nodes.data(), m.links.data(), m.attrs.data(), m.contours.data()};
+    });
+    b->place(e, arena->at(b->offset));
+    free_ids.pop_back();
+    blocks[id] = std::move(b);
+    return id;
+  }
+  /// Gives back a block that was allocated and not (or no longer) linked.
+  void release(uint32_t id) {
+    arena->release(blocks[id]->offset);
+    blocks[id].reset();
+    table[id] = {};
+    free_ids.push_back(id);
+  }
+
+  /// Links the parsed block `id` into its parent block (which must be
+  /// resident) and fills its own links; throws (touching nothing but the
+  /// block) when the block does not fit what the parent level implies.
+  void link(uint32_t id) {
+    Block* b = blocks[id].get();
     const uint32_t i = b->slice;
     const sl::SliceEntry& e = entry(i);
     const sl::SliceEntry& pe = entry(e.parent);
@@ -312,12 +442,9 @@ struct StreamedEsvo::Impl {
       }
     }
     // Commit.
-    const uint32_t id = free_ids.back();
-    free_ids.pop_back();
     for (uint32_t q = 0; q < e.node_count; ++q) p.links[b->parent_links[q]] = id << kLocalBits | q;
     table[id] = {b->nodes.data(), b->links.data(), b->attrs.data(), b->contours.data()};
     resident_bytes += b->bytes();
-    blocks[id] = std::move(b);
     // Loaded for a ray of this frame: counts as used until the next frame.
     used[id].store(stamp, std::memory_order_relaxed);
     block_of[i] = uint16_t(id);
@@ -332,23 +459,25 @@ struct StreamedEsvo::Impl {
     Block& p = *blocks[block_of[e.parent]];
     for (uint32_t li : blocks[id]->parent_links) p.links[li] = kAbsent | i;
     resident_bytes -= blocks[id]->bytes();
-    blocks[id].reset();
-    table[id] = {};
-    free_ids.push_back(id);
+    release(id);
     state[i] = State::kOnDisk;
     --resident_children[e.parent];
   }
 
-  /// Reads and parses `list` on worker threads (several reads in flight),
+  /// Places `list` in the arena (in list order), reads and parses the
+  /// slices into their blocks on worker threads (several reads in flight),
   /// then links in list order (deterministic). Returns loaded, refused.
   std::pair<uint64_t, uint64_t> load(const std::vector<uint32_t>& list, uint64_t* bytes_read) {
-    std::vector<std::unique_ptr<Block>> parsed(list.size());
+    std::vector<uint32_t> ids(list.size());
+    for (size_t k = 0; k < list.size(); ++k) ids[k] = allocate(list[k]);
+    std::vector<char> parsed(list.size(), 0);
     std::vector<std::string> errors(list.size());
     std::atomic<size_t> next{0};
     auto work = [&] {
       for (size_t k; (k = next.fetch_add(1)) < list.size();) {
         try {
-          parsed[k] = parse_slice(*file, list[k]);
+          parse_slice(*file, list[k], *blocks[ids[k]]);
+          parsed[k] = 1;
         } catch (const std::exception& ex) {
           errors[k] = ex.what();
         }
@@ -363,7 +492,7 @@ struct StreamedEsvo::Impl {
     for (size_t k = 0; k < list.size(); ++k) {
       if (parsed[k]) {
         try {
-          link(std::move(parsed[k]));
+          link(ids[k]);
           ++loaded;
           *bytes_read += entry(list[k]).data_bytes;
           continue;
@@ -371,6 +500,7 @@ struct StreamedEsvo::Impl {
           errors[k] = ex.what();
         }
       }
+      release(ids[k]);
       state[list[k]] = State::kRefused;
       last_error = errors[k];
       ++refused;
@@ -392,14 +522,21 @@ StreamedEsvo::StreamedEsvo(std::shared_ptr<const SliceFile> file, const StreamOp
   m.state.assign(n, State::kOnDisk);
   m.block_of.assign(n, 0);
   m.resident_children.assign(n, 0);
-  for (uint32_t id = kMaxBlocks; id-- > 1;) m.free_ids.push_back(id);  // 1 first; 0 = root
+  for (uint32_t id = kMaxBlocks; id-- > 0;) m.free_ids.push_back(id);  // 0 (the root), then 1...
   const sl::SliceEntry& root = file_->slices()[0];
   if (options.budget_bytes != 0 && block_bytes(root) > options.budget_bytes)
     throw Error("streaming budget " + std::to_string(options.budget_bytes) +
                 " B is below the root slice's " + std::to_string(block_bytes(root)) + " B");
+  // The arena: the budget, or all the slices' blocks when that is less.
+  uint64_t whole = 0;
+  for (const sl::SliceEntry& e : file_->slices()) whole += block_bytes(e);
+  m.arena = std::make_unique<Arena>(
+      options.budget_bytes != 0 ? std::min(options.budget_bytes, whole) : whole);
   // The root slice: parsed like any other (a corrupt root is fatal), with
   // the root descriptor at code 0 and no parent links to fill.
-  std::unique_ptr<Block> b = parse_slice(*file_, 0);
+  const uint32_t root_id = m.allocate(0);
+  Block* b = m.blocks[root_id].get();
+  parse_slice(*file_, 0, *b);
   const uint64_t bytes_read = root.data_bytes;
   b->codes[0] = 0;
   b->parent_links[0] = 0;
@@ -421,7 +558,6 @@ StreamedEsvo::StreamedEsvo(std::shared_ptr<const SliceFile> file, const StreamOp
   }
   m.table[0] = {b->nodes.data(), b->links.data(), b->attrs.data(), b->contours.data()};
   m.resident_bytes = b->bytes();
-  m.blocks[0] = std::move(b);
   m.state[0] = State::kResident;
   stats_.loaded = 1;
   stats_.bytes_read = bytes_read;
@@ -548,11 +684,22 @@ PassOutcome StreamedEsvo::end_pass(std::span<const Request> requests) {
   stats_.resident_bytes = m.resident_bytes;
   stats_.peak_resident_bytes = std::max(stats_.peak_resident_bytes, m.resident_bytes);
   stats_.resident_slices = uint32_t(kMaxBlocks - m.free_ids.size());
+  stats_.compactions = m.arena->compactions();
+  stats_.bytes_moved = m.arena->moved_bytes();
+  stats_.full_compaction_bytes = m.arena->full_compaction_bytes();
   PassOutcome out;
   out.changed = loaded > 0;
   out.served = loaded + refused;
   out.pending = pending;
   return out;
+}
+
+bool StreamedEsvo::fits_whole() const {
+  const auto& all = file_->slices();
+  uint64_t total = 0;
+  for (const sl::SliceEntry& e : all) total += block_bytes(e);
+  return all.size() <= kMaxBlocks &&
+         (impl_->options.budget_bytes == 0 || total <= impl_->options.budget_bytes);
 }
 
 void StreamedEsvo::load_all() {
@@ -577,6 +724,43 @@ void StreamedEsvo::load_all() {
   stats_.resident_bytes = m.resident_bytes;
   stats_.peak_resident_bytes = std::max(stats_.peak_resident_bytes, m.resident_bytes);
   stats_.resident_slices = uint32_t(kMaxBlocks - m.free_ids.size());
+  stats_.compactions = m.arena->compactions();
+  stats_.bytes_moved = m.arena->moved_bytes();
+}
+
+Aabb StreamedEsvo::occupied() const {
+  // As occupied_bounds() of the in-core octree (src/esvo/bounds.cpp): every
+  // voxel that ends a walk extends the box by its cube, in float.
+  const Impl& m = *impl_;
+  const GridTransform grid = file_->grid();
+  const double side = grid.side();
+  Aabb box;
+  for (uint32_t i = 0; i < file_->slices().size(); ++i) {
+    if (m.state[i] != State::kResident) continue;
+    const Block& b = *m.blocks[m.block_of[i]];
+    const int level = file_->slices()[i].node_level + 1;
+    const double size = side / double(uint64_t(1) << level);
+    for (size_t q = 0; q < b.nodes.size(); ++q) {
+      const StreamNode& d = b.nodes[q];
+      const uint32_t valid = sl::SliceValid::get(d.masks), leaf = sl::SliceLeaf::get(d.masks);
+      uint32_t rank = 0;
+      for (int c = 0; c < 8; ++c) {
+        if ((valid >> c & 1u) == 0) continue;
+        const bool ends = (leaf >> c & 1u) != 0 || (b.links[d.link + rank++] & kAbsent) != 0;
+        if (!ends) continue;
+        const MortonCoord p = morton_decode(b.codes[q] << 3 | uint64_t(c));
+        const Vec3 lo{float(grid.origin.x + p.x * size), float(grid.origin.y + p.y * size),
+                      float(grid.origin.z + p.z * size)};
+        box.extend(lo);
+        box.extend(lo + Vec3{float(size), float(size), float(size)});
+      }
+    }
+  }
+  return box;
+}
+
+const std::string& StreamedEsvo::last_refusal() const {
+  return impl_->last_error;
 }
 
 bool StreamedEsvo::resident(uint32_t slice) const {
@@ -641,6 +825,26 @@ void StreamedEsvo::check_invariants() const {
          std::to_string(bytes));
   if (m.options.budget_bytes != 0 && bytes > m.options.budget_bytes) fail("over the budget");
   if (count != kMaxBlocks - m.free_ids.size()) fail("free block ids");
+  // The arena: within the budget; one extent per resident block, in order,
+  // without overlaps, where the block and the caster's table say.
+  const Arena& a = *m.arena;
+  if (m.options.budget_bytes != 0 && a.capacity() > m.options.budget_bytes)
+    fail("arena larger than the budget");
+  uint64_t end = 0, sum = 0;
+  for (const auto& [off, ext] : a.extents()) {
+    const auto [id, size] = ext;
+    if (off < end || off + size > a.capacity()) fail("arena extent at " + std::to_string(off));
+    const Block* b = id < kMaxBlocks ? m.blocks[id].get() : nullptr;
+    if (b == nullptr || b->offset != off || b->size != size ||
+        m.state[b->slice] != State::kResident || m.block_of[b->slice] != id ||
+        reinterpret_cast<const std::byte*>(b->nodes.data()) != a.at(off) ||
+        m.table[id].nodes != b->nodes.data() || m.table[id].attrs != b->attrs.data() ||
+        m.table[id].contours != b->contours.data())
+      fail("arena extent at " + std::to_string(off) + " of block " + std::to_string(id));
+    end = off + size;
+    sum += size;
+  }
+  if (a.extents().size() != count || sum != bytes || a.used() != bytes) fail("arena bytes");
 }
 
 }  // namespace voxcast::esvo

@@ -6,6 +6,7 @@
 #include "voxcast/brickmap.hpp"
 #include "voxcast/dag_format.hpp"
 #include "voxcast/esvo_format.hpp"
+#include "voxcast/esvo_slices.hpp"
 #include "voxcast/format_registry.hpp"
 
 namespace voxcast {
@@ -17,6 +18,7 @@ void register_builtin_formats() {
     esvo::register_format(r);
     dag::register_format(r);
     brickmap::register_format(r);
+    esvo::register_sliced_format(r);  // slice files (a file type of their own)
   });
 }
 

@@ -30,16 +30,29 @@ std::string scene_format(const Container& c) {
 void FormatRegistry::add(SceneFormat format) {
   if (format.name.empty()) throw Error("scene format without a name");
   if (find(format.name)) throw Error("scene format '" + format.name + "' registered twice");
-  if (!format.build || !format.save || !format.load || !format.occupied || !format.describe ||
-      !format.build_summary)
+  if (!format.occupied || !format.describe)
+    throw Error("scene format '" + format.name + "' lacks an occupied or describe function");
+  if (format.sniff || format.open_file) {
+    // A file type of its own: opened by path, never built into a container.
+    if (!format.sniff || !format.open_file || format.build || format.save || format.load)
+      throw Error("scene format '" + format.name +
+                  "' of its own files needs sniff and open_file and no build, save or load");
+  } else if (!format.build || !format.save || !format.load || !format.build_summary) {
     throw Error("scene format '" + format.name + "' lacks a build, save, load, occupied, " +
                 "describe or build_summary function");
+  }
   formats_.push_back(std::move(format));
 }
 
 const SceneFormat* FormatRegistry::find(std::string_view name) const {
   for (const SceneFormat& f : formats_)
     if (f.name == name) return &f;
+  return nullptr;
+}
+
+const SceneFormat* FormatRegistry::recognize(const std::filesystem::path& path) const {
+  for (const SceneFormat& f : formats_)
+    if (f.sniff && f.sniff(path)) return &f;
   return nullptr;
 }
 
@@ -68,6 +81,9 @@ FormatRegistry& format_registry() {
 void save_scene(const std::filesystem::path& path, const std::string& format,
                 const Structure& structure, const SceneInfo& info) {
   const SceneFormat& f = format_registry().get(format);
+  if (!f.save)
+    throw Error("scene format '" + f.name + "' is not saved as a scene container (its files " +
+                "are written by its own builder)");
   ContainerWriter writer(path);
   // A bar on a terminal: the bytes written against the structure's memory
   // (the file holds about that much: the words and the attributes).
@@ -84,8 +100,21 @@ namespace {
 LoadedScene load_from(const ContainerReader& reader, const std::filesystem::path* path);
 }  // namespace
 
-LoadedScene load_scene(const std::filesystem::path& path) {
+LoadedScene load_scene(const std::filesystem::path& path, const SceneLoadOptions& options) {
   try {
+    // A file type of its own (SceneFormat::sniff), else a container. Only
+    // a regular file is sniffed (reading a FIFO's first bytes would block;
+    // the container's open refuses the rest with its own message).
+    std::error_code ec;
+    const SceneFormat* f =
+        std::filesystem::is_regular_file(path, ec) ? format_registry().recognize(path) : nullptr;
+    if (f != nullptr) {
+      LoadedScene out;
+      out.format = f->name;
+      out.structure = f->open_file(path, options, &out.info);
+      out.occupied = f->occupied(*out.structure);
+      return out;
+    }
     return load_from(ContainerReader::open(path), &path);
   } catch (const Error& e) {
     // One line naming the file and what is wrong (the container's own

@@ -196,6 +196,25 @@ class VoxcastModule(unittest.TestCase):
         self.assertEqual(t["t"][0], t["t"][1])
         self.assertTrue(np.isinf(t["t"][2]))
 
+    def test_load_slice_file(self):
+        # A slice file (`build --slices`, esvo section 7) through the format
+        # registry: the in-core scene's images, and it is not saved as a .vxc.
+        vxs = self.path("cli.vxs")
+        cli("build", MESH, "-o", vxs, "--resolution", "64", "--slices",
+            "--slice-size", "4K")
+        s = voxcast.load(vxs)
+        info = s.info()
+        self.assertEqual(info["format"], "esvo-sliced")
+        self.assertEqual(info["resolution"], 64)
+        in_core = voxcast.load(self.cli_scene)
+        self.assertEqual(info["occupied_bounds"], in_core.info()["occupied_bounds"])
+        a = voxcast.render(s, size=SIZE, depth=True)
+        b = voxcast.render(in_core, size=SIZE, depth=True)
+        np.testing.assert_array_equal(a["color"], b["color"])
+        np.testing.assert_array_equal(a["depth"], b["depth"])
+        with self.assertRaises(Exception):
+            s.save(self.path("never.vxc"))
+
     def test_save_load_round_trip(self):
         for fmt in ("esvo", "dag"):
             with self.subTest(format=fmt):

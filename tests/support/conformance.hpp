@@ -33,6 +33,7 @@
 #include "voxcast/dag_format.hpp"
 #include "voxcast/esvo.hpp"
 #include "voxcast/esvo_format.hpp"
+#include "voxcast/esvo_slices.hpp"
 #include "voxcast/mesh.hpp"
 #include "voxcast/scene_file.hpp"
 #include "voxcast/voxelize.hpp"
@@ -65,6 +66,10 @@ struct StructureFactory {
   /// case has none) and writes it as a scene file to `path`.
   std::function<void(const VoxelSet& voxels, const Mesh* mesh, const std::filesystem::path& path)>
       build;
+  /// The scene file is a file type of its own (SceneFormat::sniff, e.g. a
+  /// slice file), not a container: loaded from a path only, and its damage
+  /// property rehashes the file's own hashes instead of container sections.
+  bool own_file = false;
 };
 
 /// The registry: every structure the conformance suite runs on.
@@ -108,6 +113,26 @@ inline const std::vector<StructureFactory>& conformance_structures() {
                    brickmap::save_scene(path, brickmap::build_world(v),
                                         SceneInfo{"conformance", "conservative", 0, v.size()});
                  }});
+    // The streamed ESVO of a slice file (esvo §7), opened by load_scene with
+    // an unlimited budget: every slice resident, so its hits are the in-core
+    // ESVO's. Small slices, so that even the small cases have a hierarchy.
+    const auto sliced_with = [](esvo::BuildOptions options) {
+      return [options](const VoxelSet& v, const Mesh* mesh, const std::filesystem::path& path) {
+        const esvo::EsvoOctree o = mesh != nullptr ? esvo::build_octree(v, *mesh, options)
+                                                   : esvo::build_octree(v, options);
+        esvo::SliceOptions so;
+        so.slice_bytes = 512;
+        esvo::write_slices(o, path, so);
+      };
+    };
+    StructureFactory sliced{"esvo_sliced", false, VoxelGeometry::Cubes, LodColors::AreaWeightedMean,
+                            sliced_with(raw)};
+    sliced.own_file = true;
+    f.push_back(sliced);
+    StructureFactory sliced_contours{"esvo_sliced_contours", true, VoxelGeometry::ContourNarrowed,
+                                     LodColors::AreaWeightedMean, sliced_with(contours)};
+    sliced_contours.own_file = true;
+    f.push_back(sliced_contours);
     return f;
   }();
   return factories;
