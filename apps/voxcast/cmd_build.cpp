@@ -42,12 +42,14 @@ struct BuildArgs {
   CLI::Option *voxel_size_opt = nullptr, *max_level_opt = nullptr, *geometry_error_opt = nullptr,
               *color_error_opt = nullptr, *normal_error_opt = nullptr, *cell_size_opt = nullptr;
 };
-// The registered formats `pred` holds for: "a, b".
+// The registered formats `build` writes that `pred` holds for: "a, b"
+// (formats of their own file type, such as slice files, are written by
+// other options).
 template <class Pred>
 std::string names_of(const Pred& pred) {
   std::string n;
   for (const SceneFormat& f : format_registry().formats())
-    if (pred(f)) n += (n.empty() ? "" : ", ") + f.name;
+    if (f.builds() && pred(f)) n += (n.empty() ? "" : ", ") + f.name;
   return n;
 }
 
@@ -156,11 +158,8 @@ Runner add_build(CLI::App& app) {
     if (format && !format->builds())
       throw UsageError("--format: " + format->name + " files are written by --slices");
     if (!format) {
-      std::string known;
-      for (const SceneFormat& f : format_registry().formats())
-        if (f.builds()) known += (known.empty() ? "" : ", ") + f.name;
       throw UsageError("--format: '" + printable(args->format) + "' is not a scene format (" +
-                       known + ")");
+                       names_of([](const SceneFormat&) { return true; }) + ")");
     }
     s.format = format->name;
     const bool variable = args->max_level_opt->count() || args->geometry_error_opt->count() ||
