@@ -4,6 +4,7 @@
 // units; the CLI's bars on a real pseudo-terminal (script(1)).
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -245,6 +246,45 @@ TEST(Progress, EsvoAndDagBuildsReportTheirPhasesInOrder) {
   }
 }
 
+// The in-core contour / variable-depth build re-plans the bar into levels,
+// contours, layout and (compressed attributes with a color tolerance)
+// attributes, draws them in plan order, ends complete and builds the same
+// words as without a bar.
+TEST(Progress, ContourBuildReportsItsPhasesInOrder) {
+  const Mesh mesh = generate::menger(2);
+  VoxelizeOptions vo;
+  vo.attributes = true;
+  const VoxelSet v = voxelize(mesh, GridTransform::fit(mesh.bounds(), 128), vo);
+  for (const bool compressed : {false, true}) {
+    esvo::BuildOptions bo;
+    bo.contours = true;
+    bo.geometry_error = 0.5;
+    bo.color_error = 8;
+    if (compressed) bo.attributes = esvo::AttributeFormat::Compressed;
+    const esvo::EsvoOctree plain = esvo::build_octree(v, mesh, bo);
+    FakeTerminal term;
+    Progress p("esvo build", {{"", 1}}, term.stepping_sink(600));
+    bo.progress = &p;
+    const esvo::EsvoOctree octree = esvo::build_octree(v, mesh, bo);
+    EXPECT_EQ(octree.words, plain.words) << compressed;
+    EXPECT_DOUBLE_EQ(p.fraction(), 1.0) << compressed;
+    EXPECT_NE(term.writes->back().find("100.0%"), std::string::npos) << compressed;
+    const std::vector<std::string> plan = {"levels", "contours", "layout", "attributes"};
+    const std::vector<std::string> seen = term.phases_drawn(plan);
+    ASSERT_FALSE(seen.empty()) << compressed;
+    EXPECT_EQ(seen.front(), "levels") << compressed;
+    size_t at = 0;  // plan order: every drawn phase after the previous one
+    for (const std::string& phase : seen) {
+      const size_t i = size_t(std::find(plan.begin(), plan.end(), phase) - plan.begin());
+      EXPECT_GE(i, at) << phase;
+      at = i;
+    }
+    if (!compressed) {
+      EXPECT_EQ(std::find(seen.begin(), seen.end(), "attributes"), seen.end());
+    }
+  }
+}
+
 std::string file_bytes(const std::string& path) {
   std::string text;
   if (std::FILE* f = std::fopen(path.c_str(), "rb")) {
@@ -312,6 +352,16 @@ TEST(ProgressCli, BarsOnATerminalAndNoneWhenQuiet) {
   EXPECT_NE(built.find("load spot.obj"), std::string::npos) << built;
   EXPECT_NE(built.find("esvo build (levels)"), std::string::npos) << built;
   EXPECT_NE(built.find("write scene ["), std::string::npos) << built;
+  // The in-core contour build (a color tolerance keeps it in core).
+  const std::string contours =
+      on_a_terminal("build " + mesh + " -o " + dir +
+                    "/progress-spot-c.vxc --resolution 128 --contours --color-error 8");
+  EXPECT_NE(contours.find("esvo build (levels)"), std::string::npos) << contours;
+  const std::string contours_quiet =
+      on_a_terminal("build " + mesh + " -o " + dir +
+                    "/progress-spot-cq.vxc --resolution 128 --contours --color-error 8 -q");
+  EXPECT_EQ(contours_quiet.find("esvo build"), std::string::npos) << contours_quiet;
+  EXPECT_EQ(file_bytes(dir + "/progress-spot-c.vxc"), file_bytes(dir + "/progress-spot-cq.vxc"));
   const std::string dag = on_a_terminal("build " + mesh + " -o " + dir +
                                         "/progress-spot-dag.vxc --resolution 128 --format dag");
   EXPECT_NE(dag.find("dag build ("), std::string::npos) << dag;
