@@ -395,6 +395,14 @@ TEST(ProgressCli, BarsOnATerminalAndNoneWhenQuiet) {
       on_a_terminal("render " + scene + " -o " + dir + "/progress-spot-q.png --size 64x48 --quiet");
   EXPECT_EQ(quiet.find("render ["), std::string::npos) << quiet;
   EXPECT_EQ(quiet.find("load scene"), std::string::npos) << quiet;
+  // Writing an EXR (planes, then the rows encoded; the final line).
+  const std::string exr = on_a_terminal("render " + scene + " -o " + dir +
+                                        "/progress-spot.exr --size 64x48 --aov depth,normal");
+  EXPECT_NE(exr.find("write image ["), std::string::npos) << exr;
+  const std::string exr_quiet = on_a_terminal(
+      "render " + scene + " -o " + dir + "/progress-spot-q.exr --size 64x48 --aov depth,normal -q");
+  EXPECT_EQ(exr_quiet.find("write image"), std::string::npos) << exr_quiet;
+  EXPECT_EQ(file_bytes(dir + "/progress-spot.exr"), file_bytes(dir + "/progress-spot-q.exr"));
   EXPECT_EQ(file_bytes(dir + "/progress-spot.png"), file_bytes(dir + "/progress-spot-q.png"));
   EXPECT_NE(quiet.find("progress-spot-q.png: 64x48"), std::string::npos) << quiet;  // stdout stays
 }
