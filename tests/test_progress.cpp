@@ -389,12 +389,14 @@ TEST(ProgressCli, BarsOnATerminalAndNoneWhenQuiet) {
   EXPECT_NE(rendered.find("render ["), std::string::npos) << rendered;
   EXPECT_NE(rendered.find("100.0%"), std::string::npos) << rendered;
   EXPECT_NE(rendered.find("load scene ("), std::string::npos) << rendered;
+  EXPECT_NE(rendered.find("write image ("), std::string::npos) << rendered;  // the PNG
   const std::string info = on_a_terminal("info " + scene);
   EXPECT_NE(info.find("load scene ("), std::string::npos) << info;
   const std::string quiet =
       on_a_terminal("render " + scene + " -o " + dir + "/progress-spot-q.png --size 64x48 --quiet");
   EXPECT_EQ(quiet.find("render ["), std::string::npos) << quiet;
   EXPECT_EQ(quiet.find("load scene"), std::string::npos) << quiet;
+  EXPECT_EQ(quiet.find("write image"), std::string::npos) << quiet;
   // Writing an EXR (planes, then the rows encoded; the final line).
   const std::string exr = on_a_terminal("render " + scene + " -o " + dir +
                                         "/progress-spot.exr --size 64x48 --aov depth,normal");
