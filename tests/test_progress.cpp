@@ -4,6 +4,7 @@
 // units; the CLI's bars on a real pseudo-terminal (script(1)).
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -14,8 +15,10 @@
 #include "support/cli_runner.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/esvo.hpp"
+#include "voxcast/format_registry.hpp"
 #include "voxcast/generate.hpp"
 #include "voxcast/progress.hpp"
+#include "voxcast/scene_file.hpp"
 #include "voxcast/voxelize.hpp"
 
 namespace voxcast {
@@ -37,7 +40,31 @@ struct FakeTerminal {
     return s;
   }
   void at(int64_t ms) const { *now = ms * kMs; }
+  // A sink whose every clock read moves `ms` on, so each advance may draw.
+  ProgressSink stepping_sink(int64_t ms) const {
+    ProgressSink s = sink();
+    auto n = now;
+    s.now_ns = [n, ms] { return *n += ms * kMs; };
+    return s;
+  }
+  // The phases among `names` drawn, in the order drawn (repeats collapsed).
+  std::vector<std::string> phases_drawn(const std::vector<std::string>& names) const {
+    std::vector<std::string> seen;
+    for (const std::string& w : *writes)
+      for (const std::string& phase : names)
+        if (w.find("(" + phase + ")") != std::string::npos &&
+            (seen.empty() || seen.back() != phase))
+          seen.push_back(phase);
+    return seen;
+  }
 };
+
+VoxelSet menger_voxels(int resolution) {
+  const Mesh mesh = generate::menger(2);
+  VoxelizeOptions vo;
+  vo.attributes = true;
+  return voxelize(mesh, GridTransform::fit(mesh.bounds(), resolution), vo);
+}
 
 TEST(Progress, SinglePhaseFractionAndEta) {
   FakeTerminal term;
@@ -165,11 +192,7 @@ TEST(Progress, ShorterLinesOverwriteLongerOnes) {
 TEST(Progress, VoxelizeReportsItsPhasesInOrder) {
   const Mesh mesh = generate::menger(2);
   FakeTerminal term;
-  // Every clock read moves 150 ms on, so each advance may draw.
-  auto now = term.now;
-  ProgressSink sink = term.sink();
-  sink.now_ns = [now] { return *now += 150 * kMs; };
-  Progress p("voxelize", {{"", 1}}, sink);
+  Progress p("voxelize", {{"", 1}}, term.stepping_sink(150));
   VoxelizeOptions vo;
   vo.progress = &p;
   vo.attributes = true;
@@ -198,46 +221,110 @@ TEST(Progress, VoxelizeReportsItsPhasesInOrder) {
 // The ESVO and DAG builds re-plan the bar they are given into their phases,
 // draw them in order and leave the bar complete.
 TEST(Progress, EsvoAndDagBuildsReportTheirPhasesInOrder) {
-  const Mesh mesh = generate::menger(2);
-  VoxelizeOptions vo;
-  vo.attributes = true;
-  const VoxelSet v = voxelize(mesh, GridTransform::fit(mesh.bounds(), 128), vo);
-  auto phases_drawn = [](const FakeTerminal& term, const std::vector<std::string>& names) {
-    std::vector<std::string> seen;
-    for (const std::string& w : *term.writes)
-      for (const std::string& phase : names)
-        if (w.find("(" + phase + ")") != std::string::npos &&
-            (seen.empty() || seen.back() != phase))
-          seen.push_back(phase);
-    return seen;
-  };
+  const VoxelSet v = menger_voxels(128);
   {
     FakeTerminal term;
-    auto now = term.now;
-    ProgressSink sink = term.sink();
-    sink.now_ns = [now] { return *now += 600 * kMs; };
-    Progress p("esvo build", {{"", 1}}, sink);
+    Progress p("esvo build", {{"", 1}}, term.stepping_sink(600));
     esvo::BuildOptions bo;
     bo.progress = &p;
     const esvo::EsvoOctree octree = esvo::build_octree(v, bo);
     EXPECT_EQ(octree.words, esvo::build_octree(v).words);  // the bar changes nothing
     EXPECT_DOUBLE_EQ(p.fraction(), 1.0);
-    EXPECT_EQ(phases_drawn(term, {"levels", "layout"}),
+    EXPECT_EQ(term.phases_drawn({"levels", "layout"}),
               (std::vector<std::string>{"levels", "layout"}));
   }
   {
     FakeTerminal term;
-    auto now = term.now;
-    ProgressSink sink = term.sink();
-    sink.now_ns = [now] { return *now += 600 * kMs; };
-    Progress p("dag build", {{"", 1}}, sink);
+    Progress p("dag build", {{"", 1}}, term.stepping_sink(600));
     const dag::SparseVoxelDag d = dag::build_dag(v, &p);
     EXPECT_EQ(d.words, dag::build_dag(v).words);
     EXPECT_DOUBLE_EQ(p.fraction(), 1.0);
     // Phases draw when they advance: the short ones (a single unit) may end
     // before a draw, the others come in plan order.
-    EXPECT_EQ(phases_drawn(term, {"leaf masks", "levels", "layout", "attributes"}),
+    EXPECT_EQ(term.phases_drawn({"leaf masks", "levels", "layout", "attributes"}),
               (std::vector<std::string>{"levels", "attributes"}));
+  }
+}
+
+// The in-core contour / variable-depth build re-plans the bar into levels,
+// contours, layout and (compressed attributes with a color tolerance)
+// attributes, draws them in plan order, ends complete and builds the same
+// words as without a bar.
+TEST(Progress, ContourBuildReportsItsPhasesInOrder) {
+  const Mesh mesh = generate::menger(2);
+  VoxelizeOptions vo;
+  vo.attributes = true;
+  const VoxelSet v = voxelize(mesh, GridTransform::fit(mesh.bounds(), 128), vo);
+  for (const bool compressed : {false, true}) {
+    esvo::BuildOptions bo;
+    bo.contours = true;
+    bo.geometry_error = 0.5;
+    bo.color_error = 8;
+    if (compressed) bo.attributes = esvo::AttributeFormat::Compressed;
+    const esvo::EsvoOctree plain = esvo::build_octree(v, mesh, bo);
+    FakeTerminal term;
+    Progress p("esvo build", {{"", 1}}, term.stepping_sink(600));
+    bo.progress = &p;
+    const esvo::EsvoOctree octree = esvo::build_octree(v, mesh, bo);
+    EXPECT_EQ(octree.words, plain.words) << compressed;
+    EXPECT_DOUBLE_EQ(p.fraction(), 1.0) << compressed;
+    EXPECT_NE(term.writes->back().find("100.0%"), std::string::npos) << compressed;
+    const std::vector<std::string> plan = {"levels", "contours", "layout", "attributes"};
+    const std::vector<std::string> seen = term.phases_drawn(plan);
+    ASSERT_FALSE(seen.empty()) << compressed;
+    EXPECT_EQ(seen.front(), "levels") << compressed;
+    size_t at = 0;  // plan order: every drawn phase after the previous one
+    for (const std::string& phase : seen) {
+      const size_t i = size_t(std::find(plan.begin(), plan.end(), phase) - plan.begin());
+      EXPECT_GE(i, at) << phase;
+      at = i;
+    }
+    if (!compressed) {
+      EXPECT_EQ(std::find(seen.begin(), seen.end(), "attributes"), seen.end());
+    }
+  }
+}
+
+std::string file_bytes(const std::string& path) {
+  std::string text;
+  if (std::FILE* f = std::fopen(path.c_str(), "rb")) {
+    char buf[4096];
+    for (size_t n; (n = std::fread(buf, 1, sizeof buf, f)) > 0;) text.append(buf, n);
+    std::fclose(f);
+  }
+  return text;
+}
+
+// Loading a scene re-plans the bar into its read (bytes read and hashed)
+// and bounds phases, draws them in order, ends complete, and loads the same
+// scene as without a bar.
+TEST(Progress, SceneLoadReportsReadThenBounds) {
+  register_builtin_formats();
+  const VoxelSet v = menger_voxels(128);
+  const std::string dir = ::testing::TempDir();
+  const std::string path = dir + "/progress-load.vxc";
+  for (const std::string format : {"esvo", "dag"}) {
+    const LoadedStructure built = format_registry().get(format).build(v, {});
+    save_scene(path, format, *built, SceneInfo{"menger", "conservative", 0, v.size()});
+    FakeTerminal term;
+    Progress p("load scene", {{"", 1}}, term.stepping_sink(600));
+    SceneLoadOptions lo;
+    lo.progress = &p;
+    const LoadedScene with_bar = load_scene(path, lo);
+    const LoadedScene without = load_scene(path);
+    EXPECT_DOUBLE_EQ(p.fraction(), 1.0) << format;
+    EXPECT_EQ(term.phases_drawn({"read", "bounds"}), (std::vector<std::string>{"read", "bounds"}))
+        << format;
+    EXPECT_NE(term.writes->back().find("100.0%"), std::string::npos) << format;
+    // The same scene: the same bounds and the same file when saved again.
+    for (int i = 0; i < 3; ++i) {
+      EXPECT_EQ(with_bar.occupied.lo[i], without.occupied.lo[i]) << format;
+      EXPECT_EQ(with_bar.occupied.hi[i], without.occupied.hi[i]) << format;
+    }
+    save_scene(dir + "/progress-load-a.vxc", format, *with_bar.structure, with_bar.info);
+    save_scene(dir + "/progress-load-b.vxc", format, *without.structure, without.info);
+    EXPECT_EQ(file_bytes(dir + "/progress-load-a.vxc"), file_bytes(dir + "/progress-load-b.vxc"))
+        << format;
   }
 }
 
@@ -250,14 +337,7 @@ std::string on_a_terminal(const std::string& args) {
                           std::string(VOXCAST_CLI_PATH) + " " + args + "\" " + log +
                           " > /dev/null 2>&1";
   if (std::system(cmd.c_str()) != 0) return "command failed: " + cmd;
-  std::FILE* f = std::fopen(log.c_str(), "rb");
-  std::string text;
-  if (f) {
-    char buf[4096];
-    for (size_t n; (n = std::fread(buf, 1, sizeof buf, f)) > 0;) text.append(buf, n);
-    std::fclose(f);
-  }
-  return text;
+  return file_bytes(log);
 }
 
 TEST(ProgressCli, BarsOnATerminalAndNoneWhenQuiet) {
@@ -272,6 +352,16 @@ TEST(ProgressCli, BarsOnATerminalAndNoneWhenQuiet) {
   EXPECT_NE(built.find("load spot.obj"), std::string::npos) << built;
   EXPECT_NE(built.find("esvo build (levels)"), std::string::npos) << built;
   EXPECT_NE(built.find("write scene ["), std::string::npos) << built;
+  // The in-core contour build (a color tolerance keeps it in core).
+  const std::string contours =
+      on_a_terminal("build " + mesh + " -o " + dir +
+                    "/progress-spot-c.vxc --resolution 128 --contours --color-error 8");
+  EXPECT_NE(contours.find("esvo build (levels)"), std::string::npos) << contours;
+  const std::string contours_quiet =
+      on_a_terminal("build " + mesh + " -o " + dir +
+                    "/progress-spot-cq.vxc --resolution 128 --contours --color-error 8 -q");
+  EXPECT_EQ(contours_quiet.find("esvo build"), std::string::npos) << contours_quiet;
+  EXPECT_EQ(file_bytes(dir + "/progress-spot-c.vxc"), file_bytes(dir + "/progress-spot-cq.vxc"));
   const std::string dag = on_a_terminal("build " + mesh + " -o " + dir +
                                         "/progress-spot-dag.vxc --resolution 128 --format dag");
   EXPECT_NE(dag.find("dag build ("), std::string::npos) << dag;
@@ -286,22 +376,36 @@ TEST(ProgressCli, BarsOnATerminalAndNoneWhenQuiet) {
                             "/progress-spot-pipe.vxc --resolution 128 --format dag 2>&1 | cat > " +
                             dir + "/progress-pipe.log";
   ASSERT_EQ(std::system(piped.c_str()), 0);
-  std::FILE* f = std::fopen((dir + "/progress-pipe.log").c_str(), "rb");
-  ASSERT_NE(f, nullptr);
-  std::string pipe_text;
-  char buf[4096];
-  for (size_t n; (n = std::fread(buf, 1, sizeof buf, f)) > 0;) pipe_text.append(buf, n);
-  std::fclose(f);
+  const std::string pipe_text = file_bytes(dir + "/progress-pipe.log");
   EXPECT_NE(pipe_text.find("progress-spot-pipe.vxc"), std::string::npos) << pipe_text;
   EXPECT_EQ(pipe_text.find('\r'), std::string::npos) << pipe_text;
   EXPECT_EQ(pipe_text.find("build ["), std::string::npos) << pipe_text;
+  const std::string info_piped = std::string("VOXCAST_PROGRESS_DELAY_MS=0 ") + VOXCAST_CLI_PATH +
+                                 " info " + scene + " 2>&1 | cat > " + dir + "/progress-info.log";
+  ASSERT_EQ(std::system(info_piped.c_str()), 0);
+  EXPECT_EQ(file_bytes(dir + "/progress-info.log").find("load scene"), std::string::npos);
   const std::string rendered =
       on_a_terminal("render " + scene + " -o " + dir + "/progress-spot.png --size 64x48");
   EXPECT_NE(rendered.find("render ["), std::string::npos) << rendered;
   EXPECT_NE(rendered.find("100.0%"), std::string::npos) << rendered;
+  EXPECT_NE(rendered.find("load scene ("), std::string::npos) << rendered;
+  EXPECT_NE(rendered.find("write image ("), std::string::npos) << rendered;  // the PNG
+  const std::string info = on_a_terminal("info " + scene);
+  EXPECT_NE(info.find("load scene ("), std::string::npos) << info;
   const std::string quiet =
       on_a_terminal("render " + scene + " -o " + dir + "/progress-spot-q.png --size 64x48 --quiet");
   EXPECT_EQ(quiet.find("render ["), std::string::npos) << quiet;
+  EXPECT_EQ(quiet.find("load scene"), std::string::npos) << quiet;
+  EXPECT_EQ(quiet.find("write image"), std::string::npos) << quiet;
+  // Writing an EXR (planes, then the rows encoded; the final line).
+  const std::string exr = on_a_terminal("render " + scene + " -o " + dir +
+                                        "/progress-spot.exr --size 64x48 --aov depth,normal");
+  EXPECT_NE(exr.find("write image ["), std::string::npos) << exr;
+  const std::string exr_quiet = on_a_terminal(
+      "render " + scene + " -o " + dir + "/progress-spot-q.exr --size 64x48 --aov depth,normal -q");
+  EXPECT_EQ(exr_quiet.find("write image"), std::string::npos) << exr_quiet;
+  EXPECT_EQ(file_bytes(dir + "/progress-spot.exr"), file_bytes(dir + "/progress-spot-q.exr"));
+  EXPECT_EQ(file_bytes(dir + "/progress-spot.png"), file_bytes(dir + "/progress-spot-q.png"));
   EXPECT_NE(quiet.find("progress-spot-q.png: 64x48"), std::string::npos) << quiet;  // stdout stays
 }
 

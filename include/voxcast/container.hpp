@@ -164,6 +164,9 @@ class ContainerReader {
   /// Bytes fetched from the file or buffer so far (header and directory
   /// included): what a streaming caller pays.
   uint64_t bytes_read() const { return bytes_read_; }
+  /// Advance `progress` by every byte fetched from now on (optional; a copy
+  /// of the reader does not report: it may outlive the bar).
+  void set_progress(Progress* progress) const { progress_.p = progress; }
 
   class Source;  // the file or buffer (container.cpp)
 
@@ -184,6 +187,13 @@ class ContainerReader {
   std::vector<uint64_t> hashes_;           // every chunk's, directory order
   mutable std::vector<uint8_t> verified_;  // per chunk
   mutable uint64_t bytes_read_ = 0;
+  struct ProgressRef {  // not copied (see set_progress)
+    Progress* p = nullptr;
+    ProgressRef() = default;
+    ProgressRef(const ProgressRef&) {}
+    ProgressRef& operator=(const ProgressRef&) { return *this; }
+  };
+  mutable ProgressRef progress_;
 };
 
 /// Writes a container section by section without holding it: each section is

@@ -254,8 +254,9 @@ struct BuildOptions {
   /// Raw: 8 bytes per voxel + a lookup entry per slot (§5.4). Compressed:
   /// 24 bytes per descriptor pair (§5.5), lossy (bounds in the tests).
   AttributeFormat attributes = AttributeFormat::Raw;
-  /// Progress bar of the full-depth build (its phases re-planned: levels,
-  /// layout); optional, null = none.
+  /// Progress bar of the in-core build (its phases re-planned: levels,
+  /// layout; with contours levels, contours, layout and, with compressed
+  /// attributes and a color/normal tolerance, attributes); optional, null = none.
   Progress* progress = nullptr;
 
   // ---- Contours and variable depth (§5.2-5.3, §7.1-7.3): need the mesh

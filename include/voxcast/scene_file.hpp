@@ -55,6 +55,10 @@ struct SceneLoadOptions {
   /// its root resident and streams. false: the root only, the rest is loaded
   /// on request between passes and a damaged part is refused on its own.
   bool load_all = true;
+  /// The bar of the load (tests inject one with a fake terminal); null: a
+  /// "load scene" bar on the terminal. Re-planned into the read (bytes of the
+  /// file read and hashed, with the format's validation) and bounds phases.
+  Progress* progress = nullptr;
 };
 
 /// Every subcommand reads scenes through this (one validator: a file is

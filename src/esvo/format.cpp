@@ -230,7 +230,7 @@ BuildOptions build_options(const FormatBuildOptions& o) {
 
 LoadedStructure build(const VoxelSet& voxels, const FormatBuildOptions& o) {
   BuildOptions b = build_options(o);
-  b.progress = o.progress;  // the full-depth build's bar (levels, layout)
+  b.progress = o.progress;  // the in-core build's bar (levels, [contours,] layout)
   if (!b.contours)
     return std::make_unique<EsvoStructure>(std::make_shared<EsvoOctree>(build_octree(voxels, b)));
   // Contours are shaped by the mesh (esvo §5.2).

@@ -147,6 +147,7 @@ ContainerReader ContainerReader::from_memory(const uint8_t* data, size_t size) {
 void ContainerReader::fetch(uint64_t offset, void* dst, size_t n) const {
   source_->read(offset, dst, n);
   bytes_read_ += n;
+  if (progress_.p) progress_.p->advance(n);
 }
 
 void ContainerReader::load_directory() {

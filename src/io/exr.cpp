@@ -10,14 +10,22 @@
 #include <OpenEXR/ImfOutputFile.h>
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <cstring>
 #include <exception>
 
 #include "voxcast/error.hpp"
+#include "voxcast/progress.hpp"
 
 namespace voxcast {
 
 namespace {
+
+// Rows per writePixels call (a multiple of the ZIP compressor's 16 lines).
+constexpr int kExrStripRows = 256;
+// Share of the write's time converting the channel planes (the rest:
+// compressing the rows).
+constexpr double kExrPlanesWeight = 0.35;
 
 /// An Imf::OStream into a byte string.
 class MemoryStream : public Imf::OStream {
@@ -54,6 +62,15 @@ void write_exr(const std::filesystem::path& path, const std::vector<ExrChannel>&
   // half plane needs converting anyway).
   std::vector<std::vector<half>> halves(channels.size());
   std::vector<std::vector<float>> floats(channels.size());
+  // A bar on a terminal (a large multi-layer image takes seconds): the
+  // channel planes converted, then the rows compressed, in strips of
+  // kExrStripRows (a multiple of ZIP's 16-line blocks: the same file as one
+  // writePixels call). Weights measured once at 8192^2 with RGBA, Z and N
+  // (planes 4.9 s, encode and write 9.5 s).
+  // (Named by the stage: the CLI writes to a temporary name, then renames.)
+  Progress progress("write image",
+                    {{"planes", kExrPlanesWeight}, {"encode", 1 - kExrPlanesWeight}});
+  progress.start_phase(0, channels.size());
   try {
     Imf::Header header(w, h);
     header.compression() = Imf::ZIP_COMPRESSION;
@@ -77,14 +94,21 @@ void write_exr(const std::filesystem::path& path, const std::vector<ExrChannel>&
         fb.insert(c.name, Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(floats[i].data()),
                                      sizeof(float), sizeof(float) * size_t(w)));
       }
+      progress.advance();
     }
+    progress.start_phase(1, uint64_t(h));
     MemoryStream stream;
     {
       Imf::OutputFile file(stream, header);
       file.setFrameBuffer(fb);
-      file.writePixels(h);
+      for (int y = 0; y < h; y += kExrStripRows) {
+        const int rows = std::min(kExrStripRows, h - y);
+        file.writePixels(rows);
+        progress.advance(uint64_t(rows));
+      }
     }
     write_file_atomic(path, stream.data().data(), stream.data().size());
+    progress.finish();
   } catch (const Error&) {
     throw;
   } catch (const std::exception& e) {

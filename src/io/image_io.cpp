@@ -19,6 +19,7 @@
 #include "voxcast/error.hpp"
 #include "voxcast/exr.hpp"
 #include "voxcast/image.hpp"
+#include "voxcast/progress.hpp"
 
 namespace voxcast {
 
@@ -62,6 +63,10 @@ std::vector<uint8_t> png_bytes(const Image& im, bool already_srgb) {
 }
 
 namespace {
+// Shares of a PNG write's time: the 8-bit conversion, libpng's sizing pass
+// and its encode with the file write (measured once at 8192^2, RGB: 2.7 s,
+// 1.7 s, 2.1 s).
+constexpr double kPngWeights[3] = {0.42, 0.26, 0.32};
 
 void write_png(const std::filesystem::path& path, const Image& im, bool already_srgb) {
   png_image img;
@@ -87,15 +92,29 @@ void write_png(const std::filesystem::path& path, const Image& im, bool already_
                               path.string(), im.channels));
   }
   const int nc = im.channels;
+  // A bar on a terminal (a large image takes seconds): libpng's simplified
+  // API reports nothing while it encodes, so the phases are one unit each:
+  // the 8-bit conversion, the sizing pass (a full encode) and the encode.
+  // (Named by the stage: the CLI writes to a temporary name, then renames.)
+  Progress progress(
+      "write image",
+      {{"convert", kPngWeights[0]}, {"size", kPngWeights[1]}, {"encode", kPngWeights[2]}});
+  progress.start_phase(0, 1);
   const std::vector<uint8_t> bytes = png_bytes(im, already_srgb);
+  progress.advance();  // draws (the phases report only at their ends)
+  progress.start_phase(1, 1);
   png_alloc_size_t size = 0;
   const png_int_32 stride = png_int_32(im.width * nc);
   if (!png_image_write_to_memory(&img, nullptr, &size, 0, bytes.data(), stride, nullptr))
     throw Error(fmt::format("cannot encode {}: {}", path.string(), img.message));
+  progress.advance();
+  progress.start_phase(2, 1);
   std::vector<uint8_t> encoded(size);
   if (!png_image_write_to_memory(&img, encoded.data(), &size, 0, bytes.data(), stride, nullptr))
     throw Error(fmt::format("cannot encode {}: {}", path.string(), img.message));
   write_file_atomic(path, encoded.data(), size);
+  progress.advance();
+  progress.finish();
 }
 
 void append_le_float(std::string& out, float v) {

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 
 #include "io/meta_json.hpp"
@@ -88,8 +89,7 @@ void save_scene(const std::filesystem::path& path, const std::string& format,
   // A bar on a terminal: the bytes written against the structure's memory
   // (the file holds about that much: the words and the attributes).
   // (Named by the stage: the CLI writes to a temporary name, then renames.)
-  Progress progress("write scene",
-                    f.memory_bytes ? f.memory_bytes(structure) : 0);
+  Progress progress("write scene", f.memory_bytes ? f.memory_bytes(structure) : 0);
   writer.set_progress(&progress);
   f.save(writer, structure, info);
   writer.commit();
@@ -97,7 +97,8 @@ void save_scene(const std::filesystem::path& path, const std::string& format,
 }
 
 namespace {
-LoadedScene load_from(const ContainerReader& reader, const std::filesystem::path* path);
+LoadedScene load_from(const ContainerReader& reader, const std::filesystem::path* path,
+                      Progress* progress);
 }  // namespace
 
 LoadedScene load_scene(const std::filesystem::path& path, const SceneLoadOptions& options) {
@@ -115,7 +116,12 @@ LoadedScene load_scene(const std::filesystem::path& path, const SceneLoadOptions
       out.occupied = f->occupied(*out.structure);
       return out;
     }
-    return load_from(ContainerReader::open(path), &path);
+    // A bar on a terminal (the caller's, or one of its own).
+    std::optional<Progress> own;
+    Progress* progress = options.progress;
+    if (progress == nullptr)
+      progress = &own.emplace("load scene", std::vector<Progress::Phase>{{"", 1}});
+    return load_from(ContainerReader::open(path), &path, progress);
   } catch (const Error& e) {
     // One line naming the file and what is wrong (the container's own
     // open/read errors already name it).
@@ -126,11 +132,16 @@ LoadedScene load_scene(const std::filesystem::path& path, const SceneLoadOptions
 }
 
 LoadedScene load_scene(const ContainerReader& reader) {
-  return load_from(reader, nullptr);
+  return load_from(reader, nullptr, nullptr);
 }
 
 namespace {
-LoadedScene load_from(const ContainerReader& reader, const std::filesystem::path* path) {
+// Share of the load's time spent reading, hashing and validating (the rest:
+// the occupied bounds).
+constexpr double kLoadReadWeight = 0.9;
+
+LoadedScene load_from(const ContainerReader& reader, const std::filesystem::path* path,
+                      Progress* progress) {
   // The one gate between a file and every reader (render, info): the
   // format's full validator, then every chunk it did not read (so a file
   // with a damaged extra section is refused as before, when the whole file
@@ -140,10 +151,29 @@ LoadedScene load_from(const ContainerReader& reader, const std::filesystem::path
   out.format = scene_format(reader);
   const SceneFormat& f = format_registry().get(out.format);
   out.sections = reader.section_ids();
+  // The bar: the bytes read and hashed against the file's size (the
+  // format's validation walk runs between its reads), then the occupied
+  // bounds (a walk of the whole structure, one unit).
+  struct Detach {  // the reader may outlive the bar
+    const ContainerReader& r;
+    ~Detach() { r.set_progress(nullptr); }
+  } detach{reader};
+  if (progress) {
+    progress->set_phases({{"read", kLoadReadWeight}, {"bounds", 1 - kLoadReadWeight}});
+    progress->start_phase(0, reader.file_bytes());
+    progress->set_done(reader.bytes_read());
+    reader.set_progress(progress);
+  }
   out.structure =
       path && f.load_file ? f.load_file(*path, reader, &out.info) : f.load(reader, &out.info);
   reader.verify_all();
+  reader.set_progress(nullptr);
+  if (progress) progress->start_phase(1, 1);
   out.occupied = f.occupied(*out.structure);
+  if (progress) {
+    progress->advance();
+    progress->finish();
+  }
   return out;
 }
 }  // namespace
