@@ -291,9 +291,13 @@ class RaysCamera final : public openvdb::tools::BaseCamera {
         rays_(rays) {}
   openvdb::math::Ray<double> getRay(size_t i, size_t j, double, double) const override {
     const Ray r = rays_.ray(int(i), int(j));
-    return openvdb::math::Ray<double>(openvdb::Vec3R(r.origin.x, r.origin.y, r.origin.z),
-                                      openvdb::Vec3R(r.dir.x, r.dir.y, r.dir.z), 1e-3,
-                                      std::numeric_limits<double>::max());
+    // OpenVDB's Ray requires a unit direction to double precision (it
+    // asserts so when mapping the ray into index space); ours is unit to
+    // float precision only, so it is normalized again in double.
+    openvdb::Vec3R dir(r.dir.x, r.dir.y, r.dir.z);
+    dir.normalize();
+    return openvdb::math::Ray<double>(openvdb::Vec3R(r.origin.x, r.origin.y, r.origin.z), dir,
+                                      1e-3, std::numeric_limits<double>::max());
   }
 
  private:
