@@ -111,7 +111,7 @@ openvdb::GridPtrVecPtr detail::read_vdb_grids(const std::filesystem::path& path,
   // The whole file is walked first (vdb_check.cpp: libopenvdb trusts every
   // size a file declares), then OpenVDB reads these same checked bytes from
   // a private in-memory file, so the file cannot change in between.
-  const std::vector<uint8_t> bytes = detail::read_file_bytes(path, budget);
+  std::vector<uint8_t> bytes = detail::read_file_bytes(path, budget);
   try {
     detail::check_vdb_bytes(bytes.data(), bytes.size(), [](const std::string& type) {
       return openvdb::Metadata::isRegisteredType(type);
@@ -134,6 +134,9 @@ openvdb::GridPtrVecPtr detail::read_vdb_grids(const std::filesystem::path& path,
                               std::strerror(errno)));
     done += size_t(n);
   }
+  // The memfd holds the checked bytes now: one copy in memory while OpenVDB
+  // builds the grids, not two.
+  std::vector<uint8_t>().swap(bytes);
   openvdb::GridPtrVecPtr grids;
   try {
     openvdb::io::File file("/proc/self/fd/" + std::to_string(fd));
