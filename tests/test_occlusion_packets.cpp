@@ -1,13 +1,16 @@
-// Any-hit packets and the AO deep start (voxcast/occlusion_packets.hpp)
-// against the scalar caster they must reproduce: occluded_anyhit == occluded()
-// on every ray, for the ESVO (raw and compressed attributes, far pointers,
-// contours) and the DAG built from a shipped mesh, on random rays (inside and
-// outside the root, along grid planes, tiny components, non-finite input),
-// on groups of rays sharing an origin (random points, origins on grid planes,
-// normals some rays violate), and on the shadow and AO rays the effects
-// generate for real shading points, for every kernel ISA this CPU runs, with
-// and without the deep start; and renders with effects through the packets
-// are byte-identical to one ray at a time.
+// Any-hit packets, their deep start and the AO cull
+// (voxcast/occlusion_packets.hpp) against the scalar caster they must
+// reproduce: occluded_anyhit == occluded() on every ray, for the ESVO (raw
+// and compressed attributes, far pointers, contours) and the DAG built from
+// a shipped mesh, on random rays (inside and outside the root, along grid
+// planes, tiny components, non-finite input), on clusters of independent
+// rays whose origins lie close together (packets that start deep and whose
+// rays leave the start cube), on groups of rays sharing an origin (random
+// points, origins on grid planes, normals some rays violate), and on the
+// shadow and AO rays the effects generate for real shading points, for every
+// kernel ISA this CPU runs, deep start with and without the cull and every
+// ray from the root; and renders with effects through the packets are
+// byte-identical to one ray at a time.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -144,6 +147,33 @@ Groups random_groups(const GridTransform& grid, size_t count, int g, uint64_t se
   return out;
 }
 
+// Clusters of 16 independent rays (one packet each) whose origins lie in a
+// small box inside the cube (some on grid planes, some in the same voxel),
+// random directions, most of them long: the packets start deep and most of
+// their rays leave the start cube.
+std::vector<Ray> random_clusters(const GridTransform& grid, size_t count, uint64_t seed) {
+  testing::OctreeRayRng rng(seed, 8);
+  const float side = float(grid.side());
+  std::vector<Ray> rays;
+  for (size_t k = 0; k < count; ++k) {
+    const Vec3 c{rng.uni(0.1f, 0.9f), rng.uni(0.1f, 0.9f), rng.uni(0.1f, 0.9f)};
+    const float extent = rng.uni(0.f, 1.f) < 0.3f ? 0.f : rng.uni(0.001f, 0.05f);
+    for (int i = 0; i < 16; ++i) {
+      Vec3 o = c + Vec3{rng.uni(0.f, extent), rng.uni(0.f, extent), rng.uni(0.f, extent)};
+      if (rng.pick(6) == 0) o[rng.pick(3)] = rng.grid_line() - 1.f;
+      Vec3 d = rng.sphere();
+      if (rng.pick(8) == 0) {  // along an axis
+        d = {0, 0, 0};
+        d[rng.pick(3)] = rng.pick(2) ? 1.f : -1.f;
+      }
+      Ray r{grid.origin + o * side, d, INFINITY};
+      if (rng.pick(4) == 0) r.tmax = rng.uni(0.f, 0.3f) * side;
+      rays.push_back(r);
+    }
+  }
+  return rays;
+}
+
 template <class S>
 std::vector<uint8_t> scalar_answers(const S& s, const std::vector<Ray>& rays,
                                     const LodFootprint& lod) {
@@ -153,50 +183,51 @@ std::vector<uint8_t> scalar_answers(const S& s, const std::vector<Ray>& rays,
   return want;
 }
 
-// occluded_anyhit == occluded() on every ray, each ISA, deep start on and off.
+// occluded_anyhit == occluded() on every ray, each ISA: deep start with the
+// cull, deep start alone, every ray from the root. Returns the stats of the
+// deep start with the cull on AVX2 (8-ray packets); *occluded_count (may be
+// null): the rays the scalar caster finds occluded.
 template <class S>
 AnyHitStats expect_same(const S& s, const std::vector<Ray>& rays, const LodFootprint& lod,
-                        int group, const Vec3* normals, const std::string& what) {
+                        int group, const Vec3* normals, const std::string& what,
+                        size_t* occluded_count = nullptr) {
   const std::vector<uint8_t> want = scalar_answers(s, rays, lod);
   size_t occluded = 0;
   for (uint8_t w : want) occluded += w;
+  if (occluded_count != nullptr) *occluded_count = occluded;
   // Both answers must occur, or the comparison says little.
   EXPECT_GT(occluded, 0u) << what;
   EXPECT_LT(occluded, rays.size()) << what;
   AnyHitStats stats;
   for (const Isa isa : isas()) {
-    // Deep start with the cull, without it, and every ray from the root.
     for (const int variant : {0, 1, 2}) {
-      const bool deep = variant < 2;
+      static const char* const names[] = {" deep+cull", " deep", " root"};
       AnyHitOptions o;
-      o.group = group, o.normals = normals, o.deep_start = deep, o.isa = isa;
+      o.group = group, o.normals = normals, o.deep_start = variant < 2, o.isa = isa;
       o.cull_budget = variant == 0 ? 24 : 0;
       std::vector<uint8_t> got(rays.size(), 7);
       AnyHitStats st;
       occluded_anyhit(s, rays.data(), rays.size(), lod, got.data(), o, &st);
       if (variant == 0 && isa == Isa::Avx2) stats = st;
+      if (variant == 2) {
+        EXPECT_EQ(st.deep_rays, 0u) << what;
+      }
       size_t bad = 0;
       for (size_t i = 0; i < rays.size(); ++i)
         if (got[i] != want[i] && ++bad <= 5)
-          ADD_FAILURE() << what << " " << isa_name(isa)
-                        << (variant == 0 ? " deep+cull"
-                            : deep       ? " deep"
-                                         : " root")
-                        << " ray " << i << ": " << int(got[i]) << " want " << int(want[i]);
-      EXPECT_EQ(bad, 0u) << what << " " << isa_name(isa)
-                         << (variant == 0 ? " deep+cull"
-                             : deep       ? " deep"
-                                          : " root");
+          ADD_FAILURE() << what << " " << isa_name(isa) << names[variant] << " ray " << i << ": "
+                        << int(got[i]) << " want " << int(want[i]);
+      EXPECT_EQ(bad, 0u) << what << " " << isa_name(isa) << names[variant];
     }
   }
   return stats;
 }
 
 void print_stats(const std::string& what, const AnyHitStats& st) {
-  const uint64_t traced = st.deep_points - st.culled;
-  std::printf("%s: %llu groups, %llu started deep (%llu culled, the others %.2f levels down)\n",
-              what.c_str(), (unsigned long long)st.points, (unsigned long long)st.deep_points,
-              (unsigned long long)st.culled, traced ? double(st.depth_sum) / double(traced) : 0.0);
+  const double mean = st.rays ? double(st.depth_sum) / double(st.rays) : 0.0;
+  std::printf("%s: culled %llu of %llu groups; %llu of %llu rays started deep, %.2f levels\n",
+              what.c_str(), (unsigned long long)st.culled, (unsigned long long)st.points,
+              (unsigned long long)st.deep_rays, (unsigned long long)st.rays, mean);
 }
 
 template <class S>
@@ -208,11 +239,23 @@ void check_random(const S& s, const char* name) {
   lod.size_at_origin = float(sc.grid.voxel_size) * 3.f;
   lod.size_per_t = 0.01f;
   expect_same(s, rnd, lod, 0, nullptr, std::string(name) + " random lod");
+  // Clusters: packets that start deep, rays that leave the start cube (a
+  // ray started deep that misses has left it: its start cube lies strictly
+  // inside the root, and only a hit ends a ray before the root's exit).
+  const std::vector<Ray> cl = random_clusters(sc.grid, 1200, 21);
+  size_t occluded = 0;
+  const AnyHitStats cs =
+      expect_same(s, cl, LodFootprint{}, 0, nullptr, std::string(name) + " clusters", &occluded);
+  EXPECT_GT(cs.deep_rays, cs.rays / 3) << name;
+  EXPECT_GT(cs.deep_rays, occluded + cs.rays / 10) << name;
+  EXPECT_GT(cs.depth_sum, cs.deep_rays) << name;  // more than a level on average
+  print_stats(std::string(name) + " clusters", cs);
+  expect_same(s, cl, lod, 0, nullptr, std::string(name) + " clusters lod");
   const Groups g = random_groups(sc.grid, 1500, 16, 9);
   const AnyHitStats st =
       expect_same(s, g.rays, LodFootprint{}, 16, g.normals.data(), std::string(name) + " groups");
   // The deep start and the cull must actually have run on these groups.
-  EXPECT_GT(st.deep_points, st.points / 4) << name;
+  EXPECT_GT(st.deep_rays, st.rays / 4) << name;
   EXPECT_GT(st.culled, 0u) << name;
   print_stats(std::string(name) + " groups", st);
   expect_same(s, g.rays, lod, 16, g.normals.data(), std::string(name) + " groups lod");
@@ -290,9 +333,15 @@ void check_effect_rays(const S& s, const char* name) {
     ambient_occlusion(ao, ctx, pts[i], fx, radius, seeds[i], nullptr);
   ASSERT_EQ(ao.rays.size(), pts.size() * 16);
   ASSERT_EQ(ao.normals.size(), pts.size());
-  expect_same(s, shadow.rays, LodFootprint{}, 0, nullptr, std::string(name) + " shadow");
+  size_t occluded = 0;
+  const AnyHitStats sh = expect_same(s, shadow.rays, LodFootprint{}, 0, nullptr,
+                                     std::string(name) + " shadow", &occluded);
+  // The shadow packets start deep, and their unoccluded rays leave the start cube.
+  EXPECT_GT(sh.deep_rays, sh.rays / 2) << name;
+  EXPECT_GT(sh.deep_rays, occluded) << name;
+  print_stats(std::string(name) + " shadow", sh);
   // What the effects trace them with (Structure::transmittance_batch):
-  // the packet caster's occluded_packets.
+  // occluded_packets, the any-hit packets.
   for (const std::vector<Ray>* rays : {&shadow.rays, &ao.rays}) {
     const std::vector<uint8_t> want = scalar_answers(s, *rays, LodFootprint{});
     for (const Isa isa : isas()) {
@@ -303,7 +352,7 @@ void check_effect_rays(const S& s, const char* name) {
   }
   const AnyHitStats st =
       expect_same(s, ao.rays, LodFootprint{}, 16, ao.normals.data(), std::string(name) + " ao");
-  EXPECT_GT(st.deep_points, 0u) << name;
+  EXPECT_GT(st.deep_rays, st.rays / 2) << name;
   print_stats(std::string(name) + " AO", st);
 }
 

@@ -53,12 +53,6 @@ class EsvoStructure final : public OctreeStructure<EsvoStructure> {
   void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
                   Vec3* normal) const override;
   std::string name() const override { return "esvo"; }
-  /// The packet caster's occluded_packets (voxcast/packet_caster.hpp) for
-  /// the active ISA; the scalar caster while ctx.counting (the Table 6
-  /// counters). The same values as transmittance().
-  void transmittance_batch(const Ray* rays, size_t n, const LodFootprint& lod, TraceContext& ctx,
-                           float* out, int group = 0,
-                           const Vec3* normals = nullptr) const override;
   const EsvoOctree& octree() const { return *octree_; }
 
  private:

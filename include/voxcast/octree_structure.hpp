@@ -7,7 +7,8 @@
 // tracing methods (trace, transmittance, beam_start) from that caster; Self
 // supplies attributes() and `world()` (its policy and grid), declared private
 // with OctreeStructure<Self> as a friend, and instantiates the template in
-// its own source file (src/esvo/traverse.cpp, src/dag/traverse.cpp).
+// its own source file (src/esvo/traverse.cpp, src/dag/traverse.cpp), which
+// also include the packet casters' members (src/core/octree_packets.hpp).
 //
 // The counting instantiation of the caster (esvo §8.5 counters) is chosen
 // once per call from TraceContext::counting; the plain instantiation has no
@@ -21,6 +22,9 @@ namespace detail {
 template <class Nodes>
 struct OctreeWorld;  // what Self::world() returns: src/core/octree_caster.hpp
 }  // namespace detail
+
+struct AnyHitOptions;  // voxcast/occlusion_packets.hpp
+struct AnyHitStats;
 
 // SurfaceQuery is the first base: the renderer calls trace() and
 // attributes() through a SurfaceQuery pointer once per ray, and at offset 0
@@ -55,6 +59,17 @@ class OctreeStructure : public SurfaceQuery, public Structure, public SurfacePac
                      const BeamStart* const* beams = nullptr) const override;
   void occluded_packets(const Ray* rays, size_t n, const LodFootprint& lod, TraceContext& ctx,
                         uint8_t* occluded, Isa isa) const override;
+  /// occluded_packets for the active ISA; the scalar caster while
+  /// ctx.counting (the Table 6 counters). The same values as transmittance().
+  void transmittance_batch(const Ray* rays, size_t n, const LodFootprint& lod, TraceContext& ctx,
+                           float* out, int group = 0, const Vec3* normals = nullptr) const override;
+
+  /// What the free functions of voxcast/packet_caster.hpp and
+  /// voxcast/occlusion_packets.hpp call (src/core/octree_packets.hpp).
+  void cast_packets(const Ray* rays, size_t n, const LodFootprint& lod, SurfaceHit* hits,
+                    uint8_t* found, Isa isa, const BeamStart* const* beams) const;
+  void cast_anyhit(const Ray* rays, size_t n, const LodFootprint& lod, uint8_t* occluded,
+                   const AnyHitOptions& o, AnyHitStats* stats) const;
 };
 
 }  // namespace voxcast

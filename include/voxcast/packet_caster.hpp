@@ -17,15 +17,10 @@
 
 #include "voxcast/isa.hpp"
 #include "voxcast/math.hpp"
+#include "voxcast/occlusion_packets.hpp"
 #include "voxcast/structure.hpp"
 
 namespace voxcast {
-namespace esvo {
-class EsvoStructure;
-}
-namespace dag {
-class DagStructure;
-}
 
 /// Rays per packet of `isa`'s kernel.
 inline int packet_width(Isa isa) {
@@ -34,23 +29,29 @@ inline int packet_width(Isa isa) {
 
 /// trace(rays[i], lod, ctx, &hits[i], beams[i]) for i < n: found[i] =
 /// the return value, hits[i] written where found[i] (bit-identical).
+/// `s`: an octree structure (esvo::EsvoStructure, dag::DagStructure).
 /// `beams` (may be null, entries may be null): the coarse pass of each ray's
 /// pixel block (beam_start, esvo §6.2): rays of an empty beam cost nothing,
 /// the others start at the region. `isa`: the kernel variant (throws
 /// voxcast::Error if the CPU lacks it). Octrees of 2^31 words or more
 /// (beyond the gathers' 32-bit indices) are traced by the scalar caster.
-void trace_packets(const esvo::EsvoStructure& s, const Ray* rays, size_t n, const LodFootprint& lod,
-                   SurfaceHit* hits, uint8_t* found, Isa isa = active_isa(),
-                   const BeamStart* const* beams = nullptr);
-void trace_packets(const dag::DagStructure& s, const Ray* rays, size_t n, const LodFootprint& lod,
-                   SurfaceHit* hits, uint8_t* found, Isa isa = active_isa(),
-                   const BeamStart* const* beams = nullptr);
+template <class S>
+void trace_packets(const S& s, const Ray* rays, size_t n, const LodFootprint& lod, SurfaceHit* hits,
+                   uint8_t* found, Isa isa = active_isa(),
+                   const BeamStart* const* beams = nullptr) {
+  s.cast_packets(rays, n, lod, hits, found, isa, beams);
+}
 /// occluded[i] = occluded(rays[i], lod) for i < n, bit-identical answers:
-/// any-hit packets (shadow rays of neighbouring pixels, AO rays).
-void occluded_packets(const esvo::EsvoStructure& s, const Ray* rays, size_t n,
-                      const LodFootprint& lod, uint8_t* occluded, Isa isa = active_isa());
-void occluded_packets(const dag::DagStructure& s, const Ray* rays, size_t n,
-                      const LodFootprint& lod, uint8_t* occluded, Isa isa = active_isa());
+/// any-hit packets (occluded_anyhit with its default options,
+/// voxcast/occlusion_packets.hpp); give shadow rays of neighbouring pixels
+/// and AO rays of one point together.
+template <class S>
+void occluded_packets(const S& s, const Ray* rays, size_t n, const LodFootprint& lod,
+                      uint8_t* occluded, Isa isa = active_isa()) {
+  AnyHitOptions o;
+  o.isa = isa;
+  s.cast_anyhit(rays, n, lod, occluded, o, nullptr);
+}
 
 /// Pixel (x, y) of the w x h rectangle at (x0, y0), in packet order: 4x4
 /// blocks row by row, pixels row-major inside a block; edge blocks are cut.

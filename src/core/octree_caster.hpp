@@ -587,6 +587,7 @@ Out cast_result(const OctreeCast<Index>& r) {
 /// counter code at all.
 template <class P>
 struct OctreeWorld {
+  using Nodes = P;
   explicit OctreeWorld(const typename P::Source& s) : source(s), frame(s.grid) {}
 
   Aabb bounds() const { return frame.bounds(); }
@@ -679,17 +680,6 @@ template <class Self>
 void OctreeStructure<Self>::beam_start(const BeamFrustum& beam, TraceContext& ctx,
                                        BeamStart* start) const {
   static_cast<const Self&>(*this).world().beam_start(beam, ctx, start);
-}
-template <class Self>
-void OctreeStructure<Self>::trace_packets(const Ray* rays, size_t n, const LodFootprint& lod,
-                                          TraceContext&, SurfaceHit* hits, uint8_t* found, Isa isa,
-                                          const BeamStart* const* beams) const {
-  ::voxcast::trace_packets(static_cast<const Self&>(*this), rays, n, lod, hits, found, isa, beams);
-}
-template <class Self>
-void OctreeStructure<Self>::occluded_packets(const Ray* rays, size_t n, const LodFootprint& lod,
-                                             TraceContext&, uint8_t* occluded, Isa isa) const {
-  ::voxcast::occluded_packets(static_cast<const Self&>(*this), rays, n, lod, occluded, isa);
 }
 
 }  // namespace voxcast

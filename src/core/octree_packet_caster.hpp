@@ -41,19 +41,33 @@ namespace voxcast::detail {
 /// order (4x4 pixel blocks for camera rays, so a packet starts coherent).
 inline constexpr int kPacketQueue = 256;
 
-/// The kernel's input: lane start states (cast_octree after enter_root), in
-/// structure-of-arrays form so that refilled lanes are expand-loaded.
+/// The kernels' input: lane start states, in structure-of-arrays form so
+/// that refilled lanes are expand-loaded. Every ray starts as cast_octree
+/// does after enter_root (at the root), or, when `deep` is set, where
+/// parent/scale say: cast_octree's state at some later PUSH of the same ray
+/// (t span, h, child position and slot, all of them the loop's own floats)
+/// with the stack the loop had built by then (start_packets below fills it,
+/// and so may a caller that found the start another way). The kernels
+/// themselves are core/octree_packet_kernel.hpp.
 struct alignas(64) PacketQueue {
   float cx[kPacketQueue], cy[kPacketQueue], cz[kPacketQueue];  // MirroredRay t coefficients
   float bx[kPacketQueue], by[kPacketQueue], bz[kPacketQueue];  // and biases
   float t_min[kPacketQueue], t_max[kPacketQueue], h[kPacketQueue];
-  float px[kPacketQueue], py[kPacketQueue], pz[kPacketQueue];
-  uint32_t flip[kPacketQueue];  // octant_mask ^ 7
+  float px[kPacketQueue], py[kPacketQueue], pz[kPacketQueue];  // mirrored min corner of the child
+  uint32_t flip[kPacketQueue];                                 // octant_mask ^ 7
   uint32_t idx[kPacketQueue];
-  int32_t id[kPacketQueue];  // the ray's index in PacketOut
+  int32_t id[kPacketQueue];  // the ray's index in the caller's block (PacketOut, hit bytes)
   // Unmirrored directions (after avoid_tiny_components): the contour slab.
   float dx[kPacketQueue], dy[kPacketQueue], dz[kPacketQueue];
+  // deep only: the start node, the scale of its children (the root's:
+  // kOctreeMaxScale - 1), and the stack rows above it: for every scale s in
+  // (scale, kOctreeMaxScale), the loop's (parent, t_max) saved at scale s.
+  uint32_t parent[kPacketQueue];
+  int32_t scale[kPacketQueue];
+  uint32_t stack_node[kOctreeMaxScale][kPacketQueue];
+  float stack_tmax[kOctreeMaxScale][kPacketQueue];
   int count = 0;
+  bool deep = false;  // some ray starts below the root (else parent/scale/stack are not read)
 };
 
 /// The kernel's output per ray: stop = 0 (CastStop::kMiss) unless the loop
@@ -64,18 +78,214 @@ struct alignas(64) PacketOut {
   int32_t scale[kPacketQueue], stop[kPacketQueue];
 };
 
-/// A kernel: casts q's rays through `nodes` (the scalar policy, whose fields
-/// the kernel's vector policy reads), LOD terms as in cast_octree.
+/// A first-hit kernel: casts q's rays through `nodes` (the scalar policy,
+/// whose fields the kernel's vector policy reads), LOD terms as in
+/// cast_octree.
 template <class P>
 using PacketKernel = void (*)(const P& nodes, const PacketQueue& q, float size_coef,
                               float size_bias, PacketOut* out);
-
-/// The kernel of `isa`; throws voxcast::Error if the CPU cannot run it.
+/// An any-hit kernel: hit[q.id[k]] = 1 for each ray k of q that the loop
+/// stops at a cube (leaf or LOD), other entries untouched.
 template <class P>
-PacketKernel<P> packet_kernel_for(Isa isa, PacketKernel<P> avx2, PacketKernel<P> avx512) {
+using AnyHitKernel = void (*)(const P& nodes, const PacketQueue& q, float size_coef,
+                              float size_bias, uint8_t* hit);
+
+/// A policy's kernels, one per ISA (core/packet_kernels.hpp declares them).
+template <class P>
+struct PacketKernels {
+  PacketKernel<P> trace_avx2, trace_avx512;
+  AnyHitKernel<P> anyhit_avx2, anyhit_avx512;
+};
+
+/// Checks that the CPU runs `isa` (voxcast::Error otherwise): `who` names
+/// the caller in the message.
+inline void require_isa(Isa isa, const char* who) {
   if (!cpu_supports(isa))
-    throw Error(std::string("packet caster: this CPU does not support ") + isa_name(isa));
-  return isa == Isa::Avx512 ? avx512 : avx2;
+    throw Error(std::string(who) + ": this CPU does not support " + isa_name(isa));
+}
+
+/// Queue slot q->count for `ray` (world space) in `frame`, started at the
+/// root (clipped to `region` if set; cast_octree's set-up): false, and no
+/// slot, if cast_octree would miss at once (non-finite input, empty span).
+/// *origin: the ray's origin in octree space.
+inline bool queue_ray(const OctreeFrame& frame, const Ray& r, const Aabb* region, uint32_t root,
+                      int32_t id, PacketQueue* q, Vec3* origin) {
+  const Vec3 p = frame.point(r.origin), d0 = frame.direction(r.dir);
+  if (!(is_finite(p) && is_finite(d0))) return false;  // cast_octree: a miss
+  const Vec3 d = avoid_tiny_components(d0);
+  const MirroredRay ray(p, d);
+  CastEntry e;
+  if (!enter_root(ray, r.tmax, region, &e)) return false;
+  const int k = q->count++;
+  q->cx[k] = ray.tx_coef, q->cy[k] = ray.ty_coef, q->cz[k] = ray.tz_coef;
+  q->bx[k] = ray.tx_bias, q->by[k] = ray.ty_bias, q->bz[k] = ray.tz_bias;
+  q->t_min[k] = e.t_min, q->t_max[k] = e.t_max, q->h[k] = e.h;
+  q->px[k] = e.pos_x, q->py[k] = e.pos_y, q->pz[k] = e.pos_z;
+  q->flip[k] = uint32_t(ray.octant_mask ^ 7);
+  q->idx[k] = uint32_t(e.idx);
+  q->id[k] = id;
+  q->dx[k] = d.x, q->dy[k] = d.y, q->dz[k] = d.z;
+  q->parent[k] = root;
+  q->scale[k] = kOctreeMaxScale - 1;
+  *origin = p;
+  return true;
+}
+
+// ---- Deep start: packets below the root ------------------------------------
+
+/// A descent from the root: the cubes from the root's child down
+/// (cube[levels - 1] the deepest), each present, not a leaf, with its node
+/// and its contour value if it has one (and the structure may narrow spans).
+struct StartPath {
+  struct Cube {
+    Vec3 lo;  // unmirrored min corner
+    float side;
+    uint32_t node;  // the cube's own node (the parent of its children)
+    uint32_t contour;
+    bool has_contour;
+  };
+  int levels = 0;
+  Cube cube[kOctreeMaxScale];
+  // origin_path: the child below cube[levels - 1] where the walk ended (empty
+  // or a leaf; end_side 0 if it ended otherwise).
+  Vec3 end_lo{0.f, 0.f, 0.f};
+  float end_side = 0.f;
+};
+
+/// The mirrored min corner of the cube [lo, lo + side]^3 (exact).
+inline Vec3 mirrored_corner(int octant_mask, Vec3 lo, float side) {
+  return {(octant_mask & 1) ? lo.x : 3.f - side - lo.x,
+          (octant_mask & 2) ? lo.y : 3.f - side - lo.y,
+          (octant_mask & 4) ? lo.z : 3.f - side - lo.z};
+}
+
+/// The path of point `o` (octree space): the cubes that contain it strictly,
+/// from the root's child down through present non-leaf cubes, to the node
+/// whose child holding o is empty or a leaf (or where o lies on a center
+/// plane). Incremental: *path holds the previous point's path, and only the
+/// part below the deepest cube that still contains o is walked again (no
+/// fetch at all when o lies in the same final child), so the neighbouring
+/// origins of a pixel block or the one origin of a point's AO rays share the
+/// walk. Only a choice of where to start: replay_start checks every ray.
+template <class P>
+void origin_path(const P& nodes, Vec3 o, StartPath* path) {
+  static_assert(!P::kResidency, "a deep start assumes every node is resident");
+  auto strictly_inside = [&](Vec3 lo, float side) {
+    return o.x > lo.x && o.y > lo.y && o.z > lo.z && o.x < lo.x + side && o.y < lo.y + side &&
+           o.z < lo.z + side;
+  };
+  int keep = 0;
+  while (keep < path->levels && strictly_inside(path->cube[keep].lo, path->cube[keep].side)) ++keep;
+  if (keep == path->levels && path->end_side > 0.f && strictly_inside(path->end_lo, path->end_side))
+    return;  // the same final child: the same path
+  path->levels = keep;
+  path->end_side = 0.f;
+  if (keep == 0 && !strictly_inside({1.f, 1.f, 1.f}, 1.f)) return;
+  NoCounters cnt;
+  [[maybe_unused]] typename P::Index index{};
+  const bool contours = may_narrow_spans(nodes);
+  uint32_t node = keep > 0 ? path->cube[keep - 1].node : nodes.root();
+  Vec3 clo = keep > 0 ? path->cube[keep - 1].lo : Vec3{1.f, 1.f, 1.f};
+  float side = keep > 0 ? path->cube[keep - 1].side : 1.f;
+  for (int scale = kOctreeMaxScale - 1 - keep; scale > 0; --scale) {
+    const float half = side * 0.5f;
+    int c = 0;
+    for (int a = 0; a < 3; ++a) {
+      const float mid = clo[a] + half;
+      if (o[a] > mid)
+        c |= 1 << a, clo[a] = mid;
+      else if (!(o[a] < mid))
+        return;  // on the center plane: the ray's direction decides
+    }
+    const auto desc = nodes.fetch(node, scale, cnt);
+    if (!nodes.valid(desc, c) || nodes.leaf(desc, c, scale)) {
+      path->end_lo = clo, path->end_side = half;
+      return;
+    }
+    StartPath::Cube& cube = path->cube[path->levels++];
+    cube = {clo, half, 0u, 0u, false};
+    if constexpr (P::kContours)
+      if (contours) cube.has_contour = nodes.contour(desc, node, c, &cube.contour);
+    node = cube.node = nodes.descend(desc, node, c, scale, index, cnt);
+    side = half;
+  }
+}
+
+/// Moves queue slot k (started at the root by queue_ray) down `path` as far
+/// as cast_octree itself would go by PUSHes alone: at each level the loop's
+/// own floats (corner t, LOD test, contour slab, child selection) decide
+/// whether it PUSHes into the path's next cube, and the replay stops at the
+/// first level where it would not (another child, an empty span, a LOD
+/// stop). The slot then holds the loop's state at that iteration, and its
+/// stack rows the (parent, t_max) the loop saved on the way (saved whatever
+/// the h threshold: the loop skips a write only where the row is never read,
+/// a child sharing its parent's exit). Returns the levels descended.
+inline int replay_start(const StartPath& path, float size_coef, float size_bias, int k,
+                        PacketQueue* q, uint32_t root) {
+  constexpr int s_max = kOctreeMaxScale;
+  const float cx = q->cx[k], cy = q->cy[k], cz = q->cz[k];
+  const float bx = q->bx[k], by = q->by[k], bz = q->bz[k];
+  const int octant_mask = int(q->flip[k] ^ 7u);
+  float t_min = q->t_min[k], t_max = q->t_max[k], h = q->h[k];
+  Vec3 pos{q->px[k], q->py[k], q->pz[k]};
+  uint32_t parent = root, idx = q->idx[k];
+  int scale = s_max - 1, level = 0;
+  float sexp = 0.5f;
+  for (; level < path.levels; ++level) {
+    const StartPath::Cube& cube = path.cube[level];
+    const Vec3 m = mirrored_corner(octant_mask, cube.lo, cube.side);
+    if (!(pos.x == m.x && pos.y == m.y && pos.z == m.z)) break;
+    const float tx = std::fma(pos.x, cx, -bx), ty = std::fma(pos.y, cy, -by),
+                tz = std::fma(pos.z, cz, -bz);
+    const float tc_max = vmin(vmin(tx, ty), tz);
+    if (!(t_min <= t_max) || tc_max * size_coef + size_bias >= sexp) break;
+    float t_lo = t_min, tv_max = vmin(t_max, tc_max);
+    if (cube.has_contour)
+      contour_span(cube.contour, {cx, cy, cz}, {q->dx[k], q->dy[k], q->dz[k]}, tx, ty, tz, sexp,
+                   &t_lo, &tv_max);
+    if (!(t_lo <= tv_max)) break;
+    // PUSH into the cube.
+    q->stack_node[scale][k] = parent;
+    q->stack_tmax[scale][k] = t_max;
+    h = tc_max;
+    t_min = t_lo;
+    const float half = sexp * 0.5f;
+    const float ccx = pos.x + half, ccy = pos.y + half, ccz = pos.z + half;  // exact: dyadic
+    idx = 0;
+    if (std::fma(ccx, cx, -bx) > t_min) idx ^= 1, pos.x = ccx;
+    if (std::fma(ccy, cy, -by) > t_min) idx ^= 2, pos.y = ccy;
+    if (std::fma(ccz, cz, -bz) > t_min) idx ^= 4, pos.z = ccz;
+    --scale;
+    sexp = half;
+    t_max = tv_max;
+    parent = cube.node;
+  }
+  if (level == 0) return 0;
+  q->parent[k] = parent;
+  q->scale[k] = scale;
+  q->t_min[k] = t_min, q->t_max[k] = t_max, q->h[k] = h;
+  q->px[k] = pos.x, q->py[k] = pos.y, q->pz[k] = pos.z;
+  q->idx[k] = idx;
+  q->deep = true;
+  return level;
+}
+
+/// The deep start of queue slots [first, q->count): each ray replays the
+/// path of its origin (origin_path; origins[k]: slot k's, octree space), so
+/// that it starts at the deepest cube containing its origin that the loop
+/// reaches by PUSHes alone (shadow rays of a pixel block, AO rays of a
+/// point: the neighbouring origins share most of the walk). Returns the
+/// levels of descent skipped, summed over the rays.
+template <class P>
+uint64_t start_packets(const P& nodes, const Vec3* origins, int first, float size_coef,
+                       float size_bias, PacketQueue* q) {
+  uint64_t levels = 0;
+  StartPath path;
+  for (int k = first; k < q->count; ++k) {
+    origin_path(nodes, origins[k], &path);
+    levels += uint64_t(replay_start(path, size_coef, size_bias, k, q, nodes.root()));
+  }
+  return levels;
 }
 
 /// The policy's payload of the cube at unmirrored min corner `pos`, `scale`:
@@ -96,28 +306,26 @@ typename P::Index payload_at(const P& nodes, Vec3 pos, int scale) {
   }
 }
 
-/// The OctreeWorld::trace / occluded answers for rays[0, n) (world space),
-/// bit-identical, via `kernel`. any_hit: only found[i] (occluded), hits unused.
+/// The OctreeWorld::trace answers for rays[0, n) (world space),
+/// bit-identical, via `kernel`: found[i], and hits[i] where found.
 /// beams (may be null): per ray, the coarse-pass result of its block (or
 /// null), as the beam argument of OctreeWorld::trace: an empty beam is a miss,
 /// a region is where the ray starts and ends (bit-identical hits).
 template <class P>
 void cast_packets(const OctreeWorld<P>& world, PacketKernel<P> kernel, const Ray* rays, size_t n,
-                  const LodFootprint& lod, const BeamStart* const* beams, bool any_hit,
-                  SurfaceHit* hits, uint8_t* found) {
+                  const LodFootprint& lod, const BeamStart* const* beams, SurfaceHit* hits,
+                  uint8_t* found) {
   const P nodes(world.source);
   const OctreeFrame& frame = world.frame;
   const float size_coef = frame.length(lod.size_per_t),
               size_bias = frame.length(lod.size_at_origin);
-  // OctreeWorld::occluded uses the closest-hit loop where any-hit skips
-  // nothing; either way the loop is the same and only `hit` is read.
   thread_local PacketQueue q;
   thread_local PacketOut out;
   for (size_t base = 0; base < n; base += kPacketQueue) {
     const int m = int(n - base < size_t(kPacketQueue) ? n - base : size_t(kPacketQueue));
     q.count = 0;
+    q.deep = false;
     for (int i = 0; i < m; ++i) {
-      const Ray& r = rays[base + size_t(i)];
       found[base + size_t(i)] = 0;
       out.stop[i] = 0;
       const Aabb* region = nullptr;
@@ -126,28 +334,14 @@ void cast_packets(const OctreeWorld<P>& world, PacketKernel<P> kernel, const Ray
         if (b.valid && b.empty) continue;  // §6.2: no ray of the beam hits anything
         if (b.valid) region = &b.region;
       }
-      const Vec3 p = frame.point(r.origin), d0 = frame.direction(r.dir);
-      if (!(is_finite(p) && is_finite(d0))) continue;  // cast_octree: a miss
-      const Vec3 d = avoid_tiny_components(d0);
-      const MirroredRay ray(p, d);
-      CastEntry e;
-      if (!enter_root(ray, r.tmax, region, &e)) continue;
-      const int k = q.count++;
-      q.cx[k] = ray.tx_coef, q.cy[k] = ray.ty_coef, q.cz[k] = ray.tz_coef;
-      q.bx[k] = ray.tx_bias, q.by[k] = ray.ty_bias, q.bz[k] = ray.tz_bias;
-      q.t_min[k] = e.t_min, q.t_max[k] = e.t_max, q.h[k] = e.h;
-      q.px[k] = e.pos_x, q.py[k] = e.pos_y, q.pz[k] = e.pos_z;
-      q.flip[k] = uint32_t(ray.octant_mask ^ 7);
-      q.idx[k] = uint32_t(e.idx);
-      q.id[k] = i;
-      q.dx[k] = d.x, q.dy[k] = d.y, q.dz[k] = d.z;
+      Vec3 origin;
+      queue_ray(frame, rays[base + size_t(i)], region, nodes.root(), i, &q, &origin);
     }
     if (q.count > 0) kernel(nodes, q, size_coef, size_bias, &out);
     for (int k = 0; k < q.count; ++k) {
       const int i = q.id[k];
       if (out.stop[i] == 0) continue;
       found[base + size_t(i)] = 1;
-      if (any_hit) continue;
       // cast_octree's epilogue on the lane's final state.
       const Ray& r = rays[base + size_t(i)];
       const Vec3 p = frame.point(r.origin), d0 = frame.direction(r.dir);
@@ -174,25 +368,29 @@ void cast_packets(const OctreeWorld<P>& world, PacketKernel<P> kernel, const Ray
   }
 }
 
-/// A structure's trace_packets (any_hit false) or occluded_packets (true):
-/// `kernels` = the AVX2 and the AVX-512 kernel of its policy. Sources of
-/// 2^31 words or more (beyond the gathers' signed 32-bit indices) take the
-/// scalar caster.
+/// Whether a structure's source is too large for the kernels' gathers
+/// (signed 32-bit word indices): such structures take the scalar caster.
+template <class Source>
+bool beyond_gathers(const Source& source) {
+  return source.words.size() >= (size_t(1) << 31);
+}
+
+/// A structure's trace_packets: `kernels` = its policy's kernels.
 template <class P, class S>
-void structure_packets(const S& s, const typename P::Source& source, Isa isa, PacketKernel<P> avx2,
-                       PacketKernel<P> avx512, const Ray* rays, size_t n, const LodFootprint& lod,
-                       const BeamStart* const* beams, bool any_hit, SurfaceHit* hits,
-                       uint8_t* found) {
-  const PacketKernel<P> kernel = packet_kernel_for<P>(isa, avx2, avx512);
-  if (source.words.size() >= (size_t(1) << 31)) {
+void structure_trace_packets(const S& s, const typename P::Source& source, Isa isa,
+                             const PacketKernels<P>& kernels, const Ray* rays, size_t n,
+                             const LodFootprint& lod, const BeamStart* const* beams,
+                             SurfaceHit* hits, uint8_t* found) {
+  require_isa(isa, "packet caster");
+  if (beyond_gathers(source)) {
     TraceContext ctx;
-    for (size_t i = 0; i < n; ++i) {
-      const BeamStart* beam = beams != nullptr ? beams[i] : nullptr;
-      found[i] = any_hit ? s.occluded(rays[i], lod, ctx) : s.trace(rays[i], lod, ctx, &hits[i], beam);
-    }
+    for (size_t i = 0; i < n; ++i)
+      found[i] = s.trace(rays[i], lod, ctx, &hits[i], beams != nullptr ? beams[i] : nullptr);
     return;
   }
-  cast_packets(OctreeWorld<P>(source), kernel, rays, n, lod, beams, any_hit, hits, found);
+  cast_packets(OctreeWorld<P>(source),
+               isa == Isa::Avx512 ? kernels.trace_avx512 : kernels.trace_avx2, rays, n, lod, beams,
+               hits, found);
 }
 
 }  // namespace voxcast::detail

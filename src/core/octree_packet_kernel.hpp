@@ -11,7 +11,9 @@
 // stale, the three corner t values, then PUSH lanes, ADVANCE lanes and, of
 // those, POP lanes. The stack is per lane in L1, laid out [scale][lane] so
 // that a level's entries of all lanes share a cache line. Lanes are refilled
-// from the queue by expand-loads (see kRefillLanes).
+// from the queue by expand-loads (see kRefillLanes). The first-hit kernel
+// (trace_packets) and the any-hit kernel (occluded_packets,
+// occluded_anyhit) are this one loop, lane_loop, with different hit sinks.
 //
 // A vector policy VP (src/esvo/packet_nodes.hpp, src/dag/packet_nodes.hpp)
 // provides, for lane masks m:
@@ -127,8 +129,6 @@ struct Lanes {
   }
 };
 
-/// cast_octree<P, false, false> on every ray of q (no region, no counters):
-/// out's stop/t/scale/parent/idx/pos of each ray that stopped at a cube.
 /// 0, 1, 2, ...: the queue slots a refill hands out.
 constexpr std::array<int32_t, kPacketQueue> kSequence = [] {
   std::array<int32_t, kPacketQueue> a{};
@@ -138,8 +138,8 @@ constexpr std::array<int32_t, kPacketQueue> kSequence = [] {
 
 /// The contour slabs (cast_octree's contour_span) of the lanes of `inside`
 /// whose child c has one, narrowing t_min and tv_max lane by lane; shared by
-/// the first-hit and the any-hit kernel (q: its queue, whose dx, dy, dz are
-/// the rays' unmirrored directions).
+/// lane loop (q: its queue, whose dx, dy, dz are the rays' unmirrored
+/// directions).
 template <class VP, class Q, class D, class F, class I, class U>
 [[gnu::always_inline]] inline void lane_contours(const VP& vp, const Q& q, const D& desc, I inside,
                                                  U c, U parent, I slot, F cx, F cy, F cz,
@@ -157,9 +157,19 @@ template <class VP, class Q, class D, class F, class I, class U>
   }
 }
 
-template <class VP>
-void packet_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float size_coef,
-                   float size_bias, PacketOut* out) {
+/// The lane loop shared by the first-hit and the any-hit kernel:
+/// cast_octree<P, false, false> on every ray of q (no region, no counters).
+/// Each ray starts at its queue state: the root, or (q.deep) the node
+/// q.parent at loop scale q.scale with its lane stack above that scale
+/// copied from q.stack_node / q.stack_tmax, so that a POP past the start
+/// node resumes exactly where the scalar loop would. `on_hit(l, slot, lod)`
+/// is called for each lane l that stops at a cube (slot: its ray in q; lod:
+/// a LOD stop rather than a leaf), with the loop state in the returned
+/// references; the lane then ends (the any-hit early exit is this same
+/// exit: an occlusion ray needs nothing after its first hit).
+template <class VP, class OnHit>
+[[gnu::always_inline]] inline void lane_loop(const typename VP::Scalar& nodes, const PacketQueue& q,
+                                             float size_coef, float size_bias, OnHit&& on_hit) {
   constexpr int N = VP::N;
   constexpr int s_max = kOctreeMaxScale;
   using L = Lanes<N>;
@@ -168,41 +178,30 @@ void packet_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float
   using U = typename L::U;
   const VP vp(nodes);
   const bool contours = may_narrow_spans(nodes);  // the loop's early miss exit when false
+  // Refill the lanes from the queue, in order, once every lane is idle: the
+  // packet is then the queue's next 16 (8) rays, a 4x4 (4x2) pixel block of
+  // camera or shadow rays, or one point's AO rays, whose lanes read the same
+  // nodes. Refilling lanes as they finish (after N/4 or N/2 idle lanes)
+  // keeps more lanes busy but mixes rays at different depths, whose gathers
+  // miss the caches independently: measured 10-25 % slower
+  // (docs/BENCHMARKS.md "Packet casters", "Occlusion packets").
   constexpr int kRefillLanes = N;
-
   const I lane = L::iota();
 
-  // A packet: lane state (cast_octree's locals; idle lanes have slot < 0)
-  // and the lanes' stacks.
-  struct Packet {
-    F cx{}, cy{}, cz{}, bx{}, by{}, bz{};
-    F px{}, py{}, pz{}, t_min{}, t_max{}, h{};
-    F sexp = L::template splat<F>(0.5f);
-    U parent{}, idx{}, flip{};
-    I scale = L::template splat<I>(s_max - 1);
-    I slot = L::template splat<I>(-1);  // the lane's ray in q
-    typename VP::Desc desc{};
-    alignas(64) uint32_t stack_node[(s_max + 1) * N];
-    alignas(64) uint32_t stack_tmax[(s_max + 1) * N];  // float bits
-  };
+  // Lane state (cast_octree's locals; idle lanes have slot < 0) and the
+  // lanes' stacks, [scale][lane].
+  F cx{}, cy{}, cz{}, bx{}, by{}, bz{};
+  F px{}, py{}, pz{}, t_min{}, t_max{}, h{};
+  F sexp = L::template splat<F>(0.5f);
+  U parent{}, idx{}, flip{};
+  I scale = L::template splat<I>(s_max - 1);
+  I slot = L::template splat<I>(-1);  // the lane's ray in q
+  typename VP::Desc desc{};
+  alignas(64) uint32_t stack_node[(s_max + 1) * N];
+  alignas(64) uint32_t stack_tmax[(s_max + 1) * N];  // float bits
   int next = 0;
 
-  // One iteration of the loop on packet pk; false once it has no ray left.
-  auto step = [&](Packet & pk) __attribute__((always_inline)) {
-    F &cx = pk.cx, &cy = pk.cy, &cz = pk.cz, &bx = pk.bx, &by = pk.by, &bz = pk.bz;
-    F &px = pk.px, &py = pk.py, &pz = pk.pz, &t_min = pk.t_min, &t_max = pk.t_max, &h = pk.h;
-    F& sexp = pk.sexp;
-    U &parent = pk.parent, &idx = pk.idx, &flip = pk.flip;
-    I &scale = pk.scale, &slot = pk.slot;
-    typename VP::Desc& desc = pk.desc;
-    uint32_t* stack_node = pk.stack_node;
-    uint32_t* stack_tmax = pk.stack_tmax;
-    // Refill the lanes from the queue, in order, once every lane is idle:
-    // the packet is then the queue's next 16 (8) rays, a 4x4 (4x2) pixel
-    // block of camera rays whose lanes read the same nodes. Refilling lanes
-    // as they finish (after N/4 or N/2 idle lanes) keeps more lanes busy but
-    // mixes rays at different depths, whose gathers miss the caches
-    // independently: measured 10-25 % slower (docs/BENCHMARKS.md).
+  for (;;) {
     uint32_t idle = L::bits(slot < 0);
     if (next < q.count && (std::popcount(idle) >= kRefillLanes || idle == L::kAll)) {
       const int avail = q.count - next;
@@ -221,14 +220,32 @@ void packet_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float
       // The lanes refilled, as a lane mask, and their queue slots next, next + 1, ...
       const I fresh = ((L::template splat<I>(1) << lane) & int32_t(idle)) != 0;
       slot = L::expand(slot, idle, kSequence.data() + next);
-      parent = fresh ? L::template splat<U>(nodes.root()) : parent;
-      scale = fresh ? L::template splat<I>(s_max - 1) : scale;
-      sexp = fresh ? L::template splat<F>(0.5f) : sexp;
+      if (q.deep) {
+        parent = L::expand(parent, idle, q.parent + next);
+        scale = L::expand(scale, idle, q.scale + next);
+        // exp2(scale - s_max), exact (the scalar loop's scale_exp2).
+        sexp = fresh ? L::as_f((U)((scale - s_max + 127) << 23)) : sexp;
+        // The stack rows above each lane's start: the scalar loop's PUSHes
+        // on the way down (rows of shallower starts are subsets, so the
+        // loop ends at the deepest start).
+        for (int s = s_max - 1; s > 0; --s) {
+          const I rows = fresh & (scale < s);
+          if (L::bits(rows) == 0) break;
+          U* node_row = reinterpret_cast<U*>(stack_node + s * N);
+          U* tmax_row = reinterpret_cast<U*>(stack_tmax + s * N);
+          *node_row = rows ? L::expand(U{}, idle, q.stack_node[s] + next) : *node_row;
+          *tmax_row = rows ? L::as_u(L::expand(F{}, idle, q.stack_tmax[s] + next)) : *tmax_row;
+        }
+      } else {
+        parent = fresh ? L::template splat<U>(nodes.root()) : parent;
+        scale = fresh ? L::template splat<I>(s_max - 1) : scale;
+        sexp = fresh ? L::template splat<F>(0.5f) : sexp;
+      }
       vp.forget(&desc, fresh);
       next += std::popcount(idle);
     }
     const I active = slot >= 0;
-    if (L::bits(active) == 0) return false;
+    if (L::bits(active) == 0) return;
 
     // Fetch the parent where the cached copy is stale (ADVANCE keeps it).
     const I stale = active & ~vp.fetched(desc);
@@ -255,21 +272,12 @@ void packet_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float
       const I intersect = inside & (t_min <= tv_max);
       const I leaf = intersect & vp.leaf(desc, c, scale);
       push = intersect & ~leaf;
-      const I hit = lod | leaf;
-      if (const uint32_t hb = L::bits(hit); hb != 0) {
-        // Hits: the loop state at the cube (cast_octree's epilogue runs in
-        // the caller). CastStop: kLeaf = 1, kLod = 2.
-        for (uint32_t b = hb; b != 0; b &= b - 1) {
-          const int l = std::countr_zero(b);
-          const int i = q.id[slot[l]];
-          out->t[i] = t_min[l];
-          out->px[i] = px[l], out->py[i] = py[l], out->pz[i] = pz[l];
-          out->parent[i] = parent[l];
-          out->idx[i] = idx[l];
-          out->scale[i] = scale[l];
-          out->stop[i] = lod[l] ? int32_t(CastStop::kLod) : int32_t(CastStop::kLeaf);
-        }
-        done = hit;
+      done = lod | leaf;
+      // Hits: the loop state at the cube (cast_octree's epilogue runs in
+      // the caller).
+      for (uint32_t b = L::bits(done); b != 0; b &= b - 1) {
+        const int l = std::countr_zero(b);
+        on_hit(l, slot[l], lod[l] != 0, t_min, px, py, pz, parent, idx, scale);
       }
       if (L::bits(push) != 0) {
         // PUSH, with the h threshold per lane.
@@ -340,18 +348,56 @@ void packet_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float
         h = in ? F{} : h;
         vp.forget(&desc, in);
       }
-      done |= miss;  // out->stop stays 0
+      done |= miss;  // no on_hit: a miss
     }
     slot = done ? L::template splat<I>(-1) : slot;
-    return true;
-  };
-
-  // One packet at a time: two packets in turn (one computing while the
-  // other waits for its gathers) measured no faster (docs/BENCHMARKS.md).
-  Packet packet;
-  while (step(packet)) {
   }
 }
 
+/// The first-hit kernel: out's stop/t/scale/parent/idx/pos of each ray of q
+/// that stopped at a cube (CastStop: kLeaf = 1, kLod = 2); other rays' stop
+/// stays as the caller set it (0, a miss).
+template <class VP>
+void packet_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float size_coef,
+                   float size_bias, PacketOut* out) {
+  lane_loop<VP>(
+      nodes, q, size_coef, size_bias,
+      [&](int l, int k, bool lod, const auto& t_min, const auto& px, const auto& py, const auto& pz,
+          const auto& parent, const auto& idx, const auto& scale) __attribute__((always_inline)) {
+        const int i = q.id[k];
+        out->t[i] = t_min[l];
+        out->px[i] = px[l], out->py[i] = py[l], out->pz[i] = pz[l];
+        out->parent[i] = parent[l];
+        out->idx[i] = idx[l];
+        out->scale[i] = scale[l];
+        out->stop[i] = lod ? int32_t(CastStop::kLod) : int32_t(CastStop::kLeaf);
+      });
+}
+
+/// The any-hit kernel: hit[q.id[k]] = 1 for each ray k of q that stops at a
+/// cube (leaf or LOD), other entries untouched; no loop state is kept.
+template <class VP>
+void anyhit_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float size_coef,
+                   float size_bias, uint8_t* hit) {
+  lane_loop<VP>(
+      nodes, q, size_coef, size_bias,
+      [&](int, int k, bool, const auto&, const auto&, const auto&, const auto&, const auto&,
+          const auto&, const auto&) __attribute__((always_inline)) { hit[q.id[k]] = 1; });
+}
+
 }  // namespace
+
+/// Defines the kernels name_packet_kernel_isa and name_anyhit_kernel_isa
+/// (core/packet_kernels.hpp) of scalar policy Nodes over vector policy VP:
+/// one line in each kernel translation unit.
+#define VOXCAST_DEFINE_PACKET_KERNELS(name, isa, Nodes, VP)                                  \
+  void name##_packet_kernel_##isa(const Nodes& nodes, const PacketQueue& q, float size_coef, \
+                                  float size_bias, PacketOut* out) {                         \
+    packet_kernel<VP>(nodes, q, size_coef, size_bias, out);                                  \
+  }                                                                                          \
+  void name##_anyhit_kernel_##isa(const Nodes& nodes, const PacketQueue& q, float size_coef, \
+                                  float size_bias, uint8_t* hit) {                           \
+    anyhit_kernel<VP>(nodes, q, size_coef, size_bias, hit);                                  \
+  }
+
 }  // namespace voxcast::detail

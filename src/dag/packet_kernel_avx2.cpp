@@ -1,13 +1,10 @@
-// The DAG packet kernel (core/octree_packet_kernel.hpp), 8 lanes: compiled
-// with the library's baseline flags (x86-64-v3).
+// The DAG packet kernels, first-hit and any-hit (core/octree_packet_kernel.hpp),
+// 8 lanes: compiled with the baseline flags (x86-64-v3).
 #include "core/packet_kernels.hpp"
 #include "dag/packet_nodes.hpp"
 
 namespace voxcast::detail {
 
-void dag_packet_kernel_avx2(const DagNodes& nodes, const PacketQueue& q, float size_coef,
-                            float size_bias, PacketOut* out) {
-  packet_kernel<DagPacketNodes<8>>(nodes, q, size_coef, size_bias, out);
-}
+VOXCAST_DEFINE_PACKET_KERNELS(dag, avx2, DagNodes, DagPacketNodes<8>)
 
 }  // namespace voxcast::detail

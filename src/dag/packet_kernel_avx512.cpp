@@ -1,14 +1,11 @@
-// The DAG packet kernel (core/octree_packet_kernel.hpp), 16 lanes: compiled
-// with -march=x86-64-v4 (CMakeLists.txt, *_avx512.cpp); only called when
-// active_isa() or the caller's Isa says the CPU has AVX-512.
+// The DAG packet kernels, first-hit and any-hit (core/octree_packet_kernel.hpp),
+// 16 lanes: compiled with -march=x86-64-v4 (CMakeLists.txt, *_avx512.cpp);
+// only called when the caller's Isa says the CPU has AVX-512.
 #include "core/packet_kernels.hpp"
 #include "dag/packet_nodes.hpp"
 
 namespace voxcast::detail {
 
-void dag_packet_kernel_avx512(const DagNodes& nodes, const PacketQueue& q, float size_coef,
-                              float size_bias, PacketOut* out) {
-  packet_kernel<DagPacketNodes<16>>(nodes, q, size_coef, size_bias, out);
-}
+VOXCAST_DEFINE_PACKET_KERNELS(dag, avx512, DagNodes, DagPacketNodes<16>)
 
 }  // namespace voxcast::detail

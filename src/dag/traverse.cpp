@@ -5,12 +5,13 @@
 // octree frame and the profiling counters (esvo §8.5) are the octree
 // family's (core/octree_caster.hpp), the very code the ESVO runs, so a DAG
 // and an ESVO octree of the same voxels give bit-identical hits; the DAG
-// contributes its node access and voxel indexing (dag/octree_nodes.hpp). The any-hit variant (shadow rays) skips the index
-// bookkeeping; the loop visits voxels front to back, so the first leaf found
-// is also the closest one.
+// contributes its node access and voxel indexing (dag/octree_nodes.hpp). The any-hit variant
+// (shadow rays) skips the index bookkeeping; the loop visits voxels front to back, so the first
+// leaf found is also the closest one.
 #include <cstdint>
 
 #include "core/octree_caster.hpp"
+#include "core/octree_packets.hpp"
 #include "dag/octree_nodes.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/error.hpp"

@@ -7,6 +7,7 @@
 #include <cstdint>
 
 #include "core/octree_caster.hpp"
+#include "core/octree_packets.hpp"
 #include "esvo/compress.hpp"
 #include "esvo/octree_nodes.hpp"
 #include "voxcast/error.hpp"

@@ -1,0 +1,70 @@
+#pragma once
+// OctreeStructure's packet members (include/voxcast/octree_structure.hpp),
+// for the explicit instantiation in each structure's source file
+// (src/esvo/traverse.cpp, src/dag/traverse.cpp): the drivers of
+// core/octree_packet_caster.hpp and core/octree_anyhit_caster.hpp over
+// Self::world()'s policy, with that policy's kernels (core/packet_kernels.hpp).
+// Written once for every octree structure, so that the public functions of
+// voxcast/packet_caster.hpp and voxcast/occlusion_packets.hpp are templates
+// that only forward here.
+#include <cstddef>
+#include <cstdint>
+#include <type_traits>
+
+#include "core/octree_anyhit_caster.hpp"
+#include "core/octree_caster.hpp"
+#include "core/octree_packet_caster.hpp"
+#include "core/packet_kernels.hpp"
+#include "voxcast/occlusion_packets.hpp"
+#include "voxcast/octree_structure.hpp"
+#include "voxcast/packet_caster.hpp"
+
+namespace voxcast {
+
+template <class Self>
+void OctreeStructure<Self>::cast_packets(const Ray* rays, size_t n, const LodFootprint& lod,
+                                         SurfaceHit* hits, uint8_t* found, Isa isa,
+                                         const BeamStart* const* beams) const {
+  const Self& self = static_cast<const Self&>(*this);
+  using P = typename decltype(self.world())::Nodes;
+  detail::structure_trace_packets<P>(self, self.world().source, isa, detail::kPacketKernels<P>,
+                                     rays, n, lod, beams, hits, found);
+}
+
+template <class Self>
+void OctreeStructure<Self>::cast_anyhit(const Ray* rays, size_t n, const LodFootprint& lod,
+                                        uint8_t* occluded, const AnyHitOptions& o,
+                                        AnyHitStats* stats) const {
+  const Self& self = static_cast<const Self&>(*this);
+  using P = typename decltype(self.world())::Nodes;
+  detail::structure_anyhit<P>(self, self.world().source, o.isa, detail::kPacketKernels<P>, rays, n,
+                              lod, o.group, o.normals, o.deep_start, o.cull_budget, occluded,
+                              stats);
+}
+
+template <class Self>
+void OctreeStructure<Self>::trace_packets(const Ray* rays, size_t n, const LodFootprint& lod,
+                                          TraceContext&, SurfaceHit* hits, uint8_t* found, Isa isa,
+                                          const BeamStart* const* beams) const {
+  cast_packets(rays, n, lod, hits, found, isa, beams);
+}
+
+template <class Self>
+void OctreeStructure<Self>::occluded_packets(const Ray* rays, size_t n, const LodFootprint& lod,
+                                             TraceContext&, uint8_t* occluded, Isa isa) const {
+  AnyHitOptions o;
+  o.isa = isa;
+  cast_anyhit(rays, n, lod, occluded, o, nullptr);
+}
+
+template <class Self>
+void OctreeStructure<Self>::transmittance_batch(const Ray* rays, size_t n, const LodFootprint& lod,
+                                                TraceContext& ctx, float* out, int,
+                                                const Vec3*) const {
+  auto occluded = [&](const Ray* r, size_t m, uint8_t* hit) {
+    cast_anyhit(r, m, lod, hit, AnyHitOptions{}, nullptr);
+  };
+  detail::structure_transmittance_batch(*this, occluded, rays, n, lod, ctx, out);
+}
+
+}  // namespace voxcast
