@@ -378,6 +378,16 @@ TEST(CliConvention, EveryNumericOptionIsRangeChecked) {
       {g + "terrain --size 1" + o, "size"},
       {g + "terrain --octaves 17" + o, "octaves"},
       {g + "terrain --height nan" + o, "height"},
+      // Later subcommands: the option each names is the one given.
+      {r + " --stream --budget 1x", "--budget: "},
+      {r + " --stream --frames 0", "--frames"},
+      {r + " --stream --uploads 0", "--uploads"},
+      {"edit " + dir.file("none.vxc") + " --snow 0", "--snow: "},
+      {"edit " + dir.file("none.vxc") + " --snow 2 --snow-rate nan", "--snow-rate"},
+      {"edit " + dir.file("none.vxc") + " --sphere 0,0,0,inf --add", "--sphere"},
+      {"volume render procedural:cloud -o " + dir.file("v.png") + " --budget 1x", "--budget: "},
+      {"volume export procedural:cloud -o " + dir.file("v.vdb") + " --resolution 0",
+       "--resolution"},
       {g + "terrain --persistence 2" + o, "persistence"},
       {g + "menger --memory-budget " + twice_memory + o, "--memory-budget"},
   };

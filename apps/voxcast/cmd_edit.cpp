@@ -206,10 +206,10 @@ Runner add_edit(CLI::App& app) {
   cmd->add_flag("--checkpoint", args->checkpoint,
                 "In place: also fold the edit journal into the scene file now (it is folded in "
                 "anyway once it is larger than the file and 16 MiB)");
-  return [args]() {
+  return [args, cmd]() {
     std::vector<EditStep> steps;
     if (!args->render.empty() && args->snow == 0) throw UsageError("--render needs --snow");
-    if (args->snow != 0) {
+    if (cmd->count("--snow") > 0) {
       require_range("--snow", args->snow, 1, 1000000);
       require_range("--snow-rate", args->snow_rate, 0, 1);
       if (!args->batch.empty() || !args->sphere.empty() || !args->box.empty() ||
