@@ -378,6 +378,16 @@ TEST(CliConvention, EveryNumericOptionIsRangeChecked) {
       {g + "terrain --size 1" + o, "size"},
       {g + "terrain --octaves 17" + o, "octaves"},
       {g + "terrain --height nan" + o, "height"},
+      // Later subcommands: the option each names is the one given.
+      {r + " --stream --budget 1x", "--budget: "},
+      {r + " --stream --frames 0", "--frames"},
+      {r + " --stream --uploads 0", "--uploads"},
+      {"edit " + dir.file("none.vxc") + " --snow 0", "--snow: "},
+      {"edit " + dir.file("none.vxc") + " --snow 2 --snow-rate nan", "--snow-rate"},
+      {"edit " + dir.file("none.vxc") + " --sphere 0,0,0,inf --add", "--sphere"},
+      {"volume render procedural:cloud -o " + dir.file("v.png") + " --budget 1x", "--budget: "},
+      {"volume export procedural:cloud -o " + dir.file("v.vdb") + " --resolution 0",
+       "--resolution"},
       {g + "terrain --persistence 2" + o, "persistence"},
       {g + "menger --memory-budget " + twice_memory + o, "--memory-budget"},
   };
@@ -497,6 +507,91 @@ TEST(CliOutputs, SeveralOutputsAreWrittenAllOrNone) {
     EXPECT_EQ(read_text(s.dir.file(f)).substr(1, 3), "PNG") << f;
   for (const char* f : {"d.pfm", "o.pfm"}) EXPECT_EQ(read_text(s.dir.file(f))[0], 'P') << f;
   EXPECT_EQ(dir_entries(s.dir.path).size(), before.size() + 3);
+}
+
+// The output rules above hold for the subcommands that came later:
+// `generate terrain`, `edit` (-o and --snow --render), `volume export` and
+// `render --write-frames`. Each refusal is a usage error before any work and
+// leaves every file as it was.
+TEST(CliOutputs, LaterSubcommandsKeepTheOutputRules) {
+  Scene s;
+  namespace fs = std::filesystem;
+  const std::string world = s.dir.file("w.vxc");
+  ASSERT_EQ(run_cli("generate terrain --size 32x16x32 -o " + world).exit_code, 0);
+  const std::string world_bytes = read_text(world);
+  fs::create_directory(s.dir.file("dir.vxc"));
+  ASSERT_EQ(mkfifo(s.dir.file("fifo.vxc").c_str(), 0600), 0);
+  ASSERT_EQ(mkfifo(s.dir.file("fifo.vdb").c_str(), 0600), 0);
+  fs::create_symlink("/dev/null", s.dir.file("null.vxc"));
+  fs::create_hard_link(world, s.dir.file("hard.vxc"));
+  const std::string terrain = "generate terrain --size 32x16x32 -o ";
+  expect_error(run_cli_split(terrain + s.dir.file("fifo.vxc"), 20), 2, "FIFO");
+  expect_error(run_cli_split(terrain + s.dir.file("dir.vxc"), 20), 2, "directory");
+  expect_error(run_cli_split(terrain + s.dir.file("null.vxc"), 20), 2, "device");
+  expect_error(run_cli_split(terrain + s.dir.file("t.png")), 2, "vertex count");
+  const std::string edit = "edit " + world + " --sphere 0,0,0,0.2 --add -o ";
+  expect_error(run_cli_split(edit + s.dir.file("hard.vxc")), 2, "same file as the input");
+  expect_error(run_cli_split(edit + s.dir.file("fifo.vxc"), 20), 2, "FIFO");
+  expect_error(run_cli_split(edit + s.dir.file("e.png")), 2, ".vxc");
+  // -o and --render on one file (through a symlink): refused, nothing written.
+  fs::create_symlink("e.vxc", s.dir.file("frame.png"));
+  expect_error(run_cli_split("edit " + world + " --snow 2 --render " + s.dir.file("frame.png") +
+                             " -o " + s.dir.file("e.vxc")),
+               2, "same file");
+  EXPECT_FALSE(fs::exists(s.dir.file("e.vxc")));
+  expect_error(run_cli_split("edit " + world + " --snow 2 --render " + s.dir.file("hard.vxc")), 2,
+               ".png");
+  const std::string vdb = s.dir.file("v.vdb");
+  ASSERT_EQ(run_cli("volume export procedural:cloud --resolution 8 -o " + vdb).exit_code, 0);
+  fs::create_hard_link(vdb, s.dir.file("v2.vdb"));
+  expect_error(run_cli_split("volume export " + vdb + " --resolution 8 -o " + s.dir.file("v2.vdb")),
+               2, "same file as the input");
+  expect_error(
+      run_cli_split("volume export procedural:cloud --resolution 8 -o " + s.dir.file("fifo.vdb"),
+                    20),
+      2, "FIFO");
+  expect_error(run_cli_split("volume export procedural:cloud -o " + s.dir.file("v.png")), 2,
+               ".vdb");
+  // --write-frames: every numbered frame is an output like -o.
+  const std::string slices = s.dir.file("s.vxs");
+  ASSERT_EQ(run_cli("build " + s.mesh + " -o " + slices + " --resolution 16 --slices").exit_code,
+            0);
+  const std::string frames =
+      "render " + slices + " --frames 3 --budget 1M --size 8x8 --write-frames";
+  ASSERT_EQ(mkfifo(s.dir.file("f-001.png").c_str(), 0600), 0);
+  expect_error(run_cli_split(frames + " -o " + s.dir.file("f.png"), 20), 2, "FIFO");
+  fs::create_symlink("s.vxs", s.dir.file("g-002.png"));
+  expect_error(run_cli_split(frames + " -o " + s.dir.file("g.png")), 2, "same file as the input");
+  for (const char* f : {"f.png", "f-000.png", "f-002.png", "g.png", "g-000.png", "g-001.png"})
+    EXPECT_FALSE(fs::exists(s.dir.file(f))) << f;
+  EXPECT_EQ(read_text(world), world_bytes);
+  EXPECT_FALSE(fs::exists(world + ".journal"));
+}
+
+// A brickmap world's edit journal (brickmap_file.hpp) is read by every
+// subcommand that opens the world; one that is a FIFO, a device or a
+// directory is refused in one line instead of blocking the reader (a FIFO)
+// or never ending (/dev/zero).
+TEST(CliInputs, NonRegularEditJournalsAreRefusedNotHung) {
+  Scene s;
+  namespace fs = std::filesystem;
+  const std::string world = s.dir.file("w.vxc"), journal = world + ".journal";
+  ASSERT_EQ(run_cli("generate terrain --size 32x16x32 -o " + world).exit_code, 0);
+  for (const std::string kind : {"FIFO", "device", "directory"}) {
+    SCOPED_TRACE(kind);
+    fs::remove(journal);
+    if (kind == "FIFO") ASSERT_EQ(mkfifo(journal.c_str(), 0600), 0);
+    if (kind == "device") fs::create_symlink("/dev/zero", journal);
+    if (kind == "directory") fs::create_directory(journal);
+    expect_error(run_cli_split("info " + world, 20), 1, kind);
+    expect_error(run_cli_split("render " + world + " --size 8x8 -o " + s.dir.file("a.png"), 20), 1,
+                 kind);
+    expect_error(
+        run_cli_split("render " + world + " --stream --size 8x8 -o " + s.dir.file("a.png"), 20), 1,
+        kind);
+    expect_error(run_cli_split("edit " + world + " --sphere 0,0,0,0.2 --add", 20), 1, kind);
+  }
+  EXPECT_FALSE(fs::exists(s.dir.file("a.png")));
 }
 
 TEST(CliInputs, NonRegularInputsAreRefusedNotHung) {

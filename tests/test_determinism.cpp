@@ -10,7 +10,9 @@
 // and the GigaVoxels volume images.
 #include <gtest/gtest.h>
 
+#include <functional>
 #include <string>
+#include <vector>
 
 #include "support/cli_runner.hpp"
 
@@ -59,7 +61,8 @@ INSTANTIATE_TEST_SUITE_P(
                      "--resolution 128 --contours --geometry-error 1 --color-error 8"},
         SceneVariant{"dag_raw", "--resolution 256 --format dag"},
         SceneVariant{"dag_compressed", "--resolution 256 --format dag --attributes compressed"},
-        SceneVariant{"dag_out_of_core", "--resolution 256 --format dag --out-of-core"}),
+        SceneVariant{"dag_out_of_core", "--resolution 256 --format dag --out-of-core"},
+        SceneVariant{"brickmap", "--resolution 128 --format brickmap"}),
     [](const ::testing::TestParamInfo<SceneVariant>& p) { return std::string(p.param.name); });
 
 // Every image format `render` writes: color .png and .pfm, depth .pfm,
@@ -157,6 +160,61 @@ INSTANTIATE_TEST_SUITE_P(
                       VoxelOutput{"vdb", ".vdb", "--resolution 64"},
                       VoxelOutput{"raw", ".raw", "--resolution 64"}),
     [](const ::testing::TestParamInfo<VoxelOutput>& p) { return std::string(p.param.name); });
+
+// Runs the commands `commands(p)` (p: a file prefix per thread count) with
+// --threads 1 and 2 and expects each of `files` (p + name) to be the same
+// bytes both times.
+void expect_same_files(const TempDir& dir,
+                       const std::function<std::vector<std::string>(const std::string&)>& commands,
+                       const std::vector<std::string>& files) {
+  std::vector<std::string> bytes[2];
+  for (int t = 0; t < 2; ++t) {
+    const std::string p = dir.file(std::to_string(t));
+    for (const std::string& run : commands(p)) {
+      const testing::CliResult r = run_cli(run + " --threads " + std::to_string(t + 1));
+      ASSERT_EQ(r.exit_code, 0) << run << "\n" << r.output;
+    }
+    for (const std::string& f : files) bytes[t].push_back(read_text(p + f));
+  }
+  for (size_t k = 0; k < files.size(); ++k) {
+    ASSERT_GT(bytes[0][k].size(), 100u) << files[k];
+    EXPECT_TRUE(bytes[0][k] == bytes[1][k]) << files[k] << " differs between 1 and 2 threads";
+  }
+}
+
+// Brickmap worlds beyond `build`: a terrain written by `generate terrain`
+// (chunk columns generated in parallel), its render in RAM and streamed from
+// the file (uploads served between passes, with and without DXT1 colors).
+TEST(DeterministicBrickmap, SameBytesOnOneAndTwoThreads) {
+  TempDir dir;
+  expect_same_files(dir,
+                    [](const std::string& p) {
+                      const std::string world = "'" + p + "w.vxc'";
+                      return std::vector<std::string>{
+                          "generate terrain --size 96x40x80 --seed 4 -o " + world,
+                          "render " + world + " -o '" + p + "c.png' --depth '" + p +
+                              "d.pfm' --size 64x48 --shadows hard --ao 2",
+                          "render " + world + " --stream --frames 3 --budget 256K -o '" + p +
+                              "s.png' --size 64x48",
+                          "render " + world + " --stream --frames 3 --budget 256K --dxt1 -o '" + p +
+                              "x.png' --size 64x48"};
+                    },
+                    {"w.vxc", "c.png", "d.pfm", "s.png", "x.png"});
+}
+
+// ESVO slice files (.vxs, esvo §7: the top-down slice builder) and the frames
+// streamed from one within a budget (--write-frames).
+TEST(DeterministicSlices, SameBytesOnOneAndTwoThreads) {
+  TempDir dir;
+  expect_same_files(dir,
+                    [](const std::string& p) {
+                      return std::vector<std::string>{
+                          "build '" + kSpot + "' -o '" + p + "s.vxs' --resolution 128 --slices",
+                          "render '" + p + "s.vxs' --frames 2 --budget 64K --write-frames -o '" +
+                              p + "f.png' --size 64x48"};
+                    },
+                    {"s.vxs", "f.png", "f-000.png"});
+}
 
 // `volume render` (GigaVoxels: several passes that serve requests between
 // them, so the pools' contents depend on what the threads asked for).

@@ -156,16 +156,16 @@ Camera parse_camera_option(const std::string& text) {
   }
 }
 
-uint64_t parse_memory_budget(const std::string& text) {
+uint64_t parse_memory_budget(const std::string& text, const char* option) {
   uint64_t bytes = 0;
   try {
     bytes = parse_byte_size(text.c_str());
   } catch (const Error& e) {
-    throw UsageError(std::string("--memory-budget: ") + e.what());
+    throw UsageError(std::string(option) + ": " + e.what());
   }
   const uint64_t physical = physical_memory_bytes();
   if (physical > 0 && bytes > physical)
-    throw UsageError("--memory-budget: " + printable(text) + " is more than the " +
+    throw UsageError(std::string(option) + ": " + printable(text) + " is more than the " +
                      format_bytes(double(physical)) + " of physical memory of this machine");
   return bytes;
 }

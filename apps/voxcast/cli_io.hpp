@@ -52,7 +52,8 @@ Camera parse_camera_option(const std::string& text);
 
 /// --memory-budget: "512M", "8G", ... (parse_byte_size), refused when above
 /// the machine's physical memory (a budget that large protects nothing).
-uint64_t parse_memory_budget(const std::string& text);
+/// `option` names the option in the usage error (e.g. "--budget").
+uint64_t parse_memory_budget(const std::string& text, const char* option = "--memory-budget");
 
 /// Every file a command writes. Register all outputs before any work
 /// (add() checks each right away), write each to staging(path), then commit()

@@ -206,10 +206,10 @@ Runner add_edit(CLI::App& app) {
   cmd->add_flag("--checkpoint", args->checkpoint,
                 "In place: also fold the edit journal into the scene file now (it is folded in "
                 "anyway once it is larger than the file and 16 MiB)");
-  return [args]() {
+  return [args, cmd]() {
     std::vector<EditStep> steps;
     if (!args->render.empty() && args->snow == 0) throw UsageError("--render needs --snow");
-    if (args->snow != 0) {
+    if (cmd->count("--snow") > 0) {
       require_range("--snow", args->snow, 1, 1000000);
       require_range("--snow-rate", args->snow_rate, 0, 1);
       if (!args->batch.empty() || !args->sphere.empty() || !args->box.empty() ||
@@ -250,17 +250,18 @@ Runner add_edit(CLI::App& app) {
                                                  : parse_srgb(args->paint, "--paint");
       steps.push_back(e);
     }
-    std::unique_ptr<OutputSet> outputs;
-    if (!args->output.empty()) {
-      outputs = std::make_unique<OutputSet>(std::vector<std::string>{args->input});
-      outputs->add("-o", args->output, {".vxc"});
-    }
-    std::unique_ptr<OutputSet> frame_out;
+    // One set for the world and the frame: checked against each other and
+    // the inputs before any work, renamed into place together at the end.
+    std::vector<std::string> inputs = {args->input};
+    for (const std::string* f : {&args->batch, &args->mesh})
+      if (!f->empty()) inputs.push_back(*f);
+    OutputSet outputs(inputs);
+    const bool write_whole = !args->output.empty(), render_frames = !args->render.empty();
+    if (write_whole) outputs.add("-o", args->output, {".vxc"});
     RenderOptions ro;
-    if (!args->render.empty()) {
+    if (render_frames) {
       parse_size(args->render_size, &ro.width, &ro.height);
-      frame_out = std::make_unique<OutputSet>(std::vector<std::string>{args->input});
-      frame_out->add("--render", args->render, {".png"});
+      outputs.add("--render", args->render, {".png"});
     }
     if (!args->batch.empty() && args->snow == 0) steps = parse_batch(args->batch);
     require_regular_input(args->input, "world");
@@ -274,7 +275,7 @@ Runner add_edit(CLI::App& app) {
     uint64_t voxels = 0;
     std::set<uint64_t> cells;
     double seconds = 0;
-    if (frame_out) {
+    if (render_frames) {
       // The simulation on LiveWorld's worker while frames render (§5.5).
       brickmap::LiveWorld live(world);
       brickmap::SnowOptions snow;
@@ -291,16 +292,15 @@ Runner add_edit(CLI::App& app) {
                     last.seconds > 0 ? double(last.rays) / last.seconds * 1e-6 : 0.0);
         if (done) break;
       }
-      frame_out->write(args->render,
-                       [&](const std::filesystem::path& to) { write_image(to, last.color); });
-      frame_out->commit();
+      outputs.write(args->render,
+                    [&](const std::filesystem::path& to) { write_image(to, last.color); });
       const brickmap::LiveWorld::Throughput t = live.throughput();
       voxels = t.voxels, seconds = t.seconds;
       world = live.world();
       for (uint64_t c = 0; c < world.cells().size(); ++c)
         if (brickmap::CellFlags::get(world.cell(c)) & brickmap::kFlagEdited) cells.insert(c);
     }
-    for (const EditStep& e : frame_out ? std::vector<EditStep>{} : steps) {
+    for (const EditStep& e : render_frames ? std::vector<EditStep>{} : steps) {
       const VoxelSet stamp =
           e.kind == EditStep::Kind::Mesh ? stamp_voxels(e, world.grid()) : VoxelSet{};
       const auto t0 = std::chrono::steady_clock::now();
@@ -316,11 +316,10 @@ Runner add_edit(CLI::App& app) {
     }
     info.leaf_voxels = world.stats().voxels;
     std::string saved;
-    if (outputs) {
-      outputs->write(args->output, [&](const std::filesystem::path& to) {
+    if (write_whole) {
+      outputs.write(args->output, [&](const std::filesystem::path& to) {
         brickmap::save_scene(to, world, info);
       });
-      outputs->commit();
       saved = "written whole";
     } else {
       const uint64_t journal = brickmap::commit_edits(
@@ -335,9 +334,10 @@ Runner add_edit(CLI::App& app) {
         saved = "checkpointed";
       }
     }
+    outputs.commit();  // the world (-o) and the frame (--render) together
     std::printf("%s: %llu voxels changed in %zu bricks, %llu voxels in %llu bricks now (%s)\n",
-                printable(outputs ? args->output : args->input).c_str(), (unsigned long long)voxels,
-                cells.size(), (unsigned long long)info.leaf_voxels,
+                printable(write_whole ? args->output : args->input).c_str(),
+                (unsigned long long)voxels, cells.size(), (unsigned long long)info.leaf_voxels,
                 (unsigned long long)world.stats().bricks, saved.c_str());
     std::printf("%zu edit%s in %.3f ms: %.3g voxels/s, %.3g bricks/s\n", steps.size(),
                 steps.size() == 1 ? "" : "s", seconds * 1e3,

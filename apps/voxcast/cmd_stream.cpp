@@ -40,7 +40,8 @@ int render_stream(const StreamArgs& a, const std::string& world, const std::stri
   require_range("--uploads", a.uploads, 1, 1 << 24);
   require_range("--passes", a.passes, 1, 1000);
   brickmap::StreamOptions so;
-  so.budget_bytes = parse_memory_budget(a.budget.empty() ? std::string("512M") : a.budget);
+  so.budget_bytes =
+      parse_memory_budget(a.budget.empty() ? std::string("512M") : a.budget, "--budget");
   so.uploads_per_pass = uint32_t(a.uploads);
   so.hidden_voxel_removal = !a.no_hidden_removal;
   so.dxt1 = a.dxt1;

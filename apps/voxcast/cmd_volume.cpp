@@ -102,17 +102,6 @@ Source make_source(const std::string& source, int resolution) {
   return s;
 }
 
-/// --budget through the shared memory-budget parser (which names its own option).
-uint64_t parse_budget(const std::string& text) {
-  try {
-    return parse_memory_budget(text);
-  } catch (const UsageError& e) {
-    std::string m = e.what();
-    if (m.rfind("--memory-budget", 0) == 0) m.replace(0, 15, "--budget");
-    throw UsageError(m);
-  }
-}
-
 /// Process CPU time (user + system) in seconds: frame costs that can be read
 /// for an idle machine when the wall clock is shared.
 double cpu_seconds() {
@@ -154,7 +143,7 @@ int volume_bench(const BenchArgs& a) {
   if (!is_vdb(a.source))
     throw UsageError("volume bench needs a .vdb SOURCE (the peer, OpenVDB's marcher, reads grids)");
   giga::GigaOptions go;
-  go.budget_bytes = parse_budget(a.budget);
+  go.budget_bytes = parse_memory_budget(a.budget, "--budget");
   VolumeIntegratorOptions io;
   io.shadows = true, io.ambient = 0.f, io.step_scale = a.step;
   if (!a.light.empty()) {
@@ -517,7 +506,7 @@ Runner add_volume(CLI::App& app) {
       throw UsageError(std::string("--transfer: ") + e.what());
     }
     giga::GigaOptions go;
-    go.budget_bytes = parse_budget(args->budget);
+    go.budget_bytes = parse_memory_budget(args->budget, "--budget");
     check_camera_options(args->camera, view.width, view.height);
     OutputSet outputs(procedural ? std::vector<std::string>{}
                                  : std::vector<std::string>{args->source});

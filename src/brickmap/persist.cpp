@@ -8,8 +8,6 @@
 #include <algorithm>
 #include <cerrno>
 #include <cstring>
-#include <fstream>
-#include <iterator>
 #include <mutex>
 #include <set>
 #include <string>
@@ -17,6 +15,7 @@
 #include "brickmap/codec.hpp"
 #include "voxcast/brickmap_file.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/system.hpp"
 
 namespace voxcast::brickmap {
 namespace {
@@ -71,6 +70,7 @@ class Fd {
   void seek_end() {
     if (::lseek(fd_, 0, SEEK_END) < 0) io_fail("seek failed", path_, errno);
   }
+  int fd() const { return fd_; }
 
  private:
   std::filesystem::path path_;
@@ -87,10 +87,28 @@ void sync_directory(const std::filesystem::path& file) {
   if (r != 0) io_fail("directory fsync failed", file, err);
 }
 
+// The journal's bytes. Opened without blocking and checked on the open file
+// descriptor: a FIFO in the journal's place would block the open (and every
+// reader of the world: info, render, edit) until a writer appears, a device
+// such as /dev/zero would never end, a directory is no journal.
 std::vector<uint8_t> read_file(const std::filesystem::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  if (!in) throw Error("journal '" + p.string() + "': cannot read");
-  return std::vector<uint8_t>(std::istreambuf_iterator<char>(in), {});
+  Fd f(p, O_RDONLY | O_NONBLOCK | O_CLOEXEC);
+  struct stat st;
+  if (::fstat(f.fd(), &st) != 0) io_fail("cannot stat", p, errno);
+  if (!S_ISREG(st.st_mode))
+    throw Error("journal '" + p.string() + "' is " + file_type_name(uint32_t(st.st_mode)) +
+                ", not a regular file");
+  std::vector<uint8_t> bytes(size_t(st.st_size));
+  size_t done = 0;
+  while (done < bytes.size()) {
+    const ssize_t k = ::read(f.fd(), bytes.data() + done, bytes.size() - done);
+    if (k < 0 && errno == EINTR) continue;
+    if (k < 0) io_fail("read failed", p, errno);
+    if (k == 0) break;  // shortened while being read: what is there
+    done += size_t(k);
+  }
+  bytes.resize(done);
+  return bytes;
 }
 
 std::vector<uint8_t> file_head(const World& w) {
