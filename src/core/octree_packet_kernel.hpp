@@ -240,6 +240,62 @@ template <class VP, class OnHit>
         parent = fresh ? L::template splat<U>(nodes.root()) : parent;
         scale = fresh ? L::template splat<I>(s_max - 1) : scale;
         sexp = fresh ? L::template splat<F>(0.5f) : sexp;
+        if (q.path_width == N) {
+          // The packet's shared path (PacketQueue::path_*): the loop's PUSHes
+          // along it, all lanes at once, each lane as long as the loop
+          // itself would PUSH into the path's next cube (its child position,
+          // no LOD stop, a span left non-empty by the cube and its contour;
+          // the cubes are present, not leaves). No fetch: the path holds the
+          // nodes and contour values.
+          const int p = next / N;  // whole packets: next is a multiple of N
+          I follow = fresh;
+          float side = 0.5f;
+          for (int j = 0; j < q.path_levels[p]; ++j, side *= 0.5f) {
+            const int s = s_max - 1 - j;  // the following lanes' scale
+            const float* lo = q.path_lo[p][j];
+            // The cube's mirrored min corner per lane (flip bit a: axis a mirrored).
+            const F mx = (flip & 1u) != 0u ? L::template splat<F>(3.f - side - lo[0])
+                                           : L::template splat<F>(lo[0]);
+            const F my = (flip & 2u) != 0u ? L::template splat<F>(3.f - side - lo[1])
+                                           : L::template splat<F>(lo[1]);
+            const F mz = (flip & 4u) != 0u ? L::template splat<F>(3.f - side - lo[2])
+                                           : L::template splat<F>(lo[2]);
+            follow &= (px == mx) & (py == my) & (pz == mz);
+            const F tx = L::fma(px, cx, -bx), ty = L::fma(py, cy, -by), tz = L::fma(pz, cz, -bz);
+            const F tc_max = L::min(L::min(tx, ty), tz);
+            F t_lo = t_min, tv_max = L::min(t_max, tc_max);
+            follow &= (t_min <= t_max) & ~(tc_max * size_coef + size_bias >= sexp);
+            if (q.path_has_contour[p][j])  // cast_octree's contour_span, lane by lane
+              for (uint32_t b = L::bits(follow); b != 0; b &= b - 1) {
+                const int l = std::countr_zero(b), k = slot[l];
+                float tl = t_lo[l], tv = tv_max[l];
+                contour_span(q.path_contour[p][j], {cx[l], cy[l], cz[l]},
+                             {q.dx[k], q.dy[k], q.dz[k]}, tx[l], ty[l], tz[l], side, &tl, &tv);
+                t_lo[l] = tl, tv_max[l] = tv;
+              }
+            follow &= t_lo <= tv_max;
+            if (L::bits(follow) == 0) break;
+            t_min = follow ? t_lo : t_min;
+            U* node_row = reinterpret_cast<U*>(stack_node + s * N);
+            U* tmax_row = reinterpret_cast<U*>(stack_tmax + s * N);
+            *node_row = follow ? parent : *node_row;
+            *tmax_row = follow ? L::as_u(t_max) : *tmax_row;
+            h = follow ? tc_max : h;
+            const F half = sexp * 0.5f;
+            const F ccx = px + half, ccy = py + half, ccz = pz + half;  // exact: dyadic
+            const I cx_up = L::fma(ccx, cx, -bx) > t_min;
+            const I cy_up = L::fma(ccy, cy, -by) > t_min;
+            const I cz_up = L::fma(ccz, cz, -bz) > t_min;
+            idx = follow ? ((U)cx_up & 1u) | ((U)cy_up & 2u) | ((U)cz_up & 4u) : idx;
+            px = (follow & cx_up) ? ccx : px;
+            py = (follow & cy_up) ? ccy : py;
+            pz = (follow & cz_up) ? ccz : pz;
+            scale = follow ? scale - 1 : scale;
+            sexp = follow ? half : sexp;
+            t_max = follow ? tv_max : t_max;
+            parent = follow ? L::template splat<U>(q.path_node[p][j]) : parent;
+          }
+        }
       }
       vp.forget(&desc, fresh);
       next += std::popcount(idle);
