@@ -201,6 +201,26 @@ template <class VP, class OnHit>
   alignas(64) uint32_t stack_tmax[(s_max + 1) * N];  // float bits
   int next = 0;
 
+  // PUSH in the lanes of m (cast_octree), after the stack write: into the
+  // child the ray enters first (the upper half, mirrored, on each axis whose
+  // center plane is not crossed yet at t_min), one scale down, the span
+  // ending at tv_max, the child's node.
+  auto push_lanes = [&](I m, F tv_max, U child) __attribute__((always_inline)) {
+    const F half = sexp * 0.5f;
+    const F ccx = px + half, ccy = py + half, ccz = pz + half;  // exact: dyadic
+    const I mx = L::fma(ccx, cx, -bx) > t_min;
+    const I my = L::fma(ccy, cy, -by) > t_min;
+    const I mz = L::fma(ccz, cz, -bz) > t_min;
+    idx = m ? ((U)mx & 1u) | ((U)my & 2u) | ((U)mz & 4u) : idx;
+    px = (m & mx) ? ccx : px;
+    py = (m & my) ? ccy : py;
+    pz = (m & mz) ? ccz : pz;
+    scale = m ? scale - 1 : scale;
+    sexp = m ? half : sexp;
+    t_max = m ? tv_max : t_max;
+    parent = m ? child : parent;
+  };
+
   for (;;) {
     uint32_t idle = L::bits(slot < 0);
     if (next < q.count && (std::popcount(idle) >= kRefillLanes || idle == L::kAll)) {
@@ -281,19 +301,7 @@ template <class VP, class OnHit>
             *node_row = follow ? parent : *node_row;
             *tmax_row = follow ? L::as_u(t_max) : *tmax_row;
             h = follow ? tc_max : h;
-            const F half = sexp * 0.5f;
-            const F ccx = px + half, ccy = py + half, ccz = pz + half;  // exact: dyadic
-            const I cx_up = L::fma(ccx, cx, -bx) > t_min;
-            const I cy_up = L::fma(ccy, cy, -by) > t_min;
-            const I cz_up = L::fma(ccz, cz, -bz) > t_min;
-            idx = follow ? ((U)cx_up & 1u) | ((U)cy_up & 2u) | ((U)cz_up & 4u) : idx;
-            px = (follow & cx_up) ? ccx : px;
-            py = (follow & cy_up) ? ccy : py;
-            pz = (follow & cz_up) ? ccz : pz;
-            scale = follow ? scale - 1 : scale;
-            sexp = follow ? half : sexp;
-            t_max = follow ? tv_max : t_max;
-            parent = follow ? L::template splat<U>(q.path_node[p][j]) : parent;
+            push_lanes(follow, tv_max, L::template splat<U>(q.path_node[p][j]));
           }
         }
       }
@@ -342,21 +350,7 @@ template <class VP, class OnHit>
         L::scatter(stack_node, at, store, parent);
         L::scatter(stack_tmax, at, store, L::as_u(t_max));
         h = push ? tc_max : h;
-        const U child = vp.descend(desc, parent, c, scale, push);
-        const F half = sexp * 0.5f;
-        const F ccx = px + half, ccy = py + half, ccz = pz + half;  // exact: dyadic
-        const I mx = L::fma(ccx, cx, -bx) > t_min;
-        const I my = L::fma(ccy, cy, -by) > t_min;
-        const I mz = L::fma(ccz, cz, -bz) > t_min;
-        const U nidx = ((U)mx & 1u) | ((U)my & 2u) | ((U)mz & 4u);
-        idx = push ? nidx : idx;
-        px = (push & mx) ? ccx : px;
-        py = (push & my) ? ccy : py;
-        pz = (push & mz) ? ccz : pz;
-        scale = push ? scale - 1 : scale;
-        sexp = push ? half : sexp;
-        t_max = push ? tv_max : t_max;
-        parent = push ? child : parent;
+        push_lanes(push, tv_max, vp.descend(desc, parent, c, scale, push));
         vp.forget(&desc, push);
       }
     }
