@@ -230,11 +230,10 @@ const AoRays& ao_rays() {
 }
 
 // Arg 0: 0 = scalar occluded(), 1 = occluded_packets, 2 = occluded_anyhit
-// from the root, 3 = occluded_anyhit with the per-ray deep start (AO: in
-// point groups), 4 = the same with a cull of 24 fetches, 5 = the packets'
-// shared paths (DeepStart::Packet), 6 = the same with path_share 0.5;
-// arg 1: 0 = AVX2,
-// 1 = AVX-512; arg 2: 0 = shadow rays, 1 = AO rays (point-major).
+// from the root (AO: in point groups, AnyHitOptions::group), 3 =
+// occluded_anyhit with the per-ray deep start, 4 = the same with a cull of 24 fetches, 5 = the
+// packets' shared paths (DeepStart::Packet), 6 = the same with path_share 0.5; arg 1: 0 = AVX2, 1 =
+// AVX-512; arg 2: 0 = shadow rays, 1 = AO rays (point-major).
 template <class S>
 void run_occlusion(benchmark::State& state, const S& s) {
   using namespace voxcast;
@@ -260,7 +259,7 @@ void run_occlusion(benchmark::State& state, const S& s) {
       } else if (caster == 1) {
         occluded_packets(s, rays.data() + b, n, LodFootprint{}, occ.data() + b, isa);
       } else {
-        o.group = caster >= 3 && ao ? 16 : 0;
+        o.group = ao ? 16 : 0;  // point-major: one point's rays per group
         o.normals = o.group > 0 ? ao_rays().normals.data() + b / 16 : nullptr;
         o.deep_start = caster == 5   ? DeepStart::Packet
                        : caster >= 3 ? DeepStart::PerRay

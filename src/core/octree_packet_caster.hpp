@@ -68,6 +68,9 @@ struct alignas(64) PacketQueue {
   float stack_tmax[kOctreeMaxScale][kPacketQueue];
   int count = 0;
   bool deep = false;  // some ray starts below the root (else parent/scale/stack are not read)
+  // Idle lanes before the kernel refills them (0: all of them, whole
+  // packets; paths need whole packets).
+  int refill_lanes = 0;
   // Packet paths (set by packet_paths; path_width 0: none). Packet p = the
   // slots [p path_width, (p + 1) path_width), which the kernel of
   // path_width lanes refills as one packet. Its lanes, started at the root,

@@ -11,7 +11,7 @@
 // stale, the three corner t values, then PUSH lanes, ADVANCE lanes and, of
 // those, POP lanes. The stack is per lane in L1, laid out [scale][lane] so
 // that a level's entries of all lanes share a cache line. Lanes are refilled
-// from the queue by expand-loads (see kRefillLanes). The first-hit kernel
+// from the queue by expand-loads (see refill_at). The first-hit kernel
 // (trace_packets) and the any-hit kernel (occluded_packets,
 // occluded_anyhit) are this one loop, lane_loop, with different hit sinks.
 //
@@ -178,14 +178,18 @@ template <class VP, class OnHit>
   using U = typename L::U;
   const VP vp(nodes);
   const bool contours = may_narrow_spans(nodes);  // the loop's early miss exit when false
-  // Refill the lanes from the queue, in order, once every lane is idle: the
-  // packet is then the queue's next 16 (8) rays, a 4x4 (4x2) pixel block of
-  // camera or shadow rays, or one point's AO rays, whose lanes read the same
-  // nodes. Refilling lanes as they finish (after N/4 or N/2 idle lanes)
-  // keeps more lanes busy but mixes rays at different depths, whose gathers
-  // miss the caches independently: measured 10-25 % slower
-  // (docs/BENCHMARKS.md "Packet casters", "Occlusion packets").
-  constexpr int kRefillLanes = N;
+  // Refill the lanes from the queue, in order, once every lane is idle
+  // (q.refill_lanes 0): the packet is then the queue's next 16 (8) rays, a
+  // 4x4 (4x2) pixel block of camera or shadow rays, whose lanes read the
+  // same nodes. Refilling lanes as they finish (after N/4 or N/2 idle
+  // lanes) keeps more lanes busy but mixes rays at different depths, whose
+  // gathers miss the caches independently: measured 10-25 % slower for
+  // those rays (docs/BENCHMARKS.md "Packet casters", "Occlusion packets").
+  // For the AO rays of one point per packet, whose lengths differ most, a
+  // refill at N/2 idle lanes measured faster (q.refill_lanes,
+  // docs/BENCHMARKS.md "Occlusion packets: the fold and the per-ray deep
+  // start").
+  const int refill_at = q.refill_lanes > 0 && q.refill_lanes < N ? q.refill_lanes : N;
   const I lane = L::iota();
 
   // Lane state (cast_octree's locals; idle lanes have slot < 0) and the
@@ -223,7 +227,7 @@ template <class VP, class OnHit>
 
   for (;;) {
     uint32_t idle = L::bits(slot < 0);
-    if (next < q.count && (std::popcount(idle) >= kRefillLanes || idle == L::kAll)) {
+    if (next < q.count && (std::popcount(idle) >= refill_at || idle == L::kAll)) {
       const int avail = q.count - next;
       if (std::popcount(idle) > avail) idle = _pdep_u32((1u << avail) - 1, idle);
       cx = L::expand(cx, idle, q.cx + next), cy = L::expand(cy, idle, q.cy + next);
@@ -267,7 +271,7 @@ template <class VP, class OnHit>
           // no LOD stop, a span left non-empty by the cube and its contour;
           // the cubes are present, not leaves). No fetch: the path holds the
           // nodes and contour values.
-          const int p = next / N;  // whole packets: next is a multiple of N
+          const int p = next / N;  // whole packets (refill_lanes 0): next is a multiple of N
           I follow = fresh;
           float side = 0.5f;
           for (int j = 0; j < q.path_levels[p]; ++j, side *= 0.5f) {
