@@ -229,10 +229,11 @@ const AoRays& ao_rays() {
   return a;
 }
 
-// Arg 0: 0 = scalar occluded(), 1 = occluded_packets (first-hit kernel),
-// 2 = occluded_anyhit, 3 = occluded_anyhit with the point groups and the
-// deep start, 4 = the same with a cull of 24 fetches; arg 1: 0 = AVX2,
-// 1 = AVX-512; arg 2: 0 = shadow rays, 1 = AO rays (point-major).
+// Arg 0: 0 = scalar occluded(), 1 = occluded_packets, 2 = occluded_anyhit
+// from the root (AO: in point groups, AnyHitOptions::group), 3 =
+// occluded_anyhit with the per-ray deep start, 4 = the same with a cull of 24 fetches, 5 = the
+// packets' shared paths (DeepStart::Packet), 6 = the same with path_share 0.5; arg 1: 0 = AVX2, 1 =
+// AVX-512; arg 2: 0 = shadow rays, 1 = AO rays (point-major).
 template <class S>
 void run_occlusion(benchmark::State& state, const S& s) {
   using namespace voxcast;
@@ -249,6 +250,7 @@ void run_occlusion(benchmark::State& state, const S& s) {
   AnyHitOptions o;
   o.isa = isa;
   const size_t chunk = 256;  // 16 points' AO rays, or a 16x16 tile's shadow rays
+  AnyHitStats stats;
   for (auto _ : state) {
     for (size_t b = 0; b < rays.size(); b += chunk) {
       const size_t n = std::min(chunk, rays.size() - b);
@@ -257,16 +259,25 @@ void run_occlusion(benchmark::State& state, const S& s) {
       } else if (caster == 1) {
         occluded_packets(s, rays.data() + b, n, LodFootprint{}, occ.data() + b, isa);
       } else {
-        o.group = caster >= 3 && ao ? 16 : 0;
+        o.group = ao ? 16 : 0;  // point-major: one point's rays per group
         o.normals = o.group > 0 ? ao_rays().normals.data() + b / 16 : nullptr;
-        o.deep_start = caster >= 3;
+        o.deep_start = caster == 5   ? DeepStart::Packet
+                       : caster >= 3 ? DeepStart::PerRay
+                                     : DeepStart::Off;
         o.cull_budget = caster == 4 ? 24 : 0;
-        occluded_anyhit(s, rays.data() + b, n, LodFootprint{}, occ.data() + b, o);
+        o.path_share = caster == 6 ? 0.5f : 1.f;
+        occluded_anyhit(s, rays.data() + b, n, LodFootprint{}, occ.data() + b, o, &stats);
       }
     }
     benchmark::DoNotOptimize(occ.data());
   }
   state.SetItemsProcessed(int64_t(state.iterations()) * int64_t(rays.size()));
+  // What the deep starts did, per ray traced (not a timing).
+  if (stats.rays > 0) {
+    state.counters["per_ray_levels"] = double(stats.depth_sum) / double(stats.rays);
+    state.counters["path_levels_per_ray"] =
+        double(stats.path_levels) * packet_width(isa) / double(stats.rays);
+  }
 }
 
 void BM_OcclusionEsvo(benchmark::State& st) {
@@ -276,10 +287,10 @@ void BM_OcclusionDag(benchmark::State& st) {
   run_occlusion(st, *scene().dag);
 }
 BENCHMARK(BM_OcclusionEsvo)
-    ->ArgsProduct({{0, 1, 2, 3, 4}, {0, 1}, {0, 1}})
+    ->ArgsProduct({{0, 1, 2, 3, 4, 5, 6}, {0, 1}, {0, 1}})
     ->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_OcclusionDag)
-    ->ArgsProduct({{0, 1, 2, 3, 4}, {0, 1}, {0, 1}})
+    ->ArgsProduct({{0, 1, 2, 3, 4, 5, 6}, {0, 1}, {0, 1}})
     ->Unit(benchmark::kMillisecond);
 
 }  // namespace

@@ -183,10 +183,11 @@ std::vector<uint8_t> scalar_answers(const S& s, const std::vector<Ray>& rays,
   return want;
 }
 
-// occluded_anyhit == occluded() on every ray, each ISA: deep start with the
-// cull, deep start alone, every ray from the root. Returns the stats of the
-// deep start with the cull on AVX2 (8-ray packets); *occluded_count (may be
-// null): the rays the scalar caster finds occluded.
+// occluded_anyhit == occluded() on every ray, each ISA: the per-ray deep
+// start with the cull and alone, the packets' shared paths, every ray from
+// the root. Returns the stats of the per-ray deep start with the cull on
+// AVX2 (8-ray packets), with path_levels from the packet paths there;
+// *occluded_count (may be null): the rays the scalar caster finds occluded.
 template <class S>
 AnyHitStats expect_same(const S& s, const std::vector<Ray>& rays, const LodFootprint& lod,
                         int group, const Vec3* normals, const std::string& what,
@@ -200,16 +201,20 @@ AnyHitStats expect_same(const S& s, const std::vector<Ray>& rays, const LodFootp
   EXPECT_LT(occluded, rays.size()) << what;
   AnyHitStats stats;
   for (const Isa isa : isas()) {
-    for (const int variant : {0, 1, 2}) {
-      static const char* const names[] = {" deep+cull", " deep", " root"};
+    for (const int variant : {0, 1, 2, 3}) {
+      static const char* const names[] = {" per-ray deep+cull", " per-ray deep", " packet paths",
+                                          " root"};
+      static const DeepStart starts[] = {DeepStart::PerRay, DeepStart::PerRay, DeepStart::Packet,
+                                         DeepStart::Off};
       AnyHitOptions o;
-      o.group = group, o.normals = normals, o.deep_start = variant < 2, o.isa = isa;
+      o.group = group, o.normals = normals, o.deep_start = starts[variant], o.isa = isa;
       o.cull_budget = variant == 0 ? 24 : 0;
       std::vector<uint8_t> got(rays.size(), 7);
       AnyHitStats st;
       occluded_anyhit(s, rays.data(), rays.size(), lod, got.data(), o, &st);
       if (variant == 0 && isa == Isa::Avx2) stats = st;
-      if (variant == 2) {
+      if (variant == 2 && isa == Isa::Avx2) stats.path_levels = st.path_levels;
+      if (variant >= 2) {
         EXPECT_EQ(st.deep_rays, 0u) << what;
       }
       size_t bad = 0;
@@ -225,9 +230,12 @@ AnyHitStats expect_same(const S& s, const std::vector<Ray>& rays, const LodFootp
 
 void print_stats(const std::string& what, const AnyHitStats& st) {
   const double mean = st.rays ? double(st.depth_sum) / double(st.rays) : 0.0;
-  std::printf("%s: culled %llu of %llu groups; %llu of %llu rays started deep, %.2f levels\n",
-              what.c_str(), (unsigned long long)st.culled, (unsigned long long)st.points,
-              (unsigned long long)st.deep_rays, (unsigned long long)st.rays, mean);
+  std::printf(
+      "%s: culled %llu of %llu groups; %llu of %llu rays started deep, %.2f levels; "
+      "packet paths %llu levels\n",
+      what.c_str(), (unsigned long long)st.culled, (unsigned long long)st.points,
+      (unsigned long long)st.deep_rays, (unsigned long long)st.rays, mean,
+      (unsigned long long)st.path_levels);
 }
 
 template <class S>
@@ -249,6 +257,7 @@ void check_random(const S& s, const char* name) {
   EXPECT_GT(cs.deep_rays, cs.rays / 3) << name;
   EXPECT_GT(cs.deep_rays, occluded + cs.rays / 10) << name;
   EXPECT_GT(cs.depth_sum, cs.deep_rays) << name;  // more than a level on average
+  EXPECT_GT(cs.path_levels, cs.rays / 16) << name;
   print_stats(std::string(name) + " clusters", cs);
   expect_same(s, cl, lod, 0, nullptr, std::string(name) + " clusters lod");
   const Groups g = random_groups(sc.grid, 1500, 16, 9);
@@ -339,6 +348,7 @@ void check_effect_rays(const S& s, const char* name) {
   // The shadow packets start deep, and their unoccluded rays leave the start cube.
   EXPECT_GT(sh.deep_rays, sh.rays / 2) << name;
   EXPECT_GT(sh.deep_rays, occluded) << name;
+  EXPECT_GT(sh.path_levels, 0u) << name;
   print_stats(std::string(name) + " shadow", sh);
   // What the effects trace them with (Structure::transmittance_batch):
   // occluded_packets, the any-hit packets.

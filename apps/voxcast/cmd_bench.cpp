@@ -277,13 +277,16 @@ Timed occluded_all_packets(const SurfacePackets& s, const std::vector<Ray>& rays
   });
 }
 
-// The any-hit packets with the deep start (the packet rows are the same
-// kernel from the root): each chunk as one call.
+// The deep start the any-hit rows use (the packet rows are the same kernel
+// from the root).
+constexpr DeepStart kBenchDeepStart = DeepStart::Packet;
+
+// The any-hit packets with the deep start: each chunk as one call.
 Timed occluded_all_anyhit(const AnyHitCaster& s, const std::vector<Ray>& rays,
                           std::vector<uint8_t>* occ) {
   return occluded_frame(rays, occ, [&](size_t b, size_t e, uint8_t* o) {
     AnyHitOptions opt;
-    opt.deep_start = true;
+    opt.deep_start = kBenchDeepStart;
     s(rays.data() + b, e - b, o + b, opt, nullptr);
   });
 }
@@ -303,7 +306,8 @@ Timed occluded_ao_groups(const AnyHitCaster& s, const std::vector<Ray>& rays,
   t.rays = rays.size();
   t.seconds = detail::for_each_chunk(np, per_chunk, [&](size_t b, size_t e) {
     AnyHitOptions opt;
-    opt.group = int(k), opt.normals = normals.data() + b, opt.deep_start = deep;
+    opt.group = int(k), opt.normals = normals.data() + b,
+    opt.deep_start = deep ? kBenchDeepStart : DeepStart::Off;
     opt.cull_budget = cull_budget;
     AnyHitStats st;
     s(rays.data() + b * k, (e - b) * k, point_major.data() + b * k, opt, &st);

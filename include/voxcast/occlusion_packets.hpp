@@ -20,6 +20,22 @@
 
 namespace voxcast {
 
+/// Where occlusion rays start (AnyHitOptions::deep_start).
+enum class DeepStart {
+  /// Every ray from the root.
+  Off,
+  /// Each ray at the deepest cube around its origin that the loop reaches
+  /// by descending alone: a walk of the origin's path and a replay of the
+  /// loop's PUSHes along it per ray, before the kernel (measured slower than
+  /// the root start: docs/BENCHMARKS.md "Occlusion packets: the fold and
+  /// the per-ray deep start").
+  PerRay,
+  /// Each packet (16 or 8 consecutive rays) shares one path, to the deepest
+  /// cube holding its lanes' origins; the kernel replays the loop's PUSHes
+  /// along it in its lanes at the refill, without fetching.
+  Packet,
+};
+
 struct AnyHitOptions {
   /// > 0: rays [k group, (k + 1) group) share their origin (checked): the
   /// cull may answer them (at LOD 0). 0: independent rays.
@@ -27,12 +43,13 @@ struct AnyHitOptions {
   /// group > 0, may be null: one normal per group with dot(dir, normal) >= 0
   /// for its rays (checked): the cull also uses the half-space above it.
   const Vec3* normals = nullptr;
-  /// Start each ray at the deepest cube around its origin that the loop
-  /// reaches by descending alone; false: every ray from the root. Off by
-  /// default: its per-ray set-up (the origin's path, the replay) measured
-  /// more than the descent it saves (docs/BENCHMARKS.md "Occlusion packets:
-  /// the fold and the per-ray deep start").
-  bool deep_start = false;
+  /// Where rays start (DeepStart): from the root by default.
+  DeepStart deep_start = DeepStart::Off;
+  /// DeepStart::Packet: a packet's path goes one level deeper while at least
+  /// this share of its lanes (those with an origin inside the root) has its
+  /// origin in the same child; the others stop replaying there. 1: the
+  /// deepest cube holding every origin.
+  float path_share = 1.f;
   /// Nodes the cull of a group may fetch before it gives up and the rays are
   /// traced (0: no cull; it costs more than it saves, docs/BENCHMARKS.md
   /// "Occlusion packets").
@@ -42,11 +59,12 @@ struct AnyHitOptions {
 
 /// What the deep start and the cull did, summed over calls.
 struct AnyHitStats {
-  uint64_t points = 0;     // ray groups offered the cull
-  uint64_t culled = 0;     // groups answered by the cull alone (no ray traced)
-  uint64_t rays = 0;       // rays traced by the kernel
-  uint64_t deep_rays = 0;  // of those, rays started below the root
-  uint64_t depth_sum = 0;  // levels of descent skipped, summed over the rays
+  uint64_t points = 0;       // ray groups offered the cull
+  uint64_t culled = 0;       // groups answered by the cull alone (no ray traced)
+  uint64_t rays = 0;         // rays traced by the kernel
+  uint64_t deep_rays = 0;    // of those, rays started below the root
+  uint64_t depth_sum = 0;    // PerRay: levels of descent skipped, summed over the rays
+  uint64_t path_levels = 0;  // Packet: levels of the packets' paths, summed over the packets
 };
 
 /// occluded[i] = occluded(rays[i], lod) for i < n (0/1), bit-identical.

@@ -166,15 +166,16 @@ inline bool group_region(const OctreeFrame& frame, const Ray* rays, size_t i0, s
 }
 
 /// occluded(rays[i], lod) for i < n into hit[i] (0/1), bit-identical to the
-/// scalar caster, via `kernel`. deep: rays start deep
-/// (start_packets). group > 0: rays [k group, (k + 1) group) share an origin
-/// (checked) and, if `normals` is set, dot(dir, normals[k]) >= 0 (checked);
-/// with cull_budget > 0 such groups are first offered the cull (at LOD 0).
-/// stats (may be null) accumulates.
+/// scalar caster, via `kernel` of `width` lanes, started as `start` says
+/// (DeepStart, voxcast/occlusion_packets.hpp: per ray, start_packets; per
+/// packet, packet_paths with `path_share`). group > 0: rays [k group, (k + 1) group) share an
+/// origin (checked) and, if `normals` is set, dot(dir, normals[k]) >= 0 (checked); with cull_budget
+/// > 0 such groups are first offered the cull (at LOD 0). stats (may be null) accumulates.
 template <class P>
-void anyhit_packets(const OctreeWorld<P>& world, AnyHitKernel<P> kernel, const Ray* rays, size_t n,
-                    const LodFootprint& lod, int group, const Vec3* normals, bool deep,
-                    int cull_budget, uint8_t* hit, AnyHitStats* stats) {
+void anyhit_packets(const OctreeWorld<P>& world, AnyHitKernel<P> kernel, int width, const Ray* rays,
+                    size_t n, const LodFootprint& lod, int group, const Vec3* normals,
+                    DeepStart start, float path_share, int cull_budget, uint8_t* hit,
+                    AnyHitStats* stats) {
   cull_budget = cull_budget < 0 ? 0 : (cull_budget > kMaxCullBudget ? kMaxCullBudget : cull_budget);
   const P nodes(world.source);
   const OctreeFrame& frame = world.frame;
@@ -188,22 +189,28 @@ void anyhit_packets(const OctreeWorld<P>& world, AnyHitKernel<P> kernel, const R
   // The queued rays: deep start, then the kernel.
   auto flush = [&] {
     if (q.count == 0) return;
-    if (deep) {
+    if (start == DeepStart::PerRay) {
       const uint64_t before = st.depth_sum;
       st.depth_sum += start_packets(nodes, origins, 0, size_coef, size_bias, &q);
       if (st.depth_sum != before)
         for (int k = 0; k < q.count; ++k) st.deep_rays += q.scale[k] < kOctreeMaxScale - 1;
+    } else if (start == DeepStart::Packet) {
+      packet_paths(nodes, origins, width, path_share, &q);
+      for (int p = 0; p * width < q.count; ++p) st.path_levels += uint64_t(q.path_levels[p]);
     }
     st.rays += uint64_t(q.count);
+    // Packets of one point's AO rays: refill once half the lanes are idle
+    // (measured faster for them, slower for a pixel block's rays).
+    q.refill_lanes = group > 0 && q.path_width == 0 ? width / 2 : 0;
     kernel(nodes, q, size_coef, size_bias, hit + base);
-    q.count = 0, q.deep = false;
+    q.count = 0, q.deep = false, q.path_width = 0;
   };
   // Groups never straddle a queue: a block holds whole groups when it can.
   const size_t g = group > 0 ? size_t(group) : 1;
   const size_t block = g <= size_t(kPacketQueue) ? (size_t(kPacketQueue) / g) * g : g;
   for (; base < n; base += block) {
     const size_t m = n - base < block ? n - base : block;
-    q.count = 0, q.deep = false;
+    q.count = 0, q.deep = false, q.path_width = 0;
     for (size_t i = 0; i < m; ++i) hit[base + i] = 0;
     for (size_t g0 = 0; g0 < m; g0 += g) {
       const size_t g1 = g0 + g < m ? g0 + g : m;
@@ -228,7 +235,7 @@ void anyhit_packets(const OctreeWorld<P>& world, AnyHitKernel<P> kernel, const R
   if (stats != nullptr) {
     stats->points += st.points, stats->culled += st.culled;
     stats->rays += st.rays, stats->deep_rays += st.deep_rays;
-    stats->depth_sum += st.depth_sum;
+    stats->depth_sum += st.depth_sum, stats->path_levels += st.path_levels;
   }
 }
 
@@ -237,17 +244,17 @@ void anyhit_packets(const OctreeWorld<P>& world, AnyHitKernel<P> kernel, const R
 template <class P, class S>
 void structure_anyhit(const S& s, const typename P::Source& source, Isa isa,
                       const PacketKernels<P>& kernels, const Ray* rays, size_t n,
-                      const LodFootprint& lod, int group, const Vec3* normals, bool deep,
-                      int cull_budget, uint8_t* hit, AnyHitStats* stats) {
+                      const LodFootprint& lod, int group, const Vec3* normals, DeepStart start,
+                      float path_share, int cull_budget, uint8_t* hit, AnyHitStats* stats) {
   require_isa(isa, "any-hit packets");
   if (beyond_gathers(source)) {
     TraceContext ctx;
     for (size_t i = 0; i < n; ++i) hit[i] = s.occluded(rays[i], lod, ctx);
     return;
   }
-  anyhit_packets(OctreeWorld<P>(source),
-                 isa == Isa::Avx512 ? kernels.anyhit_avx512 : kernels.anyhit_avx2, rays, n, lod,
-                 group, normals, deep, cull_budget, hit, stats);
+  anyhit_packets(
+      OctreeWorld<P>(source), isa == Isa::Avx512 ? kernels.anyhit_avx512 : kernels.anyhit_avx2,
+      packet_width(isa), rays, n, lod, group, normals, start, path_share, cull_budget, hit, stats);
 }
 
 /// A structure's SurfaceQuery::transmittance_batch: `occluded(rays, m, hit)`

@@ -68,6 +68,22 @@ struct alignas(64) PacketQueue {
   float stack_tmax[kOctreeMaxScale][kPacketQueue];
   int count = 0;
   bool deep = false;  // some ray starts below the root (else parent/scale/stack are not read)
+  // Idle lanes before the kernel refills them (0: all of them, whole
+  // packets; paths need whole packets).
+  int refill_lanes = 0;
+  // Packet paths (set by packet_paths; path_width 0: none). Packet p = the
+  // slots [p path_width, (p + 1) path_width), which the kernel of
+  // path_width lanes refills as one packet. Its lanes, started at the root,
+  // replay the path in the kernel's lanes before their first iteration
+  // (core/octree_packet_kernel.hpp), each as far as the loop would PUSH
+  // along it: cube j (side 2^-(j + 1), the root's child first) has the
+  // unmirrored min corner path_lo[p][j] and node path_node[p][j].
+  int path_width = 0;
+  int8_t path_levels[kPacketQueue / 8];
+  uint32_t path_node[kPacketQueue / 8][kOctreeMaxScale];
+  float path_lo[kPacketQueue / 8][kOctreeMaxScale][3];
+  uint32_t path_contour[kPacketQueue / 8][kOctreeMaxScale];  // if path_has_contour
+  bool path_has_contour[kPacketQueue / 8][kOctreeMaxScale];
 };
 
 /// The kernel's output per ray: stop = 0 (CastStop::kMiss) unless the loop
@@ -303,6 +319,76 @@ typename P::Index payload_at(const P& nodes, Vec3 pos, int scale) {
                       (float_bits(pos.z) >> s & 1u) << 2);
     if (s == scale) return nodes.hit_index(index, desc, node, c, s);
     node = nodes.descend(desc, node, c, s, index, cnt);
+  }
+}
+
+/// A packet's shared path (PacketQueue::path_*) for each run of `width`
+/// queue slots: from the root, the child that holds the origins of at least
+/// `share` of the lanes still on the path (origins[k]: slot k's, octree
+/// space; lanes with an origin outside the root or on the center plane
+/// leave it), as long as that child is present and not a leaf (with its
+/// contour value, if the structure may narrow spans). A lane off the path
+/// simply stops replaying there: where to start is only a choice, the
+/// kernel's replay checks every lane with the loop's own floats.
+template <class P>
+void packet_paths(const P& nodes, const Vec3* origins, int width, float share, PacketQueue* q) {
+  static_assert(!P::kResidency, "a deep start assumes every node is resident");
+  NoCounters cnt;
+  [[maybe_unused]] typename P::Index index{};
+  const bool contours = may_narrow_spans(nodes);
+  q->path_width = width;
+  for (int k0 = 0, p = 0; k0 < q->count; k0 += width, ++p) {
+    const int k1 = k0 + width < q->count ? k0 + width : q->count;
+    uint32_t on = 0;  // lanes still on the path
+    for (int k = k0; k < k1; ++k) {
+      const Vec3 o = origins[k];
+      if (o.x > 1.f && o.y > 1.f && o.z > 1.f && o.x < 2.f && o.y < 2.f && o.z < 2.f)
+        on |= 1u << (k - k0);
+    }
+    const int need = int(std::ceil(share * float(std::popcount(on))));
+    int levels = 0;
+    uint32_t node = nodes.root();
+    Vec3 clo{1.f, 1.f, 1.f};
+    float side = 1.f;
+    for (int scale = kOctreeMaxScale - 1; scale > 0 && on != 0; --scale) {
+      const float half = side * 0.5f;
+      uint32_t in_child[8] = {};
+      for (uint32_t b = on; b != 0; b &= b - 1) {
+        const int l = std::countr_zero(b);
+        const Vec3 o = origins[k0 + l];
+        int c = 0;
+        for (int a = 0; a < 3; ++a) {
+          const float mid = clo[a] + half;
+          if (o[a] > mid)
+            c |= 1 << a;
+          else if (!(o[a] < mid))
+            c = -1;
+          if (c < 0) break;
+        }
+        if (c >= 0) in_child[c] |= 1u << l;
+      }
+      int best = 0;
+      for (int c = 1; c < 8; ++c)
+        if (std::popcount(in_child[c]) > std::popcount(in_child[best])) best = c;
+      if (std::popcount(in_child[best]) < (need > 1 ? need : 1)) break;
+      const auto desc = nodes.fetch(node, scale, cnt);
+      if (!nodes.valid(desc, best) || nodes.leaf(desc, best, scale)) break;
+      q->path_has_contour[p][levels] = false;
+      if constexpr (P::kContours)
+        if (contours)
+          q->path_has_contour[p][levels] =
+              nodes.contour(desc, node, best, &q->path_contour[p][levels]);
+      for (int a = 0; a < 3; ++a)
+        if (best >> a & 1) clo[a] += half;
+      node = nodes.descend(desc, node, best, scale, index, cnt);
+      q->path_node[p][levels] = node;
+      q->path_lo[p][levels][0] = clo.x, q->path_lo[p][levels][1] = clo.y;
+      q->path_lo[p][levels][2] = clo.z;
+      ++levels;
+      side = half;
+      on = in_child[best];
+    }
+    q->path_levels[p] = int8_t(levels);
   }
 }
 

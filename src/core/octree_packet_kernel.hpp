@@ -11,7 +11,7 @@
 // stale, the three corner t values, then PUSH lanes, ADVANCE lanes and, of
 // those, POP lanes. The stack is per lane in L1, laid out [scale][lane] so
 // that a level's entries of all lanes share a cache line. Lanes are refilled
-// from the queue by expand-loads (see kRefillLanes). The first-hit kernel
+// from the queue by expand-loads (see refill_at). The first-hit kernel
 // (trace_packets) and the any-hit kernel (occluded_packets,
 // occluded_anyhit) are this one loop, lane_loop, with different hit sinks.
 //
@@ -178,14 +178,18 @@ template <class VP, class OnHit>
   using U = typename L::U;
   const VP vp(nodes);
   const bool contours = may_narrow_spans(nodes);  // the loop's early miss exit when false
-  // Refill the lanes from the queue, in order, once every lane is idle: the
-  // packet is then the queue's next 16 (8) rays, a 4x4 (4x2) pixel block of
-  // camera or shadow rays, or one point's AO rays, whose lanes read the same
-  // nodes. Refilling lanes as they finish (after N/4 or N/2 idle lanes)
-  // keeps more lanes busy but mixes rays at different depths, whose gathers
-  // miss the caches independently: measured 10-25 % slower
-  // (docs/BENCHMARKS.md "Packet casters", "Occlusion packets").
-  constexpr int kRefillLanes = N;
+  // Refill the lanes from the queue, in order, once every lane is idle
+  // (q.refill_lanes 0): the packet is then the queue's next 16 (8) rays, a
+  // 4x4 (4x2) pixel block of camera or shadow rays, whose lanes read the
+  // same nodes. Refilling lanes as they finish (after N/4 or N/2 idle
+  // lanes) keeps more lanes busy but mixes rays at different depths, whose
+  // gathers miss the caches independently: measured 10-25 % slower for
+  // those rays (docs/BENCHMARKS.md "Packet casters", "Occlusion packets").
+  // For the AO rays of one point per packet, whose lengths differ most, a
+  // refill at N/2 idle lanes measured faster (q.refill_lanes,
+  // docs/BENCHMARKS.md "Occlusion packets: the fold and the per-ray deep
+  // start").
+  const int refill_at = q.refill_lanes > 0 && q.refill_lanes < N ? q.refill_lanes : N;
   const I lane = L::iota();
 
   // Lane state (cast_octree's locals; idle lanes have slot < 0) and the
@@ -201,9 +205,29 @@ template <class VP, class OnHit>
   alignas(64) uint32_t stack_tmax[(s_max + 1) * N];  // float bits
   int next = 0;
 
+  // PUSH in the lanes of m (cast_octree), after the stack write: into the
+  // child the ray enters first (the upper half, mirrored, on each axis whose
+  // center plane is not crossed yet at t_min), one scale down, the span
+  // ending at tv_max, the child's node.
+  auto push_lanes = [&](I m, F tv_max, U child) __attribute__((always_inline)) {
+    const F half = sexp * 0.5f;
+    const F ccx = px + half, ccy = py + half, ccz = pz + half;  // exact: dyadic
+    const I mx = L::fma(ccx, cx, -bx) > t_min;
+    const I my = L::fma(ccy, cy, -by) > t_min;
+    const I mz = L::fma(ccz, cz, -bz) > t_min;
+    idx = m ? ((U)mx & 1u) | ((U)my & 2u) | ((U)mz & 4u) : idx;
+    px = (m & mx) ? ccx : px;
+    py = (m & my) ? ccy : py;
+    pz = (m & mz) ? ccz : pz;
+    scale = m ? scale - 1 : scale;
+    sexp = m ? half : sexp;
+    t_max = m ? tv_max : t_max;
+    parent = m ? child : parent;
+  };
+
   for (;;) {
     uint32_t idle = L::bits(slot < 0);
-    if (next < q.count && (std::popcount(idle) >= kRefillLanes || idle == L::kAll)) {
+    if (next < q.count && (std::popcount(idle) >= refill_at || idle == L::kAll)) {
       const int avail = q.count - next;
       if (std::popcount(idle) > avail) idle = _pdep_u32((1u << avail) - 1, idle);
       cx = L::expand(cx, idle, q.cx + next), cy = L::expand(cy, idle, q.cy + next);
@@ -240,6 +264,50 @@ template <class VP, class OnHit>
         parent = fresh ? L::template splat<U>(nodes.root()) : parent;
         scale = fresh ? L::template splat<I>(s_max - 1) : scale;
         sexp = fresh ? L::template splat<F>(0.5f) : sexp;
+        if (q.path_width == N) {
+          // The packet's shared path (PacketQueue::path_*): the loop's PUSHes
+          // along it, all lanes at once, each lane as long as the loop
+          // itself would PUSH into the path's next cube (its child position,
+          // no LOD stop, a span left non-empty by the cube and its contour;
+          // the cubes are present, not leaves). No fetch: the path holds the
+          // nodes and contour values.
+          const int p = next / N;  // whole packets (refill_lanes 0): next is a multiple of N
+          I follow = fresh;
+          float side = 0.5f;
+          for (int j = 0; j < q.path_levels[p]; ++j, side *= 0.5f) {
+            const int s = s_max - 1 - j;  // the following lanes' scale
+            const float* lo = q.path_lo[p][j];
+            // The cube's mirrored min corner per lane (flip bit a: axis a mirrored).
+            const F mx = (flip & 1u) != 0u ? L::template splat<F>(3.f - side - lo[0])
+                                           : L::template splat<F>(lo[0]);
+            const F my = (flip & 2u) != 0u ? L::template splat<F>(3.f - side - lo[1])
+                                           : L::template splat<F>(lo[1]);
+            const F mz = (flip & 4u) != 0u ? L::template splat<F>(3.f - side - lo[2])
+                                           : L::template splat<F>(lo[2]);
+            follow &= (px == mx) & (py == my) & (pz == mz);
+            const F tx = L::fma(px, cx, -bx), ty = L::fma(py, cy, -by), tz = L::fma(pz, cz, -bz);
+            const F tc_max = L::min(L::min(tx, ty), tz);
+            F t_lo = t_min, tv_max = L::min(t_max, tc_max);
+            follow &= (t_min <= t_max) & ~(tc_max * size_coef + size_bias >= sexp);
+            if (q.path_has_contour[p][j])  // cast_octree's contour_span, lane by lane
+              for (uint32_t b = L::bits(follow); b != 0; b &= b - 1) {
+                const int l = std::countr_zero(b), k = slot[l];
+                float tl = t_lo[l], tv = tv_max[l];
+                contour_span(q.path_contour[p][j], {cx[l], cy[l], cz[l]},
+                             {q.dx[k], q.dy[k], q.dz[k]}, tx[l], ty[l], tz[l], side, &tl, &tv);
+                t_lo[l] = tl, tv_max[l] = tv;
+              }
+            follow &= t_lo <= tv_max;
+            if (L::bits(follow) == 0) break;
+            t_min = follow ? t_lo : t_min;
+            U* node_row = reinterpret_cast<U*>(stack_node + s * N);
+            U* tmax_row = reinterpret_cast<U*>(stack_tmax + s * N);
+            *node_row = follow ? parent : *node_row;
+            *tmax_row = follow ? L::as_u(t_max) : *tmax_row;
+            h = follow ? tc_max : h;
+            push_lanes(follow, tv_max, L::template splat<U>(q.path_node[p][j]));
+          }
+        }
       }
       vp.forget(&desc, fresh);
       next += std::popcount(idle);
@@ -286,21 +354,7 @@ template <class VP, class OnHit>
         L::scatter(stack_node, at, store, parent);
         L::scatter(stack_tmax, at, store, L::as_u(t_max));
         h = push ? tc_max : h;
-        const U child = vp.descend(desc, parent, c, scale, push);
-        const F half = sexp * 0.5f;
-        const F ccx = px + half, ccy = py + half, ccz = pz + half;  // exact: dyadic
-        const I mx = L::fma(ccx, cx, -bx) > t_min;
-        const I my = L::fma(ccy, cy, -by) > t_min;
-        const I mz = L::fma(ccz, cz, -bz) > t_min;
-        const U nidx = ((U)mx & 1u) | ((U)my & 2u) | ((U)mz & 4u);
-        idx = push ? nidx : idx;
-        px = (push & mx) ? ccx : px;
-        py = (push & my) ? ccy : py;
-        pz = (push & mz) ? ccz : pz;
-        scale = push ? scale - 1 : scale;
-        sexp = push ? half : sexp;
-        t_max = push ? tv_max : t_max;
-        parent = push ? child : parent;
+        push_lanes(push, tv_max, vp.descend(desc, parent, c, scale, push));
         vp.forget(&desc, push);
       }
     }

@@ -38,8 +38,8 @@ void OctreeStructure<Self>::cast_anyhit(const Ray* rays, size_t n, const LodFoot
   const Self& self = static_cast<const Self&>(*this);
   using P = typename decltype(self.world())::Nodes;
   detail::structure_anyhit<P>(self, self.world().source, o.isa, detail::kPacketKernels<P>, rays, n,
-                              lod, o.group, o.normals, o.deep_start, o.cull_budget, occluded,
-                              stats);
+                              lod, o.group, o.normals, o.deep_start, o.path_share, o.cull_budget,
+                              occluded, stats);
 }
 
 template <class Self>
