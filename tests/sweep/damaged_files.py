@@ -4,30 +4,39 @@ reads a file, every stored scene format and every interop input format.
 
     tests/sweep/damaged_files.py VOXCAST [--per-file N] [--seed S] [--timeout T]
                                  [--work DIR]
-                                 [--only scenes,slices,voxels,volumes,envmaps,meshes]
+                                 [--only scenes,journals,slices,voxels,volumes,envmaps,meshes]
 
 Samples (built with VOXCAST from tests/data, small): the seven scene formats
 (ESVO raw, compressed, contours, contours + compressed, variable depth, DAG
-raw, DAG compressed) and a brickmap world, an ESVO slice file (.vxs), the
+raw, DAG compressed), a brickmap world built from a mesh and one written by
+`generate terrain`, the edit journal of a world edited in place, an ESVO
+slice file (.vxs), the
 voxel inputs .vox, .binvox and .vdb (written by `convert`, plus a
 MagicaVoxel-written .vox from tests/data/vox), the volumes INRIMAGE
-(tests/data/volumes) and MetaImage (.mha, written here), environment maps
+(tests/data/volumes), MetaImage (.mha, written here) and an OpenVDB
+FloatGrid (.vdb, written by `volume export`), environment maps
 (.hdr and .exr, written by `generate sky`) and the mesh formats OBJ, OFF,
 PLY, STL, glTF (tests/data/meshes and the seeds of fuzz/corpus/mesh).
 
 Damage, N per sample: scene files get 32-bit payload words set (0xFFFFFFFF,
 0, 0x80000000, random, +-1, one bit flipped) with the section hash
 recomputed (fuzz/damage_scene.py), so the edit reaches the validators, plus
-plain truncations and byte flips; every other file gets truncations, byte
+plain truncations and byte flips; edit journals get the same word edits
+inside one record (head or payload) with the record's two hashes
+recomputed, plus truncations and byte flips; every other file gets truncations, byte
 flips, random 32-bit words and inserted/deleted byte runs.
 
 Each damaged file goes through every subcommand that reads it:
   scenes: info, info --json, render (auto camera, beam, hard shadows, AO,
-          post-filter; also --depth/--normals and an .exr with layers)
+          post-filter; also --depth/--normals and an .exr with layers);
+          brickmap worlds also render --stream (with and without --dxt1)
+          and edit -o
+  journals (beside their intact world): info, render, render --stream,
+          edit -o
   slice files: info, render (--frames 1, streaming within --budget)
   voxel files: convert to .vox/.binvox/.vdb/.raw, build (ESVO and DAG), and
           render of what build accepted
-  volumes: volume render
+  volumes: volume render, volume info
   environment maps: render --gi 1 --env of a small scene
   meshes: build (ESVO, DAG), convert to .vox, bench (tiny)
 It must exit 0 (then stderr holds only warnings), or exit 1 or 2 with exactly
@@ -60,7 +69,10 @@ SCENE_FORMATS = {
     'dag_raw': '--resolution 64 --format dag',
     'dag_compressed': '--resolution 64 --format dag --attributes compressed',
     'brickmap': '--resolution 64 --format brickmap',
+    # not built from the mesh: `generate terrain` (a brickgrid cut off in y)
+    'brickmap_terrain': None,
 }
+BRICKMAPS = ('brickmap', 'brickmap_terrain')
 EDITS = (0xFFFFFFFF, 0, 0x80000000, 'random', '+1', '-1', 'bit')
 
 
@@ -100,6 +112,15 @@ class Sweep:
         return os.path.join(self.work, name)
 
 
+def edit_word(buf, pos, rng):
+    """One of EDITS applied to the little-endian 32-bit word at buf[pos]."""
+    old = struct.unpack_from('<I', buf, pos)[0]
+    edit = rng.choice(EDITS)
+    new = {'random': rng.getrandbits(32), '+1': old + 1, '-1': old - 1,
+           'bit': old ^ (1 << rng.randrange(32))}.get(edit, edit)
+    struct.pack_into('<I', buf, pos, new & 0xFFFFFFFF)
+
+
 def scene_damage(data, rng, n):
     """n damaged copies of a scene: payload word edits with the hash fixed up
     (most of them), truncations and byte flips."""
@@ -119,12 +140,56 @@ def scene_damage(data, rng, n):
             yield bytes(buf)
             continue
         pos = offset + 4 * rng.randrange(size // 4)
-        old = struct.unpack_from('<I', buf, pos)[0]
-        edit = rng.choice(EDITS)
-        new = {'random': rng.getrandbits(32), '+1': old + 1, '-1': old - 1,
-               'bit': old ^ (1 << rng.randrange(32))}.get(edit, edit)
-        struct.pack_into('<I', buf, pos, new & 0xFFFFFFFF)
+        edit_word(buf, pos, rng)
         damage_scene.rehash(buf, offset, size, chunk_bytes, hash_at)
+        yield bytes(buf)
+
+
+def journal_records(data):
+    """(head offset, payload size) of every whole record of an edit journal
+    (include/voxcast/brickmap_file.hpp: a 24-byte file head, then records of a
+    40-byte head and a payload)."""
+    at, out = 24, []
+    while at + 40 <= len(data) and data[at:at + 4] == b'JREC':
+        size = struct.unpack_from('<Q', data, at + 16)[0]
+        if at + 40 + size > len(data):
+            break
+        out.append((at, size))
+        at += 40 + size
+    return out
+
+
+def rehash_record(buf, at):
+    """Recomputes a journal record's payload and head hashes (the payload
+    size is read from the head as it now stands, clipped to the file)."""
+    size = min(struct.unpack_from('<Q', buf, at + 16)[0], max(0, len(buf) - at - 40))
+    struct.pack_into('<Q', buf, at + 24, damage_scene.xxh64(bytes(buf[at + 40:at + 40 + size])))
+    struct.pack_into('<Q', buf, at + 32, damage_scene.xxh64(bytes(buf[at:at + 32])))
+
+
+def journal_damage(data, rng, n):
+    """n damaged copies of an edit journal: 32-bit word edits inside one
+    record, its hashes recomputed so the edit reaches the replay (most of
+    them; the head's type, transaction and size words too), truncations and
+    byte flips."""
+    recs = journal_records(data)
+    for k in range(n):
+        buf = bytearray(data)
+        kind = k % 8
+        if kind == 6 or not recs:
+            yield bytes(buf[:rng.randrange(len(buf))])
+            continue
+        if kind == 7:
+            buf[rng.randrange(len(buf))] ^= 1 << rng.randrange(8)
+            yield bytes(buf)
+            continue
+        at, size = rng.choice(recs)
+        if kind == 5 or size < 4:  # head: type, transaction or payload size
+            pos = at + rng.choice((4, 8, 12, 16, 20))
+        else:
+            pos = at + 40 + 4 * rng.randrange(size // 4)
+        edit_word(buf, pos, rng)
+        rehash_record(buf, at)
         yield bytes(buf)
 
 
@@ -168,7 +233,7 @@ def main():
     ap.add_argument('--seed', type=int, default=2026)
     ap.add_argument('--timeout', type=float, default=60)
     ap.add_argument('--work')
-    ap.add_argument('--only', default='scenes,slices,voxels,volumes,envmaps,meshes',
+    ap.add_argument('--only', default='scenes,journals,slices,voxels,volumes,envmaps,meshes',
                     help='comma-separated parts of the sweep to run')
     a = ap.parse_args()
     rng = random.Random(a.seed)
@@ -182,15 +247,29 @@ def main():
         runs, acc, ref, fails = before
         summary.append(f'{name}: {sw.runs - runs} runs, {sw.accepted - acc} accepted, '
                        f'{sw.refused - ref} refused, {len(sw.failures) - fails} failures')
+        # As each part ends, so that a long sweep shows where it is.
+        print(summary[-1], *sw.failures[fails:], sep='\n', flush=True)
 
     def state():
         return (sw.runs, sw.accepted, sw.refused, len(sw.failures))
 
     only = set(a.only.split(','))
     # ---- scenes ----
+    def terrain(out):
+        return sw.run(['generate', 'terrain', '--size', '72x40x64', '--seed', '5', '-o', out],
+                      'sample terrain')
+
+    def brickmap_runs(f, label):
+        """What reads a brickmap world besides info and render."""
+        for dxt1 in ([], ['--dxt1']):
+            sw.run(['render', f, '--stream', '--frames', '2', '--budget', '1M', '-o',
+                    sw.out('st.png'), '--size', '16x12'] + dxt1, label)
+        sw.run(['edit', f, '--sphere', '0.5,0.3,0.5,0.1', '--add', '-o', sw.out('e.vxc')], label)
+
     for name, opts in (SCENE_FORMATS.items() if 'scenes' in only else []):
         src = sw.out(name + '.vxc')
-        if not sw.run(['build', spot, '-o', src] + opts.split(), 'sample ' + name):
+        if not (sw.run(['build', spot, '-o', src] + opts.split(), 'sample ' + name) if opts
+                else terrain(src)):
             raise SystemExit(f'cannot build the {name} sample')
         before = state()
         for i, f in damaged_files(sw, src, rng, a.per_file, scene_damage):
@@ -202,7 +281,35 @@ def main():
                     '--normals', sw.out('n.png')], label)
             sw.run(['render', f, '-o', sw.out('r.exr'), '--aov', 'depth,normal', '--size',
                     '16x12'], label)
+            if name in BRICKMAPS:
+                brickmap_runs(f, label)
         tally('scene ' + name, before)
+
+    # ---- edit journals (brickmap worlds edited in place) ----
+    for name in (BRICKMAPS if 'journals' in only else []):
+        world = sw.out(name + '-j.vxc')
+        ok = (sw.run(['build', spot, '-o', world] + SCENE_FORMATS[name].split(), 'sample ' + name)
+              if SCENE_FORMATS[name] else terrain(world))
+        for brush in (['--sphere', '0.5,0.4,0.5,0.15', '--add'],
+                      ['--box', '0.3,0.3,0.3,0.6,0.5,0.6', '--remove'],
+                      ['--sphere', '0.4,0.3,0.6,0.2', '--paint', '0.1,0.2,0.9']):
+            ok = ok and sw.run(['edit', world] + brush, 'journal sample ' + name)
+        ok = ok and sw.run(['edit', world, '--snow', '2'], 'journal sample ' + name)
+        journal = world + '.journal'
+        if not ok or not os.path.exists(journal):
+            raise SystemExit(f'cannot write the {name} journal sample')
+        data = open(journal, 'rb').read()
+        bad_world = sw.out('jbad.vxc')
+        shutil.copyfile(world, bad_world)
+        before = state()
+        for i, bad in enumerate(journal_damage(data, rng, a.per_file)):
+            open(bad_world + '.journal', 'wb').write(bad)
+            label = f'{name} journal #{i}'
+            sw.run(['info', bad_world], label)
+            sw.run(['render', bad_world, '-o', sw.out('r.png'), '--size', '24x18', '--beam', '4',
+                    '--shadows', 'hard'], label)
+            brickmap_runs(bad_world, label)
+        tally(f'journal {name} ({len(journal_records(data))} records)', before)
 
     # ---- slice files ----
     if 'slices' in only:
@@ -242,14 +349,17 @@ def main():
         tally('voxels ' + name, before)
 
     # ---- volumes ----
+    def volume_runs(f, label):
+        sw.run(['volume', 'render', f, '-o', sw.out('vol.png'), '--size', '24x18'], label)
+        sw.run(['volume', 'info', f], label)
+
     inr = os.path.join(DATA, 'volumes')
     for v in sorted(os.listdir(inr)) if 'volumes' in only else []:
         if not v.endswith('.inr'):
             continue
         before = state()
         for i, f in damaged_files(sw, os.path.join(inr, v), rng, a.per_file):
-            sw.run(['volume', 'render', f, '-o', sw.out('vol.png'), '--size', '24x18'],
-                   f'{v} #{i}')
+            volume_runs(f, f'{v} #{i}')
         tally('volume ' + v, before)
 
     # MetaImage: a small sphere of bytes after a local-data header.
@@ -263,9 +373,17 @@ def main():
                             for z in range(8) for y in range(8) for x in range(8)))
         before = state()
         for i, f in damaged_files(sw, mha, rng, a.per_file):
-            sw.run(['volume', 'render', f, '-o', sw.out('vol.png'), '--size', '24x18'],
-                   f'mha #{i}')
+            volume_runs(f, f'mha #{i}')
         tally('volume sample.mha', before)
+        # An OpenVDB FloatGrid written by `volume export`.
+        vdb = sw.out('volume.vdb')
+        if not sw.run(['volume', 'export', 'procedural:cloud', '-o', vdb, '--resolution', '16'],
+                      'sample volume .vdb'):
+            raise SystemExit('cannot write the .vdb volume sample')
+        before = state()
+        for i, f in damaged_files(sw, vdb, rng, a.per_file):
+            volume_runs(f, f'volume.vdb #{i}')
+        tally('volume volume.vdb', before)
 
     # ---- environment maps ----
     if 'envmaps' in only:
@@ -308,6 +426,7 @@ def main():
                        label)
         tally('mesh ' + os.path.basename(src), before)
 
+    print('summary:')
     for line in summary:
         print(line)
     for line in sw.failures:
