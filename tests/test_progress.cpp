@@ -15,6 +15,7 @@
 #include "support/cli_runner.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/esvo.hpp"
+#include "voxcast/esvo_slices.hpp"
 #include "voxcast/format_registry.hpp"
 #include "voxcast/generate.hpp"
 #include "voxcast/progress.hpp"
@@ -326,6 +327,38 @@ TEST(Progress, SceneLoadReportsReadThenBounds) {
     EXPECT_EQ(file_bytes(dir + "/progress-load-a.vxc"), file_bytes(dir + "/progress-load-b.vxc"))
         << format;
   }
+}
+
+// Opening a whole slice file (every slice read, hashed, checked and merged,
+// then the occupied-bounds walk) draws a read and a bounds phase, ends
+// complete, and opens the same scene as without a bar.
+TEST(Progress, SliceFileOpenReportsReadThenBounds) {
+  register_builtin_formats();
+  const esvo::EsvoOctree octree = esvo::build_octree(menger_voxels(64));
+  const std::string path = ::testing::TempDir() + "/progress-open.vxs";
+  esvo::SliceOptions so;
+  so.slice_bytes = 2048;  // many slices: many advances
+  esvo::write_slices(octree, path, so);
+  FakeTerminal term;
+  Progress p("load scene", {{"", 1}}, term.stepping_sink(600));
+  SceneLoadOptions lo;
+  lo.progress = &p;
+  const LoadedScene with_bar = load_scene(path, lo);
+  const LoadedScene without = load_scene(path);
+  EXPECT_DOUBLE_EQ(p.fraction(), 1.0);
+  EXPECT_EQ(term.phases_drawn({"read", "bounds"}), (std::vector<std::string>{"read", "bounds"}));
+  EXPECT_NE(term.writes->back().find("100.0%"), std::string::npos);
+  const auto& s = dynamic_cast<const esvo::StreamedEsvo&>(*with_bar.structure);
+  EXPECT_EQ(s.stats().resident_slices, s.file().slices().size());
+  EXPECT_GT(s.file().slices().size(), 8u);
+  const Aabb want = esvo::occupied_bounds(octree);
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_EQ(with_bar.occupied.lo[i], without.occupied.lo[i]);
+    EXPECT_EQ(with_bar.occupied.hi[i], without.occupied.hi[i]);
+    EXPECT_EQ(with_bar.occupied.lo[i], want.lo[i]);
+    EXPECT_EQ(with_bar.occupied.hi[i], want.hi[i]);
+  }
+  std::filesystem::remove(path);
 }
 
 // The CLI on a real pseudo-terminal (script(1) gives the child a pty as

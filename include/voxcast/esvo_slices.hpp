@@ -57,7 +57,8 @@
 
 namespace voxcast {
 class FormatRegistry;
-}
+class Progress;
+}  // namespace voxcast
 
 namespace voxcast::esvo {
 
@@ -295,8 +296,10 @@ class StreamedEsvo final : public SurfaceQuery, public Structure {
   PassOutcome end_pass(std::span<const Request> requests) override;
 
   /// Loads every slice (ignores the budget's ordering but not its size:
-  /// throws voxcast::Error when the whole file does not fit).
-  void load_all();
+  /// throws voxcast::Error when the whole file does not fit). `progress`
+  /// (optional): its current phase gets the slice data bytes as units and
+  /// advances as slices are read, checked and merged.
+  void load_all(Progress* progress = nullptr);
   /// Whether load_all() can hold every slice (the budget, the block table).
   bool fits_whole() const;
 
@@ -318,8 +321,10 @@ class StreamedEsvo final : public SurfaceQuery, public Structure {
 
   /// Bounds of the resident voxels that end a walk (leaves, and subdivided
   /// voxels whose slice is not resident): with every slice resident, the
-  /// in-core octree's occupied_bounds(), bit for bit.
-  Aabb occupied() const;
+  /// in-core octree's occupied_bounds(), bit for bit. A walk of every
+  /// resident descriptor, kept until residency changes; `progress`
+  /// (optional): its current phase gets the resident descriptors as units.
+  Aabb occupied(Progress* progress = nullptr) const;
   /// Why the last refused slice was refused ("" when none was).
   const std::string& last_refusal() const;
 
@@ -341,6 +346,8 @@ class StreamedEsvo final : public SurfaceQuery, public Structure {
 
  private:
   void refresh_stats();
+  mutable Aabb occupied_cache_;
+  mutable uint64_t occupied_generation_ = ~uint64_t(0);
   std::shared_ptr<const SliceFile> file_;
   std::unique_ptr<Impl> impl_;
   StreamStats stats_;

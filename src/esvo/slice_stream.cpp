@@ -19,6 +19,7 @@
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_slices.hpp"
 #include "voxcast/morton.hpp"
+#include "voxcast/progress.hpp"
 
 namespace voxcast::esvo {
 namespace sl = slice_layout;
@@ -404,6 +405,7 @@ struct StreamedEsvo::Impl {
   std::vector<uint32_t> block_of;
   std::vector<uint32_t> resident_children;  // per slice
   uint32_t resident_count = 0;
+  uint64_t generation = 0;  // residency changes (merges and unmerges)
   // The trunk: chunks (block ids, kNoBlock where freed) and its free
   // descriptor slots (chunk * kTrunkSlots + slot), smallest first.
   std::vector<uint32_t> trunk_chunks;
@@ -822,6 +824,7 @@ struct StreamedEsvo::Impl {
     for (uint32_t g = 0; g < cc; ++g) block_of[e.first_child + g] = group_block[g];
     state[i] = State::kResident;
     ++resident_count;
+    ++generation;
     if (i != 0) ++resident_children[e.parent];
     return true;
   }
@@ -877,6 +880,7 @@ struct StreamedEsvo::Impl {
     compact_trunk();
     state[i] = State::kOnDisk;
     --resident_count;
+    ++generation;
     --resident_children[e.parent];
     return true;
   }
@@ -985,7 +989,8 @@ struct StreamedEsvo::Impl {
   /// Reads and checks `list` on worker threads (several reads in flight),
   /// in batches, merging each batch in list order (deterministic). Returns
   /// loaded, refused, and those left for lack of room.
-  std::array<uint64_t, 3> load(const std::vector<uint32_t>& list, uint64_t* bytes_read) {
+  std::array<uint64_t, 3> load(const std::vector<uint32_t>& list, uint64_t* bytes_read,
+                               Progress* progress = nullptr) {
     std::array<uint64_t, 3> out{0, 0, 0};
     const size_t batch = size_t(std::max(1, options.io_threads)) * 4;
     for (size_t b0 = 0; b0 < list.size(); b0 += batch) {
@@ -1027,6 +1032,8 @@ struct StreamedEsvo::Impl {
         last_error = errors[k];
         ++out[1];
       }
+      if (progress != nullptr)
+        for (size_t k = 0; k < count; ++k) progress->advance(entry(list[b0 + k]).data_bytes);
     }
     return out;
   }
@@ -1224,9 +1231,15 @@ bool StreamedEsvo::fits_whole() const {
   return impl_->options.budget_bytes == 0 || total <= impl_->options.budget_bytes;
 }
 
-void StreamedEsvo::load_all() {
+void StreamedEsvo::load_all(Progress* progress) {
   Impl& m = *impl_;
   const auto& all = file_->slices();
+  if (progress != nullptr) {
+    uint64_t bytes = 0;
+    for (uint32_t i = 0; i < all.size(); ++i)
+      if (m.state[i] != State::kResident) bytes += all[i].data_bytes;
+    progress->add_units(bytes);
+  }
   if (!fits_whole())
     throw Error("load_all: the slices need more than the budget of " +
                 std::to_string(m.options.budget_bytes) + " B");
@@ -1236,7 +1249,7 @@ void StreamedEsvo::load_all() {
       if (m.state[i] == State::kOnDisk && m.state[all[i].parent] == State::kResident)
         list.push_back(i);
     if (list.empty()) break;
-    const auto [loaded, refused, no_room] = m.load(list, &stats_.bytes_read);
+    const auto [loaded, refused, no_room] = m.load(list, &stats_.bytes_read, progress);
     stats_.loaded += loaded;
     stats_.refused += refused;
     refresh_stats();
@@ -1295,14 +1308,23 @@ static void walk(const StreamedEsvo::Impl& m, const F& f) {
   }
 }
 
-Aabb StreamedEsvo::occupied() const {
+Aabb StreamedEsvo::occupied(Progress* progress) const {
   // As occupied_bounds() of the in-core octree (src/esvo/bounds.cpp): every
   // voxel that ends a walk extends the box by its cube, in float.
   const Impl& m = *impl_;
+  if (occupied_generation_ == m.generation) return occupied_cache_;
+  if (progress != nullptr) {
+    uint64_t descriptors = m.trunk_live;
+    for (const auto& b : m.blocks)
+      if (b && !b->trunk) descriptors += b->node_count;
+    progress->add_units(descriptors);
+  }
   const GridTransform grid = file_->grid();
   const double side = grid.side();
   Aabb box;
+  uint64_t walked = 0;
   walk(m, [&](uint32_t id, int level, uint64_t code) {
+    if (progress != nullptr && ++walked % 4096 == 0) progress->advance(4096);
     const Block& b = *m.blocks[id >> kLocalBits];
     const StreamNode& d = b.nodes[id & kLocalMask];
     const uint32_t valid = sl::SliceValid::get(d.masks), leaf = sl::SliceLeaf::get(d.masks);
@@ -1319,6 +1341,9 @@ Aabb StreamedEsvo::occupied() const {
       box.extend(lo + Vec3{float(size), float(size), float(size)});
     }
   });
+  if (progress != nullptr) progress->advance(walked % 4096);
+  occupied_cache_ = box;
+  occupied_generation_ = m.generation;
   return box;
 }
 
