@@ -548,6 +548,58 @@ TEST_P(Streamed, SmallBudgetConvergesWhenTheViewStops) {
   EXPECT_TRUE(same_pixels(got.depth, want.depth));
 }
 
+// Figure 21: loading a slice merges it into its leaf block and splits the
+// result into one block per child slice, moving what lies in none to the
+// trunk; unloading is the exact inverse. From states along a stream, every
+// next-level slice is loaded and unloaded again and every unloadable slice
+// unloaded and loaded again: the invariants hold after each step (one block
+// per next-level slice, trunk links only into resident blocks' roots,
+// blocks depth-first within their regions) and the memory image returns to
+// the same words.
+TEST_P(Streamed, LoadAndUnloadMergeAndSplitBlocksExactly) {
+  const SlicedBunny b(64, GetParam(), 2048, "fig21");
+  esvo::StreamedEsvo s(esvo::SliceFile::open(b.path));
+  const auto& all = s.file().slices();
+  const RenderOptions ro = view_options(b.in_core.bounds(), 48, 0.f);
+  size_t round_trips = 0, splits = 0;
+  for (int frame = 0; frame < 6; ++frame) {
+    for (uint32_t i = 1; i < all.size(); ++i) {
+      const bool next_level = !s.resident(i) && !s.refused(i) && s.resident(all[i].parent);
+      bool leaf = s.resident(i);
+      for (uint32_t c = 0; leaf && c < all[i].child_count; ++c)
+        leaf = !s.resident(all[i].first_child + c);
+      if (!next_level && !leaf) continue;
+      const std::vector<uint32_t> before = s.memory_image();
+      const uint64_t trunk = s.stats().trunk_descriptors;
+      if (next_level) {
+        ASSERT_TRUE(s.load_slice(i)) << i;
+        s.check_invariants();
+        splits += s.stats().trunk_descriptors > trunk;
+        ASSERT_TRUE(s.unload_slice(i)) << i;
+      } else {
+        ASSERT_TRUE(s.unload_slice(i)) << i;
+        s.check_invariants();
+        ASSERT_TRUE(s.load_slice(i)) << i;
+      }
+      s.check_invariants();
+      EXPECT_EQ(s.memory_image(), before) << "slice " << i;
+      ++round_trips;
+    }
+    render(static_cast<Structure&>(s), ro);
+    s.check_invariants();
+  }
+  EXPECT_GT(round_trips, 50u);
+  EXPECT_GT(splits, 5u);  // loads that moved block roots to the trunk
+  // Everything resident: the trunk is the small top, the leaf blocks hold
+  // the rest, and the image is the in-core one.
+  s.load_all();
+  s.check_invariants();
+  EXPECT_GT(s.stats().trunk_descriptors, 0u);
+  EXPECT_LT(s.stats().trunk_descriptors * 10, s.file().header().total_nodes);
+  EXPECT_TRUE(
+      same_pixels(render(static_cast<Structure&>(s), ro).color, render(b.in_core, ro).color));
+}
+
 // A budget far below what the view needs: the resident set settles (no
 // slice is loaded and unloaded again and again) and stays within the budget.
 TEST_P(Streamed, TooSmallBudgetSettlesWithoutThrashing) {

@@ -15,6 +15,7 @@
 #include "support/cli_runner.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/esvo.hpp"
+#include "voxcast/esvo_slices.hpp"
 #include "voxcast/format_registry.hpp"
 #include "voxcast/generate.hpp"
 #include "voxcast/progress.hpp"
@@ -298,6 +299,19 @@ std::string file_bytes(const std::string& path) {
 // Loading a scene re-plans the bar into its read (bytes read and hashed)
 // and bounds phases, draws them in order, ends complete, and loads the same
 // scene as without a bar.
+LoadedScene load_with_read_bounds_bar(const std::string& path, const std::string& what) {
+  FakeTerminal term;
+  Progress p("load scene", {{"", 1}}, term.stepping_sink(600));
+  SceneLoadOptions lo;
+  lo.progress = &p;
+  LoadedScene scene = load_scene(path, lo);
+  EXPECT_DOUBLE_EQ(p.fraction(), 1.0) << what;
+  EXPECT_EQ(term.phases_drawn({"read", "bounds"}), (std::vector<std::string>{"read", "bounds"}))
+      << what;
+  EXPECT_NE(term.writes->back().find("100.0%"), std::string::npos) << what;
+  return scene;
+}
+
 TEST(Progress, SceneLoadReportsReadThenBounds) {
   register_builtin_formats();
   const VoxelSet v = menger_voxels(128);
@@ -306,16 +320,8 @@ TEST(Progress, SceneLoadReportsReadThenBounds) {
   for (const std::string format : {"esvo", "dag"}) {
     const LoadedStructure built = format_registry().get(format).build(v, {});
     save_scene(path, format, *built, SceneInfo{"menger", "conservative", 0, v.size()});
-    FakeTerminal term;
-    Progress p("load scene", {{"", 1}}, term.stepping_sink(600));
-    SceneLoadOptions lo;
-    lo.progress = &p;
-    const LoadedScene with_bar = load_scene(path, lo);
+    const LoadedScene with_bar = load_with_read_bounds_bar(path, format);
     const LoadedScene without = load_scene(path);
-    EXPECT_DOUBLE_EQ(p.fraction(), 1.0) << format;
-    EXPECT_EQ(term.phases_drawn({"read", "bounds"}), (std::vector<std::string>{"read", "bounds"}))
-        << format;
-    EXPECT_NE(term.writes->back().find("100.0%"), std::string::npos) << format;
     // The same scene: the same bounds and the same file when saved again.
     for (int i = 0; i < 3; ++i) {
       EXPECT_EQ(with_bar.occupied.lo[i], without.occupied.lo[i]) << format;
@@ -326,6 +332,31 @@ TEST(Progress, SceneLoadReportsReadThenBounds) {
     EXPECT_EQ(file_bytes(dir + "/progress-load-a.vxc"), file_bytes(dir + "/progress-load-b.vxc"))
         << format;
   }
+}
+
+// Opening a whole slice file (every slice read, hashed, checked and merged,
+// then the occupied-bounds walk) draws a read and a bounds phase, ends
+// complete, and opens the same scene as without a bar.
+TEST(Progress, SliceFileOpenReportsReadThenBounds) {
+  register_builtin_formats();
+  const esvo::EsvoOctree octree = esvo::build_octree(menger_voxels(64));
+  const std::string path = ::testing::TempDir() + "/progress-open.vxs";
+  esvo::SliceOptions so;
+  so.slice_bytes = 2048;  // many slices: many advances
+  esvo::write_slices(octree, path, so);
+  const LoadedScene with_bar = load_with_read_bounds_bar(path, "slices");
+  const LoadedScene without = load_scene(path);
+  const auto& s = dynamic_cast<const esvo::StreamedEsvo&>(*with_bar.structure);
+  EXPECT_EQ(s.stats().resident_slices, s.file().slices().size());
+  EXPECT_GT(s.file().slices().size(), 8u);
+  const Aabb want = esvo::occupied_bounds(octree);
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_EQ(with_bar.occupied.lo[i], without.occupied.lo[i]);
+    EXPECT_EQ(with_bar.occupied.hi[i], without.occupied.hi[i]);
+    EXPECT_EQ(with_bar.occupied.lo[i], want.lo[i]);
+    EXPECT_EQ(with_bar.occupied.hi[i], want.hi[i]);
+  }
+  std::filesystem::remove(path);
 }
 
 // The CLI on a real pseudo-terminal (script(1) gives the child a pty as

@@ -57,7 +57,8 @@
 
 namespace voxcast {
 class FormatRegistry;
-}
+class Progress;
+}  // namespace voxcast
 
 namespace voxcast::esvo {
 
@@ -235,6 +236,9 @@ struct StreamStats {
   /// those compactions (the incremental compaction moves only what each
   /// failed allocation needs: bytes_moved <= this).
   uint64_t full_compaction_bytes = 0;
+  uint64_t trunk_descriptors = 0;  // now, in the trunk
+  uint32_t trunk_chunks = 0;       // now (kTrunkSlots descriptors each)
+  uint32_t leaf_blocks = 0;        // now, with an extent (blocks of no descriptors not counted)
 };
 
 /// The streamed ESVO (§7 "Storage in memory", "Dynamic loading"): the
@@ -251,15 +255,25 @@ struct StreamStats {
 /// slice whose hash or structure is wrong is refused once and for all; its
 /// parent's voxels keep standing in for it.
 ///
-/// Memory (docs/ARCHITECTURE.md "Streamed ESVO"): one block per resident
-/// slice: 16-byte descriptors (masks + offsets into the block's attributes,
-/// contours and links), per subdivided child a 32-bit link (the child's node
-/// id, or "absent" + the slice to request), the children's raw attributes
-/// and contours, the Morton codes of the descriptors (positions live in
-/// memory only, derived from the parent when a slice is linked in) and, per
-/// descriptor, the index of the parent link that points at it. The blocks
-/// are extents of one arena of the budget's size (a hard cap), compacted
-/// incrementally when an allocation finds no hole (StreamStats::compactions).
+/// Memory (§7 "Storage in memory", Figure 21; docs/ARCHITECTURE.md
+/// "Streamed ESVO"): a *trunk* and *leaf blocks*. A leaf block is one
+/// subtree in depth-first order -- 16-byte descriptors (masks + offsets into
+/// the block's attributes, contours and links), per subdivided child a
+/// 32-bit link (a node of the same block, or "absent" + the slice to
+/// request), the children's raw attributes and contours -- and corresponds
+/// one to one to a next-level slice (parent resident, itself not): the
+/// descriptors of that slice's region from its region depth down to the
+/// level above it (none when those levels are one voxel: a block of no
+/// bytes). Loading slice S merges its descriptors into S's block; the result
+/// is split into one block per child slice of S (each child's region), and
+/// what lies in none of them (the levels above the children's region depth)
+/// moves to the trunk, whose descriptors have room for all eight children's
+/// attributes, contours and links (cheap to modify) and live in chunks of 64
+/// (blocks like the others to the caster). A resident slice without child
+/// slices keeps its merged block. Unloading S (no resident children) is the
+/// exact inverse. The blocks and trunk chunks are extents of one arena of the
+/// budget's size (a hard cap), compacted incrementally when an allocation
+/// finds no hole (StreamStats::compactions).
 class StreamedEsvo final : public SurfaceQuery, public Structure {
  public:
   StreamedEsvo(std::shared_ptr<const SliceFile> file, const StreamOptions& options = {});
@@ -282,18 +296,35 @@ class StreamedEsvo final : public SurfaceQuery, public Structure {
   PassOutcome end_pass(std::span<const Request> requests) override;
 
   /// Loads every slice (ignores the budget's ordering but not its size:
-  /// throws voxcast::Error when the whole file does not fit).
-  void load_all();
+  /// throws voxcast::Error when the whole file does not fit). `progress`
+  /// (optional): its current phase gets the slice data bytes as units and
+  /// advances as slices are read, checked and merged.
+  void load_all(Progress* progress = nullptr);
   /// Whether load_all() can hold every slice (the budget, the block table).
   bool fits_whole() const;
 
-  /// The bytes slice `e` occupies while resident (its block; what the budget counts).
+  /// What slice `e` adds to the leaf blocks while resident (its descriptors,
+  /// links, attributes and contours, and one block's rounding). Trunk
+  /// descriptors a split moves cost more; the budget counts the arena.
   static uint64_t block_bytes(const slice_layout::SliceEntry& e);
+
+  /// Loads one next-level slice now (outside a pass; the budget holds): true
+  /// if it was loaded (false: not a next-level slice, no room, or refused).
+  bool load_slice(uint32_t slice);
+  /// Unloads one resident slice without resident children now: true if done.
+  bool unload_slice(uint32_t slice);
+  /// The resident octree's memory as words, independent of block ids and
+  /// arena offsets: every leaf block's bytes by slice (links within it as
+  /// local indices), then the trunk's descriptors depth-first with their
+  /// contents and link targets. Unloading what was just loaded restores it.
+  std::vector<uint32_t> memory_image() const;
 
   /// Bounds of the resident voxels that end a walk (leaves, and subdivided
   /// voxels whose slice is not resident): with every slice resident, the
-  /// in-core octree's occupied_bounds(), bit for bit.
-  Aabb occupied() const;
+  /// in-core octree's occupied_bounds(), bit for bit. A walk of every
+  /// resident descriptor, kept until residency changes; `progress`
+  /// (optional): its current phase gets the resident descriptors as units.
+  Aabb occupied(Progress* progress = nullptr) const;
   /// Why the last refused slice was refused ("" when none was).
   const std::string& last_refusal() const;
 
@@ -302,14 +333,21 @@ class StreamedEsvo final : public SurfaceQuery, public Structure {
   bool resident(uint32_t slice) const;
   bool refused(uint32_t slice) const;
   /// Throws voxcast::Error naming the first broken invariant: every resident
-  /// slice's parent is resident; every link of a resident block points at
-  /// the right descriptor of the right child block or says "absent" with the
-  /// child's slice; the resident bytes are the blocks' sum and within the budget.
+  /// slice's parent is resident; every next-level slice (and every resident
+  /// slice without child slices) has exactly one leaf block and no other
+  /// slice has one; a leaf block is one subtree of its slice's region and
+  /// levels, depth-first, linking only within itself or "absent" to its
+  /// slice; trunk descriptors link only to trunk descriptors and the roots of
+  /// resident blocks; every absent link names the next-level slice covering
+  /// its voxel; the arena's extents are the blocks', within the budget.
   void check_invariants() const;
 
   struct Impl;
 
  private:
+  void refresh_stats();
+  mutable Aabb occupied_cache_;
+  mutable uint64_t occupied_generation_ = ~uint64_t(0);
   std::shared_ptr<const SliceFile> file_;
   std::unique_ptr<Impl> impl_;
   StreamStats stats_;

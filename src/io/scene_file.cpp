@@ -112,7 +112,13 @@ LoadedScene load_scene(const std::filesystem::path& path, const SceneLoadOptions
     if (f != nullptr) {
       LoadedScene out;
       out.format = f->name;
-      out.structure = f->open_file(path, options, &out.info);
+      // A bar on a terminal for a format that reports one (the caller's, or
+      // one of its own).
+      std::optional<Progress> own;
+      SceneLoadOptions with_bar = options;
+      if (with_bar.progress == nullptr)
+        with_bar.progress = &own.emplace("load scene", std::vector<Progress::Phase>{{"", 1}});
+      out.structure = f->open_file(path, with_bar, &out.info);
       out.occupied = f->occupied(*out.structure);
       return out;
     }
