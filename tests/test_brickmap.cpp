@@ -896,5 +896,34 @@ TEST(BrickmapCli, BuildInfoRender) {
   EXPECT_TRUE(std::filesystem::exists(dir.file("a.png")));
 }
 
+// `voxcast bench --brickmap` reports edit throughput (issue 11): paint,
+// remove and add of one sphere on the surface. Paint recolors the ball's
+// solid voxels and remove then empties exactly those; add fills the ball.
+TEST(BrickmapCli, BenchPrintsEditThroughputRows) {
+  const std::string mesh = testing::test_mesh("spot.obj").string();
+  const testing::CliResult b = testing::run_cli(
+      "bench '" + mesh +
+      "' --resolution 64 --size 32x24 --repeat 1 --brickmap --beam 0 --threads 1 -q");
+  ASSERT_EQ(b.exit_code, 0) << b.output;
+  const size_t at = b.output.find("brickmap edits");
+  ASSERT_NE(at, std::string::npos) << b.output;
+  unsigned long long voxels[3] = {}, bricks[3] = {};
+  const char* names[3] = {"paint", "remove", "add"};
+  size_t from = at;
+  for (int i = 0; i < 3; ++i) {
+    from = b.output.find(std::string("  ") + names[i] + " ", from);
+    ASSERT_NE(from, std::string::npos) << b.output;
+    char name[16];
+    ASSERT_EQ(std::sscanf(b.output.c_str() + from, "%15s %llu voxels %llu bricks", name, &voxels[i],
+                          &bricks[i]),
+              3)
+        << b.output.substr(from, 100);
+  }
+  EXPECT_GT(voxels[0], 0u);
+  EXPECT_EQ(voxels[1], voxels[0]);
+  EXPECT_EQ(bricks[1], bricks[0]);
+  EXPECT_GT(voxels[2], voxels[1]) << "the added ball is solid, the surface it replaced is not";
+}
+
 }  // namespace
 }  // namespace voxcast
