@@ -49,5 +49,10 @@ echo "== 4. streaming it within 64M =="
   --orbit 30,35 --threads 1 -q -o "$tmp/stream.png" 2>&1
 
 echo "== 5. edits on the ${SIZES[0]} terrain =="
-"$BIN" edit "$tmp/t${SIZES[0]}.vxc" --sphere 0,0.1,0,0.05 --remove -q
+# The surface of the default 1024^2 terrain at (0.1, 0.1) lies at y = 0.035
+# (a ray straight down); the remove and paint spheres are centered on it
+# (the generated world keeps only exposed voxels, so a sphere inside the
+# hollow interior would change nothing).
+"$BIN" edit "$tmp/t${SIZES[0]}.vxc" --sphere 0.1,0.035,0.1,0.05 --remove -q
 "$BIN" edit "$tmp/t${SIZES[0]}.vxc" --sphere 0.1,0.15,0.1,0.04 --add --color 0.9,0.9,1 -q
+"$BIN" edit "$tmp/t${SIZES[0]}.vxc" --sphere 0.1,0.035,0.1,0.06 --paint 0.2,0.6,0.2 -q

@@ -678,6 +678,70 @@ TEST(BrickmapEdit, EditsThenReloadGiveExactlyTheEditedVoxelSet) {
   EXPECT_GT(t1.h.t, t0.h.t + 0.5f * float(g.side()));
 }
 
+// The bookkeeping an edit defers and shortcuts (in-place color runs, one
+// pyramid update per edit) against a world rebuilt brick by brick from the
+// edited one with the plain set_brick: the same occupancy bits, pyramid
+// nodes (brick counts and LOD colors), voxels and colors.
+TEST(BrickmapEdit, InPlaceRunsAndTheBatchedPyramidEqualARebuiltWorld) {
+  const VoxelSet set = testing::make_sphere_shell(7);
+  World w = build_world(set);
+  const GridTransform& g = set.grid;
+  const auto at = [&](double f, int a) { return double(g.origin[a]) + f * g.side(); };
+  const Vec3d c{at(0.5, 0), at(0.5, 1), at(0.95, 2)};
+  // A full brick edited by one voxel keeps its color run.
+  uint64_t full[8];
+  std::fill(full, full + 8, ~uint64_t(0));
+  std::vector<uint32_t> colors(512, 0xFF00FF00u), normals(512, 0);
+  const uint64_t solid_cell = w.cell_index(0, 0, 0);
+  w.set_brick(solid_cell, full, colors.data(), normals.data());
+  const uint32_t run = w.brick(cell_brick(w.cell(solid_cell))).color;
+  const EditResult one =
+      edit(w,
+           Brush::sphere({g.origin.x + 0.5 * g.voxel_size, g.origin.y + 0.5 * g.voxel_size,
+                          g.origin.z + 0.5 * g.voxel_size},
+                         0.1 * g.voxel_size),
+           EditOp::Remove);
+  ASSERT_EQ(one.voxels, 1u);
+  EXPECT_EQ(w.brick(cell_brick(w.cell(solid_cell))).color, run) << "the run was reallocated";
+  EXPECT_EQ(brick_popcount(w.brick(cell_brick(w.cell(solid_cell)))), 511);
+  EXPECT_EQ(w.color_of(w.brick(cell_brick(w.cell(solid_cell))), 510), 0xFF00FF00u);
+  // Edits that empty, fill and recolor many bricks.
+  EXPECT_GT(edit(w, Brush::sphere(c, 0.2 * g.side()), EditOp::Remove).voxels, 0u);
+  EXPECT_GT(edit(w, Brush::sphere(c, 0.1 * g.side()), EditOp::Add, {0.9f, 0.1f, 0.1f, 1}).voxels,
+            0u);
+  EXPECT_GT(
+      edit(w,
+           Brush::box({at(0.2, 0), at(0.2, 1), at(0.2, 2)}, {at(0.6, 0), at(0.7, 1), at(0.4, 2)}),
+           EditOp::Paint, {0.1f, 0.2f, 0.9f, 1})
+          .voxels,
+      0u);
+  World rebuilt(g);
+  for (uint64_t i = 0; i < w.cells().size(); ++i) {
+    const uint32_t cell = w.cell(i);
+    if (cell_state(cell) != kStateResident) continue;
+    const Brick& b = w.brick(cell_brick(cell));
+    const int n = brick_popcount(b);
+    std::vector<uint32_t> cs(static_cast<size_t>(n)), ns(static_cast<size_t>(n));
+    for (int k = 0; k < n; ++k) {
+      cs[size_t(k)] = w.color_of(b, uint32_t(k));
+      ns[size_t(k)] = w.normals()[b.color + uint32_t(k)];
+    }
+    rebuilt.set_brick(i, b.mask, cs.data(), ns.data());
+    const Brick& r = rebuilt.brick(cell_brick(rebuilt.cell(i)));
+    ASSERT_EQ(r.lod, b.lod) << "cell " << i;
+  }
+  EXPECT_EQ(rebuilt.occupancy_words(), w.occupancy_words());
+  ASSERT_EQ(rebuilt.pyramid_levels(), w.pyramid_levels());
+  for (int k = 1; k <= w.pyramid_levels(); ++k) {
+    const uint64_t nodes = uint64_t(w.pyramid_dim(k)) * w.pyramid_dim_y(k) * w.pyramid_dim(k);
+    for (uint64_t i = 0; i < nodes; ++i) {
+      ASSERT_EQ(rebuilt.pyramid_node(k, i).bricks, w.pyramid_node(k, i).bricks) << k << " " << i;
+      ASSERT_EQ(rebuilt.pyramid_node(k, i).abgr, w.pyramid_node(k, i).abgr) << k << " " << i;
+    }
+  }
+  EXPECT_EQ(rebuilt.decode_voxels(), w.decode_voxels());
+}
+
 TEST(BrickmapEdit, RefusesBadBrushesAndNotResidentBricks) {
   World w = build_world(testing::make_sphere_shell(5));
   EXPECT_THROW(edit(w, Brush::sphere({0, 0, NAN}, 1), EditOp::Add), Error);
@@ -830,6 +894,35 @@ TEST(BrickmapCli, BuildInfoRender) {
       testing::run_cli("render '" + out + "' -o '" + dir.file("a.png") + "' --size 64x48");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_TRUE(std::filesystem::exists(dir.file("a.png")));
+}
+
+// `voxcast bench --brickmap` reports edit throughput (issue 11): paint,
+// remove and add of one sphere on the surface. Paint recolors the ball's
+// solid voxels and remove then empties exactly those; add fills the ball.
+TEST(BrickmapCli, BenchPrintsEditThroughputRows) {
+  const std::string mesh = testing::test_mesh("spot.obj").string();
+  const testing::CliResult b = testing::run_cli(
+      "bench '" + mesh +
+      "' --resolution 64 --size 32x24 --repeat 1 --brickmap --beam 0 --threads 1 -q");
+  ASSERT_EQ(b.exit_code, 0) << b.output;
+  const size_t at = b.output.find("brickmap edits");
+  ASSERT_NE(at, std::string::npos) << b.output;
+  unsigned long long voxels[3] = {}, bricks[3] = {};
+  const char* names[3] = {"paint", "remove", "add"};
+  size_t from = at;
+  for (int i = 0; i < 3; ++i) {
+    from = b.output.find(std::string("  ") + names[i] + " ", from);
+    ASSERT_NE(from, std::string::npos) << b.output;
+    char name[16];
+    ASSERT_EQ(std::sscanf(b.output.c_str() + from, "%15s %llu voxels %llu bricks", name, &voxels[i],
+                          &bricks[i]),
+              3)
+        << b.output.substr(from, 100);
+  }
+  EXPECT_GT(voxels[0], 0u);
+  EXPECT_EQ(voxels[1], voxels[0]);
+  EXPECT_EQ(bricks[1], bricks[0]);
+  EXPECT_GT(voxels[2], voxels[1]) << "the added ball is solid, the surface it replaced is not";
 }
 
 }  // namespace

@@ -22,6 +22,7 @@
 #include <vector>
 
 #include "bench_anyhit.hpp"
+#include "bench_brickmap.hpp"
 #include "bench_machine.hpp"
 #include "camera_options.hpp"
 #include "cli_io.hpp"
@@ -855,6 +856,10 @@ Runner add_bench(CLI::App& app) {
                     find(structures[i].caster + "+beam", true, args->lod)->mrays(),
                     format_bytes(double(memory_of(structures[i]))).c_str());
       std::printf("ratio voxcast/embree: %.3f\n", best_voxcast / fastest[0]);
+      if (size_index == 0)
+        for (size_t i = 1; i < structures.size(); ++i)
+          print_brickmap_edit_rows(*structures[i].structure,
+                                   CameraRays(camera, width, height).ray(width / 2, height / 2));
 
       run["coverage"] = cov;
       run["agreement"] = {{"hit_miss", double(agree) / rays},

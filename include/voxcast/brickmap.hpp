@@ -285,8 +285,14 @@ class World {
   /// empties the cell. The LOD color is computed from the colors, unless
   /// `lod` gives it (a streamed brick keeps the LOD color of all its voxels
   /// when hidden ones were dropped). `flags`: CellFlags of the new cell.
+  /// A brick whose color run's size class fits the new voxel count keeps
+  /// its run (written in place). `update_pyramid` false: the occupancy bit
+  /// and pyramid nodes above the cell are left to a later
+  /// update_occupancy(cells) of every cell changed that way (an edit's
+  /// batch), and are stale until then.
   void set_brick(uint64_t index, const uint64_t mask[8], const uint32_t* colors,
-                 const uint32_t* normals, uint32_t flags = 0, const uint32_t* lod = nullptr);
+                 const uint32_t* normals, uint32_t flags = 0, const uint32_t* lod = nullptr,
+                 bool update_pyramid = true);
   /// Makes cell `index` not resident with LOD color `abgr` (a brick known to
   /// exist but not loaded, §3.2.1), releasing its brick if it had one.
   void set_not_resident(uint64_t index, uint32_t abgr, uint32_t flags = 0);
@@ -294,6 +300,9 @@ class World {
   /// cell `index` and the pyramid nodes above it (set_brick /
   /// set_not_resident keep them up to date).
   void update_occupancy(uint64_t index);
+  /// The same for many cells, each occupancy bit and pyramid node
+  /// recomputed once.
+  void update_occupancy(const std::vector<uint64_t>& indices);
 
   /// True if voxel (x, y, z) of the grid is solid in a resident brick.
   bool voxel(uint32_t x, uint32_t y, uint32_t z) const;
@@ -304,6 +313,9 @@ class World {
   Aabb occupied_bounds() const;
 
  private:
+  void update_occupancy_bit(uint32_t oi, uint32_t oj, uint32_t ok);
+  void update_pyramid_node(int level, uint32_t x, uint32_t y, uint32_t z);
+
   GridTransform grid_;
   bool normals_;
   std::array<uint32_t, 3> dims_{}, occ_dims_{};
@@ -340,18 +352,19 @@ World build_world(const VoxelSet& voxels, const BuildOptions& options = {});
 /// level walks the children of one occupied cube of the level above, stepping
 /// exactly across its planes (the same plane t is computed the same way on
 /// every level, so a level is left where its parent says). Where no LOD stop
-/// is possible in between, the walk goes from two levels above the brickgrid
-/// straight to it and from a brick straight to its voxels (the paper's three
-/// layers). Hits are cubes: SurfaceHit::t is the cube's entry t (0 for an
-/// origin inside it) and level its level. An occupied cube answers (LOD, the
-/// rule of esvo::cast_ray) when its side is <= the footprint at its exit t:
-/// above the brickgrid with its pyramid node's color, at or below it with
-/// the brick's LOD color. A brick that is not resident answers with its LOD
-/// color at the brick level and, unless the footprint stops there anyway,
-/// pushes Request{kind kRequestBrick, key = cell index}. voxel_ref: bit 63
-/// set = LOD hit with the ABGR8 color in bits 0..31; else brick index << 9 |
-/// voxel bit. child: the entered face (axis * 2 + (outward normal negative ?
-/// 1 : 0)), 6 when the ray starts inside the voxel.
+/// is possible in between, the walk skips levels: above the brickgrid it
+/// visits the pyramid levels B - 2j only (B = L - 3; a node's 4^3 children
+/// per descent), and goes from a brick straight to its voxels (the paper's
+/// bottom layers). The pyramid, brickgrid and voxel levels have loops of
+/// their own (index stepped, the brick's mask held) with the same planes
+/// and tie breaks as the general one (src/brickmap/traverse.cpp). Hits are cubes: SurfaceHit::t is
+/// the cube's entry t (0 for an origin inside it) and level its level. An occupied cube answers
+/// (LOD, the rule of esvo::cast_ray) when its side is <= the footprint at its exit t: above the
+/// brickgrid with its pyramid node's color, at or below it with the brick's LOD color. A brick that
+/// is not resident answers with its LOD color at the brick level and, unless the footprint stops
+/// there anyway, pushes Request{kind kRequestBrick, key = cell index}. voxel_ref: bit 63 set = LOD
+/// hit with the ABGR8 color in bits 0..31; else brick index << 9 | voxel bit. child: the entered
+/// face (axis * 2 + (outward normal negative ? 1 : 0)), 6 when the ray starts inside the voxel.
 /// attributes(): the stored color and normal; the crossed face's normal
 /// without stored normals and for LOD hits; a ray starting inside a voxel
 /// gets the face the ray looks at (the dominant axis of -direction).

@@ -2,7 +2,9 @@
 // An edit is a write into the raw voxels: each brick the brush's voxel box
 // overlaps is expanded into 512-entry arrays, changed, and stored back with
 // World::set_brick (which releases the old pool slot and color run and
-// recomputes the LOD color); the edited cells carry the Edited flag and are
+// recomputes the LOD color; the run is rewritten in place when its size
+// class fits, and the occupancy and pyramid above the edited bricks are
+// recomputed once per edit); the edited cells carry the Edited flag and are
 // listed in the result, which is what a renderer with its own brick pool
 // would invalidate and re-upload (§4.4).
 #include <algorithm>
@@ -46,7 +48,8 @@ void store(World& w, uint64_t index, const BrickVoxels& v) {
       colors[k] = v.color[bit];
       normals[k] = v.normal[bit];
     }
-  w.set_brick(index, v.mask, colors.data(), normals.data(), kFlagEdited);
+  w.set_brick(index, v.mask, colors.data(), normals.data(), kFlagEdited, nullptr,
+              /*update_pyramid=*/false);
 }
 
 // One voxel of an edit: `op` on bit `bit` with color `abgr` and (Add)
@@ -116,9 +119,11 @@ EditResult edit(World& w, const Brush& brush, EditOp op, const Color& color) {
         const uint64_t index = w.cell_index(uint32_t(bi), uint32_t(bj), uint32_t(bk));
         const uint32_t cell = w.cell(index);
         if (cell == 0 && op != EditOp::Add) continue;
-        if (cell_state(cell) == kStateNotResident)
+        if (cell_state(cell) == kStateNotResident) {
+          w.update_occupancy(result.cells);  // the bricks stored so far stay consistent
           throw Error("brickmap edit: brick (" + std::to_string(bi) + "," + std::to_string(bj) +
                       "," + std::to_string(bk) + ") is not resident");
+        }
         expand(w, cell, &v);
         uint64_t changed = 0;
         const int64_t b0[3] = {bi << kBrickLog2, bj << kBrickLog2, bk << kBrickLog2};
@@ -148,6 +153,7 @@ EditResult edit(World& w, const Brush& brush, EditOp op, const Color& color) {
         result.voxels += changed;
         result.cells.push_back(index);
       }
+  w.update_occupancy(result.cells);
   return result;
 }
 
@@ -180,8 +186,10 @@ EditResult stamp(World& w, const VoxelSet& voxels, EditOp op, const Color& color
       at = end;
       continue;
     }
-    if (cell_state(cell) == kStateNotResident)
+    if (cell_state(cell) == kStateNotResident) {
+      w.update_occupancy(result.cells);  // the bricks stored so far stay consistent
       throw Error("brickmap stamp: brick " + std::to_string(index) + " is not resident");
+    }
     expand(w, cell, &v);
     uint64_t changed = 0;
     for (size_t k = at; k < end; ++k) {
@@ -202,6 +210,7 @@ EditResult stamp(World& w, const VoxelSet& voxels, EditOp op, const Color& color
     result.voxels += changed;
     result.cells.push_back(index);
   }
+  w.update_occupancy(result.cells);
   return result;
 }
 

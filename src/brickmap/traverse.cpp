@@ -71,7 +71,7 @@ inline void start_cell(const GridRay& r, float t, float side, const int lo[3], c
   for (int a = 0; a < 3; ++a) {
     const float p = (r.o[a] + r.d[a] * t) * inv_side;
     const float f = r.up[a] ? std::floor(p) : std::ceil(p) - 1.f;
-    const float clamped = std::fmin(std::fmax(f, float(lo[a])), float(hi[a]));
+    const float clamped = std::min(std::max(f, float(lo[a])), float(hi[a]));
     c[a] = int(clamped);
   }
 }
@@ -115,15 +115,18 @@ struct Walker {
   float t1;  // end of the ray inside the grid
   int L;     // grid levels (voxel level)
   int B;     // brick level L - 3 (negative in grids below 8^3)
-  double voxel_world;
+  float voxel_world_f;
+  bool lod_on;     // false for a footprint of 0 (LOD 0): no cube side is <= it
   uint32_t* seen;  // per brick slot: frame of the last ray that entered it (or null)
   float t;
   int face;
   Found* f;
 
-  float side_world(int level) const { return float(std::ldexp(voxel_world, L - level)); }
+  // The cube side in world units: voxel_world 2^(L - level), exact in float
+  // as in double (a power-of-two scale) and without a libm call per step.
+  float side_world(int level) const { return voxel_world_f * float(1u << (L - level)); }
   bool lod_stop(int level, float exit) const {
-    return side_world(level) <= lod.size_at_origin + lod.size_per_t * exit;
+    return lod_on && side_world(level) <= lod.size_at_origin + lod.size_per_t * exit;
   }
 
   // Occupancy of cube `c` at `level`; `cell`: the brickgrid cell holding it
@@ -166,66 +169,202 @@ struct Walker {
 
   // The level the walk descends to from an occupied `level` cube it does not
   // stop at: the next level, or (when the footprint at the cube's exit is too
-  // small for any level in between to stop at) the brickgrid / the voxels.
+  // small for any level in between to stop at: the footprint only grows with
+  // t, and the levels skipped have larger cubes than the last of them) a
+  // level further down: above the brickgrid the pyramid levels B - j
+  // kPyramidStep (a node has up to 2^(3 kPyramidStep) children, which costs
+  // fewer descents than one level at a time through a surface where every
+  // node is occupied), then the brickgrid, then the voxels.
+  static constexpr int kPyramidStep = 3;
   int child_level(int level, float exit) const {
-    if (level < B - 2) return level + 1;
-    if (level < B) return lod_stop(B - 1, exit) ? level + 1 : B;
+    if (level < B) {
+      const int target = B - (B - level - 1) / kPyramidStep * kPyramidStep;
+      return target == level + 1 || !lod_stop(target - 1, exit) ? target : level + 1;
+    }
     return lod_stop(L - 1, exit) ? level + 1 : L;
   }
 
-  // Walks the children of the occupied cube (level, pc) from t; Exit when the
-  // ray leaves it (t, face at its exit plane).
-  Step visit(int level, const int pc[3], float exit) {
-    const int cl = child_level(level, exit);
-    const int ratio_log2 = cl - level;
-    const float side = float(1 << (L - cl));  // child side in grid units
+  // One DDA over the children of one cube: the children [lo, hi] at the
+  // child level (side `side` in grid units), the current child c and the t
+  // of its exit plane per axis.
+  struct Cursor {
     int lo[3], hi[3], c[3];
+    float n[3];
+    float side;
+    float exit() const { return n[argmin3(n)]; }
+  };
+
+  // The children at level `cl` of the cube (cl - ratio_log2, pc), from the
+  // one holding the point at t.
+  void begin(int cl, int ratio_log2, const int pc[3], Cursor* k) {
+    k->side = float(1 << (L - cl));
     const int top = (1 << cl) - 1;
     for (int a = 0; a < 3; ++a) {
-      lo[a] = pc[a] << ratio_log2;
-      hi[a] = std::min(top, lo[a] + (1 << ratio_log2) - 1);
+      k->lo[a] = pc[a] << ratio_log2;
+      k->hi[a] = std::min(top, k->lo[a] + (1 << ratio_log2) - 1);
     }
-    start_cell(r, t, side, lo, hi, c);
-    float n[3];
-    for (int a = 0; a < 3; ++a) n[a] = plane_t(r, a, float(c[a] + r.up[a]) * side);
+    start_cell(r, t, k->side, k->lo, k->hi, k->c);
+    for (int a = 0; a < 3; ++a) k->n[a] = plane_t(r, a, float(k->c[a] + r.up[a]) * k->side);
     if constexpr (kCount) ++ctx.counters.pushes;
-    for (;;) {
+  }
+
+  // Steps to the next child across the nearest exit plane (t, face: that
+  // plane); false with `end` set when the ray leaves the parent (Exit) or
+  // its range in the grid (Done). `axis`: the axis stepped along.
+  bool advance(Cursor& k, int* axis, Step* end) {
+    const int ax = argmin3(k.n);
+    const float tn = k.n[ax];
+    const int cn = k.c[ax] + r.step[ax];
+    t = tn;
+    face = face_of(r, ax);
+    k.c[ax] = cn;
+    // One unsigned compare for the range, one for the end of the ray.
+    if (uint32_t(cn - k.lo[ax]) > uint32_t(k.hi[ax] - k.lo[ax])) {
+      *end = Step::Exit;
+      return false;
+    }
+    if (tn > t1) {
+      *end = Step::Done;
+      return false;
+    }
+    k.n[ax] = plane_t(r, ax, float(cn + r.up[ax]) * k.side);
+    *axis = ax;
+    return true;
+  }
+
+  // The loops below are visit()'s general loop specialized per child level
+  // (the same planes, t values and tie breaks, so the same hits): voxels of
+  // a brick with its mask at hand, brickgrid cells and pyramid nodes with
+  // their index stepped instead of recomputed.
+
+  // The voxels of the resident brick `brick_index` (brickgrid cell pc) the
+  // ray crosses before `exit`.
+  Step visit_voxels(uint32_t brick_index, const int pc[3]) {
+    const Brick& b = w.brick(brick_index);
+    Cursor k;
+    begin(L, kBrickLog2, pc, &k);
+    Step end;
+    int ax;
+    do {
+      if constexpr (kCount) ++ctx.counters.iterations, ++ctx.counters.intersects;
+      const uint32_t bit =
+          voxel_bit(uint32_t(k.c[0] & 7), uint32_t(k.c[1] & 7), uint32_t(k.c[2] & 7));
+      if (test_voxel(b, bit)) {
+        *f = {t, face, L, {k.c[0], k.c[1], k.c[2]}, uint64_t(brick_index) << 9 | bit};
+        return Step::Hit;
+      }
+    } while (advance(k, &ax, &end));
+    return end;
+  }
+
+  // The brickgrid cells (level B > 0) of the pyramid node (level, pc).
+  Step visit_cells(int level, const int pc[3]) {
+    Cursor k;
+    begin(B, B - level, pc, &k);
+    const uint32_t* cells = w.cells().data();
+    const uint32_t dim_y = w.dims()[1];
+    const int64_t stride[3] = {1, int64_t(w.dims()[0]), int64_t(w.dims()[0]) * dim_y};
+    int64_t index = k.c[0] + stride[1] * k.c[1] + stride[2] * k.c[2];
+    Step end;
+    int ax;
+    do {
+      if constexpr (kCount) ++ctx.counters.iterations;
+      const uint32_t cell = uint32_t(k.c[1]) < dim_y ? cells[index] : 0;  // above a cut-off grid
+      if (cell != 0) {
+        const bool resident = cell_state(cell) == kStateResident;
+        if (seen && resident)
+          std::atomic_ref<uint32_t>(seen[cell_brick(cell)])
+              .store(ctx.frame, std::memory_order_relaxed);
+        const float cexit = k.exit();
+        if (lod_stop(B, cexit)) {
+          stop(B, k.c, cell, nullptr);
+          return Step::Hit;
+        }
+        if (!resident) {
+          // §3.2.1: the brick is needed; nearer is more urgent. Until it
+          // arrives the cube answers with its LOD color.
+          ctx.requests.push(BrickmapStructure::kRequestBrick, uint64_t(index), 1.f / (1.f + t));
+          stop(B, k.c, cell, nullptr);
+          return Step::Hit;
+        }
+        const Step s = visit(B, k.c, cexit, cell);
+        if (s != Step::Exit) return s;
+      }
+      if (!advance(k, &ax, &end)) return end;
+      index += stride[ax] * r.step[ax];
+    } while (true);
+  }
+
+  // The pyramid nodes at level cl < B of the node (level, pc).
+  Step visit_nodes(int level, int cl, const int pc[3]) {
+    Cursor k;
+    begin(cl, cl - level, pc, &k);
+    const int p = B - cl;
+    const PyramidNode* nodes = &w.pyramid_node(p, 0);
+    const uint32_t dim_y = w.pyramid_dim_y(p);
+    const int64_t stride[3] = {1, int64_t(w.pyramid_dim(p)), int64_t(w.pyramid_dim(p)) * dim_y};
+    int64_t index = k.c[0] + stride[1] * k.c[1] + stride[2] * k.c[2];
+    Step end;
+    int ax;
+    do {
+      if constexpr (kCount) ++ctx.counters.iterations;
+      // Nodes above a cut-off brickgrid are empty and not stored.
+      if (uint32_t(k.c[1]) < dim_y && nodes[index].bricks != 0) {
+        const float cexit = k.exit();
+        if (lod_stop(cl, cexit)) {
+          stop(cl, k.c, 0, &nodes[index]);
+          return Step::Hit;
+        }
+        const Step s = visit(cl, k.c, cexit, 0);
+        if (s != Step::Exit) return s;
+      }
+      if (!advance(k, &ax, &end)) return end;
+      index += stride[ax] * r.step[ax];
+    } while (true);
+  }
+
+  // Walks the children of the occupied cube (level, pc) from t; Exit when the
+  // ray leaves it (t, face at its exit plane). `pcell`: its brickgrid cell
+  // when it is a brick (level == max(B, 0)).
+  Step visit(int level, const int pc[3], float exit, uint32_t pcell) {
+    const int cl = child_level(level, exit);
+    if (cl == L && level == B && B >= 0) return visit_voxels(cell_brick(pcell), pc);
+    if (cl < B) return visit_nodes(level, cl, pc);
+    if (cl == B) return visit_cells(level, pc);
+    // The blocks inside a brick an LOD footprint may stop at, and grids
+    // below 8^3 (B < 0): the general loop.
+    Cursor k;
+    begin(cl, cl - level, pc, &k);
+    Step end;
+    int ax;
+    do {
       if constexpr (kCount) {
         ++ctx.counters.iterations;
         if (cl == L) ++ctx.counters.intersects;
       }
       uint32_t cell = 0;
       const PyramidNode* node = nullptr;
-      if (occupied(cl, c, &cell, &node)) {
+      if (occupied(cl, k.c, &cell, &node)) {
         if (seen && cl == std::max(B, 0) && cell_state(cell) == kStateResident)
           std::atomic_ref<uint32_t>(seen[cell_brick(cell)])
               .store(ctx.frame, std::memory_order_relaxed);
-        const float cexit = n[argmin3(n)];
-        const bool want = cl == L || lod_stop(cl, cexit);
-        if (want) {
-          stop(cl, c, cell, node);
+        const float cexit = k.exit();
+        if (cl == L || lod_stop(cl, cexit)) {
+          stop(cl, k.c, cell, node);
           return Step::Hit;
         }
         if (cl == std::max(B, 0) && cell_state(cell) != kStateResident) {
-          // §3.2.1: the brick is needed; nearer is more urgent. Until it
-          // arrives the cube answers with its LOD color.
           ctx.requests.push(BrickmapStructure::kRequestBrick,
-                            w.cell_index(uint32_t(c[0]), uint32_t(c[1]), uint32_t(c[2])),
+                            w.cell_index(uint32_t(k.c[0]), uint32_t(k.c[1]), uint32_t(k.c[2])),
                             1.f / (1.f + t));
-          stop(cl, c, cell, node);
+          stop(cl, k.c, cell, node);
           return Step::Hit;
         }
-        const Step s = visit(cl, c, cexit);
+        const Step s = visit(cl, k.c, cexit, cell);
         if (s != Step::Exit) return s;
       }
-      const int ax = argmin3(n);
-      t = n[ax];
-      face = face_of(r, ax);
-      c[ax] += r.step[ax];
-      if (c[ax] < lo[ax] || c[ax] > hi[ax]) return Step::Exit;
-      if (t > t1) return Step::Done;
-      n[ax] = plane_t(r, ax, float(c[ax] + r.up[ax]) * side);
-    }
+    } while (advance(k, &ax, &end));
+    return end;
   }
 };
 
@@ -251,8 +390,10 @@ bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod,
     const float ad[3] = {-std::fabs(r.d[0]), -std::fabs(r.d[1]), -std::fabs(r.d[2])};
     face = face_of(r, argmin3(ad));
   }
-  Walker<kCount> wk{w,    r,  lod,  ctx, t1, g.levels, g.levels - kBrickLog2, g.voxel_size,
-                    seen, t0, face, f};
+  const bool lod_on = lod.size_at_origin > 0.f || lod.size_per_t > 0.f;
+  Walker<kCount> wk{
+      w,      r,    lod, ctx,  t1, g.levels, g.levels - kBrickLog2, float(g.voxel_size),
+      lod_on, seen, t0,  face, f};
   const int root[3] = {0, 0, 0};
   uint32_t cell = 0;
   const PyramidNode* node = nullptr;
@@ -267,7 +408,7 @@ bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod,
     wk.stop(0, root, cell, node);
     return true;
   }
-  return wk.visit(0, root, exit) == Step::Hit;
+  return wk.visit(0, root, exit, cell) == Step::Hit;
 }
 
 Vec3 face_normal(int face) {

@@ -2,6 +2,7 @@
 // pool, the size-class color allocator (§3.1.4, §4.3) and the brickgrid with
 // its occupancy layer.
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cstring>
 #include <string>
@@ -145,22 +146,30 @@ World::World(const GridTransform& grid, bool normals, uint32_t height_cells)
 }
 
 void World::set_brick(uint64_t index, const uint64_t mask[8], const uint32_t* colors,
-                      const uint32_t* normals, uint32_t flags, const uint32_t* lod) {
+                      const uint32_t* normals, uint32_t flags, const uint32_t* lod,
+                      bool update_pyramid) {
   uint32_t& cell = cells_[size_t(index)];
   uint32_t b = 0;
   Brick* brick = nullptr;
+  int count = 0;
+  for (int w = 0; w < 8; ++w) count += std::popcount(mask[w]);
+  // A run whose size class still fits the new count is rewritten in place
+  // (§4.3: an edit of a few voxels keeps its node); otherwise it goes back
+  // to its class and a new one is taken.
+  bool in_place = false;
   if (cell_state(cell) == kStateResident) {
     b = cell_brick(cell);
     brick = &pool_[b];
     const int old = brick_popcount(*brick);
-    if (old > 0) color_alloc_.release(brick->color, uint32_t(old));
+    in_place =
+        old > 0 && count > 0 &&
+        ColorAllocator::class_size(uint32_t(old)) == ColorAllocator::class_size(uint32_t(count));
+    if (old > 0 && !in_place) color_alloc_.release(brick->color, uint32_t(old));
   }
-  int count = 0;
-  for (int w = 0; w < 8; ++w) count += std::popcount(mask[w]);
   if (count == 0) {
     if (brick != nullptr) pool_.release(b);
     cell = 0;
-    update_occupancy(index);
+    if (update_pyramid) update_occupancy(index);
     return;
   }
   if (brick == nullptr) {
@@ -168,7 +177,7 @@ void World::set_brick(uint64_t index, const uint64_t mask[8], const uint32_t* co
     brick = &pool_[b];
   }
   std::memcpy(brick->mask, mask, sizeof brick->mask);
-  brick->color = color_alloc_.allocate(uint32_t(count));
+  if (!in_place) brick->color = color_alloc_.allocate(uint32_t(count));
   if (normals_data_.size() < color_alloc_.extent() || colors_.size() < color_alloc_.extent()) {
     if (!dxt1_) colors_.resize(color_alloc_.extent());
     if (normals_) normals_data_.resize(color_alloc_.extent());
@@ -186,7 +195,7 @@ void World::set_brick(uint64_t index, const uint64_t mask[8], const uint32_t* co
   // resolution), re-encoded.
   brick->lod = lod ? *lod : codec::mean_color_abgr(colors, size_t(count));
   cell = resident_cell(b, flags);
-  update_occupancy(index);
+  if (update_pyramid) update_occupancy(index);
 }
 
 void World::use_dxt1() {
@@ -210,7 +219,35 @@ void World::update_occupancy(uint64_t index) {
   const uint32_t i = uint32_t(index % dims_[0]);
   const uint32_t j = uint32_t(index / dims_[0] % dims_[1]);
   const uint32_t k = uint32_t(index / dims_[0] / dims_[1]);
-  const uint32_t oi = i >> kOccupancyLog2, oj = j >> kOccupancyLog2, ok = k >> kOccupancyLog2;
+  update_occupancy_bit(i >> kOccupancyLog2, j >> kOccupancyLog2, k >> kOccupancyLog2);
+  for (int q = 1; q <= pyramid_levels(); ++q) update_pyramid_node(q, i >> q, j >> q, k >> q);
+}
+
+void World::update_occupancy(const std::vector<uint64_t>& indices) {
+  // The same nodes as update_occupancy(index) for each, every one once:
+  // per level, the distinct parents of the level below (§4.4: an edit of
+  // many bricks recomputes each pyramid node once, not once per brick).
+  std::vector<std::array<uint32_t, 3>> at;
+  at.reserve(indices.size());
+  for (uint64_t index : indices)
+    at.push_back({uint32_t(index % dims_[0]), uint32_t(index / dims_[0] % dims_[1]),
+                  uint32_t(index / dims_[0] / dims_[1])});
+  auto unique_shifted = [](std::vector<std::array<uint32_t, 3>>& v, int shift) {
+    for (auto& c : v)
+      for (uint32_t& x : c) x >>= shift;
+    std::sort(v.begin(), v.end());
+    v.erase(std::unique(v.begin(), v.end()), v.end());
+  };
+  std::vector<std::array<uint32_t, 3>> occ = at;
+  unique_shifted(occ, kOccupancyLog2);
+  for (const auto& c : occ) update_occupancy_bit(c[0], c[1], c[2]);
+  for (int q = 1; q <= pyramid_levels(); ++q) {
+    unique_shifted(at, 1);
+    for (const auto& c : at) update_pyramid_node(q, c[0], c[1], c[2]);
+  }
+}
+
+void World::update_occupancy_bit(uint32_t oi, uint32_t oj, uint32_t ok) {
   constexpr uint32_t s = 1u << kOccupancyLog2;
   bool any = false;
   for (uint32_t z = ok * s; z < std::min(dims_[2], ok * s + s) && !any; ++z)
@@ -222,40 +259,37 @@ void World::update_occupancy(uint64_t index) {
     occupancy_[size_t(b >> 6)] |= uint64_t(1) << (b & 63);
   else
     occupancy_[size_t(b >> 6)] &= ~(uint64_t(1) << (b & 63));
-  // The pyramid, level by level from the cell up: each node from its 8
-  // children (a brick counts once, whatever its voxels, so that a brick
-  // evicted with its LOD color changes nothing above it).
-  for (int q = 1; q <= pyramid_levels(); ++q) {
-    const uint32_t x = i >> q, y = j >> q, z = k >> q;
-    double sum[3] = {0, 0, 0};
-    uint32_t bricks = 0;
-    for (uint32_t c = 0; c < 8; ++c) {
-      const uint32_t cx = 2 * x + (c & 1), cy = 2 * y + (c >> 1 & 1), cz = 2 * z + (c >> 2);
-      uint32_t nb, abgr;
-      if (q == 1) {
-        if (cy >= dims_[1]) continue;  // above a cut-off brickgrid
-        const uint32_t cell = cells_[size_t(cell_index(cx, cy, cz))];
-        if (cell == 0) continue;
-        nb = 1;
-        abgr =
-            cell_state(cell) == kStateResident ? pool_[cell_brick(cell)].lod : cell_lod_abgr(cell);
-      } else {
-        if (cy >= pyramid_dim_y(q - 1)) continue;
-        const PyramidNode& p = pyramid_[size_t(q - 2)][size_t(pyramid_index(q - 1, cx, cy, cz))];
-        if (p.bricks == 0) continue;
-        nb = p.bricks, abgr = p.abgr;
-      }
-      const Color col = esvo::decode_color_abgr(abgr);
-      sum[0] += double(nb) * col.r, sum[1] += double(nb) * col.g, sum[2] += double(nb) * col.b;
-      bricks += nb;
+}
+
+void World::update_pyramid_node(int q, uint32_t x, uint32_t y, uint32_t z) {
+  // The node from its 8 children (a brick counts once, whatever its voxels,
+  // so that a brick evicted with its LOD color changes nothing above it).
+  double sum[3] = {0, 0, 0};
+  uint32_t bricks = 0;
+  for (uint32_t c = 0; c < 8; ++c) {
+    const uint32_t cx = 2 * x + (c & 1), cy = 2 * y + (c >> 1 & 1), cz = 2 * z + (c >> 2);
+    uint32_t nb, abgr;
+    if (q == 1) {
+      if (cy >= dims_[1]) continue;  // above a cut-off brickgrid
+      const uint32_t cell = cells_[size_t(cell_index(cx, cy, cz))];
+      if (cell == 0) continue;
+      nb = 1;
+      abgr = cell_state(cell) == kStateResident ? pool_[cell_brick(cell)].lod : cell_lod_abgr(cell);
+    } else {
+      if (cy >= pyramid_dim_y(q - 1)) continue;
+      const PyramidNode& p = pyramid_[size_t(q - 2)][size_t(pyramid_index(q - 1, cx, cy, cz))];
+      if (p.bricks == 0) continue;
+      nb = p.bricks, abgr = p.abgr;
     }
-    PyramidNode& node = pyramid_[size_t(q - 1)][size_t(pyramid_index(q, x, y, z))];
-    node.bricks = bricks;
-    node.abgr = bricks == 0
-                    ? 0
-                    : esvo::encode_color_abgr({float(sum[0] / bricks), float(sum[1] / bricks),
-                                               float(sum[2] / bricks), 1.f});
+    const Color col = esvo::decode_color_abgr(abgr);
+    sum[0] += double(nb) * col.r, sum[1] += double(nb) * col.g, sum[2] += double(nb) * col.b;
+    bricks += nb;
   }
+  PyramidNode& node = pyramid_[size_t(q - 1)][size_t(pyramid_index(q, x, y, z))];
+  node.bricks = bricks;
+  node.abgr = bricks == 0 ? 0
+                          : esvo::encode_color_abgr({float(sum[0] / bricks), float(sum[1] / bricks),
+                                                     float(sum[2] / bricks), 1.f});
 }
 
 bool World::voxel(uint32_t x, uint32_t y, uint32_t z) const {
