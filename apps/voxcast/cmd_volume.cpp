@@ -8,8 +8,12 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <fstream>
+#include <initializer_list>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <optional>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -17,9 +21,11 @@
 #include "camera_options.hpp"
 #include "cli_io.hpp"
 #include "commands.hpp"
+#include "io/meta_json.hpp"
 #include "view/camera_path.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/gigavoxels.hpp"
+#include "voxcast/gigavoxels_scene.hpp"
 #include "voxcast/image.hpp"
 #include "voxcast/integrator.hpp"
 #include "voxcast/mesh.hpp"
@@ -44,12 +50,17 @@ struct VolumeArgs {
   int info_resolution = 256;
 };
 
-bool is_volume_file(const std::string& path) {
+/// Whether `path` ends with one of `exts` (ASCII case ignored).
+bool has_extension(const std::string& path, std::initializer_list<const char*> exts) {
   std::string lower = path;
   for (char& c : lower) c = char(std::tolower(static_cast<unsigned char>(c)));
-  for (const char* ext : {".inr", ".inr.gz", ".mhd", ".mha"})
+  for (const char* ext : exts)
     if (lower.ends_with(ext)) return true;
   return false;
+}
+
+bool is_volume_file(const std::string& path) {
+  return has_extension(path, {".inr", ".inr.gz", ".mhd", ".mha"});
 }
 
 /// A volume file as it is, any other file as a mesh voxelized solid at
@@ -62,9 +73,7 @@ giga::ScalarVolume read_source_volume(const std::string& source, int resolution)
 }
 
 bool is_vdb(const std::string& path) {
-  std::string lower = path;
-  for (char& c : lower) c = char(std::tolower(static_cast<unsigned char>(c)));
-  return lower.ends_with(".vdb");
+  return has_extension(path, {".vdb"});
 }
 
 /// A SOURCE's producer and where its unit cube lies in the world.
@@ -100,6 +109,166 @@ Source make_source(const std::string& source, int resolution) {
   }
   s.producer = giga::make_volume_producer(read_source_volume(source, resolution));
   return s;
+}
+
+bool is_scene_file(const std::string& path) {
+  return has_extension(path, {".json"});
+}
+
+/// A scene file's objects (README "Volume scenes"), each on its own pools:
+/// the budget is shared equally by the objects that stream (GigaVoxels).
+struct LoadedScene {
+  std::shared_ptr<giga::VolumeScene> scene;
+  std::vector<std::shared_ptr<giga::GigaVoxels>> streamed;
+};
+
+LoadedScene load_volume_scene(const std::string& path, uint64_t budget) {
+  using nlohmann::json;
+  require_regular_input(path, "volume scene");
+  const std::string where = "volume scene " + in_quotes(path);
+  auto fail = [&](const std::string& what) -> void { throw Error(where + ": " + what); };
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream text;
+  text << in.rdbuf();
+  if (!in) fail("cannot be read");
+  json doc;
+  try {
+    doc = json::parse(text.str());
+  } catch (const json::exception& e) {
+    fail("not valid JSON: " + meta::json_error_text(e));
+  }
+  if (!doc.is_object() || !doc.contains("objects") || !doc["objects"].is_array() ||
+      doc["objects"].empty())
+    fail("expected {\"objects\": [ ... ]} with at least one object");
+  for (const auto& [key, value] : doc.items())
+    if (key != "objects") fail("unknown key '" + printable(key) + "'");
+  const json& list = doc["objects"];
+  if (list.size() > size_t(giga::kMaxSceneObjects))
+    fail("at most " + std::to_string(giga::kMaxSceneObjects) + " objects");
+  const std::filesystem::path dir = std::filesystem::path(path).parent_path();
+  struct Parsed {
+    std::string source;
+    int resolution = 256;
+    giga::Affine transform;
+    std::string transfer;
+  };
+  std::vector<Parsed> parsed;
+  for (size_t i = 0; i < list.size(); ++i) {
+    const json& o = list[i];
+    const std::string at = "object " + std::to_string(i);
+    auto bad = [&](const std::string& what) { fail(at + ": " + what); };
+    if (!o.is_object()) bad("is not a JSON object");
+    Parsed p;
+    auto number = [&](const json& v, const char* what) {
+      if (!v.is_number() || !std::isfinite(v.get<double>()))
+        bad(std::string(what) + " is not a number");
+      return v.get<float>();
+    };
+    auto vec3 = [&](const json& v, const char* what) {
+      if (!v.is_array() || v.size() != 3) bad(std::string(what) + " is not [x, y, z]");
+      return Vec3{number(v[0], what), number(v[1], what), number(v[2], what)};
+    };
+    auto matrix = [&](const json& v) {
+      // 4x4 row-major, the last row 0 0 0 1 (an affine map).
+      if (!v.is_array() || v.size() != 4) bad("'matrix' is not 4 rows of 4 numbers");
+      giga::Affine m;
+      for (int r = 0; r < 4; ++r) {
+        if (!v[size_t(r)].is_array() || v[size_t(r)].size() != 4)
+          bad("'matrix' is not 4 rows of 4 numbers");
+        for (int c = 0; c < 4; ++c) {
+          const float x = number(v[size_t(r)][size_t(c)], "a 'matrix' entry");
+          if (r < 3)
+            m.m[r][c] = x;
+          else if (x != (c == 3 ? 1.f : 0.f))
+            bad("'matrix' must end with the row 0, 0, 0, 1");
+        }
+      }
+      return m;
+    };
+    for (const auto& [key, v] : o.items()) {
+      if (key == "source") {
+        if (!v.is_string() || v.get<std::string>().empty()) bad("'source' is not a string");
+        p.source = v.get<std::string>();
+      } else if (key == "resolution") {
+        if (!v.is_number_integer()) bad("'resolution' is not an integer");
+        const int64_t r = v.get<int64_t>();
+        if (r < 1 || r > 8192) bad("'resolution' must be in 1..8192");
+        p.resolution = int(r);
+      } else if (key == "transform") {
+        if (v.is_array()) {
+          p.transform = matrix(v);
+        } else if (v.is_object()) {
+          // translate * rotate * scale: the object is scaled, then turned, then moved.
+          giga::Affine t, r, sc;
+          for (const auto& [k, x] : v.items()) {
+            if (k == "translate")
+              t = giga::Affine::translate(vec3(x, "'translate'"));
+            else if (k == "scale")
+              sc = giga::Affine::scale(x.is_array() ? vec3(x, "'scale'")
+                                                    : Vec3{1, 1, 1} * number(x, "'scale'"));
+            else if (k == "rotate") {
+              if (!x.is_array() || x.size() != 4) bad("'rotate' is not [axis x, y, z, degrees]");
+              const Vec3 axis{number(x[0], "'rotate'"), number(x[1], "'rotate'"),
+                              number(x[2], "'rotate'")};
+              if (!(length(axis) > 0.f)) bad("'rotate' has a zero axis");
+              r = giga::Affine::rotate(axis, number(x[3], "'rotate'"));
+            } else if (k == "matrix")
+              t = matrix(x);
+            else
+              bad("unknown transform key '" + printable(k) + "'");
+          }
+          if (v.contains("matrix") && v.size() > 1)
+            bad("'matrix' excludes the other transform keys");
+          p.transform = t * r * sc;
+        } else {
+          bad("'transform' is not {translate, scale, rotate} or a 4x4 matrix");
+        }
+      } else if (key == "transfer") {
+        if (!v.is_string()) bad("'transfer' is not a string v:density:r,g,b;...");
+        p.transfer = v.get<std::string>();
+      } else {
+        bad("unknown key '" + printable(key) + "'");
+      }
+    }
+    if (p.source.empty()) bad("has no 'source'");
+    parsed.push_back(std::move(p));
+  }
+  int streaming = 0;
+  for (const Parsed& p : parsed) streaming += p.source != "procedural:menger-recursive";
+  LoadedScene out;
+  std::vector<giga::SceneObject> objects;
+  for (size_t i = 0; i < parsed.size(); ++i) {
+    const Parsed& p = parsed[i];
+    const std::string at = "object " + std::to_string(i);
+    const bool procedural = p.source.rfind("procedural:", 0) == 0;
+    std::string file = p.source;
+    if (!procedural && std::filesystem::path(file).is_relative()) file = (dir / file).string();
+    giga::SceneObject obj;
+    obj.name = p.source, obj.transform = p.transform;
+    try {
+      if (!p.transfer.empty())
+        obj.transfer = TransferFunction::parse(p.transfer);
+      else if (!procedural && !is_vdb(file))
+        obj.transfer = TransferFunction::parse(kDefaultTransfer);
+      Source s = make_source(file, p.resolution);
+      if (s.recursive) {
+        obj.structure = s.recursive;
+      } else {
+        giga::GigaOptions go;
+        go.budget_bytes = budget / uint64_t(std::max(1, streaming));
+        go.origin = s.origin, go.size = s.size;
+        auto g = std::make_shared<giga::GigaVoxels>(s.producer, go);
+        out.streamed.push_back(g);
+        obj.structure = g;
+      }
+      (void)obj.transform.inverse();  // a singular map: the object's own error
+    } catch (const Error& e) {
+      fail(at + ": " + e.what());
+    }
+    objects.push_back(std::move(obj));
+  }
+  out.scene = std::make_shared<giga::VolumeScene>(std::move(objects));
+  return out;
 }
 
 /// Process CPU time (user + system) in seconds: frame costs that can be read
@@ -232,8 +401,10 @@ int volume_bench(const BenchArgs& a) {
   return 0;
 }
 
-void print_pass_stats(uint32_t frame, const FrameStats& fs, const giga::GigaVoxels& g) {
-  const auto& gs = g.pass_stats();
+/// Per-pass statistics; `g` (null for a scene): a GigaVoxels' own per pass.
+void print_pass_stats(uint32_t frame, const FrameStats& fs, const giga::GigaVoxels* g) {
+  static const std::vector<giga::GigaPassStats> none;
+  const auto& gs = g ? g->pass_stats() : none;
   for (size_t p = 0; p < fs.passes.size(); ++p) {
     const PassStats& ps = fs.passes[p];
     std::fprintf(stderr, "frame %u pass %zu: %d tiles, %llu requests", frame, p, ps.tiles,
@@ -252,7 +423,7 @@ void print_pass_stats(uint32_t frame, const FrameStats& fs, const giga::GigaVoxe
                    (unsigned long long)s.bricks_used, (unsigned long long)s.tiles_used,
                    (unsigned long long)s.data_requests, (unsigned long long)s.recycled_bricks,
                    (unsigned long long)s.recycled_tiles, (unsigned long long)s.bricks_resident,
-                   g.brick_capacity(), (unsigned long long)s.tiles_resident, g.tile_capacity());
+                   g->brick_capacity(), (unsigned long long)s.tiles_resident, g->tile_capacity());
     }
     std::fprintf(stderr, "; %.1f ms trace + %.1f ms serve\n", ps.seconds * 1e3,
                  ps.serve_seconds * 1e3);
@@ -323,8 +494,9 @@ Runner add_volume(CLI::App& app) {
   CLI::App* cmd = vol->add_subcommand("render", "Render a volume file or a procedural volume");
   cmd->add_option("SOURCE", args->source,
                   "A volume file (.inr, .inr.gz, .mhd, .mha), an OpenVDB FloatGrid (.vdb), a mesh "
-                  "(voxelized solid at --resolution) or "
-                  "procedural:cloud|mandelbulb|menger|menger-recursive")
+                  "(voxelized solid at --resolution), "
+                  "procedural:cloud|mandelbulb|menger|menger-recursive, or a scene of several "
+                  "objects with their own transforms (.json, README 'Volume scenes')")
       ->required();
   cmd->add_option("-o,--output", args->output, "Output image (.png or .pfm)")->required();
   cmd->add_option("--depth", args->depth,
@@ -497,8 +669,13 @@ Runner add_volume(CLI::App& app) {
       if (args->frames < 2) throw UsageError("--path needs --frames K with K >= 2");
     }
     const bool procedural = args->source.rfind("procedural:", 0) == 0;
+    const bool scene_file = is_scene_file(args->source);
+    if (scene_file && !args->transfer.empty())
+      throw UsageError("--transfer: a scene file gives each object its own 'transfer'");
     try {
-      if (!args->transfer.empty())
+      if (scene_file) {
+        // Each object classifies its own samples (VolumeScene).
+      } else if (!args->transfer.empty())
         io.transfer = TransferFunction::parse(args->transfer);
       else if (!procedural && !is_vdb(args->source))  // a .vdb holds densities
         io.transfer = TransferFunction::parse(kDefaultTransfer);
@@ -518,12 +695,19 @@ Runner add_volume(CLI::App& app) {
       require_regular_input(args->path, "camera path");
       path = view::CameraPath::load(args->path);
     }
-    const Source source = make_source(args->source, args->resolution);
+    std::optional<LoadedScene> scene;
+    Source source;
+    if (scene_file)
+      scene = load_volume_scene(args->source, go.budget_bytes);
+    else
+      source = make_source(args->source, args->resolution);
     const std::shared_ptr<giga::Producer>& producer = source.producer;
     go.origin = source.origin, go.size = source.size;
     std::optional<giga::GigaVoxels> giga_volume;
     if (producer) giga_volume.emplace(producer, go);
-    Structure& volume = giga_volume ? static_cast<Structure&>(*giga_volume) : *source.recursive;
+    Structure& volume = scene         ? static_cast<Structure&>(*scene->scene)
+                        : giga_volume ? static_cast<Structure&>(*giga_volume)
+                                      : *source.recursive;
     const Aabb bounds = volume.bounds();
     bool derived = false;
     view.camera = resolve_camera(args->camera, bounds, view.width, view.height, &derived);
@@ -548,13 +732,17 @@ Runner add_volume(CLI::App& app) {
       const auto t0 = std::chrono::steady_clock::now();
       const FrameStats fs = render_frame(volume, integrator, view, fo, &film);
       const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-      if (args->verbose && giga_volume) print_pass_stats(uint32_t(f), fs, *giga_volume);
+      if (args->verbose) print_pass_stats(uint32_t(f), fs, giga_volume ? &*giga_volume : nullptr);
       if (f > 0) {
         later_seconds += s, later_rays += integrator.stats().rays;
         later_cpu += cpu_seconds() - c0;
         later_passes += fs.passes.size();
-        if (giga_volume)
-          for (const giga::GigaPassStats& g : giga_volume->pass_stats())
+        std::vector<const giga::GigaVoxels*> streamed;
+        if (giga_volume) streamed.push_back(&*giga_volume);
+        if (scene)
+          for (const auto& g : scene->streamed) streamed.push_back(g.get());
+        for (const giga::GigaVoxels* v : streamed)
+          for (const giga::GigaPassStats& g : v->pass_stats())
             later_requests += g.data_requests + g.subdivide_requests,
                 later_uploads += g.bricks_uploaded + g.constants;
       }
@@ -575,7 +763,14 @@ Runner add_volume(CLI::App& app) {
     double covered = 0;
     for (float a : film.alpha.pixels) covered += a;
     const double opacity = covered / double(film.alpha.pixels.size());
-    if (giga_volume)
+    if (scene) {
+      uint64_t bytes = 0;
+      for (const auto& g : scene->streamed) bytes += g->pool_bytes();
+      std::printf("%s: %dx%d, scene of %zu objects (%zu streamed, pools %s), mean opacity %.3f\n",
+                  printable(args->output).c_str(), view.width, view.height,
+                  scene->scene->objects().size(), scene->streamed.size(),
+                  format_bytes(double(bytes)).c_str(), opacity);
+    } else if (giga_volume)
       std::printf(
           "%s: %dx%d, %s (max level %d), pools %s (%u bricks, %u tiles), mean opacity %.3f\n",
           printable(args->output).c_str(), view.width, view.height, producer->name().c_str(),

@@ -94,6 +94,12 @@ class RequestSink {
   void push(uint32_t kind, uint64_t key, float priority = 0.f) {
     push(Request{key, kind, priority});
   }
+  /// Ors `bits` into the keys of the requests from index `first` on (a
+  /// structure made of structures tells its parts' requests apart: it notes
+  /// size() before a part's query and tags what the part pushed).
+  void tag_keys(size_t first, uint64_t bits) {
+    for (size_t i = first; i < items_.size(); ++i) items_[i].key |= bits;
+  }
   size_t size() const { return items_.size(); }
   bool empty() const { return items_.empty(); }
   uint64_t dropped() const { return dropped_; }
@@ -106,31 +112,41 @@ class RequestSink {
   uint64_t dropped_ = 0;
 };
 
-/// Scratch space for one structure's accessor cache. get<T>(owner) returns a
-/// T that lives inside the context: value-initialized when the cache last
-/// belonged to someone else, the previous contents otherwise.
+/// Scratch space for the accessor caches of a few structures traced with
+/// one context (a VolumeScene's objects take turns along every ray: one slot
+/// each, so that they do not wipe each other's cache at every switch).
+/// get<T>(owner) returns a T that lives inside the context: the owner's
+/// previous contents, or value-initialized in a new slot (the slots are
+/// reused round robin when more owners ask than there are slots).
 class AccessorCache {
  public:
   static constexpr size_t kBytes = 256;
+  static constexpr int kSlots = 4;
   template <class T>
   T& get(const void* owner) {
     static_assert(sizeof(T) <= kBytes && alignof(T) <= 64, "accessor cache too large");
     static_assert(std::is_trivially_copyable_v<T> && std::is_trivially_destructible_v<T>,
                   "accessor caches are plain data");
-    T* p = reinterpret_cast<T*>(storage_);
-    if (owner_ != owner) {
-      new (p) T{};
-      owner_ = owner;
-    }
+    for (int s = 0; s < kSlots; ++s)
+      if (owner_[s] == owner) return *reinterpret_cast<T*>(storage_[s]);
+    const int s = next_;
+    next_ = (next_ + 1) % kSlots;
+    T* p = reinterpret_cast<T*>(storage_[s]);
+    new (p) T{};
+    owner_[s] = owner;
     return *p;
   }
   /// Forget the cached contents (a structure calls this after changing what
   /// is resident; the frame loop calls it before every pass).
-  void reset() { owner_ = nullptr; }
+  void reset() {
+    for (const void*& o : owner_) o = nullptr;
+    next_ = 0;
+  }
 
  private:
-  alignas(64) unsigned char storage_[kBytes];
-  const void* owner_ = nullptr;
+  alignas(64) unsigned char storage_[kSlots][kBytes];
+  const void* owner_[kSlots] = {};
+  int next_ = 0;
 };
 
 /// Everything a query may use besides the structure and the ray; one per
