@@ -199,6 +199,16 @@ TEST(GigaScene, CliRendersSceneFilesAndRejectsBadOnes) {
   EXPECT_TRUE(std::filesystem::exists(out));
   EXPECT_NE(ok.output.find("scene of 2 objects (1 streamed"), std::string::npos) << ok.output;
 
+  const testing::CliResult info = run_cli_split("volume info " + scene);
+  ASSERT_EQ(info.exit_code, 0) << info.errors;
+  EXPECT_NE(info.output.find("volume scene, 2 objects, 1 streamed"), std::string::npos)
+      << info.output;
+  EXPECT_NE(
+      info.output.find(
+          "object 1    procedural:menger-recursive: world box 0.28,0.08,0.08 .. 0.92,0.72,0.72"),
+      std::string::npos)
+      << info.output;
+
   struct Case {
     std::string json;
     std::string says;

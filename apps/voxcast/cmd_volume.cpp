@@ -432,6 +432,25 @@ void print_pass_stats(uint32_t frame, const FrameStats& fs, const giga::GigaVoxe
 
 int volume_info(const std::string& source, int resolution) {
   std::shared_ptr<giga::Producer> producer;
+  if (is_scene_file(source)) {
+    const LoadedScene s = load_volume_scene(source, uint64_t(256) << 20);
+    const auto& objects = s.scene->objects();
+    std::printf("source      %s (volume scene, %zu objects, %zu streamed)\n",
+                printable(source).c_str(), objects.size(), s.streamed.size());
+    for (size_t i = 0; i < objects.size(); ++i) {
+      // The object's world box: its local bounds through its transform.
+      giga::SceneObject one = objects[i];
+      const Aabb b = giga::VolumeScene({one}).bounds();
+      std::printf("object %-4zu %s: world box %g,%g,%g .. %g,%g,%g%s\n", i,
+                  printable(objects[i].name).c_str(), double(b.lo.x), double(b.lo.y),
+                  double(b.lo.z), double(b.hi.x), double(b.hi.y), double(b.hi.z),
+                  objects[i].transfer.empty() ? "" : ", transfer function");
+    }
+    const Aabb b = s.scene->bounds();
+    std::printf("bounds      %g,%g,%g .. %g,%g,%g\n", double(b.lo.x), double(b.lo.y),
+                double(b.lo.z), double(b.hi.x), double(b.hi.y), double(b.hi.z));
+    return 0;
+  }
   if (source.rfind("procedural:", 0) == 0) {
     const Source s = make_source(source, resolution);
     std::printf("source      %s (procedural)\n", printable(source).c_str());
