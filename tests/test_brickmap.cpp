@@ -5,6 +5,7 @@
 // oracle (tests/support/dda_oracle) and against the ESVO render of the same
 // voxels, LOD and not-resident answers, and the scene file (§4.5).
 #include <gtest/gtest.h>
+#include <tbb/task_arena.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -740,6 +741,29 @@ TEST(BrickmapEdit, InPlaceRunsAndTheBatchedPyramidEqualARebuiltWorld) {
     }
   }
   EXPECT_EQ(rebuilt.decode_voxels(), w.decode_voxels());
+}
+
+// Brushes run over bricks in parallel: one thread and two give the same
+// world, pool slots and color runs included.
+TEST(BrickmapEdit, TheSameWorldWhateverTheThreads) {
+  const VoxelSet set = testing::make_sphere_shell(7);
+  const GridTransform& g = set.grid;
+  const auto at = [&](double f, int a) { return double(g.origin[a]) + f * g.side(); };
+  auto run = [&](int threads) {
+    World w = build_world(set);
+    tbb::task_arena arena(threads);
+    arena.execute([&] {
+      edit(w, Brush::sphere({at(0.5, 0), at(0.5, 1), at(0.95, 2)}, 0.3 * g.side()), EditOp::Remove);
+      edit(w, Brush::sphere({at(0.3, 0), at(0.6, 1), at(0.5, 2)}, 0.2 * g.side()), EditOp::Add,
+           {0.9f, 0.2f, 0.1f, 1});
+    });
+    return w;
+  };
+  const World one = run(1), two = run(2);
+  EXPECT_EQ(one.cells(), two.cells());
+  EXPECT_EQ(one.colors(), two.colors());
+  EXPECT_EQ(one.normals(), two.normals());
+  EXPECT_EQ(one.decode_voxels(), two.decode_voxels());
 }
 
 TEST(BrickmapEdit, RefusesBadBrushesAndNotResidentBricks) {

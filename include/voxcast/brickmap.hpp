@@ -439,10 +439,14 @@ struct EditResult {
 };
 
 /// Applies one brush to the voxels of the grid (outside voxels are
-/// ignored). Every brick that changes is stored anew (set_brick: pool slot
-/// and color run released and reallocated, LOD color recomputed) and flagged
-/// Edited. Throws voxcast::Error for a non-finite or inverted brush, or when
-/// the brush touches a brick that is not resident.
+/// ignored). Every brick that changes is stored anew (set_brick: the color
+/// run rewritten in place when its size class fits, else released and
+/// reallocated; LOD color recomputed) and flagged Edited; the occupancy and
+/// pyramid are recomputed once at the end. The brush is applied to batches
+/// of bricks in parallel (TBB) and the bricks are stored in cell order, so
+/// the world is the same whatever the threads. Throws voxcast::Error for a
+/// non-finite or inverted brush, or (before anything changes) when the
+/// brush touches a brick that is not resident.
 EditResult edit(World& world, const Brush& brush, EditOp op, const Color& color = {});
 
 /// The mesh-stamp brush: `voxels` (on the world's grid, e.g. a mesh

@@ -7,10 +7,13 @@
 // recomputed once per edit); the edited cells carry the Edited flag and are
 // listed in the result, which is what a renderer with its own brick pool
 // would invalidate and re-upload (§4.4).
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <array>
 #include <bit>
 #include <cmath>
+#include <vector>
 
 #include "voxcast/brickmap.hpp"
 #include "voxcast/error.hpp"
@@ -111,48 +114,65 @@ EditResult edit(World& w, const Brush& brush, EditOp op, const Color& color) {
   }
   const uint32_t abgr = esvo::encode_color_abgr(color);
   const Vec3d center = brush.shape == Brush::Shape::Sphere ? brush.a : (brush.a + brush.b) * 0.5;
-  EditResult result;
-  BrickVoxels v;
+  // The bricks the box overlaps, in cell order; a not-resident one refuses
+  // the edit before anything changes.
+  std::vector<std::array<int64_t, 3>> bricks;
   for (int64_t bk = vlo[2] >> kBrickLog2; bk <= vhi[2] >> kBrickLog2; ++bk)
     for (int64_t bj = vlo[1] >> kBrickLog2; bj <= vhi[1] >> kBrickLog2; ++bj)
       for (int64_t bi = vlo[0] >> kBrickLog2; bi <= vhi[0] >> kBrickLog2; ++bi) {
-        const uint64_t index = w.cell_index(uint32_t(bi), uint32_t(bj), uint32_t(bk));
-        const uint32_t cell = w.cell(index);
+        const uint32_t cell = w.cell(w.cell_index(uint32_t(bi), uint32_t(bj), uint32_t(bk)));
         if (cell == 0 && op != EditOp::Add) continue;
-        if (cell_state(cell) == kStateNotResident) {
-          w.update_occupancy(result.cells);  // the bricks stored so far stay consistent
+        if (cell_state(cell) == kStateNotResident)
           throw Error("brickmap edit: brick (" + std::to_string(bi) + "," + std::to_string(bj) +
                       "," + std::to_string(bk) + ") is not resident");
-        }
-        expand(w, cell, &v);
-        uint64_t changed = 0;
-        const int64_t b0[3] = {bi << kBrickLog2, bj << kBrickLog2, bk << kBrickLog2};
-        for (int64_t z = std::max(vlo[2], b0[2]); z <= std::min(vhi[2], b0[2] + 7); ++z)
-          for (int64_t y = std::max(vlo[1], b0[1]); y <= std::min(vhi[1], b0[1] + 7); ++y)
-            for (int64_t x = std::max(vlo[0], b0[0]); x <= std::min(vhi[0], b0[0] + 7); ++x) {
-              const Vec3d p{double(g.origin.x) + (double(x) + 0.5) * g.voxel_size,
-                            double(g.origin.y) + (double(y) + 0.5) * g.voxel_size,
-                            double(g.origin.z) + (double(z) + 0.5) * g.voxel_size};
-              if (!brush.contains(p)) continue;
-              const uint32_t bit =
-                  voxel_bit(uint32_t(x - b0[0]), uint32_t(y - b0[1]), uint32_t(z - b0[2]));
-              uint32_t nc = 0;
-              if (op == EditOp::Add) {
-                // Added voxels face away from the brush's center (a box's
-                // or sphere's outward direction; +z at the very center).
-                const Vec3d d = p - center;
-                nc = esvo::encode_normal_cube(
-                    dot(d, d) > 0 ? Vec3(normalize(Vec3{float(d.x), float(d.y), float(d.z)}))
-                                  : Vec3{0, 0, 1});
-              }
-              if (!apply_voxel(v, bit, op, abgr, nc)) continue;
-              ++changed;
-            }
-        if (changed == 0) continue;
-        store(w, index, v);
-        result.voxels += changed;
-        result.cells.push_back(index);
+        bricks.push_back({bi, bj, bk});
       }
+  // The brush is applied to a batch of bricks in parallel (each reads the
+  // world and writes its own expanded copy), then the changed ones are
+  // stored in cell order on this thread (the pool and the color allocator
+  // are not shared), so the world is the same whatever the threads.
+  constexpr size_t kBatch = 512;  // 512 expanded bricks: about 2 MiB
+  std::vector<BrickVoxels> batch(std::min(kBatch, bricks.size()));
+  std::vector<uint64_t> changed(batch.size());
+  EditResult result;
+  for (size_t first = 0; first < bricks.size(); first += kBatch) {
+    const size_t n = std::min(kBatch, bricks.size() - first);
+    tbb::parallel_for(size_t(0), n, [&](size_t q) {
+      const auto& bc = bricks[first + q];
+      BrickVoxels& v = batch[q];
+      expand(w, w.cell(w.cell_index(uint32_t(bc[0]), uint32_t(bc[1]), uint32_t(bc[2]))), &v);
+      changed[q] = 0;
+      const int64_t b0[3] = {bc[0] << kBrickLog2, bc[1] << kBrickLog2, bc[2] << kBrickLog2};
+      for (int64_t z = std::max(vlo[2], b0[2]); z <= std::min(vhi[2], b0[2] + 7); ++z)
+        for (int64_t y = std::max(vlo[1], b0[1]); y <= std::min(vhi[1], b0[1] + 7); ++y)
+          for (int64_t x = std::max(vlo[0], b0[0]); x <= std::min(vhi[0], b0[0] + 7); ++x) {
+            const Vec3d p{double(g.origin.x) + (double(x) + 0.5) * g.voxel_size,
+                          double(g.origin.y) + (double(y) + 0.5) * g.voxel_size,
+                          double(g.origin.z) + (double(z) + 0.5) * g.voxel_size};
+            if (!brush.contains(p)) continue;
+            const uint32_t bit =
+                voxel_bit(uint32_t(x - b0[0]), uint32_t(y - b0[1]), uint32_t(z - b0[2]));
+            uint32_t nc = 0;
+            if (op == EditOp::Add) {
+              // Added voxels face away from the brush's center (a box's
+              // or sphere's outward direction; +z at the very center).
+              const Vec3d d = p - center;
+              nc = esvo::encode_normal_cube(
+                  dot(d, d) > 0 ? Vec3(normalize(Vec3{float(d.x), float(d.y), float(d.z)}))
+                                : Vec3{0, 0, 1});
+            }
+            if (apply_voxel(v, bit, op, abgr, nc)) ++changed[q];
+          }
+    });
+    for (size_t q = 0; q < n; ++q) {
+      if (changed[q] == 0) continue;
+      const auto& bc = bricks[first + q];
+      const uint64_t index = w.cell_index(uint32_t(bc[0]), uint32_t(bc[1]), uint32_t(bc[2]));
+      store(w, index, batch[q]);
+      result.voxels += changed[q];
+      result.cells.push_back(index);
+    }
+  }
   w.update_occupancy(result.cells);
   return result;
 }
