@@ -16,10 +16,12 @@
 #include <set>
 
 #include "support/cli_runner.hpp"
+#include "support/file_bytes.hpp"
 #include "voxcast/displacement.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/image.hpp"
 #include "voxcast/mesh.hpp"
+#include "voxcast/mesh_height.hpp"
 #include "voxcast/morton.hpp"
 #include "voxcast/voxelize.hpp"
 
@@ -214,8 +216,8 @@ TEST(DisplacementCli, BuildDisplaced) {
   r = testing::run_cli("build '" + obj + "' --resolution 64 --displacement '" + png +
                        "' --displacement-scale 0.15 --slices -o '" + dir.file("d.vxs") + "'");
   ASSERT_EQ(r.exit_code, 0) << r.output;
-  for (const char* bad : {" --displacement-scale 0.1", " --displacement h.png",
-                          " --displacement h.png --displacement-scale 0.1 --contours"}) {
+  for (const char* bad :
+       {" --displacement h.png", " --displacement h.png --displacement-scale 0.1 --contours"}) {
     std::string cmd = bad;
     const size_t at = cmd.find("h.png");
     if (at != std::string::npos) cmd.replace(at, 5, "'" + png + "'");
@@ -228,6 +230,41 @@ TEST(DisplacementCli, BuildDisplaced) {
                        dir.file("x.vxc") + "'");
   EXPECT_NE(r.exit_code, 0) << r.output;
   EXPECT_FALSE(std::filesystem::exists(dir.file("x.vxc")));
+  // --displacement-scale alone takes the material's height map: this plate
+  // has no material, a runtime error in one line, no output.
+  r = testing::run_cli("build '" + obj + "' --resolution 16 --displacement-scale 0.1 -o '" +
+                       dir.file("x.vxc") + "'");
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("no height or displacement texture"), std::string::npos) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(dir.file("x.vxc")));
+}
+
+// The height map from the mesh material (OBJ `disp`, Assimp's DISPLACEMENT
+// texture; tests/data/displaced_plate): --displacement-scale alone builds
+// the same scene, byte for byte, as naming the same PNG with --displacement,
+// and a different one from the flat plate; the library sees the texture only
+// when asked for the height map.
+TEST(DisplacementCli, MaterialHeightTextureIsTheDisplacementMap) {
+  testing::TempDir dir;
+  const std::filesystem::path data =
+      std::filesystem::path(VOXCAST_TEST_DATA_DIR) / "displaced_plate";
+  const std::string obj = (data / "plate.obj").string(), png = (data / "height.png").string();
+  Image height;
+  const Mesh mesh = load_mesh(obj, &height);
+  ASSERT_EQ(mesh.materials.size(), 1u);
+  ASSERT_EQ(height.width, 16);
+  ASSERT_EQ(height.height, 12);
+  EXPECT_EQ(height.pixels, read_png(png).pixels);  // as the --displacement PNG reads
+  const std::string common = " --resolution 64 --displacement-scale 0.15 -o '";
+  auto r = testing::run_cli("build '" + obj + "'" + common + dir.file("m.vxc") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  r = testing::run_cli("build '" + obj + "' --displacement '" + png + "'" + common +
+                       dir.file("p.vxc") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  r = testing::run_cli("build '" + obj + "' --resolution 64 -o '" + dir.file("f.vxc") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(testing::read_bytes(dir.file("m.vxc")), testing::read_bytes(dir.file("p.vxc")));
+  EXPECT_NE(testing::read_bytes(dir.file("m.vxc")), testing::read_bytes(dir.file("f.vxc")));
 }
 
 }  // namespace

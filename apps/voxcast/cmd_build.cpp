@@ -143,7 +143,8 @@ Runner add_build(CLI::App& app) {
                   "normals by the mesh's texture coordinates (esvo paper section 7.4)");
   args->displacement_scale_opt = cmd->add_option(
       "--displacement-scale", args->displacement_scale,
-      "With --displacement: world units of displacement at height 1 (negative: inwards)");
+      "World units of displacement at height 1 (negative: inwards); without --displacement "
+      "the height map is the mesh material's height/displacement texture");
   return [args]() {
     ThreadLimit limit(args->threads);
     // Every option value first (usage errors, exit 2), then the files.
@@ -209,9 +210,7 @@ Runner add_build(CLI::App& app) {
           "a voxel file input is built as it is: no --contours, --fill or --out-of-core");
     s.cell_size = args->cell_size;
     s.dag_attributes = !args->no_attributes;
-    if (args->displacement_scale_opt->count() && args->displacement.empty())
-      throw UsageError("--displacement-scale needs --displacement MAP");
-    if (!args->displacement.empty()) {
+    if (!args->displacement.empty() || args->displacement_scale_opt->count()) {
       if (!args->displacement_scale_opt->count())
         throw UsageError("--displacement needs --displacement-scale S");
       require_range("--displacement-scale", args->displacement_scale, -1e30, 1e30);
@@ -221,6 +220,7 @@ Runner add_build(CLI::App& app) {
             "--cell-size, --fill solid or voxel file input");
       s.displacement = args->displacement;
       s.displacement_scale = args->displacement_scale;
+      s.displacement_from_mesh = args->displacement.empty();
     }
     uint64_t slice_bytes = 0;
     if (args->slices) {
@@ -238,7 +238,7 @@ Runner add_build(CLI::App& app) {
     if (!s.displacement.empty()) require_regular_input(s.displacement, "displacement map");
     StageTimer total(false);
     if (args->slices && !s.contours && !s.fill_solid && s.displacement.empty() &&
-        !is_voxel_input(args->input)) {
+        !s.displacement_from_mesh && !is_voxel_input(args->input)) {
       // Full depth: the top-down slice builder (esvo §7.1), which never holds
       // the octree; contours, displacement and voxel files slice the in-core
       // build below.

@@ -13,6 +13,7 @@
 #include "voxcast/displacement.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/image.hpp"
+#include "voxcast/mesh_height.hpp"
 #include "voxcast/progress.hpp"
 #include "voxcast/solid.hpp"
 #include "voxcast/system.hpp"
@@ -136,7 +137,8 @@ uint64_t effective_budget(uint64_t memory_budget) {
   return memory_budget ? memory_budget : uint64_t(double(available_memory_bytes()) * 0.9);
 }
 
-Mesh load_build_mesh(const std::string& path, uint64_t budget, MeshLoadStats* stats, bool verbose) {
+Mesh load_build_mesh(const std::string& path, uint64_t budget, MeshLoadStats* stats, bool verbose,
+                     Image* height_map) {
   // The importer holds at least the whole file: refuse before reading it.
   std::error_code ec;
   const uint64_t file_bytes = std::filesystem::file_size(path, ec);
@@ -145,7 +147,7 @@ Mesh load_build_mesh(const std::string& path, uint64_t budget, MeshLoadStats* st
                 format_bytes(double(budget)) + " memory budget; raise --memory-budget");
   // Decoded textures get what the file leaves of the budget.
   const uint64_t held = ec ? 0 : file_bytes;
-  Mesh mesh = load_mesh(path, stats, budget ? (budget > held ? budget - held : 1) : 0);
+  Mesh mesh = load_mesh(path, height_map, stats, budget ? (budget > held ? budget - held : 1) : 0);
   if (!Progress::quiet())
     for (const std::string& w : stats->warnings)
       std::fprintf(stderr, "voxcast: warning: %s\n", printable(w).c_str());
@@ -221,14 +223,17 @@ BuiltScene build_scene(const BuildSettings& s) {
   StageTimer timer(s.verbose);
   if (is_voxel_input(s.mesh_path)) return build_from_voxel_file(s, budget, timer);
   MeshLoadStats stats;
-  Mesh mesh = load_build_mesh(s.mesh_path, budget, &stats, s.verbose);
+  Image height_map;  // the materials' (--displacement-scale without --displacement)
+  Mesh mesh = load_build_mesh(s.mesh_path, budget, &stats, s.verbose,
+                              s.displacement_from_mesh ? &height_map : nullptr);
   const double load_seconds = timer.mark("load mesh");
-  BuiltScene out = build_scene(s, std::move(mesh), stats);
+  BuiltScene out = build_scene(s, std::move(mesh), stats, &height_map);
   out.load_seconds = load_seconds;
   return out;
 }
 
-BuiltScene build_scene(const BuildSettings& s, Mesh mesh, const MeshLoadStats& mesh_stats) {
+BuiltScene build_scene(const BuildSettings& s, Mesh mesh, const MeshLoadStats& mesh_stats,
+                       const Image* mesh_height_map) {
   const SceneFormat& format = format_of(s);
   BuiltScene out;
   out.mesh = std::move(mesh);
@@ -242,6 +247,12 @@ BuiltScene build_scene(const BuildSettings& s, Mesh mesh, const MeshLoadStats& m
     const Image image = ext == ".pfm" ? read_pfm(s.displacement) : read_png(s.displacement);
     displacement.emplace(image);
     timer.mark("load displacement map");
+  } else if (s.displacement_from_mesh) {
+    if (mesh_height_map == nullptr || mesh_height_map->width == 0)
+      throw Error(in_quotes(s.mesh_path) +
+                  " has no height or displacement texture in its materials; give "
+                  "--displacement MAP");
+    displacement.emplace(*mesh_height_map);
   }
   const GridTransform grid = build_grid(
       s, displacement ? displaced_bounds(out.mesh, *displacement, float(s.displacement_scale))

@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "voxcast/format_registry.hpp"
+#include "voxcast/image.hpp"
 #include "voxcast/mesh.hpp"
 #include "voxcast/voxelize.hpp"
 
@@ -41,6 +42,9 @@ struct BuildSettings {
   // without contours only.
   std::string displacement;
   double displacement_scale = 0;
+  // --displacement-scale S alone: the height map is the mesh material's
+  // (Material::height_texture).
+  bool displacement_from_mesh = false;
 };
 
 struct BuiltScene {
@@ -68,7 +72,8 @@ uint64_t effective_budget(uint64_t memory_budget);
 /// The mesh file, refused when larger than `budget`, with the textures'
 /// decoding bounded by what the file leaves of it (load_mesh); prints the
 /// import's warnings and, when verbose or triangles were dropped, its counts.
-Mesh load_build_mesh(const std::string& path, uint64_t budget, MeshLoadStats* stats, bool verbose);
+Mesh load_build_mesh(const std::string& path, uint64_t budget, MeshLoadStats* stats, bool verbose,
+                     Image* height_map = nullptr);
 
 /// The voxel grid `settings` ask for around `bounds`; refuses (voxcast::Error)
 /// a grid the scene loader would refuse (GridTransform::placement_is_valid).
@@ -79,7 +84,9 @@ GridTransform build_grid(const BuildSettings& settings, const Aabb& bounds);
 /// (no mesh, no contours).
 BuiltScene build_scene(const BuildSettings& settings);
 /// The build from an already loaded mesh (moved into BuiltScene::mesh).
-BuiltScene build_scene(const BuildSettings& settings, Mesh mesh, const MeshLoadStats& mesh_stats);
+/// `mesh_height_map`: the materials' height map, for displacement_from_mesh.
+BuiltScene build_scene(const BuildSettings& settings, Mesh mesh, const MeshLoadStats& mesh_stats,
+                       const Image* mesh_height_map = nullptr);
 
 /// The voxel set `voxcast convert` writes: the voxel file read, or the mesh
 /// voxelized in core (with the solid fill when asked).

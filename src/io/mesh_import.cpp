@@ -65,6 +65,7 @@
 #include "voxcast/error.hpp"
 #include "voxcast/image.hpp"
 #include "voxcast/mesh.hpp"
+#include "voxcast/mesh_height.hpp"
 #include "voxcast/progress.hpp"
 #include "voxcast/system.hpp"
 
@@ -200,13 +201,20 @@ void require_finite_positions(const aiMesh& am, unsigned mesh_index, const std::
 class SceneConverter {
  public:
   // `texture_budget`: bytes the decoded textures may take (0 = no limit).
-  SceneConverter(const aiScene& scene, const fs::path& path, uint64_t texture_budget)
-      : scene_(scene), path_(path), name_(path.string()), texture_budget_(texture_budget) {
+  SceneConverter(const aiScene& scene, const fs::path& path, uint64_t texture_budget,
+                 bool height_textures)
+      : scene_(scene),
+        path_(path),
+        name_(path.string()),
+        texture_budget_(texture_budget),
+        height_textures_(height_textures) {
     std::string ext = path.extension().string();
     std::transform(ext.begin(), ext.end(), ext.begin(),
                    [](unsigned char c) { return char(std::tolower(c)); });
     colors_are_linear_ = ext == ".gltf" || ext == ".glb";
   }
+
+  const Image& height_map() const { return height_map_; }
 
   Mesh convert(MeshLoadStats& stats) {
     Mesh out = convert_meshes(stats);
@@ -419,7 +427,9 @@ class SceneConverter {
       if (found)
         m.base_color = {clamp_unit(c.r, 0.8f), clamp_unit(c.g, 0.8f), clamp_unit(c.b, 0.8f),
                         clamp_unit(c.a, 1.0f)};
-      m.texture = texture_for(*mat);
+      m.texture = texture_for(*mat, {aiTextureType_BASE_COLOR, aiTextureType_DIFFUSE});
+      if (height_textures_ && height_ < 0)
+        height_ = texture_for(*mat, {aiTextureType_DISPLACEMENT, aiTextureType_HEIGHT});
     }
     uint32_t index = uint32_t(materials_.size());
     materials_.push_back(m);
@@ -427,10 +437,11 @@ class SceneConverter {
     return index;
   }
 
-  int texture_for(const aiMaterial& mat) {
+  /// The first texture of `types` the material names (loaded once per path).
+  int texture_for(const aiMaterial& mat, std::initializer_list<aiTextureType> types) {
     aiString tex_path;
     bool found = false;
-    for (aiTextureType type : {aiTextureType_BASE_COLOR, aiTextureType_DIFFUSE}) {
+    for (aiTextureType type : types) {
       if (mat.GetTextureCount(type) > 0 && mat.GetTexture(type, 0, &tex_path) == AI_SUCCESS &&
           tex_path.length > 0) {
         found = true;
@@ -547,6 +558,13 @@ class SceneConverter {
     shrink(m.colors);
     shrink(m.uvs);
     m.materials = std::move(materials_);
+    // The height map leaves the textures before they move into the mesh.
+    if (height_ >= 0) {
+      const Texture& t = textures_[size_t(height_)];
+      height_map_ = Image(t.width, t.height, 1);
+      for (size_t i = 0; i < height_map_.pixels.size(); ++i)
+        height_map_.pixels[i] = float(t.rgba[4 * i]) / 255.f;
+    }
     m.textures = std::move(textures_);
   }
 
@@ -577,8 +595,11 @@ class SceneConverter {
   std::map<std::string, int> texture_map_;
   std::vector<std::string> warnings_;
   std::vector<Texture> textures_;
-  uint64_t texture_budget_ = 0;  // 0: no limit
-  uint64_t texture_bytes_ = 0;   // held by textures_
+  uint64_t texture_budget_ = 0;   // 0: no limit
+  bool height_textures_ = false;  // look for the materials' height maps too
+  int height_ = -1;               // the first one found (index into textures_)
+  Image height_map_{0, 0, 1};
+  uint64_t texture_bytes_ = 0;  // held by textures_
 
   // What the budget leaves for the next texture (1 when it is used up, so
   // that 0 keeps meaning "no budget" to require_texture_budget).
@@ -1005,6 +1026,11 @@ class ImportProgress : public Assimp::ProgressHandler {
 
 Mesh load_mesh(const std::filesystem::path& path, MeshLoadStats* stats_out,
                uint64_t texture_budget) {
+  return load_mesh(path, nullptr, stats_out, texture_budget);
+}
+
+Mesh load_mesh(const std::filesystem::path& path, Image* height_map, MeshLoadStats* stats_out,
+               uint64_t texture_budget) {
   const std::string name = path.string();
   std::error_code ec;
   if (!fs::exists(path, ec)) throw Error(fmt::format("{}: file not found", name));
@@ -1082,7 +1108,9 @@ Mesh load_mesh(const std::filesystem::path& path, MeshLoadStats* stats_out,
 
   MeshLoadStats stats;
   progress.progress().start_phase(2, 1);
-  Mesh mesh = SceneConverter(*scene, path, texture_budget).convert(stats);
+  SceneConverter converter(*scene, path, texture_budget, height_map != nullptr);
+  Mesh mesh = converter.convert(stats);
+  if (height_map != nullptr) *height_map = converter.height_map();
   progress.progress().finish();
   try {
     validate_mesh(mesh);
