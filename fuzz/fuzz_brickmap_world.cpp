@@ -65,7 +65,7 @@ constexpr uint32_t kSections[4] = {fourcc("META"), fourcc("BMGH"), fourcc("BMCT"
 
 struct SeedWorld {
   Container container;
-  std::vector<uint8_t> journal_head;     // "VXBMJRN1", cells, hash (brickmap_file.hpp)
+  std::vector<uint8_t> journal_head;  // "VXBMJRN2", cells, world file id, hash (brickmap_file.hpp)
   std::vector<uint8_t> journal_records;  // what commit_edits appended after the head
 };
 
@@ -135,6 +135,12 @@ SeedWorld make_seed(int which) {
   }
   SeedWorld s;
   s.container = Container::read(file);
+  {
+    // The file as the streamed mode writes it (c.serialize()): the journal
+    // head names the exact file it belongs to (brickmap_file.hpp).
+    const std::vector<uint8_t> bytes = s.container.serialize();
+    write_bytes(file, bytes.data(), bytes.size());
+  }
   brickmap::World w = brickmap::load_world(s.container);
   const Aabb b = w.occupied_bounds();
   const Vec3 c = b.center(), e = b.extent();
@@ -152,9 +158,9 @@ SeedWorld make_seed(int which) {
   edits.push_back(brickmap::snow_step(w, 0));
   for (const brickmap::EditResult& r : edits) brickmap::commit_edits(file, w, r.cells);
   const std::vector<uint8_t> journal = read_bytes(brickmap::journal_path(file));
-  if (journal.size() < 24) std::abort();
-  s.journal_head.assign(journal.begin(), journal.begin() + 24);
-  s.journal_records.assign(journal.begin() + 24, journal.end());
+  if (journal.size() < 32) std::abort();
+  s.journal_head.assign(journal.begin(), journal.begin() + 32);
+  s.journal_records.assign(journal.begin() + 32, journal.end());
   fs::remove(file);
   fs::remove(brickmap::journal_path(file));
   return s;

@@ -28,6 +28,7 @@
 #include "support/file_bytes.hpp"
 #include "voxcast/brickmap.hpp"
 #include "voxcast/brickmap_file.hpp"
+#include "voxcast/brickmap_stream.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/morton.hpp"
 #include "voxcast/scene_file.hpp"
@@ -141,10 +142,101 @@ TEST(BrickmapPersist, EditsSavedInPlaceReloadExactlyAndCheckpointFoldsTheJournal
   EXPECT_EQ(contents(load_world(Container::read(path))), contents(w));
   // A journal of another world is refused, not replayed.
   const World other(GridTransform::fit(Aabb{{0, 0, 0}, {1, 1, 1}}, 64));
+  save_scene(dir.file("other.vxc"), other, SceneInfo{"t", "conservative", 0, 0});
   commit_edits(dir.file("other.vxc"), other, {});
   fs::copy_file(journal_path(dir.file("other.vxc")), journal_path(path));
-  EXPECT_NE(std::string(testing::error_of([&] { (void)open_world(path); })).find("does not belong"),
+  EXPECT_NE(std::string(testing::error_of([&] {
+              (void)open_world(path);
+            })).find("belongs to another version of the world"),
             std::string::npos);
+}
+
+// The journal is bound to the exact file it was written against
+// (brickmap_file.hpp): world B of the same grid size copied over world A's
+// file refuses A's journal everywhere (open, load_scene, streaming, saving),
+// changing neither file; A's bytes under another name keep replaying it.
+TEST(BrickmapPersist, AJournalBesideAnotherWorldOfTheSameSizeIsRefusedNotReplayed) {
+  testing::TempDir dir;
+  const fs::path a = dir.file("a.vxc"), b = dir.file("b.vxc"), w = dir.file("w.vxc"),
+                 c = dir.file("c.vxc");
+  World wa = base_world();
+  VoxelSet vb = testing::make_random_voxels(8, 4000, 9);
+  testing::fill_random_attributes(vb, 10);
+  const World wb = build_world(vb);
+  ASSERT_EQ(wa.cells().size(), wb.cells().size());
+  save_scene(a, wa, SceneInfo{"t", "conservative", 0, wa.stats().voxels});
+  save_scene(b, wb, SceneInfo{"t", "conservative", 0, wb.stats().voxels});
+  const Voxels b_state = contents(wb);
+  for (const Step& s : edit_steps(2)) commit_edits(a, wa, edit(wa, s.brush, s.op, s.color).cells);
+  fs::copy_file(b, w);
+  fs::copy_file(journal_path(a), journal_path(w));
+  const std::vector<uint8_t> world_bytes = bytes_of(w), journal_bytes = bytes_of(journal_path(w));
+  const std::string message =
+      "journal '" + journal_path(w).string() + "' belongs to another version of the world";
+  const auto refused = [&](const std::string& e) {
+    EXPECT_NE(e.find(message), std::string::npos) << e;
+    EXPECT_NE(e.find("remove the journal"), std::string::npos) << e;
+  };
+  refused(testing::error_of([&] { (void)open_world(w); }));
+  refused(testing::error_of([&] { (void)open_world(w, nullptr, nullptr, true); }));
+  refused(testing::error_of([&] { (void)load_scene(w); }));
+  refused(testing::error_of([&] { StreamingWorld s(w, StreamOptions{}); }));
+  World loaded = load_world(Container::read(w));
+  EXPECT_EQ(contents(loaded), b_state);
+  const EditResult r = edit(loaded, edit_steps(1)[0].brush, EditOp::Add, Color{1, 0, 0, 1});
+  refused(testing::error_of([&] { commit_edits(w, loaded, r.cells); }));
+  refused(testing::error_of([&] {
+    checkpoint_world(w, loaded, SceneInfo{"t", "conservative", 0, loaded.stats().voxels});
+  }));
+  EXPECT_EQ(bytes_of(w), world_bytes);
+  EXPECT_EQ(bytes_of(journal_path(w)), journal_bytes);
+  EXPECT_FALSE(fs::exists(dir.file("w.vxc.checkpoint")));
+  // The journal removed: B as it is.
+  fs::remove(journal_path(w));
+  EXPECT_EQ(contents(open_world(w)), b_state);
+  // The same bytes copied: the journal replays.
+  fs::copy_file(a, c);
+  fs::copy_file(journal_path(a), journal_path(c));
+  OpenReport rep;
+  EXPECT_EQ(contents(open_world(c, nullptr, &rep)), contents(wa));
+  EXPECT_EQ(rep.transactions, 2u);
+  // A world saved whole over the file takes the stale journal with it.
+  save_scene(c, wb, SceneInfo{"t", "conservative", 0, wb.stats().voxels});
+  EXPECT_FALSE(fs::exists(journal_path(c)));
+  EXPECT_EQ(contents(open_world(c)), b_state);
+}
+
+// A checkpoint cut off between its rename and the journal's removal: the
+// journal's rebase record names the new file, which holds its
+// transactions; nothing is replayed and the next save starts it anew.
+TEST(BrickmapPersist, ACheckpointCutOffBeforeTheJournalsRemovalLeavesItFoldedIn) {
+  testing::TempDir dir;
+  const fs::path path = dir.file("world.vxc");
+  World w = base_world();
+  save_scene(path, w, SceneInfo{"t", "conservative", 0, w.stats().voxels});
+  const std::vector<Step> steps = edit_steps(3);
+  for (const Step& s : {steps[0], steps[1]})
+    commit_edits(path, w, edit(w, s.brush, s.op, s.color).cells);
+  struct Cut {};
+  set_save_step_hook([](const char* name) {
+    if (std::string(name) == "checkpoint renamed") throw Cut{};
+  });
+  EXPECT_THROW(checkpoint_world(path, w, SceneInfo{"t", "conservative", 0, w.stats().voxels}), Cut);
+  set_save_step_hook(nullptr);
+  ASSERT_TRUE(fs::exists(journal_path(path)));
+  OpenReport rep;
+  EXPECT_EQ(contents(open_world(path, nullptr, &rep)), contents(w));
+  EXPECT_EQ(rep.transactions, 0u);
+  EXPECT_NO_THROW((void)load_scene(path));
+  commit_edits(path, w, edit(w, steps[2].brush, steps[2].op, steps[2].color).cells);
+  const std::vector<uint8_t> j = bytes_of(journal_path(path));
+  ASSERT_GT(j.size(), 48u);
+  uint64_t first_txn = 0;
+  std::memcpy(&first_txn, &j[32 + 8], 8);  // the first record's transaction
+  EXPECT_EQ(first_txn, 1u) << "the journal started anew";
+  rep = {};
+  EXPECT_EQ(contents(open_world(path, nullptr, &rep)), contents(w));
+  EXPECT_EQ(rep.transactions, 1u);
 }
 
 // The states after 0, 1, ... edits of the crash run, and the run itself:
@@ -293,14 +385,15 @@ TEST(BrickmapPersist, AJournalCutAtAnyByteReplaysTheTransactionsItHoldsWhole) {
   }
   const std::vector<uint8_t> journal = bytes_of(journal_path(path));
   ASSERT_EQ(journal.size(), ends.back());
-  // Every length from the bare head (24 bytes) on: a sample of 200 lengths
-  // plus the lengths around each commit's end.
+  // Every length from the bare head (32 bytes, brickmap_file.hpp) on: a
+  // sample of 200 lengths plus the lengths around each commit's end.
+  constexpr size_t kHead = 32;
   std::vector<size_t> lengths;
   std::mt19937 rng(3);
-  for (int k = 0; k < 200; ++k) lengths.push_back(24 + rng() % (journal.size() - 23));
+  for (int k = 0; k < 200; ++k) lengths.push_back(kHead + rng() % (journal.size() - kHead + 1));
   for (uint64_t e : ends)
     for (int d = -41; d <= 1; d += (d < -38 || d > -3) ? 1 : 9)
-      if (int64_t(e) + d >= 24 && uint64_t(int64_t(e) + d) <= journal.size())
+      if (int64_t(e) + d >= int64_t(kHead) && uint64_t(int64_t(e) + d) <= journal.size())
         lengths.push_back(size_t(int64_t(e) + d));
   for (size_t n : lengths) {
     write_bytes(journal_path(path), journal, n);
@@ -310,7 +403,7 @@ TEST(BrickmapPersist, AJournalCutAtAnyByteReplaysTheTransactionsItHoldsWhole) {
         size_t(std::count_if(ends.begin(), ends.end(), [&](uint64_t e) { return e <= n; }));
     ASSERT_EQ(rep.transactions, whole) << "journal cut at " << n;
     ASSERT_EQ(contents(back), states[whole]) << "journal cut at " << n;
-    EXPECT_EQ(rep.ignored_bytes, n - (whole ? ends[whole - 1] : 24)) << n;
+    EXPECT_EQ(rep.ignored_bytes, n - (whole ? ends[whole - 1] : kHead)) << n;
   }
   // The next commit cuts the torn tail off and appends after the last whole
   // transaction.

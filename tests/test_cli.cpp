@@ -580,7 +580,9 @@ TEST(CliInputs, NonRegularEditJournalsAreRefusedNotHung) {
   for (const std::string kind : {"FIFO", "device", "directory"}) {
     SCOPED_TRACE(kind);
     fs::remove(journal);
-    if (kind == "FIFO") ASSERT_EQ(mkfifo(journal.c_str(), 0600), 0);
+    if (kind == "FIFO") {
+      ASSERT_EQ(mkfifo(journal.c_str(), 0600), 0);
+    }
     if (kind == "device") fs::create_symlink("/dev/zero", journal);
     if (kind == "directory") fs::create_directory(journal);
     expect_error(run_cli_split("info " + world, 20), 1, kind);
@@ -592,6 +594,63 @@ TEST(CliInputs, NonRegularEditJournalsAreRefusedNotHung) {
     expect_error(run_cli_split("edit " + world + " --sphere 0,0,0,0.2 --add", 20), 1, kind);
   }
   EXPECT_FALSE(fs::exists(s.dir.file("a.png")));
+}
+
+// The edit journal is bound to the exact world file it was written against
+// (brickmap_file.hpp): another world of the same grid size copied over the
+// file leaves a journal that every reader refuses in one line, leaving
+// both files as they are; the same bytes copied keep replaying it; a world
+// written whole over the file (generate terrain -o, build -o) removes it.
+TEST(CliInputs, AnEditJournalOfAnotherVersionOfTheWorldIsRefusedNotReplayed) {
+  Scene s;
+  namespace fs = std::filesystem;
+  const std::string a = s.dir.file("a.vxc"), b = s.dir.file("b.vxc"), w = s.dir.file("w.vxc"),
+                    c = s.dir.file("c.vxc");
+  const std::string terrain = "generate terrain --size 32x16x32 --seed ";
+  ASSERT_EQ(run_cli(terrain + "1 -o " + a).exit_code, 0);
+  ASSERT_EQ(run_cli(terrain + "2 -o " + b).exit_code, 0);
+  ASSERT_NE(read_text(a), read_text(b));
+  ASSERT_EQ(run_cli("edit " + a + " --sphere 0,0,0,0.3 --add").exit_code, 0);
+  ASSERT_TRUE(fs::exists(a + ".journal"));
+  fs::copy_file(b, w);
+  fs::copy_file(a + ".journal", w + ".journal");
+  const std::string world_bytes = read_text(w), journal_bytes = read_text(w + ".journal");
+  const std::string message = "journal '" + w + ".journal' belongs to another version of the world";
+  expect_error(run_cli_split("info " + w), 1, message);
+  expect_error(run_cli_split("info " + w), 1, "remove the journal");
+  expect_error(run_cli_split("render " + w + " --size 8x8 -o " + s.dir.file("x.png")), 1, message);
+  expect_error(run_cli_split("render " + w + " --stream --size 8x8 -o " + s.dir.file("x.png")), 1,
+               message);
+  expect_error(run_cli_split("edit " + w + " --sphere 0,0,0,0.2 --add"), 1, message);
+  expect_error(run_cli_split("edit " + w + " --snow 1 --checkpoint"), 1, message);
+  EXPECT_FALSE(fs::exists(s.dir.file("x.png")));
+  EXPECT_EQ(read_text(w), world_bytes);
+  EXPECT_EQ(read_text(w + ".journal"), journal_bytes);
+  EXPECT_EQ(read_text(b), world_bytes);
+  // The same bytes under another name: its journal replays.
+  fs::copy_file(a, c);
+  fs::copy_file(a + ".journal", c + ".journal");
+  ASSERT_EQ(run_cli("render " + a + " --size 16x16 -o " + s.dir.file("a.png")).exit_code, 0);
+  ASSERT_EQ(run_cli("render " + c + " --size 16x16 -o " + s.dir.file("c.png")).exit_code, 0);
+  EXPECT_EQ(read_text(s.dir.file("a.png")), read_text(s.dir.file("c.png")));
+  fs::remove(c + ".journal");
+  ASSERT_EQ(run_cli("render " + c + " --size 16x16 -o " + s.dir.file("c.png")).exit_code, 0);
+  EXPECT_NE(read_text(s.dir.file("a.png")), read_text(s.dir.file("c.png")))
+      << "the edit changes the image";
+  // Written whole over the file: the stale journal goes with the old world.
+  ASSERT_EQ(run_cli(terrain + "3 -o " + w).exit_code, 0);
+  EXPECT_FALSE(fs::exists(w + ".journal"));
+  EXPECT_EQ(run_cli("info " + w).exit_code, 0);
+  fs::copy_file(a + ".journal", w + ".journal");
+  ASSERT_EQ(
+      run_cli("build " + s.mesh + " -o " + w + " --resolution 32 --format brickmap").exit_code, 0);
+  EXPECT_FALSE(fs::exists(w + ".journal"));
+  EXPECT_EQ(run_cli("info " + w).exit_code, 0);
+  // And edit --checkpoint folds the journal in: the file replaced, no journal.
+  ASSERT_EQ(run_cli("edit " + a + " --snow 1 --checkpoint").exit_code, 0);
+  EXPECT_FALSE(fs::exists(a + ".journal"));
+  EXPECT_FALSE(fs::exists(a + ".checkpoint"));
+  EXPECT_EQ(run_cli("info " + a).exit_code, 0);
 }
 
 TEST(CliInputs, NonRegularInputsAreRefusedNotHung) {

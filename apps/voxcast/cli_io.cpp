@@ -13,6 +13,7 @@
 #include <string>
 
 #include "commands.hpp"
+#include "voxcast/brickmap_file.hpp"
 #include "voxcast/system.hpp"
 
 namespace voxcast::cli {
@@ -411,6 +412,10 @@ void OutputSet::commit_all() {
   }
   for (const Output& o : outputs_) {
     if (!o.backup.empty()) ::unlink(o.backup.c_str());
+    // A brickmap world replaced whole: the edit journal beside it was
+    // written against the old file (brickmap_file.hpp); it goes too (a
+    // crash before this leaves it refused, never replayed).
+    brickmap::remove_journal(o.target);
     const fs::path dir = o.target.parent_path().empty() ? fs::path(".") : o.target.parent_path();
     // Persist the renames; a failure here does not undo them.
     const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);

@@ -14,21 +14,41 @@
 // own checksum, and fsync'ed; when commit_edits returns, the edit is
 // acknowledged: it survives a crash. The scene file itself is never written
 // in place. checkpoint_world() folds the journal in: the whole world to a
-// temporary file, fsync, rename over WORLD.vxc, then the journal removed.
+// temporary file WORLD.vxc.checkpoint (fsync), a rebase record naming that
+// file's identity appended to the journal (fsync), the rename over
+// WORLD.vxc, then the journal removed.
+//
+// The journal is bound to the exact world file it was written against: its
+// head holds that file's identity, the xxh64 of the container's header (a
+// version-2 container's header holds the xxh64 of its directory, which holds
+// every chunk's xxh64; of a version-1 container, the header and its section
+// table with every section's xxh64), read from the file's first bytes alone.
+// A journal whose head names another file (WORLD.vxc replaced by another
+// world of the same grid size, or rewritten) is refused, not replayed, by
+// everything that opens the world, unless its last rebase record names the
+// file: then the checkpoint that wrote the file was cut off before it
+// removed the journal, whose transactions (up to that record) the file
+// holds; commit_edits then starts the journal anew. Writing a world whole
+// over WORLD.vxc otherwise (save_scene, the CLI's outputs) removes the
+// journal after the rename: a crash in between leaves a refused journal,
+// never a silently replayed one.
 //
 // Opening (open_world, and load_scene through the format's load_file hook):
 // the scene file, then every transaction of the journal whose commit record
 // is intact, in order; a torn tail (a save cut off by a crash) is ignored.
-// Chunk records are whole images, so replaying a transaction twice (a crash
-// between the checkpoint's rename and the journal's removal) changes
-// nothing: every chunk is the old or the new state, never a mix.
+// Chunk records are whole images, so a transaction replayed onto a file
+// that holds it already changes nothing: every chunk is the old or the new
+// state, never a mix.
 //
 // ---- Journal layout (little-endian) ----
-//   +0  char[8] "VXBMJRN1"
-//   +8  u64     brickgrid cells of the world (a journal of another world is refused)
-//   +16 u64     xxh64 of bytes 0..15
-//   then records, each a 40-byte head and a payload:
-//     +0  u32 'JREC'   +4 u32 type (1 chunk, 2 header, 3 commit)
+//   +0  char[8] "VXBMJRN2" (format 2; a format-1 journal "VXBMJRN1", bound
+//                by the cell count alone, is refused: fold it in with the
+//                voxcast that wrote it, or remove it)
+//   +8  u64     brickgrid cells of the world
+//   +16 u64     identity of the world file it was written against (above)
+//   +24 u64     xxh64 of bytes 0..23
+//   then records from byte 32, each a 40-byte head and a payload:
+//     +0  u32 'JREC'   +4 u32 type (1 chunk, 2 header, 3 commit, 4 rebase)
 //     +8  u64 transaction number (ascending from 1)
 //     +16 u64 payload bytes P   +24 u64 xxh64 of the payload
 //     +32 u64 xxh64 of head bytes 0..31
@@ -37,10 +57,14 @@
 //          size, u32 LZ4 size, the LZ4 block of the chunk's raw bytes
 //          (codec.hpp encode_chunk);
 //   header payload: u64 bricks, u64 voxels, the BMGH bytes (codec.hpp);
-//   commit payload: u64 records in the transaction before this one.
+//   commit payload: u64 records in the transaction before this one;
+//   rebase payload: u64 identity of the file a checkpoint wrote, holding
+//          every transaction before it (a record of its own, its own
+//          transaction number, no commit record).
 #include <cstdint>
 #include <filesystem>
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -87,10 +111,13 @@ World open_world(const std::filesystem::path& path, SceneInfo* info = nullptr,
 void replay_journal(const std::filesystem::path& path, World& world, SceneInfo* info,
                     OpenReport* report);
 /// The same from the journal's bytes (`name` for messages): what the fuzz
-/// target feeds. Throws voxcast::Error for a journal of another world or a
-/// committed transaction that does not decode; a torn tail is ignored.
+/// target feeds. `base`: the identity of the world file (see above) the
+/// journal must belong to (nullopt: not checked). Throws voxcast::Error for a
+/// journal of another world or a committed transaction that does not decode;
+/// a torn tail is ignored.
 void replay_journal_bytes(const std::vector<uint8_t>& journal, World& world, SceneInfo* info,
-                          OpenReport* report, const std::string& name = "journal");
+                          OpenReport* report, const std::string& name = "journal",
+                          std::optional<uint64_t> base = std::nullopt);
 
 /// Appends the chunks holding `cells` (brickgrid cell indices, e.g. the
 /// EditResult::cells of the edits since the last save) and the brickgrid
@@ -101,9 +128,15 @@ void replay_journal_bytes(const std::vector<uint8_t>& journal, World& world, Sce
 uint64_t commit_edits(const std::filesystem::path& path, const World& world,
                       const std::vector<uint64_t>& cells);
 
-/// The world written whole to `path` (temporary file, fsync, rename), then
-/// its journal removed: the journal's transactions are in the scene file.
+/// The world written whole to `path` (temporary file, fsync, rebase record,
+/// rename), then its journal removed: the journal's transactions are in the
+/// scene file.
 void checkpoint_world(const std::filesystem::path& path, const World& world, const SceneInfo& info);
+
+/// Removes the journal of `path` (if there is one) and fsyncs its directory:
+/// what a writer that has just replaced `path` whole does (the journal was
+/// written against the file replaced). Returns whether there was one.
+bool remove_journal(const std::filesystem::path& path);
 
 /// Crash tests only: called at every step of commit_edits and
 /// checkpoint_world that a crash could separate from the next (before and

@@ -159,6 +159,7 @@ void save_scene(const std::filesystem::path& path, const World& world, const Sce
   ContainerWriter writer(path);
   write_world(writer, world, info);
   writer.commit();
+  remove_journal(path);  // of the world replaced
 }
 
 World load_world(const Container& in, SceneInfo* info) {

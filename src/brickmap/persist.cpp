@@ -9,11 +9,13 @@
 #include <cerrno>
 #include <cstring>
 #include <mutex>
+#include <optional>
 #include <set>
 #include <string>
 
 #include "brickmap/codec.hpp"
 #include "voxcast/brickmap_file.hpp"
+#include "voxcast/container.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/system.hpp"
 
@@ -22,10 +24,11 @@ namespace {
 
 using namespace codec;
 
-constexpr char kMagic[8] = {'V', 'X', 'B', 'M', 'J', 'R', 'N', '1'};
-constexpr size_t kFileHead = 24, kRecordHead = 40, kCellBits = kChunkCells / 8;
+constexpr char kMagic[8] = {'V', 'X', 'B', 'M', 'J', 'R', 'N', '2'};
+constexpr char kMagicV1[8] = {'V', 'X', 'B', 'M', 'J', 'R', 'N', '1'};
+constexpr size_t kFileHead = 32, kRecordHead = 40, kCellBits = kChunkCells / 8;
 constexpr uint32_t kRecordMagic = fourcc("JREC");
-constexpr uint32_t kChunkRecord = 1, kHeaderRecord = 2, kCommitRecord = 3;
+constexpr uint32_t kChunkRecord = 1, kHeaderRecord = 2, kCommitRecord = 3, kRebaseRecord = 4;
 
 std::mutex hook_mutex;
 std::function<void(const char*)> save_hook;
@@ -111,9 +114,50 @@ std::vector<uint8_t> read_file(const std::filesystem::path& p) {
   return bytes;
 }
 
-std::vector<uint8_t> file_head(const World& w) {
+// The identity of a scene file's exact content, from its first bytes alone
+// (brickmap_file.hpp, "the world file's identity"): a version-2 container's
+// header holds the xxh64 of its directory, which holds every chunk's xxh64;
+// a version-1 container's directory holds every section's.
+uint64_t world_file_id(const std::filesystem::path& p) {
+  namespace cl = container_layout;
+  Fd f(p, O_RDONLY | O_NONBLOCK | O_CLOEXEC);
+  const auto read_at = [&](uint64_t offset, size_t n) {
+    std::vector<uint8_t> b(n);
+    size_t done = 0;
+    while (done < n) {
+      const ssize_t k = ::pread(f.fd(), b.data() + done, n - done, off_t(offset + done));
+      if (k < 0 && errno == EINTR) continue;
+      if (k <= 0) throw Error("'" + p.string() + "': cannot read its container header");
+      done += size_t(k);
+    }
+    return b;
+  };
+  std::vector<uint8_t> h = read_at(0, sizeof(cl::FileHeaderV1));
+  const uint32_t version = load_le<uint32_t>(h.data() + 8);
+  if (version == 1) {
+    const uint64_t n = load_le<uint32_t>(h.data() + 12);
+    if (n > (1u << 20)) throw Error("'" + p.string() + "': section table too large");
+    const std::vector<uint8_t> t =
+        read_at(sizeof(cl::FileHeaderV1), size_t(n) * sizeof(cl::SectionEntryV1));
+    h.insert(h.end(), t.begin(), t.end());
+  } else {
+    h = read_at(0, sizeof(cl::FileHeader));
+  }
+  return XXH64(h.data(), h.size(), 0);
+}
+
+// 'journal ...' refused: what the CLI prints as its one line.
+[[noreturn]] void foreign_journal(const std::string& p) {
+  throw Error("journal '" + p +
+              "' belongs to another version of the world (the world file was replaced or "
+              "rewritten since its edits were saved); remove the journal to open the world file "
+              "as it is");
+}
+
+std::vector<uint8_t> file_head(const World& w, uint64_t base) {
   std::vector<uint8_t> h(kMagic, kMagic + 8);
   put_le<uint64_t>(h, w.cells().size());
+  put_le<uint64_t>(h, base);
   put_le<uint64_t>(h, XXH64(h.data(), h.size(), 0));
   return h;
 }
@@ -137,18 +181,39 @@ std::vector<uint8_t> record_head(uint32_t type, uint64_t txn, const std::vector<
 }
 
 // The journal's committed transactions, in order; `end`: the byte after the
-// last intact commit record (what a writer keeps).
+// last intact commit (or rebase) record (what a writer keeps).
 struct Parsed {
   std::vector<std::vector<Record>> txns;  // each without its commit record
   uint64_t end = 0;
   uint64_t last_txn = 0;
+  uint64_t base = 0;  // the head's world file identity
+  // The last rebase record: the identity of the file its checkpoint wrote,
+  // holding txns[0, rebased_txns).
+  bool rebased = false;
+  uint64_t rebase_id = 0;
+  size_t rebased_txns = 0;
+  // Which transactions belong to the world file of identity `id`: the first
+  // of them (txns from there on), or refused.
+  size_t first_for(uint64_t id, const std::string& p) const {
+    if (id == base) return 0;
+    if (rebased && id == rebase_id) return rebased_txns;
+    foreign_journal(p);
+  }
 };
 
+// The head checked (its magic, checksum and the world's cell count; the
+// world file's identity is Parsed::first_for's), then the records.
 Parsed parse_journal(const std::vector<uint8_t>& j, const World& w, const std::string& p) {
-  const std::vector<uint8_t> want = file_head(w);
-  if (j.size() < kFileHead || !std::equal(want.begin(), want.end(), j.begin()))
-    throw Error("journal '" + p + "' does not belong to this world (or its head is damaged)");
+  if (j.size() >= 8 && std::equal(kMagicV1, kMagicV1 + 8, j.begin()))
+    throw Error("journal '" + p +
+                "' has the format of an older voxcast, not bound to its world file: fold it in "
+                "with that version (voxcast edit --checkpoint) or remove it");
+  if (j.size() < kFileHead || !std::equal(kMagic, kMagic + 8, j.begin()) ||
+      XXH64(j.data(), kFileHead - 8, 0) != load_le<uint64_t>(&j[kFileHead - 8]))
+    throw Error("journal '" + p + "': not an edit journal (or its head is damaged)");
+  if (load_le<uint64_t>(&j[8]) != w.cells().size()) foreign_journal(p);
   Parsed out;
+  out.base = load_le<uint64_t>(&j[16]);
   out.end = kFileHead;
   std::vector<Record> pending;
   size_t at = kFileHead;
@@ -169,6 +234,13 @@ Parsed parse_journal(const std::vector<uint8_t>& j, const World& w, const std::s
       if (r.size != 8 || load_le<uint64_t>(r.payload) != pending.size()) break;
       out.txns.push_back(std::move(pending));
       pending.clear();
+      out.end = at;
+      out.last_txn = r.txn;
+    } else if (r.type == kRebaseRecord) {
+      if (r.size != 8 || !pending.empty()) break;
+      out.rebased = true;
+      out.rebase_id = load_le<uint64_t>(r.payload);
+      out.rebased_txns = out.txns.size();
       out.end = at;
       out.last_txn = r.txn;
     } else if (r.type == kChunkRecord || r.type == kHeaderRecord) {
@@ -259,8 +331,10 @@ JournalChunks codec::read_journal_chunks(const std::filesystem::path& path, cons
   if (!std::filesystem::exists(jp, ec)) return out;
   const std::vector<uint8_t> bytes = read_file(jp);
   const Parsed parsed = parse_journal(bytes, w, jp.string());
+  const size_t first = parsed.first_for(world_file_id(path), jp.string());
   const ChunkGrid cg = chunk_grid(w.dims());
-  for (const std::vector<Record>& txn : parsed.txns) {
+  for (size_t t = first; t < parsed.txns.size(); ++t) {
+    const std::vector<Record>& txn = parsed.txns[t];
     const Record* header = nullptr;
     for (const Record& r : txn) {
       if (r.type == kHeaderRecord) {
@@ -292,14 +366,17 @@ void replay_journal(const std::filesystem::path& path, World& w, SceneInfo* si,
   const std::filesystem::path jp = journal_path(path);
   std::error_code ec;
   if (!std::filesystem::exists(jp, ec)) return;
-  replay_journal_bytes(read_file(jp), w, si, report, jp.string());
+  const std::vector<uint8_t> bytes = read_file(jp);
+  replay_journal_bytes(bytes, w, si, report, jp.string(), world_file_id(path));
 }
 
 void replay_journal_bytes(const std::vector<uint8_t>& bytes, World& w, SceneInfo* si,
-                          OpenReport* report, const std::string& name) {
+                          OpenReport* report, const std::string& name,
+                          std::optional<uint64_t> base) {
   const Parsed parsed = parse_journal(bytes, w, name);
-  for (const std::vector<Record>& txn : parsed.txns) {
-    const std::vector<uint64_t> chunks = apply(w, txn, si);
+  const size_t first = base ? parsed.first_for(*base, name) : 0;
+  for (size_t t = first; t < parsed.txns.size(); ++t) {
+    const std::vector<uint64_t> chunks = apply(w, parsed.txns[t], si);
     if (report) {
       ++report->transactions;
       report->chunk_records += chunks.size();
@@ -335,15 +412,34 @@ uint64_t commit_edits(const std::filesystem::path& path, const World& w,
     chunks.insert(chunk_of(w, ci));
   }
   const std::filesystem::path jp = journal_path(path);
+  const uint64_t base = world_file_id(path);
   std::error_code ec;
   uint64_t txn = 1;
-  if (!std::filesystem::exists(jp, ec)) {
-    // Created whole under a temporary name: a journal file always has its head.
+  bool fresh = !std::filesystem::exists(jp, ec);
+  if (!fresh) {
+    const std::vector<uint8_t> bytes = read_file(jp);
+    const Parsed parsed = parse_journal(bytes, w, jp.string());
+    // A journal whose transactions are all in the file (a checkpoint cut
+    // off before it removed the journal) is started anew.
+    fresh = parsed.first_for(base, jp.string()) == parsed.txns.size() && parsed.base != base;
+    txn = parsed.last_txn + 1;
+    if (!fresh && parsed.end != bytes.size()) {
+      // An unacknowledged save cut off by a crash: not part of the world.
+      Fd f(jp, O_WRONLY);
+      f.truncate(parsed.end);
+      f.sync();
+      step("journal tail cut");
+    }
+  }
+  if (fresh) {
+    // Created whole under a temporary name, renamed over any folded-in
+    // journal: a journal file always has its head.
+    txn = 1;
     std::filesystem::path tmp = jp;
     tmp += ".tmp";
     {
       Fd f(tmp, O_WRONLY | O_CREAT | O_TRUNC);
-      const std::vector<uint8_t> head = file_head(w);
+      const std::vector<uint8_t> head = file_head(w, base);
       f.write_all(head.data(), head.size());
       f.sync();
     }
@@ -351,17 +447,6 @@ uint64_t commit_edits(const std::filesystem::path& path, const World& w,
     std::filesystem::rename(tmp, jp);
     sync_directory(jp);
     step("journal renamed");
-  } else {
-    const std::vector<uint8_t> bytes = read_file(jp);
-    const Parsed parsed = parse_journal(bytes, w, jp.string());
-    txn = parsed.last_txn + 1;
-    if (parsed.end != bytes.size()) {
-      // An unacknowledged save cut off by a crash: not part of the world.
-      Fd f(jp, O_WRONLY);
-      f.truncate(parsed.end);
-      f.sync();
-      step("journal tail cut");
-    }
   }
   Fd f(jp, O_WRONLY);
   f.seek_end();
@@ -412,19 +497,55 @@ uint64_t commit_edits(const std::filesystem::path& path, const World& w,
 
 void checkpoint_world(const std::filesystem::path& path, const World& w, const SceneInfo& info) {
   step("checkpoint begins");
+  const std::filesystem::path jp = journal_path(path);
+  std::error_code ec;
+  // The journal, refused before anything is written if it belongs to
+  // another file.
+  std::vector<uint8_t> bytes;
+  Parsed parsed;
+  const bool journaled = std::filesystem::exists(jp, ec);
+  if (journaled) {
+    bytes = read_file(jp);
+    parsed = parse_journal(bytes, w, jp.string());
+    (void)parsed.first_for(world_file_id(path), jp.string());
+  }
+  std::filesystem::path staged = path;
+  staged += ".checkpoint";
   {
-    ContainerWriter writer(path);
+    ContainerWriter writer(staged);
     write_world(writer, w, info);
     step("checkpoint written");
     writer.commit();  // fsync, rename, directory fsync
   }
+  step("checkpoint staged");
+  if (journaled) {
+    // The journal learns the new file's identity before the file is in
+    // place: a crash between the rename below and the journal's removal
+    // leaves a journal that the new file is known to hold.
+    std::vector<uint8_t> p;
+    put_le<uint64_t>(p, world_file_id(staged));
+    Fd f(jp, O_WRONLY);
+    if (parsed.end != bytes.size()) f.truncate(parsed.end);
+    f.seek_end();
+    const std::vector<uint8_t> head = record_head(kRebaseRecord, parsed.last_txn + 1, p);
+    f.write_all(head.data(), head.size());
+    f.write_all(p.data(), p.size());
+    step("rebase written");
+    f.sync();
+    step("rebase synced");
+  }
+  std::filesystem::rename(staged, path);
+  sync_directory(path);
   step("checkpoint renamed");
+  if (remove_journal(path)) step("journal removed");
+}
+
+bool remove_journal(const std::filesystem::path& path) {
   const std::filesystem::path jp = journal_path(path);
   std::error_code ec;
-  if (std::filesystem::remove(jp, ec)) {
-    sync_directory(jp);
-    step("journal removed");
-  }
+  if (!std::filesystem::remove(jp, ec)) return false;
+  sync_directory(jp);
+  return true;
 }
 
 }  // namespace voxcast::brickmap

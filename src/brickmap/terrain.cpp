@@ -13,6 +13,7 @@
 #include "brickmap/codec.hpp"
 #include "io/meta_json.hpp"
 #include "voxcast/brickmap.hpp"
+#include "voxcast/brickmap_file.hpp"
 #include "voxcast/brickmap_terrain.hpp"
 #include "voxcast/container.hpp"
 #include "voxcast/error.hpp"
@@ -391,6 +392,7 @@ TerrainStats write_terrain(const std::filesystem::path& path, const TerrainOptio
                {"terrain", {{"size", {o.size[0], o.size[1], o.size[2]}}, {"seed", o.seed}}}});
   out.add(meta::kSection, meta::dump(meta));
   out.commit();
+  remove_journal(path);  // of a world replaced (brickmap_file.hpp)
   return st;
 }
 

@@ -147,9 +147,9 @@ def scene_damage(data, rng, n):
 
 def journal_records(data):
     """(head offset, payload size) of every whole record of an edit journal
-    (include/voxcast/brickmap_file.hpp: a 24-byte file head, then records of a
+    (include/voxcast/brickmap_file.hpp: a 32-byte file head, then records of a
     40-byte head and a payload)."""
-    at, out = 24, []
+    at, out = 32, []
     while at + 40 <= len(data) and data[at:at + 4] == b'JREC':
         size = struct.unpack_from('<Q', data, at + 16)[0]
         if at + 40 + size > len(data):
