@@ -53,8 +53,32 @@ struct alignas(64) PacketQueue {
   int32_t id[kPacketQueue];  // the ray's index in PacketOut
   // Unmirrored directions (after avoid_tiny_components): the contour slab.
   float dx[kPacketQueue], dy[kPacketQueue], dz[kPacketQueue];
+  // Where the lane starts (read only when `deep`): the loop's parent node,
+  // the scale of its current cube (the root's children: kOctreeMaxScale - 1)
+  // and the scale a POP to which ends the lane as a miss (kOctreeMaxScale:
+  // left the root). Set by the tile frustum pass (core/tile_frustum.hpp).
+  uint32_t parent[kPacketQueue];
+  int32_t scale[kPacketQueue], stop[kPacketQueue];
   int count = 0;
+  bool deep = false;  // some lane starts below the root
 };
+
+/// Appends ray `id` (mirrored `ray`, direction `d` after avoid_tiny_components)
+/// with the loop state `e` at the root, to q; returns its queue slot.
+inline int queue_ray(PacketQueue* q, int id, const MirroredRay& ray, Vec3 d, const CastEntry& e,
+                     uint32_t root) {
+  const int k = q->count++;
+  q->cx[k] = ray.tx_coef, q->cy[k] = ray.ty_coef, q->cz[k] = ray.tz_coef;
+  q->bx[k] = ray.tx_bias, q->by[k] = ray.ty_bias, q->bz[k] = ray.tz_bias;
+  q->t_min[k] = e.t_min, q->t_max[k] = e.t_max, q->h[k] = e.h;
+  q->px[k] = e.pos_x, q->py[k] = e.pos_y, q->pz[k] = e.pos_z;
+  q->flip[k] = uint32_t(ray.octant_mask ^ 7);
+  q->idx[k] = uint32_t(e.idx);
+  q->id[k] = id;
+  q->dx[k] = d.x, q->dy[k] = d.y, q->dz[k] = d.z;
+  q->parent[k] = root, q->scale[k] = kOctreeMaxScale - 1, q->stop[k] = kOctreeMaxScale;
+  return k;
+}
 
 /// The kernel's output per ray: stop = 0 (CastStop::kMiss) unless the loop
 /// stopped at a cube; then the loop state there (mirrored frame).
@@ -96,6 +120,34 @@ typename P::Index payload_at(const P& nodes, Vec3 pos, int scale) {
   }
 }
 
+/// cast_octree's epilogue on the final state of q's ray k (ray r, out's entry
+/// q.id[k]): *hit as OctreeWorld::trace fills it.
+template <class P>
+void packet_hit(const OctreeWorld<P>& world, const P& nodes, const PacketQueue& q, int k,
+                const PacketOut& out, const Ray& r, SurfaceHit* hit) {
+  const OctreeFrame& frame = world.frame;
+  const int i = q.id[k];
+  const Vec3 p = frame.point(r.origin), d0 = frame.direction(r.dir);
+  OctreeCast<typename P::Index> c;
+  c.hit = true;
+  c.stop = CastStop(out.stop[i]);
+  c.t = out.t[i];
+  c.scale = out.scale[i];
+  c.node = out.parent[i];
+  c.child = int(out.idx[i] ^ q.flip[k]);
+  const Vec3 mpos{out.px[i], out.py[i], out.pz[i]};
+  const int octant_mask = int(q.flip[k] ^ 7u);
+  if constexpr (P::kEnteredFace) {
+    const Vec3 d{q.dx[k], q.dy[k], q.dz[k]};
+    c.face = entered_face(MirroredRay(p, d), d, mpos, c.scale);
+  }
+  c.pos = unmirror(octant_mask, mpos, c.scale);
+  if constexpr (!std::is_same_v<typename P::Index, NoIndex>)
+    c.index = payload_at(nodes, c.pos, c.scale);
+  frame.hit_to_world(p, d0, c.t, c.pos, c.scale, hit);
+  P::name_hit(c, hit);
+}
+
 /// The OctreeWorld::trace / occluded answers for rays[0, n) (world space),
 /// bit-identical, via `kernel`. any_hit: only found[i] (occluded), hits unused.
 /// beams (may be null): per ray, the coarse-pass result of its block (or
@@ -116,6 +168,7 @@ void cast_packets(const OctreeWorld<P>& world, PacketKernel<P> kernel, const Ray
   for (size_t base = 0; base < n; base += kPacketQueue) {
     const int m = int(n - base < size_t(kPacketQueue) ? n - base : size_t(kPacketQueue));
     q.count = 0;
+    q.deep = false;
     for (int i = 0; i < m; ++i) {
       const Ray& r = rays[base + size_t(i)];
       found[base + size_t(i)] = 0;
@@ -132,44 +185,15 @@ void cast_packets(const OctreeWorld<P>& world, PacketKernel<P> kernel, const Ray
       const MirroredRay ray(p, d);
       CastEntry e;
       if (!enter_root(ray, r.tmax, region, &e)) continue;
-      const int k = q.count++;
-      q.cx[k] = ray.tx_coef, q.cy[k] = ray.ty_coef, q.cz[k] = ray.tz_coef;
-      q.bx[k] = ray.tx_bias, q.by[k] = ray.ty_bias, q.bz[k] = ray.tz_bias;
-      q.t_min[k] = e.t_min, q.t_max[k] = e.t_max, q.h[k] = e.h;
-      q.px[k] = e.pos_x, q.py[k] = e.pos_y, q.pz[k] = e.pos_z;
-      q.flip[k] = uint32_t(ray.octant_mask ^ 7);
-      q.idx[k] = uint32_t(e.idx);
-      q.id[k] = i;
-      q.dx[k] = d.x, q.dy[k] = d.y, q.dz[k] = d.z;
+      queue_ray(&q, i, ray, d, e, nodes.root());
     }
     if (q.count > 0) kernel(nodes, q, size_coef, size_bias, &out);
     for (int k = 0; k < q.count; ++k) {
       const int i = q.id[k];
       if (out.stop[i] == 0) continue;
       found[base + size_t(i)] = 1;
-      if (any_hit) continue;
-      // cast_octree's epilogue on the lane's final state.
-      const Ray& r = rays[base + size_t(i)];
-      const Vec3 p = frame.point(r.origin), d0 = frame.direction(r.dir);
-      OctreeCast<typename P::Index> c;
-      c.hit = true;
-      c.stop = CastStop(out.stop[i]);
-      c.t = out.t[i];
-      c.scale = out.scale[i];
-      c.node = out.parent[i];
-      c.child = int(out.idx[i] ^ q.flip[k]);
-      const Vec3 mpos{out.px[i], out.py[i], out.pz[i]};
-      const int octant_mask = int(q.flip[k] ^ 7u);
-      if constexpr (P::kEnteredFace) {
-        const Vec3 d{q.dx[k], q.dy[k], q.dz[k]};
-        c.face = entered_face(MirroredRay(p, d), d, mpos, c.scale);
-      }
-      c.pos = unmirror(octant_mask, mpos, c.scale);
-      if constexpr (!std::is_same_v<typename P::Index, NoIndex>)
-        c.index = payload_at(nodes, c.pos, c.scale);
-      SurfaceHit* hit = &hits[base + size_t(i)];
-      frame.hit_to_world(p, d0, c.t, c.pos, c.scale, hit);
-      P::name_hit(c, hit);
+      if (!any_hit)
+        packet_hit(world, nodes, q, k, out, rays[base + size_t(i)], &hits[base + size_t(i)]);
     }
   }
 }
@@ -188,7 +212,8 @@ void structure_packets(const S& s, const typename P::Source& source, Isa isa, Pa
     TraceContext ctx;
     for (size_t i = 0; i < n; ++i) {
       const BeamStart* beam = beams != nullptr ? beams[i] : nullptr;
-      found[i] = any_hit ? s.occluded(rays[i], lod, ctx) : s.trace(rays[i], lod, ctx, &hits[i], beam);
+      found[i] =
+          any_hit ? s.occluded(rays[i], lod, ctx) : s.trace(rays[i], lod, ctx, &hits[i], beam);
     }
     return;
   }

@@ -157,9 +157,13 @@ template <class VP, class Q, class D, class F, class I, class U>
   }
 }
 
-template <class VP>
-void packet_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float size_coef,
-                   float size_bias, PacketOut* out) {
+/// kDeep: lanes may start below the root (q.parent / q.scale / q.stop, the
+/// tile frustum pass's start cubes, core/tile_frustum.hpp); otherwise every
+/// lane starts at the root (as in the any-hit kernel, the deep-capable loop
+/// costs a few per cent on root-start rays).
+template <class VP, bool kDeep>
+void packet_loop(const typename VP::Scalar& nodes, const PacketQueue& q, float size_coef,
+                 float size_bias, PacketOut* out) {
   constexpr int N = VP::N;
   constexpr int s_max = kOctreeMaxScale;
   using L = Lanes<N>;
@@ -180,7 +184,8 @@ void packet_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float
     F sexp = L::template splat<F>(0.5f);
     U parent{}, idx{}, flip{};
     I scale = L::template splat<I>(s_max - 1);
-    I slot = L::template splat<I>(-1);  // the lane's ray in q
+    [[maybe_unused]] I stop = L::template splat<I>(s_max);  // kDeep: POP to here = left the start
+    I slot = L::template splat<I>(-1);                      // the lane's ray in q
     typename VP::Desc desc{};
     alignas(64) uint32_t stack_node[(s_max + 1) * N];
     alignas(64) uint32_t stack_tmax[(s_max + 1) * N];  // float bits
@@ -194,6 +199,7 @@ void packet_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float
     F& sexp = pk.sexp;
     U &parent = pk.parent, &idx = pk.idx, &flip = pk.flip;
     I &scale = pk.scale, &slot = pk.slot;
+    [[maybe_unused]] I& stop = pk.stop;
     typename VP::Desc& desc = pk.desc;
     uint32_t* stack_node = pk.stack_node;
     uint32_t* stack_tmax = pk.stack_tmax;
@@ -221,9 +227,16 @@ void packet_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float
       // The lanes refilled, as a lane mask, and their queue slots next, next + 1, ...
       const I fresh = ((L::template splat<I>(1) << lane) & int32_t(idle)) != 0;
       slot = L::expand(slot, idle, kSequence.data() + next);
-      parent = fresh ? L::template splat<U>(nodes.root()) : parent;
-      scale = fresh ? L::template splat<I>(s_max - 1) : scale;
-      sexp = fresh ? L::template splat<F>(0.5f) : sexp;
+      if constexpr (kDeep) {
+        parent = L::expand(parent, idle, q.parent + next);
+        scale = L::expand(scale, idle, q.scale + next);
+        stop = L::expand(stop, idle, q.stop + next);
+        sexp = fresh ? L::as_f((U)((scale - s_max + 127) << 23)) : sexp;  // exact exp2
+      } else {
+        parent = fresh ? L::template splat<U>(nodes.root()) : parent;
+        scale = fresh ? L::template splat<I>(s_max - 1) : scale;
+        sexp = fresh ? L::template splat<F>(0.5f) : sexp;
+      }
       vp.forget(&desc, fresh);
       next += std::popcount(idle);
     }
@@ -323,7 +336,12 @@ void packet_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float
                        (sz & pop ? L::as_u(pz) ^ L::as_u(pz + sexp) : zero);
         const F fdiff = __builtin_convertvector((I)diff, F);
         const I top = (I)(L::as_u(fdiff) >> 23) - 127;
-        const I left = pop & (top >= s_max);
+        // Left the root, or (kDeep) the lane's start cube's parent.
+        I left;
+        if constexpr (kDeep)
+          left = pop & (top >= stop);
+        else
+          left = pop & (top >= s_max);
         miss |= left;
         const I in = pop & ~left;
         scale = in ? top : scale;
@@ -351,6 +369,16 @@ void packet_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float
   Packet packet;
   while (step(packet)) {
   }
+}
+
+/// The kernel: the root-start loop unless a ray of q starts deep.
+template <class VP>
+void packet_kernel(const typename VP::Scalar& nodes, const PacketQueue& q, float size_coef,
+                   float size_bias, PacketOut* out) {
+  if (q.deep)
+    packet_loop<VP, true>(nodes, q, size_coef, size_bias, out);
+  else
+    packet_loop<VP, false>(nodes, q, size_coef, size_bias, out);
 }
 
 }  // namespace

@@ -11,6 +11,7 @@
 #include <cstdint>
 
 #include "core/octree_caster.hpp"
+#include "core/tile_frustum.hpp"
 #include "dag/octree_nodes.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/error.hpp"

@@ -3,6 +3,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "core/frustum_packets.hpp"
 #include "core/octree_packet_caster.hpp"
 #include "core/packet_kernels.hpp"
 #include "esvo/octree_nodes.hpp"
@@ -25,9 +26,9 @@ void block_order(int x0, int y0, int w, int h, std::vector<uint32_t>* out) {
 
 void trace_packets(const esvo::EsvoStructure& s, const Ray* rays, size_t n, const LodFootprint& lod,
                    SurfaceHit* hits, uint8_t* found, Isa isa, const BeamStart* const* beams) {
-  detail::structure_packets<detail::EsvoNodes>(s, s.octree(), isa, &detail::esvo_packet_kernel_avx2,
-                                               &detail::esvo_packet_kernel_avx512, rays, n, lod,
-                                               beams, false, hits, found);
+  detail::structure_trace_packets<detail::EsvoNodes>(
+      s, s.octree(), isa, &detail::esvo_packet_kernel_avx2, &detail::esvo_packet_kernel_avx512,
+      rays, n, lod, beams, hits, found);
 }
 
 void occluded_packets(const esvo::EsvoStructure& s, const Ray* rays, size_t n,

@@ -7,6 +7,7 @@
 #include <cstdint>
 
 #include "core/octree_caster.hpp"
+#include "core/tile_frustum.hpp"
 #include "esvo/compress.hpp"
 #include "esvo/octree_nodes.hpp"
 #include "voxcast/error.hpp"
