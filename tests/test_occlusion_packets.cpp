@@ -22,6 +22,7 @@
 #include <vector>
 
 #include "support/octree_rays.hpp"
+#include "support/packet_testing.hpp"
 #include "support/test_data.hpp"
 #include "voxcast/camera.hpp"
 #include "voxcast/dag.hpp"
@@ -36,15 +37,6 @@
 
 namespace voxcast {
 namespace {
-
-std::vector<Isa> isas() {
-  std::vector<Isa> v{Isa::Avx2};
-  if (cpu_supports(Isa::Avx512))
-    v.push_back(Isa::Avx512);
-  else
-    std::printf("CPU without AVX-512: AVX2 kernels only\n");
-  return v;
-}
 
 struct Scenes {
   Mesh mesh;
@@ -200,7 +192,7 @@ AnyHitStats expect_same(const S& s, const std::vector<Ray>& rays, const LodFootp
   EXPECT_GT(occluded, 0u) << what;
   EXPECT_LT(occluded, rays.size()) << what;
   AnyHitStats stats;
-  for (const Isa isa : isas()) {
+  for (const Isa isa : testing::packet_isas()) {
     for (const int variant : {0, 1, 2, 3}) {
       static const char* const names[] = {" per-ray deep+cull", " per-ray deep", " packet paths",
                                           " root"};
@@ -354,7 +346,7 @@ void check_effect_rays(const S& s, const char* name) {
   // occluded_packets, the any-hit packets.
   for (const std::vector<Ray>* rays : {&shadow.rays, &ao.rays}) {
     const std::vector<uint8_t> want = scalar_answers(s, *rays, LodFootprint{});
-    for (const Isa isa : isas()) {
+    for (const Isa isa : testing::packet_isas()) {
       std::vector<uint8_t> got(rays->size(), 7);
       occluded_packets(s, rays->data(), rays->size(), LodFootprint{}, got.data(), isa);
       EXPECT_EQ(got, want) << name << " occluded_packets " << isa_name(isa);

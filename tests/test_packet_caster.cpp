@@ -20,6 +20,7 @@
 
 #include "render/beam.hpp"
 #include "support/esvo_testing.hpp"
+#include "support/packet_testing.hpp"
 #include "support/test_data.hpp"
 #include "voxcast/camera.hpp"
 #include "voxcast/dag.hpp"
@@ -32,25 +33,7 @@
 namespace voxcast {
 namespace {
 
-uint32_t bits(float f) {
-  return std::bit_cast<uint32_t>(f);
-}
-
-bool same_hit(const SurfaceHit& a, const SurfaceHit& b) {
-  return bits(a.t) == bits(b.t) && bits(a.position.x) == bits(b.position.x) &&
-         bits(a.position.y) == bits(b.position.y) && bits(a.position.z) == bits(b.position.z) &&
-         bits(a.voxel_size) == bits(b.voxel_size) && a.voxel_ref == b.voxel_ref &&
-         a.child == b.child && a.level == b.level;
-}
-
-std::vector<Isa> isas() {
-  std::vector<Isa> v{Isa::Avx2};
-  if (cpu_supports(Isa::Avx512))
-    v.push_back(Isa::Avx512);
-  else
-    std::printf("CPU without AVX-512: AVX2 kernels only\n");
-  return v;
-}
+using testing::same_hit;
 
 struct Scenes {
   Mesh mesh;
@@ -159,7 +142,7 @@ void expect_same(const S& s, const std::vector<Ray>& rays, const LodFootprint& l
   size_t hits = 0;
   for (uint8_t f : want_found) hits += f;
   *hits_out = hits;
-  for (const Isa isa : isas()) {
+  for (const Isa isa : testing::packet_isas()) {
     std::vector<SurfaceHit> got(rays.size());
     std::vector<uint8_t> found(rays.size(), 7), occ(rays.size(), 7);
     trace_packets(s, rays.data(), rays.size(), lod, got.data(), found.data(), isa);
@@ -218,8 +201,7 @@ void check_beams(const S& s, const char* name) {
     for (int by = 0; by < h / k; ++by)
       for (int bx = 0; bx < w / k; ++bx) {
         BeamStart& st = starts[size_t(by * (w / k) + bx)];
-        s.beam_start(detail::block_beam(cr, bx * k, by * k, bx * k + k, by * k + k, lod), ctx,
-                     &st);
+        s.beam_start(detail::block_beam(cr, bx * k, by * k, bx * k + k, by * k + k, lod), ctx, &st);
         empty += st.valid && st.empty;
         regions += st.valid && !st.empty;
       }
@@ -242,7 +224,7 @@ void check_beams(const S& s, const char* name) {
       hits += want_found[i];
     }
     EXPECT_GT(hits, rays.size() / 8) << name;
-    for (const Isa isa : isas()) {
+    for (const Isa isa : testing::packet_isas()) {
       trace_packets(s, rays.data(), rays.size(), lod, got.data(), found.data(), isa, beams.data());
       size_t bad = 0;
       for (size_t i = 0; i < rays.size(); ++i)

@@ -51,6 +51,7 @@ struct BenchArgs {
   uint32_t resolution = 2048;
   float lod = 1.f;
   int repeat = 5, threads = 0, beam = 8;
+  int frustum = 8;          // block size of the tile frustum rows (0 = no such rows)
   double min_coverage = 0;  // > 0: zoom the automatic camera in (crops the model)
   bool verbose = false;
   bool contours = false;
@@ -220,15 +221,39 @@ Timed trace_depth(const SurfaceQuery& s, const RenderOptions& ro, Image* depth) 
 // beam > 0: the coarse pass (esvo §6.2) per beam x beam block first, inside
 // the timed loop; each ray starts at its block's region, rays of empty
 // blocks are not traced.
+// frustum > 0 instead: the tile frustum pass (SurfaceQuery::frustum_start)
+// per tile, then per frustum x frustum block within the tile's cubes, as
+// render() does; a tile without cubes writes misses and traces nothing.
 // (The shaded packet rows are render() itself, which traces the same way.)
 Timed trace_depth_packets(const SurfaceQuery& s, const SurfacePackets& packets,
-                          const RenderOptions& ro, int beam, Image* depth) {
+                          const RenderOptions& ro, int beam, Image* depth, int frustum = 0) {
   return depth_frame(
       ro, depth, [&](const detail::Tile& tile, const CameraRays& cam, const LodFootprint& lod) {
         thread_local detail::PacketTile pt;
-        pt.generate(cam, tile.x0, tile.y0, tile.x1, tile.y1);
+        thread_local BeamStart tile_start;
         TraceContext ctx;
-        if (beam > 0)
+        if (frustum > 0) {
+          const int octant =
+              ray_octant(cam.ray((tile.x0 + tile.x1) / 2, (tile.y0 + tile.y1) / 2).dir);
+          s.frustum_start(detail::block_beam(cam, tile.x0, tile.y0, tile.x1, tile.y1, lod), octant,
+                          ctx, &tile_start);
+          if (tile_start.valid && tile_start.empty) {
+            for (int y = tile.y0; y < tile.y1; ++y)
+              for (int x = tile.x0; x < tile.x1; ++x) *depth->at(x, y) = INFINITY;
+            return uint64_t(0);
+          }
+        }
+        pt.generate(cam, tile.x0, tile.y0, tile.x1, tile.y1);
+        if (frustum > 0)
+          pt.coarse_pass(tile.x0, tile.y0, tile.x1, tile.y1, frustum,
+                         [&](int x0, int y0, BeamStart* start) {
+                           const int x1 = std::min(x0 + frustum, tile.x1),
+                                     y1 = std::min(y0 + frustum, tile.y1);
+                           s.frustum_start(detail::block_beam(cam, x0, y0, x1, y1, lod),
+                                           ray_octant(cam.ray((x0 + x1) / 2, (y0 + y1) / 2).dir),
+                                           ctx, start, &tile_start);
+                         });
+        else if (beam > 0)
           pt.coarse_pass(
               tile.x0, tile.y0, tile.x1, tile.y1, beam, [&](int x0, int y0, BeamStart* start) {
                 s.beam_start(detail::block_beam(cam, x0, y0, std::min(x0 + beam, tile.x1),
@@ -344,8 +369,10 @@ class RayRecorder final : public Occluder {
 // generated in 4x4 block order and traced by one trace_packets call (ray
 // generation and traversal read per tile), then the hits' attributes and
 // shading.
+// frustum > 0 (with packets): the tile frustum pass and the per-block lists
+// first, counted as traversal.
 EmbreeScene::StageTicks profile_voxels(const SurfaceQuery& s, const RenderOptions& ro,
-                                       const SurfacePackets* packets) {
+                                       const SurfacePackets* packets, int frustum = 0) {
   const CameraRays cam(ro.camera, ro.width, ro.height);
   const LodFootprint lod = pixel_lod(cam, ro.lod_pixels);
   const Vec3 to_light = normalize(-ro.light_dir);
@@ -372,13 +399,26 @@ EmbreeScene::StageTicks profile_voxels(const SurfaceQuery& s, const RenderOption
   if (packets) {
     const int T = 16;
     detail::PacketTile pt;
+    BeamStart tile_start;
     for (int ty = 0; ty < ro.height; ty += T)
       for (int tx = 0; tx < ro.width; tx += T) {
+        const int tx1 = std::min(tx + T, ro.width), ty1 = std::min(ty + T, ro.height);
         const uint64_t t0 = detail::ticks();
-        pt.generate(cam, tx, ty, std::min(tx + T, ro.width), std::min(ty + T, ro.height));
+        pt.generate(cam, tx, ty, tx1, ty1);
         const uint64_t t1 = detail::ticks();
+        if (frustum > 0) {
+          s.frustum_start(detail::block_beam(cam, tx, ty, tx1, ty1, lod),
+                          ray_octant(cam.ray((tx + tx1) / 2, (ty + ty1) / 2).dir), ctx,
+                          &tile_start);
+          pt.coarse_pass(tx, ty, tx1, ty1, frustum, [&](int x0, int y0, BeamStart* start) {
+            const int x1 = std::min(x0 + frustum, tx1), y1 = std::min(y0 + frustum, ty1);
+            s.frustum_start(detail::block_beam(cam, x0, y0, x1, y1, lod),
+                            ray_octant(cam.ray((x0 + x1) / 2, (y0 + y1) / 2).dir), ctx, start,
+                            &tile_start);
+          });
+        }
         packets->trace_packets(pt.rays.data(), pt.rays.size(), lod, ctx, pt.hits.data(),
-                               pt.found.data(), active_isa());
+                               pt.found.data(), active_isa(), pt.beam_list());
         const uint64_t t2 = detail::ticks();
         st.ray_generation += since(t0, t1);
         st.traversal += since(t1, t2);
@@ -436,6 +476,10 @@ Runner add_bench(CLI::App& app) {
   cmd->add_option("--beam", args->beam,
                   "Beam block size for the second voxcast run (4 or 8; 0 = skip that run)")
       ->capture_default_str();
+  cmd->add_option("--frustum", args->frustum,
+                  "Block size of the 'packet+frustum' rows (tile frustum pass, per-block cube "
+                  "lists the packets start from; 2..64; 0 = no such rows)")
+      ->capture_default_str();
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)");
   cmd->add_flag("-v,--verbose", args->verbose, "Print timings per stage");
   cmd->add_flag(
@@ -486,6 +530,8 @@ Runner add_bench(CLI::App& app) {
     require_range("--bounces", args->bounces, 0, 1024);
     if (args->beam != 0 && args->beam != 4 && args->beam != 8)
       throw UsageError("--beam must be 0, 4 or 8");
+    if (args->frustum != 0 && (args->frustum < 2 || args->frustum > 64))
+      throw UsageError("--frustum must be 0 (off) or a block size in 2..64");
     require_range("--min-coverage", args->min_coverage, 0, 0.95);
     require_range("--ao-rays", args->ao_rays, 1, 4096);
     require_range("--ao-radius", args->ao_radius, 0, 1e30);
@@ -704,6 +750,31 @@ Runner add_bench(CLI::App& app) {
                                    return trace_depth_packets(q, *p, rl, k, &depth);
                                  },
                                  {}});
+            if (args->frustum) {
+              const std::string k = std::to_string(args->frustum);
+              primary.push_back({caster + " packet+frustum",
+                                 "trace_packets, tile frustum pass + " + k + "x" + k +
+                                     " block lists (passes included), depth only",
+                                 lod,
+                                 false,
+                                 [&q, p, rl, k = args->frustum] {
+                                   Image depth;
+                                   return trace_depth_packets(q, *p, rl, 0, &depth, k);
+                                 },
+                                 {}});
+              primary.push_back({caster + " packet+frustum",
+                                 "render(), packet primary rays from the tile frustum pass + " + k +
+                                     "x" + k + " block lists: attributes + Phong",
+                                 lod,
+                                 true,
+                                 [&m, rl, k = args->frustum] {
+                                   RenderOptions rp = rl;
+                                   rp.caster = Caster::Packet;
+                                   rp.frustum = k;
+                                   return timed(render(*m.structure, rp));
+                                 },
+                                 {}});
+            }
           }
           RenderOptions rs = rl;
           rs.caster = Caster::Scalar;
@@ -913,6 +984,11 @@ Runner add_bench(CLI::App& app) {
               prof.push_back({structures[i].caster + " packet", lod, least_disturbed([&] {
                                 return profile_voxels(*structures[i].query, rl,
                                                       structures[i].packets);
+                              })});
+            if (structures[i].packets && args->frustum)
+              prof.push_back({structures[i].caster + " frustum", lod, least_disturbed([&] {
+                                return profile_voxels(*structures[i].query, rl,
+                                                      structures[i].packets, args->frustum);
                               })});
           }
         }

@@ -34,6 +34,7 @@ struct RenderArgs {
   int threads = 0;
   bool verbose = false;
   int beam = 0;                   // esvo §6.2 block size, 0 = off
+  int frustum = 0;                // tile frustum pass block size (issue 10 item 4), 0 = off
   std::string caster = "packet";  // primary rays: packet | scalar (same image)
   bool stats = false;             // esvo §8.5 Table 6 counters
   std::string heatmap;            // iteration heat map (Figure 32)
@@ -125,6 +126,11 @@ Runner add_render(CLI::App& app) {
   cmd->add_option("--beam", args->beam,
                   "Beam optimization block size, e.g. 4 or 8 (0 = off; esvo paper section 6.2)")
       ->capture_default_str();
+  cmd->add_option("--frustum", args->frustum,
+                  "Tile frustum pass: per tile the octree cubes its rays can touch (empty tiles "
+                  "cost no ray), per KxK pixel block the finer cubes the packets start from "
+                  "(2..64; 0 = off; packet caster only, the image is the same)")
+      ->capture_default_str();
   cmd->add_option("--caster", args->caster,
                   "Primary rays: packet (4x4 pixel blocks through the packet caster where the "
                   "structure has one) or scalar (one ray at a time); the image is the same")
@@ -184,6 +190,9 @@ Runner add_render(CLI::App& app) {
     if (args->beam != 0 && (args->beam < 2 || args->beam > 64))
       throw UsageError("--beam must be 0 (off) or a block size in 2..64");
     opt.beam = args->beam;
+    if (args->frustum != 0 && (args->frustum < 2 || args->frustum > 64))
+      throw UsageError("--frustum must be 0 (off) or a block size in 2..64");
+    opt.frustum = args->frustum;
     opt.caster = args->caster == "scalar" ? Caster::Scalar : Caster::Packet;
     require_range("--heatmap-max", args->heatmap_max, 1e-6, 1e9);
     opt.collect_stats = args->stats || !args->heatmap.empty();

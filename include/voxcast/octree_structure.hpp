@@ -50,6 +50,9 @@ class OctreeStructure : public SurfaceQuery, public Structure, public SurfacePac
                       const BeamStart* beam = nullptr) const override;
   /// Coarse pass of the beam optimization (esvo §6.2, core/beam_frustum.hpp).
   void beam_start(const BeamFrustum& beam, TraceContext& ctx, BeamStart* start) const override;
+  /// The tile frustum pass (core/tile_frustum.hpp): the cube list and its region.
+  void frustum_start(const BeamFrustum& beam, int octant, TraceContext& ctx, BeamStart* start,
+                     const BeamStart* within = nullptr) const override;
   /// Every octree structure has the packet casters (voxcast/packet_caster.hpp).
   const SurfacePackets* packets() const override { return this; }
   /// voxcast::trace_packets / occluded_packets on Self (bit-identical to

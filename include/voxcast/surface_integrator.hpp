@@ -26,6 +26,13 @@ struct SurfaceOptions {
   /// Beam optimization (esvo §6.2): block size K of the coarse pass (K x K
   /// pixel blocks, 2..64; 0 = off). The hits are identical either way.
   int beam = 0;
+  /// Tile frustum pass (issue 10 item 4; SurfaceQuery::frustum_start): per
+  /// tile the cubes its rays can touch (a tile with none is a miss for every
+  /// pixel, with no ray generated), then per K x K pixel block (2..64; 0 =
+  /// off) the finer cubes within the tile's, from which the packet caster
+  /// starts each ray deep. Packet path only (the scalar path and --stats use
+  /// `beam`); takes the place of `beam` there. The hits are identical either way.
+  int frustum = 0;
   /// Profiling counters (esvo §8.5, Table 6) and the iteration AOV. Needs the
   /// frame's counting path (FrameOptions::counting); slower than a plain render.
   bool collect_stats = false;
@@ -55,6 +62,7 @@ struct SurfaceStats {
   RayCounters counters;            // collect_stats: primary rays, incl. attribute fetches
   RayCounters coarse_counters;     // collect_stats: beam coarse pass (iterations = nodes visited)
   uint64_t beams = 0;              // collect_stats: coarse-pass beams (blocks)
+  uint64_t empty_tiles = 0;        // frustum: tiles resolved as misses by the tile pass alone
   EffectCounters effect_counters;  // secondary rays traced
   double filter_seconds = 0;       // wall time of post_filter (0 unless filter)
 };
@@ -85,6 +93,7 @@ class SurfaceIntegrator final : public Integrator {
     uint64_t hits = 0;
     RayCounters counters, coarse_counters;
     uint64_t beams = 0;
+    bool empty_tile = false;
     EffectCounters effects;
   };
 

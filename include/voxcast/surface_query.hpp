@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <vector>
 
 #include "voxcast/isa.hpp"
 #include "voxcast/math.hpp"
@@ -32,6 +33,18 @@ struct BeamFrustum {
   float width = 0.f;          // >= the distance between any two ray origins (world units)
 };
 
+/// One cube of a frustum pass's list (SurfaceQuery::frustum_start), in
+/// structure space (the octree family: [1,2]^3, side 2^(scale - 23)).
+struct FrustumNode {
+  float lo[3];      // min corner
+  float side;       // edge length
+  uint32_t parent;  // the structure's node whose child the cube is
+  uint32_t node;    // the cube's own node (unless leaf)
+  int8_t scale;     // the cube's scale (the root's children: 22)
+  uint8_t slot;     // the cube's child slot in `parent` (x | y << 1 | z << 2)
+  bool leaf;        // a leaf voxel (no node below)
+};
+
 /// Result of the coarse pass for one beam (esvo §6.2). The region is
 /// structure-specific (ESVO: a box in octree space) and only meaningful to the
 /// structure that produced it, for rays of the beam it was computed for.
@@ -39,7 +52,22 @@ struct BeamStart {
   bool valid = false;  // false: no information, rays are traced from their start
   bool empty = false;  // no ray of the beam can hit anything
   Aabb region;         // structure space; every voxel a ray of the beam can hit lies inside
+  /// The tile frustum pass (frustum_start): octant >= 0 when `nodes` holds
+  /// disjoint cubes containing every voxel a ray of the beam can hit, in
+  /// front-to-back order for the rays of mirroring octant `octant`
+  /// (ray_octant()); `region` is then their bounding box. -1: no list.
+  int octant = -1;
+  std::vector<FrustumNode> nodes;
 };
+
+/// The mirroring octant of the octree family's caster for world direction
+/// `dir` (esvo §6.1 "Alternate coordinate system"): bit a clear where the
+/// caster mirrors axis a, i.e. where the component's sign bit is clear (a
+/// +0 component becomes +2^-23 there, avoid_tiny_components).
+inline int ray_octant(Vec3 dir) {
+  return 7 ^ (std::signbit(dir.x) ? 0 : 1) ^ (std::signbit(dir.y) ? 0 : 2) ^
+         (std::signbit(dir.z) ? 0 : 4);
+}
 
 /// A first hit. Valid until the end of the pass it was traced in (the
 /// pinning rule of trace_context.hpp), so attributes() may dereference it.
@@ -128,6 +156,22 @@ class SurfaceQuery {
   virtual void beam_start(const BeamFrustum& beam, TraceContext& ctx, BeamStart* start) const {
     (void)beam, (void)ctx;
     *start = BeamStart{};
+  }
+
+  /// The tile frustum pass (issue 10 item 4): like beam_start, and where the
+  /// structure can, also the list of cubes the beam's rays can touch, front
+  /// to back for rays of mirroring octant `octant` (BeamStart::nodes), cut
+  /// where a cube is about as wide as the beam, is a leaf or could be a LOD
+  /// stop; `within` (may be null): a list for a beam that contains this one
+  /// (a tile's, for its pixel blocks), whose cubes the pass starts from when
+  /// it is for the same octant. An empty start (no cube) means no ray of the
+  /// beam hits anything. The packet caster starts each ray deep at the
+  /// first cube it enters (hits bit-identical); trace() uses the region.
+  /// Default: beam_start.
+  virtual void frustum_start(const BeamFrustum& beam, int octant, TraceContext& ctx,
+                             BeamStart* start, const BeamStart* within = nullptr) const {
+    (void)octant, (void)within;
+    beam_start(beam, ctx, start);
   }
 
   /// The packet capability, or null (the default) when the structure has

@@ -61,7 +61,9 @@ struct alignas(64) PacketQueue {
   float dx[kPacketQueue], dy[kPacketQueue], dz[kPacketQueue];
   // deep only: the start node, the scale of its children (the root's:
   // kOctreeMaxScale - 1), and the stack rows above it: for every scale s in
-  // (scale, kOctreeMaxScale), the loop's (parent, t_max) saved at scale s.
+  // (scale, kOctreeMaxScale), the loop's (parent, t_max) saved at scale s
+  // (start_packets, packet paths), or rows whose t_max ends the lane at a POP
+  // out of the start node (the tile frustum pass, core/frustum_packets.hpp).
   uint32_t parent[kPacketQueue];
   int32_t scale[kPacketQueue];
   uint32_t stack_node[kOctreeMaxScale][kPacketQueue];
@@ -120,6 +122,24 @@ inline void require_isa(Isa isa, const char* who) {
     throw Error(std::string(who) + ": this CPU does not support " + isa_name(isa));
 }
 
+/// Appends ray `id` (mirrored `ray`, direction `d` after avoid_tiny_components)
+/// with the loop state `e` at the root, to q; returns its queue slot.
+inline int queue_entry(PacketQueue* q, int32_t id, const MirroredRay& ray, Vec3 d,
+                       const CastEntry& e, uint32_t root) {
+  const int k = q->count++;
+  q->cx[k] = ray.tx_coef, q->cy[k] = ray.ty_coef, q->cz[k] = ray.tz_coef;
+  q->bx[k] = ray.tx_bias, q->by[k] = ray.ty_bias, q->bz[k] = ray.tz_bias;
+  q->t_min[k] = e.t_min, q->t_max[k] = e.t_max, q->h[k] = e.h;
+  q->px[k] = e.pos_x, q->py[k] = e.pos_y, q->pz[k] = e.pos_z;
+  q->flip[k] = uint32_t(ray.octant_mask ^ 7);
+  q->idx[k] = uint32_t(e.idx);
+  q->id[k] = id;
+  q->dx[k] = d.x, q->dy[k] = d.y, q->dz[k] = d.z;
+  q->parent[k] = root;
+  q->scale[k] = kOctreeMaxScale - 1;
+  return k;
+}
+
 /// Queue slot q->count for `ray` (world space) in `frame`, started at the
 /// root (clipped to `region` if set; cast_octree's set-up): false, and no
 /// slot, if cast_octree would miss at once (non-finite input, empty span).
@@ -132,17 +152,7 @@ inline bool queue_ray(const OctreeFrame& frame, const Ray& r, const Aabb* region
   const MirroredRay ray(p, d);
   CastEntry e;
   if (!enter_root(ray, r.tmax, region, &e)) return false;
-  const int k = q->count++;
-  q->cx[k] = ray.tx_coef, q->cy[k] = ray.ty_coef, q->cz[k] = ray.tz_coef;
-  q->bx[k] = ray.tx_bias, q->by[k] = ray.ty_bias, q->bz[k] = ray.tz_bias;
-  q->t_min[k] = e.t_min, q->t_max[k] = e.t_max, q->h[k] = e.h;
-  q->px[k] = e.pos_x, q->py[k] = e.pos_y, q->pz[k] = e.pos_z;
-  q->flip[k] = uint32_t(ray.octant_mask ^ 7);
-  q->idx[k] = uint32_t(e.idx);
-  q->id[k] = id;
-  q->dx[k] = d.x, q->dy[k] = d.y, q->dz[k] = d.z;
-  q->parent[k] = root;
-  q->scale[k] = kOctreeMaxScale - 1;
+  queue_entry(q, id, ray, d, e, root);
   *origin = p;
   return true;
 }
@@ -392,6 +402,34 @@ void packet_paths(const P& nodes, const Vec3* origins, int width, float share, P
   }
 }
 
+/// cast_octree's epilogue on the final state of q's ray k (ray r, out's entry
+/// q.id[k]): *hit as OctreeWorld::trace fills it.
+template <class P>
+void packet_hit(const OctreeWorld<P>& world, const P& nodes, const PacketQueue& q, int k,
+                const PacketOut& out, const Ray& r, SurfaceHit* hit) {
+  const OctreeFrame& frame = world.frame;
+  const int i = q.id[k];
+  const Vec3 p = frame.point(r.origin), d0 = frame.direction(r.dir);
+  OctreeCast<typename P::Index> c;
+  c.hit = true;
+  c.stop = CastStop(out.stop[i]);
+  c.t = out.t[i];
+  c.scale = out.scale[i];
+  c.node = out.parent[i];
+  c.child = int(out.idx[i] ^ q.flip[k]);
+  const Vec3 mpos{out.px[i], out.py[i], out.pz[i]};
+  const int octant_mask = int(q.flip[k] ^ 7u);
+  if constexpr (P::kEnteredFace) {
+    const Vec3 d{q.dx[k], q.dy[k], q.dz[k]};
+    c.face = entered_face(MirroredRay(p, d), d, mpos, c.scale);
+  }
+  c.pos = unmirror(octant_mask, mpos, c.scale);
+  if constexpr (!std::is_same_v<typename P::Index, NoIndex>)
+    c.index = payload_at(nodes, c.pos, c.scale);
+  frame.hit_to_world(p, d0, c.t, c.pos, c.scale, hit);
+  P::name_hit(c, hit);
+}
+
 /// The OctreeWorld::trace answers for rays[0, n) (world space),
 /// bit-identical, via `kernel`: found[i], and hits[i] where found.
 /// beams (may be null): per ray, the coarse-pass result of its block (or
@@ -428,28 +466,7 @@ void cast_packets(const OctreeWorld<P>& world, PacketKernel<P> kernel, const Ray
       const int i = q.id[k];
       if (out.stop[i] == 0) continue;
       found[base + size_t(i)] = 1;
-      // cast_octree's epilogue on the lane's final state.
-      const Ray& r = rays[base + size_t(i)];
-      const Vec3 p = frame.point(r.origin), d0 = frame.direction(r.dir);
-      OctreeCast<typename P::Index> c;
-      c.hit = true;
-      c.stop = CastStop(out.stop[i]);
-      c.t = out.t[i];
-      c.scale = out.scale[i];
-      c.node = out.parent[i];
-      c.child = int(out.idx[i] ^ q.flip[k]);
-      const Vec3 mpos{out.px[i], out.py[i], out.pz[i]};
-      const int octant_mask = int(q.flip[k] ^ 7u);
-      if constexpr (P::kEnteredFace) {
-        const Vec3 d{q.dx[k], q.dy[k], q.dz[k]};
-        c.face = entered_face(MirroredRay(p, d), d, mpos, c.scale);
-      }
-      c.pos = unmirror(octant_mask, mpos, c.scale);
-      if constexpr (!std::is_same_v<typename P::Index, NoIndex>)
-        c.index = payload_at(nodes, c.pos, c.scale);
-      SurfaceHit* hit = &hits[base + size_t(i)];
-      frame.hit_to_world(p, d0, c.t, c.pos, c.scale, hit);
-      P::name_hit(c, hit);
+      packet_hit(world, nodes, q, k, out, rays[base + size_t(i)], &hits[base + size_t(i)]);
     }
   }
 }
@@ -459,24 +476,6 @@ void cast_packets(const OctreeWorld<P>& world, PacketKernel<P> kernel, const Ray
 template <class Source>
 bool beyond_gathers(const Source& source) {
   return source.words.size() >= (size_t(1) << 31);
-}
-
-/// A structure's trace_packets: `kernels` = its policy's kernels.
-template <class P, class S>
-void structure_trace_packets(const S& s, const typename P::Source& source, Isa isa,
-                             const PacketKernels<P>& kernels, const Ray* rays, size_t n,
-                             const LodFootprint& lod, const BeamStart* const* beams,
-                             SurfaceHit* hits, uint8_t* found) {
-  require_isa(isa, "packet caster");
-  if (beyond_gathers(source)) {
-    TraceContext ctx;
-    for (size_t i = 0; i < n; ++i)
-      found[i] = s.trace(rays[i], lod, ctx, &hits[i], beams != nullptr ? beams[i] : nullptr);
-    return;
-  }
-  cast_packets(OctreeWorld<P>(source),
-               isa == Isa::Avx512 ? kernels.trace_avx512 : kernels.trace_avx2, rays, n, lod, beams,
-               hits, found);
 }
 
 }  // namespace voxcast::detail

@@ -2,7 +2,8 @@
 // OctreeStructure's packet members (include/voxcast/octree_structure.hpp),
 // for the explicit instantiation in each structure's source file
 // (src/esvo/traverse.cpp, src/dag/traverse.cpp): the drivers of
-// core/octree_packet_caster.hpp and core/octree_anyhit_caster.hpp over
+// core/octree_packet_caster.hpp, core/frustum_packets.hpp (first hits from
+// the tile frustum pass's cube lists) and core/octree_anyhit_caster.hpp over
 // Self::world()'s policy, with that policy's kernels (core/packet_kernels.hpp).
 // Written once for every octree structure, so that the public functions of
 // voxcast/packet_caster.hpp and voxcast/occlusion_packets.hpp are templates
@@ -11,6 +12,7 @@
 #include <cstdint>
 #include <type_traits>
 
+#include "core/frustum_packets.hpp"
 #include "core/octree_anyhit_caster.hpp"
 #include "core/octree_caster.hpp"
 #include "core/octree_packet_caster.hpp"

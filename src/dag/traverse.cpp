@@ -12,6 +12,7 @@
 
 #include "core/octree_caster.hpp"
 #include "core/octree_packets.hpp"
+#include "core/tile_frustum.hpp"
 #include "dag/octree_nodes.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/error.hpp"

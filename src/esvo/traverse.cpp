@@ -8,6 +8,7 @@
 
 #include "core/octree_caster.hpp"
 #include "core/octree_packets.hpp"
+#include "core/tile_frustum.hpp"
 #include "esvo/compress.hpp"
 #include "esvo/octree_nodes.hpp"
 #include "voxcast/error.hpp"

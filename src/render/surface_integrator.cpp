@@ -19,6 +19,8 @@ namespace voxcast {
 SurfaceIntegrator::SurfaceIntegrator(const SurfaceOptions& options) : options_(options) {
   if (options_.beam != 0 && (options_.beam < 2 || options_.beam > 64))
     throw Error("render: beam must be 0 (off) or a block size in 2..64");
+  if (options_.frustum != 0 && (options_.frustum < 2 || options_.frustum > 64))
+    throw Error("render: frustum must be 0 (off) or a block size in 2..64");
   validate(options_.effects);
 }
 
@@ -66,6 +68,7 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
   const bool want_depth = options_.want_depth, want_normal = options_.want_normal;
   const bool collect = options_.collect_stats && ctx.counting;
   const int beam_k = options_.beam;
+  const int frustum_k = options_.frustum;
   const int W = film.width;
   const float pixel_angle = cam.pixel_angle(), pixel_size = cam.pixel_size();
   const StructureOccluder occluder(q);
@@ -219,13 +222,39 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
   };
   // Packets need a frame that does not count: the kernels have no counters
   // (and the iteration AOV is per ray).
+  // The tile's rays in 4x4 pixel blocks (block_order), traced as one call:
+  // the packet caster fills its lanes from this queue in order, so a packet
+  // starts as a coherent block. Buffers per thread, grown once.
+  thread_local detail::PacketTile pt;
+  thread_local BeamStart tile_start;
   if (packets_ != nullptr && !ctx.counting) {
-    // The tile's rays in 4x4 pixel blocks (block_order), traced as one call:
-    // the packet caster fills its lanes from this queue in order, so a packet
-    // starts as a coherent block. Buffers per thread, grown once.
-    thread_local detail::PacketTile pt;
+    if (frustum_k != 0) {
+      // The tile frustum pass: the tile's cubes, front to back for the
+      // mirroring octant of its center ray; none = every pixel a miss.
+      const int octant = ray_octant(cam.ray((tile.x0 + tile.x1) / 2, (tile.y0 + tile.y1) / 2).dir);
+      q.frustum_start(detail::block_beam(cam, tile.x0, tile.y0, tile.x1, tile.y1, lod), octant, ctx,
+                      &tile_start);
+      ts.empty_tile = tile_start.valid && tile_start.empty;
+    }
+  }
+  if (ts.empty_tile) {
+    for (int y = tile.y0; y < tile.y1; ++y)
+      for (int x = tile.x0; x < tile.x1; ++x) miss(x, y);
+  } else if (packets_ != nullptr && !ctx.counting) {
     pt.generate(cam, tile.x0, tile.y0, tile.x1, tile.y1);
-    if (beam_k != 0) pt.coarse_pass(tile.x0, tile.y0, tile.x1, tile.y1, beam_k, coarse_pass);
+    if (frustum_k != 0) {
+      // Per K x K block: the finer cubes within the tile's (packet starts).
+      pt.coarse_pass(tile.x0, tile.y0, tile.x1, tile.y1, frustum_k,
+                     [&](int bx, int by, BeamStart* start) {
+                       const int bx1 = std::min(bx + frustum_k, tile.x1),
+                                 by1 = std::min(by + frustum_k, tile.y1);
+                       const int octant = ray_octant(cam.ray((bx + bx1) / 2, (by + by1) / 2).dir);
+                       q.frustum_start(detail::block_beam(cam, bx, by, bx1, by1, lod), octant, ctx,
+                                       start, &tile_start);
+                     });
+    } else if (beam_k != 0) {
+      pt.coarse_pass(tile.x0, tile.y0, tile.x1, tile.y1, beam_k, coarse_pass);
+    }
     const size_t n = pt.order.size();
     packets_->trace_packets(pt.rays.data(), n, lod, ctx, pt.hits.data(), pt.found.data(), isa_,
                             pt.beam_list());
@@ -281,6 +310,7 @@ void SurfaceIntegrator::end_frame(const Structure&, const FrameView&, Film& film
     stats_.counters += t.counters;
     stats_.coarse_counters += t.coarse_counters;
     stats_.beams += t.beams;
+    stats_.empty_tiles += t.empty_tile ? 1 : 0;
     stats_.effect_counters += t.effects;
   }
   if (options_.filter) {  // esvo §6.3 post-process filter, timed on its own
