@@ -17,6 +17,7 @@
 #include <filesystem>
 #include <map>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <random>
 #include <string>
 #include <vector>
@@ -27,6 +28,8 @@
 #include "support/test_data.hpp"
 #include "voxcast/brickmap.hpp"
 #include "voxcast/brickmap_file.hpp"
+#include "voxcast/brickmap_stream.hpp"
+#include "voxcast/effects.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
 #include "voxcast/esvo_structure.hpp"
@@ -947,6 +950,183 @@ TEST(BrickmapCli, BenchPrintsEditThroughputRows) {
   EXPECT_EQ(voxels[1], voxels[0]);
   EXPECT_EQ(bricks[1], bricks[0]);
   EXPECT_GT(voxels[2], voxels[1]) << "the added ball is solid, the surface it replaced is not";
+  // The chunk decode row: a positive rate, every source brick decoded.
+  const size_t row = b.output.find("brickmap chunk decode");
+  ASSERT_NE(row, std::string::npos) << b.output;
+  const size_t ms = b.output.find(" ms ", row);
+  ASSERT_NE(ms, std::string::npos) << b.output.substr(row, 300);
+  double gbs = 0;
+  unsigned long long decoded = 0, source = 0;
+  ASSERT_EQ(std::sscanf(b.output.c_str() + ms, " ms %lf GB/s, %llu bricks decoded of %llu", &gbs,
+                        &decoded, &source),
+            3)
+      << b.output.substr(row, 300);
+  EXPECT_GT(gbs, 0.0);
+  EXPECT_GT(source, 10u);
+  EXPECT_EQ(decoded, source);
+  EXPECT_NE(b.output.find("(masks equal the source's)", ms), std::string::npos)
+      << b.output.substr(row, 300);
+}
+
+TEST(BrickmapCli, BenchJsonHoldsTheChunkDecodeRate) {
+  testing::TempDir dir;
+  const std::string mesh = testing::test_mesh("spot.obj").string();
+  const testing::CliResult b = testing::run_cli(
+      "bench '" + mesh +
+      "' --resolution 64 --size 16x12 --repeat 1 --brickmap --beam 0 --threads 1 -q --json '" +
+      dir.file("b.json") + "'");
+  ASSERT_EQ(b.exit_code, 0) << b.output;
+  const nlohmann::json j = nlohmann::json::parse(testing::read_text(dir.file("b.json")));
+  bool found = false;
+  for (const nlohmann::json& run : j.at("runs")) {
+    if (!run.contains("brickmap_chunk_decode")) continue;
+    const nlohmann::json& d = run.at("brickmap_chunk_decode");
+    found = true;
+    EXPECT_GT(d.at("gb_per_s").get<double>(), 0.0);
+    EXPECT_GT(d.at("raw_bytes").get<uint64_t>(), d.at("compressed_bytes").get<uint64_t>());
+    EXPECT_GT(d.at("source_bricks").get<uint64_t>(), 10u);
+    EXPECT_EQ(d.at("decoded_bricks"), d.at("source_bricks"));
+    EXPECT_TRUE(d.at("bricks_equal").get<bool>());
+  }
+  EXPECT_TRUE(found) << b.output;
+}
+
+TEST(Brickmap, ChunkDecodeMeasuresEveryBrick) {
+  const World w = build_world(testing::make_sphere_shell(6));
+  uint64_t bricks = 0;
+  for (uint64_t c = 0; c < w.cells().size(); ++c) bricks += w.cell(c) != 0;
+  ASSERT_GT(bricks, 0u);
+  const ChunkDecodeRate d = measure_chunk_decode(w, 2);
+  EXPECT_EQ(d.source_bricks, bricks);
+  EXPECT_EQ(d.decoded_bricks, bricks);
+  EXPECT_EQ(d.decoded_hash, d.source_hash);
+  EXPECT_GT(d.chunks, 0u);
+  EXPECT_GT(d.raw_bytes, bricks * 64);
+  EXPECT_GT(d.seconds, 0.0);
+  EXPECT_GT(d.bytes_per_second(), 0.0);
+}
+
+// ---- The any-hit path of occlusion rays (BrickmapStructure::transmittance) ----
+
+// The brickmap world answering occlusion through SurfaceQuery's default
+// transmittance() (trace()): the reference of the any-hit path.
+class TraceOccluder final : public Structure, public SurfaceQuery {
+ public:
+  explicit TraceOccluder(const BrickmapStructure& s) : s_(s) {}
+  std::string name() const override { return "brickmap trace"; }
+  Aabb bounds() const override { return s_.bounds(); }
+  const SurfaceQuery* surface() const override { return this; }
+  bool trace(const Ray& ray, const LodFootprint& lod, TraceContext& ctx, SurfaceHit* hit,
+             const BeamStart* beam = nullptr) const override {
+    return s_.trace(ray, lod, ctx, hit, beam);
+  }
+  void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
+                  Vec3* normal) const override {
+    s_.attributes(hit, ctx, color, normal);
+  }
+
+ private:
+  const BrickmapStructure& s_;
+};
+
+TEST(BrickmapAnyHit, OcclusionEqualsTraceOnRandomRays) {
+  const Mesh mesh = load_mesh(testing::test_mesh("spot.obj"));
+  const VoxelSet set = voxelize(mesh, GridTransform::fit(mesh.bounds(), 64), {});
+  const BrickmapStructure s(std::make_shared<World>(build_world(set)));
+  const Aabb b = s.bounds();
+  const Vec3 ext = b.extent();
+  const float voxel = float(s.world().grid().voxel_size);
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> u(0.f, 1.f);
+  const auto unit = [&] {
+    Vec3 d;
+    do d = Vec3{u(rng) * 2 - 1, u(rng) * 2 - 1, u(rng) * 2 - 1};
+    while (length(d) < 0.1f);
+    return normalize(d);
+  };
+  // Solid voxel centers: rays that start inside solid.
+  std::vector<Vec3> solid;
+  {
+    TraceContext ctx;
+    for (int i = 0; i < 4000 && solid.size() < 500; ++i) {
+      Ray r{b.lo + Vec3{u(rng) * ext.x, u(rng) * ext.y, u(rng) * ext.z}, unit()};
+      SurfaceHit h;
+      if (s.trace(r, {}, ctx, &h)) solid.push_back(h.position);
+    }
+  }
+  ASSERT_GT(solid.size(), 100u);
+  TraceContext ctx;
+  size_t occluded = 0, open = 0, kinds[5] = {};
+  for (int i = 0; i < 40000; ++i) {
+    const int kind = i % 5;
+    Ray r;
+    r.origin = b.lo + Vec3{u(rng) * ext.x, u(rng) * ext.y, u(rng) * ext.z} * 1.4f - ext * 0.2f;
+    r.dir = unit();
+    r.tmax = INFINITY;
+    if (kind == 1) {
+      r.origin = solid[size_t(i) % solid.size()];  // inside a solid voxel
+      r.tmax = u(rng) < 0.5f ? voxel * u(rng) : INFINITY;
+    } else if (kind == 2) {
+      // Grazing: along an axis, on a voxel plane of the grid.
+      const int a = i % 3;
+      r.dir = Vec3{0, 0, 0};
+      r.dir[a] = u(rng) < 0.5f ? 1.f : -1.f;
+      const int other = (a + 1) % 3;
+      r.origin = solid[size_t(i) % solid.size()] - r.dir * (ext[a] * 2);
+      const float g0 = float(s.world().grid().origin[other]);
+      r.origin[other] = g0 + std::round((r.origin[other] - g0) / voxel) * voxel;
+    } else if (kind == 3) {
+      // tmax ending inside a brick near the first hit.
+      SurfaceHit h;
+      if (s.trace(r, {}, ctx, &h)) r.tmax = h.t + voxel * (u(rng) * 16 - 8);
+    } else if (kind == 4) {
+      r.tmax = length(ext) * u(rng) * 0.3f;  // short AO-like rays
+    }
+    SurfaceHit h;
+    const bool want = s.trace(r, {}, ctx, &h);
+    const bool got = s.occluded(r, {}, ctx);
+    ASSERT_EQ(got, want) << "ray " << i << " kind " << kind;
+    // With an LOD footprint the walk may stop early the same way.
+    const LodFootprint lod{voxel * 0.5f, 0.004f};
+    ASSERT_EQ(s.occluded(r, lod, ctx), s.trace(r, lod, ctx, &h)) << "ray " << i;
+    (want ? occluded : open) += 1;
+    kinds[kind] += want;
+  }
+  EXPECT_GT(occluded, 4000u);
+  EXPECT_GT(open, 4000u);
+  for (size_t k : kinds) EXPECT_GT(k, 0u);
+}
+
+TEST(BrickmapAnyHit, ShadowAndAoRendersAreByteIdentical) {
+  const Mesh mesh = load_mesh(testing::test_mesh("spot.obj"));
+  const VoxelSet set = voxelize(mesh, GridTransform::fit(mesh.bounds(), 128), {});
+  const BrickmapStructure s(std::make_shared<World>(build_world(set)));
+  const TraceOccluder reference(s);
+  RenderOptions o;
+  o.width = 96, o.height = 72;
+  o.lod_pixels = 0;
+  o.camera = Camera::orbit(mesh.bounds(), o.width, o.height, 30.f, 35.f);
+  for (const bool packets : {true, false}) {
+    o.effects.shadows = ShadowMode::Hard;
+    o.effects.ao_rays = 16;
+    o.effects.packets = packets;
+    const RenderResult got = render(s, o), want = render(reference, o);
+    ASSERT_EQ(got.shadow.pixels.size(), want.shadow.pixels.size());
+    EXPECT_EQ(std::memcmp(got.shadow.pixels.data(), want.shadow.pixels.data(),
+                          got.shadow.pixels.size() * sizeof(float)),
+              0);
+    EXPECT_EQ(std::memcmp(got.ao.pixels.data(), want.ao.pixels.data(),
+                          got.ao.pixels.size() * sizeof(float)),
+              0);
+    EXPECT_EQ(std::memcmp(got.color.pixels.data(), want.color.pixels.data(),
+                          got.color.pixels.size() * sizeof(float)),
+              0);
+    float lit = 0, occ = 0;
+    for (float v : got.shadow.pixels) lit += v < 1.f;
+    for (float v : got.ao.pixels) occ += v < 1.f;
+    EXPECT_GT(lit, 10.f) << "some pixels in shadow";
+    EXPECT_GT(occ, 50.f) << "some pixels occluded";
+  }
 }
 
 }  // namespace

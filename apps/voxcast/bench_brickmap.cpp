@@ -1,9 +1,12 @@
 #include "bench_brickmap.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <nlohmann/json.hpp>
 
 #include "voxcast/brickmap.hpp"
+#include "voxcast/brickmap_stream.hpp"
 #include "voxcast/trace_context.hpp"
 
 namespace voxcast::cli {
@@ -39,6 +42,28 @@ void print_brickmap_edit_rows(const Structure& st, const Ray& probe) {
                 row.name, (unsigned long long)e.voxels, e.cells.size(), s * 1e3,
                 s > 0 ? double(e.voxels) / s : 0.0, s > 0 ? double(e.cells.size()) / s : 0.0);
   }
+}
+
+void print_brickmap_decode_row(const Structure& st, int rounds, nlohmann::json* json) {
+  const auto* bm = dynamic_cast<const brickmap::BrickmapStructure*>(&st);
+  if (bm == nullptr) return;
+  const brickmap::ChunkDecodeRate d = brickmap::measure_chunk_decode(bm->world(), rounds);
+  const bool same = d.decoded_bricks == d.source_bricks && d.decoded_hash == d.source_hash;
+  std::printf(
+      "brickmap chunk decode (checksum + LZ4 + brick index, 1 thread, best of %d): %llu chunks, "
+      "%.1f MB raw from %.1f MB LZ4, %9.3f ms %8.3f GB/s, %llu bricks decoded of %llu (%s)\n",
+      std::max(rounds, 1), (unsigned long long)d.chunks, double(d.raw_bytes) * 1e-6,
+      double(d.compressed_bytes) * 1e-6, d.seconds * 1e3, d.bytes_per_second() * 1e-9,
+      (unsigned long long)d.decoded_bricks, (unsigned long long)d.source_bricks,
+      same ? "masks equal the source's" : "MISMATCH");
+  *json = {{"chunks", d.chunks},
+           {"raw_bytes", d.raw_bytes},
+           {"compressed_bytes", d.compressed_bytes},
+           {"seconds", d.seconds},
+           {"gb_per_s", d.bytes_per_second() * 1e-9},
+           {"source_bricks", d.source_bricks},
+           {"decoded_bricks", d.decoded_bricks},
+           {"bricks_equal", same}};
 }
 
 }  // namespace voxcast::cli

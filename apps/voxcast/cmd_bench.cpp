@@ -294,6 +294,17 @@ Timed occluded_all(const SurfaceQuery& s, const std::vector<Ray>& rays, std::vec
   });
 }
 
+// The same answers through trace() (SurfaceQuery's default transmittance):
+// the baseline of a structure's own any-hit path.
+Timed occluded_all_trace(const SurfaceQuery& s, const std::vector<Ray>& rays,
+                         std::vector<uint8_t>* occ) {
+  return occluded_frame(rays, occ, [&](size_t b, size_t e, uint8_t* o) {
+    TraceContext ctx;
+    SurfaceHit hit;
+    for (size_t i = b; i < e; ++i) o[i] = s.trace(rays[i], LodFootprint{}, ctx, &hit);
+  });
+}
+
 // The packet caster's occluded_packets: each chunk as one queue.
 Timed occluded_all_packets(const SurfacePackets& s, const std::vector<Ray>& rays,
                            std::vector<uint8_t>* occ) {
@@ -928,9 +939,13 @@ Runner add_bench(CLI::App& app) {
                     format_bytes(double(memory_of(structures[i]))).c_str());
       std::printf("ratio voxcast/embree: %.3f\n", best_voxcast / fastest[0]);
       if (size_index == 0)
-        for (size_t i = 1; i < structures.size(); ++i)
+        for (size_t i = 1; i < structures.size(); ++i) {
           print_brickmap_edit_rows(*structures[i].structure,
                                    CameraRays(camera, width, height).ray(width / 2, height / 2));
+          nlohmann::json decode;
+          print_brickmap_decode_row(*structures[i].structure, args->repeat, &decode);
+          if (!decode.is_null()) run["brickmap_chunk_decode"] = decode;
+        }
 
       run["coverage"] = cov;
       run["agreement"] = {{"hit_miss", double(agree) / rays},
@@ -1108,6 +1123,21 @@ Runner add_bench(CLI::App& app) {
                             {},
                             {}});
           }
+          // The brickmap world's any-hit path (issue 11) against trace(),
+          // same rays, interleaved with the rows above.
+          std::vector<std::pair<size_t, size_t>> trace_rows;  // (row, structure)
+          for (size_t k = 0; k < structures.size(); ++k) {
+            if (structures[k].format->name != "brickmap") continue;
+            trace_rows.push_back({rows.size(), k});
+            rows.push_back({structures[k].caster + " trace",
+                            "first hit (trace), the any-hit path's baseline",
+                            false,
+                            [&, k, i = rows.size()] {
+                              return occluded_all_trace(*structures[k].query, rs, &rows[i].answers);
+                            },
+                            {},
+                            {}});
+          }
           const std::string occ_how = std::string("occluded_packets ") + isa_name(active_isa()) +
                                       " x" + std::to_string(packet_width(active_isa()));
           for (size_t k = 0; k < structures.size(); ++k) {
@@ -1229,20 +1259,29 @@ Runner add_bench(CLI::App& app) {
             agree += all;
             packet_same += packets;
           }
-          // Each any-hit packet row against its structure's scalar caster.
-          size_t anyhit_same = 0;
-          for (size_t i = 0; i < rs.size(); ++i) {
-            bool same = true;
-            for (const auto& [row, k] : anyhit_rows)
-              same &= rows[row].answers[i] == rows[scalar_row[k]].answers[i];
-            anyhit_same += same;
-          }
+          // Rays on which each (row, structure) answers as the structure's
+          // scalar caster: the any-hit packet rows, the brickmap trace rows.
+          const auto same_as_scalar = [&](const std::vector<std::pair<size_t, size_t>>& pairs) {
+            size_t n = 0;
+            for (size_t i = 0; i < rs.size(); ++i) {
+              bool same = true;
+              for (const auto& [row, k] : pairs)
+                same &= rows[row].answers[i] == rows[scalar_row[k]].answers[i];
+              n += same;
+            }
+            return n;
+          };
+          const size_t anyhit_same = same_as_scalar(anyhit_rows);
+          const size_t trace_same = same_as_scalar(trace_rows);
           const double nrs = double(std::max<size_t>(rs.size(), 1));
           std::printf(
               "  %s on %.3f%% of the rays, packet == scalar on %.3f%%, any-hit packets == scalar "
               "on %.3f%%\n",
               names.c_str(), 100.0 * double(agree) / nrs, 100.0 * double(packet_same) / nrs,
               100.0 * double(anyhit_same) / nrs);
+          if (!trace_rows.empty())
+            std::printf("  brickmap any hit == trace on %.3f%%\n",
+                        100.0 * double(trace_same) / nrs);
           nlohmann::json deep_json;
           if (ao_groups) {
             for (size_t k = 0; k < structures.size(); ++k) {
@@ -1268,6 +1307,7 @@ Runner add_bench(CLI::App& app) {
                                  {"structures_agree", agree},
                                  {"packet_equals_scalar", packet_same},
                                  {"anyhit_equals_scalar", anyhit_same},
+                                 {"brickmap_anyhit_equals_trace", trace_same},
                                  {"deep_start", deep_json},
                                  {"casters", kj}};
         }

@@ -382,6 +382,11 @@ class BrickmapStructure final : public Structure, public SurfaceQuery {
   const SurfaceQuery* surface() const override { return this; }
   bool trace(const Ray& ray, const LodFootprint& lod, TraceContext& ctx, SurfaceHit* hit,
              const BeamStart* beam = nullptr) const override;
+  /// The any-hit query of shadow and AO rays: 0 when trace() would find a
+  /// hit, else 1, by the same walk without recording the hit (no hit
+  /// position, voxel reference or face), the same requests and brick use.
+  float transmittance(const Ray& ray, const LodFootprint& lod, TraceContext& ctx,
+                      const BeamStart* beam = nullptr) const override;
   void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
                   Vec3* normal) const override;
   const World& world() const { return *world_; }
@@ -402,6 +407,10 @@ class BrickmapView : public Structure, public SurfaceQuery {
   bool trace(const Ray& ray, const LodFootprint& lod, TraceContext& ctx, SurfaceHit* hit,
              const BeamStart* beam = nullptr) const override {
     return query_->trace(ray, lod, ctx, hit, beam);
+  }
+  float transmittance(const Ray& ray, const LodFootprint& lod, TraceContext& ctx,
+                      const BeamStart* beam = nullptr) const override {
+    return query_->transmittance(ray, lod, ctx, beam);
   }
   void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
                   Vec3* normal) const override {

@@ -71,6 +71,24 @@ struct StreamStats {
   std::vector<ChunkFailure> refused;  // chunks that failed their checksum or decoding
 };
 
+/// Chunk decode throughput (`voxcast bench --brickmap`): the world's
+/// chunks stored in memory as the scene writer stores them (raw bytes, LZ4,
+/// xxh64), then decoded by the streamer's decode (checksum, LZ4, brick
+/// index; not the file read), single-threaded, the best of `rounds` passes.
+/// The hashes cover every brick's mask with its cell, in chunk order: the
+/// decoded bricks equal the source bricks when count and hash agree.
+/// Every non-empty cell of `w` must be resident.
+struct ChunkDecodeRate {
+  uint64_t chunks = 0;            // non-empty chunks
+  uint64_t raw_bytes = 0;         // decoded bytes per pass
+  uint64_t compressed_bytes = 0;  // their LZ4 blocks
+  double seconds = 0;             // the best pass's decode time
+  uint64_t source_bricks = 0, decoded_bricks = 0;
+  uint64_t source_hash = 0, decoded_hash = 0;
+  double bytes_per_second() const { return seconds > 0 ? double(raw_bytes) / seconds : 0.0; }
+};
+ChunkDecodeRate measure_chunk_decode(const World& w, int rounds = 5);
+
 class StreamingWorld final : public BrickmapView {
  public:
   /// Throws voxcast::Error for a file that is not a valid brickmap world (a

@@ -20,6 +20,37 @@ constexpr uint32_t kHeaderSection = fourcc("BMGH");
 constexpr uint32_t kTableSection = fourcc("BMCT");
 constexpr uint32_t kChunkSection = fourcc("BMCK");
 constexpr size_t kTablePrefix = 8, kEntryBytes = 24;
+
+// A chunk's LZ4 block of the file checked against its xxh64 and decoded to
+// its `rs` raw bytes (the streamer's decode; measure_chunk_decode times it).
+std::vector<uint8_t> decode_chunk_block(const uint8_t* z, size_t zs, size_t rs, uint64_t xxh,
+                                        const std::string& name) {
+  if (XXH64(z, zs, 0) != xxh) corrupt(name + " checksum mismatch");
+  return decompress(z, zs, rs, name);
+}
+
+// The offset in `raw` of each present cell's brick (header cell non-zero),
+// per position in the chunk (UINT32_MAX: none), validated as the loader does.
+void index_chunk_bricks(const World& w, const ChunkGrid& cg, uint64_t index,
+                        const std::vector<uint32_t>& header, const std::vector<uint8_t>& raw,
+                        std::vector<uint32_t>* offsets, const std::string& name) {
+  offsets->assign(kChunkCells, UINT32_MAX);
+  size_t at = 0;
+  const size_t per = w.has_normals() ? 8 : 4;
+  for_chunk_cells(w, cg, index, [&](uint64_t ci, uint32_t pos) {
+    if (header[ci] == 0) return;
+    if (raw.size() - at < 64) corrupt(name + " ends inside a brick mask");
+    uint64_t mask[8];
+    std::memcpy(mask, &raw[at], 64);
+    size_t count = 0;
+    for (uint64_t m : mask) count += size_t(std::popcount(m));
+    if (count == 0 || raw.size() - at - 64 < count * per)
+      corrupt(name + " holds a brick that is empty or cut short");
+    (*offsets)[pos] = uint32_t(at);
+    at += 64 + count * per;
+  });
+  if (at != raw.size()) corrupt(name + " has bytes after its last brick");
+}
 }  // namespace
 
 // A decoded chunk: its raw bytes and where each present cell's brick starts.
@@ -131,27 +162,10 @@ const StreamingWorld::Chunk* StreamingWorld::chunk(uint64_t index) {
       if (!in.read(reinterpret_cast<char*>(z.data()), std::streamsize(zs)))
         throw Error(name + " cannot be read from the file");
       t0 = std::chrono::steady_clock::now();
-      if (XXH64(z.data(), z.size(), 0) != load_le<uint64_t>(&table_[e + 16]))
-        corrupt(name + " checksum mismatch");
-      c->raw = decompress(z.data(), z.size(), size_t(rs), name);
+      c->raw = decode_chunk_block(z.data(), z.size(), size_t(rs),
+                                  load_le<uint64_t>(&table_[e + 16]), name);
     }
-    c->at.assign(kChunkCells, UINT32_MAX);
-    // The offsets of the bricks, validated as the loader does.
-    size_t at = 0;
-    const size_t per = world_->has_normals() ? 8 : 4;
-    for_chunk_cells(*world_, cg, index, [&](uint64_t ci, uint32_t pos) {
-      if (header_[ci] == 0) return;
-      if (c->raw.size() - at < 64) corrupt(name + " ends inside a brick mask");
-      uint64_t mask[8];
-      std::memcpy(mask, &c->raw[at], 64);
-      size_t count = 0;
-      for (uint64_t m : mask) count += size_t(std::popcount(m));
-      if (count == 0 || c->raw.size() - at - 64 < count * per)
-        corrupt(name + " holds a brick that is empty or cut short");
-      c->at[pos] = uint32_t(at);
-      at += 64 + count * per;
-    });
-    if (at != c->raw.size()) corrupt(name + " has bytes after its last brick");
+    index_chunk_bricks(*world_, cg, index, header_, c->raw, &c->at, name);
     stats_.decode_seconds +=
         std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     stats_.decoded_bytes += c->raw.size();
@@ -335,6 +349,61 @@ PassOutcome StreamingWorld::end_pass(std::span<const Request> requests) {
   }
   out.pending = want.size() - out.served;
   out.changed = out.served > 0;
+  return out;
+}
+
+ChunkDecodeRate measure_chunk_decode(const World& w, int rounds) {
+  const ChunkGrid cg = chunk_grid(w.dims());
+  // The chunks as the writer stores them (format.cpp): raw bytes, LZ4, xxh64.
+  struct Stored {
+    uint64_t index;
+    std::vector<uint8_t> z;
+    size_t raw;
+    uint64_t xxh;
+  };
+  std::vector<Stored> stored;
+  ChunkDecodeRate out;
+  std::vector<uint8_t> raw;
+  for (uint64_t index = 0; index < cg.count(); ++index) {
+    encode_chunk(w, cg, index, &raw);
+    if (raw.empty()) continue;
+    Stored s{index, compress(raw.data(), raw.size()), raw.size(), 0};
+    s.xxh = XXH64(s.z.data(), s.z.size(), 0);
+    out.compressed_bytes += s.z.size();
+    stored.push_back(std::move(s));
+  }
+  out.chunks = stored.size();
+  // The source bricks, cell order within each chunk (for_chunk_cells).
+  for (const Stored& s : stored)
+    for_chunk_cells(w, cg, s.index, [&](uint64_t ci, uint32_t) {
+      const uint32_t cell = w.cell(ci);
+      if (cell == 0) return;
+      const Brick& b = w.brick(cell_brick(cell));
+      ++out.source_bricks;
+      out.source_hash = XXH64(b.mask, 64, out.source_hash ^ ci);
+    });
+  const std::vector<uint32_t>& header = w.cells();
+  std::vector<uint32_t> offsets;
+  for (int round = 0; round < std::max(rounds, 1); ++round) {
+    uint64_t bytes = 0, bricks = 0, hash = 0;
+    double sec = 0;
+    for (const Stored& s : stored) {
+      const std::string name = "BMCK " + chunk_name(cg, s.index);
+      const auto t0 = std::chrono::steady_clock::now();
+      const std::vector<uint8_t> r = decode_chunk_block(s.z.data(), s.z.size(), s.raw, s.xxh, name);
+      index_chunk_bricks(w, cg, s.index, header, r, &offsets, name);
+      sec += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      bytes += r.size();
+      // Untimed: the decoded masks' hash, to compare with the source's.
+      for_chunk_cells(w, cg, s.index, [&](uint64_t ci, uint32_t pos) {
+        if (offsets[pos] == UINT32_MAX) return;
+        ++bricks;
+        hash = XXH64(&r[offsets[pos]], 64, hash ^ ci);
+      });
+    }
+    if (round == 0 || sec < out.seconds) out.seconds = sec;
+    out.raw_bytes = bytes, out.decoded_bricks = bricks, out.decoded_hash = hash;
+  }
   return out;
 }
 

@@ -105,8 +105,10 @@ enum class Step { Hit, Exit, Done };
 // pyramid levels (ratio 2; one level at a time while the footprint may stop
 // there, else straight to the brickgrid from two levels above it), the
 // brickgrid, the cubes inside a brick and the voxels. Every level is a DDA of
-// the same kind over the children of one cube of the level above.
-template <bool kCount>
+// the same kind over the children of one cube of the level above. kAny
+// (the any-hit walk of transmittance()): the same steps and decisions, so
+// the same hit / miss answer, without recording the hit (Found untouched).
+template <bool kCount, bool kAny>
 struct Walker {
   const World& w;
   const GridRay& r;
@@ -154,6 +156,7 @@ struct Walker {
 
   // An occupied cube the walk stops at: a voxel, or an LOD answer.
   void stop(int level, const int c[3], uint32_t cell, const PyramidNode* node) {
+    if constexpr (kAny) return;
     uint64_t ref;
     if (level == L) {
       ref = uint64_t(cell_brick(cell)) << 9 |
@@ -250,7 +253,8 @@ struct Walker {
       const uint32_t bit =
           voxel_bit(uint32_t(k.c[0] & 7), uint32_t(k.c[1] & 7), uint32_t(k.c[2] & 7));
       if (test_voxel(b, bit)) {
-        *f = {t, face, L, {k.c[0], k.c[1], k.c[2]}, uint64_t(brick_index) << 9 | bit};
+        if constexpr (!kAny)
+          *f = {t, face, L, {k.c[0], k.c[1], k.c[2]}, uint64_t(brick_index) << 9 | bit};
         return Step::Hit;
       }
     } while (advance(k, &ax, &end));
@@ -368,8 +372,8 @@ struct Walker {
   }
 };
 
-// The walk; true with `f` filled on a hit within [0, tmax].
-template <bool kCount>
+// The walk; true with `f` filled (unless kAny) on a hit within [0, tmax].
+template <bool kCount, bool kAny = false>
 bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod, TraceContext& ctx,
           uint32_t* seen, Found* f) {
   const GridTransform& g = w.grid();
@@ -391,7 +395,7 @@ bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod,
     face = face_of(r, argmin3(ad));
   }
   const bool lod_on = lod.size_at_origin > 0.f || lod.size_per_t > 0.f;
-  Walker<kCount> wk{
+  Walker<kCount, kAny> wk{
       w,      r,    lod, ctx,  t1, g.levels, g.levels - kBrickLog2, float(g.voxel_size),
       lod_on, seen, t0,  face, f};
   const int root[3] = {0, 0, 0};
@@ -461,6 +465,18 @@ bool BrickmapStructure::trace(const Ray& ray, const LodFootprint& lod, TraceCont
     hit->position[a] = std::fmax(std::fmin(p[a], hi_f), lo_f);
   }
   return true;
+}
+
+float BrickmapStructure::transmittance(const Ray& ray, const LodFootprint& lod, TraceContext& ctx,
+                                       const BeamStart* beam) const {
+  (void)beam;
+  GridRay r;
+  if (!to_grid(world_->grid(), ray, &r)) return 1.f;
+  Found f;
+  uint32_t* seen = seen_ ? seen_->data() : nullptr;
+  const bool found = ctx.counting ? walk<true, true>(*world_, r, ray.tmax, lod, ctx, seen, &f)
+                                  : walk<false, true>(*world_, r, ray.tmax, lod, ctx, seen, &f);
+  return found ? 0.f : 1.f;
 }
 
 void BrickmapStructure::attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
