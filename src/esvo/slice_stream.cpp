@@ -518,7 +518,8 @@ struct StreamedEsvo::Impl {
       stack.pop_back();
       const Block& b = *blocks[it.id >> kLocalBits];
       const StreamNode& d = b.nodes[it.id & kLocalMask];
-      t.add(d.masks, it.level, it.code, &b.attrs[size_t(d.attr) * 2], &b.contours[d.contour]);
+      t.add(d.masks, it.level, it.code, b.attrs.data() + size_t(d.attr) * 2,
+            b.contours.data() + d.contour);
       where.push_back(it.id);
       after(t);
       const uint32_t sub = subdivided(d.masks);
@@ -673,10 +674,14 @@ struct StreamedEsvo::Impl {
         r[2] += uint32_t(std::popcount(subdivided(n.masks)));
       }
       b.nodes[local] = d;
-      std::copy_n(&t.attrs[size_t(n.attr) * 2], 2 * std::popcount(sl::SliceValid::get(n.masks)),
-                  &b.attrs[size_t(d.attr) * 2]);
-      std::copy_n(&t.contours[n.contour], std::popcount(sl::SliceContourMask::get(n.masks)),
-                  &b.contours[d.contour]);
+      // data() + offset, not &v[offset]: a scene without contours has empty
+      // contour arrays, and operator[] on an empty vector is undefined even
+      // for a copy of 0 elements (UBSan: reference binding to null pointer).
+      std::copy_n(t.attrs.data() + size_t(n.attr) * 2,
+                  2 * std::popcount(sl::SliceValid::get(n.masks)),
+                  b.attrs.data() + size_t(d.attr) * 2);
+      std::copy_n(t.contours.data() + n.contour, std::popcount(sl::SliceContourMask::get(n.masks)),
+                  b.contours.data() + d.contour);
       const uint32_t sub = subdivided(n.masks);
       for (int c = 0; c < 8; ++c)
         if (sub >> c & 1u)
@@ -1386,9 +1391,9 @@ std::vector<uint32_t> StreamedEsvo::memory_image() const {
     if (!b.trunk) return;
     const StreamNode& d = b.nodes[id & kLocalMask];
     out.insert(out.end(), {uint32_t(level), uint32_t(code), uint32_t(code >> 32), d.masks});
-    const uint32_t* a = &b.attrs[size_t(d.attr) * 2];
+    const uint32_t* a = b.attrs.data() + size_t(d.attr) * 2;
     out.insert(out.end(), a, a + 2 * std::popcount(sl::SliceValid::get(d.masks)));
-    const uint32_t* c = &b.contours[d.contour];
+    const uint32_t* c = b.contours.data() + d.contour;
     out.insert(out.end(), c, c + std::popcount(sl::SliceContourMask::get(d.masks)));
     for (int r = 0; r < std::popcount(subdivided(d.masks)); ++r) {
       const uint32_t l = b.links[d.link + uint32_t(r)];
