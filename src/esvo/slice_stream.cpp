@@ -850,8 +850,8 @@ struct StreamedEsvo::Impl {
     uint32_t links = 0, voxels = 0, contours = 0;
     for (const Tree::Node& x : all_levels.nodes) {
       if (x.level >= n) continue;
-      t.add(x.masks, x.level, x.code, &all_levels.attrs[size_t(x.attr) * 2],
-            &all_levels.contours[x.contour]);
+      t.add(x.masks, x.level, x.code, all_levels.attrs.data() + size_t(x.attr) * 2,
+            all_levels.contours.data() + x.contour);
       links += uint32_t(std::popcount(subdivided(x.masks)));
       voxels += uint32_t(std::popcount(sl::SliceValid::get(x.masks)));
       contours += uint32_t(std::popcount(sl::SliceContourMask::get(x.masks)));
