@@ -14,6 +14,7 @@
 #include <set>
 #include <span>
 #include <thread>
+#include <unordered_map>
 
 #include "core/octree_caster.hpp"
 #include "voxcast/error.hpp"
@@ -603,9 +604,27 @@ struct StreamedEsvo::Impl {
   }
   /// Keeps the trunk dense (its live descriptors in slots 0 .. live-1, so
   /// its chunk count depends only on what is resident): the highest live
-  /// descriptors move into the holes (the one link to each is repointed:
-  /// the trunk is small, it is searched), then the empty chunks at the end go.
+  /// descriptors move into the holes (the one link to each is repointed,
+  /// found in an index of the trunk's links built once per compaction: a
+  /// search of the trunk per move made unloading quadratic in the holes),
+  /// then the empty chunks at the end go.
   void compact_trunk() {
+    std::unordered_map<uint32_t, uint32_t> link_at;  // linked node id -> index in its chunk's links
+    std::unordered_map<uint32_t, uint32_t> link_chunk;  // ... and that chunk's block id
+    auto index_links = [&](uint32_t block_id, uint32_t local) {
+      Block& b = *blocks[block_id];
+      const StreamNode& d = b.nodes[local];
+      for (int r = 0; r < std::popcount(subdivided(d.masks)); ++r) {
+        const uint32_t l = b.links[d.link + uint32_t(r)];
+        if ((l & kAbsent) != 0) continue;
+        link_at[l] = d.link + uint32_t(r);
+        link_chunk[l] = block_id;
+      }
+    };
+    if (!trunk_free.empty() && *trunk_free.begin() < trunk_live)
+      for (uint32_t slot = 0; slot < trunk_chunks.size() * kTrunkSlots; ++slot)
+        if (blocks[trunk_chunks[slot / kTrunkSlots]]->nodes[slot % kTrunkSlots].masks != 0)
+          index_links(trunk_chunks[slot / kTrunkSlots], slot % kTrunkSlots);
     while (!trunk_free.empty() && *trunk_free.begin() < trunk_live) {
       const uint32_t hole = *trunk_free.begin();
       uint32_t top = uint32_t(trunk_chunks.size()) * kTrunkSlots - 1;
@@ -619,7 +638,21 @@ struct StreamedEsvo::Impl {
       std::copy_n(&fb.contours[8 * size_t(f)], 8, &tb.contours[8 * size_t(t)]);
       std::copy_n(&fb.links[8 * size_t(f)], 8, &tb.links[8 * size_t(t)]);
       fb.nodes[f].masks = 0;
-      repoint(from, to);
+      // The one link to it, then its own links' new place.
+      if (source.root == from) {
+        source.root = to;
+      } else {
+        const auto at = link_at.find(from);
+        if (at == link_at.end())
+          throw Error("streamed esvo: trunk descriptor " + std::to_string(from) +
+                      " linked from nowhere");
+        blocks[link_chunk.at(from)]->links[at->second] = to;
+        link_at[to] = at->second;
+        link_chunk[to] = link_chunk.at(from);
+        link_at.erase(from);
+        link_chunk.erase(from);
+      }
+      index_links(to >> kLocalBits, t);
       trunk_free.erase(hole);
       trunk_free.insert(top);
     }
@@ -629,25 +662,6 @@ struct StreamedEsvo::Impl {
       release(trunk_chunks.back());
       trunk_chunks.pop_back();
     }
-  }
-  /// The link to node `from` (the root pointer or a trunk descriptor's: a
-  /// trunk node's parent is in the trunk) now names `to`.
-  void repoint(uint32_t from, uint32_t to) {
-    if (source.root == from) {
-      source.root = to;
-      return;
-    }
-    for (uint32_t slot = 0; slot < trunk_chunks.size() * kTrunkSlots; ++slot) {
-      Block& b = *blocks[trunk_chunks[slot / kTrunkSlots]];
-      const StreamNode& d = b.nodes[slot % kTrunkSlots];
-      if (d.masks == 0) continue;
-      for (int r = 0; r < std::popcount(subdivided(d.masks)); ++r)
-        if (b.links[d.link + uint32_t(r)] == from) {
-          b.links[d.link + uint32_t(r)] = to;
-          return;
-        }
-    }
-    throw Error("streamed esvo: trunk descriptor " + std::to_string(from) + " linked from nowhere");
   }
   uint64_t trunk_chunks_needed(uint64_t slots) const {
     return slots > trunk_free.size() ? (slots - trunk_free.size() + kTrunkSlots - 1) / kTrunkSlots
@@ -1190,7 +1204,9 @@ PassOutcome StreamedEsvo::end_pass(std::span<const Request> requests) {
     // The estimates are exact but for blocks' 16-byte rounding (and, in
     // variable-depth files, voxels a split moves to the trunk): within that,
     // the load is tried and merge's exact check decides.
-    auto slack = [&](size_t victims) { return 16 * (uint64_t(all[i].child_count) + victims + 1); };
+    // (A copy: clang 14 cannot capture a structured binding in a lambda, P1091.)
+    const uint64_t children = all[i].child_count;
+    auto slack = [children](size_t victims) { return 16 * (children + victims + 1); };
     while (budget != 0 && after - freed + need > budget + slack(take.size())) {
       while (scan < leaves.size() && mark[leaves[scan].second] != 0) ++scan;
       if (scan >= leaves.size() || !(leaves[scan].first < score)) break;
