@@ -243,6 +243,86 @@ TEST(EsvoSlices, TopDownBuilderEqualsSlicingTheInCoreBuild) {
   }
 }
 
+// Contours top-down (§7.1): each unbuilt slice carries its region's
+// triangles and ancestor contours; the file equals slicing the in-core
+// contour build, full depth and with the geometric variable depth
+// (--geometry-error, --max-level), at small slices (many levels of slices,
+// splits into more than eight children) and large ones.
+TEST(EsvoSlices, TopDownContoursEqualSlicingTheInCoreBuild) {
+  const Mesh mesh = load_mesh(kMeshes / "stanford-bunny.obj");
+  struct Case {
+    uint32_t resolution;
+    double geometry_error;
+    int max_level;
+    uint64_t slice_bytes;
+    uint32_t cell;  // 0 = from the budget
+  };
+  const Case cases[] = {{64, 0, 0, 2048, 8},
+                        {64, 0.5, 0, 1024, 16},
+                        {128, 1.0, 0, 4096, 0},
+                        {128, 0, 6, 3000, 32},
+                        {128, 0, 0, uint64_t(1) << 20, 0}};
+  for (const Case& cs : cases) {
+    SCOPED_TRACE(std::to_string(cs.resolution) + " geometry error " +
+                 std::to_string(cs.geometry_error) + " max level " + std::to_string(cs.max_level) +
+                 " slice " + std::to_string(cs.slice_bytes) + " cell " + std::to_string(cs.cell));
+    const GridTransform grid = GridTransform::fit(mesh.bounds(), cs.resolution);
+    VoxelizeOptions vo;
+    vo.attributes = true;
+    esvo::BuildOptions o;
+    o.contours = true;
+    o.geometry_error = cs.geometry_error;
+    o.max_level = cs.max_level;
+    const esvo::EsvoOctree octree = esvo::build_octree(voxelize(mesh, grid, vo), mesh, o);
+    ASSERT_TRUE(octree.has_contours());
+    const auto want_path = temp_file("in-core-contours");
+    esvo::SliceOptions so;
+    so.slice_bytes = cs.slice_bytes;
+    esvo::write_slices(octree, want_path, so);
+    const std::vector<uint8_t> want = testing::read_bytes(want_path);
+    const auto want_file = esvo::SliceFile::open(want_path);
+    const size_t want_slices = want_file->slices().size();
+    uint64_t contours = 0;
+    for (const auto& e : want_file->slices()) contours += e.contour_count;
+    EXPECT_GT(contours, 0u);  // the case exercises contours
+    std::filesystem::remove(want_path);
+
+    const auto path = temp_file("top-down-contours");
+    esvo::SliceBuildOptions bo;
+    bo.slice_bytes = cs.slice_bytes;
+    bo.cell_size = cs.cell;
+    bo.contours = true;
+    bo.geometry_error = cs.geometry_error;
+    bo.max_level = cs.max_level;
+    esvo::SliceBuildStats st;
+    esvo::build_slices(mesh, grid, vo, path, bo, &st);
+    const std::vector<uint8_t> got = testing::read_bytes(path);
+    EXPECT_EQ(got.size(), want.size());
+    EXPECT_TRUE(got == want);
+    EXPECT_EQ(st.slices, want_slices);
+    if (cs.slice_bytes < 8192) {
+      EXPECT_GT(st.slices, 8u);
+    }
+    std::filesystem::remove(path);
+  }
+}
+
+TEST(EsvoSlices, TopDownOptionsAreChecked) {
+  const Mesh mesh = load_mesh(kMeshes / "stanford-bunny.obj");
+  const GridTransform grid = GridTransform::fit(mesh.bounds(), 32);
+  const auto path = temp_file("top-down-options");
+  esvo::SliceBuildOptions bo;
+  bo.geometry_error = 1;  // without contours
+  EXPECT_THROW(esvo::build_slices(mesh, grid, {}, path, bo), Error);
+  bo.contours = true;
+  bo.geometry_error = std::nan("");
+  EXPECT_THROW(esvo::build_slices(mesh, grid, {}, path, bo), Error);
+  bo.geometry_error = 0;
+  bo.max_level = 6;  // beyond the grid's 5 levels
+  EXPECT_THROW(esvo::build_slices(mesh, grid, {}, path, bo), Error);
+  EXPECT_FALSE(std::filesystem::exists(path));
+}
+
 TEST(EsvoSlices, CompressedAttributesRefused) {
   const Mesh mesh = load_mesh(kMeshes / "stanford-bunny.obj");
   VoxelizeOptions vo;
@@ -756,6 +836,30 @@ TEST(EsvoSlicesCli, BuildInfoRender) {
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("\"format\": \"esvo-sliced\""), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("\"resident_slices\": 1"), std::string::npos) << r.output;
+  // Contours and the geometric variable depth are built top-down; the image
+  // equals the in-core contour build's. An attribute tolerance (§7.3) is
+  // built in core and then sliced.
+  r = testing::run_cli("build '" + mesh +
+                       "' --resolution 64 --contours --geometry-error 0.5 --slices --slice-size 2K "
+                       "-o '" +
+                       dir.file("g.vxs") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("top-down from"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find(", contours"), std::string::npos) << r.output;
+  r = testing::run_cli("build '" + mesh + "' --resolution 64 --contours --geometry-error 0.5 -o '" +
+                       dir.file("g.vxc") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  for (const char* in : {"g.vxs", "g.vxc"}) {
+    r = testing::run_cli("render '" + dir.file(in) + "' --size 48x40 -o '" +
+                         dir.file(std::string(in) + ".png") + "'");
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+  }
+  EXPECT_EQ(testing::read_bytes(dir.file("g.vxs.png")), testing::read_bytes(dir.file("g.vxc.png")));
+  r = testing::run_cli("build '" + mesh +
+                       "' --resolution 32 --contours --color-error 8 --slices -o '" +
+                       dir.file("h.vxs") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(r.output.find("top-down"), std::string::npos) << r.output;
   // Slice files are written by --slices, not by --format.
   r = testing::run_cli("build '" + mesh + "' --resolution 16 --format esvo-sliced -o '" +
                        dir.file("f.vxc") + "'");

@@ -28,13 +28,17 @@ std::string build_slices_top_down(const BuildSettings& s, uint64_t slice_bytes,
   bo.slice_bytes = slice_bytes;
   bo.memory_budget = s.memory_budget;
   bo.cell_size = s.cell_size;
+  bo.contours = s.contours;
+  bo.max_level = s.max_level;
+  bo.geometry_error = s.geometry_error;
   esvo::SliceBuildStats st;
   esvo::build_slices(mesh, grid, vo, to, bo, &st);
   char line[256];
-  std::snprintf(line, sizeof line, "%llu slices (target %s), %s, top-down from %llu cells of %u^3",
+  std::snprintf(line, sizeof line,
+                "%llu slices (target %s), %s, top-down from %llu cells of %u^3%s",
                 (unsigned long long)st.slices, format_bytes(double(slice_bytes)).c_str(),
                 format_bytes(double(st.file_bytes)).c_str(), (unsigned long long)st.cells,
-                st.cell_size);
+                st.cell_size, s.contours ? ", contours" : "");
   return line;
 }
 

@@ -154,6 +154,14 @@ struct SliceBuildOptions {
   /// Voxels per side of the cells a region is voxelized in (a power of two;
   /// 0 = the largest whose working set per worker fits half the budget).
   uint32_t cell_size = 0;
+  /// Contours (§5.2, §7.2) and the geometric variable depth (§7.1), as
+  /// BuildOptions::contours, max_level and geometry_error: planned top-down,
+  /// each unbuilt slice carrying its region's triangles and ancestor
+  /// contours. (The attribute tolerances of §7.3 compare a voxel with every
+  /// full-depth voxel below it; they are built in core and then sliced.)
+  bool contours = false;
+  int max_level = 0;
+  double geometry_error = 0;
 };
 struct SliceBuildStats {
   uint64_t slices = 0;
@@ -169,8 +177,9 @@ struct SliceBuildStats {
 /// level built in parallel with no dependencies between them, each from the
 /// voxels of its region (voxelized cell by cell) and written when done. The
 /// file equals write_slices(build_octree(voxelize(mesh, grid, voxelize)))
-/// byte for byte (full depth, raw attributes; contours and variable depth
-/// are not built top-down yet). Throws voxcast::Error.
+/// byte for byte (raw attributes), and with `options.contours` the slicing
+/// of build_octree(voxels, mesh, build options) with the same contour
+/// options. Throws voxcast::Error.
 void build_slices(const Mesh& mesh, const GridTransform& grid, const VoxelizeOptions& voxelize,
                   const std::filesystem::path& path, const SliceBuildOptions& options = {},
                   SliceBuildStats* stats = nullptr);

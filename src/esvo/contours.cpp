@@ -722,20 +722,27 @@ class Planner {
     } else if (!leaf && variable_ && !ct.empty()) {
       const bool refine_geometry = o_.geometry_error > 0 && !within(pv, ct, o_.geometry_error);
       // §7.3 on the raw encoding (what a raw build decodes to); skipped when
-      // the geometry already refines.
-      const uint64_t v = t_.value[size_t(cd)][ci];
-      const bool refine_attributes =
-          !refine_geometry && (o_.color_error >= 0 || o_.normal_error >= 0) &&
-          (attr_flags_ != nullptr ? (*attr_flags_)[size_t(cd)][ci] != 0
-                                  : attributes_exceed(t_, cd, ci, uint32_t(v),
-                                                      decode_normal_cube(uint32_t(v >> 32)), o_));
+      // the geometry already refines. The value is read only here: a
+      // geometry-only plan (the slice builder's) has no attribute arrays.
+      bool refine_attributes = false;
+      if (!refine_geometry && (o_.color_error >= 0 || o_.normal_error >= 0)) {
+        if (attr_flags_ != nullptr) {
+          refine_attributes = (*attr_flags_)[size_t(cd)][ci] != 0;
+        } else {
+          const uint64_t v = t_.value[size_t(cd)][ci];
+          refine_attributes =
+              attributes_exceed(t_, cd, ci, uint32_t(v), decode_normal_cube(uint32_t(v >> 32)), o_);
+        }
+      }
       leaf = !refine_geometry && !refine_attributes;
     }
     plan_.leaf[size_t(cd)][ci] = uint8_t(leaf);  // a re-plan (refine()) may clear it
     if (leaf) return;
     if (cd == stop_depth_) {
       // Cell-by-cell build: the cell's own planner continues from here with
-      // exactly what node() below would get.
+      // exactly what node() below would get (the slice builder's sizing
+      // pass keeps none).
+      if (!keep_seeds_) return;
       auto seed = std::make_unique<SubtreeSeed>();
       seed->depth = cd;
       seed->x = cx, seed->y = cy, seed->z = cz;
@@ -781,6 +788,7 @@ class Planner {
  public:
   const ContourPlan& result() const { return plan_; }
   const SubtreeSeed* start_ = nullptr;  // plan only this seed's subtree (a cell)
+  bool keep_seeds_ = true;              // at stop_depth_ (else just stop there)
   std::vector<std::unique_ptr<SubtreeSeed>>& seeds() { return seeds_; }
 };
 
@@ -836,6 +844,23 @@ ContourPlanner::ContourPlanner(const TreeView& tree, std::shared_ptr<const Plann
                                const BuildOptions& options, const SubtreeSeed& seed) {
   p_ = std::make_unique<PlannerState>(PlannerState{Planner(tree, std::move(mesh), options)});
   p_->planner.start_ = &seed;
+}
+
+ContourPlanner::ContourPlanner(const TreeView& tree, std::shared_ptr<const PlannerMesh> mesh,
+                               const BuildOptions& options, const SubtreeSeed& seed, int stop_depth,
+                               bool keep_seeds) {
+  if (stop_depth <= seed.depth) throw std::logic_error("esvo planner: stop above the seed");
+  p_ = std::make_unique<PlannerState>(
+      PlannerState{Planner(tree, std::move(mesh), options, stop_depth, nullptr)});
+  p_->planner.start_ = &seed;
+  p_->planner.keep_seeds_ = keep_seeds;
+}
+
+std::shared_ptr<const SubtreeSeed> root_seed(const PlannerMesh& mesh) {
+  auto s = std::make_shared<SubtreeSeed>();
+  s->tris.resize(mesh.tri.size());
+  std::iota(s->tris.begin(), s->tris.end(), 0u);
+  return s;
 }
 
 std::shared_ptr<const SubtreeSeed> ContourPlanner::take_seed(uint32_t index) {

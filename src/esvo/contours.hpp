@@ -74,6 +74,14 @@ class ContourPlanner {
   /// in-core planner plans below that voxel.
   ContourPlanner(const TreeView& tree, std::shared_ptr<const PlannerMesh> mesh,
                  const BuildOptions& options, const SubtreeSeed& seed);
+  /// Top-down slice build (esvo §7.1, slice_build.cpp): as the cell
+  /// constructor, but plans only down to `stop_depth` (> the seed's depth):
+  /// `tree` holds the seed's subtree to stop_depth - 1 (masks, first
+  /// children; counts to stop_depth). With `keep_seeds` the refined voxels at
+  /// stop_depth keep their seeds (take_seed); without, they are dropped.
+  ContourPlanner(const TreeView& tree, std::shared_ptr<const PlannerMesh> mesh,
+                 const BuildOptions& options, const SubtreeSeed& seed, int stop_depth,
+                 bool keep_seeds);
   /// The seed of refined voxel `index` at stop_depth after plan(), or null
   /// if it is not refined or not reached (below a leaf). Moves it out.
   std::shared_ptr<const SubtreeSeed> take_seed(uint32_t index);
@@ -88,6 +96,10 @@ class ContourPlanner {
   std::unique_ptr<PlannerState> p_;
   bool planned_ = false;
 };
+
+/// The root's seed: the root cube (depth 0) with every triangle and no
+/// ancestor slabs, what the in-core planner starts from.
+std::shared_ptr<const SubtreeSeed> root_seed(const PlannerMesh& mesh);
 
 /// Index at depth L (the full-depth voxels) of the first voxel below node
 /// (depth, index); index == count[depth] gives count[L]. The full-depth

@@ -10,10 +10,23 @@
 // yields the exact sizes of the next level, from which the slice plans its
 // children (slice_plan.hpp) before they are built.
 //
+// Contours and the geometric variable depth (§7.1-7.2): an unbuilt slice
+// also carries the build data the paper lists -- the triangles overlapping
+// its region and the ancestor contours (the planner's SubtreeSeed of the
+// region's voxel). Building it plans the region top-down from that seed
+// (contours.cpp, the in-core planner itself, so a voxel gets exactly the
+// contour and refine decision it gets in core: both depend only on the
+// voxel's ancestors), two levels deep: the contours of the slice's children
+// (level n + 1) and, for the sizes of the next level's records, of theirs
+// (n + 2). Voxels below a voxel planned as a leaf are left out. A second
+// pass down to the child slices' region depth hands each child its seed.
+//
 // Cost: every level streams the voxels of the regions it covers, i.e. the
 // scene is voxelized once per level (the paper passes triangle lists down
-// instead; see README "Slices"). Memory: the mesh, its triangle bins, the
-// directory and per worker one cell's voxels plus one slice.
+// instead; see README "Slices"); with contours every voxel is also planned
+// about twice (as a child and as a grandchild). Memory: the mesh, its
+// triangle bins, the directory, the seeds of the unbuilt slices of one
+// level and per worker one cell's voxels plus one slice.
 #include <fcntl.h>
 #include <tbb/parallel_for.h>
 #include <unistd.h>
@@ -24,10 +37,12 @@
 #include <atomic>
 #include <bit>
 #include <cerrno>
+#include <cmath>
 #include <cstring>
 #include <fstream>
 #include <thread>
 
+#include "esvo/contours.hpp"
 #include "esvo/reduce.hpp"
 #include "esvo/slice_plan.hpp"
 #include "voxcast/error.hpp"
@@ -111,6 +126,10 @@ struct Builder {
   int fd = -1;         // the data file
   std::filesystem::path data_path;
   std::atomic<uint64_t> cells{0}, voxels{0}, max_cell_voxels{0};
+  // With contours: what the in-core planner gets, and its mesh.
+  BuildOptions plan_options;
+  std::shared_ptr<const detail::PlannerMesh> pmesh;  // null: no contours
+  using Seed = std::shared_ptr<const detail::SubtreeSeed>;
 
   /// Voxelizes the aligned cube (depth `depth`, code `code`) with the
   /// triangles of the bins [b0, b1) and streams its voxels into `red`.
@@ -145,10 +164,56 @@ struct Builder {
             size_t(std::lower_bound(bins.begin(), bins.end(), hi, cmp) - bins.begin())};
   }
 
-  /// Builds slice `e` (index i): its data written at `relative` in the data
-  /// file, its counts and hash set, its children (planned from the exact
-  /// next level) returned with their counts and sizes.
-  std::vector<sl::SliceEntry> build(uint32_t i, sl::SliceEntry& e, uint64_t slice_bytes) {
+  /// Slice i's data -- descriptor words, then the children's attributes and
+  /// contours -- written as soon as it is done at the offset its parent's
+  /// plan gave it (relative to the data until the file is assembled); sets
+  /// its counts, size and hash.
+  void write_slice(uint32_t i, sl::SliceEntry& e, std::vector<uint32_t>& words,
+                   const std::vector<uint32_t>& attrs, const std::vector<uint32_t>& contours) {
+    if (words.size() != e.node_count && i != 0)
+      throw Error("slice builder: slice " + std::to_string(i) + " holds " +
+                  std::to_string(words.size()) + " descriptors, its parent planned " +
+                  std::to_string(e.node_count));
+    e.node_count = uint32_t(words.size());
+    e.voxel_count = uint32_t(attrs.size() / 2);
+    e.contour_count = uint32_t(contours.size());
+    words.insert(words.end(), attrs.begin(), attrs.end());
+    words.insert(words.end(), contours.begin(), contours.end());
+    e.data_bytes = uint32_t(words.size() * 4);
+    e.hash = XXH64(words.data(), words.size() * 4, 0);
+    const char* p = reinterpret_cast<const char*>(words.data());
+    for (size_t done = 0; done < e.data_bytes;) {
+      const ssize_t w = ::pwrite(fd, p + done, e.data_bytes - done, off_t(e.data_offset + done));
+      if (w < 0 && errno == EINTR) continue;
+      if (w <= 0) throw Error("slice builder: cannot write '" + data_path.string() + "'");
+      done += size_t(w);
+    }
+  }
+
+  /// The child slices planned from the next level's records `next`, with the
+  /// node counts and sizes the next level will have.
+  static std::vector<sl::SliceEntry> plan_children(const std::vector<detail::PlanNode>& next, int n,
+                                                   int r, uint32_t i, uint64_t slice_bytes) {
+    std::vector<sl::SliceEntry> children;
+    detail::plan_child_slices(next, n, r, i, slice_bytes, &children);
+    for (sl::SliceEntry& c : children) {
+      const int shift = 3 * (n + 1 - c.region_depth);
+      for (const detail::PlanNode& q : next)
+        if ((q.code >> shift) == c.region_code) {
+          ++c.node_count;
+          c.data_bytes += q.bytes;
+        }
+    }
+    return children;
+  }
+
+  /// Builds slice `e` (index i): its data written at its planned offset in
+  /// the data file, its counts and hash set, its children (planned from the
+  /// exact next level) returned with their counts and sizes. With contours
+  /// `seed` is the region's build data and the children's go to `child_seeds`.
+  std::vector<sl::SliceEntry> build(uint32_t i, sl::SliceEntry& e, uint64_t slice_bytes,
+                                    const Seed& seed = nullptr,
+                                    std::vector<Seed>* child_seeds = nullptr) {
     const int L = grid.levels, n = e.node_level, r = e.region_depth;
     Reducer red(L, n + 1);
     if (r >= cell_level) {
@@ -167,6 +232,7 @@ struct Builder {
       }
     }
     red.finish();
+    if (pmesh != nullptr) return build_contoured(i, e, slice_bytes, red.out, seed, child_seeds);
     // The slice: level-n descriptors (the parents of the emitted nodes) and
     // the emitted nodes' attributes.
     const bool finest = n + 1 == L;
@@ -185,36 +251,144 @@ struct Builder {
       words.push_back(sl::SliceValid::put(valid) | sl::SliceLeaf::put(finest ? valid : 0u));
       a = b;
     }
-    if (words.size() != e.node_count && i != 0)
-      throw Error("slice builder: slice " + std::to_string(i) + " holds " +
-                  std::to_string(words.size()) + " descriptors, its parent planned " +
-                  std::to_string(e.node_count));
-    e.node_count = uint32_t(words.size());
-    e.voxel_count = uint32_t(attrs.size() / 2);
-    e.link_count = finest ? 0u : e.voxel_count;
-    e.contour_count = 0;
-    words.insert(words.end(), attrs.begin(), attrs.end());
-    e.data_bytes = uint32_t(words.size() * 4);
-    e.hash = XXH64(words.data(), words.size() * 4, 0);
-    // Written as soon as it is done, at the offset its parent's plan gave it
-    // (e.data_offset is relative to the data until the file is assembled).
-    const char* p = reinterpret_cast<const char*>(words.data());
-    for (size_t done = 0; done < e.data_bytes;) {
-      const ssize_t w = ::pwrite(fd, p + done, e.data_bytes - done, off_t(e.data_offset + done));
-      if (w < 0 && errno == EINTR) continue;
-      if (w <= 0) throw Error("slice builder: cannot write '" + data_path.string() + "'");
-      done += size_t(w);
+    e.link_count = finest ? 0u : uint32_t(attrs.size() / 2);
+    write_slice(i, e, words, attrs, {});
+    return plan_children(next, n, r, i, slice_bytes);
+  }
+
+  /// build() with contours: `out` are the region's voxels of level n + 1.
+  std::vector<sl::SliceEntry> build_contoured(uint32_t i, sl::SliceEntry& e, uint64_t slice_bytes,
+                                              const std::vector<OutNode>& out, const Seed& seed,
+                                              std::vector<Seed>* child_seeds) {
+    const int L = grid.levels, n = e.node_level, r = e.region_depth;
+    if (seed == nullptr || child_seeds == nullptr)
+      throw std::logic_error("slice builder: a contoured slice without its build data");
+    // The region's tree, depths r..n + 1 (index d - r): codes, masks and
+    // first children, rebuilt from the level n + 1 voxels in Morton order.
+    const int D = n + 2 - r;
+    std::vector<std::vector<uint64_t>> code(static_cast<size_t>(D));
+    std::vector<std::vector<uint8_t>> mask(static_cast<size_t>(D));
+    std::vector<std::vector<uint32_t>> first(static_cast<size_t>(D));
+    {
+      auto& c = code[size_t(D) - 1];
+      auto& m = mask[size_t(D) - 1];
+      auto& f = first[size_t(D) - 1];
+      uint64_t below = 0;  // voxels at n + 2
+      for (const OutNode& o : out) {
+        c.push_back(o.code);
+        m.push_back(o.mask);
+        f.push_back(uint32_t(below));
+        below += uint64_t(std::popcount(unsigned(o.mask)));
+      }
+      if (below >= (uint64_t(1) << 32))
+        throw Error("slice builder: more than 2^32 voxels in a slice");
     }
-    // The children, with the sizes the next level will have.
-    std::vector<sl::SliceEntry> children;
-    detail::plan_child_slices(next, n, r, i, slice_bytes, &children);
-    for (sl::SliceEntry& c : children) {
-      const int shift = 3 * (n + 1 - c.region_depth);
-      for (const detail::PlanNode& q : next)
-        if ((q.code >> shift) == c.region_code) {
-          ++c.node_count;
-          c.data_bytes += q.bytes;
+    for (int k = D - 2; k >= 0; --k) {
+      const auto& cc = code[size_t(k) + 1];
+      for (size_t a = 0; a < cc.size(); ++a) {
+        const uint64_t p = cc[a] >> 3;
+        if (code[size_t(k)].empty() || code[size_t(k)].back() != p) {
+          code[size_t(k)].push_back(p);
+          mask[size_t(k)].push_back(0);
+          first[size_t(k)].push_back(uint32_t(a));
         }
+        mask[size_t(k)].back() |= uint8_t(1u << (cc[a] & 7));
+      }
+    }
+    if (code[0].size() != 1 || code[0][0] != e.region_code)
+      throw std::logic_error("slice builder: the region's voxels are not below its cube");
+    detail::TreeView t;
+    t.levels = L;
+    t.mask.assign(size_t(L), nullptr);
+    t.first_child.assign(size_t(L), nullptr);
+    t.count.assign(size_t(L) + 1, 0);
+    t.value.assign(size_t(L) + 1, nullptr);
+    for (int d = r; d <= n + 1; ++d) {
+      const size_t k = size_t(d - r);
+      if (d < L) {
+        t.mask[size_t(d)] = mask[k].data();
+        t.first_child[size_t(d)] = first[k].data();
+      }
+      t.count[size_t(d)] = code[k].size();
+    }
+    if (n + 2 <= L) {
+      uint64_t below = 0;
+      for (const OutNode& o : out) below += uint64_t(std::popcount(unsigned(o.mask)));
+      t.count[size_t(n) + 2] = size_t(below);
+    }
+    // Contours of levels n + 1 and n + 2 and the leaf decisions, as in core.
+    detail::ContourPlanner planner(t, pmesh, plan_options, *seed, n + 2 <= L ? n + 2 : L + 1,
+                                   false);
+    const detail::ContourPlan& plan = planner.plan();
+    auto refined = [&](int d, size_t j) {  // a subdivided voxel (the region's is)
+      return d == r || (d < L && plan.leaf[size_t(d)][j] == 0);
+    };
+    // The voxels the octree keeps: below no leaf.
+    std::vector<std::vector<uint8_t>> kept(static_cast<size_t>(D));
+    kept[0].assign(1, 1);
+    for (int d = r + 1; d <= n + 1; ++d) {
+      const size_t k = size_t(d - r);
+      kept[k].assign(code[k].size(), 0);
+      for (size_t p = 0; p < code[k - 1].size(); ++p) {
+        if (!kept[k - 1][p] || !refined(d - 1, p)) continue;
+        const uint32_t f = first[k - 1][p];
+        for (int c = 0; c < std::popcount(unsigned(mask[k - 1][p])); ++c)
+          kept[k][f + size_t(c)] = 1;
+      }
+    }
+    // The slice: level-n descriptors kept and subdivided, their children's
+    // attributes and contours.
+    const size_t kn = size_t(n - r);
+    std::vector<uint32_t> words, attrs, contours;
+    std::vector<detail::PlanNode> next;
+    for (size_t j = 0; j < code[kn].size(); ++j) {
+      if (!kept[kn][j] || !refined(n, j)) continue;
+      const uint32_t valid = mask[kn][j];
+      uint32_t leaf = 0, cmask = 0;
+      const uint32_t f = first[kn][j];
+      for (int s = 0, q = 0; s < 8; ++s) {
+        if (!(valid >> s & 1)) continue;
+        const size_t c = f + size_t(q++);
+        const bool child_leaf = !refined(n + 1, c);
+        if (child_leaf) leaf |= 1u << s;
+        attrs.push_back(encode_color_abgr(out[c].color));
+        attrs.push_back(encode_normal_cube(out[c].normal));
+        if (const uint32_t v = plan.contour[size_t(n) + 1][c]; v != 0)
+          cmask |= 1u << s, contours.push_back(v);
+        if (!child_leaf) {
+          uint32_t with_contour = 0;
+          const uint32_t g = first[size_t(D) - 1][c];
+          for (int u = 0; u < std::popcount(unsigned(out[c].mask)); ++u)
+            with_contour += plan.contour[size_t(n) + 2][g + size_t(u)] != 0;
+          next.push_back({out[c].code, uint32_t(4 + 8 * std::popcount(unsigned(out[c].mask)) +
+                                                4 * with_contour)});
+        }
+      }
+      words.push_back(sl::SliceValid::put(valid) | sl::SliceLeaf::put(leaf) |
+                      sl::SliceContourMask::put(cmask));
+      e.link_count += uint32_t(std::popcount(valid & ~leaf));
+    }
+    write_slice(i, e, words, attrs, contours);
+    std::vector<sl::SliceEntry> children = plan_children(next, n, r, i, slice_bytes);
+    // The children's build data: the seeds of their region voxels (all at
+    // one depth k), from a second pass that stops there.
+    child_seeds->clear();
+    if (children.empty()) return children;
+    const int k = children[0].region_depth;
+    if (k == r) {  // the region is kept: one child, this seed
+      child_seeds->assign(children.size(), seed);
+      return children;
+    }
+    detail::ContourPlanner seeder(t, pmesh, plan_options, *seed, k, true);
+    (void)seeder.plan();
+    const std::vector<uint64_t>& at_k = code[size_t(k - r)];
+    for (const sl::SliceEntry& c : children) {
+      const auto it = std::lower_bound(at_k.begin(), at_k.end(), c.region_code);
+      Seed s = it != at_k.end() && *it == c.region_code
+                   ? seeder.take_seed(uint32_t(it - at_k.begin()))
+                   : nullptr;
+      if (s == nullptr) throw std::logic_error("slice builder: a child region without its seed");
+      child_seeds->push_back(std::move(s));
     }
     return children;
   }
@@ -228,7 +402,22 @@ void build_slices(const Mesh& mesh, const GridTransform& grid, const VoxelizeOpt
   if (options.slice_bytes < 64) throw Error("slices: the slice size must be at least 64 bytes");
   if (grid.levels < 1 || grid.levels > 20 || grid.resolution != (1u << grid.levels))
     throw Error("slice builder: grid levels outside 1..20");
-  Builder b{mesh, grid, voxelize, {}, {}, 0, 0, -1, {}, {}, {}, {}};
+  if (options.max_level < 0 || options.max_level > grid.levels)
+    throw Error("slice builder: max level " + std::to_string(options.max_level) + " outside 0.." +
+                std::to_string(grid.levels));
+  if (!std::isfinite(options.geometry_error) || options.geometry_error < 0)
+    throw Error("slice builder: the geometry error must be finite and non-negative");
+  if (!options.contours && (options.max_level != 0 || options.geometry_error > 0))
+    throw Error("slice builder: max level and geometry error need contours");
+  Builder b{mesh, grid, voxelize, {}, {}, 0, 0, -1, {}, {}, {}, {}, {}, {}};
+  if (options.contours) {
+    if (mesh.triangle_count() > size_t(UINT32_MAX))
+      throw Error("slice builder: more than 2^32-1 triangles");
+    b.plan_options.contours = true;
+    b.plan_options.max_level = options.max_level;
+    b.plan_options.geometry_error = options.geometry_error;
+    b.pmesh = detail::make_planner_mesh(grid, mesh);
+  }
   b.gv = voxcast::detail::grid_vertices(mesh, grid);
   // Cells: the largest whose working set, once per worker, fits half the
   // budget next to the mesh and the bins (or options.cell_size).
@@ -272,18 +461,25 @@ void build_slices(const Mesh& mesh, const GridTransform& grid, const VoxelizeOpt
   // order, with data offsets from the sizes their parents computed.
   std::vector<sl::SliceEntry> slices(1);
   slices[0].parent = sl::kNoParent;
+  // With contours, the build data of the unbuilt slices (released when built).
+  std::vector<Builder::Seed> seeds;
+  if (b.pmesh != nullptr) seeds.push_back(detail::root_seed(*b.pmesh));
   uint64_t data_end = 0;
   size_t level_begin = 0;
   while (level_begin < slices.size()) {
     const size_t level_end = slices.size();
     std::vector<std::vector<sl::SliceEntry>> children(level_end - level_begin);
+    std::vector<std::vector<Builder::Seed>> child_seeds(level_end - level_begin);
+    auto build_one = [&](size_t i) {
+      Builder::Seed seed = b.pmesh != nullptr ? std::move(seeds[i]) : nullptr;
+      children[i - level_begin] =
+          b.build(uint32_t(i), slices[i], options.slice_bytes, seed, &child_seeds[i - level_begin]);
+    };
     if (level_begin == 0) {
-      children[0] = b.build(0, slices[0], options.slice_bytes);  // sizes only known after it
+      build_one(0);  // sizes only known after it
       data_end = slices[0].data_bytes;
     } else {
-      tbb::parallel_for(level_begin, level_end, [&](size_t i) {
-        children[i - level_begin] = b.build(uint32_t(i), slices[i], options.slice_bytes);
-      });
+      tbb::parallel_for(level_begin, level_end, build_one);
     }
     for (size_t i = level_begin; i < level_end; ++i) {
       std::vector<sl::SliceEntry>& c = children[i - level_begin];
@@ -294,14 +490,17 @@ void build_slices(const Mesh& mesh, const GridTransform& grid, const VoxelizeOpt
         data_end += e.data_bytes;
         slices.push_back(e);
       }
+      if (b.pmesh != nullptr)
+        for (Builder::Seed& s : child_seeds[i - level_begin]) seeds.push_back(std::move(s));
     }
     level_begin = level_end;
   }
 
   // Assemble: header, directory, then the data file's bytes.
-  sl::FileHeader h = detail::slice_file_header(grid, false, options.slice_bytes, slices);
+  const bool contours = b.pmesh != nullptr;
+  sl::FileHeader h = detail::slice_file_header(grid, contours, options.slice_bytes, slices);
   for (sl::SliceEntry& e : slices) e.data_offset += h.data_offset;
-  h = detail::slice_file_header(grid, false, options.slice_bytes, slices);
+  h = detail::slice_file_header(grid, contours, options.slice_bytes, slices);
   const std::filesystem::path tmp = path.string() + ".tmp";
   {
     std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
