@@ -628,6 +628,44 @@ TEST_P(Streamed, SmallBudgetConvergesWhenTheViewStops) {
   EXPECT_TRUE(same_pixels(got.depth, want.depth));
 }
 
+// The coarse beam pass (§6.2) on the streamed structure: a voxel whose slice
+// is not resident is kept whole, so every frame of a fly-through within a
+// small budget renders the same pixels and asks for the same slices with and
+// without the beam (two streams side by side), and the beam does skip work.
+TEST_P(Streamed, BeamLeavesStreamedFramesUnchanged) {
+  const SlicedBunny b(256, GetParam(), 8192, "beam");
+  const Aabb box = b.in_core.bounds();
+  esvo::StreamOptions opt;
+  opt.budget_bytes = 96 * 1024;
+  esvo::StreamedEsvo plain(esvo::SliceFile::open(b.path), opt);
+  esvo::StreamedEsvo beamed(esvo::SliceFile::open(b.path), opt);
+  uint64_t iterations_plain = 0, iterations_beam = 0;
+  int partial = 0;  // frames rendered with requests left
+  for (const float az : {30.f, 120.f, 210.f}) {
+    RenderOptions ro = view_options(box, 64, 1.f, az, 15.f, 0.6f * length(box.extent()));
+    ro.collect_stats = true;
+    for (int k = 0; k < 4; ++k) {
+      ro.beam = 0;
+      const RenderResult a = render(static_cast<Structure&>(plain), ro);
+      ro.beam = 8;
+      const RenderResult c = render(static_cast<Structure&>(beamed), ro);
+      EXPECT_TRUE(same_pixels(a.color, c.color)) << az << " " << k;
+      EXPECT_TRUE(same_pixels(a.depth, c.depth)) << az << " " << k;
+      EXPECT_EQ(plain.stats().loaded, beamed.stats().loaded);
+      EXPECT_EQ(plain.stats().pending, beamed.stats().pending);
+      EXPECT_EQ(plain.stats().resident_bytes, beamed.stats().resident_bytes);
+      partial += plain.stats().pending > 0;
+      iterations_plain += a.counters.iterations;
+      iterations_beam += c.counters.iterations + c.coarse_counters.iterations;
+      beamed.check_invariants();
+    }
+  }
+  EXPECT_GT(partial, 0);                         // some frames ran with slices missing
+  EXPECT_LT(iterations_beam, iterations_plain);  // the coarse pass skips work
+  std::printf("iterations: %llu without the beam, %llu with (coarse pass included)\n",
+              (unsigned long long)iterations_plain, (unsigned long long)iterations_beam);
+}
+
 // Figure 21: loading a slice merges it into its leaf block and splits the
 // result into one block per child slice, moving what lies in none to the
 // trunk; unloading is the exact inverse. From states along a stream, every
@@ -815,6 +853,14 @@ TEST(EsvoSlicesCli, BuildInfoRender) {
   EXPECT_EQ(r.exit_code, 2) << r.output;
   r = testing::run_cli("render '" + out + "' --write-frames -o '" + dir.file("e.png") + "'");
   EXPECT_EQ(r.exit_code, 2) << r.output;
+  // --beam streams the same frames.
+  r = testing::run_cli("render '" + out + "' --budget 40K --frames 3 --size 64x64 --beam 4 -o '" +
+                       dir.file("beam.png") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  r = testing::run_cli("render '" + out + "' --budget 40K --frames 3 --size 64x64 -o '" +
+                       dir.file("nobeam.png") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(testing::read_bytes(dir.file("beam.png")), testing::read_bytes(dir.file("nobeam.png")));
   // Streamed frames render color only.
   r = testing::run_cli("render '" + out + "' --budget 40K --depth '" + dir.file("e.pfm") +
                        "' -o '" + dir.file("e.png") + "'");

@@ -277,11 +277,11 @@ Runner add_render(CLI::App& app) {
       throw UsageError("--stream applies to brickmap worlds; a slice file streams by itself");
     if (streamed && stream_frames) {
       if (!args->depth.empty() || !args->normal.empty() || !args->heatmap.empty() ||
-          !args->aov.empty() || !args->ao_output.empty() || args->stats || args->beam != 0 ||
-          args->filter || !args->frame.empty())
+          !args->aov.empty() || !args->ao_output.empty() || args->stats || args->filter ||
+          !args->frame.empty())
         throw UsageError(
             "a slice file streamed with --budget or --frames renders color only: no --depth, "
-            "--normals, --heatmap, --aov, --ao-output, --stats, --beam, --filter or --frame");
+            "--normals, --heatmap, --aov, --ao-output, --stats, --filter or --frame");
       std::vector<std::string> frame_files;
       if (args->write_frames)
         for (int f = 0; f < args->stream.frames; ++f)

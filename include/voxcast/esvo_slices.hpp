@@ -298,8 +298,10 @@ class StreamedEsvo final : public SurfaceQuery, public Structure {
                       const BeamStart* beam = nullptr) const override;
   void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
                   Vec3* normal) const override;
-  // beam_start: the default (no information): the beam walk would need a
-  // residency-aware walk.
+  /// The coarse beam pass (§6.2) over the resident octree: a subdivided
+  /// voxel whose slice is not resident is kept whole (the rays stop at it),
+  /// so hits with and without the beam are the same, requests included.
+  void beam_start(const BeamFrustum& beam, TraceContext& ctx, BeamStart* start) const override;
 
   void begin_frame(const FrameView& view) override;
   PassOutcome end_pass(std::span<const Request> requests) override;

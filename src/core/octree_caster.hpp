@@ -542,9 +542,19 @@ void beam_walk(const typename P::Source& source, const BeamFrustum& beam, BeamSt
       const float lo[3] = {item.lo[0] + ((c & 1) ? hs : 0.f), item.lo[1] + ((c & 2) ? hs : 0.f),
                            item.lo[2] + ((c & 4) ? hs : 0.f)};
       const int what = cls.classify(lo, hs, nodes.leaf(desc, c, item.scale));
+      // A streaming policy's child that is not resident is kept whole: a ray
+      // reaching it stops there (CastStop::kNotResident, a hit on that
+      // coarser voxel), so its cube is where the rays may hit.
+      bool enter = what == BeamClassifier::kDescend;
+      if constexpr (P::kResidency) {
+        if (enter && !nodes.resident(desc, item.node, c, item.scale)) {
+          cls.keep(lo, hs);
+          continue;
+        }
+      }
       if (what == BeamClassifier::kKeep) {
         cls.keep(lo, hs);
-      } else if (what == BeamClassifier::kDescend) {
+      } else if (enter) {
         ++cnt.pushes;
         const uint32_t child = nodes.child(desc, first, c, item.scale, cnt);
         stack[top++] = {child, item.scale - 1, {lo[0], lo[1], lo[2]}, hs};

@@ -131,6 +131,17 @@ struct StreamedEsvoNodes {
     }
     return l;
   }
+  /// The beam walk's split of descend(): a node's children are named by its
+  /// links, so children() passes the node on and child() reads the link
+  /// (the walk asks resident() first; it stamps nothing: the rays do).
+  template <class C>
+  static uint32_t children(const Desc&, uint32_t node, int, C&) {
+    return node;
+  }
+  template <class C>
+  uint32_t child(const Desc& d, uint32_t node, int c, int, C&) const {
+    return link(table, d, node, c);
+  }
   static void name_hit(const OctreeCast<Index>& r, SurfaceHit* hit) {
     hit->voxel_ref = r.node;
     hit->child = uint32_t(r.child);
@@ -1131,6 +1142,11 @@ float StreamedEsvo::transmittance(const Ray& ray, const LodFootprint& lod, Trace
                                   const BeamStart* beam) const {
   return ::voxcast::detail::OctreeWorld<::voxcast::detail::StreamedEsvoNodes>(impl_->source)
       .transmittance(ray, lod, ctx, beam);
+}
+
+void StreamedEsvo::beam_start(const BeamFrustum& beam, TraceContext& ctx, BeamStart* start) const {
+  ::voxcast::detail::OctreeWorld<::voxcast::detail::StreamedEsvoNodes>(impl_->source)
+      .beam_start(beam, ctx, start);
 }
 
 void StreamedEsvo::attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
