@@ -17,6 +17,7 @@
 #include <tuple>
 #include <vector>
 
+#include "support/attribute_oracle.hpp"
 #include "support/cli_runner.hpp"
 #include "support/file_bytes.hpp"
 #include "support/independent_decoders.hpp"
@@ -245,36 +246,60 @@ TEST(EsvoSlices, TopDownBuilderEqualsSlicingTheInCoreBuild) {
 
 // Contours top-down (§7.1): each unbuilt slice carries its region's
 // triangles and ancestor contours; the file equals slicing the in-core
-// contour build, full depth and with the geometric variable depth
-// (--geometry-error, --max-level), at small slices (many levels of slices,
-// splits into more than eight children) and large ones.
+// contour build, full depth and with the variable depth: geometric
+// (--geometry-error), a max level, and the attribute tolerances (§7.3,
+// color only, normal only, with the geometric one and under a max level; a
+// slice compares its voxels with its region's full-depth voxels in a
+// second pass), at small slices (many levels of slices, splits into more
+// than eight children) and large ones, on a mesh with smooth vertex colors.
 TEST(EsvoSlices, TopDownContoursEqualSlicingTheInCoreBuild) {
-  const Mesh mesh = load_mesh(kMeshes / "stanford-bunny.obj");
+  const Mesh mesh = testing::load_mesh_with_wave_colors("stanford-bunny.obj");
   struct Case {
     uint32_t resolution;
     double geometry_error;
     int max_level;
     uint64_t slice_bytes;
     uint32_t cell;  // 0 = from the budget
+    double color_error = -1, normal_error = -1;
   };
   const Case cases[] = {{64, 0, 0, 2048, 8},
                         {64, 0.5, 0, 1024, 16},
                         {128, 1.0, 0, 4096, 0},
                         {128, 0, 6, 3000, 32},
-                        {128, 0, 0, uint64_t(1) << 20, 0}};
+                        {128, 0, 0, uint64_t(1) << 20, 0},
+                        {64, 0, 0, 1024, 8, 10, -1},
+                        {64, 0, 0, 2048, 16, -1, 8},
+                        {128, 1.0, 0, 4096, 0, 16, 12},
+                        {128, 0, 6, 3000, 32, -1, 10},
+                        {128, 0, 0, uint64_t(1) << 20, 0, 4, 4}};
   for (const Case& cs : cases) {
-    SCOPED_TRACE(std::to_string(cs.resolution) + " geometry error " +
-                 std::to_string(cs.geometry_error) + " max level " + std::to_string(cs.max_level) +
-                 " slice " + std::to_string(cs.slice_bytes) + " cell " + std::to_string(cs.cell));
+    SCOPED_TRACE(std::to_string(cs.resolution) + " errors " + std::to_string(cs.geometry_error) +
+                 "/" + std::to_string(cs.color_error) + "/" + std::to_string(cs.normal_error) +
+                 " max level " + std::to_string(cs.max_level) + " slice " +
+                 std::to_string(cs.slice_bytes) + " cell " + std::to_string(cs.cell));
     const GridTransform grid = GridTransform::fit(mesh.bounds(), cs.resolution);
     VoxelizeOptions vo;
     vo.attributes = true;
+    const VoxelSet voxels = voxelize(mesh, grid, vo);
     esvo::BuildOptions o;
     o.contours = true;
     o.geometry_error = cs.geometry_error;
     o.max_level = cs.max_level;
-    const esvo::EsvoOctree octree = esvo::build_octree(voxelize(mesh, grid, vo), mesh, o);
+    o.color_error = cs.color_error;
+    o.normal_error = cs.normal_error;
+    const esvo::EsvoOctree octree = esvo::build_octree(voxels, mesh, o);
     ASSERT_TRUE(octree.has_contours());
+    if (cs.color_error >= 0 || cs.normal_error >= 0) {
+      // The tolerances decide: alone they prune the full-depth tree; with the
+      // geometric one they subdivide voxels it would have left as leaves.
+      esvo::BuildOptions without = o;
+      without.color_error = without.normal_error = -1;
+      const size_t words_without = esvo::build_octree(voxels, mesh, without).words.size();
+      if (cs.geometry_error > 0)
+        EXPECT_GT(octree.words.size(), words_without);
+      else
+        EXPECT_LT(octree.words.size(), words_without);
+    }
     const auto want_path = temp_file("in-core-contours");
     esvo::SliceOptions so;
     so.slice_bytes = cs.slice_bytes;
@@ -294,6 +319,8 @@ TEST(EsvoSlices, TopDownContoursEqualSlicingTheInCoreBuild) {
     bo.contours = true;
     bo.geometry_error = cs.geometry_error;
     bo.max_level = cs.max_level;
+    bo.color_error = cs.color_error;
+    bo.normal_error = cs.normal_error;
     esvo::SliceBuildStats st;
     esvo::build_slices(mesh, grid, vo, path, bo, &st);
     const std::vector<uint8_t> got = testing::read_bytes(path);
@@ -319,6 +346,17 @@ TEST(EsvoSlices, TopDownOptionsAreChecked) {
   EXPECT_THROW(esvo::build_slices(mesh, grid, {}, path, bo), Error);
   bo.geometry_error = 0;
   bo.max_level = 6;  // beyond the grid's 5 levels
+  EXPECT_THROW(esvo::build_slices(mesh, grid, {}, path, bo), Error);
+  bo.max_level = 0;
+  bo.color_error = std::nan("");
+  EXPECT_THROW(esvo::build_slices(mesh, grid, {}, path, bo), Error);
+  bo.color_error = 300;
+  EXPECT_THROW(esvo::build_slices(mesh, grid, {}, path, bo), Error);
+  bo.color_error = -1;
+  bo.normal_error = 181;
+  EXPECT_THROW(esvo::build_slices(mesh, grid, {}, path, bo), Error);
+  bo.normal_error = 10;
+  bo.contours = false;  // a tolerance without contours
   EXPECT_THROW(esvo::build_slices(mesh, grid, {}, path, bo), Error);
   EXPECT_FALSE(std::filesystem::exists(path));
 }
@@ -883,8 +921,7 @@ TEST(EsvoSlicesCli, BuildInfoRender) {
   EXPECT_NE(r.output.find("\"format\": \"esvo-sliced\""), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("\"resident_slices\": 1"), std::string::npos) << r.output;
   // Contours and the geometric variable depth are built top-down; the image
-  // equals the in-core contour build's. An attribute tolerance (§7.3) is
-  // built in core and then sliced.
+  // equals the in-core contour build's.
   r = testing::run_cli("build '" + mesh +
                        "' --resolution 64 --contours --geometry-error 0.5 --slices --slice-size 2K "
                        "-o '" +
@@ -901,11 +938,20 @@ TEST(EsvoSlicesCli, BuildInfoRender) {
     ASSERT_EQ(r.exit_code, 0) << r.output;
   }
   EXPECT_EQ(testing::read_bytes(dir.file("g.vxs.png")), testing::read_bytes(dir.file("g.vxc.png")));
-  r = testing::run_cli("build '" + mesh +
-                       "' --resolution 32 --contours --color-error 8 --slices -o '" +
+  // The attribute tolerances (§7.3) too: the same image as the in-core build.
+  const std::string tol = "' --resolution 64 --contours --color-error 8 --normal-error 10";
+  r = testing::run_cli("build '" + mesh + tol + " --slices --slice-size 2K -o '" +
                        dir.file("h.vxs") + "'");
   ASSERT_EQ(r.exit_code, 0) << r.output;
-  EXPECT_EQ(r.output.find("top-down"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("top-down from"), std::string::npos) << r.output;
+  r = testing::run_cli("build '" + mesh + tol + " -o '" + dir.file("h.vxc") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  for (const char* in : {"h.vxs", "h.vxc"}) {
+    r = testing::run_cli("render '" + dir.file(in) + "' --size 48x40 -o '" +
+                         dir.file(std::string(in) + ".png") + "'");
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+  }
+  EXPECT_EQ(testing::read_bytes(dir.file("h.vxs.png")), testing::read_bytes(dir.file("h.vxc.png")));
   // Slice files are written by --slices, not by --format.
   r = testing::run_cli("build '" + mesh + "' --resolution 16 --format esvo-sliced -o '" +
                        dir.file("f.vxc") + "'");

@@ -31,6 +31,8 @@ std::string build_slices_top_down(const BuildSettings& s, uint64_t slice_bytes,
   bo.contours = s.contours;
   bo.max_level = s.max_level;
   bo.geometry_error = s.geometry_error;
+  bo.color_error = s.color_error;
+  bo.normal_error = s.normal_error;
   esvo::SliceBuildStats st;
   esvo::build_slices(mesh, grid, vo, to, bo, &st);
   char line[256];

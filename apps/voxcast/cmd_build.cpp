@@ -237,12 +237,12 @@ Runner add_build(CLI::App& app) {
     require_regular_input(args->input, is_voxel_input(args->input) ? "voxel file" : "mesh");
     if (!s.displacement.empty()) require_regular_input(s.displacement, "displacement map");
     StageTimer total(false);
-    if (args->slices && s.color_error < 0 && s.normal_error < 0 && !s.fill_solid &&
-        s.displacement.empty() && !s.displacement_from_mesh && !is_voxel_input(args->input)) {
+    if (args->slices && !s.fill_solid && s.displacement.empty() && !s.displacement_from_mesh &&
+        !is_voxel_input(args->input)) {
       // The top-down slice builder (esvo §7.1), which never holds the octree
-      // (with contours, --max-level and --geometry-error too); the attribute
-      // tolerances (§7.3), displacement and voxel files slice the in-core
-      // build below.
+      // (with contours and every variable-depth tolerance too);
+      // displacement, solid fill and voxel files slice the in-core build
+      // below.
       std::string summary;
       outputs.write(args->output, [&](const std::filesystem::path& to) {
         summary = build_slices_top_down(s, slice_bytes, to);

@@ -154,14 +154,17 @@ struct SliceBuildOptions {
   /// Voxels per side of the cells a region is voxelized in (a power of two;
   /// 0 = the largest whose working set per worker fits half the budget).
   uint32_t cell_size = 0;
-  /// Contours (§5.2, §7.2) and the geometric variable depth (§7.1), as
-  /// BuildOptions::contours, max_level and geometry_error: planned top-down,
-  /// each unbuilt slice carrying its region's triangles and ancestor
-  /// contours. (The attribute tolerances of §7.3 compare a voxel with every
-  /// full-depth voxel below it; they are built in core and then sliced.)
+  /// Contours (§5.2, §7.2) and the variable depth (§7.1, §7.3), as
+  /// BuildOptions::contours, max_level, geometry_error, color_error and
+  /// normal_error (raw attributes): planned top-down, each unbuilt slice
+  /// carrying its region's triangles and ancestor contours; the attribute
+  /// tolerances compare each of a slice's voxels with the full-depth voxels
+  /// of its region in a second pass over them.
   bool contours = false;
   int max_level = 0;
   double geometry_error = 0;
+  double color_error = -1;   // < 0: unset
+  double normal_error = -1;  // < 0: unset
 };
 struct SliceBuildStats {
   uint64_t slices = 0;

@@ -848,10 +848,13 @@ ContourPlanner::ContourPlanner(const TreeView& tree, std::shared_ptr<const Plann
 
 ContourPlanner::ContourPlanner(const TreeView& tree, std::shared_ptr<const PlannerMesh> mesh,
                                const BuildOptions& options, const SubtreeSeed& seed, int stop_depth,
-                               bool keep_seeds) {
+                               bool keep_seeds,
+                               const std::vector<std::vector<uint8_t>>* attr_flags) {
   if (stop_depth <= seed.depth) throw std::logic_error("esvo planner: stop above the seed");
+  if ((options.color_error >= 0 || options.normal_error >= 0) && attr_flags == nullptr)
+    throw std::logic_error("esvo planner: attribute tolerances without their flags");
   p_ = std::make_unique<PlannerState>(
-      PlannerState{Planner(tree, std::move(mesh), options, stop_depth, nullptr)});
+      PlannerState{Planner(tree, std::move(mesh), options, stop_depth, attr_flags)});
   p_->planner.start_ = &seed;
   p_->planner.keep_seeds_ = keep_seeds;
 }

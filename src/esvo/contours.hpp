@@ -79,9 +79,11 @@ class ContourPlanner {
   /// `tree` holds the seed's subtree to stop_depth - 1 (masks, first
   /// children; counts to stop_depth). With `keep_seeds` the refined voxels at
   /// stop_depth keep their seeds (take_seed); without, they are dropped.
+  /// `attr_flags` as above ([depth][node] of `tree`, depths seed..stop_depth;
+  /// null without color/normal tolerance).
   ContourPlanner(const TreeView& tree, std::shared_ptr<const PlannerMesh> mesh,
                  const BuildOptions& options, const SubtreeSeed& seed, int stop_depth,
-                 bool keep_seeds);
+                 bool keep_seeds, const std::vector<std::vector<uint8_t>>* attr_flags = nullptr);
   /// The seed of refined voxel `index` at stop_depth after plan(), or null
   /// if it is not refined or not reached (below a leaf). Moves it out.
   std::shared_ptr<const SubtreeSeed> take_seed(uint32_t index);

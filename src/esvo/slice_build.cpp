@@ -64,19 +64,35 @@ struct OutNode {
   uint8_t mask;  // its children (0 at the finest level)
 };
 
-/// Streaming bottom-up reduction of Morton-ordered voxels up to level `top`:
-/// one open sibling group per level; a group is reduced when the next node
-/// has another parent, which in Morton order means it is complete. Every
-/// node is reduced from exactly its children's floats, as build_octree does.
+/// The raw value of a node (color low, normal high), as the in-core
+/// builder's tree holds it (esvo/builder.cpp).
+uint64_t raw_value(const Color& c, Vec3 n) {
+  return uint64_t(encode_color_abgr(c)) | uint64_t(encode_normal_cube(n)) << 32;
+}
+
+/// Streaming bottom-up reduction of Morton-ordered voxels: one open sibling
+/// group per level; a group is reduced when the next node has another
+/// parent, which in Morton order means it is complete. Every node is
+/// reduced from exactly its children's floats, as build_octree does. The
+/// nodes of level `emit` go to `out`; the reduction goes on up to `top`
+/// (<= emit). With `record`, the raw values of the nodes of levels
+/// [record_lo, record_lo + record->size()) are appended to it per level, in
+/// Morton order.
 class Reducer {
  public:
-  Reducer(int levels, int top) : levels_(levels), top_(top), open_(size_t(levels) + 1) {}
+  Reducer(int levels, int emit, int top = -1)
+      : levels_(levels), emit_(emit), top_(top < 0 ? emit : top), open_(size_t(levels) + 1) {}
+
+  void record_values(std::vector<std::vector<uint64_t>>* record, int lo) {
+    record_ = record;
+    record_lo_ = lo;
+  }
 
   void push(int d, uint64_t code, const Color& c, Vec3 n, float w, uint8_t mask) {
-    if (d == top_) {
-      out.push_back({code, c, n, mask});
-      return;
-    }
+    if (record_ != nullptr && d >= record_lo_ && size_t(d - record_lo_) < record_->size())
+      (*record_)[size_t(d - record_lo_)].push_back(raw_value(c, n));
+    if (d == emit_) out.push_back({code, c, n, mask});
+    if (d == top_) return;
     Open& o = open_[size_t(d)];
     if (o.k > 0 && o.parent != code >> 3) flush(d);
     o.parent = code >> 3;
@@ -111,8 +127,10 @@ class Reducer {
     o.k = 0, o.mask = 0;
     push(d - 1, parent, c, n, w, mask);
   }
-  int levels_, top_;
+  int levels_, emit_, top_;
   std::vector<Open> open_;
+  std::vector<std::vector<uint64_t>>* record_ = nullptr;
+  int record_lo_ = 0;
 };
 
 struct Builder {
@@ -132,9 +150,8 @@ struct Builder {
   using Seed = std::shared_ptr<const detail::SubtreeSeed>;
 
   /// Voxelizes the aligned cube (depth `depth`, code `code`) with the
-  /// triangles of the bins [b0, b1) and streams its voxels into `red`.
-  void stream_cube(int depth, uint64_t code, size_t b0, size_t b1, Reducer& red) {
-    if (b0 == b1) return;
+  /// triangles of the bins [b0, b1).
+  VoxelSet voxelize_cube(int depth, uint64_t code, size_t b0, size_t b1) {
     std::vector<uint32_t> tris;
     tris.reserve(b1 - b0);
     for (size_t b = b0; b < b1; ++b) tris.push_back(bins[b].tri);
@@ -143,18 +160,39 @@ struct Builder {
     const MortonCoord m = morton_decode(code);
     const uint32_t side = 1u << (grid.levels - depth);
     const uint32_t lo[3] = {uint32_t(m.x) * side, uint32_t(m.y) * side, uint32_t(m.z) * side};
-    const VoxelSet v =
+    VoxelSet v =
         voxcast::detail::voxelize_cell(mesh, grid, gv, tris.data(), tris.size(), lo, side, vo);
     ++cells;
     voxels += v.size();
     uint64_t seen = max_cell_voxels.load();
     while (v.size() > seen && !max_cell_voxels.compare_exchange_weak(seen, v.size())) {
     }
-    const bool attr = !v.colors.empty();
-    for (size_t i = 0; i < v.size(); ++i)
-      red.push(grid.levels, v.codes[i], attr ? v.colors[i] : detail::kDefaultColor,
-               attr ? v.normals[i] : detail::kDefaultNormal, v.weights.empty() ? 1.f : v.weights[i],
-               0);
+    if (v.colors.empty()) {
+      v.colors.assign(v.size(), detail::kDefaultColor);
+      v.normals.assign(v.size(), detail::kDefaultNormal);
+    }
+    return v;
+  }
+
+  /// Calls f(voxels) for the voxels of the region (depth r, code), cube by
+  /// cube in Morton order.
+  template <class F>
+  void for_each_region_cube(int r, uint64_t region_code, F&& f) {
+    if (r >= cell_level) {
+      // The region lies in one cell: its triangles are a superset of the region's.
+      const uint64_t cell = region_code >> (3 * (r - cell_level));
+      const auto [b0, b1] = bin_range(cell, cell + 1);
+      if (b0 != b1) f(voxelize_cube(r, region_code, b0, b1));
+      return;
+    }
+    const int s = 3 * (cell_level - r);
+    const auto [b0, b1] = bin_range(region_code << s, (region_code + 1) << s);
+    for (size_t a = b0; a < b1;) {
+      size_t b = a;
+      while (b < b1 && bins[b].cell == bins[a].cell) ++b;
+      f(voxelize_cube(cell_level, bins[a].cell, a, b));
+      a = b;
+    }
   }
 
   /// The bins of the cells with codes in [lo, hi) (cell level).
@@ -215,24 +253,24 @@ struct Builder {
                                     const Seed& seed = nullptr,
                                     std::vector<Seed>* child_seeds = nullptr) {
     const int L = grid.levels, n = e.node_level, r = e.region_depth;
-    Reducer red(L, n + 1);
-    if (r >= cell_level) {
-      // The region lies in one cell: its triangles are a superset of the region's.
-      const uint64_t cell = e.region_code >> (3 * (r - cell_level));
-      const auto [b0, b1] = bin_range(cell, cell + 1);
-      stream_cube(r, e.region_code, b0, b1, red);
-    } else {
-      const int s = 3 * (cell_level - r);
-      const auto [b0, b1] = bin_range(e.region_code << s, (e.region_code + 1) << s);
-      for (size_t a = b0; a < b1;) {
-        size_t b = a;
-        while (b < b1 && bins[b].cell == bins[a].cell) ++b;
-        stream_cube(cell_level, bins[a].cell, a, b, red);
-        a = b;
-      }
+    // With the attribute tolerances (§7.3) the reduction goes on up to the
+    // region's depth and keeps the raw values of depths r..n + 2.
+    const bool attr_tolerance =
+        pmesh != nullptr && (plan_options.color_error >= 0 || plan_options.normal_error >= 0);
+    Reducer red(L, n + 1, attr_tolerance ? r : n + 1);
+    std::vector<std::vector<uint64_t>> values;  // [d - r][node]
+    if (attr_tolerance) {
+      values.resize(size_t(std::min(n + 2, L) - r + 1));
+      red.record_values(&values, r);
     }
+    for_each_region_cube(r, e.region_code, [&](const VoxelSet& v) {
+      for (size_t k = 0; k < v.size(); ++k)
+        red.push(L, v.codes[k], v.colors[k], v.normals[k], v.weights.empty() ? 1.f : v.weights[k],
+                 0);
+    });
     red.finish();
-    if (pmesh != nullptr) return build_contoured(i, e, slice_bytes, red.out, seed, child_seeds);
+    if (pmesh != nullptr)
+      return build_contoured(i, e, slice_bytes, red.out, values, seed, child_seeds);
     // The slice: level-n descriptors (the parents of the emitted nodes) and
     // the emitted nodes' attributes.
     const bool finest = n + 1 == L;
@@ -256,10 +294,58 @@ struct Builder {
     return plan_children(next, n, r, i, slice_bytes);
   }
 
+  /// REFINE-ATTRIBUTES (§7.3) of the region's voxels of depths r..n + 2
+  /// (`values`, their raw values per depth in Morton order) into
+  /// flags[d][node]: a second pass over the region's full-depth voxels, each
+  /// compared with its ancestors, as the in-core planner compares a voxel
+  /// with every full-depth voxel below it (attributes_exceed()).
+  const std::vector<std::vector<uint8_t>>& attribute_flags(
+      const sl::SliceEntry& e, const std::vector<std::vector<uint64_t>>& values,
+      std::vector<std::vector<uint8_t>>& flags) {
+    const int L = grid.levels, r = e.region_depth;
+    const int top = r + int(values.size()) - 1;  // deepest flagged depth
+    flags.assign(size_t(top) + 1, {});
+    for (int d = r; d <= top; ++d) flags[size_t(d)].assign(values[size_t(d - r)].size(), 0);
+    // Per depth, the index of the node the current voxel lies below (voxels
+    // come in Morton order, so it only moves forward) and its code.
+    std::vector<size_t> at(values.size(), 0);
+    std::vector<uint64_t> at_code(values.size(), ~uint64_t(0));
+    std::vector<uint64_t> raw;
+    for_each_region_cube(r, e.region_code, [&](const VoxelSet& v) {
+      raw.resize(v.size());
+      for (size_t k = 0; k < v.size(); ++k) raw[k] = raw_value(v.colors[k], v.normals[k]);
+      for (int d = r; d <= top; ++d) {
+        const size_t j = size_t(d - r);
+        const int shift = 3 * (L - d);
+        std::vector<uint8_t>& f = flags[size_t(d)];
+        // Runs of voxels below one node of depth d.
+        for (size_t a = 0; a < v.size();) {
+          const uint64_t c = v.codes[a] >> shift;
+          size_t b = a + 1;
+          while (b < v.size() && (v.codes[b] >> shift) == c) ++b;
+          if (c != at_code[j]) {
+            if (at_code[j] != ~uint64_t(0)) ++at[j];
+            at_code[j] = c;
+          }
+          if (at[j] >= f.size())
+            throw std::logic_error("slice builder: a voxel outside its region");
+          if (!f[at[j]]) {
+            const uint64_t nv = values[j][at[j]];
+            f[at[j]] = detail::values_exceed(raw.data(), a, b, uint32_t(nv),
+                                             decode_normal_cube(uint32_t(nv >> 32)), plan_options);
+          }
+          a = b;
+        }
+      }
+    });
+    return flags;
+  }
+
   /// build() with contours: `out` are the region's voxels of level n + 1.
   std::vector<sl::SliceEntry> build_contoured(uint32_t i, sl::SliceEntry& e, uint64_t slice_bytes,
-                                              const std::vector<OutNode>& out, const Seed& seed,
-                                              std::vector<Seed>* child_seeds) {
+                                              const std::vector<OutNode>& out,
+                                              const std::vector<std::vector<uint64_t>>& values,
+                                              const Seed& seed, std::vector<Seed>* child_seeds) {
     const int L = grid.levels, n = e.node_level, r = e.region_depth;
     if (seed == nullptr || child_seeds == nullptr)
       throw std::logic_error("slice builder: a contoured slice without its build data");
@@ -316,9 +402,15 @@ struct Builder {
       for (const OutNode& o : out) below += uint64_t(std::popcount(unsigned(o.mask)));
       t.count[size_t(n) + 2] = size_t(below);
     }
+    for (int d = r; d <= std::min(n + 2, L) && !values.empty(); ++d)
+      if (values[size_t(d - r)].size() != t.count[size_t(d)])
+        throw std::logic_error("slice builder: the region's values do not match its tree");
+    std::vector<std::vector<uint8_t>> attr_flags;
+    const std::vector<std::vector<uint8_t>>* flags =
+        values.empty() ? nullptr : &attribute_flags(e, values, attr_flags);
     // Contours of levels n + 1 and n + 2 and the leaf decisions, as in core.
-    detail::ContourPlanner planner(t, pmesh, plan_options, *seed, n + 2 <= L ? n + 2 : L + 1,
-                                   false);
+    detail::ContourPlanner planner(t, pmesh, plan_options, *seed, n + 2 <= L ? n + 2 : L + 1, false,
+                                   flags);
     const detail::ContourPlan& plan = planner.plan();
     auto refined = [&](int d, size_t j) {  // a subdivided voxel (the region's is)
       return d == r || (d < L && plan.leaf[size_t(d)][j] == 0);
@@ -379,7 +471,7 @@ struct Builder {
       child_seeds->assign(children.size(), seed);
       return children;
     }
-    detail::ContourPlanner seeder(t, pmesh, plan_options, *seed, k, true);
+    detail::ContourPlanner seeder(t, pmesh, plan_options, *seed, k, true, flags);
     (void)seeder.plan();
     const std::vector<uint64_t>& at_k = code[size_t(k - r)];
     for (const sl::SliceEntry& c : children) {
@@ -407,8 +499,14 @@ void build_slices(const Mesh& mesh, const GridTransform& grid, const VoxelizeOpt
                 std::to_string(grid.levels));
   if (!std::isfinite(options.geometry_error) || options.geometry_error < 0)
     throw Error("slice builder: the geometry error must be finite and non-negative");
-  if (!options.contours && (options.max_level != 0 || options.geometry_error > 0))
-    throw Error("slice builder: max level and geometry error need contours");
+  if (!std::isfinite(options.color_error) || options.color_error > 255 ||
+      !std::isfinite(options.normal_error) || options.normal_error > 180)
+    throw Error(
+        "slice builder: the color error must be at most 255 and the normal error at most "
+        "180 degrees");
+  if (!options.contours && (options.max_level != 0 || options.geometry_error > 0 ||
+                            options.color_error >= 0 || options.normal_error >= 0))
+    throw Error("slice builder: max level, geometry, color and normal error need contours");
   Builder b{mesh, grid, voxelize, {}, {}, 0, 0, -1, {}, {}, {}, {}, {}, {}};
   if (options.contours) {
     if (mesh.triangle_count() > size_t(UINT32_MAX))
@@ -416,6 +514,8 @@ void build_slices(const Mesh& mesh, const GridTransform& grid, const VoxelizeOpt
     b.plan_options.contours = true;
     b.plan_options.max_level = options.max_level;
     b.plan_options.geometry_error = options.geometry_error;
+    b.plan_options.color_error = options.color_error;
+    b.plan_options.normal_error = options.normal_error;
     b.pmesh = detail::make_planner_mesh(grid, mesh);
   }
   b.gv = voxcast::detail::grid_vertices(mesh, grid);
