@@ -11,6 +11,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <set>
@@ -19,11 +21,14 @@
 #include "support/file_bytes.hpp"
 #include "voxcast/displacement.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/esvo.hpp"
+#include "voxcast/esvo_slices.hpp"
 #include "voxcast/image.hpp"
 #include "voxcast/mesh.hpp"
 #include "voxcast/mesh_height.hpp"
 #include "voxcast/morton.hpp"
 #include "voxcast/voxelize.hpp"
+#include "voxelize/displacement_cells.hpp"
 
 namespace voxcast {
 namespace {
@@ -186,6 +191,118 @@ TEST(Displacement, ThreadCountInvariance) {
   }
 }
 
+// The cell restriction the top-down slice builder voxelizes regions with
+// (voxelize/displacement_cells.hpp): over every cell, the tasks binned to it
+// give exactly the whole build's voxels in the cell, attributes bit for bit,
+// for cells from 8^3 to 32^3 of a 64^3 grid and a tilted and a flat plate.
+TEST(Displacement, CellRestrictionIsExact) {
+  const DisplacementMap map(height_image(40, 24));
+  for (const float tilt : {0.f, 0.6f}) {
+    const Mesh mesh = plate(tilt);
+    const float scale = 0.15f;
+    const GridTransform grid = GridTransform::fit(displaced_bounds(mesh, map, scale), 64);
+    VoxelizeOptions vo;
+    vo.attributes = true;
+    const VoxelSet whole = voxelize_displaced(mesh, map, scale, grid, vo);
+    const detail::DisplacedVoxelizer dv(mesh, map, scale, grid);
+    for (const int bits : {3, 4, 5}) {
+      SCOPED_TRACE("tilt " + std::to_string(tilt) + " cells " + std::to_string(1 << bits));
+      const std::vector<detail::CellBin> bins = dv.bin(bits);
+      VoxelSet joined;
+      size_t cells = 0;
+      for (size_t a = 0; a < bins.size();) {
+        size_t b = a;
+        std::vector<uint32_t> tasks;
+        for (; b < bins.size() && bins[b].cell == bins[a].cell; ++b) tasks.push_back(bins[b].tri);
+        const MortonCoord c = morton_decode(bins[a].cell);
+        const uint32_t lo[3] = {uint32_t(c.x) << bits, uint32_t(c.y) << bits,
+                                uint32_t(c.z) << bits};
+        const VoxelSet v = dv.voxelize(tasks.data(), tasks.size(), lo, 1u << bits, vo);
+        for (size_t i = 0; i < v.size(); ++i) {
+          const MortonCoord q = morton_decode(v.codes[i]);
+          ASSERT_TRUE(q.x >> bits == c.x && q.y >> bits == c.y && q.z >> bits == c.z);
+        }
+        joined.codes.insert(joined.codes.end(), v.codes.begin(), v.codes.end());
+        joined.colors.insert(joined.colors.end(), v.colors.begin(), v.colors.end());
+        joined.normals.insert(joined.normals.end(), v.normals.begin(), v.normals.end());
+        joined.weights.insert(joined.weights.end(), v.weights.begin(), v.weights.end());
+        ++cells;
+        a = b;
+      }
+      EXPECT_GT(cells, 1u);
+      ASSERT_EQ(joined.codes, whole.codes);
+      ASSERT_EQ(joined.weights.size(), whole.weights.size());
+      size_t differ = 0;
+      for (size_t i = 0; i < whole.size(); ++i)
+        differ += std::memcmp(&joined.colors[i], &whole.colors[i], sizeof(Color)) != 0 ||
+                  std::memcmp(&joined.normals[i], &whole.normals[i], sizeof(Vec3)) != 0 ||
+                  std::memcmp(&joined.weights[i], &whole.weights[i], sizeof(float)) != 0;
+      EXPECT_EQ(differ, 0u);
+    }
+  }
+}
+
+// The top-down slice builder (esvo §7.1) with displacement (§7.4): each
+// region voxelized from the displacement primitives overlapping it; the
+// file equals slicing the in-core displaced build byte for byte (several
+// slice and cell sizes, with and without attributes), and contours with a
+// displacement are refused.
+TEST(Displacement, TopDownSlicesEqualSlicingTheInCoreBuild) {
+  const DisplacementMap map(height_image(40, 24));
+  struct Case {
+    float tilt;
+    uint32_t resolution;
+    uint64_t slice_bytes;
+    uint32_t cell;  // 0 = the default
+    bool attributes;
+  };
+  const Case cases[] = {{0.6f, 64, 1024, 8, true},
+                        {0.f, 64, 4096, 0, false},
+                        {0.6f, 128, 2048, 16, true},
+                        {0.3f, 128, uint64_t(1) << 20, 0, true}};
+  for (const Case& cs : cases) {
+    SCOPED_TRACE("tilt " + std::to_string(cs.tilt) + " at " + std::to_string(cs.resolution) +
+                 " slice " + std::to_string(cs.slice_bytes) + " cell " + std::to_string(cs.cell));
+    const Mesh mesh = plate(cs.tilt);
+    const float scale = 0.15f;
+    const GridTransform grid =
+        GridTransform::fit(displaced_bounds(mesh, map, scale), cs.resolution);
+    VoxelizeOptions vo;
+    vo.attributes = cs.attributes;
+    const esvo::EsvoOctree octree =
+        esvo::build_octree(voxelize_displaced(mesh, map, scale, grid, vo));
+    testing::TempDir dir;
+    esvo::SliceOptions so;
+    so.slice_bytes = cs.slice_bytes;
+    esvo::write_slices(octree, dir.file("in-core.vxs"), so);
+    esvo::SliceBuildOptions bo;
+    bo.slice_bytes = cs.slice_bytes;
+    bo.cell_size = cs.cell;
+    bo.displacement = &map;
+    bo.displacement_scale = scale;
+    esvo::SliceBuildStats st;
+    esvo::build_slices(mesh, grid, vo, dir.file("top-down.vxs"), bo, &st);
+    EXPECT_GT(st.cells, 1u);
+    if (cs.slice_bytes < 8192) {
+      EXPECT_GT(st.slices, 8u);
+    }
+    EXPECT_TRUE(testing::read_bytes(dir.file("top-down.vxs")) ==
+                testing::read_bytes(dir.file("in-core.vxs")));
+  }
+  const Mesh mesh = plate(0.f);
+  const GridTransform grid = GridTransform::fit(displaced_bounds(mesh, map, 0.1f), 32);
+  testing::TempDir dir;
+  esvo::SliceBuildOptions bo;
+  bo.displacement = &map;
+  bo.displacement_scale = 0.1f;
+  bo.contours = true;
+  EXPECT_THROW(esvo::build_slices(mesh, grid, {}, dir.file("x.vxs"), bo), Error);
+  bo.contours = false;
+  bo.displacement_scale = std::nanf("");
+  EXPECT_THROW(esvo::build_slices(mesh, grid, {}, dir.file("x.vxs"), bo), Error);
+  EXPECT_FALSE(std::filesystem::exists(dir.file("x.vxs")));
+}
+
 // The CLI: build --displacement MAP --displacement-scale S, the same voxels
 // as the library (leaf count), in a .vxc and a .vxs; usage errors.
 TEST(DisplacementCli, BuildDisplaced) {
@@ -214,8 +331,18 @@ TEST(DisplacementCli, BuildDisplaced) {
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_LT(2 * leaves(dir.file("f.vxc")), leaves(dir.file("d.vxc")));
   r = testing::run_cli("build '" + obj + "' --resolution 64 --displacement '" + png +
-                       "' --displacement-scale 0.15 --slices -o '" + dir.file("d.vxs") + "'");
+                       "' --displacement-scale 0.15 --slices --slice-size 4K --cell-size 16 -o '" +
+                       dir.file("d.vxs") + "'");
   ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("top-down from"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find(", displaced"), std::string::npos) << r.output;
+  // The slice file renders the in-core scene's image.
+  for (const char* in : {"d.vxs", "d.vxc"}) {
+    r = testing::run_cli("render '" + dir.file(in) + "' --size 48x40 -o '" +
+                         dir.file(std::string(in) + ".png") + "'");
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+  }
+  EXPECT_EQ(testing::read_bytes(dir.file("d.vxs.png")), testing::read_bytes(dir.file("d.vxc.png")));
   for (const char* bad :
        {" --displacement h.png", " --displacement h.png --displacement-scale 0.1 --contours"}) {
     std::string cmd = bad;

@@ -4,6 +4,7 @@
 
 #include "cli_io.hpp"
 #include "commands.hpp"
+#include "pipeline.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_slices.hpp"
 #include "voxcast/esvo_structure.hpp"
@@ -18,9 +19,14 @@ void check_slice_settings(const BuildSettings& s) {
 std::string build_slices_top_down(const BuildSettings& s, uint64_t slice_bytes,
                                   const std::filesystem::path& to) {
   MeshLoadStats mesh_stats;
-  const Mesh mesh =
-      load_build_mesh(s.mesh_path, effective_budget(s.memory_budget), &mesh_stats, s.verbose);
-  const GridTransform grid = build_grid(s, mesh.bounds());
+  Image height_map;  // the materials' (--displacement-scale without --displacement)
+  const Mesh mesh = load_build_mesh(s.mesh_path, effective_budget(s.memory_budget), &mesh_stats,
+                                    s.verbose, s.displacement_from_mesh ? &height_map : nullptr);
+  // Displacement (esvo §7.4): the grid holds the displaced surface.
+  const std::optional<DisplacementMap> displacement = load_displacement(s, &height_map);
+  const float scale = float(s.displacement_scale);
+  const GridTransform grid =
+      build_grid(s, displacement ? displaced_bounds(mesh, *displacement, scale) : mesh.bounds());
   VoxelizeOptions vo;
   vo.mode = s.mode;
   vo.attributes = true;
@@ -33,14 +39,20 @@ std::string build_slices_top_down(const BuildSettings& s, uint64_t slice_bytes,
   bo.geometry_error = s.geometry_error;
   bo.color_error = s.color_error;
   bo.normal_error = s.normal_error;
+  if (displacement) {
+    bo.displacement = &*displacement;
+    bo.displacement_scale = scale;
+  }
   esvo::SliceBuildStats st;
   esvo::build_slices(mesh, grid, vo, to, bo, &st);
   char line[256];
-  std::snprintf(line, sizeof line,
-                "%llu slices (target %s), %s, top-down from %llu cells of %u^3%s",
-                (unsigned long long)st.slices, format_bytes(double(slice_bytes)).c_str(),
-                format_bytes(double(st.file_bytes)).c_str(), (unsigned long long)st.cells,
-                st.cell_size, s.contours ? ", contours" : "");
+  std::snprintf(
+      line, sizeof line, "%llu slices (target %s), %s, top-down from %llu cells of %u^3%s",
+      (unsigned long long)st.slices, format_bytes(double(slice_bytes)).c_str(),
+      format_bytes(double(st.file_bytes)).c_str(), (unsigned long long)st.cells, st.cell_size,
+      s.contours     ? ", contours"
+      : displacement ? ", displaced"
+                     : "");
   return line;
 }
 

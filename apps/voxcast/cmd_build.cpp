@@ -214,10 +214,13 @@ Runner add_build(CLI::App& app) {
       if (!args->displacement_scale_opt->count())
         throw UsageError("--displacement needs --displacement-scale S");
       require_range("--displacement-scale", args->displacement_scale, -1e30, 1e30);
-      if (s.contours || s.out_of_core || s.fill_solid || is_voxel_input(args->input))
+      // With --slices the top-down builder bounds the memory (its cells
+      // from --memory-budget's default or --cell-size).
+      if (s.contours || (s.out_of_core && !args->slices) || s.fill_solid ||
+          is_voxel_input(args->input))
         throw UsageError(
-            "--displacement applies to in-core mesh builds: no --contours, --out-of-core, "
-            "--cell-size, --fill solid or voxel file input");
+            "--displacement applies to mesh builds in core or with --slices: no --contours, "
+            "--out-of-core, --cell-size (without --slices), --fill solid or voxel file input");
       s.displacement = args->displacement;
       s.displacement_scale = args->displacement_scale;
       s.displacement_from_mesh = args->displacement.empty();
@@ -237,12 +240,10 @@ Runner add_build(CLI::App& app) {
     require_regular_input(args->input, is_voxel_input(args->input) ? "voxel file" : "mesh");
     if (!s.displacement.empty()) require_regular_input(s.displacement, "displacement map");
     StageTimer total(false);
-    if (args->slices && !s.fill_solid && s.displacement.empty() && !s.displacement_from_mesh &&
-        !is_voxel_input(args->input)) {
+    if (args->slices && !s.fill_solid && !is_voxel_input(args->input)) {
       // The top-down slice builder (esvo §7.1), which never holds the octree
-      // (with contours and every variable-depth tolerance too);
-      // displacement, solid fill and voxel files slice the in-core build
-      // below.
+      // (with contours and every variable-depth tolerance, and displaced);
+      // solid fill and voxel files slice the in-core build below.
       std::string summary;
       outputs.write(args->output, [&](const std::filesystem::path& to) {
         summary = build_slices_top_down(s, slice_bytes, to);

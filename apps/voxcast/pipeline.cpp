@@ -218,6 +218,23 @@ void fill_interior(const BuildSettings& s, const Mesh& mesh, uint64_t budget, Vo
 }
 }  // namespace
 
+std::optional<DisplacementMap> load_displacement(const BuildSettings& s,
+                                                 const Image* mesh_height_map) {
+  std::optional<DisplacementMap> displacement;
+  if (!s.displacement.empty()) {
+    const std::string ext = std::filesystem::path(s.displacement).extension().string();
+    const Image image = ext == ".pfm" ? read_pfm(s.displacement) : read_png(s.displacement);
+    displacement.emplace(image);
+  } else if (s.displacement_from_mesh) {
+    if (mesh_height_map == nullptr || mesh_height_map->width == 0)
+      throw Error(in_quotes(s.mesh_path) +
+                  " has no height or displacement texture in its materials; give "
+                  "--displacement MAP");
+    displacement.emplace(*mesh_height_map);
+  }
+  return displacement;
+}
+
 BuiltScene build_scene(const BuildSettings& s) {
   const uint64_t budget = effective_budget(s.memory_budget);
   StageTimer timer(s.verbose);
@@ -241,19 +258,8 @@ BuiltScene build_scene(const BuildSettings& s, Mesh mesh, const MeshLoadStats& m
   StageTimer timer(s.verbose);
   const uint64_t budget = effective_budget(s.memory_budget);
   // Displacement (esvo §7.4): the grid holds the displaced surface.
-  std::optional<DisplacementMap> displacement;
-  if (!s.displacement.empty()) {
-    const std::string ext = std::filesystem::path(s.displacement).extension().string();
-    const Image image = ext == ".pfm" ? read_pfm(s.displacement) : read_png(s.displacement);
-    displacement.emplace(image);
-    timer.mark("load displacement map");
-  } else if (s.displacement_from_mesh) {
-    if (mesh_height_map == nullptr || mesh_height_map->width == 0)
-      throw Error(in_quotes(s.mesh_path) +
-                  " has no height or displacement texture in its materials; give "
-                  "--displacement MAP");
-    displacement.emplace(*mesh_height_map);
-  }
+  const std::optional<DisplacementMap> displacement = load_displacement(s, mesh_height_map);
+  if (!s.displacement.empty()) timer.mark("load displacement map");
   const GridTransform grid = build_grid(
       s, displacement ? displaced_bounds(out.mesh, *displacement, float(s.displacement_scale))
                       : out.mesh.bounds());

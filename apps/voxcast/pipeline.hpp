@@ -1,9 +1,11 @@
 #pragma once
 // mesh file -> voxels -> structure (any registered format), shared by `build`
 // and `bench`.
+#include <optional>
 #include <string>
 #include <vector>
 
+#include "voxcast/displacement.hpp"
 #include "voxcast/format_registry.hpp"
 #include "voxcast/image.hpp"
 #include "voxcast/mesh.hpp"
@@ -74,6 +76,12 @@ uint64_t effective_budget(uint64_t memory_budget);
 /// import's warnings and, when verbose or triangles were dropped, its counts.
 Mesh load_build_mesh(const std::string& path, uint64_t budget, MeshLoadStats* stats, bool verbose,
                      Image* height_map = nullptr);
+
+/// The displacement map of a displaced build (esvo §7.4): --displacement
+/// MAP (.png or .pfm), or with displacement_from_mesh the materials' height
+/// map `mesh_height_map` (an error when the mesh has none); empty otherwise.
+std::optional<DisplacementMap> load_displacement(const BuildSettings& settings,
+                                                 const Image* mesh_height_map);
 
 /// The voxel grid `settings` ask for around `bounds`; refuses (voxcast::Error)
 /// a grid the scene loader would refuse (GridTransform::placement_is_valid).

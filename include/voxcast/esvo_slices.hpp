@@ -56,6 +56,7 @@
 #include "voxcast/voxelize.hpp"
 
 namespace voxcast {
+class DisplacementMap;
 class FormatRegistry;
 class Progress;
 }  // namespace voxcast
@@ -165,6 +166,13 @@ struct SliceBuildOptions {
   double geometry_error = 0;
   double color_error = -1;   // < 0: unset
   double normal_error = -1;  // < 0: unset
+  /// Displacement mapping (§7.4): the mesh displaced by this map and scale
+  /// (voxelize_displaced(); without contours). Each slice's region is
+  /// voxelized from the displacement primitives whose bound overlaps it;
+  /// the cells are 128^3 unless cell_size is given. The file equals slicing
+  /// the in-core displaced build.
+  const DisplacementMap* displacement = nullptr;
+  float displacement_scale = 0;
 };
 struct SliceBuildStats {
   uint64_t slices = 0;

@@ -21,6 +21,11 @@
 // (n + 2). Voxels below a voxel planned as a leaf are left out. A second
 // pass down to the child slices' region depth hands each child its seed.
 //
+// Displacement (§7.4): a region is voxelized from the displacement
+// primitives (voxelize/displacement_cells.hpp) whose displaced bound
+// overlaps its cells, restricted exactly to the cell, so that the file
+// equals slicing the in-core displaced build.
+//
 // Cost: every level streams the voxels of the regions it covers, i.e. the
 // scene is voxelized once per level (the paper passes triangle lists down
 // instead; see README "Slices"); with contours every voxel is also planned
@@ -50,6 +55,7 @@
 #include "voxcast/morton.hpp"
 #include "voxcast/system.hpp"
 #include "voxelize/cell.hpp"
+#include "voxelize/displacement_cells.hpp"
 
 namespace voxcast::esvo {
 namespace sl = slice_layout;
@@ -144,6 +150,9 @@ struct Builder {
   int fd = -1;         // the data file
   std::filesystem::path data_path;
   std::atomic<uint64_t> cells{0}, voxels{0}, max_cell_voxels{0};
+  // Displaced (§7.4): the regions are voxelized from the displacement
+  // primitives (bins hold task indices, not triangles).
+  std::unique_ptr<const voxcast::detail::DisplacedVoxelizer> displaced;
   // With contours: what the in-core planner gets, and its mesh.
   BuildOptions plan_options;
   std::shared_ptr<const detail::PlannerMesh> pmesh;  // null: no contours
@@ -160,8 +169,9 @@ struct Builder {
     const MortonCoord m = morton_decode(code);
     const uint32_t side = 1u << (grid.levels - depth);
     const uint32_t lo[3] = {uint32_t(m.x) * side, uint32_t(m.y) * side, uint32_t(m.z) * side};
-    VoxelSet v =
-        voxcast::detail::voxelize_cell(mesh, grid, gv, tris.data(), tris.size(), lo, side, vo);
+    VoxelSet v = displaced != nullptr ? displaced->voxelize(tris.data(), tris.size(), lo, side, vo)
+                                      : voxcast::detail::voxelize_cell(mesh, grid, gv, tris.data(),
+                                                                       tris.size(), lo, side, vo);
     ++cells;
     voxels += v.size();
     uint64_t seen = max_cell_voxels.load();
@@ -507,7 +517,10 @@ void build_slices(const Mesh& mesh, const GridTransform& grid, const VoxelizeOpt
   if (!options.contours && (options.max_level != 0 || options.geometry_error > 0 ||
                             options.color_error >= 0 || options.normal_error >= 0))
     throw Error("slice builder: max level, geometry, color and normal error need contours");
-  Builder b{mesh, grid, voxelize, {}, {}, 0, 0, -1, {}, {}, {}, {}, {}, {}};
+  if (options.displacement != nullptr &&
+      (options.contours || !std::isfinite(options.displacement_scale)))
+    throw Error("slice builder: displacement needs a finite scale and no contours");
+  Builder b{mesh, grid, voxelize, {}, {}, 0, 0, -1, {}, {}, {}, {}, {}, {}, {}};
   if (options.contours) {
     if (mesh.triangle_count() > size_t(UINT32_MAX))
       throw Error("slice builder: more than 2^32-1 triangles");
@@ -518,7 +531,12 @@ void build_slices(const Mesh& mesh, const GridTransform& grid, const VoxelizeOpt
     b.plan_options.normal_error = options.normal_error;
     b.pmesh = detail::make_planner_mesh(grid, mesh);
   }
-  b.gv = voxcast::detail::grid_vertices(mesh, grid);
+  if (options.displacement != nullptr) {
+    b.displaced = std::make_unique<const voxcast::detail::DisplacedVoxelizer>(
+        mesh, *options.displacement, options.displacement_scale, grid);
+  } else {
+    b.gv = voxcast::detail::grid_vertices(mesh, grid);
+  }
   // Cells: the largest whose working set, once per worker, fits half the
   // budget next to the mesh and the bins (or options.cell_size).
   const uint64_t budget = options.memory_budget ? options.memory_budget
@@ -528,6 +546,10 @@ void build_slices(const Mesh& mesh, const GridTransform& grid, const VoxelizeOpt
     if (!std::has_single_bit(options.cell_size) || options.cell_size > grid.resolution)
       throw Error("slice builder: the cell size must be a power of two up to the resolution");
     b.cell_bits = std::countr_zero(options.cell_size);
+  } else if (b.displaced != nullptr) {
+    // A displaced cell holds its surface's marks (a few per voxel of it):
+    // 128^3 cells keep that to megabytes.
+    b.cell_bits = std::min(grid.levels, 7);
   } else {
     b.cell_bits = std::min(grid.levels, 4);
     for (int bits = b.cell_bits + 1; bits <= grid.levels; ++bits) {
@@ -540,7 +562,8 @@ void build_slices(const Mesh& mesh, const GridTransform& grid, const VoxelizeOpt
     }
   }
   b.cell_level = grid.levels - b.cell_bits;
-  b.bins = voxcast::detail::bin_triangles(mesh, b.gv, grid, b.cell_bits);
+  b.bins = b.displaced != nullptr ? b.displaced->bin(b.cell_bits)
+                                  : voxcast::detail::bin_triangles(mesh, b.gv, grid, b.cell_bits);
 
   b.data_path = path.string() + ".data.tmp";
   b.fd = ::open(b.data_path.c_str(), O_RDWR | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);

@@ -12,6 +12,7 @@
 
 #include "voxcast/error.hpp"
 #include "voxcast/morton.hpp"
+#include "voxelize/displacement_cells.hpp"
 
 namespace voxcast {
 
@@ -207,21 +208,61 @@ Aabb displaced_bounds(const Mesh& mesh, const DisplacementMap& map, float scale)
 // within one voxel (per axis) of a point of the surface inside it.
 constexpr double kStop = 0.99;
 
-VoxelSet voxelize_displaced(const Mesh& mesh, const DisplacementMap& map, float scale,
-                            const GridTransform& grid, const VoxelizeOptions& options,
-                            DisplacementStats* stats) {
+namespace detail {
+
+namespace {
+
+/// The displaced bound (grid units) of `piece` of `tri`: the box around its
+/// corners displaced by the least and the largest height of its footprint.
+void piece_bound(const Triangle& tri, const DisplacementMap& map, float scale,
+                 const std::array<Corner, 3>& piece, Vec3d* lo_out, Vec3d* hi_out) {
+  double u0 = INFINITY, v0 = INFINITY, u1 = -INFINITY, v1 = -INFINITY;
+  for (const Corner& b : piece) {
+    double u, v;
+    tri.uv(b, &u, &v);
+    u0 = std::min(u0, u), u1 = std::max(u1, u), v0 = std::min(v0, v), v1 = std::max(v1, v);
+  }
+  float hlo, hhi;
+  map.range(u0, v0, u1, v1, &hlo, &hhi);
+  const double d0 = double(scale) * hlo, d1 = double(scale) * hhi;
+  Vec3d lo{INFINITY, INFINITY, INFINITY}, hi{-INFINITY, -INFINITY, -INFINITY};
+  for (const Corner& b : piece) {
+    const Vec3d p = tri.at(tri.p, b), n = tri.at(tri.n, b);
+    for (const double d : {d0, d1}) {
+      const Vec3d q = p + n * d;
+      lo = Vec3d{std::min(lo.x, q.x), std::min(lo.y, q.y), std::min(lo.z, q.z)};
+      hi = Vec3d{std::max(hi.x, q.x), std::max(hi.y, q.y), std::max(hi.z, q.z)};
+    }
+  }
+  *lo_out = lo, *hi_out = hi;
+}
+
+/// Whether the bound [lo, hi], widened by one voxel, misses the voxels
+/// [c0, c1) per axis. A sub-piece's bound lies inside its piece's up to the
+/// float rounding of the height ranges (about 1e-6 of the relief), far
+/// below the voxel of slack, so a culled piece marks nothing in the cube.
+bool misses(const Vec3d& lo, const Vec3d& hi, const uint32_t c0[3], const uint32_t c1[3]) {
+  const double l[3] = {lo.x, lo.y, lo.z}, h[3] = {hi.x, hi.y, hi.z};
+  for (int k = 0; k < 3; ++k)
+    if (h[k] + 1.0 < double(c0[k]) || l[k] - 1.0 >= double(c1[k])) return true;
+  return false;
+}
+
+}  // namespace
+
+struct DisplacedVoxelizer::Task {
+  uint32_t t;
+  std::array<Corner, 3> piece;
+};
+
+DisplacedVoxelizer::DisplacedVoxelizer(const Mesh& mesh, const DisplacementMap& map, float scale,
+                                       const GridTransform& grid)
+    : mesh_(mesh), map_(map), scale_(scale), grid_(grid) {
   if (map.width() < 1) throw Error("displacement map: empty");
-  const size_t triangles = mesh.triangle_count();
-  const double N = double(grid.resolution);
   // Tasks: every triangle cut (midpoint splits, no bound yet) into pieces of
   // at most about 64 voxels a side, so that a large triangle is spread over
   // the threads; marks are concatenated in task order (deterministic).
-  struct Task {
-    uint32_t t;
-    std::array<Corner, 3> piece;
-  };
-  std::vector<Task> tasks;
-  for (size_t t = 0; t < triangles; ++t) {
+  for (size_t t = 0; t < mesh.triangle_count(); ++t) {
     const Triangle tri = triangle_of(mesh, t, grid);
     double edge = 0;
     for (int k = 0; k < 3; ++k) edge = std::max(edge, length(tri.p[(k + 1) % 3] - tri.p[k]));
@@ -241,9 +282,52 @@ VoxelSet voxelize_displaced(const Mesh& mesh, const DisplacementMap& map, float 
       }
       level = std::move(next);
     }
-    for (const auto& q : level) tasks.push_back({uint32_t(t), q});
+    for (const auto& q : level) tasks_.push_back({uint32_t(t), q});
   }
-  // Sorts the marks by code and adds up equal codes, in their order.
+  if (tasks_.size() > size_t(UINT32_MAX)) throw Error("displacement: more than 2^32-1 pieces");
+}
+
+DisplacedVoxelizer::~DisplacedVoxelizer() = default;
+
+size_t DisplacedVoxelizer::task_count() const {
+  return tasks_.size();
+}
+
+std::vector<CellBin> DisplacedVoxelizer::bin(int bits) const {
+  const double N = double(grid_.resolution);
+  std::vector<std::vector<CellBin>> per(tasks_.size());
+  tbb::parallel_for(size_t(0), tasks_.size(), [&](size_t c) {
+    const Triangle tri = triangle_of(mesh_, tasks_[c].t, grid_);
+    Vec3d lo, hi;
+    piece_bound(tri, map_, scale_, tasks_[c].piece, &lo, &hi);
+    if (!(hi.x >= 0 && hi.y >= 0 && hi.z >= 0 && lo.x <= N && lo.y <= N && lo.z <= N)) return;
+    // The cells the widened bound touches (misses() is the per-piece test).
+    auto cell = [&](double x) { return uint32_t(std::clamp(std::floor(x), 0.0, N - 1)) >> bits; };
+    const uint32_t x0 = cell(lo.x - 1), x1 = cell(hi.x + 1), y0 = cell(lo.y - 1),
+                   y1 = cell(hi.y + 1), z0 = cell(lo.z - 1), z1 = cell(hi.z + 1);
+    for (uint32_t z = z0; z <= z1; ++z)
+      for (uint32_t y = y0; y <= y1; ++y)
+        for (uint32_t x = x0; x <= x1; ++x) per[c].push_back({morton_encode(x, y, z), uint32_t(c)});
+  });
+  std::vector<CellBin> bins;
+  for (auto& p : per) bins.insert(bins.end(), p.begin(), p.end());
+  std::sort(bins.begin(), bins.end());
+  return bins;
+}
+
+VoxelSet DisplacedVoxelizer::voxelize(const uint32_t* tasks, size_t task_count,
+                                      const uint32_t cube_lo[3], uint32_t cube_size,
+                                      const VoxelizeOptions& options,
+                                      DisplacementStats* stats) const {
+  const Mesh& mesh = mesh_;
+  const DisplacementMap& map = map_;
+  const float scale = scale_;
+  const GridTransform& grid = grid_;
+  const double N = double(grid.resolution);
+  const uint32_t c0[3] = {cube_lo[0], cube_lo[1], cube_lo[2]};
+  const uint32_t c1[3] = {cube_lo[0] + cube_size, cube_lo[1] + cube_size, cube_lo[2] + cube_size};
+  // Sorts the marks by code and adds up equal codes, in their order (a
+  // left fold: merging early does not change the sums).
   auto merge = [](std::vector<Mark>& marks) {
     std::stable_sort(marks.begin(), marks.end(),
                      [](const Mark& a, const Mark& b) { return a.code < b.code; });
@@ -260,42 +344,26 @@ VoxelSet voxelize_displaced(const Mesh& mesh, const DisplacementMap& map, float 
     }
     marks.resize(keep);
   };
-  const size_t chunks = tasks.size();
+  const size_t chunks = task_count;
   std::vector<std::vector<Mark>> out(chunks);
   std::vector<DisplacementStats> chunk_stats(chunks);
   tbb::parallel_for(size_t(0), chunks, [&](size_t c) {
     std::vector<Mark>& marks = out[c];
     DisplacementStats& st = chunk_stats[c];
-    const size_t t = tasks[c].t;
+    const Task& task = tasks_[tasks[c]];
+    const size_t t = task.t;
     const Triangle tri = triangle_of(mesh, t, grid);
-    std::vector<std::array<Corner, 3>> stack{tasks[c].piece};
+    std::vector<std::array<Corner, 3>> stack{task.piece};
     while (!stack.empty()) {
-      // Bounded memory: duplicates merged as they pile up (at a count, so
-      // the sums do not depend on the threads).
+      // Bounded memory: duplicates merged as they pile up.
       if (marks.size() >= (size_t(1) << 20)) merge(marks);
       const std::array<Corner, 3> piece = stack.back();
       stack.pop_back();
       ++st.pieces;
-      // Its footprint in map space and the heights over it.
-      double u0 = INFINITY, v0 = INFINITY, u1 = -INFINITY, v1 = -INFINITY;
-      for (const Corner& b : piece) {
-        double u, v;
-        tri.uv(b, &u, &v);
-        u0 = std::min(u0, u), u1 = std::max(u1, u), v0 = std::min(v0, v), v1 = std::max(v1, v);
-      }
-      float hlo, hhi;
-      map.range(u0, v0, u1, v1, &hlo, &hhi);
-      const double d0 = double(scale) * hlo, d1 = double(scale) * hhi;
-      Vec3d lo{INFINITY, INFINITY, INFINITY}, hi{-INFINITY, -INFINITY, -INFINITY};
-      for (const Corner& b : piece) {
-        const Vec3d p = tri.at(tri.p, b), n = tri.at(tri.n, b);
-        for (const double d : {d0, d1}) {
-          const Vec3d q = p + n * d;
-          lo = Vec3d{std::min(lo.x, q.x), std::min(lo.y, q.y), std::min(lo.z, q.z)};
-          hi = Vec3d{std::max(hi.x, q.x), std::max(hi.y, q.y), std::max(hi.z, q.z)};
-        }
-      }
-      if (!(hi.x >= 0 && hi.y >= 0 && hi.z >= 0 && lo.x <= N && lo.y <= N && lo.z <= N)) {
+      Vec3d lo, hi;
+      piece_bound(tri, map, scale, piece, &lo, &hi);
+      if (!(hi.x >= 0 && hi.y >= 0 && hi.z >= 0 && lo.x <= N && lo.y <= N && lo.z <= N) ||
+          misses(lo, hi, c0, c1)) {
         ++st.culled;
         continue;
       }
@@ -314,7 +382,7 @@ VoxelSet voxelize_displaced(const Mesh& mesh, const DisplacementMap& map, float 
         stack.push_back({piece[0], m01, m20});
         continue;
       }
-      // Half a voxel: mark every voxel the bound touches.
+      // Half a voxel: mark every voxel the bound touches (those in the cube).
       Vec3d D[3];
       for (int k = 0; k < 3; ++k) {
         double u, v;
@@ -333,9 +401,9 @@ VoxelSet voxelize_displaced(const Mesh& mesh, const DisplacementMap& map, float 
       const uint32_t x0 = cell(lo.x), x1 = cell(hi.x), y0 = cell(lo.y), y1 = cell(hi.y),
                      z0 = cell(lo.z), z1 = cell(hi.z);
       const float w = float(0.5 * len) / float((x1 - x0 + 1) * (y1 - y0 + 1) * (z1 - z0 + 1));
-      for (uint32_t z = z0; z <= z1; ++z)
-        for (uint32_t y = y0; y <= y1; ++y)
-          for (uint32_t x = x0; x <= x1; ++x) {
+      for (uint32_t z = std::max(z0, c0[2]); z <= std::min(z1, c1[2] - 1); ++z)
+        for (uint32_t y = std::max(y0, c0[1]); y <= std::min(y1, c1[1] - 1); ++y)
+          for (uint32_t x = std::max(x0, c0[0]); x <= std::min(x1, c1[0] - 1); ++x) {
             marks.push_back(
                 {morton_encode(x, y, z), col.r * w, col.g * w, col.b * w, col.a * w, n * w, w});
             ++st.emitted;
@@ -374,6 +442,18 @@ VoxelSet voxelize_displaced(const Mesh& mesh, const DisplacementMap& map, float 
     v.weights.push_back(m.w);
   }
   return v;
+}
+
+}  // namespace detail
+
+VoxelSet voxelize_displaced(const Mesh& mesh, const DisplacementMap& map, float scale,
+                            const GridTransform& grid, const VoxelizeOptions& options,
+                            DisplacementStats* stats) {
+  const detail::DisplacedVoxelizer dv(mesh, map, scale, grid);
+  std::vector<uint32_t> all(dv.task_count());
+  for (size_t i = 0; i < all.size(); ++i) all[i] = uint32_t(i);
+  const uint32_t lo[3] = {0, 0, 0};
+  return dv.voxelize(all.data(), all.size(), lo, grid.resolution, options, stats);
 }
 
 }  // namespace voxcast
