@@ -78,6 +78,7 @@ namespace {
 
 using detail::kMaxNearPointer;
 
+using detail::encode_value;   // esvo/reduce.hpp
 using detail::kDefaultColor;  // esvo/reduce.hpp
 using detail::kDefaultNormal;
 
@@ -94,10 +95,6 @@ struct Level {
   std::vector<Vec3> normal;
   std::vector<float> weight;
 };
-
-uint64_t encode_value(const Color& c, Vec3 n) {
-  return uint64_t(encode_color_abgr(c)) | uint64_t(encode_normal_cube(n)) << 32;
-}
 
 constexpr size_t kChunk = size_t(1) << 15;
 

@@ -4,7 +4,9 @@
 // builder (builder.cpp) and the top-down slice builder (slice_build.cpp),
 // which must produce the same floats. Private to src/esvo.
 #include <cmath>
+#include <cstdint>
 
+#include "voxcast/esvo.hpp"
 #include "voxcast/math.hpp"
 
 namespace voxcast::esvo::detail {
@@ -13,6 +15,12 @@ namespace voxcast::esvo::detail {
 // linear mid gray, normal +z, weight 1.
 inline constexpr Color kDefaultColor{0.5f, 0.5f, 0.5f, 1.f};
 inline constexpr Vec3 kDefaultNormal{0.f, 0.f, 1.f};
+
+/// A node's raw value as the builders' trees hold it: the sRGB color code in
+/// the low word, the cube-mapped normal code in the high word.
+inline uint64_t encode_value(const Color& c, Vec3 n) {
+  return uint64_t(encode_color_abgr(c)) | uint64_t(encode_normal_cube(n)) << 32;
+}
 
 /// Area-weighted average of a node's k children (in slot order). Colors
 /// average linearly; normals are the normalized weighted sum; weights add up.

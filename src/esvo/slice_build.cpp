@@ -70,12 +70,6 @@ struct OutNode {
   uint8_t mask;  // its children (0 at the finest level)
 };
 
-/// The raw value of a node (color low, normal high), as the in-core
-/// builder's tree holds it (esvo/builder.cpp).
-uint64_t raw_value(const Color& c, Vec3 n) {
-  return uint64_t(encode_color_abgr(c)) | uint64_t(encode_normal_cube(n)) << 32;
-}
-
 /// Streaming bottom-up reduction of Morton-ordered voxels: one open sibling
 /// group per level; a group is reduced when the next node has another
 /// parent, which in Morton order means it is complete. Every node is
@@ -96,7 +90,7 @@ class Reducer {
 
   void push(int d, uint64_t code, const Color& c, Vec3 n, float w, uint8_t mask) {
     if (record_ != nullptr && d >= record_lo_ && size_t(d - record_lo_) < record_->size())
-      (*record_)[size_t(d - record_lo_)].push_back(raw_value(c, n));
+      (*record_)[size_t(d - record_lo_)].push_back(detail::encode_value(c, n));
     if (d == emit_) out.push_back({code, c, n, mask});
     if (d == top_) return;
     Open& o = open_[size_t(d)];
@@ -323,7 +317,8 @@ struct Builder {
     std::vector<uint64_t> raw;
     for_each_region_cube(r, e.region_code, [&](const VoxelSet& v) {
       raw.resize(v.size());
-      for (size_t k = 0; k < v.size(); ++k) raw[k] = raw_value(v.colors[k], v.normals[k]);
+      for (size_t k = 0; k < v.size(); ++k)
+        raw[k] = detail::encode_value(v.colors[k], v.normals[k]);
       for (int d = r; d <= top; ++d) {
         const size_t j = size_t(d - r);
         const int shift = 3 * (L - d);
