@@ -827,6 +827,55 @@ TEST_P(Streamed, CorruptedSliceRefusedTheRestRenders) {
   EXPECT_LT(differ, n / 10);
 }
 
+// The file's occupied bounds (the automatic camera's box) are the in-core
+// octree's, bit for bit, at every walk depth and whatever is resident: the
+// bunny at 256^3 is deeper than the default walk (7 levels), so the
+// resident voxels' bounds would differ. A damaged slice does not throw: the
+// walk ends at its descriptors' coarser cubes, which contain what they hold.
+TEST_P(Streamed, FileOccupiedBoundsAreTheInCoreOctrees) {
+  const SlicedBunny b(256, GetParam(), 8192, "bounds");
+  const auto file = esvo::SliceFile::open(b.path);
+  for (const int max_level : {0, 1, 3, 6, 7, 8, 9}) {
+    const Aabb want = esvo::occupied_bounds(*b.octree, max_level),
+               got = file->occupied_bounds(max_level);
+    for (int a = 0; a < 3; ++a) {
+      EXPECT_EQ(got.lo[a], want.lo[a]) << max_level << " " << a;
+      EXPECT_EQ(got.hi[a], want.hi[a]) << max_level << " " << a;
+    }
+  }
+  const Aabb b7 = esvo::occupied_bounds(*b.octree, 7), b8 = esvo::occupied_bounds(*b.octree, 8);
+  bool deeper_differs = false;
+  for (int a = 0; a < 3; ++a) deeper_differs |= b7.lo[a] != b8.lo[a] || b7.hi[a] != b8.hi[a];
+  if (!GetParam()) EXPECT_TRUE(deeper_differs);  // (variable depth: contoured leaves above 7)
+  SceneLoadOptions small;
+  small.stream_budget = esvo::StreamedEsvo::block_bytes(file->slices()[0]) + 1;
+  const LoadedScene partial = load_scene(b.path, small);
+  const Aabb want = esvo::occupied_bounds(*b.octree);
+  for (int a = 0; a < 3; ++a) {
+    EXPECT_EQ(partial.occupied.lo[a], want.lo[a]) << a;
+    EXPECT_EQ(partial.occupied.hi[a], want.hi[a]) << a;
+  }
+  // Damage every slice of node level 3 (the walk reads levels 0..6).
+  std::vector<uint8_t> bytes = testing::read_bytes(b.path);
+  int damaged = 0;
+  for (size_t i = 0; i < file->slices().size(); ++i) {
+    const esvo::slice_layout::SliceEntry& e = file->slices()[i];
+    if (e.node_level != 3) continue;
+    bytes[e.data_offset + e.data_bytes / 2] ^= 0x10;
+    ++damaged;
+  }
+  ASSERT_GT(damaged, 0);
+  testing::write_bytes(b.path, bytes);
+  const Aabb coarse = esvo::SliceFile::open(b.path)->occupied_bounds();
+  const Aabb at3 = esvo::occupied_bounds(*b.octree, 3);
+  for (int a = 0; a < 3; ++a) {
+    EXPECT_LE(coarse.lo[a], want.lo[a]) << a;
+    EXPECT_GE(coarse.hi[a], want.hi[a]) << a;
+    EXPECT_GE(coarse.lo[a], at3.lo[a]) << a;
+    EXPECT_LE(coarse.hi[a], at3.hi[a]) << a;
+  }
+}
+
 INSTANTIATE_TEST_SUITE_P(Contours, Streamed, ::testing::Values(false, true),
                          [](const ::testing::TestParamInfo<bool>& i) {
                            return i.param ? std::string("contours") : std::string("cubes");
@@ -916,6 +965,32 @@ TEST(EsvoSlicesCli, BuildInfoRender) {
   }
   EXPECT_EQ(testing::read_bytes(dir.file("b.vxs.png")), testing::read_bytes(dir.file("b.vxc.png")));
   EXPECT_EQ(testing::read_bytes(dir.file("b.vxs.pfm")), testing::read_bytes(dir.file("b.vxc.pfm")));
+  // The automatic camera is the same for a slice file (opened whole or
+  // streamed within a budget) and its .vxc, also deeper than the bounds
+  // walk (256^3: 8 levels).
+  {
+    const std::string deep = " --resolution 256 --slice-size 16K";
+    r = testing::run_cli("build '" + mesh + "'" + deep + " --slices -o '" + dir.file("a.vxs") +
+                         "'");
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    r = testing::run_cli("build '" + mesh + "' --resolution 256 -o '" + dir.file("a.vxc") + "'");
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    auto camera_of = [&](const std::string& args) {
+      const auto run =
+          testing::run_cli("render " + args + " --size 32x24 -o '" + dir.file("a.png") + "'");
+      EXPECT_EQ(run.exit_code, 0) << run.output;
+      const size_t at = run.output.find("camera: ");
+      EXPECT_NE(at, std::string::npos) << run.output;
+      return at == std::string::npos ? std::string()
+                                     : run.output.substr(at, run.output.find('\n', at) - at);
+    };
+    const std::string want = camera_of("'" + dir.file("a.vxc") + "'");
+    EXPECT_EQ(camera_of("'" + dir.file("a.vxs") + "'"), want);
+    EXPECT_EQ(camera_of("'" + dir.file("a.vxs") + "' --budget 64K --frames 2"), want);
+    EXPECT_EQ(camera_of("'" + dir.file("a.vxs") + "' --budget 64K --frames 2 --camera ortho")
+                  .find("camera: ortho,"),
+              0u);
+  }
   r = testing::run_cli("info --json '" + out + "'");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("\"format\": \"esvo-sliced\""), std::string::npos) << r.output;

@@ -58,9 +58,13 @@ int render_sliced(const SlicedRender& a, RenderOptions opt) {
     throw UsageError("--budget and --frames apply to slice files (build --slices) and to --stream");
   Structure& scene = *loaded.structure;
   const auto counters = [&] { return format.stream_counters(scene); };
+  // The automatic camera frames the file's occupied bounds (read from the
+  // top of the slice hierarchy, whatever the budget lets in), as render of
+  // the same scene opened whole or as a .vxc does.
   bool derived = false;
   const Camera fixed =
-      path ? Camera{} : resolve_camera(*a.camera, scene.bounds(), opt.width, opt.height, &derived);
+      path ? Camera{}
+           : resolve_camera(*a.camera, format.occupied(scene), opt.width, opt.height, &derived);
   if (derived) std::printf("camera: %s\n", fixed.to_string().c_str());
   std::printf("streaming %s: %s, budget %s\n", printable(a.input).c_str(), loaded.format.c_str(),
               lo.stream_budget ? format_bytes(double(lo.stream_budget)).c_str() : "unlimited");

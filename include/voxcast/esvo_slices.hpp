@@ -44,6 +44,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <memory>
+#include <mutex>
 #include <span>
 #include <string>
 #include <vector>
@@ -222,6 +223,14 @@ class SliceFile {
   /// Throws voxcast::Error on a read error or a hash mismatch.
   std::vector<uint32_t> read(uint32_t i) const;
 
+  /// The octree's occupied bounds walked down to depth `max_level`, read
+  /// from the slices of node levels below it (a few, small: the top of the
+  /// hierarchy): equal bit for bit to esvo::occupied_bounds() of the in-core
+  /// octree the file slices, whatever is resident, so a slice file and its
+  /// .vxc frame the same automatic camera. A damaged slice ends the walk at
+  /// the coarser cubes of its descriptors (no throw).
+  Aabb occupied_bounds(int max_level = 7) const;
+
   /// The slice hierarchy for `voxcast info`: per node level the slice count,
   /// data bytes (min/mean/max) and the largest fan-out.
   std::string describe() const;
@@ -341,11 +350,10 @@ class StreamedEsvo final : public SurfaceQuery, public Structure {
   /// contents and link targets. Unloading what was just loaded restores it.
   std::vector<uint32_t> memory_image() const;
 
-  /// Bounds of the resident voxels that end a walk (leaves, and subdivided
-  /// voxels whose slice is not resident): with every slice resident, the
-  /// in-core octree's occupied_bounds(), bit for bit. A walk of every
-  /// resident descriptor, kept until residency changes; `progress`
-  /// (optional): its current phase gets the resident descriptors as units.
+  /// The occupied bounds of the whole octree for automatic cameras,
+  /// file().occupied_bounds() whatever is resident (equal bit for bit to
+  /// the in-core octree's esvo::occupied_bounds()); computed on the first
+  /// call (`progress`, optional: its current phase gets one unit for it).
   Aabb occupied(Progress* progress = nullptr) const;
   /// Why the last refused slice was refused ("" when none was).
   const std::string& last_refusal() const;
@@ -369,7 +377,7 @@ class StreamedEsvo final : public SurfaceQuery, public Structure {
  private:
   void refresh_stats();
   mutable Aabb occupied_cache_;
-  mutable uint64_t occupied_generation_ = ~uint64_t(0);
+  mutable std::once_flag occupied_once_;
   std::shared_ptr<const SliceFile> file_;
   std::unique_ptr<Impl> impl_;
   StreamStats stats_;

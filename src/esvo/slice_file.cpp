@@ -18,6 +18,7 @@
 #include "esvo/slice_plan.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_slices.hpp"
+#include "voxcast/morton.hpp"
 
 namespace voxcast::esvo {
 namespace sl = slice_layout;
@@ -393,6 +394,94 @@ std::vector<uint32_t> SliceFile::read(uint32_t i) const {
   if (XXH64(words.data(), e.data_bytes, 0) != e.hash)
     throw Error(io_error(path_, "slice " + std::to_string(i) + ": hash mismatch"));
   return words;
+}
+
+Aabb SliceFile::occupied_bounds(int max_level) const {
+  // A walk of the slices of node levels below max_level, as
+  // esvo::occupied_bounds() walks the in-core octree: each voxel that ends
+  // the walk (a leaf, or a subdivided voxel at depth max_level) extends the
+  // box by its cube, with the same float arithmetic, so the two boxes are
+  // equal bit for bit. A slice that cannot be read or does not match the
+  // descriptors its parent implies ends the walk at those descriptors'
+  // (coarser) cubes, as the streamed structure stops at them.
+  const GridTransform g = grid();
+  const double side = g.side();
+  Aabb box;
+  auto add_voxel = [&](uint64_t code, int depth) {
+    const double size = side / double(uint64_t(1) << depth);
+    const MortonCoord p = morton_decode(code);
+    const Vec3 lo{float(g.origin.x + p.x * size), float(g.origin.y + p.y * size),
+                  float(g.origin.z + p.z * size)};
+    box.extend(lo);
+    box.extend(lo + Vec3{float(size), float(size), float(size)});
+  };
+  if (max_level < 1) {
+    add_voxel(0, 0);
+    return box;
+  }
+  struct Item {
+    uint32_t slice;
+    std::vector<uint64_t> codes;  // the descriptors it holds: depth node_level, Morton order
+  };
+  std::vector<Item> stack;
+  stack.push_back({0, {0}});
+  std::vector<uint64_t> next;
+  while (!stack.empty()) {
+    const Item it = std::move(stack.back());
+    stack.pop_back();
+    const sl::SliceEntry& e = slices_[it.slice];
+    const int n = e.node_level;
+    std::vector<uint32_t> words;
+    try {
+      words = read(it.slice);
+    } catch (const Error&) {
+      words.clear();
+    }
+    if (words.size() < it.codes.size() || e.node_count != it.codes.size()) {
+      for (const uint64_t c : it.codes) add_voxel(c, n);
+      continue;
+    }
+    // The subdivided children at depth n + 1 to walk on, in Morton order.
+    next.clear();
+    for (size_t k = 0; k < it.codes.size(); ++k) {
+      const uint32_t valid = sl::SliceValid::get(words[k]), leaf = sl::SliceLeaf::get(words[k]);
+      for (int c = 0; c < 8; ++c) {
+        if ((valid >> c & 1u) == 0) continue;
+        const uint64_t code = it.codes[k] << 3 | uint64_t(c);
+        if ((leaf >> c & 1u) != 0 || n + 1 >= max_level)
+          add_voxel(code, n + 1);
+        else
+          next.push_back(code);
+      }
+    }
+    if (next.empty()) continue;
+    // Hand each child slice the codes inside its region; codes no child
+    // slice covers (a damaged hierarchy) end at their cubes.
+    size_t covered = 0;
+    for (uint32_t j = e.first_child; j < e.first_child + e.child_count; ++j) {
+      const sl::SliceEntry& ce = slices_[j];
+      const int shift = 3 * (n + 1 - ce.region_depth);
+      const uint64_t lo = ce.region_code << shift, hi = (ce.region_code + 1) << shift;
+      const auto a = std::lower_bound(next.begin(), next.end(), lo);
+      const auto b = std::lower_bound(next.begin(), next.end(), hi);
+      if (a == b) continue;
+      covered += size_t(b - a);
+      stack.push_back({j, std::vector<uint64_t>(a, b)});
+    }
+    if (covered != next.size()) {
+      // Rare (damaged directories only): find the uncovered codes.
+      std::vector<uint8_t> hit(next.size(), 0);
+      for (uint32_t j = e.first_child; j < e.first_child + e.child_count; ++j) {
+        const sl::SliceEntry& ce = slices_[j];
+        const int shift = 3 * (n + 1 - ce.region_depth);
+        for (size_t k = 0; k < next.size(); ++k)
+          if (next[k] >> shift == ce.region_code) hit[k] = 1;
+      }
+      for (size_t k = 0; k < next.size(); ++k)
+        if (!hit[k]) add_voxel(next[k], n + 1);
+    }
+  }
+  return box;
 }
 
 std::string SliceFile::describe() const {

@@ -1346,42 +1346,15 @@ static void walk(const StreamedEsvo::Impl& m, const F& f) {
 }
 
 Aabb StreamedEsvo::occupied(Progress* progress) const {
-  // As occupied_bounds() of the in-core octree (src/esvo/bounds.cpp): every
-  // voxel that ends a walk extends the box by its cube, in float.
-  const Impl& m = *impl_;
-  if (occupied_generation_ == m.generation) return occupied_cache_;
-  if (progress != nullptr) {
-    uint64_t descriptors = m.trunk_live;
-    for (const auto& b : m.blocks)
-      if (b && !b->trunk) descriptors += b->node_count;
-    progress->add_units(descriptors);
-  }
-  const GridTransform grid = file_->grid();
-  const double side = grid.side();
-  Aabb box;
-  uint64_t walked = 0;
-  walk(m, [&](uint32_t id, int level, uint64_t code) {
-    if (progress != nullptr && ++walked % 4096 == 0) progress->advance(4096);
-    const Block& b = *m.blocks[id >> kLocalBits];
-    const StreamNode& d = b.nodes[id & kLocalMask];
-    const uint32_t valid = sl::SliceValid::get(d.masks), leaf = sl::SliceLeaf::get(d.masks);
-    const double size = side / double(uint64_t(1) << (level + 1));
-    for (int c = 0; c < 8; ++c) {
-      if ((valid >> c & 1u) == 0) continue;
-      const bool ends =
-          (leaf >> c & 1u) != 0 || (b.links[d.link + rank_below(valid & ~leaf, c)] & kAbsent) != 0;
-      if (!ends) continue;
-      const MortonCoord p = morton_decode(code << 3 | uint64_t(c));
-      const Vec3 lo{float(grid.origin.x + p.x * size), float(grid.origin.y + p.y * size),
-                    float(grid.origin.z + p.z * size)};
-      box.extend(lo);
-      box.extend(lo + Vec3{float(size), float(size), float(size)});
-    }
+  // The file's bounds (SliceFile::occupied_bounds: the top of the hierarchy
+  // read from disk), not the resident voxels': the automatic camera frames
+  // a slice file as its .vxc, whatever the budget lets in. Computed once.
+  std::call_once(occupied_once_, [&] {
+    if (progress != nullptr) progress->add_units(1);
+    occupied_cache_ = file_->occupied_bounds();
+    if (progress != nullptr) progress->advance(1);
   });
-  if (progress != nullptr) progress->advance(walked % 4096);
-  occupied_cache_ = box;
-  occupied_generation_ = m.generation;
-  return box;
+  return occupied_cache_;
 }
 
 const std::string& StreamedEsvo::last_refusal() const {

@@ -71,6 +71,16 @@ std::string check_slice_file(std::span<const uint8_t> bytes) {
     std::abort();
   };
   try {
+    // The automatic camera's box: read from the top slices, damaged ones
+    // ending the walk early; never outside the grid's cube.
+    const Aabb ob = file->occupied_bounds();
+    const GridTransform g = file->grid();
+    const Vec3 lo = g.origin,
+               hi = g.origin + Vec3{float(g.side()), float(g.side()), float(g.side())};
+    const float slack = 1e-5f * float(g.side());  // float rounding of the cube corners
+    for (int a = 0; a < 3; ++a)
+      if (ob.lo[a] <= ob.hi[a] && (ob.lo[a] < lo[a] - slack || ob.hi[a] > hi[a] + slack))
+        fail("occupied bounds outside the grid");
     // A budget too small for the root is refused (an Error), any other is kept.
     for (const uint64_t budget : {uint64_t(0), uint64_t(4096)}) {
       esvo::StreamOptions so;
