@@ -255,14 +255,17 @@ TEST(Displacement, TopDownSlicesEqualSlicingTheInCoreBuild) {
     uint64_t slice_bytes;
     uint32_t cell;  // 0 = the default
     bool attributes;
+    bool compressed = false;  // §5.5 blocks per slice
   };
   const Case cases[] = {{0.6f, 64, 1024, 8, true},
                         {0.f, 64, 4096, 0, false},
                         {0.6f, 128, 2048, 16, true},
-                        {0.3f, 128, uint64_t(1) << 20, 0, true}};
+                        {0.3f, 128, uint64_t(1) << 20, 0, true},
+                        {0.6f, 128, 2048, 16, true, true}};
   for (const Case& cs : cases) {
     SCOPED_TRACE("tilt " + std::to_string(cs.tilt) + " at " + std::to_string(cs.resolution) +
-                 " slice " + std::to_string(cs.slice_bytes) + " cell " + std::to_string(cs.cell));
+                 " slice " + std::to_string(cs.slice_bytes) + " cell " + std::to_string(cs.cell) +
+                 (cs.compressed ? " compressed" : ""));
     const Mesh mesh = plate(cs.tilt);
     const float scale = 0.15f;
     const GridTransform grid =
@@ -274,10 +277,12 @@ TEST(Displacement, TopDownSlicesEqualSlicingTheInCoreBuild) {
     testing::TempDir dir;
     esvo::SliceOptions so;
     so.slice_bytes = cs.slice_bytes;
+    so.compressed = cs.compressed;
     esvo::write_slices(octree, dir.file("in-core.vxs"), so);
     esvo::SliceBuildOptions bo;
     bo.slice_bytes = cs.slice_bytes;
     bo.cell_size = cs.cell;
+    bo.compressed = cs.compressed;
     bo.displacement = &map;
     bo.displacement_scale = scale;
     esvo::SliceBuildStats st;

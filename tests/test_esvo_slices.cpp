@@ -113,7 +113,12 @@ DecodedSlices decode_slice_file(const std::vector<uint8_t>& f) {
         if ((c >> (3 * (level - depth))) == region) codes.push_back(c);
     }
     EXPECT_EQ(codes.size(), nodes) << "slice " << i;
-    size_t attr = offset + 4 * size_t(nodes), contour = attr + 8 * size_t(voxels);
+    // Raw: 8 bytes per child. Compressed (flag 2): block k (24 bytes) holds
+    // descriptors 2k and 2k+1, child i of descriptor n at slot (n&1)*8 + i.
+    const bool compressed = (get<uint32_t>(f, 20) & 2u) != 0;
+    const size_t blocks = offset + 4 * size_t(nodes);
+    size_t attr = blocks,
+           contour = attr + (compressed ? 24 * ((size_t(nodes) + 1) / 2) : 8 * size_t(voxels));
     for (uint32_t n = 0; n < nodes && n < codes.size(); ++n) {
       const uint32_t d = get<uint32_t>(f, offset + 4 * size_t(n));
       const uint32_t leaf = d & 0xFF, valid = d >> 8 & 0xFF, cm = d >> 16 & 0xFF;
@@ -122,9 +127,16 @@ DecodedSlices decode_slice_file(const std::vector<uint8_t>& f) {
         const uint64_t code = codes[n] << 3 | uint64_t(c);
         Voxel v;
         v.leaf = (leaf >> c & 1u) != 0;
-        v.attributes.color = testing::independent::decode_abgr(get<uint32_t>(f, attr));
-        v.attributes.normal = testing::independent::decode_cube_normal(get<uint32_t>(f, attr + 4));
-        attr += 8;
+        if (compressed) {
+          uint32_t block[6];
+          std::memcpy(block, f.data() + blocks + 24 * size_t(n / 2), sizeof block);
+          v.attributes = testing::independent::decode_block_slot(block, int(n & 1) * 8 + c);
+        } else {
+          v.attributes.color = testing::independent::decode_abgr(get<uint32_t>(f, attr));
+          v.attributes.normal =
+              testing::independent::decode_cube_normal(get<uint32_t>(f, attr + 4));
+          attr += 8;
+        }
         if (cm >> c & 1u) {
           v.has_contour = true;
           v.contour = get<uint32_t>(f, contour);
@@ -218,28 +230,35 @@ TEST(EsvoSlices, TopDownBuilderEqualsSlicingTheInCoreBuild) {
     VoxelizeOptions vo;
     vo.attributes = cs.attributes;
     const esvo::EsvoOctree octree = esvo::build_octree(voxelize(mesh, grid, vo));
-    const auto want_path = temp_file("in-core");
-    esvo::SliceOptions so;
-    so.slice_bytes = cs.slice_bytes;
-    esvo::write_slices(octree, want_path, so);
-    const std::vector<uint8_t> want = testing::read_bytes(want_path);
-    std::filesystem::remove(want_path);
-    for (const uint32_t cell : cs.cells) {
-      SCOPED_TRACE(std::to_string(cs.resolution) + (cs.attributes ? " attributes" : " geometry") +
-                   " slice " + std::to_string(cs.slice_bytes) + " cell " + std::to_string(cell));
-      const auto path = temp_file("top-down");
-      esvo::SliceBuildOptions bo;
-      bo.slice_bytes = cs.slice_bytes;
-      bo.cell_size = cell;
-      esvo::SliceBuildStats st;
-      esvo::build_slices(mesh, grid, vo, path, bo, &st);
-      EXPECT_TRUE(testing::read_bytes(path) == want);
-      EXPECT_EQ(st.file_bytes, want.size());
-      if (cell != 0) {
-        EXPECT_EQ(st.cell_size, cell);
+    // Raw, and §5.5 blocks per slice (the compressed file of the same raw
+    // in-core octree).
+    for (const bool compressed : {false, true}) {
+      const auto want_path = temp_file("in-core");
+      esvo::SliceOptions so;
+      so.slice_bytes = cs.slice_bytes;
+      so.compressed = compressed;
+      esvo::write_slices(octree, want_path, so);
+      const std::vector<uint8_t> want = testing::read_bytes(want_path);
+      std::filesystem::remove(want_path);
+      for (const uint32_t cell : cs.cells) {
+        SCOPED_TRACE(std::to_string(cs.resolution) + (cs.attributes ? " attributes" : " geometry") +
+                     " slice " + std::to_string(cs.slice_bytes) + " cell " + std::to_string(cell) +
+                     (compressed ? " compressed" : " raw"));
+        const auto path = temp_file("top-down");
+        esvo::SliceBuildOptions bo;
+        bo.slice_bytes = cs.slice_bytes;
+        bo.cell_size = cell;
+        bo.compressed = compressed;
+        esvo::SliceBuildStats st;
+        esvo::build_slices(mesh, grid, vo, path, bo, &st);
+        EXPECT_TRUE(testing::read_bytes(path) == want);
+        EXPECT_EQ(st.file_bytes, want.size());
+        if (cell != 0) {
+          EXPECT_EQ(st.cell_size, cell);
+        }
+        EXPECT_GT(st.cells, 1u);
+        std::filesystem::remove(path);
       }
-      EXPECT_GT(st.cells, 1u);
-      std::filesystem::remove(path);
     }
   }
 }
@@ -261,8 +280,12 @@ TEST(EsvoSlices, TopDownContoursEqualSlicingTheInCoreBuild) {
     uint64_t slice_bytes;
     uint32_t cell;  // 0 = from the budget
     double color_error = -1, normal_error = -1;
+    bool compressed = false;  // §5.5 blocks per slice (not with the tolerances)
   };
-  const Case cases[] = {{64, 0, 0, 2048, 8},
+  const Case cases[] = {{64, 0, 0, 2048, 8, -1, -1, true},
+                        {128, 1.0, 0, 4096, 0, -1, -1, true},
+                        {128, 0, 6, 3000, 32, -1, -1, true},
+                        {64, 0, 0, 2048, 8},
                         {64, 0.5, 0, 1024, 16},
                         {128, 1.0, 0, 4096, 0},
                         {128, 0, 6, 3000, 32},
@@ -276,7 +299,8 @@ TEST(EsvoSlices, TopDownContoursEqualSlicingTheInCoreBuild) {
     SCOPED_TRACE(std::to_string(cs.resolution) + " errors " + std::to_string(cs.geometry_error) +
                  "/" + std::to_string(cs.color_error) + "/" + std::to_string(cs.normal_error) +
                  " max level " + std::to_string(cs.max_level) + " slice " +
-                 std::to_string(cs.slice_bytes) + " cell " + std::to_string(cs.cell));
+                 std::to_string(cs.slice_bytes) + " cell " + std::to_string(cs.cell) +
+                 (cs.compressed ? " compressed" : ""));
     const GridTransform grid = GridTransform::fit(mesh.bounds(), cs.resolution);
     VoxelizeOptions vo;
     vo.attributes = true;
@@ -303,6 +327,7 @@ TEST(EsvoSlices, TopDownContoursEqualSlicingTheInCoreBuild) {
     const auto want_path = temp_file("in-core-contours");
     esvo::SliceOptions so;
     so.slice_bytes = cs.slice_bytes;
+    so.compressed = cs.compressed;
     esvo::write_slices(octree, want_path, so);
     const std::vector<uint8_t> want = testing::read_bytes(want_path);
     const auto want_file = esvo::SliceFile::open(want_path);
@@ -321,6 +346,7 @@ TEST(EsvoSlices, TopDownContoursEqualSlicingTheInCoreBuild) {
     bo.max_level = cs.max_level;
     bo.color_error = cs.color_error;
     bo.normal_error = cs.normal_error;
+    bo.compressed = cs.compressed;
     esvo::SliceBuildStats st;
     esvo::build_slices(mesh, grid, vo, path, bo, &st);
     const std::vector<uint8_t> got = testing::read_bytes(path);
@@ -356,6 +382,9 @@ TEST(EsvoSlices, TopDownOptionsAreChecked) {
   bo.normal_error = 181;
   EXPECT_THROW(esvo::build_slices(mesh, grid, {}, path, bo), Error);
   bo.normal_error = 10;
+  bo.compressed = true;  // compressed with a tolerance
+  EXPECT_THROW(esvo::build_slices(mesh, grid, {}, path, bo), Error);
+  bo.compressed = false;
   bo.contours = false;  // a tolerance without contours
   EXPECT_THROW(esvo::build_slices(mesh, grid, {}, path, bo), Error);
   EXPECT_FALSE(std::filesystem::exists(path));
@@ -372,6 +401,121 @@ TEST(EsvoSlices, CompressedAttributesRefused) {
   const auto path = temp_file("compressed");
   EXPECT_THROW(esvo::write_slices(octree, path), Error);
   EXPECT_FALSE(std::filesystem::exists(path));
+}
+
+// Compressed slices (§5.5 blocks per slice, esvo_slices.hpp): the same
+// voxels, leaves and contours as the raw file of the same octree; each
+// block, decoded by the independent decoder, is close to the raw values it
+// was fitted to; SliceFile::read() hands out exactly those decoded values
+// in the raw layout; the file is smaller. A file whose compressed flag is
+// flipped (directory re-hashed) disagrees with its slice sizes: refused.
+TEST(EsvoSlices, CompressedSlicesHoldBlocksOfTheRawValues) {
+  const Mesh mesh = testing::load_mesh_with_wave_colors("stanford-bunny.obj");
+  for (const bool contours : {false, true}) {
+    SCOPED_TRACE(contours ? "contours" : "cubes");
+    const GridTransform grid = GridTransform::fit(mesh.bounds(), 64);
+    VoxelizeOptions vo;
+    vo.attributes = true;
+    const VoxelSet voxels = voxelize(mesh, grid, vo);
+    esvo::BuildOptions o;
+    o.contours = contours;
+    const esvo::EsvoOctree octree =
+        contours ? esvo::build_octree(voxels, mesh, o) : esvo::build_octree(voxels, o);
+    const auto raw_path = temp_file("raw"), packed_path = temp_file("compressed");
+    esvo::SliceOptions so;
+    so.slice_bytes = 2048;
+    esvo::write_slices(octree, raw_path, so);
+    so.compressed = true;
+    esvo::write_slices(octree, packed_path, so);
+    const std::vector<uint8_t> raw_bytes = testing::read_bytes(raw_path),
+                               packed_bytes = testing::read_bytes(packed_path);
+    EXPECT_LT(double(packed_bytes.size()), 0.6 * double(raw_bytes.size()));
+    const DecodedSlices raw = decode_slice_file(raw_bytes),
+                        packed = decode_slice_file(packed_bytes);
+    ASSERT_EQ(raw.voxels.size(), packed.voxels.size());
+    double color_sum = 0, angle_sum = 0, color_max = 0, angle_max = 0;
+    size_t mismatched = 0;
+    for (const auto& [key, r] : raw.voxels) {
+      const auto it = packed.voxels.find(key);
+      if (it == packed.voxels.end()) {
+        ++mismatched;
+        continue;
+      }
+      const Voxel& p = it->second;
+      mismatched += p.leaf != r.leaf || p.has_contour != r.has_contour || p.contour != r.contour;
+      for (int c = 0; c < 3; ++c) {
+        const double d = std::abs(p.attributes.color.srgb[c] - r.attributes.color.srgb[c]);
+        color_sum += d, color_max = std::max(color_max, d);
+      }
+      const double a =
+          testing::independent::angle_between(p.attributes.normal, r.attributes.normal);
+      angle_sum += a, angle_max = std::max(angle_max, a);
+    }
+    EXPECT_EQ(mismatched, 0u);
+    const double n = double(raw.voxels.size());
+    // Against the in-core §5.5 compression of the same values (blocks of
+    // sibling pairs in its layout): about as close.
+    esvo::BuildOptions oc = o;
+    oc.attributes = esvo::AttributeFormat::Compressed;
+    const esvo::EsvoOctree in_core =
+        contours ? esvo::build_octree(voxels, mesh, oc) : esvo::build_octree(voxels, oc);
+    double in_core_sum = 0;
+    size_t in_core_n = 0;
+    for (const auto& v : testing::independent::scan_esvo(in_core.words).voxels) {
+      const auto it = raw.voxels.find({v.depth, v.x, v.y, v.z});
+      if (it == raw.voxels.end()) continue;
+      ++in_core_n;
+      for (int c = 0; c < 3; ++c)
+        in_core_sum += std::abs(v.attributes.color.srgb[c] - it->second.attributes.color.srgb[c]);
+    }
+    ASSERT_EQ(in_core_n, raw.voxels.size());
+    const double in_core_mean = in_core_sum / (3 * double(in_core_n));
+    EXPECT_GT(in_core_mean, 1.0);                         // the wave colors make it lossy
+    EXPECT_LT(color_sum / (3 * n), 1.25 * in_core_mean);  // 8-bit sRGB steps, mean
+    EXPECT_LE(color_max, 128.0);
+    EXPECT_LT(angle_sum / n, 0.5);  // degrees
+    EXPECT_LT(angle_max, 5.0);
+    EXPECT_GT(color_sum, 0.0);  // lossy: it is compressed
+    // read(): the decoded values in the raw layout, slice by slice, equal
+    // to the independent decoder's (colors exactly, normals up to the raw
+    // normal encoding).
+    const auto file = esvo::SliceFile::open(packed_path);
+    EXPECT_TRUE(file->compressed());
+    size_t checked = 0, off = 0;
+    for (uint32_t i = 0; i < file->slices().size(); ++i) {
+      const esvo::slice_layout::SliceEntry& e = file->slices()[i];
+      const std::vector<uint32_t> words = file->read(i);
+      ASSERT_EQ(words.size(), e.node_count + 2 * size_t(e.voxel_count) + e.contour_count);
+      size_t attr = e.node_count;
+      for (uint32_t d = 0; d < e.node_count; ++d) {
+        uint32_t block[6];
+        std::memcpy(block, packed_bytes.data() + e.data_offset + 4 * e.node_count + 24 * (d / 2),
+                    sizeof block);
+        const uint32_t valid = words[d] >> 8 & 0xFF;
+        for (int c = 0; c < 8; ++c) {
+          if ((valid >> c & 1u) == 0) continue;
+          const testing::independent::BlockSlot want =
+              testing::independent::decode_block_slot(block, int(d & 1) * 8 + c);
+          const testing::independent::RefColor got = testing::independent::decode_abgr(words[attr]);
+          off += got.srgb[0] != want.color.srgb[0] || got.srgb[1] != want.color.srgb[1] ||
+                 got.srgb[2] != want.color.srgb[2] ||
+                 testing::independent::angle_between(
+                     testing::independent::decode_cube_normal(words[attr + 1]), want.normal) > 0.05;
+          attr += 2;
+          ++checked;
+        }
+      }
+    }
+    EXPECT_EQ(checked, raw.voxels.size());
+    EXPECT_EQ(off, 0u);
+    // The flag flipped, the directory re-hashed: the sizes disagree.
+    std::vector<uint8_t> flipped = packed_bytes;
+    flipped[20] ^= 2;
+    testing::rehash_slice_file(flipped);
+    EXPECT_NE(testing::check_slice_file(flipped).find("data size"), std::string::npos);
+    std::filesystem::remove(raw_path);
+    std::filesystem::remove(packed_path);
+  }
 }
 
 TEST(EsvoSlices, DamagedHeaderOrDirectoryRefused) {
@@ -414,7 +558,7 @@ TEST(EsvoSlices, RegressionInputs) {
     EXPECT_EQ(error.empty(), expect_accept) << entry.path() << ": " << error;
     EXPECT_EQ(error.find('\n'), std::string::npos) << error;
   }
-  EXPECT_GE(files, 5);
+  EXPECT_GE(files, 8);
   // Re-hashing keeps a good file good, and the damaged slices are refused
   // while streaming, not at open.
   auto good = testing::read_bytes(dir / "accept-slices-bunny16.vxs");
@@ -437,29 +581,33 @@ TEST(EsvoSlices, RegressionInputs) {
 // test). Each file is refused in one line or streams with its invariants.
 TEST(EsvoSlices, RehashedWordEditsAreRefusedOrStreamSafely) {
   const auto dir = std::filesystem::path(VOXCAST_TEST_DATA_DIR) / "regress" / "slices";
-  const std::vector<uint8_t> good = testing::read_bytes(dir / "accept-slices-bunny16.vxs");
-  ASSERT_GT(good.size(), 256u);
-  // Every word of the first 4 KiB (header and directory), then a stride
-  // through the slice data: ~1,200 files.
-  std::vector<size_t> at;
-  for (size_t o = 0; o + 4 <= good.size() && o < 4096; o += 4) at.push_back(o);
-  const size_t stride = std::max<size_t>(4, (good.size() / 300) & ~size_t(3));
-  for (size_t o = 4096; o + 4 <= good.size(); o += stride) at.push_back(o);
-  size_t refused = 0, accepted = 0;
-  for (size_t o : at)
-    for (const uint32_t edit : {0xFFFFFFFFu, 0u, 0x80000000u, 1u}) {
-      std::vector<uint8_t> b = good;
-      uint32_t w;
-      std::memcpy(&w, b.data() + o, 4);
-      const uint32_t v = edit == 1u ? w + 1 : edit;
-      if (v == w) continue;
-      std::memcpy(b.data() + o, &v, 4);
-      testing::rehash_slice_file(b);
-      const std::string error = testing::check_slice_file(b);
-      EXPECT_EQ(error.find('\n'), std::string::npos) << o << ": " << error;
-      (error.empty() ? accepted : refused) += 1;
-    }
-  EXPECT_GT(refused, 0u);  // the validators behind the hashes do refuse
+  // Raw attributes, and §5.5 blocks per slice (decoded on read).
+  for (const char* name : {"accept-slices-bunny16.vxs", "accept-slices-compressed-bunny16.vxs"}) {
+    SCOPED_TRACE(name);
+    const std::vector<uint8_t> good = testing::read_bytes(dir / name);
+    ASSERT_GT(good.size(), 256u);
+    // Every word of the first 4 KiB (header and directory), then a stride
+    // through the slice data: ~1,200 files.
+    std::vector<size_t> at;
+    for (size_t o = 0; o + 4 <= good.size() && o < 4096; o += 4) at.push_back(o);
+    const size_t stride = std::max<size_t>(4, (good.size() / 300) & ~size_t(3));
+    for (size_t o = 4096; o + 4 <= good.size(); o += stride) at.push_back(o);
+    size_t refused = 0, accepted = 0;
+    for (size_t o : at)
+      for (const uint32_t edit : {0xFFFFFFFFu, 0u, 0x80000000u, 1u}) {
+        std::vector<uint8_t> b = good;
+        uint32_t w;
+        std::memcpy(&w, b.data() + o, 4);
+        const uint32_t v = edit == 1u ? w + 1 : edit;
+        if (v == w) continue;
+        std::memcpy(b.data() + o, &v, 4);
+        testing::rehash_slice_file(b);
+        const std::string error = testing::check_slice_file(b);
+        EXPECT_EQ(error.find('\n'), std::string::npos) << o << ": " << error;
+        (error.empty() ? accepted : refused) += 1;
+      }
+    EXPECT_GT(refused, 0u);  // the validators behind the hashes do refuse
+  }
 }
 
 // ---- Streaming ----
@@ -832,6 +980,51 @@ TEST_P(Streamed, CorruptedSliceRefusedTheRestRenders) {
 // bunny at 256^3 is deeper than the default walk (7 levels), so the
 // resident voxels' bounds would differ. A damaged slice does not throw: the
 // walk ends at its descriptors' coarser cubes, which contain what they hold.
+// Compressed slices stream like raw ones: decoded on load (read()), the
+// converged streamed image equals the whole file opened at once; the hits
+// (depth) are the raw in-core octree's; within a budget the resident bytes
+// stay under it and every pass keeps the invariants; streaming the view
+// reads fewer bytes than from the raw file (whose slices are planned with
+// the raw record sizes, so its hierarchy differs).
+TEST_P(Streamed, CompressedSlicesStreamLikeRawOnes) {
+  const SlicedBunny b(128, GetParam(), 4096, "compressed-raw");
+  const auto path = temp_file(std::string("compressed-stream") + (GetParam() ? "-c" : ""));
+  esvo::SliceOptions so;
+  so.slice_bytes = 4096;
+  so.compressed = true;
+  esvo::write_slices(*b.octree, path, so);
+  const RenderOptions ro = view_options(b.in_core.bounds(), 96, 0.f);
+  const RenderResult raw = render(b.in_core, ro);
+  esvo::StreamedEsvo whole(esvo::SliceFile::open(path));
+  whole.load_all();
+  whole.check_invariants();
+  const RenderResult want = render(static_cast<Structure&>(whole), ro);
+  EXPECT_TRUE(same_pixels(want.depth, raw.depth));
+  EXPECT_FALSE(same_pixels(want.color, raw.color));  // decoded §5.5 values
+  esvo::StreamedEsvo s(esvo::SliceFile::open(path));
+  int frames = 0;
+  const RenderResult got = stream_until_still(s, ro, &frames);
+  EXPECT_GT(frames, 2);
+  EXPECT_TRUE(same_pixels(got.color, want.color));
+  EXPECT_TRUE(same_pixels(got.depth, want.depth));
+  esvo::StreamedEsvo from_raw(esvo::SliceFile::open(b.path));
+  stream_until_still(from_raw, ro, &frames);
+  EXPECT_LT(s.stats().bytes_read, from_raw.stats().bytes_read);
+  // Within a budget of a third of the whole scene.
+  esvo::StreamOptions small;
+  small.budget_bytes = whole.stats().resident_bytes / 3;
+  esvo::StreamedEsvo budgeted(esvo::SliceFile::open(path), small);
+  for (int f = 0; f < 12; ++f) {
+    render(static_cast<Structure&>(budgeted),
+           view_options(b.in_core.bounds(), 64, 0.f, 30.f + 25.f * float(f), 20.f));
+    budgeted.check_invariants();
+    EXPECT_LE(budgeted.stats().resident_bytes, small.budget_bytes);
+  }
+  EXPECT_GT(budgeted.stats().loaded, 0u);
+  EXPECT_EQ(budgeted.stats().refused, 0u);
+  std::filesystem::remove(path);
+}
+
 TEST_P(Streamed, FileOccupiedBoundsAreTheInCoreOctrees) {
   const SlicedBunny b(256, GetParam(), 8192, "bounds");
   const auto file = esvo::SliceFile::open(b.path);
@@ -928,11 +1121,37 @@ TEST(EsvoSlicesCli, BuildInfoRender) {
     ++frames;
   }
   EXPECT_EQ(frames, 5) << r.output;
-  // Usage errors: --slices with compressed attributes; --budget on a .vxc.
+  // Compressed attributes (§5.5 blocks per slice): built top-down, shown by
+  // info, rendered with the same hits as the raw file; not with the
+  // attribute tolerances (a usage error).
   r = testing::run_cli("build '" + mesh +
-                       "' --resolution 16 --slices --attributes compressed -o '" +
+                       "' --resolution 64 --slices --slice-size 2K --attributes compressed -o '" +
                        dir.file("c.vxs") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("top-down from"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find(", compressed attributes"), std::string::npos) << r.output;
+  EXPECT_LT(std::filesystem::file_size(dir.file("c.vxs")), 0.6 * std::filesystem::file_size(out));
+  r = testing::run_cli("info --json '" + dir.file("c.vxs") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("\"attributes\": \"compressed\""), std::string::npos) << r.output;
+  for (const char* in : {"c.vxs", "b.vxs"}) {
+    r = testing::run_cli("render '" + dir.file(in) + "' --size 48x40 --depth '" +
+                         dir.file(std::string(in) + ".pfm") + "' -o '" +
+                         dir.file(std::string(in) + ".png") + "'");
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+  }
+  EXPECT_EQ(testing::read_bytes(dir.file("c.vxs.pfm")), testing::read_bytes(dir.file("b.vxs.pfm")));
+  EXPECT_NE(testing::read_bytes(dir.file("c.vxs.png")), testing::read_bytes(dir.file("b.vxs.png")));
+  r = testing::run_cli("render '" + dir.file("c.vxs") +
+                       "' --budget 40K --frames 3 --size 64x64 -o '" + dir.file("c.png") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  r = testing::run_cli("build '" + mesh +
+                       "' --resolution 16 --contours --color-error 8 --slices --attributes "
+                       "compressed -o '" +
+                       dir.file("c2.vxs") + "'");
   EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(dir.file("c2.vxs")));
+  // Usage errors: --budget on a .vxc.
   r = testing::run_cli("build '" + mesh + "' --resolution 16 -o '" + dir.file("d.vxc") + "'");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   r = testing::run_cli("render '" + dir.file("d.vxc") + "' --budget 1M -o '" + dir.file("d.png") +

@@ -12,11 +12,14 @@
 namespace voxcast::cli {
 
 void check_slice_settings(const BuildSettings& s) {
-  if (s.format != "esvo" || s.compress_attributes)
-    throw UsageError("--slices needs --format esvo with --attributes raw");
+  if (s.format != "esvo") throw UsageError("--slices needs --format esvo");
+  if (s.compress_attributes && (s.color_error >= 0 || s.normal_error >= 0))
+    throw UsageError(
+        "--slices with --attributes compressed excludes --color-error and --normal-error (build "
+        "the slices with raw attributes, or a .vxc in core)");
 }
 
-std::string build_slices_top_down(const BuildSettings& s, uint64_t slice_bytes,
+std::string build_slices_top_down(const BuildSettings& s, uint64_t slice_bytes, bool compressed,
                                   const std::filesystem::path& to) {
   MeshLoadStats mesh_stats;
   Image height_map;  // the materials' (--displacement-scale without --displacement)
@@ -39,6 +42,7 @@ std::string build_slices_top_down(const BuildSettings& s, uint64_t slice_bytes,
   bo.geometry_error = s.geometry_error;
   bo.color_error = s.color_error;
   bo.normal_error = s.normal_error;
+  bo.compressed = compressed;
   if (displacement) {
     bo.displacement = &*displacement;
     bo.displacement_scale = scale;
@@ -47,30 +51,33 @@ std::string build_slices_top_down(const BuildSettings& s, uint64_t slice_bytes,
   esvo::build_slices(mesh, grid, vo, to, bo, &st);
   char line[256];
   std::snprintf(
-      line, sizeof line, "%llu slices (target %s), %s, top-down from %llu cells of %u^3%s",
+      line, sizeof line, "%llu slices (target %s), %s, top-down from %llu cells of %u^3%s%s",
       (unsigned long long)st.slices, format_bytes(double(slice_bytes)).c_str(),
       format_bytes(double(st.file_bytes)).c_str(), (unsigned long long)st.cells, st.cell_size,
       s.contours     ? ", contours"
       : displacement ? ", displaced"
-                     : "");
+                     : "",
+      compressed ? ", compressed attributes" : "");
   return line;
 }
 
-void write_slice_file(const Structure& structure, uint64_t slice_bytes,
+void write_slice_file(const Structure& structure, uint64_t slice_bytes, bool compressed,
                       const std::filesystem::path& to) {
   const auto* e = dynamic_cast<const esvo::EsvoStructure*>(&structure);
   if (!e) throw Error("--slices: the built structure is not an ESVO octree");
   esvo::SliceOptions o;
   o.slice_bytes = slice_bytes;
+  o.compressed = compressed;
   esvo::write_slices(e->octree(), to, o);
 }
 
 std::string describe_slice_file(const std::string& path, uint64_t slice_bytes) {
   const auto file = esvo::SliceFile::open(path);
   char line[256];
-  std::snprintf(line, sizeof line, "%zu slices (target %s), %s", file->slices().size(),
+  std::snprintf(line, sizeof line, "%zu slices (target %s), %s%s", file->slices().size(),
                 format_bytes(double(slice_bytes)).c_str(),
-                format_bytes(double(file->header().file_bytes)).c_str());
+                format_bytes(double(file->header().file_bytes)).c_str(),
+                file->compressed() ? ", compressed attributes" : "");
   return line;
 }
 

@@ -11,18 +11,20 @@
 
 namespace voxcast::cli {
 
-/// Throws UsageError unless `s` can be written as a slice file (ESVO, raw
-/// attributes).
+/// Throws UsageError unless `s` can be written as a slice file (ESVO; with
+/// --attributes compressed no --color-error/--normal-error).
 void check_slice_settings(const BuildSettings& s);
 
 /// The top-down slice builder (esvo §7.1) from the mesh of `s` straight into
 /// `to`, never holding the octree; prints nothing. Returns the summary line's
 /// text (without the path and time).
-std::string build_slices_top_down(const BuildSettings& s, uint64_t slice_bytes,
+/// `compressed`: §5.5 compression blocks per slice (esvo_slices.hpp).
+std::string build_slices_top_down(const BuildSettings& s, uint64_t slice_bytes, bool compressed,
                                   const std::filesystem::path& to);
 
-/// Writes the in-core built ESVO `structure` as a slice file at `to`.
-void write_slice_file(const Structure& structure, uint64_t slice_bytes,
+/// Writes the in-core built ESVO `structure` (raw attributes) as a slice
+/// file at `to`, its slices' attributes compressed if `compressed`.
+void write_slice_file(const Structure& structure, uint64_t slice_bytes, bool compressed,
                       const std::filesystem::path& to);
 
 /// "N slices (target X), Y" for the slice file at `path`.

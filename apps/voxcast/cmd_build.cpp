@@ -93,7 +93,8 @@ Runner add_build(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--attributes", args->attributes,
                   "Color/normal storage: raw (8 B/voxel) | compressed (esvo §5.5 blocks, lossy; "
-                  "dag: 16 Morton-order voxels per 24 B block)")
+                  "dag: 16 Morton-order voxels per 24 B block; --slices: one block per two "
+                  "descriptors of a slice)")
       ->capture_default_str();
   if (!format_registry().formats().empty()) args->format = format_registry().formats().front().name;
   std::string formats;
@@ -226,9 +227,14 @@ Runner add_build(CLI::App& app) {
       s.displacement_from_mesh = args->displacement.empty();
     }
     uint64_t slice_bytes = 0;
+    bool slice_compressed = false;
     if (args->slices) {
       check_slice_settings(s);
       slice_bytes = parse_byte_size(args->slice_size.c_str());
+      // A slice file compresses its own slices (esvo_slices.hpp): an
+      // in-core build to be sliced keeps raw attributes.
+      slice_compressed = s.compress_attributes;
+      s.compress_attributes = false;
     }
     OutputSet outputs(s.displacement.empty()
                           ? std::vector<std::string>{args->input}
@@ -246,7 +252,7 @@ Runner add_build(CLI::App& app) {
       // solid fill and voxel files slice the in-core build below.
       std::string summary;
       outputs.write(args->output, [&](const std::filesystem::path& to) {
-        summary = build_slices_top_down(s, slice_bytes, to);
+        summary = build_slices_top_down(s, slice_bytes, slice_compressed, to);
       });
       outputs.commit();
       std::printf("%s: %s, %.2f s\n", printable(args->output).c_str(), summary.c_str(),
@@ -265,7 +271,7 @@ Runner add_build(CLI::App& app) {
     info.leaf_voxels = built.leaf_voxels;
     outputs.write(args->output, [&](const std::filesystem::path& to) {
       if (args->slices)
-        write_slice_file(*built.structure, slice_bytes, to);
+        write_slice_file(*built.structure, slice_bytes, slice_compressed, to);
       else
         save_scene(to, s.format, *built.structure, info);
     });

@@ -31,12 +31,26 @@
 //   Slice data (node_count descriptors N, voxel_count V children, contour_count C):
 //     N u32 descriptor words  | 23..16 contour mask | 15..8 valid mask | 7..0 leaf mask |
 //                             (bits 31..24 zero; masks as in esvo.hpp, slot i = bit i)
+//     raw attributes (header flag kFlagCompressed clear):
 //     V x (u32 ABGR color, u32 cube normal)  the children's raw attributes
 //                             (esvo.hpp "Raw attribute attachment"), descriptor
 //                             by descriptor, slot order
+//     compressed attributes (kFlagCompressed set; esvo §5.5):
+//     P = ceil(N/2) x 6 u32   compression blocks (esvo.hpp "Compressed
+//                             attribute attachment", block words 0-5): block k
+//                             holds the children of the slice's descriptors
+//                             2k and 2k+1, the child in slot i of descriptor
+//                             d at block slot (d & 1) * 8 + i (consecutive
+//                             descriptors in Morton order: neighbours in
+//                             space, as §5.5 pairs siblings); unused block
+//                             slots have index 0
 //     C u32 contour values    the children's contours (esvo.hpp ContourValue),
 //                             descriptor by descriptor, slot order
-//   data_bytes = 4 N + 8 V + 4 C; its xxh64 (seed 0) is SliceEntry::hash.
+//   data_bytes = 4 N + 8 V + 4 C (raw) or 4 N + 24 ceil(N/2) + 4 C
+//   (compressed); its xxh64 (seed 0) is SliceEntry::hash. SliceFile::read()
+//   hands a compressed slice out decoded into the raw form, so the streamed
+//   structure holds raw values in memory (§5.5 blocks are for the disk and
+//   the bandwidth; they decode to the values the .vxs renders).
 //   header.directory_hash = xxh64 of the header's first 120 bytes followed by
 //   the directory.
 #include <atomic>
@@ -67,7 +81,8 @@ namespace voxcast::esvo {
 namespace slice_layout {
 inline constexpr char kMagic[8] = {'V', 'X', 'S', 'L', 'I', 'C', 'E', '\0'};
 inline constexpr uint32_t kVersion = 1;
-inline constexpr uint32_t kFlagContours = 1;  // FileHeader::flags
+inline constexpr uint32_t kFlagContours = 1;    // FileHeader::flags
+inline constexpr uint32_t kFlagCompressed = 2;  // §5.5 compression blocks instead of raw values
 inline constexpr uint32_t kNoParent = 0xFFFFFFFFu;
 
 struct FileHeader {
@@ -75,7 +90,7 @@ struct FileHeader {
   uint32_t version;         //   8: kVersion
   uint32_t header_bytes;    //  12: 128
   uint32_t entry_bytes;     //  16: 64
-  uint32_t flags;           //  20: kFlagContours
+  uint32_t flags;           //  20: kFlagContours | kFlagCompressed
   uint32_t slice_count;     //  24
   uint32_t levels;          //  28: grid levels (leaves at depth `levels`)
   uint32_t resolution;      //  32: 2^levels
@@ -140,11 +155,16 @@ struct SliceOptions {
   /// exceeds it is split; a single descriptor's record is never split, so a
   /// slice can exceed a tiny target by one record.
   uint64_t slice_bytes = uint64_t(1) << 20;
+  /// Store the attributes as §5.5 compression blocks (see the layout above),
+  /// encoded from the octree's raw values.
+  bool compressed = false;
 };
 
 /// The slice file of an in-core octree: the same voxels, attributes and
-/// contours. Raw attributes only (a compressed §5.5 octree is refused: its
-/// attributes are per descriptor pair, which a slice does not preserve).
+/// contours. The octree's attributes must be raw (a compressed §5.5 octree
+/// is refused: its blocks pair descriptors of its layout, which a slice does
+/// not preserve, and re-encoding decoded values would compress twice);
+/// `options.compressed` encodes the slices' own blocks from them.
 /// Written to a temporary file and renamed into place. Throws voxcast::Error.
 void write_slices(const EsvoOctree& octree, const std::filesystem::path& path,
                   const SliceOptions& options = {});
@@ -174,6 +194,11 @@ struct SliceBuildOptions {
   /// the in-core displaced build.
   const DisplacementMap* displacement = nullptr;
   float displacement_scale = 0;
+  /// §5.5 compression blocks per slice, as SliceOptions::compressed: the file
+  /// equals write_slices(the in-core raw build, {.compressed = true}). Not
+  /// with the attribute tolerances (their test is of the decoded values,
+  /// §7.3, which depend on the pairing the refinement changes).
+  bool compressed = false;
 };
 struct SliceBuildStats {
   uint64_t slices = 0;
@@ -217,9 +242,13 @@ class SliceFile {
   const std::vector<slice_layout::SliceEntry>& slices() const { return slices_; }
   GridTransform grid() const;
   bool has_contours() const { return (header_.flags & slice_layout::kFlagContours) != 0; }
+  /// §5.5 compression blocks on disk (read() decodes them).
+  bool compressed() const { return (header_.flags & slice_layout::kFlagCompressed) != 0; }
   const std::filesystem::path& path() const { return path_; }
 
-  /// Slice i's data as words (pread; safe from several threads at once).
+  /// Slice i's data as words in the raw layout (pread; safe from several
+  /// threads at once): N descriptor words, 2 V raw attribute words, C
+  /// contours; a compressed slice is verified as stored, then decoded.
   /// Throws voxcast::Error on a read error or a hash mismatch.
   std::vector<uint32_t> read(uint32_t i) const;
 

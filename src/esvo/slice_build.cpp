@@ -150,6 +150,7 @@ struct Builder {
   // With contours: what the in-core planner gets, and its mesh.
   BuildOptions plan_options;
   std::shared_ptr<const detail::PlannerMesh> pmesh;  // null: no contours
+  bool compressed = false;                           // §5.5 compression blocks per slice
   using Seed = std::shared_ptr<const detail::SubtreeSeed>;
 
   /// Voxelizes the aligned cube (depth `depth`, code `code`) with the
@@ -219,9 +220,20 @@ struct Builder {
     e.node_count = uint32_t(words.size());
     e.voxel_count = uint32_t(attrs.size() / 2);
     e.contour_count = uint32_t(contours.size());
-    words.insert(words.end(), attrs.begin(), attrs.end());
+    const uint64_t planned = e.data_bytes;
+    if (compressed) {
+      const std::vector<uint32_t> blocks = detail::compress_slice_attributes(words, attrs);
+      words.insert(words.end(), blocks.begin(), blocks.end());
+    } else {
+      words.insert(words.end(), attrs.begin(), attrs.end());
+    }
     words.insert(words.end(), contours.begin(), contours.end());
     e.data_bytes = uint32_t(words.size() * 4);
+    // The data of the slices after it was placed by the parent's plan.
+    if (i != 0 && e.data_bytes != planned)
+      throw Error("slice builder: slice " + std::to_string(i) + " holds " +
+                  std::to_string(e.data_bytes) + " bytes, its parent planned " +
+                  std::to_string(planned));
     e.hash = XXH64(words.data(), words.size() * 4, 0);
     const char* p = reinterpret_cast<const char*>(words.data());
     for (size_t done = 0; done < e.data_bytes;) {
@@ -234,8 +246,8 @@ struct Builder {
 
   /// The child slices planned from the next level's records `next`, with the
   /// node counts and sizes the next level will have.
-  static std::vector<sl::SliceEntry> plan_children(const std::vector<detail::PlanNode>& next, int n,
-                                                   int r, uint32_t i, uint64_t slice_bytes) {
+  std::vector<sl::SliceEntry> plan_children(const std::vector<detail::PlanNode>& next, int n, int r,
+                                            uint32_t i, uint64_t slice_bytes) const {
     std::vector<sl::SliceEntry> children;
     detail::plan_child_slices(next, n, r, i, slice_bytes, &children);
     for (sl::SliceEntry& c : children) {
@@ -245,6 +257,9 @@ struct Builder {
           ++c.node_count;
           c.data_bytes += q.bytes;
         }
+      // The records count half a compression block each: an odd slice's
+      // last block is whole (detail::slice_data_bytes).
+      if (compressed && (c.node_count & 1u) != 0) c.data_bytes += 12;
     }
     return children;
   }
@@ -288,7 +303,8 @@ struct Builder {
         attrs.push_back(encode_color_abgr(red.out[b].color));
         attrs.push_back(encode_normal_cube(red.out[b].normal));
         if (!finest)
-          next.push_back({red.out[b].code, uint32_t(4 + 8 * std::popcount(red.out[b].mask))});
+          next.push_back({red.out[b].code, detail::slice_record_bytes(
+                                               std::popcount(red.out[b].mask), 0, compressed)});
       }
       words.push_back(sl::SliceValid::put(valid) | sl::SliceLeaf::put(finest ? valid : 0u));
       a = b;
@@ -457,8 +473,9 @@ struct Builder {
           const uint32_t g = first[size_t(D) - 1][c];
           for (int u = 0; u < std::popcount(unsigned(out[c].mask)); ++u)
             with_contour += plan.contour[size_t(n) + 2][g + size_t(u)] != 0;
-          next.push_back({out[c].code, uint32_t(4 + 8 * std::popcount(unsigned(out[c].mask)) +
-                                                4 * with_contour)});
+          next.push_back(
+              {out[c].code, detail::slice_record_bytes(std::popcount(unsigned(out[c].mask)),
+                                                       int(with_contour), compressed)});
         }
       }
       words.push_back(sl::SliceValid::put(valid) | sl::SliceLeaf::put(leaf) |
@@ -515,7 +532,12 @@ void build_slices(const Mesh& mesh, const GridTransform& grid, const VoxelizeOpt
   if (options.displacement != nullptr &&
       (options.contours || !std::isfinite(options.displacement_scale)))
     throw Error("slice builder: displacement needs a finite scale and no contours");
+  if (options.compressed && (options.color_error >= 0 || options.normal_error >= 0))
+    throw Error(
+        "slice builder: compressed attributes with the color or normal error are not supported "
+        "(build the slices with raw attributes, or in core as a .vxc)");
   Builder b{mesh, grid, voxelize, {}, {}, 0, 0, -1, {}, {}, {}, {}, {}, {}, {}};
+  b.compressed = options.compressed;
   if (options.contours) {
     if (mesh.triangle_count() > size_t(UINT32_MAX))
       throw Error("slice builder: more than 2^32-1 triangles");
@@ -616,9 +638,10 @@ void build_slices(const Mesh& mesh, const GridTransform& grid, const VoxelizeOpt
 
   // Assemble: header, directory, then the data file's bytes.
   const bool contours = b.pmesh != nullptr;
-  sl::FileHeader h = detail::slice_file_header(grid, contours, options.slice_bytes, slices);
+  sl::FileHeader h =
+      detail::slice_file_header(grid, contours, b.compressed, options.slice_bytes, slices);
   for (sl::SliceEntry& e : slices) e.data_offset += h.data_offset;
-  h = detail::slice_file_header(grid, contours, options.slice_bytes, slices);
+  h = detail::slice_file_header(grid, contours, b.compressed, options.slice_bytes, slices);
   const std::filesystem::path tmp = path.string() + ".tmp";
   {
     std::ofstream out(tmp, std::ios::binary | std::ios::trunc);

@@ -14,6 +14,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "esvo/compress.hpp"
 #include "esvo/layout_internal.hpp"
 #include "esvo/slice_plan.hpp"
 #include "voxcast/error.hpp"
@@ -62,14 +63,16 @@ uint32_t descriptor_word(const uint32_t* w, uint32_t slot, bool contours) {
 
 /// The descriptors of every level in Morton order: level n + 1 lists the
 /// subdivided children of level n's descriptors, in order and slot order.
-std::vector<std::vector<LevelNode>> octree_levels(const EsvoOctree& octree, bool contours) {
+std::vector<std::vector<LevelNode>> octree_levels(const EsvoOctree& octree, bool contours,
+                                                  bool compressed) {
   const uint32_t* w = octree.words.data();
   std::vector<std::vector<LevelNode>> levels;
   auto record = [&](uint64_t code, uint32_t slot) {
     const uint32_t d = descriptor_word(w, slot, contours);
-    return LevelNode{code, slot,
-                     uint32_t(4 + 8 * std::popcount(sl::SliceValid::get(d)) +
-                              4 * std::popcount(sl::SliceContourMask::get(d)))};
+    return LevelNode{
+        code, slot,
+        detail::slice_record_bytes(std::popcount(sl::SliceValid::get(d)),
+                                   std::popcount(sl::SliceContourMask::get(d)), compressed)};
   };
   levels.push_back({record(0, octree.root_slot())});
   while (true) {
@@ -148,14 +151,37 @@ void plan_child_slices(std::span<const PlanNode> next, int n, int r, uint32_t pa
   }
 }
 
-sl::FileHeader slice_file_header(const GridTransform& grid, bool contours, uint64_t slice_bytes,
-                                 const std::vector<sl::SliceEntry>& slices) {
+std::vector<uint32_t> compress_slice_attributes(std::span<const uint32_t> descriptors,
+                                                std::span<const uint32_t> raw) {
+  const size_t n = descriptors.size();
+  std::vector<uint32_t> blocks(kCompressedBlockWords * ((n + 1) / 2));
+  size_t at = 0;  // raw value of the next child
+  uint64_t values[16];
+  for (size_t k = 0; 2 * k < n; ++k) {
+    uint32_t used = 0;
+    int count = 0;
+    for (size_t d = 2 * k; d < std::min(n, 2 * k + 2); ++d) {
+      const uint32_t valid = sl::SliceValid::get(descriptors[d]);
+      used |= valid << ((d & 1) * 8);
+      for (int c = 0; c < std::popcount(valid); ++c, ++at) {
+        if (2 * at + 2 > raw.size()) throw Error("slices: fewer attributes than children");
+        values[count++] = uint64_t(raw[2 * at]) | uint64_t(raw[2 * at + 1]) << 32;
+      }
+    }
+    encode_block_from_raw(values, used, &blocks[kCompressedBlockWords * k]);
+  }
+  if (2 * at != raw.size()) throw Error("slices: more attributes than children");
+  return blocks;
+}
+
+sl::FileHeader slice_file_header(const GridTransform& grid, bool contours, bool compressed,
+                                 uint64_t slice_bytes, const std::vector<sl::SliceEntry>& slices) {
   sl::FileHeader h{};
   std::memcpy(h.magic, sl::kMagic, sizeof h.magic);
   h.version = sl::kVersion;
   h.header_bytes = sizeof(sl::FileHeader);
   h.entry_bytes = sizeof(sl::SliceEntry);
-  h.flags = contours ? sl::kFlagContours : 0u;
+  h.flags = (contours ? sl::kFlagContours : 0u) | (compressed ? sl::kFlagCompressed : 0u);
   h.slice_count = uint32_t(slices.size());
   h.levels = uint32_t(grid.levels);
   h.resolution = grid.resolution;
@@ -187,8 +213,8 @@ void write_slices(const EsvoOctree& octree, const std::filesystem::path& path,
   if (octree.attribute_format() != AttributeFormat::Raw)
     throw Error("slices: the octree has compressed attributes (esvo §5.5); build it with raw ones");
   if (options.slice_bytes < 64) throw Error("slices: the slice size must be at least 64 bytes");
-  const bool contours = octree.has_contours();
-  const std::vector<std::vector<LevelNode>> levels = octree_levels(octree, contours);
+  const bool contours = octree.has_contours(), compressed = options.compressed;
+  const std::vector<std::vector<LevelNode>> levels = octree_levels(octree, contours, compressed);
 
   // Plan the hierarchy breadth-first (§7.1: the parent decides how its next
   // level is split). Children of one slice are consecutive and sorted.
@@ -246,6 +272,7 @@ void write_slices(const EsvoOctree& octree, const std::filesystem::path& path,
     e.node_count = uint32_t(hi - lo);
     e.voxel_count = uint32_t(attrs.size() / 2);
     e.contour_count = uint32_t(contour_values.size());
+    if (compressed) attrs = detail::compress_slice_attributes(data, attrs);
     data.insert(data.end(), attrs.begin(), attrs.end());
     data.insert(data.end(), contour_values.begin(), contour_values.end());
     e.data_offset = offset;
@@ -256,7 +283,7 @@ void write_slices(const EsvoOctree& octree, const std::filesystem::path& path,
   }
 
   const sl::FileHeader h =
-      detail::slice_file_header(octree.grid, contours, options.slice_bytes, slices);
+      detail::slice_file_header(octree.grid, contours, compressed, options.slice_bytes, slices);
   out.seekp(0);
   write_all(out, &h, sizeof h);
   write_all(out, slices.data(), slices.size() * sizeof(sl::SliceEntry));
@@ -315,8 +342,8 @@ std::shared_ptr<SliceFile> SliceFile::open(const std::filesystem::path& path) {
     throw bad("data offset");
   if (h.file_bytes != size) throw bad("file size " + std::to_string(size) + " is not the header's");
   if (h.levels < 1 || h.levels > 20 || h.resolution != (1u << h.levels)) throw bad("grid levels");
-  if ((h.flags & ~sl::kFlagContours) != 0 || h.reserved0 || h.reserved1 || h.reserved2 ||
-      h.reserved3)
+  if ((h.flags & ~(sl::kFlagContours | sl::kFlagCompressed)) != 0 || h.reserved0 || h.reserved1 ||
+      h.reserved2 || h.reserved3)
     throw bad("reserved bits");
   f->slices_.resize(h.slice_count);
   pread_all(f->fd_, f->slices_.data(), f->slices_.size() * sizeof(sl::SliceEntry), sizeof h, path);
@@ -339,7 +366,7 @@ std::shared_ptr<SliceFile> SliceFile::open(const std::filesystem::path& path) {
     if (e.reserved0 || e.reserved1) throw bad(at + "reserved bits");
     if (e.data_offset != offset) throw bad(at + "data offset");
     if (uint64_t(e.data_bytes) !=
-        4 * uint64_t(e.node_count) + 8 * uint64_t(e.voxel_count) + 4 * uint64_t(e.contour_count))
+        detail::slice_data_bytes(e.node_count, e.voxel_count, e.contour_count, f->compressed()))
       throw bad(at + "data size");
     if (e.node_count == 0 || e.node_count > sl::kMaxSliceNodes) throw bad(at + "node count");
     if (e.voxel_count > 8 * uint64_t(e.node_count) || e.contour_count > e.voxel_count ||
@@ -393,7 +420,30 @@ std::vector<uint32_t> SliceFile::read(uint32_t i) const {
   pread_all(fd_, words.data(), e.data_bytes, e.data_offset, path_);
   if (XXH64(words.data(), e.data_bytes, 0) != e.hash)
     throw Error(io_error(path_, "slice " + std::to_string(i) + ": hash mismatch"));
-  return words;
+  if (!compressed()) return words;
+  // Decoded into the raw layout: the children of descriptor d, in slot
+  // order, from block d >> 1, slots (d & 1) * 8 + i. The sizes were checked
+  // at open (data_bytes); a valid-mask total other than the directory's
+  // voxel count decodes as many values and the loader refuses the slice.
+  const size_t n = e.node_count, blocks = (n + 1) / 2;
+  const uint32_t* block0 = words.data() + n;
+  const uint32_t* contours = block0 + detail::kCompressedBlockWords * blocks;
+  std::vector<uint32_t> raw(words.begin(), words.begin() + std::ptrdiff_t(n));
+  raw.reserve(n + 2 * size_t(e.voxel_count) + e.contour_count);
+  for (size_t d = 0; d < n; ++d) {
+    const uint32_t valid = sl::SliceValid::get(words[d]);
+    const uint32_t* block = block0 + detail::kCompressedBlockWords * (d >> 1);
+    for (int c = 0; c < 8; ++c) {
+      if ((valid >> c & 1u) == 0) continue;
+      Color color;
+      Vec3 normal;
+      decode_compressed_slot(block, int((d & 1) * 8) + c, &color, &normal);
+      raw.push_back(encode_color_abgr(color));
+      raw.push_back(encode_normal_cube(normal));
+    }
+  }
+  raw.insert(raw.end(), contours, contours + e.contour_count);
+  return raw;
 }
 
 Aabb SliceFile::occupied_bounds(int max_level) const {
@@ -501,7 +551,8 @@ std::string SliceFile::describe() const {
   std::ostringstream o;
   o << "slice hierarchy (esvo §7): " << slices_.size() << " slices, target " << header_.slice_bytes
     << " B, " << header_.total_nodes << " descriptors, " << header_.total_voxels << " voxels"
-    << (has_contours() ? ", contours" : "") << "\n";
+    << (has_contours() ? ", contours" : "") << (compressed() ? ", compressed attributes" : "")
+    << "\n";
   o << "  level   slices   descriptors        bytes    min B    mean B     max B  max children\n";
   for (size_t n = 0; n < rows.size(); ++n) {
     const Row& r = rows[n];

@@ -78,7 +78,7 @@ SceneDescription describe(const Structure& structure, const DescribeStyle& style
   j["descriptors"] = h.total_nodes;
   j["voxels"] = h.total_voxels;
   j["contours"] = file.has_contours();
-  j["attributes"] = "raw";
+  j["attributes"] = file.compressed() ? "compressed" : "raw";
   j["resident_bytes_all"] = whole;
   j["resident_bytes"] = s.stats().resident_bytes;
   j["resident_slices"] = s.stats().resident_slices;
@@ -89,6 +89,10 @@ SceneDescription describe(const Structure& structure, const DescribeStyle& style
       fmt::sprintf("structure   esvo-sliced, %zu slices on disk (esvo 7), streamed blocks\n",
                    file.slices().size());
   d.summary += fmt::sprintf("contours    %s\n", file.has_contours() ? "yes" : "no");
+  d.summary += fmt::sprintf("attributes  %s\n",
+                            file.compressed()
+                                ? "compressed on disk (esvo 5.5 blocks per slice), raw in memory"
+                                : "raw (esvo 5.4)");
   d.voxels = fmt::sprintf("%llu below the root in all levels, %llu descriptors",
                           (unsigned long long)h.total_voxels, (unsigned long long)h.total_nodes);
   d.details = file.describe();

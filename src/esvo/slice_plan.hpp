@@ -27,10 +27,29 @@ struct PlanNode {
 void plan_child_slices(std::span<const PlanNode> next, int n, int r, uint32_t parent,
                        uint64_t slice_bytes, std::vector<slice_layout::SliceEntry>* out);
 
+/// The bytes a descriptor with `children` valid children, `contours` of
+/// them with a contour, adds to its slice, as the planner counts them: raw
+/// 4 + 8 per child + 4 per contour; compressed 4 + 12 (half a compression
+/// block) + 4 per contour (slice_data_bytes() adds the odd slice's other half).
+inline uint32_t slice_record_bytes(int children, int contours, bool compressed) {
+  return compressed ? uint32_t(16 + 4 * contours) : uint32_t(4 + 8 * children + 4 * contours);
+}
+/// data_bytes of a slice of N descriptors, V children and C contours.
+inline uint64_t slice_data_bytes(uint64_t n, uint64_t v, uint64_t c, bool compressed) {
+  return compressed ? 4 * n + 24 * ((n + 1) / 2) + 4 * c : 4 * n + 8 * v + 4 * c;
+}
+
+/// The compression blocks (esvo_slices.hpp layout) of a slice whose
+/// descriptor words are `descriptors` and whose children's raw attribute
+/// words (color, normal per child, descriptor by descriptor, slot order) are
+/// `raw`: ceil(N/2) blocks of 6 words.
+std::vector<uint32_t> compress_slice_attributes(std::span<const uint32_t> descriptors,
+                                                std::span<const uint32_t> raw);
+
 /// The header of a slice file with these slices (data right after the
 /// directory), its totals and directory hash filled in.
 slice_layout::FileHeader slice_file_header(const GridTransform& grid, bool contours,
-                                           uint64_t slice_bytes,
+                                           bool compressed, uint64_t slice_bytes,
                                            const std::vector<slice_layout::SliceEntry>& slices);
 
 }  // namespace voxcast::esvo::detail
