@@ -8,15 +8,19 @@
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_slices.hpp"
 #include "voxcast/esvo_structure.hpp"
+#include "voxcast/voxel_io.hpp"
 
 namespace voxcast::cli {
 
 void check_slice_settings(const BuildSettings& s) {
   if (s.format != "esvo") throw UsageError("--slices needs --format esvo");
-  if (s.compress_attributes && (s.color_error >= 0 || s.normal_error >= 0))
+  // An in-core build to be sliced (solid fill, voxel files) is built raw and
+  // compressed per slice, so its tolerances would test the raw values.
+  if (s.compress_attributes && (s.color_error >= 0 || s.normal_error >= 0) &&
+      (s.fill_solid || is_voxel_input(s.mesh_path)))
     throw UsageError(
-        "--slices with --attributes compressed excludes --color-error and --normal-error (build "
-        "the slices with raw attributes, or a .vxc in core)");
+        "--slices with --attributes compressed and --color-error/--normal-error needs a mesh "
+        "built top-down (no --fill solid or voxel file)");
 }
 
 std::string build_slices_top_down(const BuildSettings& s, uint64_t slice_bytes, bool compressed,

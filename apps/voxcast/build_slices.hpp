@@ -12,7 +12,7 @@
 namespace voxcast::cli {
 
 /// Throws UsageError unless `s` can be written as a slice file (ESVO; with
-/// --attributes compressed no --color-error/--normal-error).
+/// --attributes compressed and a color/normal tolerance, built top-down).
 void check_slice_settings(const BuildSettings& s);
 
 /// The top-down slice builder (esvo §7.1) from the mesh of `s` straight into

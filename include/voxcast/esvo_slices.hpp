@@ -195,9 +195,13 @@ struct SliceBuildOptions {
   const DisplacementMap* displacement = nullptr;
   float displacement_scale = 0;
   /// §5.5 compression blocks per slice, as SliceOptions::compressed: the file
-  /// equals write_slices(the in-core raw build, {.compressed = true}). Not
-  /// with the attribute tolerances (their test is of the decoded values,
-  /// §7.3, which depend on the pairing the refinement changes).
+  /// equals write_slices(the in-core raw build, {.compressed = true}). With
+  /// the attribute tolerances their test is of what the file holds (§7.3:
+  /// "attribute quantization and compression is performed before the
+  /// test"): a voxel is refined if its raw or its decoded value is out of
+  /// tolerance, as the in-core compressed build refines; the blocks then
+  /// pair the slices' descriptors, so the tree is the one these slices
+  /// need (no in-core build pairs the same way).
   bool compressed = false;
 };
 struct SliceBuildStats {

@@ -47,6 +47,7 @@
 #include <fstream>
 #include <thread>
 
+#include "esvo/compress.hpp"
 #include "esvo/contours.hpp"
 #include "esvo/reduce.hpp"
 #include "esvo/slice_plan.hpp"
@@ -268,9 +269,15 @@ struct Builder {
   /// the data file, its counts and hash set, its children (planned from the
   /// exact next level) returned with their counts and sizes. With contours
   /// `seed` is the region's build data and the children's go to `child_seeds`.
+  /// With compressed attributes and the attribute tolerances, `desc` marks
+  /// which of the region's voxels of the node level are the slice's
+  /// descriptors (its parent's decisions, 1 byte per voxel in Morton order;
+  /// null for the root) and the children's go to `child_descs`.
   std::vector<sl::SliceEntry> build(uint32_t i, sl::SliceEntry& e, uint64_t slice_bytes,
                                     const Seed& seed = nullptr,
-                                    std::vector<Seed>* child_seeds = nullptr) {
+                                    std::vector<Seed>* child_seeds = nullptr,
+                                    const std::vector<uint8_t>* desc = nullptr,
+                                    std::vector<std::vector<uint8_t>>* child_descs = nullptr) {
     const int L = grid.levels, n = e.node_level, r = e.region_depth;
     // With the attribute tolerances (§7.3) the reduction goes on up to the
     // region's depth and keeps the raw values of depths r..n + 2.
@@ -289,7 +296,8 @@ struct Builder {
     });
     red.finish();
     if (pmesh != nullptr)
-      return build_contoured(i, e, slice_bytes, red.out, values, seed, child_seeds);
+      return build_contoured(i, e, slice_bytes, red.out, values, seed, child_seeds, desc,
+                             child_descs);
     // The slice: level-n descriptors (the parents of the emitted nodes) and
     // the emitted nodes' attributes.
     const bool finest = n + 1 == L;
@@ -319,13 +327,35 @@ struct Builder {
   /// flags[d][node]: a second pass over the region's full-depth voxels, each
   /// compared with its ancestors, as the in-core planner compares a voxel
   /// with every full-depth voxel below it (attributes_exceed()).
+  ///
+  /// With compressed attributes (`decoded` given) the test is of what the
+  /// file will hold (§7.3 "attribute quantization and compression is
+  /// performed before the test"), as in core: a voxel of depth n + 1 is
+  /// flagged if its raw value or its value decoded from the slice's block
+  /// is out of tolerance (the in-core builder refines a leaf whose decoded
+  /// value is; refining never changes a block of the slice that holds the
+  /// voxel, so one pass decides). Depths r..n are the parent's decisions,
+  /// given in `decoded->fixed` and not compared again.
+  struct Decoded {
+    int depth = 0;                             // n + 1
+    const std::vector<uint32_t>* color;        // [node at depth n + 1]: sRGB ABGR code
+    const std::vector<Vec3>* normal;           // as the file renders it
+    std::vector<std::vector<uint8_t>>* fixed;  // [d][node] for d = r..n: flags
+  };
   const std::vector<std::vector<uint8_t>>& attribute_flags(
       const sl::SliceEntry& e, const std::vector<std::vector<uint64_t>>& values,
-      std::vector<std::vector<uint8_t>>& flags) {
+      std::vector<std::vector<uint8_t>>& flags, const Decoded* decoded = nullptr) {
     const int L = grid.levels, r = e.region_depth;
     const int top = r + int(values.size()) - 1;  // deepest flagged depth
     flags.assign(size_t(top) + 1, {});
     for (int d = r; d <= top; ++d) flags[size_t(d)].assign(values[size_t(d - r)].size(), 0);
+    const int first_compared = decoded != nullptr ? decoded->depth : r;
+    if (decoded != nullptr)
+      for (int d = r; d < first_compared; ++d) {
+        if ((*decoded->fixed)[size_t(d - r)].size() != flags[size_t(d)].size())
+          throw std::logic_error("slice builder: the parent's decisions do not match the region");
+        flags[size_t(d)] = (*decoded->fixed)[size_t(d - r)];
+      }
     // Per depth, the index of the node the current voxel lies below (voxels
     // come in Morton order, so it only moves forward) and its code.
     std::vector<size_t> at(values.size(), 0);
@@ -335,10 +365,11 @@ struct Builder {
       raw.resize(v.size());
       for (size_t k = 0; k < v.size(); ++k)
         raw[k] = detail::encode_value(v.colors[k], v.normals[k]);
-      for (int d = r; d <= top; ++d) {
+      for (int d = first_compared; d <= top; ++d) {
         const size_t j = size_t(d - r);
         const int shift = 3 * (L - d);
         std::vector<uint8_t>& f = flags[size_t(d)];
+        const bool with_decoded = decoded != nullptr && d == decoded->depth;
         // Runs of voxels below one node of depth d.
         for (size_t a = 0; a < v.size();) {
           const uint64_t c = v.codes[a] >> shift;
@@ -354,6 +385,9 @@ struct Builder {
             const uint64_t nv = values[j][at[j]];
             f[at[j]] = detail::values_exceed(raw.data(), a, b, uint32_t(nv),
                                              decode_normal_cube(uint32_t(nv >> 32)), plan_options);
+            if (with_decoded && !f[at[j]])
+              f[at[j]] = detail::values_exceed(raw.data(), a, b, (*decoded->color)[at[j]],
+                                               (*decoded->normal)[at[j]], plan_options);
           }
           a = b;
         }
@@ -366,7 +400,9 @@ struct Builder {
   std::vector<sl::SliceEntry> build_contoured(uint32_t i, sl::SliceEntry& e, uint64_t slice_bytes,
                                               const std::vector<OutNode>& out,
                                               const std::vector<std::vector<uint64_t>>& values,
-                                              const Seed& seed, std::vector<Seed>* child_seeds) {
+                                              const Seed& seed, std::vector<Seed>* child_seeds,
+                                              const std::vector<uint8_t>* desc,
+                                              std::vector<std::vector<uint8_t>>* child_descs) {
     const int L = grid.levels, n = e.node_level, r = e.region_depth;
     if (seed == nullptr || child_seeds == nullptr)
       throw std::logic_error("slice builder: a contoured slice without its build data");
@@ -426,9 +462,70 @@ struct Builder {
     for (int d = r; d <= std::min(n + 2, L) && !values.empty(); ++d)
       if (values[size_t(d - r)].size() != t.count[size_t(d)])
         throw std::logic_error("slice builder: the region's values do not match its tree");
+    // Compressed with the tolerances: the slice's descriptors are its
+    // parent's decisions (`desc`), so its §5.5 blocks -- and what each child
+    // decodes to -- are known before planning.
+    const bool decoded_test = compressed && !values.empty();
+    const size_t kn = size_t(n - r);
+    std::vector<std::vector<uint8_t>> fixed;
+    std::vector<uint32_t> dcolor;
+    std::vector<Vec3> dnormal;
+    if (decoded_test) {
+      const std::vector<uint8_t> root{1};
+      const std::vector<uint8_t>& is_desc = desc != nullptr ? *desc : root;
+      if (is_desc.size() != code[kn].size())
+        throw std::logic_error("slice builder: the parent's decisions do not match the region");
+      // Depths r..n: refined exactly where a descriptor lies below (the
+      // parent's decisions; elsewhere what the planner decides changes
+      // nothing this slice holds).
+      fixed.resize(kn + 1);
+      fixed[kn] = is_desc;
+      for (size_t k = kn; k-- > 0;) {
+        fixed[k].assign(code[k].size(), 0);
+        for (size_t p = 0; p < code[k].size(); ++p)
+          for (int c = 0; c < std::popcount(unsigned(mask[k][p])); ++c)
+            fixed[k][p] |= fixed[k + 1][first[k][p] + size_t(c)];
+      }
+      // The slice's blocks: descriptors 2b and 2b + 1 (esvo_slices.hpp).
+      dcolor.assign(out.size(), 0);
+      dnormal.assign(out.size(), Vec3{});
+      std::vector<size_t> ds;
+      for (size_t j = 0; j < is_desc.size(); ++j)
+        if (is_desc[j]) ds.push_back(j);
+      for (size_t b = 0; 2 * b < ds.size(); ++b) {
+        uint64_t v[16];
+        uint32_t used = 0;
+        int count = 0;
+        for (size_t h = 0; h < 2 && 2 * b + h < ds.size(); ++h) {
+          const size_t p = ds[2 * b + h];
+          used |= uint32_t(mask[kn][p]) << (8 * h);
+          for (int c = 0; c < std::popcount(unsigned(mask[kn][p])); ++c) {
+            const OutNode& o = out[first[kn][p] + size_t(c)];
+            v[count++] =
+                uint64_t(encode_color_abgr(o.color)) | uint64_t(encode_normal_cube(o.normal)) << 32;
+          }
+        }
+        uint32_t block[detail::kCompressedBlockWords];
+        detail::encode_block_from_raw(v, used, block);
+        for (size_t h = 0; h < 2 && 2 * b + h < ds.size(); ++h) {
+          const size_t p = ds[2 * b + h];
+          for (int s = 0, q = 0; s < 8; ++s) {
+            if (!(mask[kn][p] >> s & 1)) continue;
+            const size_t c = first[kn][p] + size_t(q++);
+            Color color;
+            Vec3 normal;
+            decode_compressed_slot(block, int(8 * h) + s, &color, &normal);
+            dcolor[c] = encode_color_abgr(color);
+            dnormal[c] = decode_normal_cube(encode_normal_cube(normal));  // as read() gives it
+          }
+        }
+      }
+    }
     std::vector<std::vector<uint8_t>> attr_flags;
+    const Decoded dec{n + 1, &dcolor, &dnormal, &fixed};
     const std::vector<std::vector<uint8_t>>* flags =
-        values.empty() ? nullptr : &attribute_flags(e, values, attr_flags);
+        values.empty() ? nullptr
+                       : &attribute_flags(e, values, attr_flags, decoded_test ? &dec : nullptr);
     // Contours of levels n + 1 and n + 2 and the leaf decisions, as in core.
     detail::ContourPlanner planner(t, pmesh, plan_options, *seed, n + 2 <= L ? n + 2 : L + 1, false,
                                    flags);
@@ -451,11 +548,14 @@ struct Builder {
     }
     // The slice: level-n descriptors kept and subdivided, their children's
     // attributes and contours.
-    const size_t kn = size_t(n - r);
     std::vector<uint32_t> words, attrs, contours;
     std::vector<detail::PlanNode> next;
+    std::vector<uint8_t> child_desc(decoded_test ? out.size() : 0, 0);
     for (size_t j = 0; j < code[kn].size(); ++j) {
-      if (!kept[kn][j] || !refined(n, j)) continue;
+      const bool is_descriptor = kept[kn][j] && refined(n, j);
+      if (decoded_test && uint8_t(is_descriptor) != fixed[kn][j])
+        throw std::logic_error("slice builder: a slice's descriptors are not its parent's");
+      if (!is_descriptor) continue;
       const uint32_t valid = mask[kn][j];
       uint32_t leaf = 0, cmask = 0;
       const uint32_t f = first[kn][j];
@@ -469,6 +569,7 @@ struct Builder {
         if (const uint32_t v = plan.contour[size_t(n) + 1][c]; v != 0)
           cmask |= 1u << s, contours.push_back(v);
         if (!child_leaf) {
+          if (decoded_test) child_desc[c] = 1;
           uint32_t with_contour = 0;
           const uint32_t g = first[size_t(D) - 1][c];
           for (int u = 0; u < std::popcount(unsigned(out[c].mask)); ++u)
@@ -487,7 +588,19 @@ struct Builder {
     // The children's build data: the seeds of their region voxels (all at
     // one depth k), from a second pass that stops there.
     child_seeds->clear();
+    if (child_descs != nullptr) child_descs->clear();
     if (children.empty()) return children;
+    if (decoded_test) {
+      if (child_descs == nullptr) throw std::logic_error("slice builder: no room for decisions");
+      const std::vector<uint64_t>& at_n1 = code[size_t(D) - 1];
+      for (const sl::SliceEntry& c : children) {
+        const int shift = 3 * (n + 1 - c.region_depth);
+        const auto lo = std::lower_bound(at_n1.begin(), at_n1.end(), c.region_code << shift);
+        const auto hi = std::lower_bound(at_n1.begin(), at_n1.end(), (c.region_code + 1) << shift);
+        child_descs->emplace_back(child_desc.begin() + (lo - at_n1.begin()),
+                                  child_desc.begin() + (hi - at_n1.begin()));
+      }
+    }
     const int k = children[0].region_depth;
     if (k == r) {  // the region is kept: one child, this seed
       child_seeds->assign(children.size(), seed);
@@ -532,10 +645,6 @@ void build_slices(const Mesh& mesh, const GridTransform& grid, const VoxelizeOpt
   if (options.displacement != nullptr &&
       (options.contours || !std::isfinite(options.displacement_scale)))
     throw Error("slice builder: displacement needs a finite scale and no contours");
-  if (options.compressed && (options.color_error >= 0 || options.normal_error >= 0))
-    throw Error(
-        "slice builder: compressed attributes with the color or normal error are not supported "
-        "(build the slices with raw attributes, or in core as a .vxc)");
   Builder b{mesh, grid, voxelize, {}, {}, 0, 0, -1, {}, {}, {}, {}, {}, {}, {}};
   b.compressed = options.compressed;
   if (options.contours) {
@@ -604,16 +713,23 @@ void build_slices(const Mesh& mesh, const GridTransform& grid, const VoxelizeOpt
   // With contours, the build data of the unbuilt slices (released when built).
   std::vector<Builder::Seed> seeds;
   if (b.pmesh != nullptr) seeds.push_back(detail::root_seed(*b.pmesh));
+  // Compressed with the tolerances: each unbuilt slice's descriptors as its
+  // parent decided them (released when built).
+  std::vector<std::vector<uint8_t>> descs;
   uint64_t data_end = 0;
   size_t level_begin = 0;
   while (level_begin < slices.size()) {
     const size_t level_end = slices.size();
     std::vector<std::vector<sl::SliceEntry>> children(level_end - level_begin);
     std::vector<std::vector<Builder::Seed>> child_seeds(level_end - level_begin);
+    std::vector<std::vector<std::vector<uint8_t>>> child_descs(level_end - level_begin);
     auto build_one = [&](size_t i) {
       Builder::Seed seed = b.pmesh != nullptr ? std::move(seeds[i]) : nullptr;
+      std::vector<uint8_t> desc;
+      if (i < descs.size()) desc = std::move(descs[i]);
       children[i - level_begin] =
-          b.build(uint32_t(i), slices[i], options.slice_bytes, seed, &child_seeds[i - level_begin]);
+          b.build(uint32_t(i), slices[i], options.slice_bytes, seed, &child_seeds[i - level_begin],
+                  i == 0 ? nullptr : &desc, &child_descs[i - level_begin]);
     };
     if (level_begin == 0) {
       build_one(0);  // sizes only known after it
@@ -632,6 +748,10 @@ void build_slices(const Mesh& mesh, const GridTransform& grid, const VoxelizeOpt
       }
       if (b.pmesh != nullptr)
         for (Builder::Seed& s : child_seeds[i - level_begin]) seeds.push_back(std::move(s));
+      if (!child_descs[i - level_begin].empty()) {
+        descs.resize(slices.size() - c.size());
+        for (std::vector<uint8_t>& d : child_descs[i - level_begin]) descs.push_back(std::move(d));
+      }
     }
     level_begin = level_end;
   }
