@@ -199,6 +199,7 @@ TEST(GigaCli, EffectsAndCameraPathFrames) {
   for (const std::string& args :
        {base + "--dof 0.1" + out, base + "--dof -1,2" + out, base + "--dof a,b" + out,
         base + "--shadows --soft-shadows" + out, base + "--light 0,0,0" + out,
+        base + "--shadows --shadow-lod -1" + out, base + "--shadows --shadow-step 0" + out,
         base + "--path " + dir.file("path.json") + out,
         base + "--frames 3 --path " + dir.file("path.json") + " --orbit 10,10" + out}) {
     const CliResult r = run_cli_split(args);

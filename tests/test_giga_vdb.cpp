@@ -284,6 +284,15 @@ TEST(GigaVdb, AgreesWithOpenVdbMarcherAtEqualStep) {
   const double e_ours = rmse(ours, fine), e_theirs = rmse(theirs, fine);
   EXPECT_LT(e_ours, 0.03) << "peer at step 0.5: " << e_theirs;
   EXPECT_LT(e_theirs, 0.03);
+  // Light cones from the finest level at the sample itself (the peer's
+  // shadow rays start there too): closer to the reference than the cones as
+  // wide as the pixel's, started one footprint away, and at least as close
+  // as the peer at the same step.
+  io.shadow_footprint_scale = 0.f;
+  GigaVoxels g0(v.producer, placed(v));
+  const double e_finest = rmse(render(g0, view, io).color, fine);
+  EXPECT_LT(e_finest, 0.5 * e_ours) << e_ours;
+  EXPECT_LE(e_finest, e_theirs) << e_ours;
 }
 
 TEST(GigaVdb, ExportWritesTheFinestLevelDeterministically) {

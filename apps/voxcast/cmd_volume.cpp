@@ -44,7 +44,7 @@ struct VolumeArgs {
   std::string transfer, background, dof, light, path;
   CameraArgs camera;
   int resolution = 256, frames = 1, threads = 0;
-  float lod = 1.f, step = 0.5f, light_radius = 0.05f;
+  float lod = 1.f, step = 0.5f, light_radius = 0.05f, shadow_step = 1.f, shadow_lod = 1.f;
   bool shading = false, verbose = false, shadows = false, soft_shadows = false;
   std::string info_source;
   int info_resolution = 256;
@@ -293,7 +293,7 @@ struct BenchArgs {
   std::string source, output, peer_output, size = "640x480", budget = "256M", light;
   CameraArgs camera;
   int frames = 5, threads = 0;
-  float lod = 1.f, step = 0.5f, reference_step = 0.125f;
+  float lod = 1.f, step = 0.5f, reference_step = 0.125f, shadow_step = 1.f, shadow_lod = 1.f;
 };
 
 /// voxcast volume bench GRID.vdb: GigaVoxels against OpenVDB's own volume
@@ -314,7 +314,10 @@ int volume_bench(const BenchArgs& a) {
   giga::GigaOptions go;
   go.budget_bytes = parse_memory_budget(a.budget, "--budget");
   VolumeIntegratorOptions io;
+  require_range("--shadow-step", a.shadow_step, 0.01, 16);
+  require_range("--shadow-lod", a.shadow_lod, 0, 16);
   io.shadows = true, io.ambient = 0.f, io.step_scale = a.step;
+  io.shadow_step_scale = a.shadow_step, io.shadow_footprint_scale = a.shadow_lod;
   if (!a.light.empty()) {
     io.light_dir = parse_vec3(a.light, "--light");
     if (!(length(io.light_dir) > 0.f)) throw UsageError("--light must not be zero");
@@ -337,8 +340,10 @@ int volume_bench(const BenchArgs& a) {
               format_bytes(double(volume.pool_bytes())).c_str());
   std::printf("camera      %s\n", view.camera.to_string().c_str());
   std::printf(
-      "image       %dx%d, step %g voxels, hard shadows, %d timed frames after one warm-up\n",
-      view.width, view.height, double(a.step), a.frames);
+      "image       %dx%d, step %g voxels, hard shadows (light cones: step %g of their voxel, "
+      "%g x the pixel footprint), %d timed frames after one warm-up\n",
+      view.width, view.height, double(a.step), double(a.shadow_step), double(a.shadow_lod),
+      a.frames);
 
   struct Row {
     std::string name;
@@ -546,6 +551,13 @@ Runner add_volume(CLI::App& app) {
   cmd->add_flag("--shadows", args->shadows, "Hard shadows: a light cone as wide as the pixel cone");
   cmd->add_flag("--soft-shadows", args->soft_shadows,
                 "Soft shadows: light cones widening by the light's size (--light-radius)");
+  cmd->add_option("--shadow-step", args->shadow_step,
+                  "Light cone step in its own voxels (with --shadows/--soft-shadows)")
+      ->capture_default_str();
+  cmd->add_option("--shadow-lod", args->shadow_lod,
+                  "Light cone start width over the pixel footprint: below 1 reads finer levels "
+                  "(0: the finest)")
+      ->capture_default_str();
   cmd->add_option("--light-radius", args->light_radius,
                   "With --soft-shadows: tangent of the light's angular radius")
       ->capture_default_str();
@@ -591,6 +603,11 @@ Runner add_volume(CLI::App& app) {
       ->capture_default_str();
   bench
       ->add_option("--lod", bargs->lod, "GigaVoxels: voxels projecting to at most this many pixels")
+      ->capture_default_str();
+  bench->add_option("--shadow-step", bargs->shadow_step, "GigaVoxels: light cone step in its voxels")
+      ->capture_default_str();
+  bench->add_option("--shadow-lod", bargs->shadow_lod,
+                    "GigaVoxels: light cone start width over the pixel footprint (0: finest)")
       ->capture_default_str();
   bench->add_option("--light", bargs->light, "Direction towards the light x,y,z");
   bench->add_option("-o,--output", bargs->output, "Also write GigaVoxels' last frame");
@@ -666,6 +683,9 @@ Runner add_volume(CLI::App& app) {
       throw UsageError("--shadows and --soft-shadows exclude each other");
     require_range("--light-radius", args->light_radius, 0, 1);
     io.light_radius = args->soft_shadows ? args->light_radius : 0.f;
+    require_range("--shadow-step", args->shadow_step, 0.01, 16);
+    require_range("--shadow-lod", args->shadow_lod, 0, 16);
+    io.shadow_step_scale = args->shadow_step, io.shadow_footprint_scale = args->shadow_lod;
     if (!args->light.empty()) {
       io.light_dir = parse_vec3(args->light, "--light");
       if (!(length(io.light_dir) > 0.f)) throw UsageError("--light must not be zero");

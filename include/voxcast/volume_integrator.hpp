@@ -82,9 +82,14 @@ struct VolumeIntegratorOptions {
   /// unit length (light_radius: tangent of the light's angular radius; 0 =
   /// hard shadows); its steps are shadow_step_scale x the cone's voxel. The
   /// light reaching a sample is ambient + (1 - ambient) x transmittance.
+  /// shadow_footprint_scale scales the cone's starting width (and the
+  /// offset it starts at, so a sample does not shadow itself): below 1 the
+  /// cone reads finer levels than the pixel's (0: the finest level at the
+  /// start, a ray).
   bool shadows = false;
   float light_radius = 0.f;
   float shadow_step_scale = 1.f;
+  float shadow_footprint_scale = 1.f;
   /// Depth of field (gigavoxels §3.9): a lens of diameter dof_aperture
   /// (world units; 0 = pinhole) focused at distance dof_focus widens each
   /// ray's cone by dof_aperture |t - dof_focus| / dof_focus, so the LOD reads

@@ -101,6 +101,8 @@ VolumeIntegrator::VolumeIntegrator(VolumeIntegratorOptions options)
     throw Error("volume integrator: light_radius must be in [0, 1]");
   if (!(options_.shadow_step_scale > 0.f) || !std::isfinite(options_.shadow_step_scale))
     throw Error("volume integrator: shadow_step_scale must be a positive number");
+  if (!(options_.shadow_footprint_scale >= 0.f && options_.shadow_footprint_scale <= 16.f))
+    throw Error("volume integrator: shadow_footprint_scale must be in [0, 16]");
   if ((options_.shading || options_.shadows) && length(light_) == 0.f)
     throw Error("volume integrator: light_dir must not be zero");
 }
@@ -261,7 +263,8 @@ VolumeRayResult VolumeIntegrator::integrate(const VolumeQuery& query, const Ray&
   // The light's transmittance at a sample (one light cone).
   auto light_T = [&](const Ray& r, float t, float foot) {
     ++shadow_count;
-    return light_transmittance(query, r.origin + r.dir * t, foot, ctx, &shadow_samples);
+    return light_transmittance(query, r.origin + r.dir * t, foot * o.shadow_footprint_scale, ctx,
+                               &shadow_samples);
   };
 
   // Depth of field (gigavoxels §3.9): the lens cone adds
