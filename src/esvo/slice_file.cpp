@@ -396,6 +396,12 @@ std::shared_ptr<SliceFile> SliceFile::open(const std::filesystem::path& path) {
     nodes += e.node_count;
     voxels += e.voxel_count;
   }
+  // Every slice but the root lies in its parent's children range (checked
+  // above); with the ranges' lengths summing to slice_count - 1 it lies in
+  // no other, so a walk down the ranges meets only the children it expects.
+  uint64_t in_ranges = 0;
+  for (const sl::SliceEntry& e : s) in_ranges += e.child_count;
+  if (in_ranges != uint64_t(h.slice_count) - 1) throw bad("children ranges overlap");
   if (offset != size) throw bad("slice data does not end at the end of the file");
   if (nodes != h.total_nodes || voxels != h.total_voxels) throw bad("totals");
   return f;
@@ -510,6 +516,7 @@ Aabb SliceFile::occupied_bounds(int max_level) const {
     size_t covered = 0;
     for (uint32_t j = e.first_child; j < e.first_child + e.child_count; ++j) {
       const sl::SliceEntry& ce = slices_[j];
+      if (ce.parent != it.slice || ce.node_level != n + 1) continue;  // (open() refuses it)
       const int shift = 3 * (n + 1 - ce.region_depth);
       const uint64_t lo = ce.region_code << shift, hi = (ce.region_code + 1) << shift;
       const auto a = std::lower_bound(next.begin(), next.end(), lo);
@@ -523,6 +530,7 @@ Aabb SliceFile::occupied_bounds(int max_level) const {
       std::vector<uint8_t> hit(next.size(), 0);
       for (uint32_t j = e.first_child; j < e.first_child + e.child_count; ++j) {
         const sl::SliceEntry& ce = slices_[j];
+        if (ce.parent != it.slice || ce.node_level != n + 1) continue;
         const int shift = 3 * (n + 1 - ce.region_depth);
         for (size_t k = 0; k < next.size(); ++k)
           if (next[k] >> shift == ce.region_code) hit[k] = 1;
