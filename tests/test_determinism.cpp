@@ -211,9 +211,13 @@ TEST(DeterministicSlices, SameBytesOnOneAndTwoThreads) {
                       return std::vector<std::string>{
                           "build '" + kSpot + "' -o '" + p + "s.vxs' --resolution 128 --slices",
                           "render '" + p + "s.vxs' --frames 2 --budget 64K --write-frames -o '" +
-                              p + "f.png' --size 64x48"};
+                              p + "f.png' --size 64x48",
+                          // §5.5 blocks per slice, with the decoded tolerance test (§7.3)
+                          "build '" + kSpot + "' -o '" + p +
+                              "c.vxs' --resolution 64 --slices --slice-size 8K --contours "
+                              "--color-error 8 --normal-error 10 --attributes compressed"};
                     },
-                    {"s.vxs", "f.png", "f-000.png"});
+                    {"s.vxs", "f.png", "f-000.png", "c.vxs"});
 }
 
 // `volume render` (GigaVoxels: several passes that serve requests between
