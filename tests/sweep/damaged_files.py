@@ -9,8 +9,8 @@ reads a file, every stored scene format and every interop input format.
 Samples (built with VOXCAST from tests/data, small): the seven scene formats
 (ESVO raw, compressed, contours, contours + compressed, variable depth, DAG
 raw, DAG compressed), a brickmap world built from a mesh and one written by
-`generate terrain`, the edit journal of a world edited in place, an ESVO
-slice file (.vxs), the
+`generate terrain`, the edit journal of a world edited in place, ESVO
+slice files (.vxs, raw and compressed attributes), the
 voxel inputs .vox, .binvox and .vdb (written by `convert`, plus a
 MagicaVoxel-written .vox from tests/data/vox), the volumes INRIMAGE
 (tests/data/volumes), MetaImage (.mha, written here) and an OpenVDB
@@ -313,17 +313,20 @@ def main():
 
     # ---- slice files ----
     if 'slices' in only:
-        src = sw.out('sample.vxs')
-        if not sw.run(['build', spot, '-o', src, '--resolution', '32', '--slices',
-                       '--slice-size', '8K'], 'sample vxs'):
-            raise SystemExit('cannot build the .vxs sample')
-        before = state()
-        for i, f in damaged_files(sw, src, rng, a.per_file):
-            label = f'vxs #{i}'
-            sw.run(['info', f], label)
-            sw.run(['render', f, '-o', sw.out('s.png'), '--size', '16x12', '--frames', '1',
-                    '--budget', '1M'], label)
-        tally('slices vxs', before)
+        # Raw attributes, and §5.5 blocks per slice (decoded on read).
+        for name, extra in (('vxs', []), ('vxs compressed', ['--attributes', 'compressed'])):
+            src = sw.out('sample.vxs')
+            if not sw.run(['build', spot, '-o', src, '--resolution', '32', '--slices',
+                           '--slice-size', '8K'] + extra, f'sample {name}'):
+                raise SystemExit(f'cannot build the {name} sample')
+            before = state()
+            for i, f in damaged_files(sw, src, rng, a.per_file):
+                label = f'{name} #{i}'
+                sw.run(['info', f], label)
+                sw.run(['render', f, '-o', sw.out('s.png'), '--size', '16x12', '--frames', '1',
+                        '--budget', '1M'], label)
+                sw.run(['render', f, '-o', sw.out('w.png'), '--size', '16x12'], label)
+            tally(f'slices {name}', before)
 
     # ---- voxel files ----
     voxel_samples = []
