@@ -5,6 +5,8 @@
 #include <unistd.h>
 #include <xxhash.h>
 
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -77,7 +79,9 @@ std::string check_slice_file(std::span<const uint8_t> bytes) {
     const GridTransform g = file->grid();
     const Vec3 lo = g.origin,
                hi = g.origin + Vec3{float(g.side()), float(g.side()), float(g.side())};
-    const float slack = 1e-5f * float(g.side());  // float rounding of the cube corners
+    // Float rounding of the cube corners, relative to the coordinates' size.
+    const float slack =
+        1e-5f * (float(g.side()) + std::max({std::fabs(lo.x), std::fabs(lo.y), std::fabs(lo.z)}));
     for (int a = 0; a < 3; ++a)
       if (ob.lo[a] <= ob.hi[a] && (ob.lo[a] < lo[a] - slack || ob.hi[a] > hi[a] + slack))
         fail("occupied bounds outside the grid");
