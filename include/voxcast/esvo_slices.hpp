@@ -178,7 +178,8 @@ struct SliceBuildOptions {
   uint32_t cell_size = 0;
   /// Contours (§5.2, §7.2) and the variable depth (§7.1, §7.3), as
   /// BuildOptions::contours, max_level, geometry_error, color_error and
-  /// normal_error (raw attributes): planned top-down, each unbuilt slice
+  /// normal_error (with `compressed` below: of the decoded values, see
+  /// there): planned top-down, each unbuilt slice
   /// carrying its region's triangles and ancestor contours; the attribute
   /// tolerances compare each of a slice's voxels with the full-depth voxels
   /// of its region in a second pass over them.
@@ -218,9 +219,11 @@ struct SliceBuildStats {
 /// level built in parallel with no dependencies between them, each from the
 /// voxels of its region (voxelized cell by cell) and written when done. The
 /// file equals write_slices(build_octree(voxelize(mesh, grid, voxelize)))
-/// byte for byte (raw attributes), and with `options.contours` the slicing
-/// of build_octree(voxels, mesh, build options) with the same contour
-/// options. Throws voxcast::Error.
+/// byte for byte, and with `options.contours` the slicing of
+/// build_octree(voxels, mesh, build options) with the same contour options
+/// (with options.compressed: those writes with SliceOptions::compressed,
+/// except together with the attribute tolerances, whose tree is the
+/// slices' own; SliceBuildOptions::compressed). Throws voxcast::Error.
 void build_slices(const Mesh& mesh, const GridTransform& grid, const VoxelizeOptions& voxelize,
                   const std::filesystem::path& path, const SliceBuildOptions& options = {},
                   SliceBuildStats* stats = nullptr);
