@@ -47,7 +47,6 @@
 #include <fstream>
 #include <thread>
 
-#include "esvo/compress.hpp"
 #include "esvo/contours.hpp"
 #include "esvo/reduce.hpp"
 #include "esvo/slice_plan.hpp"
@@ -213,7 +212,8 @@ struct Builder {
   /// plan gave it (relative to the data until the file is assembled); sets
   /// its counts, size and hash.
   void write_slice(uint32_t i, sl::SliceEntry& e, std::vector<uint32_t>& words,
-                   const std::vector<uint32_t>& attrs, const std::vector<uint32_t>& contours) {
+                   const std::vector<uint32_t>& attrs, const std::vector<uint32_t>& contours,
+                   const std::vector<uint32_t>* blocks_made = nullptr) {
     if (words.size() != e.node_count && i != 0)
       throw Error("slice builder: slice " + std::to_string(i) + " holds " +
                   std::to_string(words.size()) + " descriptors, its parent planned " +
@@ -223,7 +223,10 @@ struct Builder {
     e.contour_count = uint32_t(contours.size());
     const uint64_t planned = e.data_bytes;
     if (compressed) {
-      const std::vector<uint32_t> blocks = detail::compress_slice_attributes(words, attrs);
+      // The blocks of these descriptors and attributes (made already by the
+      // §7.3 test, else now).
+      const std::vector<uint32_t> blocks =
+          blocks_made != nullptr ? *blocks_made : detail::compress_slice_attributes(words, attrs);
       words.insert(words.end(), blocks.begin(), blocks.end());
     } else {
       words.insert(words.end(), attrs.begin(), attrs.end());
@@ -258,9 +261,8 @@ struct Builder {
           ++c.node_count;
           c.data_bytes += q.bytes;
         }
-      // The records count half a compression block each: an odd slice's
-      // last block is whole (detail::slice_data_bytes).
-      if (compressed && (c.node_count & 1u) != 0) c.data_bytes += 12;
+      c.data_bytes =
+          uint32_t(detail::slice_data_bytes_from_records(c.data_bytes, c.node_count, compressed));
     }
     return children;
   }
@@ -337,10 +339,10 @@ struct Builder {
   /// voxel, so one pass decides). Depths r..n are the parent's decisions,
   /// given in `decoded->fixed` and not compared again.
   struct Decoded {
-    int depth = 0;                             // n + 1
-    const std::vector<uint32_t>* color;        // [node at depth n + 1]: sRGB ABGR code
-    const std::vector<Vec3>* normal;           // as the file renders it
-    std::vector<std::vector<uint8_t>>* fixed;  // [d][node] for d = r..n: flags
+    int depth = 0;                                   // n + 1
+    const std::vector<uint32_t>* color;              // [node at depth n + 1]: sRGB ABGR code
+    const std::vector<Vec3>* normal;                 // as the file renders it
+    const std::vector<std::vector<uint8_t>>* fixed;  // [d][node] for d = r..n: flags
   };
   const std::vector<std::vector<uint8_t>>& attribute_flags(
       const sl::SliceEntry& e, const std::vector<std::vector<uint64_t>>& values,
@@ -468,7 +470,7 @@ struct Builder {
     const bool decoded_test = compressed && !values.empty();
     const size_t kn = size_t(n - r);
     std::vector<std::vector<uint8_t>> fixed;
-    std::vector<uint32_t> dcolor;
+    std::vector<uint32_t> dcolor, blocks, raw_expected;
     std::vector<Vec3> dnormal;
     if (decoded_test) {
       const std::vector<uint8_t> root{1};
@@ -486,39 +488,29 @@ struct Builder {
           for (int c = 0; c < std::popcount(unsigned(mask[k][p])); ++c)
             fixed[k][p] |= fixed[k + 1][first[k][p] + size_t(c)];
       }
-      // The slice's blocks: descriptors 2b and 2b + 1 (esvo_slices.hpp).
+      // The slice's descriptor words (valid masks) and children's raw
+      // attributes, as the slice will hold them; its blocks, made once
+      // (write_slice stores them), and what each child decodes to.
+      std::vector<uint32_t> dwords;
+      std::vector<size_t> child_of;  // [k]: the index in `out` of the k-th child
+      for (size_t j = 0; j < is_desc.size(); ++j) {
+        if (!is_desc[j]) continue;
+        dwords.push_back(sl::SliceValid::put(mask[kn][j]));
+        for (int c = 0; c < std::popcount(unsigned(mask[kn][j])); ++c) {
+          const OutNode& o = out[first[kn][j] + size_t(c)];
+          raw_expected.push_back(encode_color_abgr(o.color));
+          raw_expected.push_back(encode_normal_cube(o.normal));
+          child_of.push_back(first[kn][j] + size_t(c));
+        }
+      }
+      blocks = detail::compress_slice_attributes(dwords, raw_expected);
+      const std::vector<uint32_t> decoded_attrs =
+          detail::decode_slice_attributes(dwords, blocks.data());
       dcolor.assign(out.size(), 0);
       dnormal.assign(out.size(), Vec3{});
-      std::vector<size_t> ds;
-      for (size_t j = 0; j < is_desc.size(); ++j)
-        if (is_desc[j]) ds.push_back(j);
-      for (size_t b = 0; 2 * b < ds.size(); ++b) {
-        uint64_t v[16];
-        uint32_t used = 0;
-        int count = 0;
-        for (size_t h = 0; h < 2 && 2 * b + h < ds.size(); ++h) {
-          const size_t p = ds[2 * b + h];
-          used |= uint32_t(mask[kn][p]) << (8 * h);
-          for (int c = 0; c < std::popcount(unsigned(mask[kn][p])); ++c) {
-            const OutNode& o = out[first[kn][p] + size_t(c)];
-            v[count++] =
-                uint64_t(encode_color_abgr(o.color)) | uint64_t(encode_normal_cube(o.normal)) << 32;
-          }
-        }
-        uint32_t block[detail::kCompressedBlockWords];
-        detail::encode_block_from_raw(v, used, block);
-        for (size_t h = 0; h < 2 && 2 * b + h < ds.size(); ++h) {
-          const size_t p = ds[2 * b + h];
-          for (int s = 0, q = 0; s < 8; ++s) {
-            if (!(mask[kn][p] >> s & 1)) continue;
-            const size_t c = first[kn][p] + size_t(q++);
-            Color color;
-            Vec3 normal;
-            decode_compressed_slot(block, int(8 * h) + s, &color, &normal);
-            dcolor[c] = encode_color_abgr(color);
-            dnormal[c] = decode_normal_cube(encode_normal_cube(normal));  // as read() gives it
-          }
-        }
+      for (size_t k = 0; k < child_of.size(); ++k) {
+        dcolor[child_of[k]] = decoded_attrs[2 * k];
+        dnormal[child_of[k]] = decode_normal_cube(decoded_attrs[2 * k + 1]);
       }
     }
     std::vector<std::vector<uint8_t>> attr_flags;
@@ -583,7 +575,11 @@ struct Builder {
                       sl::SliceContourMask::put(cmask));
       e.link_count += uint32_t(std::popcount(valid & ~leaf));
     }
-    write_slice(i, e, words, attrs, contours);
+    // (The descriptors were checked against the parent's above, so the
+    // attributes are the ones the blocks were made of.)
+    if (decoded_test && attrs != raw_expected)
+      throw std::logic_error("slice builder: a slice's attributes are not its blocks'");
+    write_slice(i, e, words, attrs, contours, decoded_test ? &blocks : nullptr);
     std::vector<sl::SliceEntry> children = plan_children(next, n, r, i, slice_bytes);
     // The children's build data: the seeds of their region voxels (all at
     // one depth k), from a second pass that stops there.

@@ -174,6 +174,24 @@ std::vector<uint32_t> compress_slice_attributes(std::span<const uint32_t> descri
   return blocks;
 }
 
+std::vector<uint32_t> decode_slice_attributes(std::span<const uint32_t> descriptors,
+                                              const uint32_t* blocks) {
+  std::vector<uint32_t> raw;
+  for (size_t d = 0; d < descriptors.size(); ++d) {
+    const uint32_t valid = sl::SliceValid::get(descriptors[d]);
+    const uint32_t* block = blocks + kCompressedBlockWords * (d >> 1);
+    for (int c = 0; c < 8; ++c) {
+      if ((valid >> c & 1u) == 0) continue;
+      Color color;
+      Vec3 normal;
+      decode_compressed_slot(block, int((d & 1) * 8) + c, &color, &normal);
+      raw.push_back(encode_color_abgr(color));
+      raw.push_back(encode_normal_cube(normal));
+    }
+  }
+  return raw;
+}
+
 sl::FileHeader slice_file_header(const GridTransform& grid, bool contours, bool compressed,
                                  uint64_t slice_bytes, const std::vector<sl::SliceEntry>& slices) {
   sl::FileHeader h{};
@@ -427,27 +445,19 @@ std::vector<uint32_t> SliceFile::read(uint32_t i) const {
   if (XXH64(words.data(), e.data_bytes, 0) != e.hash)
     throw Error(io_error(path_, "slice " + std::to_string(i) + ": hash mismatch"));
   if (!compressed()) return words;
-  // Decoded into the raw layout: the children of descriptor d, in slot
-  // order, from block d >> 1, slots (d & 1) * 8 + i. The sizes were checked
-  // at open (data_bytes); a valid-mask total other than the directory's
-  // voxel count decodes as many values and the loader refuses the slice.
-  const size_t n = e.node_count, blocks = (n + 1) / 2;
+  // Decoded into the raw layout (detail::decode_slice_attributes). The sizes
+  // were checked at open (data_bytes); a valid-mask total other than the
+  // directory's voxel count decodes as many values and the loader refuses
+  // the slice.
+  const size_t n = e.node_count;
   const uint32_t* block0 = words.data() + n;
-  const uint32_t* contours = block0 + detail::kCompressedBlockWords * blocks;
-  std::vector<uint32_t> raw(words.begin(), words.begin() + std::ptrdiff_t(n));
-  raw.reserve(n + 2 * size_t(e.voxel_count) + e.contour_count);
-  for (size_t d = 0; d < n; ++d) {
-    const uint32_t valid = sl::SliceValid::get(words[d]);
-    const uint32_t* block = block0 + detail::kCompressedBlockWords * (d >> 1);
-    for (int c = 0; c < 8; ++c) {
-      if ((valid >> c & 1u) == 0) continue;
-      Color color;
-      Vec3 normal;
-      decode_compressed_slot(block, int((d & 1) * 8) + c, &color, &normal);
-      raw.push_back(encode_color_abgr(color));
-      raw.push_back(encode_normal_cube(normal));
-    }
-  }
+  const uint32_t* contours = block0 + detail::kCompressedBlockWords * ((n + 1) / 2);
+  const std::vector<uint32_t> attrs =
+      detail::decode_slice_attributes(std::span<const uint32_t>(words.data(), n), block0);
+  std::vector<uint32_t> raw;
+  raw.reserve(n + attrs.size() + e.contour_count);
+  raw.insert(raw.end(), words.begin(), words.begin() + std::ptrdiff_t(n));
+  raw.insert(raw.end(), attrs.begin(), attrs.end());
   raw.insert(raw.end(), contours, contours + e.contour_count);
   return raw;
 }

@@ -38,6 +38,10 @@ inline uint32_t slice_record_bytes(int children, int contours, bool compressed) 
 inline uint64_t slice_data_bytes(uint64_t n, uint64_t v, uint64_t c, bool compressed) {
   return compressed ? 4 * n + 24 * ((n + 1) / 2) + 4 * c : 4 * n + 8 * v + 4 * c;
 }
+/// The same from the sum of its N descriptors' slice_record_bytes().
+inline uint64_t slice_data_bytes_from_records(uint64_t record_sum, uint64_t n, bool compressed) {
+  return record_sum + (compressed && (n & 1) != 0 ? 12 : 0);  // an odd slice's last block
+}
 
 /// The compression blocks (esvo_slices.hpp layout) of a slice whose
 /// descriptor words are `descriptors` and whose children's raw attribute
@@ -45,6 +49,12 @@ inline uint64_t slice_data_bytes(uint64_t n, uint64_t v, uint64_t c, bool compre
 /// `raw`: ceil(N/2) blocks of 6 words.
 std::vector<uint32_t> compress_slice_attributes(std::span<const uint32_t> descriptors,
                                                 std::span<const uint32_t> raw);
+/// The inverse: the raw attribute words (color, cube normal per child, in
+/// that order) the blocks at `blocks` (ceil(N/2) x 6 words) decode to, for
+/// the children the descriptors' valid masks name. What SliceFile::read()
+/// hands out, and what the top-down builder's §7.3 test compares.
+std::vector<uint32_t> decode_slice_attributes(std::span<const uint32_t> descriptors,
+                                              const uint32_t* blocks);
 
 /// The header of a slice file with these slices (data right after the
 /// directory), its totals and directory hash filled in.

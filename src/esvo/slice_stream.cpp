@@ -417,7 +417,6 @@ struct StreamedEsvo::Impl {
   std::vector<uint32_t> block_of;
   std::vector<uint32_t> resident_children;  // per slice
   uint32_t resident_count = 0;
-  uint64_t generation = 0;  // residency changes (merges and unmerges)
   // The trunk: chunks (block ids, kNoBlock where freed) and its free
   // descriptor slots (chunk * kTrunkSlots + slot), smallest first.
   std::vector<uint32_t> trunk_chunks;
@@ -854,7 +853,6 @@ struct StreamedEsvo::Impl {
     for (uint32_t g = 0; g < cc; ++g) block_of[e.first_child + g] = group_block[g];
     state[i] = State::kResident;
     ++resident_count;
-    ++generation;
     if (i != 0) ++resident_children[e.parent];
     return true;
   }
@@ -910,7 +908,6 @@ struct StreamedEsvo::Impl {
     compact_trunk();
     state[i] = State::kOnDisk;
     --resident_count;
-    ++generation;
     --resident_children[e.parent];
     return true;
   }
