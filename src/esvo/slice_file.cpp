@@ -523,7 +523,8 @@ Aabb SliceFile::occupied_bounds(int max_level) const {
     if (next.empty()) continue;
     // Hand each child slice the codes inside its region; codes no child
     // slice covers (a damaged hierarchy) end at their cubes.
-    size_t covered = 0;
+    // (Sibling regions are disjoint, so the ranges do not overlap.)
+    std::vector<uint8_t> hit(next.size(), 0);
     for (uint32_t j = e.first_child; j < e.first_child + e.child_count; ++j) {
       const sl::SliceEntry& ce = slices_[j];
       if (ce.parent != it.slice || ce.node_level != n + 1) continue;  // (open() refuses it)
@@ -532,22 +533,11 @@ Aabb SliceFile::occupied_bounds(int max_level) const {
       const auto a = std::lower_bound(next.begin(), next.end(), lo);
       const auto b = std::lower_bound(next.begin(), next.end(), hi);
       if (a == b) continue;
-      covered += size_t(b - a);
+      std::fill(hit.begin() + (a - next.begin()), hit.begin() + (b - next.begin()), uint8_t(1));
       stack.push_back({j, std::vector<uint64_t>(a, b)});
     }
-    if (covered != next.size()) {
-      // Rare (damaged directories only): find the uncovered codes.
-      std::vector<uint8_t> hit(next.size(), 0);
-      for (uint32_t j = e.first_child; j < e.first_child + e.child_count; ++j) {
-        const sl::SliceEntry& ce = slices_[j];
-        if (ce.parent != it.slice || ce.node_level != n + 1) continue;
-        const int shift = 3 * (n + 1 - ce.region_depth);
-        for (size_t k = 0; k < next.size(); ++k)
-          if (next[k] >> shift == ce.region_code) hit[k] = 1;
-      }
-      for (size_t k = 0; k < next.size(); ++k)
-        if (!hit[k]) add_voxel(next[k], n + 1);
-    }
+    for (size_t k = 0; k < next.size(); ++k)
+      if (!hit[k]) add_voxel(next[k], n + 1);
   }
   return box;
 }
