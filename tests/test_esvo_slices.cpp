@@ -271,6 +271,29 @@ TEST(EsvoSlices, TopDownBuilderEqualsSlicingTheInCoreBuild) {
 // slice compares its voxels with its region's full-depth voxels in a
 // second pass), at small slices (many levels of slices, splits into more
 // than eight children) and large ones, on a mesh with smooth vertex colors.
+/// A contour build's tolerances, in core and top-down.
+struct ContourTolerances {
+  double geometry_error = 0;
+  int max_level = 0;
+  double color_error = -1, normal_error = -1;
+  esvo::BuildOptions in_core() const {
+    esvo::BuildOptions o;
+    o.contours = true;
+    o.geometry_error = geometry_error, o.max_level = max_level;
+    o.color_error = color_error, o.normal_error = normal_error;
+    return o;
+  }
+  esvo::SliceBuildOptions top_down(uint64_t slice_bytes, bool compressed) const {
+    esvo::SliceBuildOptions bo;
+    bo.slice_bytes = slice_bytes;
+    bo.contours = true;
+    bo.geometry_error = geometry_error, bo.max_level = max_level;
+    bo.color_error = color_error, bo.normal_error = normal_error;
+    bo.compressed = compressed;
+    return bo;
+  }
+};
+
 TEST(EsvoSlices, TopDownContoursEqualSlicingTheInCoreBuild) {
   const Mesh mesh = testing::load_mesh_with_wave_colors("stanford-bunny.obj");
   struct Case {
@@ -305,12 +328,8 @@ TEST(EsvoSlices, TopDownContoursEqualSlicingTheInCoreBuild) {
     VoxelizeOptions vo;
     vo.attributes = true;
     const VoxelSet voxels = voxelize(mesh, grid, vo);
-    esvo::BuildOptions o;
-    o.contours = true;
-    o.geometry_error = cs.geometry_error;
-    o.max_level = cs.max_level;
-    o.color_error = cs.color_error;
-    o.normal_error = cs.normal_error;
+    const ContourTolerances tol{cs.geometry_error, cs.max_level, cs.color_error, cs.normal_error};
+    const esvo::BuildOptions o = tol.in_core();
     const esvo::EsvoOctree octree = esvo::build_octree(voxels, mesh, o);
     ASSERT_TRUE(octree.has_contours());
     if (cs.color_error >= 0 || cs.normal_error >= 0) {
@@ -338,15 +357,8 @@ TEST(EsvoSlices, TopDownContoursEqualSlicingTheInCoreBuild) {
     std::filesystem::remove(want_path);
 
     const auto path = temp_file("top-down-contours");
-    esvo::SliceBuildOptions bo;
-    bo.slice_bytes = cs.slice_bytes;
+    esvo::SliceBuildOptions bo = tol.top_down(cs.slice_bytes, cs.compressed);
     bo.cell_size = cs.cell;
-    bo.contours = true;
-    bo.geometry_error = cs.geometry_error;
-    bo.max_level = cs.max_level;
-    bo.color_error = cs.color_error;
-    bo.normal_error = cs.normal_error;
-    bo.compressed = cs.compressed;
     esvo::SliceBuildStats st;
     esvo::build_slices(mesh, grid, vo, path, bo, &st);
     const std::vector<uint8_t> got = testing::read_bytes(path);
@@ -550,23 +562,11 @@ TEST(EsvoSlices, CompressedTopDownToleranceHoldsForTheDecodedValues) {
     const VoxelSet full = voxelize(mesh, grid, vo);
     const int L = grid.levels;
     testing::TempDir dir;
-    esvo::SliceBuildOptions bo;
-    bo.slice_bytes = cs.slice_bytes;
-    bo.contours = true;
-    bo.geometry_error = cs.geometry_error;
-    bo.max_level = cs.max_level;
-    bo.color_error = cs.color_error;
-    bo.normal_error = cs.normal_error;
-    esvo::build_slices(mesh, grid, vo, dir.file("raw.vxs"), bo);
-    bo.compressed = true;
-    esvo::build_slices(mesh, grid, vo, dir.file("packed.vxs"), bo);
+    const ContourTolerances tol{cs.geometry_error, cs.max_level, cs.color_error, cs.normal_error};
+    esvo::build_slices(mesh, grid, vo, dir.file("raw.vxs"), tol.top_down(cs.slice_bytes, false));
+    esvo::build_slices(mesh, grid, vo, dir.file("packed.vxs"), tol.top_down(cs.slice_bytes, true));
     // The raw build's tree with its attributes compressed afterwards.
-    esvo::BuildOptions o;
-    o.contours = true;
-    o.geometry_error = cs.geometry_error;
-    o.max_level = cs.max_level;
-    o.color_error = cs.color_error;
-    o.normal_error = cs.normal_error;
+    const esvo::BuildOptions o = tol.in_core();
     esvo::SliceOptions so;
     so.slice_bytes = cs.slice_bytes;
     so.compressed = true;
