@@ -101,6 +101,68 @@ inline bool block_solid(const Brick& b, int side, int x, int y, int z) {
 
 enum class Step { Hit, Exit, Done };
 
+// Three cube coordinates, passed by value so that a loop's own coordinates
+// never escape to memory (the compiler keeps a DDA's state in registers).
+struct Int3 {
+  int v[3];
+};
+
+// One DDA over the children [lo, lo + span] of one cube at a child level
+// (side `side` in grid units): the current child c, the t of its exit plane
+// per axis, and the plane last crossed (t, axis; the entered face is
+// face_of(axis)). Every member is accessed with constant indices only (the
+// step is written once per axis, step_axis<A>), so a loop's Dda lives in
+// registers; the variable-index version of this loop spilled c and n to the
+// stack and reloaded them each step (BENCHMARKS.md, "Brickmap walk in
+// registers").
+struct Dda {
+  int c[3];
+  float n[3];
+  int lo[3];
+  uint32_t span[3];
+  float side;
+  float t;
+  int axis;
+  float exit() const { return std::min(std::min(n[0], n[1]), n[2]); }
+  Int3 cell() const { return {{c[0], c[1], c[2]}}; }
+};
+
+enum : int { kExitParent = 3, kEndOfRay = 4 };
+
+// Steps across the exit plane of axis A; returns A, or kExitParent when the
+// ray leaves the parent cube, or kEndOfRay past t1 (one unsigned compare for
+// the range, one for the end of the ray). `index` follows the child by
+// `dstride[A]` (cells and nodes; null for voxels).
+template <int A>
+[[gnu::always_inline]] inline int step_axis(Dda& d, const GridRay& r, float t1, int64_t* index,
+                                            const int64_t* dstride) {
+  const float tn = d.n[A];
+  const int cn = d.c[A] + r.step[A];
+  d.t = tn;
+  d.axis = A;
+  d.c[A] = cn;
+  if (uint32_t(cn - d.lo[A]) > d.span[A]) return kExitParent;
+  if (tn > t1) return kEndOfRay;
+  d.n[A] = plane_t(r, A, float(cn + r.up[A]) * d.side);
+  if (index) *index += dstride[A];
+  return A;
+}
+
+// The nearest exit plane with argmin3's tie break (x, then y, then z).
+[[gnu::always_inline]] inline int advance(Dda& d, const GridRay& r, float t1,
+                                          int64_t* index = nullptr,
+                                          const int64_t* dstride = nullptr) {
+  if (d.n[0] <= d.n[1])
+    return d.n[0] <= d.n[2] ? step_axis<0>(d, r, t1, index, dstride)
+                            : step_axis<2>(d, r, t1, index, dstride);
+  return d.n[1] <= d.n[2] ? step_axis<1>(d, r, t1, index, dstride)
+                          : step_axis<2>(d, r, t1, index, dstride);
+}
+
+inline Step end_of(int s) {
+  return s == kExitParent ? Step::Exit : Step::Done;
+}
+
 // The walk over the level hierarchy (brickmap.hpp, BrickmapStructure): the
 // pyramid levels (ratio 2; one level at a time while the footprint may stop
 // there, else straight to the brickgrid from two levels above it), the
@@ -120,8 +182,6 @@ struct Walker {
   float voxel_world_f;
   bool lod_on;     // false for a footprint of 0 (LOD 0): no cube side is <= it
   uint32_t* seen;  // per brick slot: frame of the last ray that entered it (or null)
-  float t;
-  int face;
   Found* f;
 
   // The cube side in world units: voxel_world 2^(L - level), exact in float
@@ -133,41 +193,42 @@ struct Walker {
 
   // Occupancy of cube `c` at `level`; `cell`: the brickgrid cell holding it
   // (levels >= the brick level), `node`: its pyramid node (levels above).
-  bool occupied(int level, const int c[3], uint32_t* cell, const PyramidNode** node) const {
+  bool occupied(int level, Int3 c, uint32_t* cell, const PyramidNode** node) const {
     if (level < B) {
       const int k = B - level;
-      if (uint32_t(c[1]) >= w.pyramid_dim_y(k)) return false;  // above a cut-off brickgrid
-      *node =
-          &w.pyramid_node(k, w.pyramid_index(k, uint32_t(c[0]), uint32_t(c[1]), uint32_t(c[2])));
+      if (uint32_t(c.v[1]) >= w.pyramid_dim_y(k)) return false;  // above a cut-off brickgrid
+      *node = &w.pyramid_node(
+          k, w.pyramid_index(k, uint32_t(c.v[0]), uint32_t(c.v[1]), uint32_t(c.v[2])));
       return (*node)->bricks != 0;
     }
     const int s = L - level;  // log2 of the cube's side in voxels (<= 3)
-    if (uint32_t(c[1] << s >> kBrickLog2) >= w.dims()[1]) return false;
-    *cell =
-        w.cell(w.cell_index(uint32_t(c[0] << s >> kBrickLog2), uint32_t(c[1] << s >> kBrickLog2),
-                            uint32_t(c[2] << s >> kBrickLog2)));
+    if (uint32_t(c.v[1] << s >> kBrickLog2) >= w.dims()[1]) return false;
+    *cell = w.cell(w.cell_index(uint32_t(c.v[0] << s >> kBrickLog2),
+                                uint32_t(c.v[1] << s >> kBrickLog2),
+                                uint32_t(c.v[2] << s >> kBrickLog2)));
     if (*cell == 0) return false;
     if (level <= std::max(B, 0) || cell_state(*cell) != kStateResident) return true;
     const Brick& b = w.brick(cell_brick(*cell));
-    const int x = (c[0] << s) & 7, y = (c[1] << s) & 7, z = (c[2] << s) & 7;
+    const int x = (c.v[0] << s) & 7, y = (c.v[1] << s) & 7, z = (c.v[2] << s) & 7;
     if (s == 0) return (b.mask[z] >> voxel_bit(uint32_t(x), uint32_t(y), 0)) & 1;
     return block_solid(b, 1 << s, x, y, z);
   }
 
-  // An occupied cube the walk stops at: a voxel, or an LOD answer.
-  void stop(int level, const int c[3], uint32_t cell, const PyramidNode* node) {
+  // An occupied cube the walk stops at (entered at t through the plane of
+  // `axis`): a voxel, or an LOD answer.
+  void stop(int level, Int3 c, uint32_t cell, const PyramidNode* node, float t, int axis) {
     if constexpr (kAny) return;
     uint64_t ref;
     if (level == L) {
       ref = uint64_t(cell_brick(cell)) << 9 |
-            voxel_bit(uint32_t(c[0] & 7), uint32_t(c[1] & 7), uint32_t(c[2] & 7));
+            voxel_bit(uint32_t(c.v[0] & 7), uint32_t(c.v[1] & 7), uint32_t(c.v[2] & 7));
     } else if (level < B) {
       ref = uint64_t(1) << 63 | node->abgr;
     } else {
       ref = uint64_t(1) << 63 | (cell_state(cell) == kStateResident ? w.brick(cell_brick(cell)).lod
                                                                     : cell_lod_abgr(cell));
     }
-    *f = {t, face, level, {c[0], c[1], c[2]}, ref};
+    *f = {t, face_of(r, axis), level, {c.v[0], c.v[1], c.v[2]}, ref};
   }
 
   // The level the walk descends to from an occupied `level` cube it does not
@@ -187,52 +248,24 @@ struct Walker {
     return lod_stop(L - 1, exit) ? level + 1 : L;
   }
 
-  // One DDA over the children of one cube: the children [lo, hi] at the
-  // child level (side `side` in grid units), the current child c and the t
-  // of its exit plane per axis.
-  struct Cursor {
-    int lo[3], hi[3], c[3];
-    float n[3];
-    float side;
-    float exit() const { return n[argmin3(n)]; }
-  };
-
   // The children at level `cl` of the cube (cl - ratio_log2, pc), from the
-  // one holding the point at t.
-  void begin(int cl, int ratio_log2, const int pc[3], Cursor* k) {
-    k->side = float(1 << (L - cl));
+  // one holding the point at t (entered through the plane of `axis`).
+  Dda begin(int cl, int ratio_log2, Int3 pc, float t, int axis) {
+    Dda d;
+    d.side = float(1 << (L - cl));
+    d.t = t;
+    d.axis = axis;
     const int top = (1 << cl) - 1;
+    int hi[3];
     for (int a = 0; a < 3; ++a) {
-      k->lo[a] = pc[a] << ratio_log2;
-      k->hi[a] = std::min(top, k->lo[a] + (1 << ratio_log2) - 1);
+      d.lo[a] = pc.v[a] << ratio_log2;
+      hi[a] = std::min(top, d.lo[a] + (1 << ratio_log2) - 1);
+      d.span[a] = uint32_t(hi[a] - d.lo[a]);
     }
-    start_cell(r, t, k->side, k->lo, k->hi, k->c);
-    for (int a = 0; a < 3; ++a) k->n[a] = plane_t(r, a, float(k->c[a] + r.up[a]) * k->side);
+    start_cell(r, t, d.side, d.lo, hi, d.c);
+    for (int a = 0; a < 3; ++a) d.n[a] = plane_t(r, a, float(d.c[a] + r.up[a]) * d.side);
     if constexpr (kCount) ++ctx.counters.pushes;
-  }
-
-  // Steps to the next child across the nearest exit plane (t, face: that
-  // plane); false with `end` set when the ray leaves the parent (Exit) or
-  // its range in the grid (Done). `axis`: the axis stepped along.
-  bool advance(Cursor& k, int* axis, Step* end) {
-    const int ax = argmin3(k.n);
-    const float tn = k.n[ax];
-    const int cn = k.c[ax] + r.step[ax];
-    t = tn;
-    face = face_of(r, ax);
-    k.c[ax] = cn;
-    // One unsigned compare for the range, one for the end of the ray.
-    if (uint32_t(cn - k.lo[ax]) > uint32_t(k.hi[ax] - k.lo[ax])) {
-      *end = Step::Exit;
-      return false;
-    }
-    if (tn > t1) {
-      *end = Step::Done;
-      return false;
-    }
-    k.n[ax] = plane_t(r, ax, float(cn + r.up[ax]) * k.side);
-    *axis = ax;
-    return true;
+    return d;
   }
 
   // The loops below are visit()'s general loop specialized per child level
@@ -241,134 +274,133 @@ struct Walker {
   // their index stepped instead of recomputed.
 
   // The voxels of the resident brick `brick_index` (brickgrid cell pc) the
-  // ray crosses before `exit`.
-  Step visit_voxels(uint32_t brick_index, const int pc[3]) {
+  // ray crosses, from t.
+  Step visit_voxels(uint32_t brick_index, Int3 pc, float t, int axis) {
     const Brick& b = w.brick(brick_index);
-    Cursor k;
-    begin(L, kBrickLog2, pc, &k);
-    Step end;
-    int ax;
-    do {
+    Dda d = begin(L, kBrickLog2, pc, t, axis);
+    for (;;) {
       if constexpr (kCount) ++ctx.counters.iterations, ++ctx.counters.intersects;
       const uint32_t bit =
-          voxel_bit(uint32_t(k.c[0] & 7), uint32_t(k.c[1] & 7), uint32_t(k.c[2] & 7));
+          voxel_bit(uint32_t(d.c[0] & 7), uint32_t(d.c[1] & 7), uint32_t(d.c[2] & 7));
       if (test_voxel(b, bit)) {
         if constexpr (!kAny)
-          *f = {t, face, L, {k.c[0], k.c[1], k.c[2]}, uint64_t(brick_index) << 9 | bit};
+          *f = {d.t,
+                face_of(r, d.axis),
+                L,
+                {d.c[0], d.c[1], d.c[2]},
+                uint64_t(brick_index) << 9 | bit};
         return Step::Hit;
       }
-    } while (advance(k, &ax, &end));
-    return end;
+      const int s = advance(d, r, t1);
+      if (s > 2) return end_of(s);
+    }
   }
 
   // The brickgrid cells (level B > 0) of the pyramid node (level, pc).
-  Step visit_cells(int level, const int pc[3]) {
-    Cursor k;
-    begin(B, B - level, pc, &k);
+  Step visit_cells(int level, Int3 pc, float t, int axis) {
+    Dda d = begin(B, B - level, pc, t, axis);
     const uint32_t* cells = w.cells().data();
     const uint32_t dim_y = w.dims()[1];
     const int64_t stride[3] = {1, int64_t(w.dims()[0]), int64_t(w.dims()[0]) * dim_y};
-    int64_t index = k.c[0] + stride[1] * k.c[1] + stride[2] * k.c[2];
-    Step end;
-    int ax;
-    do {
+    const int64_t dstride[3] = {stride[0] * r.step[0], stride[1] * r.step[1],
+                                stride[2] * r.step[2]};
+    int64_t index = d.c[0] + stride[1] * d.c[1] + stride[2] * d.c[2];
+    for (;;) {
       if constexpr (kCount) ++ctx.counters.iterations;
-      const uint32_t cell = uint32_t(k.c[1]) < dim_y ? cells[index] : 0;  // above a cut-off grid
+      const uint32_t cell = uint32_t(d.c[1]) < dim_y ? cells[index] : 0;  // above a cut-off grid
       if (cell != 0) {
         const bool resident = cell_state(cell) == kStateResident;
         if (seen && resident)
           std::atomic_ref<uint32_t>(seen[cell_brick(cell)])
               .store(ctx.frame, std::memory_order_relaxed);
-        const float cexit = k.exit();
+        const float cexit = d.exit();
         if (lod_stop(B, cexit)) {
-          stop(B, k.c, cell, nullptr);
+          stop(B, d.cell(), cell, nullptr, d.t, d.axis);
           return Step::Hit;
         }
         if (!resident) {
           // §3.2.1: the brick is needed; nearer is more urgent. Until it
           // arrives the cube answers with its LOD color.
-          ctx.requests.push(BrickmapStructure::kRequestBrick, uint64_t(index), 1.f / (1.f + t));
-          stop(B, k.c, cell, nullptr);
+          ctx.requests.push(BrickmapStructure::kRequestBrick, uint64_t(index), 1.f / (1.f + d.t));
+          stop(B, d.cell(), cell, nullptr, d.t, d.axis);
           return Step::Hit;
         }
-        const Step s = visit(B, k.c, cexit, cell);
+        const Step s = visit(B, d.cell(), cexit, cell, d.t, d.axis);
         if (s != Step::Exit) return s;
       }
-      if (!advance(k, &ax, &end)) return end;
-      index += stride[ax] * r.step[ax];
-    } while (true);
+      const int s = advance(d, r, t1, &index, dstride);
+      if (s > 2) return end_of(s);
+    }
   }
 
   // The pyramid nodes at level cl < B of the node (level, pc).
-  Step visit_nodes(int level, int cl, const int pc[3]) {
-    Cursor k;
-    begin(cl, cl - level, pc, &k);
+  Step visit_nodes(int level, int cl, Int3 pc, float t, int axis) {
+    Dda d = begin(cl, cl - level, pc, t, axis);
     const int p = B - cl;
     const PyramidNode* nodes = &w.pyramid_node(p, 0);
     const uint32_t dim_y = w.pyramid_dim_y(p);
     const int64_t stride[3] = {1, int64_t(w.pyramid_dim(p)), int64_t(w.pyramid_dim(p)) * dim_y};
-    int64_t index = k.c[0] + stride[1] * k.c[1] + stride[2] * k.c[2];
-    Step end;
-    int ax;
-    do {
+    const int64_t dstride[3] = {stride[0] * r.step[0], stride[1] * r.step[1],
+                                stride[2] * r.step[2]};
+    int64_t index = d.c[0] + stride[1] * d.c[1] + stride[2] * d.c[2];
+    for (;;) {
       if constexpr (kCount) ++ctx.counters.iterations;
       // Nodes above a cut-off brickgrid are empty and not stored.
-      if (uint32_t(k.c[1]) < dim_y && nodes[index].bricks != 0) {
-        const float cexit = k.exit();
+      if (uint32_t(d.c[1]) < dim_y && nodes[index].bricks != 0) {
+        const float cexit = d.exit();
         if (lod_stop(cl, cexit)) {
-          stop(cl, k.c, 0, &nodes[index]);
+          stop(cl, d.cell(), 0, &nodes[index], d.t, d.axis);
           return Step::Hit;
         }
-        const Step s = visit(cl, k.c, cexit, 0);
+        const Step s = visit(cl, d.cell(), cexit, 0, d.t, d.axis);
         if (s != Step::Exit) return s;
       }
-      if (!advance(k, &ax, &end)) return end;
-      index += stride[ax] * r.step[ax];
-    } while (true);
+      const int s = advance(d, r, t1, &index, dstride);
+      if (s > 2) return end_of(s);
+    }
   }
 
-  // Walks the children of the occupied cube (level, pc) from t; Exit when the
-  // ray leaves it (t, face at its exit plane). `pcell`: its brickgrid cell
-  // when it is a brick (level == max(B, 0)).
-  Step visit(int level, const int pc[3], float exit, uint32_t pcell) {
+  // Walks the children of the occupied cube (level, pc), entered at t
+  // through the plane of `axis`; Exit when the ray leaves it (the caller
+  // steps across its exit plane itself). `pcell`: its brickgrid cell when it
+  // is a brick (level == max(B, 0)).
+  Step visit(int level, Int3 pc, float exit, uint32_t pcell, float t, int axis) {
     const int cl = child_level(level, exit);
-    if (cl == L && level == B && B >= 0) return visit_voxels(cell_brick(pcell), pc);
-    if (cl < B) return visit_nodes(level, cl, pc);
-    if (cl == B) return visit_cells(level, pc);
+    if (cl == L && level == B && B >= 0) return visit_voxels(cell_brick(pcell), pc, t, axis);
+    if (cl < B) return visit_nodes(level, cl, pc, t, axis);
+    if (cl == B) return visit_cells(level, pc, t, axis);
     // The blocks inside a brick an LOD footprint may stop at, and grids
     // below 8^3 (B < 0): the general loop.
-    Cursor k;
-    begin(cl, cl - level, pc, &k);
-    Step end;
-    int ax;
-    do {
+    Dda d = begin(cl, cl - level, pc, t, axis);
+    for (;;) {
       if constexpr (kCount) {
         ++ctx.counters.iterations;
         if (cl == L) ++ctx.counters.intersects;
       }
       uint32_t cell = 0;
       const PyramidNode* node = nullptr;
-      if (occupied(cl, k.c, &cell, &node)) {
+      if (occupied(cl, d.cell(), &cell, &node)) {
         if (seen && cl == std::max(B, 0) && cell_state(cell) == kStateResident)
           std::atomic_ref<uint32_t>(seen[cell_brick(cell)])
               .store(ctx.frame, std::memory_order_relaxed);
-        const float cexit = k.exit();
+        const float cexit = d.exit();
         if (cl == L || lod_stop(cl, cexit)) {
-          stop(cl, k.c, cell, node);
+          stop(cl, d.cell(), cell, node, d.t, d.axis);
           return Step::Hit;
         }
         if (cl == std::max(B, 0) && cell_state(cell) != kStateResident) {
           ctx.requests.push(BrickmapStructure::kRequestBrick,
-                            w.cell_index(uint32_t(k.c[0]), uint32_t(k.c[1]), uint32_t(k.c[2])),
-                            1.f / (1.f + t));
-          stop(cl, k.c, cell, node);
+                            w.cell_index(uint32_t(d.c[0]), uint32_t(d.c[1]), uint32_t(d.c[2])),
+                            1.f / (1.f + d.t));
+          stop(cl, d.cell(), cell, node, d.t, d.axis);
           return Step::Hit;
         }
-        const Step s = visit(cl, k.c, cexit, cell);
+        const Step s = visit(cl, d.cell(), cexit, cell, d.t, d.axis);
         if (s != Step::Exit) return s;
       }
-    } while (advance(k, &ax, &end));
-    return end;
+      const int s = advance(d, r, t1);
+      if (s > 2) return end_of(s);
+    }
   }
 };
 
@@ -380,41 +412,39 @@ bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod,
   const float n = float(g.resolution);
   // Clip to the grid box [0, N]^3.
   float t0 = 0.f, t1 = tmax;
-  int face = -1;
+  int axis = -1;
   float exit = INFINITY;
   for (int a = 0; a < 3; ++a) {
     const float ta = plane_t(r, a, r.up[a] ? 0.f : n), tb = plane_t(r, a, r.up[a] ? n : 0.f);
-    if (ta > t0) t0 = ta, face = face_of(r, a);
+    if (ta > t0) t0 = ta, axis = a;
     t1 = std::fmin(t1, tb);
     exit = std::fmin(exit, tb);
   }
   if (!(t0 <= t1)) return false;
-  if (face < 0) {
+  if (axis < 0) {
     // The ray starts inside the box: the face the ray looks at.
     const float ad[3] = {-std::fabs(r.d[0]), -std::fabs(r.d[1]), -std::fabs(r.d[2])};
-    face = face_of(r, argmin3(ad));
+    axis = argmin3(ad);
   }
   const bool lod_on = lod.size_at_origin > 0.f || lod.size_per_t > 0.f;
   Walker<kCount, kAny> wk{
-      w,      r,    lod, ctx,  t1, g.levels, g.levels - kBrickLog2, float(g.voxel_size),
-      lod_on, seen, t0,  face, f};
-  const int root[3] = {0, 0, 0};
+      w, r, lod, ctx, t1, g.levels, g.levels - kBrickLog2, float(g.voxel_size), lod_on, seen, f};
+  const Int3 root{{0, 0, 0}};
   uint32_t cell = 0;
   const PyramidNode* node = nullptr;
   if constexpr (kCount) ++ctx.counters.iterations;
   if (!wk.occupied(0, root, &cell, &node)) return false;
   if (g.levels == 0 || wk.lod_stop(0, exit)) {
-    wk.stop(0, root, cell, node);
+    wk.stop(0, root, cell, node, t0, axis);
     return true;
   }
   if (wk.B <= 0 && cell_state(cell) != kStateResident) {
     ctx.requests.push(BrickmapStructure::kRequestBrick, 0, 1.f / (1.f + t0));
-    wk.stop(0, root, cell, node);
+    wk.stop(0, root, cell, node, t0, axis);
     return true;
   }
-  return wk.visit(0, root, exit, cell) == Step::Hit;
+  return wk.visit(0, root, exit, cell, t0, axis) == Step::Hit;
 }
-
 Vec3 face_normal(int face) {
   Vec3 n{0, 0, 0};
   n[face >> 1] = (face & 1) ? -1.f : 1.f;
