@@ -229,6 +229,88 @@ TEST(BrickmapBuild, EditingABrickReleasesAndReusesItsStorage) {
   EXPECT_EQ(w.stats().color_bytes, before.color_bytes) << "the color run was not reused";
 }
 
+// The brickgrid's clearances against a brute force: the Chebyshev distance
+// to the nearest filled cell, capped.
+void expect_clearances_are_exact(const World& w, const std::string& when) {
+  SCOPED_TRACE(when);
+  const std::array<uint32_t, 3> d = w.dims();
+  std::vector<std::array<int, 3>> filled;
+  for (int k = 0; k < int(d[2]); ++k)
+    for (int j = 0; j < int(d[1]); ++j)
+      for (int i = 0; i < int(d[0]); ++i)
+        if (w.cell(w.cell_index(uint32_t(i), uint32_t(j), uint32_t(k))) != 0)
+          filled.push_back({i, j, k});
+  int wrong = 0;
+  for (int k = 0; k < int(d[2]); ++k)
+    for (int j = 0; j < int(d[1]); ++j)
+      for (int i = 0; i < int(d[0]); ++i) {
+        int want = kMaxClearance;
+        for (const auto& f : filled)
+          want = std::min(want,
+                          std::max({std::abs(f[0] - i), std::abs(f[1] - j), std::abs(f[2] - k)}));
+        const int got = w.clearance(w.cell_index(uint32_t(i), uint32_t(j), uint32_t(k)));
+        if (got != want && ++wrong <= 3)
+          ADD_FAILURE() << "cell " << i << "," << j << "," << k << ": clearance " << got
+                        << ", brute force " << want;
+      }
+}
+
+TEST(BrickmapBuild, ClearancesFollowBuildsEditsAndEvictions) {
+  // A 256^3 grid (32^3 cells) with a brickgrid cut off at 20 cells in y:
+  // sparse bricks, then single and batched edits that fill and empty cells.
+  World w(testing::unit_grid(8), false, 20);
+  std::mt19937_64 rng(7);
+  uint64_t one[8] = {1, 0, 0, 0, 0, 0, 0, 0};
+  const uint64_t none[8] = {};
+  std::vector<uint32_t> colors(512, 0xFF808080u);
+  const auto random_cell = [&] {
+    return w.cell_index(uint32_t(rng() % w.dims()[0]), uint32_t(rng() % w.dims()[1]),
+                        uint32_t(rng() % w.dims()[2]));
+  };
+  for (int n = 0; n < 12; ++n) w.set_brick(random_cell(), one, colors.data(), nullptr);
+  expect_clearances_are_exact(w, "single adds");
+  std::vector<uint64_t> batch;
+  for (int n = 0; n < 40; ++n) {
+    batch.push_back(random_cell());
+    w.set_brick(batch.back(), one, colors.data(), nullptr, 0, nullptr, false);
+  }
+  w.update_occupancy(batch);
+  expect_clearances_are_exact(w, "batched adds");
+  std::vector<uint64_t> filled;
+  for (uint64_t c = 0; c < w.cells().size(); ++c)
+    if (w.cell(c) != 0) filled.push_back(c);
+  w.set_brick(filled[0], none, nullptr, nullptr);
+  w.set_not_resident(filled[1], 0xFF00FF00u);  // not resident is not empty
+  expect_clearances_are_exact(w, "a single removal and an eviction");
+  batch.clear();
+  for (size_t n = 2; n < filled.size(); n += 2) {
+    w.set_brick(filled[n], none, nullptr, nullptr, 0, nullptr, false);
+    batch.push_back(filled[n]);
+  }
+  for (int n = 0; n < 5; ++n) {
+    batch.push_back(random_cell());
+    w.set_brick(batch.back(), one, colors.data(), nullptr, 0, nullptr, false);
+  }
+  w.update_occupancy(batch);
+  expect_clearances_are_exact(w, "batched removals and adds");
+  // A dense block, then emptied again: every cell back to the cap.
+  batch.clear();
+  for (uint32_t k = 4; k < 20; ++k)
+    for (uint32_t j = 2; j < 18; ++j)
+      for (uint32_t i = 3; i < 19; ++i) {
+        batch.push_back(w.cell_index(i, j, k));
+        w.set_brick(batch.back(), one, colors.data(), nullptr, 0, nullptr, false);
+      }
+  w.update_occupancy(batch);
+  expect_clearances_are_exact(w, "a dense block");
+  for (uint64_t c = 0; c < w.cells().size(); ++c)
+    if (w.cell(c) != 0)
+      w.set_brick(c, none, nullptr, nullptr, 0, nullptr, false), batch.push_back(c);
+  w.update_occupancy(batch);
+  expect_clearances_are_exact(w, "all emptied");
+  EXPECT_EQ(w.clearance(0), kMaxClearance);
+}
+
 TEST(BrickmapBuild, RefusesGridsBeyondTheBrickgridLimit) {
   GridTransform g = testing::unit_grid(13);  // 1024^3 cells > 2^28
   VoxelSet set;

@@ -82,7 +82,11 @@ inline constexpr int kBrickLog2 = 3;  // 8^3 voxels per brick (§3.1.1)
 inline constexpr int kBrickSide = 1 << kBrickLog2;
 inline constexpr int kBrickVoxels = kBrickSide * kBrickSide * kBrickSide;
 inline constexpr int kOccupancyLog2 = 2;  // 4^3 brickgrid cells per occupancy bit (§4.1)
-inline constexpr int kChunkLog2 = 4;      // 16^3 brickmaps per file chunk (§4.5)
+/// Cap of World::clearance (in brickgrid cells): the walk jumps at most a
+/// cube of radius kMaxClearance - 1 cells, which covers the 8^3 cells of a
+/// pyramid node it walks (traverse.cpp, kPyramidStep).
+inline constexpr int kMaxClearance = 8;
+inline constexpr int kChunkLog2 = 4;  // 16^3 brickmaps per file chunk (§4.5)
 /// Largest brickgrid (cells): 1 GiB of cells, e.g. a 5120^3-voxel cube.
 inline constexpr uint64_t kMaxGridCells = uint64_t(1) << 28;
 /// Largest resident brick index + 1 (the 24-bit payload).
@@ -203,13 +207,15 @@ struct WorldStats {
   uint64_t voxels = 0;      // solid voxels
   uint64_t grid_bytes = 0;  // brickgrid cells (4 B each)
   uint64_t occupancy_bytes = 0;
-  uint64_t pyramid_bytes = 0;  // the coarse levels above the brickgrid (8 B per node)
-  uint64_t brick_bytes = 0;    // brick pool extent x 72 B
-  uint64_t color_bytes = 0;    // color pool extent x 4 B (size-class slack included;
-                               // DXT1: 8 B per 16 entries)
-  uint64_t normal_bytes = 0;   // the same for normals (0 without stored normals)
+  uint64_t pyramid_bytes = 0;    // the coarse levels above the brickgrid (8 B per node)
+  uint64_t clearance_bytes = 0;  // empty-space distances of the brickgrid cells (1 B each)
+  uint64_t brick_bytes = 0;      // brick pool extent x 72 B
+  uint64_t color_bytes = 0;      // color pool extent x 4 B (size-class slack included;
+                                 // DXT1: 8 B per 16 entries)
+  uint64_t normal_bytes = 0;     // the same for normals (0 without stored normals)
   uint64_t total_bytes() const {
-    return grid_bytes + occupancy_bytes + pyramid_bytes + brick_bytes + color_bytes + normal_bytes;
+    return grid_bytes + occupancy_bytes + pyramid_bytes + clearance_bytes + brick_bytes +
+           color_bytes + normal_bytes;
   }
   double bits_per_voxel() const {
     return voxels ? 8.0 * double(total_bytes()) / double(voxels) : 0;
@@ -262,6 +268,15 @@ class World {
     return pyramid_[size_t(k - 1)][size_t(index)];
   }
 
+  /// Empty-space distance of brickgrid cell `index` (the ray walk's skip,
+  /// traverse.cpp): 0 for a non-empty cell, else the Chebyshev distance in
+  /// cells to the nearest non-empty cell, capped at kMaxClearance (cells
+  /// outside the grid or above a cut-off count as empty), so that the cube
+  /// of radius clearance - 1 around the cell holds no non-empty cell. Kept
+  /// up to date with the pyramid (update_occupancy).
+  uint8_t clearance(uint64_t index) const { return clearance_[size_t(index)]; }
+  const std::vector<uint8_t>& clearances() const { return clearance_; }
+
   const BrickPool& bricks() const { return pool_; }
   const Brick& brick(uint32_t index) const { return pool_[index]; }
   const std::vector<uint32_t>& colors() const { return colors_; }
@@ -287,7 +302,7 @@ class World {
   /// when hidden ones were dropped). `flags`: CellFlags of the new cell.
   /// A brick whose color run's size class fits the new voxel count keeps
   /// its run (written in place). `update_pyramid` false: the occupancy bit
-  /// and pyramid nodes above the cell are left to a later
+  /// and pyramid nodes above the cell and the clearances are left to a later
   /// update_occupancy(cells) of every cell changed that way (an edit's
   /// batch), and are stale until then.
   void set_brick(uint64_t index, const uint64_t mask[8], const uint32_t* colors,
@@ -295,7 +310,9 @@ class World {
                  bool update_pyramid = true);
   /// Makes cell `index` not resident with LOD color `abgr` (a brick known to
   /// exist but not loaded, §3.2.1), releasing its brick if it had one.
-  void set_not_resident(uint64_t index, uint32_t abgr, uint32_t flags = 0);
+  /// `update_pyramid`: as for set_brick.
+  void set_not_resident(uint64_t index, uint32_t abgr, uint32_t flags = 0,
+                        bool update_pyramid = true);
   /// Recomputes the occupancy bit of the occupancy cell holding brickgrid
   /// cell `index` and the pyramid nodes above it (set_brick /
   /// set_not_resident keep them up to date).
@@ -315,6 +332,11 @@ class World {
  private:
   void update_occupancy_bit(uint32_t oi, uint32_t oj, uint32_t ok);
   void update_pyramid_node(int level, uint32_t x, uint32_t y, uint32_t z);
+  auto cell_filled() const {
+    return [this](uint32_t i, uint32_t j, uint32_t k) {
+      return cells_[size_t(cell_index(i, j, k))] != 0;
+    };
+  }
 
   GridTransform grid_;
   bool normals_;
@@ -322,6 +344,7 @@ class World {
   std::vector<uint32_t> cells_;
   std::vector<uint64_t> occupancy_;
   std::vector<std::vector<PyramidNode>> pyramid_;  // levels 1 .. K
+  std::vector<uint8_t> clearance_;                 // per brickgrid cell (clearance())
   BrickPool pool_;
   ColorAllocator color_alloc_;
   std::vector<uint32_t> colors_, normals_data_;

@@ -25,6 +25,7 @@ World build_world(const VoxelSet& voxels, const BuildOptions& options) {
   for (size_t k = 1; k < voxels.size(); ++k)
     if (voxels.codes[k] <= voxels.codes[k - 1])
       throw Error("brickmap: the voxel set's codes are not sorted and unique");
+  std::vector<uint64_t> cells;
   size_t i = 0;
   while (i < voxels.size()) {
     const uint64_t brick_code = voxels.codes[i] >> (3 * kBrickLog2);
@@ -50,9 +51,12 @@ World build_world(const VoxelSet& voxels, const BuildOptions& options) {
         ++count;
       }
     const MortonCoord b = morton_decode(brick_code);
-    world.set_brick(world.cell_index(b.x, b.y, b.z), mask, colors.data(), normals.data());
+    const uint64_t cell = world.cell_index(b.x, b.y, b.z);
+    world.set_brick(cell, mask, colors.data(), normals.data(), 0, nullptr, false);
+    cells.push_back(cell);
     i = end;
   }
+  world.update_occupancy(cells);  // occupancy, pyramid and clearances once for all
   return world;
 }
 

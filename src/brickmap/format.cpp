@@ -216,6 +216,8 @@ World read_world(const ContainerReader& c, SceneInfo* info, std::vector<ChunkFai
   if (!refused) all = c.read(kChunkSection);
   std::vector<uint8_t> block;
   uint64_t loaded_voxels = 0;
+  // The occupancy, pyramid and clearances once for all the loaded cells.
+  std::vector<uint64_t> touched;
   for (uint64_t chunk = 0; chunk < cg.count(); ++chunk) {
     const uint64_t e = kTablePrefix + kEntryBytes * chunk;
     const std::string name = "BMCK " + chunk_name(cg, chunk);
@@ -257,12 +259,14 @@ World read_world(const ContainerReader& c, SceneInfo* info, std::vector<ChunkFai
       std::vector<ChunkBrick> got = decode_chunk(
           w, cg, chunk, raw, name, [&](uint64_t ci, uint32_t) { return header[ci] != 0; });
       for (ChunkBrick& b : got) {
-        w.set_brick(b.cell, b.mask, b.colors.data(), b.normals.data());
+        w.set_brick(b.cell, b.mask, b.colors.data(), b.normals.data(), 0, nullptr, false);
+        touched.push_back(b.cell);
         if (CellPayload::get(w.brick(cell_brick(w.cell(b.cell))).lod) !=
             CellPayload::get(header[b.cell])) {
           // Undo the chunk's bricks before refusing it.
           for (const ChunkBrick& u : got)
-            w.set_brick(u.cell, std::array<uint64_t, 8>{}.data(), nullptr, nullptr);
+            w.set_brick(u.cell, std::array<uint64_t, 8>{}.data(), nullptr, nullptr, 0, nullptr,
+                        false);
           corrupt(name + " holds a brick whose LOD color differs from the brickgrid's");
         }
         loaded_voxels += b.colors.size();
@@ -272,6 +276,7 @@ World read_world(const ContainerReader& c, SceneInfo* info, std::vector<ChunkFai
       refused->push_back({chunk, err.what()});
     }
   }
+  w.update_occupancy(touched);
   if ((!refused || refused->empty()) && loaded_voxels != voxels)
     corrupt("the chunks hold " + std::to_string(loaded_voxels) + " voxels, META " +
             std::to_string(voxels));
@@ -304,9 +309,9 @@ SceneDescription describe(const Structure& s, const DescribeStyle& style) {
   j["occupancy_dims"] = {w.occupancy_dims()[0], w.occupancy_dims()[1], w.occupancy_dims()[2]};
   j["normals"] = w.has_normals();
   j["memory"] = {{"brickgrid", st.grid_bytes},  {"occupancy", st.occupancy_bytes},
-                 {"pyramid", st.pyramid_bytes}, {"bricks", st.brick_bytes},
-                 {"colors", st.color_bytes},    {"normals", st.normal_bytes},
-                 {"total", st.total_bytes()}};
+                 {"pyramid", st.pyramid_bytes}, {"clearance", st.clearance_bytes},
+                 {"bricks", st.brick_bytes},    {"colors", st.color_bytes},
+                 {"normals", st.normal_bytes},  {"total", st.total_bytes()}};
   j["bits_per_voxel"] = st.bits_per_voxel();
   SceneDescription out;
   out.grid = w.grid();
@@ -328,6 +333,7 @@ SceneDescription describe(const Structure& s, const DescribeStyle& style) {
   row("brickgrid", st.grid_bytes);
   row("occupancy", st.occupancy_bytes);
   row("pyramid", st.pyramid_bytes);
+  row("clearance", st.clearance_bytes);
   row("bricks", st.brick_bytes);
   row("colors", st.color_bytes);
   row("normals", st.normal_bytes);

@@ -112,8 +112,14 @@ bool LiveWorld::publish_ready() {
     ready.swap(ready_);
   }
   for (const Done& d : ready) {
-    for (const NewBrick& b : d.bricks)
-      front_->set_brick(b.cell, b.mask, b.colors.data(), b.normals.data(), kFlagEdited);
+    // The occupancy, pyramid and clearances once per edit, not per brick.
+    std::vector<uint64_t> cells;
+    for (const NewBrick& b : d.bricks) {
+      front_->set_brick(b.cell, b.mask, b.colors.data(), b.normals.data(), kFlagEdited, nullptr,
+                        false);
+      cells.push_back(b.cell);
+    }
+    front_->update_occupancy(cells);
     applied_ = d.number;
   }
   return !ready.empty();

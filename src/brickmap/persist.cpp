@@ -286,6 +286,7 @@ std::vector<uint32_t> header_record(const Record* header, const World& w) {
 std::vector<uint64_t> apply(World& w, const std::vector<Record>& txn, SceneInfo* si) {
   const ChunkGrid cg = chunk_grid(w.dims());
   std::vector<uint64_t> chunks;
+  std::vector<uint64_t> touched;  // occupancy, pyramid and clearances updated once for all
   const Record* header = nullptr;
   for (const Record& r : txn) {
     if (r.type == kHeaderRecord) {
@@ -302,12 +303,18 @@ std::vector<uint64_t> apply(World& w, const std::vector<Record>& txn, SceneInfo*
     std::vector<ChunkBrick> got =
         decode_chunk(w, cg, chunk, raw, name + " " + chunk_name(cg, chunk), present);
     for_chunk_cells(w, cg, chunk, [&](uint64_t ci, uint32_t pos) {
-      if (!present(ci, pos) && w.cell(ci) != 0)
-        w.set_brick(ci, std::array<uint64_t, 8>{}.data(), nullptr, nullptr);
+      if (!present(ci, pos) && w.cell(ci) != 0) {
+        w.set_brick(ci, std::array<uint64_t, 8>{}.data(), nullptr, nullptr, 0, nullptr, false);
+        touched.push_back(ci);
+      }
     });
-    for (const ChunkBrick& b : got) w.set_brick(b.cell, b.mask, b.colors.data(), b.normals.data());
+    for (const ChunkBrick& b : got) {
+      w.set_brick(b.cell, b.mask, b.colors.data(), b.normals.data(), 0, nullptr, false);
+      touched.push_back(b.cell);
+    }
     chunks.push_back(chunk);
   }
+  w.update_occupancy(touched);
   const std::vector<uint32_t> cells = header_record(header, w);
   for (uint64_t chunk : chunks)
     for_chunk_cells(w, cg, chunk, [&](uint64_t ci, uint32_t) {

@@ -102,8 +102,13 @@ StreamingWorld::StreamingWorld(const std::filesystem::path& path, const StreamOp
   JournalChunks journal = read_journal_chunks(path, *world_);
   if (!journal.header.empty()) header_ = std::move(journal.header);
   journal_ = std::move(journal.chunks);
+  std::vector<uint64_t> cells;  // occupancy, pyramid and clearances updated once for all
   for (uint64_t ci = 0; ci < header_.size(); ++ci)
-    if (header_[ci] != 0) world_->set_not_resident(ci, cell_lod_abgr(header_[ci]));
+    if (header_[ci] != 0) {
+      world_->set_not_resident(ci, cell_lod_abgr(header_[ci]), 0, false);
+      cells.push_back(ci);
+    }
+  world_->update_occupancy(cells);
   refused_chunk_.assign(size_t(cg.count()), 0);
   query_ = std::make_unique<BrickmapStructure>(world_, &seen_);
 }
@@ -173,10 +178,15 @@ const StreamingWorld::Chunk* StreamingWorld::chunk(uint64_t index) {
     // Refused: its bricks will not come; the rest streams on.
     refused_chunk_[size_t(index)] = 1;
     stats_.refused.push_back({index, err.what()});
+    std::vector<uint64_t> cells;
     for_chunk_cells(*world_, cg, index, [&](uint64_t ci, uint32_t) {
-      if (cell_state(world_->cell(ci)) == kStateNotResident)
-        world_->set_brick(ci, std::array<uint64_t, 8>{}.data(), nullptr, nullptr);
+      if (cell_state(world_->cell(ci)) == kStateNotResident) {
+        world_->set_brick(ci, std::array<uint64_t, 8>{}.data(), nullptr, nullptr, 0, nullptr,
+                          false);
+        cells.push_back(ci);
+      }
     });
+    world_->update_occupancy(cells);
     return nullptr;
   }
   ++stats_.chunk_loads;

@@ -328,9 +328,48 @@ struct Walker {
         const Step s = visit(B, d.cell(), cexit, cell, d.t, d.axis);
         if (s != Step::Exit) return s;
       }
-      const int s = advance(d, r, t1, &index, dstride);
+      const int s = cell == 0 && uint32_t(d.c[1]) < dim_y && w.clearance(uint64_t(index)) > 1
+                        ? jump(d, w.clearance(uint64_t(index)) - 1, &index, stride)
+                        : advance(d, r, t1, &index, dstride);
       if (s > 2) return end_of(s);
     }
+  }
+
+  // An empty cell whose clearance says that the cube of `radius` cells
+  // around it is empty: the DDA state after the crossing by which the ray
+  // leaves that cube (clipped to the parent node), in one step instead of
+  // one per cell. Exact, not approximate: plane crossings happen in (t,
+  // axis) order (argmin3's tie break; a plane's t grows with its coordinate
+  // on each axis), so the cube's first exit crossing is the argmin3 of its
+  // exit planes, and on the other axes the cells entered before it are the
+  // ones whose entry crossing comes first in that order. The same state, t
+  // and axis as advance() reaching that crossing, so the same hits.
+  int jump(Dda& d, int radius, int64_t* index, const int64_t stride[3]) {
+    float tn[3];
+    int tc[3];
+    for (int a = 0; a < 3; ++a) {
+      const int far = d.c[a] + r.step[a] * radius;
+      tc[a] = std::min(std::max(far, d.lo[a]), d.lo[a] + int(d.span[a]));
+      tn[a] = plane_t(r, a, float(tc[a] + r.up[a]) * d.side);
+    }
+    const int A = argmin3(tn);
+    const int cn = tc[A] + r.step[A];
+    d.t = tn[A];
+    d.axis = A;
+    if (uint32_t(cn - d.lo[A]) > d.span[A]) return kExitParent;
+    if (tn[A] > t1) return kEndOfRay;
+    for (int b = 0; b < 3; ++b) {
+      if (b == A) continue;
+      // Crossed before (t, A): t below, or equal on a lower axis.
+      while (d.n[b] < d.t || (d.n[b] == d.t && b < A)) {
+        d.c[b] += r.step[b];
+        d.n[b] = plane_t(r, b, float(d.c[b] + r.up[b]) * d.side);
+      }
+    }
+    d.c[A] = cn;
+    d.n[A] = plane_t(r, A, float(cn + r.up[A]) * d.side);
+    *index = d.c[0] + stride[1] * d.c[1] + stride[2] * d.c[2];
+    return A;
   }
 
   // The pyramid nodes at level cl < B of the node (level, pc).
@@ -355,6 +394,8 @@ struct Walker {
         const Step s = visit(cl, d.cell(), cexit, 0, d.t, d.axis);
         if (s != Step::Exit) return s;
       }
+      // (The same jump over node clearances was measured and does not pay:
+      // BENCHMARKS.md, "Brickmap clearance jumps".)
       const int s = advance(d, r, t1, &index, dstride);
       if (s > 2) return end_of(s);
     }

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <array>
 #include <bit>
+#include <cstdlib>
 #include <cstring>
 #include <string>
 
@@ -117,6 +118,113 @@ uint64_t ColorAllocator::free_entries() const {
   return n;
 }
 
+// ---- Clearance (World::clearance): capped Chebyshev distances to the
+// nearest filled cell of a grid of dims (index x + dx (y + dy z)) ----
+
+namespace {
+
+// Cells within Chebyshev distance kMaxClearance - 1 of the newly filled
+// cell c are at most that far from a filled cell.
+void add_clearance_source(std::vector<uint8_t>& clear, const std::array<uint32_t, 3>& dims,
+                          const std::array<uint32_t, 3>& cell) {
+  constexpr int r = kMaxClearance - 1;
+  const int c[3] = {int(cell[0]), int(cell[1]), int(cell[2])};
+  int lo[3], hi[3];
+  for (int a = 0; a < 3; ++a)
+    lo[a] = std::max(0, c[a] - r), hi[a] = std::min(int(dims[size_t(a)]) - 1, c[a] + r);
+  for (int z = lo[2]; z <= hi[2]; ++z)
+    for (int y = lo[1]; y <= hi[1]; ++y)
+      for (int x = lo[0]; x <= hi[0]; ++x) {
+        const int d = std::max({std::abs(x - c[0]), std::abs(y - c[1]), std::abs(z - c[2])});
+        uint8_t& v = clear[size_t(
+            uint64_t(x) + uint64_t(dims[0]) * (uint64_t(y) + uint64_t(dims[1]) * uint64_t(z)))];
+        v = std::min(v, uint8_t(d));
+      }
+}
+
+// Every cell within kMaxClearance - 1 of the box [box_lo, box_hi] from
+// filled(x, y, z): the capped Chebyshev distance transform is separable (the
+// distance along x, then the min over dy of max(|dy|, .), then the same over
+// dz), the last two as whole rows (x contiguous) so that they vectorize.
+template <class Filled>
+void recompute_clearance(std::vector<uint8_t>& clear, const std::array<uint32_t, 3>& dims,
+                         const std::array<uint32_t, 3>& box_lo,
+                         const std::array<uint32_t, 3>& box_hi, const Filled& filled) {
+  constexpr int K = kMaxClearance, r = K - 1;
+  int lo[3], hi[3], elo[3], ehi[3];  // the box R updated; R grown by r (the cells it reads)
+  for (int a = 0; a < 3; ++a) {
+    const int top = int(dims[size_t(a)]) - 1;
+    lo[a] = std::max(0, int(box_lo[size_t(a)]) - r);
+    hi[a] = std::min(top, int(box_hi[size_t(a)]) + r);
+    elo[a] = std::max(0, lo[a] - r), ehi[a] = std::min(top, hi[a] + r);
+  }
+  const size_t nx = size_t(hi[0] - lo[0] + 1);
+  const int ny = hi[1] - lo[1] + 1, ey = ehi[1] - elo[1] + 1, ez = ehi[2] - elo[2] + 1;
+  // f1 over R.x x E.y x E.z: the distance along x (two sweeps per row);
+  // f2 over R.x x R.y x E.z.
+  std::vector<uint8_t> f1(nx * size_t(ey) * size_t(ez)), f2(nx * size_t(ny) * size_t(ez));
+  for (int z = elo[2]; z <= ehi[2]; ++z)
+    for (int y = elo[1]; y <= ehi[1]; ++y) {
+      uint8_t* row = &f1[(size_t(z - elo[2]) * size_t(ey) + size_t(y - elo[1])) * nx];
+      int last = -K;  // the last filled x seen by the sweep
+      for (int x = elo[0]; x <= hi[0]; ++x) {
+        if (filled(uint32_t(x), uint32_t(y), uint32_t(z))) last = x;
+        if (x >= lo[0]) row[x - lo[0]] = uint8_t(std::min(K, x - last));
+      }
+      last = ehi[0] + K;
+      for (int x = ehi[0]; x >= lo[0]; --x) {
+        if (filled(uint32_t(x), uint32_t(y), uint32_t(z))) last = x;
+        if (x <= hi[0]) row[x - lo[0]] = std::min(row[x - lo[0]], uint8_t(std::min(K, last - x)));
+      }
+    }
+  const auto min_max_row = [nx](uint8_t* out, const uint8_t* in, uint8_t m) {
+    for (size_t x = 0; x < nx; ++x) out[x] = std::min(out[x], std::max(m, in[x]));
+  };
+  for (int z = elo[2]; z <= ehi[2]; ++z)
+    for (int y = lo[1]; y <= hi[1]; ++y) {
+      uint8_t* out = &f2[(size_t(z - elo[2]) * size_t(ny) + size_t(y - lo[1])) * nx];
+      std::fill(out, out + nx, uint8_t(K));
+      for (int yy = std::max(elo[1], y - r); yy <= std::min(ehi[1], y + r); ++yy)
+        min_max_row(out, &f1[(size_t(z - elo[2]) * size_t(ey) + size_t(yy - elo[1])) * nx],
+                    uint8_t(std::abs(yy - y)));
+    }
+  for (int z = lo[2]; z <= hi[2]; ++z)
+    for (int y = lo[1]; y <= hi[1]; ++y) {
+      uint8_t* out = &clear[size_t(
+          uint64_t(lo[0]) + uint64_t(dims[0]) * (uint64_t(y) + uint64_t(dims[1]) * uint64_t(z)))];
+      std::fill(out, out + nx, uint8_t(K));
+      for (int zz = std::max(elo[2], z - r); zz <= std::min(ehi[2], z + r); ++zz)
+        min_max_row(out, &f2[(size_t(zz - elo[2]) * size_t(ny) + size_t(y - lo[1])) * nx],
+                    uint8_t(std::abs(zz - z)));
+    }
+}
+
+// The clearance after cells `filled_now` turned filled and `emptied` turned
+// empty: the cheaper of one add per new filled cell ((2r+1)^3 cells each)
+// and one recompute of the box holding all of them (about 3 (2r+1) reads
+// per cell of the box grown by 2r), the recompute whenever a cell emptied.
+template <class Filled>
+void update_clearance(std::vector<uint8_t>& clear, const std::array<uint32_t, 3>& dims,
+                      const std::vector<std::array<uint32_t, 3>>& filled_now,
+                      const std::vector<std::array<uint32_t, 3>>& emptied, const Filled& filled) {
+  if (filled_now.empty() && emptied.empty()) return;
+  constexpr double w = 2 * (kMaxClearance - 1) + 1;
+  std::array<uint32_t, 3> lo{~0u, ~0u, ~0u}, hi{0, 0, 0};
+  for (const auto* list : {&filled_now, &emptied})
+    for (const auto& c : *list)
+      for (size_t a = 0; a < 3; ++a) lo[a] = std::min(lo[a], c[a]), hi[a] = std::max(hi[a], c[a]);
+  double box = 3 * w;
+  for (size_t a = 0; a < 3; ++a)
+    box *= std::min(double(dims[a]), double(hi[a] - lo[a] + 1) + 2 * (w - 1));
+  if (emptied.empty() && double(filled_now.size()) * w * w * w <= box) {
+    for (const auto& c : filled_now) add_clearance_source(clear, dims, c);
+    return;
+  }
+  recompute_clearance(clear, dims, lo, hi, filled);
+}
+
+}  // namespace
+
 // ---- World ----
 
 World::World(const GridTransform& grid, bool normals, uint32_t height_cells)
@@ -138,6 +246,7 @@ World::World(const GridTransform& grid, bool normals, uint32_t height_cells)
   const auto occ = [](uint32_t d) { return (d + (1u << kOccupancyLog2) - 1) >> kOccupancyLog2; };
   occ_dims_ = {occ(n), occ(ny), occ(n)};
   cells_.assign(size_t(cells), 0);
+  clearance_.assign(size_t(cells), uint8_t(kMaxClearance));
   occupancy_.assign(size_t((uint64_t(occ_dims_[0]) * occ_dims_[1] * occ_dims_[2] + 63) / 64), 0);
   // dims are a power of two (N = 2^L, N / 8 or 1): log2(n) levels above.
   int k = 1;
@@ -203,7 +312,7 @@ void World::use_dxt1() {
   dxt1_ = true;
 }
 
-void World::set_not_resident(uint64_t index, uint32_t abgr, uint32_t flags) {
+void World::set_not_resident(uint64_t index, uint32_t abgr, uint32_t flags, bool update_pyramid) {
   uint32_t& cell = cells_[size_t(index)];
   if (cell_state(cell) == kStateResident) {
     const uint32_t b = cell_brick(cell);
@@ -212,7 +321,7 @@ void World::set_not_resident(uint64_t index, uint32_t abgr, uint32_t flags) {
     pool_.release(b);
   }
   cell = not_resident_cell(abgr, flags);
-  update_occupancy(index);
+  if (update_pyramid) update_occupancy(index);
 }
 
 void World::update_occupancy(uint64_t index) {
@@ -220,6 +329,12 @@ void World::update_occupancy(uint64_t index) {
   const uint32_t j = uint32_t(index / dims_[0] % dims_[1]);
   const uint32_t k = uint32_t(index / dims_[0] / dims_[1]);
   update_occupancy_bit(i >> kOccupancyLog2, j >> kOccupancyLog2, k >> kOccupancyLog2);
+  // The clearance changes only where a cell or node turns empty or filled.
+  const bool filled = cells_[size_t(index)] != 0, was_filled = clearance_[size_t(index)] == 0;
+  if (filled != was_filled) {
+    const std::vector<std::array<uint32_t, 3>> c{{i, j, k}}, none;
+    update_clearance(clearance_, dims_, filled ? c : none, filled ? none : c, cell_filled());
+  }
   for (int q = 1; q <= pyramid_levels(); ++q) update_pyramid_node(q, i >> q, j >> q, k >> q);
 }
 
@@ -238,6 +353,14 @@ void World::update_occupancy(const std::vector<uint64_t>& indices) {
     std::sort(v.begin(), v.end());
     v.erase(std::unique(v.begin(), v.end()), v.end());
   };
+  // Clearance: the cells that turned filled or empty.
+  std::vector<std::array<uint32_t, 3>> filled_now, emptied;
+  for (size_t n = 0; n < indices.size(); ++n) {
+    const bool filled = cells_[size_t(indices[n])] != 0;
+    if (filled != (clearance_[size_t(indices[n])] == 0))
+      (filled ? filled_now : emptied).push_back(at[n]);
+  }
+  update_clearance(clearance_, dims_, filled_now, emptied, cell_filled());
   std::vector<std::array<uint32_t, 3>> occ = at;
   unique_shifted(occ, kOccupancyLog2);
   for (const auto& c : occ) update_occupancy_bit(c[0], c[1], c[2]);
@@ -324,6 +447,7 @@ WorldStats World::stats() const {
     if (cell_state(c) == kStateResident) s.voxels += uint64_t(brick_popcount(pool_[cell_brick(c)]));
   s.grid_bytes = uint64_t(cells_.size()) * 4;
   s.occupancy_bytes = uint64_t(occupancy_.size()) * 8;
+  s.clearance_bytes = uint64_t(clearance_.size());
   for (const std::vector<PyramidNode>& level : pyramid_)
     s.pyramid_bytes += uint64_t(level.size()) * sizeof(PyramidNode);
   s.brick_bytes = uint64_t(pool_.extent()) * sizeof(Brick);
