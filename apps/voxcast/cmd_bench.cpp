@@ -199,20 +199,30 @@ Timed depth_frame(const RenderOptions& ro, Image* depth, const TraceTile& trace_
 // Trace only, the voxel side of the trace-only comparison: no attributes and
 // no shading. Through the SurfaceQuery, as render() calls it (one virtual
 // call per ray; the structure is any registered format's).
-Timed trace_depth(const SurfaceQuery& s, const RenderOptions& ro, Image* depth) {
-  return depth_frame(ro, depth,
-                     [&](const detail::Tile& tile, const CameraRays& cam, const LodFootprint& lod) {
-                       uint64_t h = 0;
-                       TraceContext ctx;  // plain (non-counting), one per tile
-                       for (int y = tile.y0; y < tile.y1; ++y)
-                         for (int x = tile.x0; x < tile.x1; ++x) {
-                           SurfaceHit hit;
-                           const bool found = s.trace(cam.ray(x, y), lod, ctx, &hit);
-                           h += found;
-                           *depth->at(x, y) = found ? hit.t : INFINITY;
-                         }
-                       return h;
-                     });
+// beam > 0: per beam x beam block of the tile, the coarse pass (esvo §6.2)
+// first, inside the timed loop, and the block's rays start from its region.
+Timed trace_depth(const SurfaceQuery& s, const RenderOptions& ro, Image* depth, int beam = 0) {
+  return depth_frame(
+      ro, depth, [&](const detail::Tile& tile, const CameraRays& cam, const LodFootprint& lod) {
+        uint64_t h = 0;
+        TraceContext ctx;  // plain (non-counting), one per tile
+        const int k = beam > 0 ? beam : std::max(tile.x1 - tile.x0, tile.y1 - tile.y0);
+        for (int by = tile.y0; by < tile.y1; by += k)
+          for (int bx = tile.x0; bx < tile.x1; bx += k) {
+            const int bx1 = std::min(bx + k, tile.x1), by1 = std::min(by + k, tile.y1);
+            BeamStart start;
+            if (beam > 0) s.beam_start(detail::block_beam(cam, bx, by, bx1, by1, lod), ctx, &start);
+            for (int y = by; y < by1; ++y)
+              for (int x = bx; x < bx1; ++x) {
+                SurfaceHit hit;
+                const bool found =
+                    s.trace(cam.ray(x, y), lod, ctx, &hit, beam > 0 ? &start : nullptr);
+                h += found;
+                *depth->at(x, y) = found ? hit.t : INFINITY;
+              }
+          }
+        return h;
+      });
 }
 
 // trace_depth through the structure's packet caster (SurfaceQuery::packets(),
@@ -725,6 +735,18 @@ Runner add_bench(CLI::App& app) {
                                return trace_depth(q, rl, &depth);
                              },
                              {}});
+          if (args->beam)
+            primary.push_back({caster + "+beam",
+                               "trace, beam " + std::to_string(args->beam) + "x" +
+                                   std::to_string(args->beam) +
+                                   " (coarse pass included), depth only",
+                               lod,
+                               false,
+                               [&q, rl, k = args->beam] {
+                                 Image depth;
+                                 return trace_depth(q, rl, &depth, k);
+                               },
+                               {}});
           if (p) {
             primary.push_back({caster + " packet",
                                std::string("trace_packets ") + isa_name(active_isa()) + " x" +

@@ -376,18 +376,25 @@ World build_world(const VoxelSet& voxels, const BuildOptions& options = {});
 /// exactly across its planes (the same plane t is computed the same way on
 /// every level, so a level is left where its parent says). Where no LOD stop
 /// is possible in between, the walk skips levels: above the brickgrid it
-/// visits the pyramid levels B - 2j only (B = L - 3; a node's 4^3 children
+/// visits the pyramid levels B - 3j only (B = L - 3; a node's 8^3 children
 /// per descent), and goes from a brick straight to its voxels (the paper's
-/// bottom layers). The pyramid, brickgrid and voxel levels have loops of
-/// their own (index stepped, the brick's mask held) with the same planes
-/// and tie breaks as the general one (src/brickmap/traverse.cpp). Hits are cubes: SurfaceHit::t is
-/// the cube's entry t (0 for an origin inside it) and level its level. An occupied cube answers
-/// (LOD, the rule of esvo::cast_ray) when its side is <= the footprint at its exit t: above the
-/// brickgrid with its pyramid node's color, at or below it with the brick's LOD color. A brick that
-/// is not resident answers with its LOD color at the brick level and, unless the footprint stops
-/// there anyway, pushes Request{kind kRequestBrick, key = cell index}. voxel_ref: bit 63 set = LOD
-/// hit with the ABGR8 color in bits 0..31; else brick index << 9 | voxel bit. child: the entered
-/// face (axis * 2 + (outward normal negative ? 1 : 0)), 6 when the ray starts inside the voxel.
+/// bottom layers); an empty brickgrid cell's clearance (World::clearance)
+/// lets it cross the empty cube around the cell in one exact step. The pyramid, brickgrid and voxel
+/// levels have loops of their own (index stepped, the brick's mask held) with the same planes and
+/// tie breaks as the general one (src/brickmap/traverse.cpp). Hits are cubes: SurfaceHit::t is the
+/// cube's entry t (0 for an origin inside it) and level its level. An occupied cube answers (LOD,
+/// the rule of esvo::cast_ray) when its side is <= the footprint at its exit t: above the brickgrid
+/// with its pyramid node's color, at or below it with the brick's LOD color. A brick that is not
+/// resident answers with its LOD color at the brick level and, unless the footprint stops there
+/// anyway, pushes Request{kind kRequestBrick, key = cell index}. voxel_ref: bit 63 set = LOD hit
+/// with the ABGR8 color in bits 0..31; else brick index << 9 | voxel bit. child: the entered face
+/// (axis * 2 + (outward normal negative ? 1 : 0)), 6 when the ray starts inside the voxel.
+/// beam_start(): the coarse pass of the beam optimization (esvo §6.2) over
+/// the pyramid and the brickgrid with the octree family's conservative cube
+/// test (core/beam_frustum.hpp): a box holding every cell (and LOD cube) a
+/// ray of the beam can stop in; trace() then starts just before the box's
+/// entry planes, with each level's start cell found by plane comparisons,
+/// so the hit is bit-identical to the walk from the grid's entry.
 /// attributes(): the stored color and normal; the crossed face's normal
 /// without stored normals and for LOD hits; a ray starting inside a voxel
 /// gets the face the ray looks at (the dominant axis of -direction).
@@ -410,6 +417,7 @@ class BrickmapStructure final : public Structure, public SurfaceQuery {
   /// position, voxel reference or face), the same requests and brick use.
   float transmittance(const Ray& ray, const LodFootprint& lod, TraceContext& ctx,
                       const BeamStart* beam = nullptr) const override;
+  void beam_start(const BeamFrustum& beam, TraceContext& ctx, BeamStart* start) const override;
   void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
                   Vec3* normal) const override;
   const World& world() const { return *world_; }
@@ -434,6 +442,9 @@ class BrickmapView : public Structure, public SurfaceQuery {
   float transmittance(const Ray& ray, const LodFootprint& lod, TraceContext& ctx,
                       const BeamStart* beam = nullptr) const override {
     return query_->transmittance(ray, lod, ctx, beam);
+  }
+  void beam_start(const BeamFrustum& beam, TraceContext& ctx, BeamStart* start) const override {
+    query_->beam_start(beam, ctx, start);
   }
   void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
                   Vec3* normal) const override {

@@ -17,6 +17,7 @@
 #include <bit>
 #include <cmath>
 
+#include "core/beam_frustum.hpp"
 #include "voxcast/brickmap.hpp"
 #include "voxcast/esvo.hpp"
 
@@ -183,6 +184,9 @@ struct Walker {
   bool lod_on;     // false for a footprint of 0 (LOD 0): no cube side is <= it
   uint32_t* seen;  // per brick slot: frame of the last ray that entered it (or null)
   Found* f;
+  // The t a beam-started walk begins at (NaN otherwise): begin() at this t
+  // finds its start cell by plane comparisons (start_cell_exact).
+  float start_t = NAN;
 
   // The cube side in world units: voxel_world 2^(L - level), exact in float
   // as in double (a power-of-two scale) and without a libm call per step.
@@ -263,9 +267,22 @@ struct Walker {
       d.span[a] = uint32_t(hi[a] - d.lo[a]);
     }
     start_cell(r, t, d.side, d.lo, hi, d.c);
+    if (t == start_t) start_cell_exact(t, d.side, d.lo, hi, d.c);
     for (int a = 0; a < 3; ++a) d.n[a] = plane_t(r, a, float(d.c[a] + r.up[a]) * d.side);
     if constexpr (kCount) ++ctx.counters.pushes;
     return d;
+  }
+
+  // The cell the cell-by-cell walk is in just after t (every crossing at or
+  // before t taken): per axis, the cell whose entry plane's t is <= t and
+  // whose exit plane's t is > t, the same plane_t values the DDA compares.
+  // The estimate from the position is off by at most a cell near a plane.
+  void start_cell_exact(float t, float side, const int lo[3], const int hi[3], int c[3]) const {
+    for (int a = 0; a < 3; ++a) {
+      const int fwd = r.step[a] > 0 ? hi[a] : lo[a], back = r.step[a] > 0 ? lo[a] : hi[a];
+      while (c[a] != fwd && plane_t(r, a, float(c[a] + r.up[a]) * side) <= t) c[a] += r.step[a];
+      while (c[a] != back && plane_t(r, a, float(c[a] + 1 - r.up[a]) * side) > t) c[a] -= r.step[a];
+    }
   }
 
   // The loops below are visit()'s general loop specialized per child level
@@ -446,9 +463,11 @@ struct Walker {
 };
 
 // The walk; true with `f` filled (unless kAny) on a hit within [0, tmax].
+// `region` (may be null): a beam's start region in grid units (lo, hi),
+// holding every cube the walk can stop in for this ray (beam_start).
 template <bool kCount, bool kAny = false>
 bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod, TraceContext& ctx,
-          uint32_t* seen, Found* f) {
+          uint32_t* seen, const float (*region)[3], Found* f) {
   const GridTransform& g = w.grid();
   const float n = float(g.resolution);
   // Clip to the grid box [0, N]^3.
@@ -467,9 +486,29 @@ bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod,
     const float ad[3] = {-std::fabs(r.d[0]), -std::fabs(r.d[1]), -std::fabs(r.d[2])};
     axis = argmin3(ad);
   }
+  // Beam start (esvo §6.2): every cube the walk can stop in lies in the
+  // region R, so it is entered at a t >= R's entry t (the max of its near
+  // planes' t, the same plane_t as the walk's: a cube inside R has its near
+  // planes at or beyond R's) and <= R's exit t. The walk starts just before
+  // R's entry, in the cells the walk from the grid's entry is in then
+  // (start_cell_exact; no stop can happen in them), and ends at R's exit:
+  // the same crossings after it, so the same hit, t and face.
+  float start_t = NAN;
+  if (region != nullptr) {
+    float r0 = -INFINITY, r1 = INFINITY;
+    for (int a = 0; a < 3; ++a) {
+      r0 = std::fmax(r0, plane_t(r, a, r.up[a] ? region[0][a] : region[1][a]));
+      r1 = std::fmin(r1, plane_t(r, a, r.up[a] ? region[1][a] : region[0][a]));
+    }
+    t1 = std::fmin(t1, r1);
+    const float before = std::nextafter(r0, -INFINITY);
+    if (before > t0) t0 = before, start_t = before;
+    if (!(t0 <= t1)) return false;
+  }
   const bool lod_on = lod.size_at_origin > 0.f || lod.size_per_t > 0.f;
   Walker<kCount, kAny> wk{
       w, r, lod, ctx, t1, g.levels, g.levels - kBrickLog2, float(g.voxel_size), lod_on, seen, f};
+  wk.start_t = start_t;
   const Int3 root{{0, 0, 0}};
   uint32_t cell = 0;
   const PyramidNode* node = nullptr;
@@ -486,6 +525,14 @@ bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod,
   }
   return wk.visit(0, root, exit, cell, t0, axis) == Step::Hit;
 }
+// A beam's region (octree space [1, 2]^3, core/beam_frustum.hpp) in grid
+// units: (p - 1) N, exact for the dyadic cube corners it is made of.
+const float (*grid_region(const GridTransform& g, const Aabb& box, float out[2][3]))[3] {
+  const float n = float(g.resolution);
+  for (int a = 0; a < 3; ++a) out[0][a] = (box.lo[a] - 1.f) * n, out[1][a] = (box.hi[a] - 1.f) * n;
+  return out;
+}
+
 Vec3 face_normal(int face) {
   Vec3 n{0, 0, 0};
   n[face >> 1] = (face & 1) ? -1.f : 1.f;
@@ -493,6 +540,65 @@ Vec3 face_normal(int face) {
 }
 
 }  // namespace
+
+void BrickmapStructure::beam_start(const BeamFrustum& beam, TraceContext& ctx,
+                                   BeamStart* start) const {
+  // The octree family's coarse pass (esvo §6.2, core/beam_frustum.hpp) over
+  // the pyramid nodes and brickgrid cells: a cube outside the beam is
+  // skipped, a cell (the walk's bricks, not-resident bricks and LOD stops
+  // inside bricks all lie in it), a possible LOD stop or a cube narrower
+  // than the beam is kept whole, others are descended. Cube (k, c) at
+  // pyramid level k (0: a brickgrid cell): side 8 2^k voxels, in octree
+  // space 1 + c side / N, exact (dyadic).
+  *start = BeamStart{};
+  const World& w = *world_;
+  const GridTransform& g = w.grid();
+  if (g.levels < kBrickLog2) return;  // a cell larger than the grid: no information
+  detail::BeamClassifier cls(beam, g);
+  if (!cls.valid()) return;
+  struct Item {
+    int k;
+    uint32_t c[3];
+  };
+  Item stack[8 * (kMaxGridLevels + 1)];  // depth-first: <= 7 pending siblings per level
+  int top = 0;
+  const float cell_side = float(kBrickSide) / float(g.resolution);
+  const auto filled = [&](int k, const uint32_t c[3]) {
+    if (k == 0) return c[1] < w.dims()[1] && w.cell(w.cell_index(c[0], c[1], c[2])) != 0;
+    return c[1] < w.pyramid_dim_y(k) &&
+           w.pyramid_node(k, w.pyramid_index(k, c[0], c[1], c[2])).bricks != 0;
+  };
+  // Classifies cube (k, c); pushes it when it is to be descended.
+  const auto visit = [&](int k, const uint32_t c[3]) {
+    if (!filled(k, c)) return;
+    const float side = cell_side * float(1u << k);
+    const float lo[3] = {1.f + float(c[0]) * side, 1.f + float(c[1]) * side,
+                         1.f + float(c[2]) * side};
+    switch (cls.classify(lo, side, k == 0)) {
+      case detail::BeamClassifier::kKeep:
+        cls.keep(lo, side);
+        break;
+      case detail::BeamClassifier::kDescend:
+        ++cls.counters.pushes;
+        stack[top++] = {k, {c[0], c[1], c[2]}};
+        break;
+      default:
+        break;
+    }
+  };
+  const uint32_t root[3] = {0, 0, 0};
+  visit(w.pyramid_levels(), root);
+  while (top > 0) {
+    const Item item = stack[--top];
+    ++cls.counters.iterations;
+    for (uint32_t m = 0; m < 8; ++m) {
+      const uint32_t c[3] = {2 * item.c[0] + (m & 1), 2 * item.c[1] + (m >> 1 & 1),
+                             2 * item.c[2] + (m >> 2)};
+      visit(item.k - 1, c);
+    }
+  }
+  cls.finish(start, ctx.counting ? &ctx.counters : nullptr);
+}
 
 BrickmapStructure::BrickmapStructure(std::shared_ptr<const World> world,
                                      std::vector<uint32_t>* brick_seen)
@@ -509,13 +615,18 @@ Aabb BrickmapStructure::bounds() const {
 
 bool BrickmapStructure::trace(const Ray& ray, const LodFootprint& lod, TraceContext& ctx,
                               SurfaceHit* hit, const BeamStart* beam) const {
-  (void)beam;  // no beam optimization: every ray starts at the grid
+  float region[2][3];
+  const float(*rg)[3] = nullptr;
+  if (beam != nullptr && beam->valid) {
+    if (beam->empty) return false;
+    rg = grid_region(world_->grid(), beam->region, region);
+  }
   GridRay r;
   if (!to_grid(world_->grid(), ray, &r)) return false;
   Found f;
   uint32_t* seen = seen_ ? seen_->data() : nullptr;
-  const bool found = ctx.counting ? walk<true>(*world_, r, ray.tmax, lod, ctx, seen, &f)
-                                  : walk<false>(*world_, r, ray.tmax, lod, ctx, seen, &f);
+  const bool found = ctx.counting ? walk<true>(*world_, r, ray.tmax, lod, ctx, seen, rg, &f)
+                                  : walk<false>(*world_, r, ray.tmax, lod, ctx, seen, rg, &f);
   if (!found) return false;
   const GridTransform& g = world_->grid();
   const double side = std::ldexp(g.voxel_size, g.levels - f.level);
@@ -540,13 +651,18 @@ bool BrickmapStructure::trace(const Ray& ray, const LodFootprint& lod, TraceCont
 
 float BrickmapStructure::transmittance(const Ray& ray, const LodFootprint& lod, TraceContext& ctx,
                                        const BeamStart* beam) const {
-  (void)beam;
+  float region[2][3];
+  const float(*rg)[3] = nullptr;
+  if (beam != nullptr && beam->valid) {
+    if (beam->empty) return 1.f;
+    rg = grid_region(world_->grid(), beam->region, region);
+  }
   GridRay r;
   if (!to_grid(world_->grid(), ray, &r)) return 1.f;
   Found f;
   uint32_t* seen = seen_ ? seen_->data() : nullptr;
-  const bool found = ctx.counting ? walk<true, true>(*world_, r, ray.tmax, lod, ctx, seen, &f)
-                                  : walk<false, true>(*world_, r, ray.tmax, lod, ctx, seen, &f);
+  const bool found = ctx.counting ? walk<true, true>(*world_, r, ray.tmax, lod, ctx, seen, rg, &f)
+                                  : walk<false, true>(*world_, r, ray.tmax, lod, ctx, seen, rg, &f);
   return found ? 0.f : 1.f;
 }
 
