@@ -899,6 +899,12 @@ TEST(BrickmapEdit, TheSameWorldWhateverTheThreads) {
       edit(w, Brush::sphere({at(0.5, 0), at(0.5, 1), at(0.95, 2)}, 0.3 * g.side()), EditOp::Remove);
       edit(w, Brush::sphere({at(0.3, 0), at(0.6, 1), at(0.5, 2)}, 0.2 * g.side()), EditOp::Add,
            {0.9f, 0.2f, 0.1f, 1});
+      // The stamp and the snowfall batch their bricks the same way.
+      VoxelSet s = testing::make_random_voxels(7, 20000, 3);
+      testing::fill_random_attributes(s, 4);
+      s.grid = w.grid();
+      stamp(w, s, EditOp::Add);
+      for (uint32_t step = 0; step < 3; ++step) snow_step(w, step);
     });
     return w;
   };
@@ -998,6 +1004,15 @@ TEST(BrickmapEdit, StampAddsRemovesAndPaintsExactlyTheVoxelSet) {
   VoxelSet other = s;
   other.grid.voxel_size *= 2;
   EXPECT_THROW(stamp(w, other, EditOp::Add), Error);
+  // A stamp touching a brick that is not resident changes nothing.
+  stamp(w, s, EditOp::Add);
+  const MortonCoord last = morton_decode(s.codes.back());
+  w.set_not_resident(w.cell_index(last.x >> 3, last.y >> 3, last.z >> 3), 0xFF808080u);
+  const std::vector<uint32_t> cells = w.cells();
+  const std::vector<uint64_t> voxels = w.decode_voxels();
+  EXPECT_THROW(stamp(w, s, EditOp::Remove), Error);
+  EXPECT_EQ(w.cells(), cells);
+  EXPECT_EQ(w.decode_voxels(), voxels);
 }
 
 TEST(BrickmapCli, BatchFileAndMeshStampEditAsTheLibraryDoes) {

@@ -190,7 +190,9 @@ class ColorAllocator {
  private:
   static int class_of(uint32_t count);
   void merge(int c, bool cascade);
+  size_t merge_threshold(int c) const;
   std::array<std::vector<uint32_t>, kClasses> free_;
+  std::array<size_t, kClasses> merged_size_{};  // free nodes left by each class's last merge
   uint32_t extent_ = 0;
 };
 
@@ -497,7 +499,9 @@ EditResult edit(World& world, const Brush& brush, EditOp op, const Color& color 
 /// brush. Add stores them with their own colors and normals (`color` and +z
 /// when the set has none), Remove empties them, Paint recolors the solid
 /// ones with their colors (or `color`). Same bookkeeping and refusals as
-/// edit(); throws voxcast::Error for a set on another grid.
+/// edit() (parallel batches stored in cell order; a not-resident brick
+/// refuses the stamp before anything changes); throws voxcast::Error for a
+/// set on another grid.
 EditResult stamp(World& world, const VoxelSet& voxels, EditOp op, const Color& color = {});
 
 /// World-scale snowfall (§5.5).

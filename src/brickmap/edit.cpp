@@ -8,6 +8,7 @@
 // listed in the result, which is what a renderer with its own brick pool
 // would invalidate and re-upload (§4.4).
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_sort.h>
 
 #include <algorithm>
 #include <array>
@@ -76,6 +77,37 @@ bool apply_voxel(BrickVoxels& v, uint32_t bit, EditOp op, uint32_t abgr, uint32_
   return true;
 }
 
+// Changes `count` bricks, brick q in cell cell_of(q) through change(q, v)
+// (which applies the voxels to the expanded copy v and returns how many
+// changed), in batches: a batch changed in parallel (each brick reads the
+// world and writes its own copy), then the changed bricks stored in order
+// on this thread (the pool and the color allocator are not shared), so the
+// world is the same whatever the threads; then the occupancy, pyramid and
+// clearances once for all.
+template <class CellOf, class Change>
+EditResult change_bricks(World& w, size_t count, const CellOf& cell_of, const Change& change) {
+  constexpr size_t kBatch = 512;  // 512 expanded bricks: about 2 MiB
+  std::vector<BrickVoxels> batch(std::min(kBatch, count));
+  std::vector<uint64_t> changed(batch.size());
+  EditResult result;
+  for (size_t first = 0; first < count; first += kBatch) {
+    const size_t n = std::min(kBatch, count - first);
+    tbb::parallel_for(size_t(0), n, [&](size_t q) {
+      expand(w, w.cell(cell_of(first + q)), &batch[q]);
+      changed[q] = change(first + q, batch[q]);
+    });
+    for (size_t q = 0; q < n; ++q) {
+      if (changed[q] == 0) continue;
+      const uint64_t index = cell_of(first + q);
+      store(w, index, batch[q]);
+      result.voxels += changed[q];
+      result.cells.push_back(index);
+    }
+  }
+  w.update_occupancy(result.cells);
+  return result;
+}
+
 }  // namespace
 
 bool Brush::contains(const Vec3d& p) const {
@@ -127,54 +159,35 @@ EditResult edit(World& w, const Brush& brush, EditOp op, const Color& color) {
                       "," + std::to_string(bk) + ") is not resident");
         bricks.push_back({bi, bj, bk});
       }
-  // The brush is applied to a batch of bricks in parallel (each reads the
-  // world and writes its own expanded copy), then the changed ones are
-  // stored in cell order on this thread (the pool and the color allocator
-  // are not shared), so the world is the same whatever the threads.
-  constexpr size_t kBatch = 512;  // 512 expanded bricks: about 2 MiB
-  std::vector<BrickVoxels> batch(std::min(kBatch, bricks.size()));
-  std::vector<uint64_t> changed(batch.size());
-  EditResult result;
-  for (size_t first = 0; first < bricks.size(); first += kBatch) {
-    const size_t n = std::min(kBatch, bricks.size() - first);
-    tbb::parallel_for(size_t(0), n, [&](size_t q) {
-      const auto& bc = bricks[first + q];
-      BrickVoxels& v = batch[q];
-      expand(w, w.cell(w.cell_index(uint32_t(bc[0]), uint32_t(bc[1]), uint32_t(bc[2]))), &v);
-      changed[q] = 0;
-      const int64_t b0[3] = {bc[0] << kBrickLog2, bc[1] << kBrickLog2, bc[2] << kBrickLog2};
-      for (int64_t z = std::max(vlo[2], b0[2]); z <= std::min(vhi[2], b0[2] + 7); ++z)
-        for (int64_t y = std::max(vlo[1], b0[1]); y <= std::min(vhi[1], b0[1] + 7); ++y)
-          for (int64_t x = std::max(vlo[0], b0[0]); x <= std::min(vhi[0], b0[0] + 7); ++x) {
-            const Vec3d p{double(g.origin.x) + (double(x) + 0.5) * g.voxel_size,
-                          double(g.origin.y) + (double(y) + 0.5) * g.voxel_size,
-                          double(g.origin.z) + (double(z) + 0.5) * g.voxel_size};
-            if (!brush.contains(p)) continue;
-            const uint32_t bit =
-                voxel_bit(uint32_t(x - b0[0]), uint32_t(y - b0[1]), uint32_t(z - b0[2]));
-            uint32_t nc = 0;
-            if (op == EditOp::Add) {
-              // Added voxels face away from the brush's center (a box's
-              // or sphere's outward direction; +z at the very center).
-              const Vec3d d = p - center;
-              nc = esvo::encode_normal_cube(
-                  dot(d, d) > 0 ? Vec3(normalize(Vec3{float(d.x), float(d.y), float(d.z)}))
-                                : Vec3{0, 0, 1});
-            }
-            if (apply_voxel(v, bit, op, abgr, nc)) ++changed[q];
+  const auto cell_of = [&](size_t q) {
+    return w.cell_index(uint32_t(bricks[q][0]), uint32_t(bricks[q][1]), uint32_t(bricks[q][2]));
+  };
+  return change_bricks(w, bricks.size(), cell_of, [&](size_t q, BrickVoxels& v) {
+    const auto& bc = bricks[q];
+    uint64_t changed = 0;
+    const int64_t b0[3] = {bc[0] << kBrickLog2, bc[1] << kBrickLog2, bc[2] << kBrickLog2};
+    for (int64_t z = std::max(vlo[2], b0[2]); z <= std::min(vhi[2], b0[2] + 7); ++z)
+      for (int64_t y = std::max(vlo[1], b0[1]); y <= std::min(vhi[1], b0[1] + 7); ++y)
+        for (int64_t x = std::max(vlo[0], b0[0]); x <= std::min(vhi[0], b0[0] + 7); ++x) {
+          const Vec3d p{double(g.origin.x) + (double(x) + 0.5) * g.voxel_size,
+                        double(g.origin.y) + (double(y) + 0.5) * g.voxel_size,
+                        double(g.origin.z) + (double(z) + 0.5) * g.voxel_size};
+          if (!brush.contains(p)) continue;
+          const uint32_t bit =
+              voxel_bit(uint32_t(x - b0[0]), uint32_t(y - b0[1]), uint32_t(z - b0[2]));
+          uint32_t nc = 0;
+          if (op == EditOp::Add) {
+            // Added voxels face away from the brush's center (a box's
+            // or sphere's outward direction; +z at the very center).
+            const Vec3d d = p - center;
+            nc = esvo::encode_normal_cube(
+                dot(d, d) > 0 ? Vec3(normalize(Vec3{float(d.x), float(d.y), float(d.z)}))
+                              : Vec3{0, 0, 1});
           }
-    });
-    for (size_t q = 0; q < n; ++q) {
-      if (changed[q] == 0) continue;
-      const auto& bc = bricks[first + q];
-      const uint64_t index = w.cell_index(uint32_t(bc[0]), uint32_t(bc[1]), uint32_t(bc[2]));
-      store(w, index, batch[q]);
-      result.voxels += changed[q];
-      result.cells.push_back(index);
-    }
-  }
-  w.update_occupancy(result.cells);
-  return result;
+          changed += apply_voxel(v, bit, op, abgr, nc);
+        }
+    return changed;
+  });
 }
 
 EditResult stamp(World& w, const VoxelSet& voxels, EditOp op, const Color& color) {
@@ -194,44 +207,41 @@ EditResult stamp(World& w, const VoxelSet& voxels, EditOp op, const Color& color
     if ((c.y >> kBrickLog2) >= w.dims()[1]) continue;
     order.push_back({w.cell_index(c.x >> kBrickLog2, c.y >> kBrickLog2, c.z >> kBrickLog2), i});
   }
-  std::sort(order.begin(), order.end());
-  EditResult result;
-  BrickVoxels v;
+  tbb::parallel_sort(order.begin(), order.end());  // unique pairs: one order whatever the threads
+  // The runs of one cell; a not-resident brick refuses the stamp before
+  // anything changes.
+  struct Run {
+    uint64_t index;
+    size_t begin, end;
+  };
+  std::vector<Run> runs;
   for (size_t at = 0; at < order.size();) {
     const uint64_t index = order[at].first;
     size_t end = at;
     while (end < order.size() && order[end].first == index) ++end;
     const uint32_t cell = w.cell(index);
-    if (cell == 0 && op != EditOp::Add) {
-      at = end;
-      continue;
-    }
-    if (cell_state(cell) == kStateNotResident) {
-      w.update_occupancy(result.cells);  // the bricks stored so far stay consistent
+    if (cell_state(cell) == kStateNotResident)
       throw Error("brickmap stamp: brick " + std::to_string(index) + " is not resident");
-    }
-    expand(w, cell, &v);
-    uint64_t changed = 0;
-    for (size_t k = at; k < end; ++k) {
-      const size_t i = order[k].second;
-      const MortonCoord c = morton_decode(voxels.codes[i]);
-      const uint32_t bit = voxel_bit(c.x & 7, c.y & 7, c.z & 7);
-      const uint32_t abgr = own ? esvo::encode_color_abgr(voxels.colors[i]) : fallback;
-      const uint32_t nc =
-          op != EditOp::Add ? 0
-                            : esvo::encode_normal_cube(voxels.normals.empty() ? Vec3{0, 0, 1}
-                                                                              : voxels.normals[i]);
-      if (!apply_voxel(v, bit, op, abgr, nc)) continue;
-      ++changed;
-    }
+    if (cell != 0 || op == EditOp::Add) runs.push_back({index, at, end});
     at = end;
-    if (changed == 0) continue;
-    store(w, index, v);
-    result.voxels += changed;
-    result.cells.push_back(index);
   }
-  w.update_occupancy(result.cells);
-  return result;
+  return change_bricks(
+      w, runs.size(), [&](size_t q) { return runs[q].index; },
+      [&](size_t q, BrickVoxels& v) {
+        uint64_t changed = 0;
+        for (size_t k = runs[q].begin; k < runs[q].end; ++k) {
+          const size_t i = order[k].second;
+          const MortonCoord c = morton_decode(voxels.codes[i]);
+          const uint32_t bit = voxel_bit(c.x & 7, c.y & 7, c.z & 7);
+          const uint32_t abgr = own ? esvo::encode_color_abgr(voxels.colors[i]) : fallback;
+          const uint32_t nc = op != EditOp::Add
+                                  ? 0
+                                  : esvo::encode_normal_cube(
+                                        voxels.normals.empty() ? Vec3{0, 0, 1} : voxels.normals[i]);
+          changed += apply_voxel(v, bit, op, abgr, nc);
+        }
+        return changed;
+      });
 }
 
 }  // namespace voxcast::brickmap

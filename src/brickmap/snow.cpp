@@ -1,7 +1,11 @@
 // Snowfall on a brickmap world (§5.5; brickmap.hpp snow_step): one voxel of
 // snow on top of the highest solid voxel of some columns, through stamp().
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_sort.h>
+
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <vector>
 
 #include "voxcast/brickmap.hpp"
@@ -18,7 +22,12 @@ EditResult snow_step(World& w, uint32_t step, const SnowOptions& o) {
   const uint64_t threshold = uint64_t(o.rate * 65536.0);
   VoxelSet snow;
   snow.grid = g;
-  for (uint32_t k = 0; k < d[2]; ++k)
+  // Brick rows (one z) in parallel, each into its own list; the lists are
+  // joined in row order, so the set is the same whatever the threads.
+  std::vector<std::vector<uint64_t>> rows(d[2]);
+  std::atomic<bool> not_resident{false};
+  tbb::parallel_for(uint32_t(0), d[2], [&](uint32_t k) {
+    std::vector<uint64_t>& codes = rows[k];
     for (uint32_t i = 0; i < d[0]; ++i) {
       // The highest solid voxel of each of the 64 voxel columns of this
       // brick column, walking its cells down from the top.
@@ -28,8 +37,10 @@ EditResult snow_step(World& w, uint32_t step, const SnowOptions& o) {
       for (uint32_t j = d[1]; j-- > 0 && open > 0;) {
         const uint32_t cell = w.cell(w.cell_index(i, j, k));
         if (cell == 0) continue;
-        if (cell_state(cell) != kStateResident)
-          throw Error("brickmap snow: a brick of the world is not resident");
+        if (cell_state(cell) != kStateResident) {
+          not_resident = true;
+          return;
+        }
         const Brick& b = w.brick(cell_brick(cell));
         for (int c = 0; c < 64; ++c) {
           if (highest[c] >= 0) continue;
@@ -50,10 +61,16 @@ EditResult snow_step(World& w, uint32_t step, const SnowOptions& o) {
         h = (h ^ (h >> 31)) * 0xbf58476d1ce4e5b9ull;
         h = (h ^ (h >> 27)) * 0x94d049bb133111ebull;
         if (((h ^ (h >> 31)) & 0xFFFF) >= threshold) continue;
-        snow.codes.push_back(morton_encode(x, uint32_t(highest[c]) + 1, z));
+        codes.push_back(morton_encode(x, uint32_t(highest[c]) + 1, z));
       }
     }
-  std::sort(snow.codes.begin(), snow.codes.end());
+  });
+  if (not_resident) throw Error("brickmap snow: a brick of the world is not resident");
+  size_t total = 0;
+  for (const auto& r : rows) total += r.size();
+  snow.codes.reserve(total);
+  for (const auto& r : rows) snow.codes.insert(snow.codes.end(), r.begin(), r.end());
+  tbb::parallel_sort(snow.codes.begin(), snow.codes.end());
   snow.colors.assign(snow.codes.size(), o.color);
   snow.normals.assign(snow.codes.size(), Vec3{0, 1, 0});
   return stamp(w, snow, EditOp::Add, o.color);

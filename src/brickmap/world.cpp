@@ -67,7 +67,12 @@ uint32_t ColorAllocator::allocate(uint32_t count) {
   if (k == kClasses) {
     // Before the pool grows: merge every class, smallest first (what the
     // threshold would do eventually), and look again.
-    for (int m = 0; m + 1 < kClasses; ++m) merge(m, false);
+    // A class is merged again only once its free list has more than doubled
+    // since its last merge (what is left after a merge cannot merge by
+    // itself), so the sorting stays amortized O(n log n) overall instead of
+    // one sort per growth.
+    for (int m = 0; m + 1 < kClasses; ++m)
+      if (free_[size_t(m)].size() > 2 * merged_size_[size_t(m)]) merge(m, false);
     for (k = c; k < kClasses && free_[size_t(k)].empty(); ++k) {
     }
   }
@@ -89,7 +94,14 @@ uint32_t ColorAllocator::allocate(uint32_t count) {
 void ColorAllocator::release(uint32_t first, uint32_t count) {
   const int c = class_of(count);
   free_[size_t(c)].push_back(first);
-  if (free_[size_t(c)].size() > kMergeThreshold && c + 1 < kClasses) merge(c, true);
+  if (free_[size_t(c)].size() > merge_threshold(c) && c + 1 < kClasses) merge(c, true);
+}
+
+size_t ColorAllocator::merge_threshold(int c) const {
+  // Past kMergeThreshold, and past twice what the last merge left (the nodes
+  // that did not merge then would be sorted again for nothing at every
+  // release: quadratic in a long edit).
+  return std::max(kMergeThreshold, 2 * merged_size_[size_t(c)]);
 }
 
 void ColorAllocator::merge(int c, bool cascade) {
@@ -108,7 +120,8 @@ void ColorAllocator::merge(int c, bool cascade) {
     }
   }
   f = std::move(keep);
-  if (cascade && free_[size_t(c + 1)].size() > kMergeThreshold && c + 2 < kClasses)
+  merged_size_[size_t(c)] = f.size();
+  if (cascade && free_[size_t(c + 1)].size() > merge_threshold(c + 1) && c + 2 < kClasses)
     merge(c + 1, true);
 }
 
