@@ -96,12 +96,18 @@ EditResult change_bricks(World& w, size_t count, const CellOf& cell_of, const Ch
       expand(w, w.cell(cell_of(first + q)), &batch[q]);
       changed[q] = change(first + q, batch[q]);
     });
-    for (size_t q = 0; q < n; ++q) {
-      if (changed[q] == 0) continue;
-      const uint64_t index = cell_of(first + q);
-      store(w, index, batch[q]);
-      result.voxels += changed[q];
-      result.cells.push_back(index);
+    try {
+      for (size_t q = 0; q < n; ++q) {
+        if (changed[q] == 0) continue;
+        const uint64_t index = cell_of(first + q);
+        store(w, index, batch[q]);
+        result.voxels += changed[q];
+        result.cells.push_back(index);
+      }
+    } catch (...) {
+      // (The pool's limit, say:) the bricks stored so far stay consistent.
+      w.update_occupancy(result.cells);
+      throw;
     }
   }
   w.update_occupancy(result.cells);

@@ -114,10 +114,15 @@ bool LiveWorld::publish_ready() {
   for (const Done& d : ready) {
     // The occupancy, pyramid and clearances once per edit, not per brick.
     std::vector<uint64_t> cells;
-    for (const NewBrick& b : d.bricks) {
-      front_->set_brick(b.cell, b.mask, b.colors.data(), b.normals.data(), kFlagEdited, nullptr,
-                        false);
-      cells.push_back(b.cell);
+    try {
+      for (const NewBrick& b : d.bricks) {
+        front_->set_brick(b.cell, b.mask, b.colors.data(), b.normals.data(), kFlagEdited, nullptr,
+                          false);
+        cells.push_back(b.cell);
+      }
+    } catch (...) {
+      front_->update_occupancy(cells);  // the bricks stored so far stay consistent
+      throw;
     }
     front_->update_occupancy(cells);
     applied_ = d.number;

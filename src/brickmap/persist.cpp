@@ -286,33 +286,43 @@ std::vector<uint32_t> header_record(const Record* header, const World& w) {
 std::vector<uint64_t> apply(World& w, const std::vector<Record>& txn, SceneInfo* si) {
   const ChunkGrid cg = chunk_grid(w.dims());
   std::vector<uint64_t> chunks;
-  std::vector<uint64_t> touched;  // occupancy, pyramid and clearances updated once for all
+  // The occupancy, pyramid and clearances are updated once for all the cells
+  // touched, also when a damaged record throws half way (the world then
+  // holds the records applied so far, consistently).
+  std::vector<uint64_t> touched;
   const Record* header = nullptr;
-  for (const Record& r : txn) {
-    if (r.type == kHeaderRecord) {
-      header = &r;
-      continue;
-    }
-    const std::string name = "journal transaction " + std::to_string(r.txn);
-    const ChunkRecord cr = chunk_record(r, cg, name);
-    const uint64_t chunk = cr.chunk;
-    const uint8_t* bits = cr.bits;
-    const std::vector<uint8_t> raw =
-        cr.raw ? decompress(cr.z, cr.z_size, cr.raw, name) : std::vector<uint8_t>{};
-    const auto present = [&](uint64_t, uint32_t pos) { return (bits[pos >> 3] >> (pos & 7)) & 1; };
-    std::vector<ChunkBrick> got =
-        decode_chunk(w, cg, chunk, raw, name + " " + chunk_name(cg, chunk), present);
-    for_chunk_cells(w, cg, chunk, [&](uint64_t ci, uint32_t pos) {
-      if (!present(ci, pos) && w.cell(ci) != 0) {
-        w.set_brick(ci, std::array<uint64_t, 8>{}.data(), nullptr, nullptr, 0, nullptr, false);
-        touched.push_back(ci);
+  try {
+    for (const Record& r : txn) {
+      if (r.type == kHeaderRecord) {
+        header = &r;
+        continue;
       }
-    });
-    for (const ChunkBrick& b : got) {
-      w.set_brick(b.cell, b.mask, b.colors.data(), b.normals.data(), 0, nullptr, false);
-      touched.push_back(b.cell);
+      const std::string name = "journal transaction " + std::to_string(r.txn);
+      const ChunkRecord cr = chunk_record(r, cg, name);
+      const uint64_t chunk = cr.chunk;
+      const uint8_t* bits = cr.bits;
+      const std::vector<uint8_t> raw =
+          cr.raw ? decompress(cr.z, cr.z_size, cr.raw, name) : std::vector<uint8_t>{};
+      const auto present = [&](uint64_t, uint32_t pos) {
+        return (bits[pos >> 3] >> (pos & 7)) & 1;
+      };
+      std::vector<ChunkBrick> got =
+          decode_chunk(w, cg, chunk, raw, name + " " + chunk_name(cg, chunk), present);
+      for_chunk_cells(w, cg, chunk, [&](uint64_t ci, uint32_t pos) {
+        if (!present(ci, pos) && w.cell(ci) != 0) {
+          w.set_brick(ci, std::array<uint64_t, 8>{}.data(), nullptr, nullptr, 0, nullptr, false);
+          touched.push_back(ci);
+        }
+      });
+      for (const ChunkBrick& b : got) {
+        w.set_brick(b.cell, b.mask, b.colors.data(), b.normals.data(), 0, nullptr, false);
+        touched.push_back(b.cell);
+      }
+      chunks.push_back(chunk);
     }
-    chunks.push_back(chunk);
+  } catch (...) {
+    w.update_occupancy(touched);
+    throw;
   }
   w.update_occupancy(touched);
   const std::vector<uint32_t> cells = header_record(header, w);
