@@ -47,7 +47,7 @@ bool to_grid(const GridTransform& g, const Ray& ray, GridRay* r) {
   for (int a = 0; a < 3; ++a) {
     r->o[a] = float((double(ray.origin[a]) - g.origin[a]) * inv_vs);
     r->d[a] = float(double(ray.dir[a]) * inv_vs);
-    big = std::fmax(big, std::fabs(r->d[a]));
+    big = std::max(big, std::fabs(r->d[a]));  // finite inputs: no libm fmax call
   }
   if (!(big > 0.f) || !std::isfinite(big)) return false;
   const float tiny = big * 0x1p-23f;
@@ -64,11 +64,12 @@ inline float plane_t(const GridRay& r, int a, float coord) {
   return (coord - r.o[a]) * r.inv[a];
 }
 
-// Cell of side `side` (grid units) holding o + d t, ties towards the side the
-// ray moves to, clamped to [lo[a], hi[a]].
-inline void start_cell(const GridRay& r, float t, float side, const int lo[3], const int hi[3],
+// Cell of side 2^side_log2 (grid units) holding o + d t, ties towards the
+// side the ray moves to, clamped to [lo[a], hi[a]].
+inline void start_cell(const GridRay& r, float t, int side_log2, const int lo[3], const int hi[3],
                        int c[3]) {
-  const float inv_side = 1.f / side;  // a power of two: exact
+  // 2^-side_log2 from its exponent bits: exact, and no division per descent.
+  const float inv_side = std::bit_cast<float>(uint32_t(127 - side_log2) << 23);
   for (int a = 0; a < 3; ++a) {
     const float p = (r.o[a] + r.d[a] * t) * inv_side;
     const float f = r.up[a] ? std::floor(p) : std::ceil(p) - 1.f;
@@ -266,7 +267,7 @@ struct Walker {
       hi[a] = std::min(top, d.lo[a] + (1 << ratio_log2) - 1);
       d.span[a] = uint32_t(hi[a] - d.lo[a]);
     }
-    start_cell(r, t, d.side, d.lo, hi, d.c);
+    start_cell(r, t, L - cl, d.lo, hi, d.c);
     if (t == start_t) start_cell_exact(t, d.side, d.lo, hi, d.c);
     for (int a = 0; a < 3; ++a) d.n[a] = plane_t(r, a, float(d.c[a] + r.up[a]) * d.side);
     if constexpr (kCount) ++ctx.counters.pushes;
@@ -470,15 +471,17 @@ bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod,
           uint32_t* seen, const float (*region)[3], Found* f) {
   const GridTransform& g = w.grid();
   const float n = float(g.resolution);
-  // Clip to the grid box [0, N]^3.
-  float t0 = 0.f, t1 = tmax;
+  // Clip to the grid box [0, N]^3. The plane t values are finite (finite
+  // origin, clamped direction), so min / max need not handle NaN (no libm
+  // fmin call per ray); a NaN tmax counts as no limit, as fmin gave.
+  float t0 = 0.f, t1 = std::isnan(tmax) ? INFINITY : tmax;
   int axis = -1;
   float exit = INFINITY;
   for (int a = 0; a < 3; ++a) {
     const float ta = plane_t(r, a, r.up[a] ? 0.f : n), tb = plane_t(r, a, r.up[a] ? n : 0.f);
     if (ta > t0) t0 = ta, axis = a;
-    t1 = std::fmin(t1, tb);
-    exit = std::fmin(exit, tb);
+    t1 = std::min(t1, tb);
+    exit = std::min(exit, tb);
   }
   if (!(t0 <= t1)) return false;
   if (axis < 0) {
@@ -497,10 +500,10 @@ bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod,
   if (region != nullptr) {
     float r0 = -INFINITY, r1 = INFINITY;
     for (int a = 0; a < 3; ++a) {
-      r0 = std::fmax(r0, plane_t(r, a, r.up[a] ? region[0][a] : region[1][a]));
-      r1 = std::fmin(r1, plane_t(r, a, r.up[a] ? region[1][a] : region[0][a]));
+      r0 = std::max(r0, plane_t(r, a, r.up[a] ? region[0][a] : region[1][a]));
+      r1 = std::min(r1, plane_t(r, a, r.up[a] ? region[1][a] : region[0][a]));
     }
-    t1 = std::fmin(t1, r1);
+    t1 = std::min(t1, r1);
     const float before = std::nextafter(r0, -INFINITY);
     if (before > t0) t0 = before, start_t = before;
     if (!(t0 <= t1)) return false;
@@ -629,7 +632,8 @@ bool BrickmapStructure::trace(const Ray& ray, const LodFootprint& lod, TraceCont
                                   : walk<false>(*world_, r, ray.tmax, lod, ctx, seen, rg, &f);
   if (!found) return false;
   const GridTransform& g = world_->grid();
-  const double side = std::ldexp(g.voxel_size, g.levels - f.level);
+  // voxel_size 2^(levels - level), exact (a power-of-two scale), no libm ldexp call.
+  const double side = g.voxel_size * double(uint32_t(1) << (g.levels - f.level));
   hit->t = f.t;
   hit->voxel_size = float(side);
   hit->voxel_ref = f.ref;
@@ -644,7 +648,7 @@ bool BrickmapStructure::trace(const Ray& ray, const LodFootprint& lod, TraceCont
     float lo_f = float(lo), hi_f = float(hi);
     if (double(lo_f) < lo) lo_f = std::nextafter(lo_f, INFINITY);
     if (double(hi_f) >= hi) hi_f = std::nextafter(hi_f, -INFINITY);
-    hit->position[a] = std::fmax(std::fmin(p[a], hi_f), lo_f);
+    hit->position[a] = std::max(std::min(p[a], hi_f), lo_f);  // p finite
   }
   return true;
 }
