@@ -343,7 +343,11 @@ struct Walker {
           stop(B, d.cell(), cell, nullptr, d.t, d.axis);
           return Step::Hit;
         }
-        const Step s = visit(B, d.cell(), cexit, cell, d.t, d.axis);
+        // Straight to the brick's voxels when no LOD stop can come in between
+        // (visit()'s first case, without the call).
+        const Step s = child_level(B, cexit) == L
+                           ? visit_voxels(cell_brick(cell), d.cell(), d.t, d.axis)
+                           : visit(B, d.cell(), cexit, cell, d.t, d.axis);
         if (s != Step::Exit) return s;
       }
       const int s = cell == 0 && uint32_t(d.c[1]) < dim_y && w.clearance(uint64_t(index)) > 1
