@@ -167,8 +167,9 @@ inline Step end_of(int s) {
 
 // The walk over the level hierarchy (brickmap.hpp, BrickmapStructure): the
 // pyramid levels (ratio 2; one level at a time while the footprint may stop
-// there, else straight to the brickgrid from two levels above it), the
-// brickgrid, the cubes inside a brick and the voxels. Every level is a DDA of
+// there, else kPyramidStep levels per descent, child_level), the brickgrid
+// (empty cubes of cells crossed in one step, jump), the cubes inside a brick
+// and the voxels. Every level is a DDA of
 // the same kind over the children of one cube of the level above. kAny
 // (the any-hit walk of transmittance()): the same steps and decisions, so
 // the same hit / miss answer, without recording the hit (Found untouched).
@@ -350,9 +351,9 @@ struct Walker {
                            : visit(B, d.cell(), cexit, cell, d.t, d.axis);
         if (s != Step::Exit) return s;
       }
-      const int s = cell == 0 && uint32_t(d.c[1]) < dim_y && w.clearance(uint64_t(index)) > 1
-                        ? jump(d, w.clearance(uint64_t(index)) - 1, &index, stride)
-                        : advance(d, r, t1, &index, dstride);
+      const int clear = cell == 0 && uint32_t(d.c[1]) < dim_y ? w.clearance(uint64_t(index)) : 0;
+      const int s =
+          clear > 1 ? jump(d, clear - 1, &index, stride) : advance(d, r, t1, &index, dstride);
       if (s > 2) return end_of(s);
     }
   }
