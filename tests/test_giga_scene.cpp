@@ -125,6 +125,138 @@ TEST(GigaScene, OverlappingObjectsMatchTheDenseOracle) {
   }
 }
 
+// A local volume that records the footprint it is asked for and answers
+// one brick span over its unit cube, of a fixed local voxel size: what the
+// scene hands an object and what it makes of the object's answer.
+class FootprintProbe final : public Structure, public VolumeQuery {
+ public:
+  static constexpr float kVoxel = 1.f / 64.f;
+  mutable LodFootprint asked;
+  std::string name() const override { return "footprint probe"; }
+  Aabb bounds() const override { return {{0, 0, 0}, {1, 1, 1}}; }
+  const VolumeQuery* volume() const override { return this; }
+  int march(const Ray& ray, float t_begin, const LodFootprint& lod, TraceContext&,
+            std::span<VolumeSpan> out) const override {
+    asked = lod;
+    float t0 = std::max(0.f, t_begin), t1 = ray.tmax;
+    for (int a = 0; a < 3; ++a) {
+      float ta = (0.f - ray.origin[a]) / ray.dir[a], tb = (1.f - ray.origin[a]) / ray.dir[a];
+      if (ta > tb) std::swap(ta, tb);
+      t0 = std::max(t0, ta), t1 = std::min(t1, tb);
+    }
+    if (!(t1 > t0) || out.empty()) return 0;
+    VolumeSpan s;
+    s.t0 = t0, s.t1 = t1, s.level = 3, s.voxel_size = kVoxel;
+    out[0] = s;
+    return 1;
+  }
+  VolumeSample sample(Vec3, float, TraceContext&, const VolumeSpan*) const override {
+    return {0.5f, {1.f, 1.f, 1.f, 1.f}};
+  }
+};
+
+// The largest world length across the unit direction d of a local unit
+// under the linear map A: max over unit w across d of |A^T w|, by brute
+// force over the half circle of w.
+double across_stretch_brute(const double A[3][3], Vec3 d) {
+  const Vec3 n = normalize(d);
+  const Vec3 helper = std::abs(n.x) < 0.6f ? Vec3{1, 0, 0} : Vec3{0, 1, 0};
+  const Vec3 u = normalize(cross(n, helper)), v = cross(n, u);
+  double best = 0;
+  constexpr int kSteps = 20000;
+  for (int i = 0; i < kSteps; ++i) {
+    const double a = M_PI * i / kSteps, c = std::cos(a), s = std::sin(a);
+    const double w[3] = {c * u.x + s * v.x, c * u.y + s * v.y, c * u.z + s * v.z};
+    double len2 = 0;
+    for (int j = 0; j < 3; ++j) {
+      const double x = A[0][j] * w[0] + A[1][j] * w[1] + A[2][j] * w[2];
+      len2 += x * x;
+    }
+    best = std::max(best, std::sqrt(len2));
+  }
+  return best;
+}
+
+// Level of detail under non-uniform maps (gigavoxels_scene.hpp): the local
+// footprint is the world one over sigma, the largest world length across
+// the ray of a local unit (brute force over the directions across it), the
+// span's size across the ray is the local voxel times sigma, and its
+// stretch makes the integrator step half a local voxel along the ray.
+TEST(GigaScene, FootprintAcrossTheRayUnderNonUniformMaps) {
+  std::mt19937_64 rng(23);
+  std::uniform_real_distribution<float> U(0.f, 1.f);
+  int checked = 0;
+  for (int m = 0; m < 12; ++m) {
+    // Rotation * non-uniform scale * rotation, scales over 1/4 .. 4.
+    const Vec3 scale{std::exp2(4.f * U(rng) - 2.f), std::exp2(4.f * U(rng) - 2.f),
+                     std::exp2(4.f * U(rng) - 2.f)};
+    const Affine map =
+        Affine::translate({U(rng), U(rng), U(rng)}) *
+        Affine::rotate({U(rng) - 0.5f, U(rng) - 0.5f, U(rng) - 0.5f}, 360.f * U(rng)) *
+        Affine::scale(scale) *
+        Affine::rotate({U(rng) - 0.5f, U(rng) - 0.5f, U(rng) - 0.5f}, 360.f * U(rng));
+    double A[3][3];
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) A[i][j] = map.m[i][j];
+    auto probe = std::make_shared<FootprintProbe>();
+    std::vector<SceneObject> objects(1);
+    objects[0].structure = probe, objects[0].transform = map;
+    VolumeScene scene(std::move(objects));
+    const Aabb box = scene.bounds();
+    const Affine inverse = map.inverse();
+    for (int r = 0; r < 20; ++r) {
+      const Vec3 target =
+          map.point({0.25f + 0.5f * U(rng), 0.25f + 0.5f * U(rng), 0.25f + 0.5f * U(rng)});
+      const Vec3 dir = normalize(Vec3{U(rng) - 0.5f, U(rng) - 0.5f, U(rng) - 0.5f});
+      const Ray ray{target - dir * (2.f * length(box.extent())), dir, INFINITY};
+      const LodFootprint lod{0.002f, 0.001f};
+      TraceContext ctx;
+      VolumeSpan spans[4];
+      ASSERT_EQ(scene.march(ray, 0.f, lod, ctx, spans), 1);
+      const double sigma = across_stretch_brute(A, dir);
+      const double k = length(inverse.vector(dir));
+      EXPECT_NEAR(probe->asked.size_at_origin, lod.size_at_origin / sigma,
+                  1e-4 * lod.size_at_origin / sigma);
+      EXPECT_NEAR(probe->asked.size_per_t, lod.size_per_t / sigma, 1e-4 * lod.size_per_t / sigma);
+      EXPECT_NEAR(spans[0].voxel_size, FootprintProbe::kVoxel * sigma,
+                  1e-4 * FootprintProbe::kVoxel * sigma);
+      EXPECT_NEAR(spans[0].stretch, 1.0 / (k * sigma), 1e-4 / (k * sigma));
+      // The integrator's steps at the finest footprint: half a local voxel
+      // along the ray, so the sample count is the local length over it.
+      VolumeIntegratorOptions io;
+      io.opacity_cutoff = 1.f;
+      VolumeIntegrator integrator(io);
+      VolumeIntegratorStats stats;
+      integrator.integrate(scene, ray, {}, ctx, &stats);
+      const double local_length = (spans[0].t1 - spans[0].t0) * k;
+      EXPECT_NEAR(double(stats.samples), std::ceil(local_length / (0.5 * FootprintProbe::kVoxel)),
+                  1.0);
+      ++checked;
+    }
+  }
+  EXPECT_EQ(checked, 240);
+
+  // A cloud stretched 8x along z against its cross-section: seen from the
+  // side (across z) its local voxels project 8x taller than from above, so
+  // the same footprint reads 3 levels finer there (it used to be the other
+  // way around: the scale along the ray picked the level).
+  const Affine tall = Affine::scale({0.125f, 0.125f, 1.f});
+  std::vector<SceneObject> one(1);
+  one[0].structure = std::make_shared<FootprintProbe>(), one[0].transform = tall;
+  VolumeScene scene(std::move(one));
+  const auto& probe = static_cast<const FootprintProbe&>(*scene.objects()[0].structure);
+  TraceContext ctx;
+  VolumeSpan span[1];
+  const LodFootprint foot{1.f / 32.f, 0.f};
+  ASSERT_EQ(scene.march({{-1.f, 0.06f, 0.5f}, {1, 0, 0}, INFINITY}, 0.f, foot, ctx, span), 1);
+  EXPECT_FLOAT_EQ(probe.asked.size_at_origin, 1.f / 32.f);  // across x: y 1/8, z 1
+  EXPECT_FLOAT_EQ(span[0].voxel_size, FootprintProbe::kVoxel);
+  ASSERT_EQ(scene.march({{0.06f, 0.06f, -1.f}, {0, 0, 1}, INFINITY}, 0.f, foot, ctx, span), 1);
+  EXPECT_FLOAT_EQ(probe.asked.size_at_origin, 1.f / 4.f);  // across z: x and y 1/8
+  EXPECT_FLOAT_EQ(span[0].voxel_size, FootprintProbe::kVoxel / 8.f);
+  EXPECT_FLOAT_EQ(span[0].stretch, 8.f);  // a local voxel is 8x longer along z
+}
+
 FrameView view_of(const Aabb& box, int w, int h) {
   FrameView v;
   v.width = w, v.height = h;

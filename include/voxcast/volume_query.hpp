@@ -31,8 +31,14 @@ struct VolumeSpan {
   uint64_t node = 0;       // structure-specific handle (node / brick)
   int level = 0;           // level of detail of the node (root = 0)
   float voxel_size = 0.f;  // world side of one sample cell at that level
-  bool constant = false;   // true: `value` holds over [t0, t1]; no sampling needed
-  VolumeSample value;      // constant spans only
+  /// The length along the ray of one sample cell over voxel_size: 1 in a
+  /// structure's own space; a scene object stretched (> 1) or squashed (< 1)
+  /// along the ray by a non-uniform map (gigavoxels_scene.hpp) scales the
+  /// integrator's steps by it, voxel_size staying the size across the ray
+  /// that the level of detail compares with the pixel footprint.
+  float stretch = 1.f;
+  bool constant = false;  // true: `value` holds over [t0, t1]; no sampling needed
+  VolumeSample value;     // constant spans only
 };
 
 class VolumeQuery {

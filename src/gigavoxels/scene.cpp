@@ -150,16 +150,40 @@ struct Mix {
 }  // namespace
 
 /// An object along one ray: its local ray (same t), the world-to-local
-/// length factor k = |M^-1 d| and where the ray crosses its bounds.
+/// length factor k = |M^-1 d| along the ray, the largest world length across
+/// the ray of a local unit (sigma, header) and where the ray crosses its
+/// bounds.
 struct VolumeScene::Placed {
   int object = 0;
   Ray ray;
-  float k = 1.f;
+  float k = 1.f, sigma = 1.f;
   float ta = 0.f, tb = 0.f;
+  /// The cone's footprint in local units (header: f / sigma).
   LodFootprint local_lod(const LodFootprint& lod) const {
-    return {lod.size_at_origin * k, lod.size_per_t * k};
+    return {lod.size_at_origin / sigma, lod.size_per_t / sigma};
+  }
+  /// A local span in world terms: its size across the ray and its stretch.
+  void to_world(VolumeSpan* s) const {
+    s->voxel_size *= sigma;
+    s->stretch /= k * sigma;
   }
 };
+
+float VolumeScene::across_stretch(int object, Vec3 d) const {
+  // G restricted to the plane across d has trace tr(G) - d^T G d and
+  // determinant d^T adj(G) d (|d| = 1); its larger eigenvalue is sigma^2.
+  const std::array<float, 6>& g = gram_[size_t(object)];
+  const std::array<float, 6>& a = gram_adjugate_[size_t(object)];
+  const double x = d.x, y = d.y, z = d.z, n2 = x * x + y * y + z * z;
+  auto form = [&](const std::array<float, 6>& m) {
+    return (m[0] * x * x + m[1] * y * y + m[2] * z * z +
+            2.0 * (m[3] * x * y + m[4] * x * z + m[5] * y * z)) /
+           n2;
+  };
+  const double trace = double(g[0]) + g[1] + g[2] - form(g), det = form(a) / n2;
+  const double half = 0.5 * trace;
+  return float(std::sqrt(half + std::sqrt(std::max(0.0, half * half - det))));
+}
 
 VolumeScene::VolumeScene(std::vector<SceneObject> objects) : objects_(std::move(objects)) {
   if (objects_.empty()) throw Error("volume scene: no object");
@@ -171,6 +195,32 @@ VolumeScene::VolumeScene(std::vector<SceneObject> objects) : objects_(std::move(
     inverse_.push_back(o.transform.inverse());
     local_bounds_.push_back(o.structure->bounds());
     point_scale_.push_back(std::cbrt(std::abs(inverse_.back().determinant())));
+    // G = A A^T (symmetric), its adjugate, and its largest eigenvalue by
+    // power iteration (G is positive definite: A is not singular).
+    double A[3][3], G[3][3];
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) A[i][j] = o.transform.m[i][j];
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j)
+        G[i][j] = A[i][0] * A[j][0] + A[i][1] * A[j][1] + A[i][2] * A[j][2];
+    auto cof = [&](int i, int j) {
+      const int r0 = (i + 1) % 3, r1 = (i + 2) % 3, c0 = (j + 1) % 3, c1 = (j + 2) % 3;
+      return G[r0][c0] * G[r1][c1] - G[r0][c1] * G[r1][c0];
+    };
+    gram_.push_back({float(G[0][0]), float(G[1][1]), float(G[2][2]), float(G[0][1]), float(G[0][2]),
+                     float(G[1][2])});
+    gram_adjugate_.push_back({float(cof(0, 0)), float(cof(1, 1)), float(cof(2, 2)),
+                              float(cof(0, 1)), float(cof(0, 2)), float(cof(1, 2))});
+    double v[3] = {1.0, 0.7548776662, 0.5698402910}, lambda = 0;  // not an eigenvector of a
+                                                                  // diagonal G
+    for (int it = 0; it < 200; ++it) {
+      double w[3];
+      for (int i = 0; i < 3; ++i) w[i] = G[i][0] * v[0] + G[i][1] * v[1] + G[i][2] * v[2];
+      const double len = std::sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+      lambda = len / std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+      for (int i = 0; i < 3; ++i) v[i] = w[i] / len;
+    }
+    max_stretch_.push_back(float(std::sqrt(lambda)));
   }
 }
 
@@ -230,6 +280,7 @@ int VolumeScene::march(const Ray& ray, float t_begin, const LodFootprint& lod, T
     p.object = int(i);
     p.ray = {inverse_[i].point(ray.origin), inverse_[i].vector(ray.dir), ray.tmax};
     p.k = length(p.ray.dir);
+    p.sigma = across_stretch(int(i), ray.dir);
     p.ta = t_start, p.tb = ray.tmax;
     if (clip_box(local_bounds_[i], p.ray.origin, p.ray.dir, &p.ta, &p.tb))
       placed[size_t(count++)] = p;
@@ -246,7 +297,7 @@ int VolumeScene::march(const Ray& ray, float t_begin, const LodFootprint& lod, T
     ctx.requests.tag_keys(before, object_tag(p.object));
     for (int j = 0; j < m; ++j) {
       VolumeSpan& s = buf[size_t(j)];
-      s.voxel_size /= p.k;
+      p.to_world(&s);
       if (s.constant) s.value = classified(p.object, s.value, p.k);
       s.node = object_tag(p.object) | (s.node & kLocalMask);
     }
@@ -311,14 +362,15 @@ int VolumeScene::march(const Ray& ray, float t_begin, const LodFootprint& lod, T
       bool all_constant = true;
       uint32_t mask = 0;
       Mix mix;
-      float voxel = INFINITY;
+      float along = INFINITY, stretch = 1.f;  // the shortest voxel along the ray
       for (int i = 0; i < part_count; ++i) {
         const Part& q = parts[size_t(i)];
         if (q.at == q.count || q.spans[size_t(q.at)].t0 > u) continue;
         const VolumeSpan& s = q.spans[size_t(q.at)];
         ++active, single = i;
         mask |= 1u << q.placed->object;
-        voxel = std::min(voxel, s.voxel_size);
+        along = std::min(along, s.voxel_size * s.stretch);
+        stretch = std::min(stretch, s.stretch);
         if (s.constant)
           mix.add(s.value);
         else
@@ -330,7 +382,10 @@ int VolumeScene::march(const Ray& ray, float t_begin, const LodFootprint& lod, T
           s = parts[size_t(single)].spans[size_t(parts[size_t(single)].at)];
         } else {
           s.node = (kCompositeTag << kObjectShift) | mask;
-          s.level = 0, s.voxel_size = voxel, s.constant = all_constant;
+          // Steps no longer than any part's voxel along the ray, nor than
+          // the footprint times the most squashed part's stretch.
+          s.level = 0, s.voxel_size = along / stretch, s.stretch = stretch;
+          s.constant = all_constant;
           if (all_constant) {
             s.value = mix.sample();
           } else {
@@ -360,9 +415,10 @@ void VolumeScene::sample_span(const Ray& ray, const VolumeSpan& span, const floa
     const int i = int(tag - 1);
     const Ray local{inverse_[size_t(i)].point(ray.origin), inverse_[size_t(i)].vector(ray.dir),
                     ray.tmax};
-    const float k = length(local.dir);
+    const float k = length(local.dir), sigma = across_stretch(i, ray.dir);
     VolumeSpan own = span;
-    own.node = span.node & kLocalMask, own.voxel_size = span.voxel_size * k;
+    own.node = span.node & kLocalMask;
+    own.voxel_size = span.voxel_size / sigma, own.stretch = span.stretch * k * sigma;
     const size_t before = ctx.requests.size();
     objects_[size_t(i)].structure->volume()->sample_span(local, own, t, level, n, ctx, out);
     ctx.requests.tag_keys(before, object_tag(i));
@@ -384,6 +440,7 @@ void VolumeScene::sample_span(const Ray& ray, const VolumeSpan& span, const floa
     p.object = int(i);
     p.ray = {inverse_[i].point(ray.origin), inverse_[i].vector(ray.dir), span.t1};
     p.k = length(p.ray.dir);
+    p.sigma = across_stretch(int(i), ray.dir);
     const VolumeQuery& q = *objects_[i].structure->volume();
     std::array<VolumeSpan, 8> parts;
     float from = span.t0;
@@ -403,7 +460,7 @@ void VolumeScene::sample_span(const Ray& ray, const VolumeSpan& span, const floa
         } else {
           float lv[kMax];
           for (int x = j; x < e; ++x)
-            lv[x - j] = cone_level(ps, p.k * (lod.size_at_origin + lod.size_per_t * t[x]));
+            lv[x - j] = cone_level(ps, (lod.size_at_origin + lod.size_per_t * t[x]) / p.sigma);
           q.sample_span(p.ray, ps, t + j, lv, e - j, ctx, vs);
         }
         for (int x = j; x < e; ++x) mix[size_t(x)].add(classified(int(i), vs[x - j], p.k));
@@ -444,7 +501,9 @@ VolumeSample VolumeScene::sample(Vec3 p, float level, TraceContext& ctx,
     if (!(q.x >= b.lo.x && q.y >= b.lo.y && q.z >= b.lo.z && q.x <= b.hi.x && q.y <= b.hi.y &&
           q.z <= b.hi.z))
       continue;
-    const float k = point_scale_[i], local_foot = foot * k;
+    // No direction at a point: the footprint shrinks by the largest stretch
+    // of any direction (every sigma(d) is at most it).
+    const float k = point_scale_[i], local_foot = foot / max_stretch_[i];
     const VolumeQuery& vq = *objects_[i].structure->volume();
     const float h = 1e-4f * std::max(b.extent().x, std::max(b.extent().y, b.extent().z));
     const Ray r{q - Vec3{h, 0, 0}, {1, 0, 0}, 2 * h};

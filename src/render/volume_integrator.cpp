@@ -159,14 +159,15 @@ namespace {
 /// (returns false then). Steps are step_scale x the larger of the span's
 /// voxel and the cone at its entry (the LOD's own resolution: where the cone
 /// is wider than the voxel, samples blend toward the parent's coarser brick,
-/// which needs no denser steps). Samples come in chunks through
+/// which needs no denser steps), times the span's stretch (a voxel's length
+/// along the ray over its size across it, volume_query.hpp). Samples come in chunks through
 /// VolumeQuery::sample_span (the span's bricks resolved once per chunk);
 /// nothing is allocated.
 template <class Take>
 bool walk_brick(const VolumeQuery& query, const Ray& ray, const LodFootprint& lod,
                 const VolumeSpan& s, float step_scale, TraceContext& ctx, Take&& take) {
   const float foot0 = lod.size_at_origin + lod.size_per_t * s.t0;
-  const float dt = step_scale * std::max(s.voxel_size, foot0);
+  const float dt = step_scale * std::max(s.voxel_size, foot0) * s.stretch;
   const float steps = std::ceil((s.t1 - s.t0) / dt);
   // The cone's level L + log2(v / f(t)), clamped to [L - 1, L]: log2 of the
   // footprint (linear in t) is interpolated between the span's ends, where
