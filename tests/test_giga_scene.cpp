@@ -15,6 +15,9 @@
 #include <cmath>
 #include <filesystem>
 #include <random>
+#include <sstream>
+#include <string>
+#include <vector>
 
 #include "support/cli_runner.hpp"
 #include "support/dense_grid.hpp"
@@ -367,6 +370,63 @@ TEST(GigaScene, CliRendersSceneFilesAndRejectsBadOnes) {
   const testing::CliResult usage =
       run_cli_split("volume render " + scene + " --transfer 0:1:1,1,1 -o " + out);
   EXPECT_EQ(usage.exit_code, 2) << usage.errors;
+}
+
+// The row of `output` that starts with `name` and then `budget`: its
+// numbers after the pools column, as printed (first s, frames/s, CPU
+// s/frame, Mrays/s, passes/f, requests/f, uploads/f, ratio).
+std::vector<double> bench_row(const std::string& output, const std::string& name,
+                              const std::string& budget) {
+  std::istringstream lines(output);
+  std::string line;
+  while (std::getline(lines, line)) {
+    if (line.rfind("  " + name + " ", 0) != 0) continue;
+    std::istringstream words(line.substr(name.size() + 2));
+    std::vector<std::string> w;
+    for (std::string x; words >> x;) w.push_back(x);
+    if (w.empty() || w[0] != budget || w.size() < 9) continue;
+    std::vector<double> numbers;
+    for (size_t i = w.size() - 8; i < w.size(); ++i) numbers.push_back(std::stod(w[i]));
+    return numbers;
+  }
+  return {};
+}
+
+// `volume bench` on a scene file: a row per budget (each its own pools), the
+// effects rows, no peer. Two overlapping clouds at 1M (512K of pools each)
+// need more than their pools hold for this view, so every warm frame asks
+// again; at 64M the view fits and warm frames ask nothing.
+TEST(GigaScene, BenchTimesSceneFilesPerBudgetAndEffect) {
+  testing::TempDir dir;
+  const std::string scene = dir.file("two.json");
+  testing::write_text(scene, R"({"objects": [
+    {"source": "procedural:cloud", "resolution": 64},
+    {"source": "procedural:cloud", "resolution": 64,
+     "transform": {"translate": [0.25, 0.1, 0.05], "scale": 0.9}}]})");
+  const testing::CliResult r = run_cli_split(
+      "volume bench " + scene +
+      " --size 48x32 --frames 1 --threads 1 --budget 1M,64M --effects -o " + dir.file("b.png"));
+  ASSERT_EQ(r.exit_code, 0) << r.output << r.errors;
+  EXPECT_NE(r.output.find("scene of 2 objects (2 streamed)"), std::string::npos) << r.output;
+  const std::vector<double> tight = bench_row(r.output, "gigavoxels", "1M"),
+                            roomy = bench_row(r.output, "gigavoxels", "64M");
+  ASSERT_EQ(tight.size(), 8u) << r.output;
+  ASSERT_EQ(roomy.size(), 8u) << r.output;
+  EXPECT_GT(tight[5], 0.0) << r.output;  // requests per warm frame
+  EXPECT_EQ(roomy[5], 0.0) << r.output;
+  EXPECT_EQ(roomy[4], 1.0) << r.output;  // one pass per warm frame
+  for (const char* effect : {"pinhole, hard shadows", "pinhole, no shadows",
+                             "pinhole, soft shadows", "dof, hard shadows", "dof, soft shadows"})
+    EXPECT_EQ(bench_row(r.output, effect, "64M").size(), 8u) << effect << "\n" << r.output;
+  EXPECT_NE(r.output.find("peer        none"), std::string::npos) << r.output;
+  EXPECT_TRUE(std::filesystem::exists(dir.file("b.png")));
+
+  // A node graph has no pools to bench; the peer's options need a grid.
+  EXPECT_EQ(run_cli_split("volume bench procedural:menger-recursive --size 8x8").exit_code, 2);
+  EXPECT_EQ(run_cli_split("volume bench " + scene + " --size 8x8 --reference-step 0.5").exit_code,
+            2);
+  EXPECT_EQ(run_cli_split("volume bench " + scene + " --size 8x8 --dof 0.1,1").exit_code, 2);
+  EXPECT_EQ(run_cli_split("volume bench " + scene + " --size 8x8 --budget 1M,").exit_code, 2);
 }
 
 }  // namespace

@@ -339,7 +339,11 @@ TEST(GigaVdb, BenchPrintsBothRenderersAgainstTheReference) {
   EXPECT_NE(r.output.find("  gigavoxels "), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("  openvdb VolumeRender "), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("RMSE"), std::string::npos) << r.output;
-  // The peer reads grids only.
-  const auto p = voxcast::testing::run_cli_split("volume bench procedural:cloud --size 8x8");
+  // The peer reads grids only: its options need a .vdb SOURCE.
+  const auto p = voxcast::testing::run_cli_split(
+      "volume bench procedural:cloud --size 8x8 "
+      "--peer-output " +
+      dir.file("peer.png"));
   EXPECT_EQ(p.exit_code, 2) << p.output;
+  EXPECT_FALSE(std::filesystem::exists(dir.file("peer.png")));
 }

@@ -271,6 +271,87 @@ LoadedScene load_volume_scene(const std::string& path, uint64_t budget) {
   return out;
 }
 
+/// A SOURCE opened for rendering with pools of `budget` bytes: a scene
+/// file's objects (the budget shared by those that stream), one GigaVoxels
+/// over a producer, or the recursive node graph (no pools).
+struct OpenedVolume {
+  std::optional<LoadedScene> scene;
+  Source source;
+  std::unique_ptr<giga::GigaVoxels> giga;
+
+  Structure& structure() {
+    if (scene) return *scene->scene;
+    if (giga) return *giga;
+    return *source.recursive;
+  }
+  /// The structures whose pools stream (their per-pass statistics).
+  std::vector<const giga::GigaVoxels*> streamed() const {
+    std::vector<const giga::GigaVoxels*> out;
+    if (giga) out.push_back(giga.get());
+    if (scene)
+      for (const auto& g : scene->streamed) out.push_back(g.get());
+    return out;
+  }
+  uint64_t pool_bytes() const {
+    uint64_t bytes = 0;
+    for (const giga::GigaVoxels* g : streamed()) bytes += g->pool_bytes();
+    return bytes;
+  }
+};
+
+std::unique_ptr<OpenedVolume> open_volume(const std::string& path, int resolution,
+                                          uint64_t budget) {
+  auto v = std::make_unique<OpenedVolume>();
+  if (is_scene_file(path)) {
+    v->scene = load_volume_scene(path, budget);
+    return v;
+  }
+  v->source = make_source(path, resolution);
+  if (v->source.producer) {
+    giga::GigaOptions go;
+    go.budget_bytes = budget;
+    go.origin = v->source.origin, go.size = v->source.size;
+    v->giga = std::make_unique<giga::GigaVoxels>(v->source.producer, go);
+  }
+  return v;
+}
+
+/// The transfer function a SOURCE is rendered with: --transfer, else the
+/// default ramp for scalar files; none for procedural and .vdb sources
+/// (densities already) and for scene files (each object has its own).
+void set_transfer(const std::string& source, const std::string& transfer,
+                  VolumeIntegratorOptions* io) {
+  const bool procedural = source.rfind("procedural:", 0) == 0;
+  if (is_scene_file(source)) {
+    if (!transfer.empty())
+      throw UsageError("--transfer: a scene file gives each object its own 'transfer'");
+    return;
+  }
+  try {
+    if (!transfer.empty())
+      io->transfer = TransferFunction::parse(transfer);
+    else if (!procedural && !is_vdb(source))
+      io->transfer = TransferFunction::parse(kDefaultTransfer);
+  } catch (const Error& e) {
+    throw UsageError(std::string("--transfer: ") + e.what());
+  }
+}
+
+/// Parses --dof APERTURE,FOCUS into `io`.
+void parse_dof(const std::string& text, VolumeIntegratorOptions* io) {
+  const size_t comma = text.find(',');
+  char* end = nullptr;
+  const std::string a = text.substr(0, comma),
+                    f = comma == std::string::npos ? "" : text.substr(comma + 1);
+  io->dof_aperture = std::strtof(a.c_str(), &end);
+  bool ok = !a.empty() && *end == 0;
+  io->dof_focus = std::strtof(f.c_str(), &end);
+  ok = ok && !f.empty() && *end == 0;
+  if (!ok || !std::isfinite(io->dof_aperture) || !(io->dof_aperture > 0.f) ||
+      !std::isfinite(io->dof_focus) || !(io->dof_focus > 0.f))
+    throw UsageError("--dof must be APERTURE,FOCUS with two positive numbers");
+}
+
 /// Process CPU time (user + system) in seconds: frame costs that can be read
 /// for an idle machine when the wall clock is shared.
 double cpu_seconds() {
@@ -290,16 +371,77 @@ double rmse(const Image& a, const Image& b) {
 }
 
 struct BenchArgs {
-  std::string source, output, peer_output, size = "640x480", budget = "256M", light;
+  std::string source, output, peer_output, size = "640x480", budget = "256M", light, transfer, dof;
   CameraArgs camera;
-  int frames = 5, threads = 0;
-  float lod = 1.f, step = 0.5f, reference_step = 0.125f, shadow_step = 1.f, shadow_lod = 1.f;
+  int frames = 5, threads = 0, resolution = 256;
+  float lod = 1.f, step = 0.5f, reference_step = 0.125f, shadow_step = 1.f, shadow_lod = 1.f,
+        light_radius = 0.05f;
+  bool effects = false;
 };
 
-/// voxcast volume bench GRID.vdb: GigaVoxels against OpenVDB's own volume
-/// ray marcher (VolumeRender) on the same grid, view, step and light, in one
-/// run: frames/s, Mrays/s, CPU seconds per frame, and each image's RMSE
-/// against OpenVDB's marcher at a finer step (the reference).
+/// One timed configuration of `voxcast volume bench`: a warm-up frame (the
+/// pools fill; its wall and CPU time are the "first frame" columns), then
+/// `frames` timed frames of the same view.
+struct BenchRow {
+  std::string name, budget;
+  double first_seconds = 0, first_cpu = 0;
+  double seconds = 0, cpu = 0, rays = 0;
+  double passes = 0, requests = 0, uploads = 0;  // summed over the timed frames
+  uint64_t pool_bytes = 0;
+  Image image;
+};
+
+BenchRow bench_giga(OpenedVolume& volume, const VolumeIntegratorOptions& io, FrameView view,
+                    int frames) {
+  BenchRow row;
+  row.pool_bytes = volume.pool_bytes();
+  VolumeIntegrator integrator(io);
+  FrameOptions fo;
+  fo.max_passes = 100000;  // exact mode: each frame ends with nothing missing
+  Film film;
+  for (int f = 0; f <= frames; ++f) {
+    view.frame = uint32_t(f);
+    const double c0 = cpu_seconds();
+    const auto t0 = std::chrono::steady_clock::now();
+    const FrameStats fs = render_frame(volume.structure(), integrator, view, fo, &film);
+    const double wall =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    if (f == 0) {
+      row.first_seconds = wall, row.first_cpu = cpu_seconds() - c0;
+      continue;
+    }
+    row.seconds += wall, row.cpu += cpu_seconds() - c0;
+    row.rays += double(integrator.stats().rays);
+    row.passes += double(fs.passes.size());
+    for (const giga::GigaVoxels* g : volume.streamed())
+      for (const giga::GigaPassStats& p : g->pass_stats())
+        row.requests += double(p.data_requests + p.subdivide_requests),
+            row.uploads += double(p.bricks_uploaded + p.constants);
+  }
+  row.image = film.color;
+  return row;
+}
+
+/// Splits "256M,1G" into its budgets.
+std::vector<std::string> split_budgets(const std::string& text) {
+  std::vector<std::string> out;
+  size_t at = 0;
+  while (true) {
+    const size_t comma = text.find(',', at);
+    out.push_back(text.substr(at, comma == std::string::npos ? std::string::npos : comma - at));
+    if (comma == std::string::npos) break;
+    at = comma + 1;
+  }
+  return out;
+}
+
+/// voxcast volume bench SOURCE: GigaVoxels on any volume source (a file,
+/// procedural:NAME, a .vdb grid, a scene file) at one or several pool
+/// budgets, optionally the cost of each effect (§3.9) against the pinhole
+/// camera with hard shadows, and, for a .vdb grid, OpenVDB's own volume ray
+/// marcher (VolumeRender) on the same grid, view, step and light in the same
+/// run, with each image's RMSE against OpenVDB's marcher at a finer step
+/// (the reference).
 int volume_bench(const BenchArgs& a) {
   ThreadLimit limit(a.threads);
   FrameView view;
@@ -309,99 +451,182 @@ int volume_bench(const BenchArgs& a) {
   require_range("--reference-step", a.reference_step, 0.01, 16);
   require_range("--lod", a.lod, 0, 1e6);
   view.lod_pixels = a.lod;
-  if (!is_vdb(a.source))
-    throw UsageError("volume bench needs a .vdb SOURCE (the peer, OpenVDB's marcher, reads grids)");
-  giga::GigaOptions go;
-  go.budget_bytes = parse_memory_budget(a.budget, "--budget");
+  std::vector<std::pair<std::string, uint64_t>> budgets;
+  for (const std::string& b : split_budgets(a.budget))
+    budgets.emplace_back(b, parse_memory_budget(b, "--budget"));
+  const bool peer_source = is_vdb(a.source);
+  if (!peer_source && (!a.peer_output.empty() || a.reference_step != BenchArgs{}.reference_step))
+    throw UsageError(
+        "--peer-output and --reference-step need a .vdb SOURCE (the peer, OpenVDB's marcher, "
+        "reads grids; 'voxcast volume export' writes one)");
   VolumeIntegratorOptions io;
   require_range("--shadow-step", a.shadow_step, 0.01, 16);
   require_range("--shadow-lod", a.shadow_lod, 0, 16);
+  require_range("--light-radius", a.light_radius, 0, 1);
+  // The peer's lighting model: hard shadows, no ambient.
   io.shadows = true, io.ambient = 0.f, io.step_scale = a.step;
   io.shadow_step_scale = a.shadow_step, io.shadow_footprint_scale = a.shadow_lod;
   if (!a.light.empty()) {
     io.light_dir = parse_vec3(a.light, "--light");
     if (!(length(io.light_dir) > 0.f)) throw UsageError("--light must not be zero");
   }
+  VolumeIntegratorOptions dof = io;
+  if (!a.dof.empty()) {
+    if (!a.effects) throw UsageError("--dof: the depth-of-field row needs --effects");
+    parse_dof(a.dof, &dof);
+  }
+  set_transfer(a.source, a.transfer, &io);
+  dof.transfer = io.transfer;
   check_camera_options(a.camera, view.width, view.height);
-  OutputSet outputs({a.source});
+  OutputSet outputs(a.source.rfind("procedural:", 0) == 0 ? std::vector<std::string>{}
+                                                          : std::vector<std::string>{a.source});
   if (!a.output.empty()) outputs.add("-o", a.output, {".png", ".pfm"});
   if (!a.peer_output.empty()) outputs.add("--peer-output", a.peer_output, {".png", ".pfm"});
 
-  const Source source = make_source(a.source, 0);
-  go.origin = source.origin, go.size = source.size;
-  giga::GigaVoxels volume(source.producer, go);
-  view.camera = resolve_camera(a.camera, volume.bounds(), view.width, view.height);
-  const giga::VdbVolume& v = *source.vdb;
+  std::unique_ptr<OpenedVolume> volume = open_volume(a.source, a.resolution, budgets[0].second);
+  if (volume->streamed().empty())
+    throw UsageError("volume bench: " + printable(a.source) +
+                     " is a node graph without pools (procedural:menger-recursive); bench "
+                     "procedural:menger instead");
+  const Aabb bounds = volume->structure().bounds();
+  view.camera = resolve_camera(a.camera, bounds, view.width, view.height);
+  if (a.effects && a.dof.empty()) {
+    // Focused on the volume's center, a lens a fiftieth of its diagonal wide.
+    dof.dof_focus = length((bounds.lo + bounds.hi) * 0.5f - view.camera.eye);
+    dof.dof_aperture = 0.02f * length(bounds.extent());
+  }
   print_bench_header();
-  std::printf("volume      %s: grid %s (%s), %lld x %lld x %lld voxels, %d levels, pools %s\n",
-              printable(a.source).c_str(), printable(v.grid_name).c_str(),
-              v.level_set ? "level set" : "fog", (long long)v.extent[0], (long long)v.extent[1],
-              (long long)v.extent[2], source.producer->max_level() + 1,
-              format_bytes(double(volume.pool_bytes())).c_str());
+  if (volume->scene) {
+    std::printf("volume      %s: scene of %zu objects (%zu streamed)\n",
+                printable(a.source).c_str(), volume->scene->scene->objects().size(),
+                volume->scene->streamed.size());
+  } else if (volume->source.vdb) {
+    const giga::VdbVolume& v = *volume->source.vdb;
+    std::printf("volume      %s: grid %s (%s), %lld x %lld x %lld voxels, %d levels\n",
+                printable(a.source).c_str(), printable(v.grid_name).c_str(),
+                v.level_set ? "level set" : "fog", (long long)v.extent[0], (long long)v.extent[1],
+                (long long)v.extent[2], volume->source.producer->max_level() + 1);
+  } else {
+    const giga::Producer& p = *volume->source.producer;
+    const int n = giga::kBrickSide << p.max_level();
+    const double dense = double(n) * n * n * double(sizeof(giga::BrickVoxel));
+    std::printf("volume      %s: %s, %d levels, finest %d^3 voxels (%s as dense bricks)\n",
+                printable(a.source).c_str(), p.name().c_str(), p.max_level() + 1, n,
+                format_bytes(dense).c_str());
+  }
   std::printf("camera      %s\n", view.camera.to_string().c_str());
   std::printf(
       "image       %dx%d, step %g voxels, hard shadows (light cones: step %g of their voxel, "
-      "%g x the pixel footprint), %d timed frames after one warm-up\n",
+      "%g x the pixel footprint), exact mode, %d timed frames after one warm-up\n",
       view.width, view.height, double(a.step), double(a.shadow_step), double(a.shadow_lod),
       a.frames);
 
-  struct Row {
-    std::string name;
-    double seconds = 0, cpu = 0, rays = 0;
-    Image image;
+  auto print_rows = [&](const char* title, const std::vector<BenchRow>& rows, const BenchRow* base,
+                        const char* ratio_name) {
+    std::printf("\n%s\n", title);
+    std::printf("  %-24s %7s %11s %9s %9s %11s %8s %9s %10s %10s %9s\n", "renderer", "budget",
+                "pools", "first s", "frames/s", "CPU s/frame", "Mrays/s", "passes/f", "requests/f",
+                "uploads/f", ratio_name);
+    for (const BenchRow& r : rows) {
+      const double k = double(a.frames);
+      const double ratio = base ? r.cpu / base->cpu : 1.0;
+      std::printf("  %-24s %7s %11s %9.3f %9.3f %11.3f %8.3f %9.2f %10.0f %10.0f %9.3f\n",
+                  r.name.c_str(), r.budget.c_str(), format_bytes(double(r.pool_bytes)).c_str(),
+                  r.first_seconds, k / r.seconds, r.cpu / k, r.rays / r.seconds * 1e-6,
+                  r.passes / k, r.requests / k, r.uploads / k, ratio);
+    }
+    for (const BenchRow& r : rows)
+      if (r.requests > 0) {
+        std::printf(
+            "  (requests/f > 0: the view does not fit those pools; their frames keep asking and "
+            "show coarser data)\n");
+        break;
+      }
   };
-  Row ours, peer_row;
-  ours.name = "gigavoxels", peer_row.name = "openvdb VolumeRender";
-  VolumeIntegrator integrator(io);
-  FrameOptions fo;
-  fo.max_passes = 100000;
-  Film film;
-  for (int f = 0; f <= a.frames; ++f) {
-    view.frame = uint32_t(f);
-    const double c0 = cpu_seconds();
-    const auto t0 = std::chrono::steady_clock::now();
-    render_frame(volume, integrator, view, fo, &film);
-    if (f == 0) continue;  // warm-up: the pools fill
-    ours.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    ours.cpu += cpu_seconds() - c0;
-    ours.rays += double(integrator.stats().rays);
+
+  // 1. The budgets: each a fresh set of pools, filled by its warm-up frame.
+  std::vector<BenchRow> by_budget;
+  for (size_t i = 0; i < budgets.size(); ++i) {
+    if (i > 0) volume = open_volume(a.source, a.resolution, budgets[i].second);
+    BenchRow r = bench_giga(*volume, io, view, a.frames);
+    r.name = "gigavoxels", r.budget = budgets[i].first;
+    by_budget.push_back(std::move(r));
+    if (i + 1 < budgets.size()) volume.reset();  // one set of pools at a time
   }
-  ours.image = film.color;
-  giga::VdbPeer peer(v);
-  giga::VdbPeerOptions po;
-  po.light_dir = io.light_dir, po.step = a.step;
-  for (int f = 0; f <= a.frames; ++f) {
-    const double c0 = cpu_seconds();
-    const auto t0 = std::chrono::steady_clock::now();
-    Image img = peer.render(view.camera, view.width, view.height, po);
-    if (f == 0) continue;  // warm-up, as ours
-    peer_row.seconds +=
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    peer_row.cpu += cpu_seconds() - c0;
-    peer_row.rays += double(view.width) * view.height;
-    peer_row.image = std::move(img);
+  print_rows("budgets (the first is the base; ratio: CPU s/frame over the base's)", by_budget,
+             &by_budget[0], "CPU ratio");
+
+  // 2. Effects at the last budget's pools (already warm for the base view).
+  if (a.effects) {
+    std::vector<BenchRow> rows;
+    auto add = [&](const char* name, VolumeIntegratorOptions o) {
+      o.transfer = io.transfer;
+      BenchRow r = bench_giga(*volume, o, view, a.frames);
+      r.name = name, r.budget = budgets.back().first;
+      rows.push_back(std::move(r));
+    };
+    add("pinhole, hard shadows", io);
+    VolumeIntegratorOptions none = io;
+    none.shadows = false;
+    add("pinhole, no shadows", none);
+    VolumeIntegratorOptions soft = io;
+    soft.light_radius = a.light_radius;
+    add("pinhole, soft shadows", soft);
+    add("dof, hard shadows", dof);
+    VolumeIntegratorOptions dof_soft = dof;
+    dof_soft.light_radius = a.light_radius;
+    add("dof, soft shadows", dof_soft);
+    std::printf("\neffects      soft shadows: light radius %g; dof: aperture %g, focus %g\n",
+                double(a.light_radius), double(dof.dof_aperture), double(dof.dof_focus));
+    print_rows("effects (ratio: CPU s/frame over pinhole with hard shadows)", rows, &rows[0],
+               "CPU ratio");
   }
-  po.step = a.reference_step;
-  const Image reference = peer.render(view.camera, view.width, view.height, po);
-  std::printf("\nreference   openvdb VolumeRender at step %g voxels\n", double(a.reference_step));
-  std::printf("  %-22s %9s %9s %12s %10s %7s\n", "renderer", "frames/s", "Mrays/s", "CPU s/frame",
-              "RMSE ref", "ratio");
-  const double peer_fps = double(a.frames) / peer_row.seconds;
-  for (const Row* r : {&ours, &peer_row}) {
-    const double fps = double(a.frames) / r->seconds;
-    std::printf("  %-22s %9.3f %9.4f %12.3f %10.4f %7.3f\n", r->name.c_str(), fps,
-                r->rays / r->seconds * 1e-6, r->cpu / double(a.frames), rmse(r->image, reference),
-                fps / peer_fps);
+
+  // 3. The peer: OpenVDB's marcher on the same grid.
+  const BenchRow& ours = by_budget[0];
+  Image peer_image;
+  if (peer_source) {
+    const giga::VdbVolume& v = *volume->source.vdb;
+    double peer_seconds = 0, peer_cpu = 0;
+    giga::VdbPeer peer(v);
+    giga::VdbPeerOptions po;
+    po.light_dir = io.light_dir, po.step = a.step;
+    for (int f = 0; f <= a.frames; ++f) {
+      const double c0 = cpu_seconds();
+      const auto t0 = std::chrono::steady_clock::now();
+      Image img = peer.render(view.camera, view.width, view.height, po);
+      if (f == 0) continue;  // warm-up, as ours
+      peer_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      peer_cpu += cpu_seconds() - c0;
+      peer_image = std::move(img);
+    }
+    po.step = a.reference_step;
+    const Image reference = peer.render(view.camera, view.width, view.height, po);
+    std::printf("\nreference   openvdb VolumeRender at step %g voxels\n", double(a.reference_step));
+    std::printf("  %-22s %9s %9s %12s %10s %7s\n", "renderer", "frames/s", "Mrays/s", "CPU s/frame",
+                "RMSE ref", "ratio");
+    const double k = double(a.frames);
+    const double peer_fps = k / peer_seconds;
+    const double peer_rays = double(view.width) * view.height * k;
+    std::printf("  %-22s %9.3f %9.4f %12.3f %10.4f %7.3f\n", "gigavoxels", k / ours.seconds,
+                ours.rays / ours.seconds * 1e-6, ours.cpu / k, rmse(ours.image, reference),
+                k / ours.seconds / peer_fps);
+    std::printf("  %-22s %9.3f %9.4f %12.3f %10.4f %7.3f\n", "openvdb VolumeRender", peer_fps,
+                peer_rays / peer_seconds * 1e-6, peer_cpu / k, rmse(peer_image, reference), 1.0);
+    std::printf(
+        "  (gigavoxels at budget %s; ratio: frames/s over openvdb VolumeRender's; RMSE of linear "
+        "RGB; gigavoxels vs openvdb at equal step: RMSE %.4f)\n",
+        ours.budget.c_str(), rmse(ours.image, peer_image));
+  } else {
+    std::printf(
+        "\npeer        none: OpenVDB's marcher reads one grid ('voxcast volume export SOURCE -o "
+        "GRID.vdb', then bench GRID.vdb)\n");
   }
-  std::printf(
-      "  (ratio: frames/s over openvdb VolumeRender's; RMSE of linear RGB; "
-      "gigavoxels vs openvdb at equal step: RMSE %.4f)\n",
-      rmse(ours.image, peer_row.image));
   if (!a.output.empty())
     outputs.write(a.output, [&](const std::filesystem::path& to) { write_image(to, ours.image); });
   if (!a.peer_output.empty())
     outputs.write(a.peer_output,
-                  [&](const std::filesystem::path& to) { write_image(to, peer_row.image); });
+                  [&](const std::filesystem::path& to) { write_image(to, peer_image); });
   outputs.commit();
   return 0;
 }
@@ -583,14 +808,27 @@ Runner add_volume(CLI::App& app) {
   auto bargs = std::make_shared<BenchArgs>();
   CLI::App* bench = vol->add_subcommand(
       "bench",
-      "GigaVoxels against OpenVDB's own volume ray marcher on a .vdb grid: frames/s, Mrays/s, "
-      "CPU s/frame, RMSE against a finer-step reference");
-  bench->add_option("SOURCE", bargs->source, "An OpenVDB FloatGrid (.vdb)")->required();
+      "GigaVoxels on a volume source at one or several budgets (frames/s, Mrays/s, CPU s/frame, "
+      "passes, requests, pools), the cost of each effect, and OpenVDB's own volume ray marcher "
+      "on a .vdb grid (RMSE against a finer-step reference)");
+  bench
+      ->add_option("SOURCE", bargs->source,
+                   "What volume render takes: a volume file, an OpenVDB FloatGrid (.vdb, also "
+                   "rendered by the peer), a mesh, procedural:cloud|mandelbulb|menger, or a "
+                   "scene file (.json)")
+      ->required();
   bench->add_option("--size", bargs->size, "Image size WxH")->capture_default_str();
   add_camera_options(bench, bargs->camera);
-  bench->add_option("--budget", bargs->budget, "Memory for the node and brick pools")
+  bench
+      ->add_option("--resolution", bargs->resolution,
+                   "Procedural and mesh sources: voxels per axis at the finest level")
       ->capture_default_str();
-  bench->add_option("--frames", bargs->frames, "Timed frames of each renderer after one warm-up")
+  bench
+      ->add_option("--budget", bargs->budget,
+                   "Memory for the node and brick pools; several, comma-separated (256M,1G), "
+                   "give a row each")
+      ->capture_default_str();
+  bench->add_option("--frames", bargs->frames, "Timed frames of each row after one warm-up")
       ->capture_default_str();
   bench
       ->add_option("--step", bargs->step,
@@ -599,18 +837,32 @@ Runner add_volume(CLI::App& app) {
       ->capture_default_str();
   bench
       ->add_option("--reference-step", bargs->reference_step,
-                   "Step of the reference image (OpenVDB's marcher), in grid voxels")
+                   ".vdb sources: step of the reference image (OpenVDB's marcher), in grid voxels")
       ->capture_default_str();
   bench
       ->add_option("--lod", bargs->lod, "GigaVoxels: voxels projecting to at most this many pixels")
       ->capture_default_str();
-  bench->add_option("--shadow-step", bargs->shadow_step, "GigaVoxels: light cone step in its voxels")
+  bench
+      ->add_option("--shadow-step", bargs->shadow_step, "GigaVoxels: light cone step in its voxels")
       ->capture_default_str();
-  bench->add_option("--shadow-lod", bargs->shadow_lod,
-                    "GigaVoxels: light cone start width over the pixel footprint (0: finest)")
+  bench
+      ->add_option("--shadow-lod", bargs->shadow_lod,
+                   "GigaVoxels: light cone start width over the pixel footprint (0: finest)")
       ->capture_default_str();
   bench->add_option("--light", bargs->light, "Direction towards the light x,y,z");
-  bench->add_option("-o,--output", bargs->output, "Also write GigaVoxels' last frame");
+  bench->add_option("--transfer", bargs->transfer,
+                    "Transfer function for scalar data: v:density:r,g,b;... (as volume render)");
+  bench->add_flag("--effects", bargs->effects,
+                  "Also time no shadows, soft shadows and depth of field against pinhole with "
+                  "hard shadows (gigavoxels 3.9)");
+  bench
+      ->add_option("--light-radius", bargs->light_radius,
+                   "With --effects: the soft shadows' light radius (tangent)")
+      ->capture_default_str();
+  bench->add_option("--dof", bargs->dof,
+                    "With --effects: APERTURE,FOCUS of the depth-of-field rows (default: focus "
+                    "on the volume's center, aperture 1/50 of its diagonal)");
+  bench->add_option("-o,--output", bargs->output, "Also write GigaVoxels' image (first budget)");
   bench->add_option("--peer-output", bargs->peer_output, "Also write OpenVDB's last frame");
   bench->add_option("--threads", bargs->threads, "Worker threads (0 = all cores)");
   struct ExportArgs {
@@ -690,39 +942,14 @@ Runner add_volume(CLI::App& app) {
       io.light_dir = parse_vec3(args->light, "--light");
       if (!(length(io.light_dir) > 0.f)) throw UsageError("--light must not be zero");
     }
-    if (!args->dof.empty()) {
-      const size_t comma = args->dof.find(',');
-      char* end = nullptr;
-      const std::string a = args->dof.substr(0, comma),
-                        f = comma == std::string::npos ? "" : args->dof.substr(comma + 1);
-      io.dof_aperture = std::strtof(a.c_str(), &end);
-      bool ok = !a.empty() && *end == 0;
-      io.dof_focus = std::strtof(f.c_str(), &end);
-      ok = ok && !f.empty() && *end == 0;
-      if (!ok || !std::isfinite(io.dof_aperture) || !(io.dof_aperture > 0.f) ||
-          !std::isfinite(io.dof_focus) || !(io.dof_focus > 0.f))
-        throw UsageError("--dof must be APERTURE,FOCUS with two positive numbers");
-    }
+    if (!args->dof.empty()) parse_dof(args->dof, &io);
     if (!args->path.empty()) {
       refuse_camera_options_with_path(args->camera, args->path);
       if (args->frames < 2) throw UsageError("--path needs --frames K with K >= 2");
     }
     const bool procedural = args->source.rfind("procedural:", 0) == 0;
-    const bool scene_file = is_scene_file(args->source);
-    if (scene_file && !args->transfer.empty())
-      throw UsageError("--transfer: a scene file gives each object its own 'transfer'");
-    try {
-      if (scene_file) {
-        // Each object classifies its own samples (VolumeScene).
-      } else if (!args->transfer.empty())
-        io.transfer = TransferFunction::parse(args->transfer);
-      else if (!procedural && !is_vdb(args->source))  // a .vdb holds densities
-        io.transfer = TransferFunction::parse(kDefaultTransfer);
-    } catch (const Error& e) {
-      throw UsageError(std::string("--transfer: ") + e.what());
-    }
-    giga::GigaOptions go;
-    go.budget_bytes = parse_memory_budget(args->budget, "--budget");
+    set_transfer(args->source, args->transfer, &io);
+    const uint64_t budget = parse_memory_budget(args->budget, "--budget");
     check_camera_options(args->camera, view.width, view.height);
     OutputSet outputs(procedural ? std::vector<std::string>{}
                                  : std::vector<std::string>{args->source});
@@ -734,19 +961,10 @@ Runner add_volume(CLI::App& app) {
       require_regular_input(args->path, "camera path");
       path = view::CameraPath::load(args->path);
     }
-    std::optional<LoadedScene> scene;
-    Source source;
-    if (scene_file)
-      scene = load_volume_scene(args->source, go.budget_bytes);
-    else
-      source = make_source(args->source, args->resolution);
-    const std::shared_ptr<giga::Producer>& producer = source.producer;
-    go.origin = source.origin, go.size = source.size;
-    std::optional<giga::GigaVoxels> giga_volume;
-    if (producer) giga_volume.emplace(producer, go);
-    Structure& volume = scene         ? static_cast<Structure&>(*scene->scene)
-                        : giga_volume ? static_cast<Structure&>(*giga_volume)
-                                      : *source.recursive;
+    const std::unique_ptr<OpenedVolume> opened =
+        open_volume(args->source, args->resolution, budget);
+    Structure& volume = opened->structure();
+    const giga::GigaVoxels* giga_volume = opened->giga.get();
     const Aabb bounds = volume.bounds();
     bool derived = false;
     view.camera = resolve_camera(args->camera, bounds, view.width, view.height, &derived);
@@ -771,16 +989,12 @@ Runner add_volume(CLI::App& app) {
       const auto t0 = std::chrono::steady_clock::now();
       const FrameStats fs = render_frame(volume, integrator, view, fo, &film);
       const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-      if (args->verbose) print_pass_stats(uint32_t(f), fs, giga_volume ? &*giga_volume : nullptr);
+      if (args->verbose) print_pass_stats(uint32_t(f), fs, giga_volume);
       if (f > 0) {
         later_seconds += s, later_rays += integrator.stats().rays;
         later_cpu += cpu_seconds() - c0;
         later_passes += fs.passes.size();
-        std::vector<const giga::GigaVoxels*> streamed;
-        if (giga_volume) streamed.push_back(&*giga_volume);
-        if (scene)
-          for (const auto& g : scene->streamed) streamed.push_back(g.get());
-        for (const giga::GigaVoxels* v : streamed)
+        for (const giga::GigaVoxels* v : opened->streamed())
           for (const giga::GigaPassStats& g : v->pass_stats())
             later_requests += g.data_requests + g.subdivide_requests,
                 later_uploads += g.bricks_uploaded + g.constants;
@@ -802,23 +1016,22 @@ Runner add_volume(CLI::App& app) {
     double covered = 0;
     for (float a : film.alpha.pixels) covered += a;
     const double opacity = covered / double(film.alpha.pixels.size());
-    if (scene) {
-      uint64_t bytes = 0;
-      for (const auto& g : scene->streamed) bytes += g->pool_bytes();
+    if (opened->scene) {
       std::printf("%s: %dx%d, scene of %zu objects (%zu streamed, pools %s), mean opacity %.3f\n",
                   printable(args->output).c_str(), view.width, view.height,
-                  scene->scene->objects().size(), scene->streamed.size(),
-                  format_bytes(double(bytes)).c_str(), opacity);
+                  opened->scene->scene->objects().size(), opened->scene->streamed.size(),
+                  format_bytes(double(opened->pool_bytes())).c_str(), opacity);
     } else if (giga_volume)
       std::printf(
           "%s: %dx%d, %s (max level %d), pools %s (%u bricks, %u tiles), mean opacity %.3f\n",
-          printable(args->output).c_str(), view.width, view.height, producer->name().c_str(),
-          producer->max_level(), format_bytes(double(giga_volume->pool_bytes())).c_str(),
-          giga_volume->brick_capacity(), giga_volume->tile_capacity(), opacity);
+          printable(args->output).c_str(), view.width, view.height,
+          opened->source.producer->name().c_str(), opened->source.producer->max_level(),
+          format_bytes(double(giga_volume->pool_bytes())).c_str(), giga_volume->brick_capacity(),
+          giga_volume->tile_capacity(), opacity);
     else
       std::printf("%s: %dx%d, recursive menger graph (depth %d), mean opacity %.3f\n",
                   printable(args->output).c_str(), view.width, view.height,
-                  source.recursive->max_depth(), opacity);
+                  opened->source.recursive->max_depth(), opacity);
     if (args->frames > 1) {
       const double k = double(args->frames - 1);
       std::printf(
