@@ -109,6 +109,7 @@ class LiveWorld final : public BrickmapView {
     uint64_t cell;
     uint64_t mask[8];
     std::vector<uint32_t> colors, normals;
+    VoxelMask carved;  // World::carved of the cell (a terrain's removals)
   };
   struct Done {
     uint64_t number;

@@ -9,6 +9,7 @@
 #include <cstring>
 #include <filesystem>
 #include <nlohmann/json_fwd.hpp>
+#include <optional>
 #include <string>
 #include <unordered_map>
 #include <vector>
@@ -42,6 +43,12 @@ void put_le(std::vector<uint8_t>& out, T v) {
 /// `grid` (the x and z dims are ceil(N / 8), y in 1 .. ceil(N / 8)), or a
 /// one-line META error.
 uint32_t meta_height_cells(const nlohmann::json& meta, const GridTransform& grid);
+
+/// The generated terrain of META "terrain" (nullopt without one), validated
+/// against `grid` and the brickgrid height (terrain_grid()), or a one-line
+/// META error.
+std::optional<TerrainSource> meta_terrain(const nlohmann::json& meta, const GridTransform& grid,
+                                          uint32_t height_cells);
 
 /// Throws voxcast::Error("corrupt scene: " + what).
 [[noreturn]] void corrupt(const std::string& what);

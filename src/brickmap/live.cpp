@@ -74,7 +74,9 @@ void LiveWorld::run() {
       error = e.what();
     }
     for (uint64_t cell : r.cells) {
-      NewBrick b{cell, {}, {}, {}};
+      NewBrick b{cell, {}, {}, {}, {}};
+      if (const auto it = back_.carved().find(cell); it != back_.carved().end())
+        b.carved = it->second;
       const uint32_t c = back_.cell(cell);
       if (c != 0) {
         const Brick& src = back_.brick(cell_brick(c));
@@ -173,6 +175,7 @@ bool LiveWorld::publish_ready() {
       for (const NewBrick& b : d.bricks) {
         front_->set_brick(b.cell, b.mask, b.colors.data(), b.normals.data(), kFlagEdited, nullptr,
                           false);
+        front_->set_carved(b.cell, b.carved);
         cells.push_back(b.cell);
       }
     } catch (...) {
