@@ -57,6 +57,10 @@ std::vector<uint8_t> compress(const uint8_t* data, size_t size);
 /// Exactly `raw` bytes from the LZ4 block [src, src + size), or corrupt().
 std::vector<uint8_t> decompress(const uint8_t* src, size_t size, size_t raw,
                                 const std::string& what);
+/// The same into dst[0, raw) (every byte written; the streamer's reused
+/// buffers, which need no zero-filling first).
+void decompress_to(const uint8_t* src, size_t size, uint8_t* dst, size_t raw,
+                   const std::string& what);
 
 struct ChunkGrid {
   uint32_t n[3] = {0, 0, 0};
