@@ -69,6 +69,7 @@ struct StreamStats {
   // produced and the wall time it took, the decode rate of the benchmark.
   uint64_t decoded_bytes = 0;
   double decode_seconds = 0;
+  double decode_cpu_seconds = 0;      // the same time as the thread's CPU time (user + system)
   std::vector<ChunkFailure> refused;  // chunks that failed their checksum or decoding
 };
 
