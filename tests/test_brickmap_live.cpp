@@ -11,6 +11,7 @@
 #include <atomic>
 #include <chrono>
 #include <filesystem>
+#include <fstream>
 #include <memory>
 #include <string>
 #include <thread>
@@ -25,6 +26,7 @@
 #include "voxcast/brickmap_live.hpp"
 #include "voxcast/camera.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/image.hpp"
 #include "voxcast/render.hpp"
 
 namespace voxcast {
@@ -202,6 +204,36 @@ TEST(BrickmapLive, EditsSavedThroughTheJournalReloadExactly) {
     EXPECT_EQ(live.save_error(), "");
   }
   EXPECT_EQ(testing::brickmap_contents(open_world(path)), states[2]);
+}
+
+// `voxcast edit W --batch FILE --render OUT.png`: the brushes on the live
+// worker while frames render, saved through the journal as they finish: the
+// world reloads as the library edits it.
+TEST(BrickmapLive, CliRenderedBatchIsSavedThroughTheJournal) {
+  testing::TempDir dir;
+  const std::filesystem::path path = dir.file("w.vxc"), batch = dir.file("edits.txt");
+  World w = journal_world();
+  save_scene(path, w, SceneInfo{"t", "conservative", 0, w.stats().voxels});
+  {
+    std::ofstream out(batch);
+    out << "sphere 0.4,0.5,0.5,0.06 add 0.9,0.2,0.1\n"
+        << "box 0.35,0.45,0.45,0.45,0.55,0.55 remove\n"
+        << "sphere 0.42,0.5,0.5,0.05 paint 0.1,0.2,0.9\n";
+  }
+  const auto srgb = [](float r, float g, float b) {
+    return Color{srgb_to_linear(r), srgb_to_linear(g), srgb_to_linear(b), 1.f};
+  };
+  edit(w, Brush::sphere({0.4f, 0.5f, 0.5f}, 0.06), EditOp::Add, srgb(0.9f, 0.2f, 0.1f));
+  edit(w, Brush::box({0.35f, 0.45f, 0.45f}, {0.45f, 0.55f, 0.55f}), EditOp::Remove);
+  edit(w, Brush::sphere({0.42f, 0.5f, 0.5f}, 0.05), EditOp::Paint, srgb(0.1f, 0.2f, 0.9f));
+  const testing::CliResult r =
+      testing::run_cli("edit '" + path.string() + "' --batch '" + batch.string() + "' --render '" +
+                       dir.file("f.png") + "' --render-size 32x24");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("3 of 3 edits visible"), std::string::npos) << r.output;
+  EXPECT_TRUE(std::filesystem::exists(dir.file("f.png")));
+  EXPECT_TRUE(std::filesystem::exists(journal_path(path)));
+  EXPECT_EQ(testing::brickmap_contents(open_world(path)), testing::brickmap_contents(w));
 }
 
 // A child edits through LiveWorld while it renders, acknowledging each save
