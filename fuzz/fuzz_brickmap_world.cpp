@@ -65,7 +65,7 @@ constexpr uint32_t kSections[4] = {fourcc("META"), fourcc("BMGH"), fourcc("BMCT"
 
 struct SeedWorld {
   Container container;
-  std::vector<uint8_t> journal_head;  // "VXBMJRN2", cells, world file id, hash (brickmap_file.hpp)
+  std::vector<uint8_t> journal_head;  // "VXBMJRN3", cells, world file id, hash (brickmap_file.hpp)
   std::vector<uint8_t> journal_records;  // what commit_edits appended after the head
 };
 

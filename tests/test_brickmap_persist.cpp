@@ -23,6 +23,7 @@
 #include <tuple>
 #include <vector>
 
+#include "support/brickmap_testing.hpp"
 #include "support/cli_runner.hpp"
 #include "support/esvo_testing.hpp"
 #include "support/file_bytes.hpp"
@@ -39,28 +40,9 @@ namespace {
 using namespace brickmap;
 namespace fs = std::filesystem;
 
-// Every solid voxel with its stored color and normal: what a world holds,
-// independent of pool slots and color-run placement.
-using Voxels = std::vector<std::tuple<uint64_t, uint32_t, uint32_t>>;
+using Voxels = testing::BrickmapVoxels;
 Voxels contents(const World& w) {
-  Voxels out;
-  for (uint64_t ci = 0; ci < w.cells().size(); ++ci) {
-    const uint32_t c = w.cell(ci);
-    if (c == 0) continue;
-    EXPECT_EQ(cell_state(c), kStateResident);
-    const Brick& b = w.brick(cell_brick(c));
-    const uint32_t i = uint32_t(ci % w.dims()[0]), j = uint32_t(ci / w.dims()[0] % w.dims()[1]),
-                   k = uint32_t(ci / w.dims()[0] / w.dims()[1]);
-    uint32_t n = b.color;
-    for (uint32_t word = 0; word < 8; ++word)
-      for (uint64_t m = b.mask[word]; m != 0; m &= m - 1, ++n) {
-        const uint32_t bit = uint32_t(std::countr_zero(m));
-        out.emplace_back(morton_encode(i * 8 + (bit & 7), j * 8 + (bit >> 3), k * 8 + word),
-                         w.colors()[n], w.has_normals() ? w.normals()[n] : 0);
-      }
-  }
-  std::sort(out.begin(), out.end());
-  return out;
+  return testing::brickmap_contents(w);
 }
 
 // A 256^3 world (8 chunks) of scattered voxels, and brushes that cross
@@ -297,12 +279,7 @@ CrashOutcome crash_child(const fs::path& path, const std::vector<uint8_t>& base,
   char c;
   while (::read(fds[0], &c, 1) == 1) out.acked = c - '0';
   ::close(fds[0]);
-  int status = 0;
-  ::waitpid(pid, &status, 0);
-  out.killed = WIFSIGNALED(status) && WTERMSIG(status) == SIGKILL;
-  if (!out.killed) {
-    EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << status;
-  }
+  out.killed = testing::reap_child_killed(pid);
   return out;
 }
 

@@ -204,6 +204,8 @@ TEST(BrickmapStream, RenderStreamPrintsEveryFrame) {
   for (int k = 0; k < 5; ++k)
     EXPECT_NE(r.output.find("frame " + std::to_string(k) + ": "), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("bricks uploaded"), std::string::npos) << r.output;
+  // The decode rate by the wall clock and by the thread's CPU time.
+  EXPECT_NE(r.output.find("s of CPU time, "), std::string::npos) << r.output;
   EXPECT_TRUE(fs::exists(dir.file("s.png")));
   // A world with an edit journal streams too (its saved state).
   World w = load_world(Container::read(path));

@@ -15,17 +15,22 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <random>
 #include <set>
 #include <string>
+#include <tuple>
 #include <vector>
 
+#include "support/brickmap_testing.hpp"
 #include "support/cli_runner.hpp"
 #include "support/esvo_testing.hpp"
+#include "support/file_bytes.hpp"
 #include "voxcast/brickmap.hpp"
 #include "voxcast/brickmap_file.hpp"
 #include "voxcast/brickmap_live.hpp"
@@ -501,6 +506,189 @@ TEST(BrickmapSnow, FramesRenderedWhileTheWorkerSnowsShowWholeStepsInOrder) {
   EXPECT_EQ(render(live, o).color.pixels, states.back());
   EXPECT_NE(states.back(), states.front());
   EXPECT_GT(live.throughput().voxels, 1000u);
+}
+
+// A generated terrain keeps its exposed voxels only; removals carve into the
+// hollow interior and must bring back the voxels they expose (edit.cpp,
+// World::terrain). The oracle: the full solid set of the density function,
+// edited voxel by voxel. After every edit, saved through the journal and
+// reloaded (and after a checkpoint): the world's solid set (stored voxels
+// plus the density's voxels not carved) is exactly the oracle's, every
+// exposed voxel of the oracle is stored with the generator's color, and
+// nothing outside the oracle is stored.
+TEST(BrickmapTerrainRefill, EditsThenReloadGiveExactlyTheEditedSolidSet) {
+  testing::TempDir dir;
+  const fs::path path = dir.file("t.vxc");
+  const TerrainOptions o = terrain(96, 64, 80, 11);
+  write_terrain(path, o);
+  World w = open_world(path);
+  ASSERT_TRUE(w.terrain());
+  const GridTransform& g = w.grid();
+  const int N = int(g.resolution), Y = int(w.dims()[1]) * 8;
+  const auto idx = [&](int x, int y, int z) { return (size_t(z) * size_t(Y) + size_t(y)) * N + x; };
+  std::vector<uint8_t> oracle(size_t(N) * N * size_t(Y));
+  for (int z = 0; z < N; ++z)
+    for (int y = 0; y < Y; ++y)
+      for (int x = 0; x < N; ++x) oracle[idx(x, y, z)] = terrain_solid(o, x, y, z);
+  const auto oracle_at = [&](int x, int y, int z) {
+    if (y < 0) return true;  // the ground goes on
+    if (x < 0 || z < 0 || x >= N || z >= N || y >= Y) return false;
+    return oracle[idx(x, y, z)] != 0;
+  };
+  const auto center = [&](int x, int y, int z) {
+    return Vec3d{double(g.origin.x) + (double(x) + 0.5) * g.voxel_size,
+                 double(g.origin.y) + (double(y) + 0.5) * g.voxel_size,
+                 double(g.origin.z) + (double(z) + 0.5) * g.voxel_size};
+  };
+  const auto at_voxel = [&](double x, double y, double z) {
+    return Vec3d{double(g.origin.x) + x * g.voxel_size, double(g.origin.y) + y * g.voxel_size,
+                 double(g.origin.z) + z * g.voxel_size};
+  };
+  const auto surface = [&](int x, int z) {
+    int y = Y - 1;
+    while (y > 0 && !oracle_at(x, y, z)) --y;
+    return y;
+  };
+  const double vs = g.voxel_size;
+  struct Step {
+    Brush brush;
+    EditOp op;
+  };
+  // The highest columns of two areas: a hole there, a cavity deep below.
+  const auto highest = [&](int x0, int x1, int z0, int z1) {
+    std::array<int, 3> best{x0, 0, z0};
+    for (int z = z0; z <= z1; ++z)
+      for (int x = x0; x <= x1; ++x)
+        if (surface(x, z) > best[1]) best = {x, surface(x, z), z};
+    return best;
+  };
+  const std::array<int, 3> h1 = highest(28, 44, 28, 48), h2 = highest(56, 80, 16, 60);
+  const int x1 = h1[0], s1 = h1[1], z1 = h1[2], x2 = h2[0], s2 = h2[1], z2 = h2[2];
+  ASSERT_GT(s1, 12);
+  ASSERT_GT(s2, 15) << x1 << "," << s1 << "," << z1 << " " << x2 << "," << z2;
+  const std::vector<Step> steps = {
+      // Into the surface and deep below it.
+      {Brush::sphere(at_voxel(x1, s1, z1), 11 * vs), EditOp::Remove},
+      // A cavity under the surface that touches no stored voxel.
+      {Brush::sphere(at_voxel(x2, s2 - 10, z2), 4 * vs), EditOp::Remove},
+      // A tunnel from the first hole into the interior, through the cavity's
+      // column when it is in reach.
+      {Brush::box(at_voxel(x1 + 4, s1 - 8, z1 - 2), at_voxel(x2 + 2, s1 - 5, z1 + 2)),
+       EditOp::Remove},
+      {Brush::box(at_voxel(x2 - 2, s2 - 13, std::min(z1, z2)),
+                  at_voxel(x2 + 2, s2 - 8, std::max(z1, z2))),
+       EditOp::Remove},
+      // Solid voxels added in the first hole, then a removal through them
+      // and the hole's wall.
+      {Brush::sphere(at_voxel(x1, s1 - 4, z1), 5 * vs), EditOp::Add},
+      {Brush::sphere(at_voxel(x1 - 4, s1 - 6, z1 + 4), 7 * vs), EditOp::Remove},
+      {Brush::sphere(at_voxel(x1, s1, z1), 14 * vs), EditOp::Paint},
+      // At the bottom of the grid (y = 0: the ground below stays solid).
+      {Brush::box(at_voxel(10, -2, 10), at_voxel(16, 3, 16)), EditOp::Remove},
+  };
+  const uint32_t added = esvo::encode_color_abgr({0.9f, 0.1f, 0.1f, 1.f});
+  const auto check = [&](const World& got, const std::string& what) {
+    ASSERT_EQ(got.terrain(), w.terrain()) << what;
+    uint64_t exposed = 0;
+    for (int z = 0; z < N; ++z)
+      for (int y = 0; y < Y; ++y)
+        for (int x = 0; x < N; ++x) {
+          const bool stored = got.voxel(uint32_t(x), uint32_t(y), uint32_t(z));
+          const bool solid = stored || (!got.carved_voxel(uint32_t(x), uint32_t(y), uint32_t(z)) &&
+                                        terrain_solid(o, x, y, z));
+          const bool want = oracle_at(x, y, z);
+          ASSERT_EQ(solid, want) << what << ": voxel " << x << "," << y << "," << z;
+          const bool open = !oracle_at(x - 1, y, z) || !oracle_at(x + 1, y, z) ||
+                            !oracle_at(x, y - 1, z) || !oracle_at(x, y + 1, z) ||
+                            !oracle_at(x, y, z - 1) || !oracle_at(x, y, z + 1);
+          if (want && open) {
+            ++exposed;
+            ASSERT_TRUE(stored) << what << ": exposed voxel " << x << "," << y << "," << z
+                                << " is not stored (a hole into the hollow interior)";
+          }
+        }
+    EXPECT_GT(exposed, 1000u) << what;
+  };
+  std::vector<std::tuple<int, int, int>> refilled;  // stored now, hidden at generation
+  for (size_t i = 0; i < steps.size(); ++i) {
+    const Step& st = steps[i];
+    // The oracle, voxel by voxel.
+    for (int z = 0; z < N; ++z)
+      for (int y = 0; y < Y; ++y)
+        for (int x = 0; x < N; ++x)
+          if (st.brush.contains(center(x, y, z)) && st.op != EditOp::Paint)
+            oracle[idx(x, y, z)] = st.op == EditOp::Add;
+    const World before = w;
+    const EditResult r = edit(w, st.brush, st.op, Color{0.9f, 0.1f, 0.1f, 1.f});
+    ASSERT_FALSE(r.cells.empty()) << "step " << i;
+    commit_edits(path, w, r.cells);
+    check(w, "step " + std::to_string(i) + " in memory");
+    check(open_world(path), "step " + std::to_string(i) + " reloaded");
+    if (st.op == EditOp::Remove)
+      for (int z = 0; z < N; ++z)
+        for (int y = 0; y < Y; ++y)
+          for (int x = 0; x < N; ++x)
+            if (w.voxel(uint32_t(x), uint32_t(y), uint32_t(z)) &&
+                !before.voxel(uint32_t(x), uint32_t(y), uint32_t(z)))
+              refilled.emplace_back(x, y, z);
+  }
+  // The voxels brought back carry the generator's color (unless painted or added).
+  ASSERT_GT(refilled.size(), 500u);
+  size_t own = 0;
+  const testing::BrickmapVoxels stored = testing::brickmap_contents(w);
+  std::map<uint64_t, uint32_t> color;
+  for (const auto& [code, c, n] : stored) color[code] = c;
+  for (const auto& [x, y, z] : refilled) {
+    const auto it = color.find(morton_encode(uint32_t(x), uint32_t(y), uint32_t(z)));
+    if (it == color.end()) continue;  // removed again by a later step
+    const uint32_t c = it->second;
+    if (c == added) continue;
+    EXPECT_EQ(c, terrain_color(o, x, y, z)) << x << "," << y << "," << z;
+    ++own;
+  }
+  EXPECT_GT(own, 500u);
+  // Folded into the scene file: the terrain and the carved voxels stay.
+  checkpoint_world(path, w, SceneInfo{"terrain", "", 0, w.stats().voxels});
+  EXPECT_FALSE(fs::exists(journal_path(path)));
+  check(load_world(ContainerReader::open(path)), "after the checkpoint");
+  // A damaged carved-voxel section or a terrain that does not match the grid
+  // refuses the world with one line.
+  const Container saved = Container::read(path);
+  ASSERT_TRUE(saved.has(fourcc("BMCV")));
+  const auto refused = [&](uint32_t id, std::vector<uint8_t> bytes, const std::string& why) {
+    Container c;
+    for (uint32_t s : saved.section_ids()) c.add(s, s == id ? bytes : saved.get(s));
+    const std::string e = testing::error_of([&] { (void)load_world(c); });
+    EXPECT_NE(e.find(why), std::string::npos) << e;
+    EXPECT_EQ(e.find('\n'), std::string::npos) << e;
+  };
+  std::vector<uint8_t> cv = saved.get(fourcc("BMCV"));
+  refused(fourcc("BMCV"), std::vector<uint8_t>(cv.begin(), cv.end() - 1), "BMCV");
+  cv[15] ^= 0x80;  // the first cell index, far out of range
+  refused(fourcc("BMCV"), cv, "BMCV");
+  const std::vector<uint8_t>& meta = saved.get(fourcc("META"));
+  nlohmann::json j = nlohmann::json::parse(meta.begin(), meta.end());
+  ASSERT_EQ(j["terrain"]["seed"], 11u) << j.dump();
+  j["terrain"]["size"][1] = 72;  // another brickgrid height
+  const std::string bigger = j.dump();
+  refused(fourcc("META"), std::vector<uint8_t>(bigger.begin(), bigger.end()),
+          "'terrain' does not match the grid");
+  // The CLI edits the same way: one removal on a fresh copy.
+  const fs::path cli = dir.file("cli.vxc");
+  write_terrain(cli, o);
+  World lib = open_world(cli);
+  // (The CLI reads the center as floats: the same floats here.)
+  const Vec3d a = at_voxel(x1, s1, z1);
+  const Vec3d c{double(float(a.x)), double(float(a.y)), double(float(a.z))};
+  edit(lib, Brush::sphere(c, 11 * vs), EditOp::Remove);
+  char sphere[160];
+  std::snprintf(sphere, sizeof sphere, "%.9g,%.9g,%.9g,%.17g", c.x, c.y, c.z, 11 * vs);
+  const testing::CliResult res =
+      testing::run_cli("edit '" + cli.string() + "' --sphere " + sphere + " --remove -q");
+  ASSERT_EQ(res.exit_code, 0) << res.output;
+  const World back = open_world(cli);
+  EXPECT_EQ(testing::brickmap_contents(back), testing::brickmap_contents(lib));
+  EXPECT_EQ(back.carved(), lib.carved());
 }
 
 }  // namespace

@@ -194,8 +194,9 @@ Runner add_edit(CLI::App& app) {
   cmd->add_option("--snow-rate", args->snow_rate, "With --snow: share of the columns per step")
       ->capture_default_str();
   cmd->add_option("--render", args->render,
-                  "With --snow: render frames while a worker thread snows (the steps become "
-                  "visible between frames), writing the last frame to this PNG");
+                  "Render frames while a worker thread applies the edits or snow steps (they "
+                  "become visible between frames and are saved through the journal as they "
+                  "finish), writing the last frame to this PNG");
   cmd->add_option("--render-size", args->render_size, "With --render: image size WxH")
       ->capture_default_str();
   cmd->add_flag("--add", args->add, "Make the brush's voxels solid (color: --color)");
@@ -208,7 +209,6 @@ Runner add_edit(CLI::App& app) {
                 "anyway once it is larger than the file and 16 MiB)");
   return [args, cmd]() {
     std::vector<EditStep> steps;
-    if (!args->render.empty() && args->snow == 0) throw UsageError("--render needs --snow");
     if (cmd->count("--snow") > 0) {
       require_range("--snow", args->snow, 1, 1000000);
       require_range("--snow-rate", args->snow_rate, 0, 1);
@@ -275,23 +275,39 @@ Runner add_edit(CLI::App& app) {
     uint64_t voxels = 0;
     std::set<uint64_t> cells;
     double seconds = 0;
+    uint64_t journal = 0;
     if (render_frames) {
-      // The simulation on LiveWorld's worker while frames render (§5.5).
-      brickmap::LiveWorld live(world);
+      // The edits on LiveWorld's worker while frames render (§4.4, §5.5),
+      // saved in place by the worker through the journal as they finish
+      // (brickmap_live.hpp): each acknowledged edit survives a crash.
+      brickmap::LiveOptions lo;
+      if (!write_whole) lo.save_to = args->input;
+      brickmap::LiveWorld live(world, lo);
       brickmap::SnowOptions snow;
       snow.rate = args->snow_rate;
-      for (const EditStep& e : steps) live.submit_snow(e.step, snow);
+      for (const EditStep& e : steps) {
+        if (e.kind == EditStep::Kind::Snow)
+          live.submit_snow(e.step, snow);
+        else if (e.kind == EditStep::Kind::Mesh)
+          live.submit(stamp_voxels(e, world.grid()), e.op, e.color);
+        else
+          live.submit(e.brush, e.op, e.color);
+      }
+      const char* what = args->snow > 0 ? "snow steps" : "edits";
       ro.camera = Camera::orbit(world.occupied_bounds(), ro.width, ro.height, 30.f, 35.f);
       RenderResult last;
       for (uint32_t f = 0;; ++f) {
         const bool done = live.applied() == steps.size();
         ro.frame = f;
         last = render(live, ro);  // publishes the finished steps first
-        std::printf("frame %u: %llu of %zu snow steps visible, %.2f Mrays/s\n", f,
-                    (unsigned long long)live.applied(), steps.size(),
+        std::printf("frame %u: %llu of %zu %s visible, %.2f Mrays/s\n", f,
+                    (unsigned long long)live.applied(), steps.size(), what,
                     last.seconds > 0 ? double(last.rays) / last.seconds * 1e-6 : 0.0);
         if (done) break;
       }
+      live.wait_worker();
+      if (!live.last_error().empty()) throw Error(live.last_error());
+      if (!live.save_error().empty()) throw Error("saving the edits failed: " + live.save_error());
       outputs.write(args->render,
                     [&](const std::filesystem::path& to) { write_image(to, last.color); });
       const brickmap::LiveWorld::Throughput t = live.throughput();
@@ -299,6 +315,11 @@ Runner add_edit(CLI::App& app) {
       world = live.world();
       for (uint64_t c = 0; c < world.cells().size(); ++c)
         if (brickmap::CellFlags::get(world.cell(c)) & brickmap::kFlagEdited) cells.insert(c);
+      if (!write_whole) {
+        const std::filesystem::path jp = brickmap::journal_path(args->input);
+        std::error_code ec;
+        journal = std::filesystem::exists(jp, ec) ? std::filesystem::file_size(jp) : 0;
+      }
     }
     for (const EditStep& e : render_frames ? std::vector<EditStep>{} : steps) {
       const VoxelSet stamp =
@@ -322,8 +343,9 @@ Runner add_edit(CLI::App& app) {
       });
       saved = "written whole";
     } else {
-      const uint64_t journal = brickmap::commit_edits(
-          args->input, world, std::vector<uint64_t>(cells.begin(), cells.end()));
+      if (!render_frames)
+        journal = brickmap::commit_edits(args->input, world,
+                                         std::vector<uint64_t>(cells.begin(), cells.end()));
       saved = "journal " + format_bytes(double(journal));
       // Replaying a journal costs about as much as reading it: fold it in
       // once it outgrows the scene file (and 16 MiB, below which a rewrite

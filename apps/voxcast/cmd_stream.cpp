@@ -75,7 +75,8 @@ int render_stream(const StreamArgs& a, const std::string& world, const std::stri
                  printable(f.reason).c_str());
   std::printf(
       "stream: %llu uploads, %llu evictions, %llu chunk loads, %llu hidden voxels dropped, peak "
-      "resident %s of %s, peak cache %s of %s; chunk decode %s in %.3f s (%.2f GB/s)\n",
+      "resident %s of %s, peak cache %s of %s; chunk decode %s in %.3f s (%.2f GB/s; %.3f s "
+      "of CPU time, %.2f GB/s)\n",
       (unsigned long long)st.uploaded, (unsigned long long)st.evicted,
       (unsigned long long)st.chunk_loads, (unsigned long long)st.hidden_voxels,
       format_bytes(double(st.peak_resident_bytes)).c_str(),
@@ -83,7 +84,9 @@ int render_stream(const StreamArgs& a, const std::string& world, const std::stri
       format_bytes(double(st.peak_cache_bytes)).c_str(),
       format_bytes(double(s.cache_budget())).c_str(),
       format_bytes(double(st.decoded_bytes)).c_str(), st.decode_seconds,
-      st.decode_seconds > 0 ? double(st.decoded_bytes) / st.decode_seconds * 1e-9 : 0.0);
+      st.decode_seconds > 0 ? double(st.decoded_bytes) / st.decode_seconds * 1e-9 : 0.0,
+      st.decode_cpu_seconds,
+      st.decode_cpu_seconds > 0 ? double(st.decoded_bytes) / st.decode_cpu_seconds * 1e-9 : 0.0);
   outputs.write(output, [&](const std::filesystem::path& to) { write_image(to, last.color); });
   outputs.commit();
   return 0;

@@ -61,7 +61,9 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <map>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -224,6 +226,18 @@ struct WorldStats {
   }
 };
 
+/// The procedural terrain a world was generated from (brickmap_terrain.hpp,
+/// META "terrain"): its density function says which voxels the generator
+/// left out as hidden (§3.2.3, §4.2), so that an edit exposing them can
+/// bring them back.
+struct TerrainSource {
+  std::array<uint32_t, 3> size{};  // voxels in x, y, z
+  uint64_t seed = 0;
+  bool operator==(const TerrainSource&) const = default;
+};
+/// One brick's 512 voxels as bits (the layout of Brick::mask).
+using VoxelMask = std::array<uint64_t, 8>;
+
 class World {
  public:
   /// An empty world over `grid` (brickgrid of ceil(N / 8)^3 cells). Throws
@@ -325,6 +339,20 @@ class World {
 
   /// True if voxel (x, y, z) of the grid is solid in a resident brick.
   bool voxel(uint32_t x, uint32_t y, uint32_t z) const;
+
+  /// A generated terrain's world stores its exposed voxels only; the solid
+  /// set it stands for is the stored voxels plus the voxels the terrain's
+  /// density makes solid and no edit has carved out:
+  ///   solid(v) = voxel(v) || (terrain density(v) > 0 && !carved(v)).
+  /// Removals carve (edit(), stamp()) and bring back the density's voxels they
+  /// expose. Without a terrain the solid set is the stored voxels.
+  const std::optional<TerrainSource>& terrain() const { return terrain_; }
+  void set_terrain(const std::optional<TerrainSource>& t) { terrain_ = t; }
+  /// The carved voxels per brickgrid cell (cells without any are not listed).
+  const std::map<uint64_t, VoxelMask>& carved() const { return carved_; }
+  /// Replaces the carved voxels of cell `index` (an all-zero mask: none).
+  void set_carved(uint64_t index, const VoxelMask& mask);
+  bool carved_voxel(uint32_t x, uint32_t y, uint32_t z) const;
   /// The solid voxels of the resident bricks as sorted Morton codes.
   std::vector<uint64_t> decode_voxels() const;
   WorldStats stats() const;
@@ -352,6 +380,8 @@ class World {
   std::vector<uint32_t> colors_, normals_data_;
   bool dxt1_ = false;
   std::vector<uint64_t> blocks_;  // DXT1 colors, one block per 16 entries
+  std::optional<TerrainSource> terrain_;
+  std::map<uint64_t, VoxelMask> carved_;  // ordered: saved in cell order
 };
 
 struct BuildOptions {

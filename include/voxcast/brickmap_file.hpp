@@ -41,14 +41,17 @@
 // state, never a mix.
 //
 // ---- Journal layout (little-endian) ----
-//   +0  char[8] "VXBMJRN2" (format 2; a format-1 journal "VXBMJRN1", bound
-//                by the cell count alone, is refused: fold it in with the
-//                voxcast that wrote it, or remove it)
+//   +0  char[8] "VXBMJRN3" (format 3: format 2, "VXBMJRN2", and the carved
+//                records; a format-2 journal is read alike. A format-1
+//                journal "VXBMJRN1", bound by the cell count alone, is
+//                refused: fold it in with the voxcast that wrote it, or
+//                remove it)
 //   +8  u64     brickgrid cells of the world
 //   +16 u64     identity of the world file it was written against (above)
 //   +24 u64     xxh64 of bytes 0..23
 //   then records from byte 32, each a 40-byte head and a payload:
-//     +0  u32 'JREC'   +4 u32 type (1 chunk, 2 header, 3 commit, 4 rebase)
+//     +0  u32 'JREC'   +4 u32 type (1 chunk, 2 header, 3 commit, 4 rebase,
+//                      5 carved)
 //     +8  u64 transaction number (ascending from 1)
 //     +16 u64 payload bytes P   +24 u64 xxh64 of the payload
 //     +32 u64 xxh64 of head bytes 0..31
@@ -56,6 +59,11 @@
 //          chunk's cell at position p, x fastest, is non-empty), u32 raw
 //          size, u32 LZ4 size, the LZ4 block of the chunk's raw bytes
 //          (codec.hpp encode_chunk);
+//   carved payload (a generated terrain's world only, World::carved; after
+//          each chunk record of its transaction): u64 chunk index, u32
+//          count N, N times u32 cell position in the chunk (ascending) and
+//          the cell's u64[8] carved-voxel mask (never all zero): the chunk's
+//          carved voxels, replaced whole like its bricks;
 //   header payload: u64 bricks, u64 voxels, the BMGH bytes (codec.hpp);
 //   commit payload: u64 records in the transaction before this one;
 //   rebase payload: u64 identity of the file a checkpoint wrote, holding

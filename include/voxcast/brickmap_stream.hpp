@@ -36,6 +36,7 @@
 // file's.
 #include <cstdint>
 #include <filesystem>
+#include <fstream>
 #include <list>
 #include <memory>
 #include <string>
@@ -68,6 +69,7 @@ struct StreamStats {
   // produced and the wall time it took, the decode rate of the benchmark.
   uint64_t decoded_bytes = 0;
   double decode_seconds = 0;
+  double decode_cpu_seconds = 0;      // the same time as the thread's CPU time (user + system)
   std::vector<ChunkFailure> refused;  // chunks that failed their checksum or decoding
 };
 
@@ -109,6 +111,7 @@ class StreamingWorld final : public BrickmapView {
  private:
   struct Chunk;
   const Chunk* chunk(uint64_t index);  // null when refused
+  void evict_chunks(uint64_t need);    // LRU chunks out until `need` bytes fit
   bool upload(uint64_t cell);          // false: no budget left this pass
   uint64_t brick_bytes(uint32_t voxels) const;
 
@@ -127,6 +130,9 @@ class StreamingWorld final : public BrickmapView {
   std::unordered_map<uint64_t, std::pair<std::unique_ptr<Chunk>, std::list<uint64_t>::iterator>>
       cache_;
   std::vector<char> refused_chunk_;
+  std::unique_ptr<Chunk> recycled_;  // an evicted chunk whose buffer the next decode reuses
+  std::ifstream file_;               // the scene file, opened once
+  std::vector<uint8_t> z_;           // a chunk's LZ4 block as read
   uint32_t frame_ = 0;
   StreamStats stats_;
 };

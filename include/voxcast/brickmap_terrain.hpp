@@ -25,6 +25,7 @@
 // empty voxels among the 26 neighbours.
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <string>
 
 #include "voxcast/math.hpp"
@@ -53,12 +54,20 @@ GridTransform terrain_grid(const TerrainOptions& options);
 /// without the generator's shortcuts): > 0 solid. Caves give -1. Coordinates
 /// outside the terrain follow the "outside" rule (solid below 0: 1).
 int64_t terrain_density(const TerrainOptions& options, int64_t x, int64_t y, int64_t z);
+/// The highest y at which column (x, z) can be solid (the height field plus
+/// the largest overhang; -1 outside the terrain): above it terrain_solid is
+/// false without evaluating the 3-D noises.
+int64_t terrain_column_top(const TerrainOptions& options, int64_t x, int64_t z);
 /// terrain_density > 0.
 bool terrain_solid(const TerrainOptions& options, int64_t x, int64_t y, int64_t z);
 /// The ABGR8 sRGB color a stored voxel gets.
 uint32_t terrain_color(const TerrainOptions& options, int64_t x, int64_t y, int64_t z);
 /// The cube-face encoded normal (esvo::encode_normal_cube) a stored voxel gets.
 uint32_t terrain_normal(const TerrainOptions& options, int64_t x, int64_t y, int64_t z);
+/// The same normal from which of the voxel's 26 neighbours are empty
+/// (empty(dx, dy, dz), each in -1..1): the mean direction of the empty ones,
+/// +y when they cancel. What a voxel an edit exposes gets (edit.cpp).
+uint32_t neighbourhood_normal(const std::function<bool(int, int, int)>& empty);
 
 struct TerrainStats {
   uint64_t bricks = 0, voxels = 0;

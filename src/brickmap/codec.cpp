@@ -25,12 +25,17 @@ std::vector<uint8_t> compress(const uint8_t* data, size_t size) {
   return out;
 }
 
+void decompress_to(const uint8_t* src, size_t size, uint8_t* dst, size_t raw,
+                   const std::string& what) {
+  const int n = LZ4_decompress_safe(reinterpret_cast<const char*>(src),
+                                    reinterpret_cast<char*>(dst), int(size), int(raw));
+  if (n < 0 || size_t(n) != raw) corrupt(what + " does not decompress to its size");
+}
+
 std::vector<uint8_t> decompress(const uint8_t* src, size_t size, size_t raw,
                                 const std::string& what) {
   std::vector<uint8_t> out(raw);
-  const int n = LZ4_decompress_safe(reinterpret_cast<const char*>(src),
-                                    reinterpret_cast<char*>(out.data()), int(size), int(raw));
-  if (n < 0 || size_t(n) != raw) corrupt(what + " does not decompress to its size");
+  decompress_to(src, size, out.data(), raw, what);
   return out;
 }
 

@@ -9,6 +9,7 @@
 #include <cstring>
 #include <filesystem>
 #include <nlohmann/json_fwd.hpp>
+#include <optional>
 #include <string>
 #include <unordered_map>
 #include <vector>
@@ -43,6 +44,12 @@ void put_le(std::vector<uint8_t>& out, T v) {
 /// one-line META error.
 uint32_t meta_height_cells(const nlohmann::json& meta, const GridTransform& grid);
 
+/// The generated terrain of META "terrain" (nullopt without one), validated
+/// against `grid` and the brickgrid height (terrain_grid()), or a one-line
+/// META error.
+std::optional<TerrainSource> meta_terrain(const nlohmann::json& meta, const GridTransform& grid,
+                                          uint32_t height_cells);
+
 /// Throws voxcast::Error("corrupt scene: " + what).
 [[noreturn]] void corrupt(const std::string& what);
 
@@ -50,6 +57,10 @@ std::vector<uint8_t> compress(const uint8_t* data, size_t size);
 /// Exactly `raw` bytes from the LZ4 block [src, src + size), or corrupt().
 std::vector<uint8_t> decompress(const uint8_t* src, size_t size, size_t raw,
                                 const std::string& what);
+/// The same into dst[0, raw) (every byte written; the streamer's reused
+/// buffers, which need no zero-filling first).
+void decompress_to(const uint8_t* src, size_t size, uint8_t* dst, size_t raw,
+                   const std::string& what);
 
 struct ChunkGrid {
   uint32_t n[3] = {0, 0, 0};

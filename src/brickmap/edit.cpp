@@ -14,9 +14,12 @@
 #include <array>
 #include <bit>
 #include <cmath>
+#include <map>
+#include <optional>
 #include <vector>
 
 #include "voxcast/brickmap.hpp"
+#include "voxcast/brickmap_terrain.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
 #include "voxcast/morton.hpp"
@@ -114,6 +117,163 @@ EditResult change_bricks(World& w, size_t count, const CellOf& cell_of, const Ch
   return result;
 }
 
+// ---- Refilling a terrain's hollow interior (World::terrain) ----
+//
+// The paper keeps "the entire world, including subsurface data" on disk (§3)
+// and removes hidden voxels only on their way to the renderer (§3.2.1, §4.2);
+// our terrain generator removes them already (brickmap_terrain.hpp), so its
+// density function stands in for the subsurface data: without it a removal
+// that opens the surface would look into a hollow interior. The solid set
+// is the stored voxels plus the density's voxels not carved out
+// (brickmap.hpp); a removal carves every voxel of the brush the density can
+// make solid (below its column's top, terrain_column_top), and each voxel
+// next to the brush that is solid but not stored was hidden until now: it is
+// brought back with the generator's color and the normal of its new
+// neighbourhood. A hidden voxel's six neighbours are all solid (else it
+// would be stored), so only the brush's outer shell can become exposed.
+
+using BrushCells = std::map<uint64_t, VoxelMask>;  // brush voxels per brickgrid cell
+
+struct Refill {
+  uint64_t cell = 0;
+  std::vector<uint32_t> bits, colors, normals;  // the voxels brought back
+};
+struct Carve {
+  std::vector<std::pair<uint64_t, VoxelMask>> carved;  // cells whose carved mask grows
+  std::vector<Refill> refill;                          // in cell order
+};
+
+bool in_mask(const VoxelMask& m, uint32_t bit) {
+  return (m[bit >> 6] >> (bit & 63)) & 1;
+}
+
+// What removing `brush` from the terrain world `w` carves and brings back,
+// computed on the world before the removal (the shell lies outside the
+// brush, so the removal does not change what it reads). Throws before
+// anything changes when a brick it would touch is not resident.
+Carve prepare_carve(const World& w, const BrushCells& brush) {
+  TerrainOptions o;
+  for (int a = 0; a < 3; ++a) o.size[a] = w.terrain()->size[size_t(a)];
+  o.seed = w.terrain()->seed;
+  const int64_t nx = w.grid().resolution, ny = int64_t(w.dims()[1]) * kBrickSide;
+  const auto cell_of = [&](int64_t x, int64_t y, int64_t z) {
+    return w.cell_index(uint32_t(x >> 3), uint32_t(y >> 3), uint32_t(z >> 3));
+  };
+  const auto in_brush = [&](int64_t x, int64_t y, int64_t z) {
+    const auto it = brush.find(cell_of(x, y, z));
+    return it != brush.end() &&
+           in_mask(it->second, voxel_bit(uint32_t(x & 7), uint32_t(y & 7), uint32_t(z & 7)));
+  };
+  const auto inside = [&](int64_t x, int64_t y, int64_t z) {
+    return x >= 0 && y >= 0 && z >= 0 && x < nx && y < ny && z < nx;
+  };
+  // The shell: 6-neighbours of brush voxels outside the brush, per cell.
+  BrushCells shell;
+  static constexpr int kDirs[6][3] = {{-1, 0, 0}, {1, 0, 0},  {0, -1, 0},
+                                      {0, 1, 0},  {0, 0, -1}, {0, 0, 1}};
+  // Only voxels the density can make solid need carving (the rest stay
+  // empty whatever the carve says): the brush below each column's top.
+  std::map<std::pair<int64_t, int64_t>, int64_t> tops;
+  const auto column_top = [&](int64_t x, int64_t z) {
+    const auto [it, fresh] = tops.try_emplace({x, z}, 0);
+    if (fresh) it->second = terrain_column_top(o, x, z);
+    return it->second;
+  };
+  Carve out;
+  for (const auto& [cell, mask] : brush) {
+    const VoxelMask& old = [&]() -> const VoxelMask& {
+      static const VoxelMask kNone{};
+      const auto it = w.carved().find(cell);
+      return it == w.carved().end() ? kNone : it->second;
+    }();
+    VoxelMask grown = old;
+    const int64_t i = int64_t(cell % w.dims()[0]), j = int64_t(cell / w.dims()[0] % w.dims()[1]),
+                  k = int64_t(cell / w.dims()[0] / w.dims()[1]);
+    for (uint32_t word = 0; word < 8; ++word)
+      for (uint64_t m = mask[word]; m != 0; m &= m - 1) {
+        const uint32_t bit = word * 64 + uint32_t(std::countr_zero(m));
+        const int64_t x = i * 8 + (bit & 7), y = j * 8 + ((bit >> 3) & 7), z = k * 8 + (bit >> 6);
+        if (y <= column_top(x, z)) grown[word] |= uint64_t(1) << (bit & 63);
+        for (const auto& d : kDirs) {
+          const int64_t ux = x + d[0], uy = y + d[1], uz = z + d[2];
+          if (!inside(ux, uy, uz)) continue;
+          const uint32_t ub = voxel_bit(uint32_t(ux & 7), uint32_t(uy & 7), uint32_t(uz & 7));
+          const bool same = (ux >> 3) == i && (uy >> 3) == j && (uz >> 3) == k;
+          if (same ? in_mask(mask, ub) : in_brush(ux, uy, uz)) continue;
+          shell[cell_of(ux, uy, uz)][ub >> 6] |= uint64_t(1) << (ub & 63);
+        }
+      }
+    if (grown != old) out.carved.push_back({cell, grown});
+  }
+  for (const BrushCells* cells : {&brush, static_cast<const BrushCells*>(&shell)})
+    for (const auto& entry : *cells)
+      if (cell_state(w.cell(entry.first)) == kStateNotResident)
+        throw Error("brickmap edit: brick " + std::to_string(entry.first) +
+                    " is not resident (its terrain would be refilled)");
+  // The density is the cost: the shell's cells in parallel, each into its
+  // own entry, so the result is the same whatever the threads.
+  std::vector<std::pair<uint64_t, VoxelMask>> cand(shell.begin(), shell.end());
+  out.refill.resize(cand.size());
+  // Solid after the removal (World::terrain's definition, the brush empty).
+  const auto solid_after = [&](int64_t x, int64_t y, int64_t z) {
+    if (y < 0) return true;  // the ground goes on below the grid (terrain "outside" rule)
+    if (!inside(x, y, z) || in_brush(x, y, z)) return false;
+    return w.voxel(uint32_t(x), uint32_t(y), uint32_t(z)) ||
+           (!w.carved_voxel(uint32_t(x), uint32_t(y), uint32_t(z)) && terrain_solid(o, x, y, z));
+  };
+  tbb::parallel_for(size_t(0), cand.size(), [&](size_t q) {
+    const uint64_t cell = cand[q].first;
+    Refill& r = out.refill[q];
+    r.cell = cell;
+    const int64_t i = int64_t(cell % w.dims()[0]), j = int64_t(cell / w.dims()[0] % w.dims()[1]),
+                  k = int64_t(cell / w.dims()[0] / w.dims()[1]);
+    for (uint32_t word = 0; word < 8; ++word)
+      for (uint64_t m = cand[q].second[word]; m != 0; m &= m - 1) {
+        const uint32_t bit = word * 64 + uint32_t(std::countr_zero(m));
+        const int64_t x = i * 8 + (bit & 7), y = j * 8 + ((bit >> 3) & 7), z = k * 8 + (bit >> 6);
+        // Hidden: solid, not stored, not carved.
+        if (w.voxel(uint32_t(x), uint32_t(y), uint32_t(z)) ||
+            w.carved_voxel(uint32_t(x), uint32_t(y), uint32_t(z)) || !terrain_solid(o, x, y, z))
+          continue;
+        r.bits.push_back(bit);
+        r.colors.push_back(terrain_color(o, x, y, z));
+        r.normals.push_back(neighbourhood_normal(
+            [&](int dx, int dy, int dz) { return !solid_after(x + dx, y + dy, z + dz); }));
+      }
+  });
+  std::erase_if(out.refill, [](const Refill& r) { return r.bits.empty(); });
+  return out;
+}
+
+// The carve applied after the removal `removed`: the carved masks grown,
+// the hidden voxels brought back; the result lists every cell the removal,
+// the carve or the refill changed (the journal saves their chunks).
+EditResult apply_carve(World& w, const Carve& c, EditResult removed) {
+  for (const auto& [cell, mask] : c.carved) w.set_carved(cell, mask);
+  EditResult r = change_bricks(
+      w, c.refill.size(), [&](size_t q) { return c.refill[q].cell; },
+      [&](size_t q, BrickVoxels& v) {
+        const Refill& f = c.refill[q];
+        for (size_t n = 0; n < f.bits.size(); ++n) {
+          v.mask[f.bits[n] >> 6] |= uint64_t(1) << (f.bits[n] & 63);
+          v.color[f.bits[n]] = f.colors[n];
+          v.normal[f.bits[n]] = f.normals[n];
+        }
+        return uint64_t(f.bits.size());
+      });
+  removed.voxels += r.voxels;
+  removed.cells.insert(removed.cells.end(), r.cells.begin(), r.cells.end());
+  for (const auto& entry : c.carved) removed.cells.push_back(entry.first);
+  std::sort(removed.cells.begin(), removed.cells.end());
+  removed.cells.erase(std::unique(removed.cells.begin(), removed.cells.end()), removed.cells.end());
+  return removed;
+}
+
+void add_to_brush(BrushCells& b, const World& w, uint32_t x, uint32_t y, uint32_t z) {
+  const uint32_t bit = voxel_bit(x & 7, y & 7, z & 7);
+  b[w.cell_index(x >> 3, y >> 3, z >> 3)][bit >> 6] |= uint64_t(1) << (bit & 63);
+}
+
 }  // namespace
 
 bool Brush::contains(const Vec3d& p) const {
@@ -165,19 +325,34 @@ EditResult edit(World& w, const Brush& brush, EditOp op, const Color& color) {
                       "," + std::to_string(bk) + ") is not resident");
         bricks.push_back({bi, bj, bk});
       }
+  const auto voxel_center = [&](int64_t x, int64_t y, int64_t z) {
+    return Vec3d{double(g.origin.x) + (double(x) + 0.5) * g.voxel_size,
+                 double(g.origin.y) + (double(y) + 0.5) * g.voxel_size,
+                 double(g.origin.z) + (double(z) + 0.5) * g.voxel_size};
+  };
+  // A removal from a terrain world carves the brush and refills what it
+  // exposes (prepare_carve): decided before anything changes.
+  std::optional<Carve> carve;
+  if (op == EditOp::Remove && w.terrain()) {
+    BrushCells inside;
+    for (int64_t z = vlo[2]; z <= vhi[2]; ++z)
+      for (int64_t y = vlo[1]; y <= vhi[1]; ++y)
+        for (int64_t x = vlo[0]; x <= vhi[0]; ++x)
+          if (brush.contains(voxel_center(x, y, z)))
+            add_to_brush(inside, w, uint32_t(x), uint32_t(y), uint32_t(z));
+    carve = prepare_carve(w, inside);
+  }
   const auto cell_of = [&](size_t q) {
     return w.cell_index(uint32_t(bricks[q][0]), uint32_t(bricks[q][1]), uint32_t(bricks[q][2]));
   };
-  return change_bricks(w, bricks.size(), cell_of, [&](size_t q, BrickVoxels& v) {
+  EditResult result = change_bricks(w, bricks.size(), cell_of, [&](size_t q, BrickVoxels& v) {
     const auto& bc = bricks[q];
     uint64_t changed = 0;
     const int64_t b0[3] = {bc[0] << kBrickLog2, bc[1] << kBrickLog2, bc[2] << kBrickLog2};
     for (int64_t z = std::max(vlo[2], b0[2]); z <= std::min(vhi[2], b0[2] + 7); ++z)
       for (int64_t y = std::max(vlo[1], b0[1]); y <= std::min(vhi[1], b0[1] + 7); ++y)
         for (int64_t x = std::max(vlo[0], b0[0]); x <= std::min(vhi[0], b0[0] + 7); ++x) {
-          const Vec3d p{double(g.origin.x) + (double(x) + 0.5) * g.voxel_size,
-                        double(g.origin.y) + (double(y) + 0.5) * g.voxel_size,
-                        double(g.origin.z) + (double(z) + 0.5) * g.voxel_size};
+          const Vec3d p = voxel_center(x, y, z);
           if (!brush.contains(p)) continue;
           const uint32_t bit =
               voxel_bit(uint32_t(x - b0[0]), uint32_t(y - b0[1]), uint32_t(z - b0[2]));
@@ -194,6 +369,7 @@ EditResult edit(World& w, const Brush& brush, EditOp op, const Color& color) {
         }
     return changed;
   });
+  return carve ? apply_carve(w, *carve, std::move(result)) : result;
 }
 
 EditResult stamp(World& w, const VoxelSet& voxels, EditOp op, const Color& color) {
@@ -231,7 +407,16 @@ EditResult stamp(World& w, const VoxelSet& voxels, EditOp op, const Color& color
     if (cell != 0 || op == EditOp::Add) runs.push_back({index, at, end});
     at = end;
   }
-  return change_bricks(
+  std::optional<Carve> carve;
+  if (op == EditOp::Remove && w.terrain()) {
+    BrushCells inside;
+    for (const auto& entry : order) {
+      const MortonCoord c = morton_decode(voxels.codes[entry.second]);
+      add_to_brush(inside, w, c.x, c.y, c.z);
+    }
+    carve = prepare_carve(w, inside);
+  }
+  EditResult result = change_bricks(
       w, runs.size(), [&](size_t q) { return runs[q].index; },
       [&](size_t q, BrickVoxels& v) {
         uint64_t changed = 0;
@@ -248,6 +433,7 @@ EditResult stamp(World& w, const VoxelSet& voxels, EditOp op, const Color& color
         }
         return changed;
       });
+  return carve ? apply_carve(w, *carve, std::move(result)) : result;
 }
 
 }  // namespace voxcast::brickmap

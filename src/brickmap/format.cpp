@@ -25,6 +25,14 @@
 //          of the chunk (16^3 cells, x fastest) the brick's 64-byte mask
 //          (u64 words, brickmap.hpp), then one u32 ABGR8 color per solid voxel
 //          in bit order, then (META "normals") one u32 cube-face normal each.
+//   'BMCV' (a generated terrain's world only, when edits carved it; World::
+//          carved): +0 u64 count N, then N entries of 72 bytes in ascending
+//          cell order: u64 brickgrid cell index, u64[8] carved-voxel mask
+//          (Brick::mask's layout, never all zero).
+//   META "terrain": {"size": [X, Y, Z], "seed": S} for a generated terrain
+//          (brickmap_terrain.hpp): its density function is part of the world
+//          (the hidden voxels it left out come back when an edit exposes
+//          them); the grid must be terrain_grid() of it.
 //
 // Loading validates every size, offset, count and hash before using it and
 // refuses a brick whose LOD color disagrees with the header, so a loaded
@@ -42,6 +50,7 @@
 #include "io/meta_json.hpp"
 #include "voxcast/brickmap.hpp"
 #include "voxcast/brickmap_file.hpp"
+#include "voxcast/brickmap_terrain.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/format_registry.hpp"
 
@@ -53,6 +62,7 @@ using namespace codec;
 constexpr uint32_t kHeaderSection = fourcc("BMGH");
 constexpr uint32_t kTableSection = fourcc("BMCT");
 constexpr uint32_t kChunkSection = fourcc("BMCK");
+constexpr uint32_t kCarvedSection = fourcc("BMCV");
 constexpr size_t kTablePrefix = 8, kEntryBytes = 24;
 
 struct Section {
@@ -95,11 +105,24 @@ std::vector<Section> world_sections(const World& w, const SceneInfo& info) {
                {"leaf_voxels", st.voxels},
                {"normals", w.has_normals()},
                {"chunk_log2", kChunkLog2}});
+  if (w.terrain()) {
+    const TerrainSource& t = *w.terrain();
+    meta["terrain"] = {{"size", {t.size[0], t.size[1], t.size[2]}}, {"seed", t.seed}};
+  }
   std::vector<Section> out;
   out.push_back({meta::kSection, meta::dump(meta)});
   out.push_back({kHeaderSection, std::move(gh)});
   out.push_back({kTableSection, std::move(table)});
   out.push_back({kChunkSection, std::move(data)});
+  if (!w.carved().empty()) {
+    std::vector<uint8_t> cv;
+    put_le<uint64_t>(cv, w.carved().size());
+    for (const auto& [cell, mask] : w.carved()) {
+      put_le<uint64_t>(cv, cell);
+      for (uint64_t m : mask) put_le<uint64_t>(cv, m);
+    }
+    out.push_back({kCarvedSection, std::move(cv)});
+  }
   return out;
 }
 
@@ -129,6 +152,33 @@ bool read_chunk_bytes(const ContainerReader& c, uint64_t offset, uint64_t size,
 }
 
 }  // namespace
+
+std::optional<TerrainSource> codec::meta_terrain(const nlohmann::json& meta,
+                                                 const GridTransform& grid, uint32_t height_cells) {
+  using namespace meta;
+  if (!meta.contains("terrain")) return std::nullopt;
+  const nlohmann::json& t = meta["terrain"];
+  if (!t.is_object()) bad("'terrain' is not an object");
+  const nlohmann::json& sj = field(t, "size");
+  if (!sj.is_array() || sj.size() != 3) bad("'terrain.size' is not an array of 3 integers");
+  TerrainSource out;
+  TerrainOptions o;
+  for (size_t a = 0; a < 3; ++a) {
+    if (!sj[a].is_number_unsigned() || sj[a].get<uint64_t>() < 16 || sj[a].get<uint64_t>() > 65536)
+      bad("'terrain.size' is not 3 integers in 16 .. 65536");
+    out.size[a] = o.size[a] = uint32_t(sj[a].get<uint64_t>());
+  }
+  out.seed = o.seed = get_uint(t, "seed", 0, UINT64_MAX);
+  // The density function is evaluated in the grid's voxel coordinates: the
+  // grid must be the one the generator placed the terrain in.
+  const GridTransform g = terrain_grid(o);
+  if (g.resolution != grid.resolution || g.levels != grid.levels ||
+      g.voxel_size != grid.voxel_size || g.origin.x != grid.origin.x ||
+      g.origin.y != grid.origin.y || g.origin.z != grid.origin.z ||
+      height_cells != (out.size[1] + kBrickSide - 1) / kBrickSide)
+    bad("'terrain' does not match the grid");
+  return out;
+}
 
 uint32_t codec::meta_height_cells(const nlohmann::json& meta, const GridTransform& grid) {
   using namespace meta;
@@ -178,6 +228,7 @@ World read_world(const ContainerReader& c, SceneInfo* info, std::vector<ChunkFai
   bool normals = false;
   uint64_t bricks = 0, voxels = 0;
   uint32_t height_cells = 0;
+  std::optional<TerrainSource> terrain;
   try {
     using namespace meta;
     if (get_string(meta, "format") != kFormatName) bad("format is not 'brickmap'");
@@ -190,11 +241,33 @@ World read_world(const ContainerReader& c, SceneInfo* info, std::vector<ChunkFai
     if (!nj.is_boolean()) bad("'normals' is not a boolean");
     normals = nj.get<bool>();
     if (get_uint(meta, "chunk_log2", 0, 31) != uint64_t(kChunkLog2)) bad("'chunk_log2' is not 4");
+    if (grid.placement_is_valid()) terrain = meta_terrain(meta, grid, height_cells);
   } catch (const nlohmann::json::exception& e) {
     throw Error("corrupt scene: META section: " + meta::json_error_text(e));
   }
   if (!grid.placement_is_valid()) meta::bad("'grid' is not a valid placement");
   World w(grid, normals, height_cells);  // throws for grids past kMaxGridCells
+  w.set_terrain(terrain);
+  if (c.has(kCarvedSection)) {
+    if (!terrain) corrupt("BMCV section in a world that is no generated terrain");
+    const std::vector<uint8_t> cv = c.read(kCarvedSection);
+    if (cv.size() < 8) corrupt("BMCV section is too short");
+    const uint64_t n = load_le<uint64_t>(cv.data());
+    if (n > w.cells().size() || cv.size() != 8 + 72 * n)
+      corrupt("BMCV section is not a list of " + std::to_string(n) + " carved cells");
+    uint64_t last = 0;
+    for (uint64_t e = 0; e < n; ++e) {
+      const uint8_t* p = &cv[size_t(8 + 72 * e)];
+      const uint64_t cell = load_le<uint64_t>(p);
+      if (cell >= w.cells().size() || (e > 0 && cell <= last))
+        corrupt("BMCV section: cell indices out of range or not ascending");
+      VoxelMask m;
+      for (size_t q = 0; q < 8; ++q) m[q] = load_le<uint64_t>(p + 8 + 8 * q);
+      if (m == VoxelMask{}) corrupt("BMCV section lists a cell without carved voxels");
+      w.set_carved(cell, m);
+      last = cell;
+    }
+  }
 
   const std::vector<uint8_t> gh = c.read(kHeaderSection);
   const std::vector<uint32_t> header =

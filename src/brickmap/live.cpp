@@ -1,14 +1,19 @@
 // Edits on a worker thread while frames render (brickmap_live.hpp).
+#include <algorithm>
 #include <bit>
 #include <chrono>
 
+#include "voxcast/brickmap_file.hpp"
 #include "voxcast/brickmap_live.hpp"
 #include "voxcast/error.hpp"
 
 namespace voxcast::brickmap {
 
-LiveWorld::LiveWorld(World world)
-    : front_(std::make_shared<World>(world)), back_(std::move(world)) {
+LiveWorld::LiveWorld(World world, LiveOptions options)
+    : front_(std::make_shared<World>(world)),
+      back_(std::move(world)),
+      options_(std::move(options)) {
+  if (options_.max_group == 0) throw Error("LiveWorld: max_group must be at least 1");
   query_ = std::make_unique<BrickmapStructure>(front_);
   worker_ = std::thread([this] { run(); });
 }
@@ -69,7 +74,9 @@ void LiveWorld::run() {
       error = e.what();
     }
     for (uint64_t cell : r.cells) {
-      NewBrick b{cell, {}, {}, {}};
+      NewBrick b{cell, {}, {}, {}, {}};
+      if (const auto it = back_.carved().find(cell); it != back_.carved().end())
+        b.carved = it->second;
       const uint32_t c = back_.cell(cell);
       if (c != 0) {
         const Brick& src = back_.brick(cell_brick(c));
@@ -86,18 +93,68 @@ void LiveWorld::run() {
     }
     const double seconds =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    bool more = false;
     {
       std::lock_guard<std::mutex> lock(mutex_);
+      // Visible from the next frame on, before it is on disk: frames do not
+      // wait for an fsync.
       ready_.push_back(std::move(done));
-      ++finished_;
-      busy_ = false;
       throughput_.voxels += r.voxels;
       throughput_.bricks += r.cells.size();
       throughput_.seconds += seconds;
       if (!error.empty()) error_ = error;
+      more = !queue_.empty();
+    }
+    if (!options_.save_to.empty()) {
+      unsaved_.insert(unsaved_.end(), r.cells.begin(), r.cells.end());
+      // Group commit: an edit queued behind this one joins its transaction
+      // (one fsync for a burst); the group is saved when the queue runs dry.
+      if (!more || ++group_ >= options_.max_group) save(job.number);
+    }
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      ++finished_;
+      busy_ = false;
     }
     idle_.notify_all();
   }
+}
+
+void LiveWorld::save(uint64_t number) {
+  std::string failure;
+  try {
+    // Nothing changed since the last save (refused edits): acknowledged as
+    // they are, without a transaction.
+    if (!unsaved_.empty()) {
+      std::sort(unsaved_.begin(), unsaved_.end());
+      unsaved_.erase(std::unique(unsaved_.begin(), unsaved_.end()), unsaved_.end());
+      // back_ holds the world after edits 1..number: whole chunk images of
+      // that state (brickmap_file.hpp), fsync'ed before commit_edits returns.
+      commit_edits(options_.save_to, back_, unsaved_);
+    }
+    unsaved_.clear();
+    group_ = 0;
+  } catch (const std::exception& e) {
+    // Kept unsaved: the next save writes these cells again, with the state
+    // of the edits after them.
+    failure = e.what();
+  }
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    save_error_ = failure;
+    if (failure.empty()) saved_ = number;
+  }
+  if (failure.empty() && options_.on_saved) options_.on_saved(number);
+}
+
+uint64_t LiveWorld::saved() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return saved_;
+}
+
+std::string LiveWorld::save_error() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return save_error_;
 }
 
 void LiveWorld::wait_worker() {
@@ -118,6 +175,7 @@ bool LiveWorld::publish_ready() {
       for (const NewBrick& b : d.bricks) {
         front_->set_brick(b.cell, b.mask, b.colors.data(), b.normals.data(), kFlagEdited, nullptr,
                           false);
+        front_->set_carved(b.cell, b.carved);
         cells.push_back(b.cell);
       }
     } catch (...) {

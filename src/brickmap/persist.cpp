@@ -24,11 +24,13 @@ namespace {
 
 using namespace codec;
 
-constexpr char kMagic[8] = {'V', 'X', 'B', 'M', 'J', 'R', 'N', '2'};
+constexpr char kMagic[8] = {'V', 'X', 'B', 'M', 'J', 'R', 'N', '3'};
+constexpr char kMagicV2[8] = {'V', 'X', 'B', 'M', 'J', 'R', 'N', '2'};
 constexpr char kMagicV1[8] = {'V', 'X', 'B', 'M', 'J', 'R', 'N', '1'};
 constexpr size_t kFileHead = 32, kRecordHead = 40, kCellBits = kChunkCells / 8;
 constexpr uint32_t kRecordMagic = fourcc("JREC");
-constexpr uint32_t kChunkRecord = 1, kHeaderRecord = 2, kCommitRecord = 3, kRebaseRecord = 4;
+constexpr uint32_t kChunkRecord = 1, kHeaderRecord = 2, kCommitRecord = 3, kRebaseRecord = 4,
+                   kCarvedRecord = 5;
 
 std::mutex hook_mutex;
 std::function<void(const char*)> save_hook;
@@ -208,7 +210,9 @@ Parsed parse_journal(const std::vector<uint8_t>& j, const World& w, const std::s
     throw Error("journal '" + p +
                 "' has the format of an older voxcast, not bound to its world file: fold it in "
                 "with that version (voxcast edit --checkpoint) or remove it");
-  if (j.size() < kFileHead || !std::equal(kMagic, kMagic + 8, j.begin()) ||
+  if (j.size() < kFileHead ||
+      (!std::equal(kMagic, kMagic + 8, j.begin()) &&
+       !std::equal(kMagicV2, kMagicV2 + 8, j.begin())) ||
       XXH64(j.data(), kFileHead - 8, 0) != load_le<uint64_t>(&j[kFileHead - 8]))
     throw Error("journal '" + p + "': not an edit journal (or its head is damaged)");
   if (load_le<uint64_t>(&j[8]) != w.cells().size()) foreign_journal(p);
@@ -243,7 +247,7 @@ Parsed parse_journal(const std::vector<uint8_t>& j, const World& w, const std::s
       out.rebased_txns = out.txns.size();
       out.end = at;
       out.last_txn = r.txn;
-    } else if (r.type == kChunkRecord || r.type == kHeaderRecord) {
+    } else if (r.type == kChunkRecord || r.type == kHeaderRecord || r.type == kCarvedRecord) {
       pending.push_back(r);
     } else {
       break;
@@ -273,6 +277,35 @@ ChunkRecord chunk_record(const Record& r, const ChunkGrid& cg, const std::string
   return c;
 }
 
+// A carved record (payload: u64 chunk, u32 count N, N times u32 position in
+// the chunk (ascending) and the cell's u64[8] carved mask, never all zero):
+// the carved voxels of the chunk's cells, validated, as (cell, mask).
+std::pair<uint64_t, std::vector<std::pair<uint64_t, VoxelMask>>> carved_record(
+    const Record& r, const World& w, const ChunkGrid& cg, const std::string& name) {
+  if (!w.terrain()) corrupt(name + ": carved voxels in a world that is no generated terrain");
+  if (r.size < 12) corrupt(name + ": short carved record");
+  const uint64_t chunk = load_le<uint64_t>(r.payload);
+  if (chunk >= cg.count()) corrupt(name + ": chunk index out of range");
+  const uint64_t n = load_le<uint32_t>(r.payload + 8);
+  if (n > kChunkCells || r.size != 12 + 68 * n) corrupt(name + ": bad carved record size");
+  std::vector<uint64_t> cells(kChunkCells, UINT64_MAX);  // position -> cell (UINT64_MAX: none)
+  for_chunk_cells(w, cg, chunk, [&](uint64_t ci, uint32_t pos) { cells[pos] = ci; });
+  std::vector<std::pair<uint64_t, VoxelMask>> out;
+  int64_t last = -1;
+  for (uint64_t e = 0; e < n; ++e) {
+    const uint8_t* p = r.payload + 12 + 68 * e;
+    const uint32_t pos = load_le<uint32_t>(p);
+    if (pos >= kChunkCells || int64_t(pos) <= last || cells[pos] == UINT64_MAX)
+      corrupt(name + ": carved cell positions out of range or not ascending");
+    VoxelMask m;
+    for (size_t q = 0; q < 8; ++q) m[q] = load_le<uint64_t>(p + 4 + 8 * q);
+    if (m == VoxelMask{}) corrupt(name + ": a carved cell without carved voxels");
+    out.push_back({cells[pos], m});
+    last = pos;
+  }
+  return {chunk, std::move(out)};
+}
+
 // The brickgrid header of a transaction's header record.
 std::vector<uint32_t> header_record(const Record* header, const World& w) {
   if (header == nullptr) corrupt("journal transaction without a brickgrid header");
@@ -298,6 +331,13 @@ std::vector<uint64_t> apply(World& w, const std::vector<Record>& txn, SceneInfo*
         continue;
       }
       const std::string name = "journal transaction " + std::to_string(r.txn);
+      if (r.type == kCarvedRecord) {
+        // The chunk's carved voxels replaced whole, as its bricks are.
+        const auto [chunk, carved] = carved_record(r, w, cg, name);
+        for_chunk_cells(w, cg, chunk, [&](uint64_t ci, uint32_t) { w.set_carved(ci, {}); });
+        for (const auto& [cell, mask] : carved) w.set_carved(cell, mask);
+        continue;
+      }
       const ChunkRecord cr = chunk_record(r, cg, name);
       const uint64_t chunk = cr.chunk;
       const uint8_t* bits = cr.bits;
@@ -358,6 +398,8 @@ JournalChunks codec::read_journal_chunks(const std::filesystem::path& path, cons
         header = &r;
         continue;
       }
+      if (r.type == kCarvedRecord)
+        continue;  // the solid set behind the stored voxels: not rendered
       const ChunkRecord c = chunk_record(r, cg, "journal transaction " + std::to_string(r.txn));
       out.chunks[c.chunk] = {uint32_t(c.raw), std::vector<uint8_t>(c.z, c.z + c.z_size)};
     }
@@ -492,6 +534,23 @@ uint64_t commit_edits(const std::filesystem::path& path, const World& w,
     put_le<uint32_t>(p, uint32_t(z.size()));
     p.insert(p.end(), z.begin(), z.end());
     put(kChunkRecord, p);
+    if (w.terrain()) {
+      // The chunk's carved voxels (World::carved), whole: what refills the
+      // terrain's interior correctly after a reload.
+      std::vector<uint8_t> cv;
+      put_le<uint64_t>(cv, chunk);
+      put_le<uint32_t>(cv, 0);
+      uint32_t n = 0;
+      for_chunk_cells(w, cg, chunk, [&](uint64_t ci, uint32_t pos) {
+        const auto it = w.carved().find(ci);
+        if (it == w.carved().end()) return;
+        put_le<uint32_t>(cv, pos);
+        for (uint64_t m : it->second) put_le<uint64_t>(cv, m);
+        ++n;
+      });
+      std::memcpy(&cv[8], &n, 4);
+      put(kCarvedRecord, cv);
+    }
   }
   const WorldStats st = w.stats();
   std::vector<uint8_t> h;

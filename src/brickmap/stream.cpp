@@ -1,9 +1,12 @@
 // Streaming a brickmap world from its scene file (brickmap_stream.hpp).
+#include <sys/mman.h>
+#include <time.h>
 #include <xxhash.h>
 
 #include <algorithm>
 #include <chrono>
 #include <fstream>
+#include <new>
 
 #include "brickmap/codec.hpp"
 #include "io/meta_json.hpp"
@@ -21,45 +24,85 @@ constexpr uint32_t kTableSection = fourcc("BMCT");
 constexpr uint32_t kChunkSection = fourcc("BMCK");
 constexpr size_t kTablePrefix = 8, kEntryBytes = 24;
 
+// A chunk's raw bytes in a buffer that is reused: kept when a chunk is
+// evicted for the next one, whose decode then writes into pages already
+// mapped. A new buffer is mapped with its pages populated in one system call
+// (MAP_POPULATE): LZ4 would otherwise take a page fault per 4 KiB it writes,
+// the larger part of the decode time on a loaded machine. Never zero-filled
+// by us: LZ4 writes every byte.
+struct Unmap {
+  size_t bytes = 0;
+  void operator()(uint8_t* p) const { ::munmap(p, bytes); }
+};
+struct RawBuffer {
+  std::unique_ptr<uint8_t[], Unmap> data;
+  size_t size = 0, capacity = 0;
+  void resize(size_t n) {
+    if (n > capacity) {
+      data.reset();
+      capacity = 0;
+      void* p = ::mmap(nullptr, std::max<size_t>(n, 1), PROT_READ | PROT_WRITE,
+                       MAP_PRIVATE | MAP_ANONYMOUS | MAP_POPULATE, -1, 0);
+      if (p == MAP_FAILED) throw std::bad_alloc();
+      data = std::unique_ptr<uint8_t[], Unmap>(static_cast<uint8_t*>(p),
+                                               Unmap{std::max<size_t>(n, 1)});
+      capacity = n;
+    }
+    size = n;
+  }
+};
+
 // A chunk's LZ4 block of the file checked against its xxh64 and decoded to
-// its `rs` raw bytes (the streamer's decode; measure_chunk_decode times it).
-std::vector<uint8_t> decode_chunk_block(const uint8_t* z, size_t zs, size_t rs, uint64_t xxh,
-                                        const std::string& name) {
+// its `rs` raw bytes in `out` (the streamer's decode; measure_chunk_decode
+// times it).
+void decode_chunk_block(const uint8_t* z, size_t zs, size_t rs, uint64_t xxh,
+                        const std::string& name, RawBuffer* out) {
   if (XXH64(z, zs, 0) != xxh) corrupt(name + " checksum mismatch");
-  return decompress(z, zs, rs, name);
+  out->resize(rs);
+  decompress_to(z, zs, out->data.get(), rs, name);
 }
 
 // The offset in `raw` of each present cell's brick (header cell non-zero),
 // per position in the chunk (UINT32_MAX: none), validated as the loader does.
 void index_chunk_bricks(const World& w, const ChunkGrid& cg, uint64_t index,
-                        const std::vector<uint32_t>& header, const std::vector<uint8_t>& raw,
+                        const std::vector<uint32_t>& header, const RawBuffer& raw,
                         std::vector<uint32_t>* offsets, const std::string& name) {
   offsets->assign(kChunkCells, UINT32_MAX);
   size_t at = 0;
   const size_t per = w.has_normals() ? 8 : 4;
   for_chunk_cells(w, cg, index, [&](uint64_t ci, uint32_t pos) {
     if (header[ci] == 0) return;
-    if (raw.size() - at < 64) corrupt(name + " ends inside a brick mask");
+    if (raw.size - at < 64) corrupt(name + " ends inside a brick mask");
     uint64_t mask[8];
-    std::memcpy(mask, &raw[at], 64);
+    std::memcpy(mask, &raw.data[at], 64);
     size_t count = 0;
     for (uint64_t m : mask) count += size_t(std::popcount(m));
-    if (count == 0 || raw.size() - at - 64 < count * per)
+    if (count == 0 || raw.size - at - 64 < count * per)
       corrupt(name + " holds a brick that is empty or cut short");
     (*offsets)[pos] = uint32_t(at);
     at += 64 + count * per;
   });
-  if (at != raw.size()) corrupt(name + " has bytes after its last brick");
+  if (at != raw.size) corrupt(name + " has bytes after its last brick");
+}
+// Seconds of CPU time this thread has run (user and system): the decode's
+// own work, which a wall clock on a shared machine mixes with the time the
+// thread waited for a core.
+double thread_cpu_seconds() {
+  timespec t;
+  ::clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+  return double(t.tv_sec) + double(t.tv_nsec) * 1e-9;
 }
 }  // namespace
 
 // A decoded chunk: its raw bytes and where each present cell's brick starts.
 struct StreamingWorld::Chunk {
-  std::vector<uint8_t> raw;
+  RawBuffer raw;
   std::vector<uint32_t> at;  // per position in the chunk: offset in raw, or UINT32_MAX
-  uint64_t bytes() const { return raw.size() + at.size() * 4; }
+  // The memory held: the buffer's capacity (a reused buffer may be larger
+  // than the chunk).
+  uint64_t bytes() const { return raw.capacity + at.size() * 4; }
   const uint64_t* mask(uint32_t pos) const {
-    return at[pos] == UINT32_MAX ? nullptr : reinterpret_cast<const uint64_t*>(&raw[at[pos]]);
+    return at[pos] == UINT32_MAX ? nullptr : reinterpret_cast<const uint64_t*>(&raw.data[at[pos]]);
   }
 };
 
@@ -133,6 +176,20 @@ uint64_t StreamingWorld::brick_bytes(uint32_t voxels) const {
          (world_->has_normals() ? entries * 4 : 0);
 }
 
+void StreamingWorld::evict_chunks(uint64_t need) {
+  // Least recently used chunks out until `need` more bytes fit; the last
+  // one out is kept for its buffer (recycled_).
+  while (stats_.cache_bytes + need > cache_budget_ && !lru_.empty()) {
+    const uint64_t victim = lru_.back();
+    lru_.pop_back();
+    const auto v = cache_.find(victim);
+    stats_.cache_bytes -= v->second.first->bytes();
+    recycled_ = std::move(v->second.first);
+    cache_.erase(v);
+    ++stats_.chunk_evictions;
+  }
+}
+
 const StreamingWorld::Chunk* StreamingWorld::chunk(uint64_t index) {
   if (refused_chunk_[size_t(index)]) return nullptr;
   const auto it = cache_.find(index);
@@ -142,40 +199,48 @@ const StreamingWorld::Chunk* StreamingWorld::chunk(uint64_t index) {
   }
   const ChunkGrid cg = chunk_grid(world_->dims());
   const std::string name = "BMCK " + chunk_name(cg, index);
-  auto c = std::make_unique<Chunk>();
+  const auto journaled = journal_.find(index);
+  const uint64_t e = kTablePrefix + kEntryBytes * index;
+  // Room for the chunk before it is decoded (its raw size is known from the
+  // table or the journal), so that an evicted chunk's buffer takes it.
+  const uint64_t rs =
+      journaled != journal_.end() ? journaled->second.first : load_le<uint32_t>(&table_[e + 12]);
+  evict_chunks(std::min<uint64_t>(rs, kMaxChunkRaw) + uint64_t(kChunkCells) * 4);
+  std::unique_ptr<Chunk> c = recycled_ ? std::move(recycled_) : std::make_unique<Chunk>();
   try {
-    const auto journaled = journal_.find(index);
-    std::vector<uint8_t> z;
     auto t0 = std::chrono::steady_clock::now();
+    double cpu0 = thread_cpu_seconds();
     if (journaled != journal_.end()) {
       // The journal's image (its record checksummed when the journal was read).
-      c->raw = journaled->second.first
-                   ? decompress(journaled->second.second.data(), journaled->second.second.size(),
-                                journaled->second.first, name + " (journal)")
-                   : std::vector<uint8_t>{};
+      c->raw.resize(journaled->second.first);
+      if (journaled->second.first)
+        decompress_to(journaled->second.second.data(), journaled->second.second.size(),
+                      c->raw.data.get(), journaled->second.first, name + " (journal)");
     } else {
-      const uint64_t e = kTablePrefix + kEntryBytes * index;
       const uint64_t offset = load_le<uint64_t>(&table_[e]);
-      const uint64_t zs = load_le<uint32_t>(&table_[e + 8]),
-                     rs = load_le<uint32_t>(&table_[e + 12]);
+      const uint64_t zs = load_le<uint32_t>(&table_[e + 8]);
       if (zs == 0 || offset > chunk_data_size_ || zs > chunk_data_size_ - offset ||
           rs > kMaxChunkRaw)
         corrupt(name + " lies outside the BMCK section");
-      z.resize(static_cast<size_t>(zs));
-      std::ifstream in(path_, std::ios::binary);
-      in.seekg(std::streamoff(chunk_data_offset_ + offset));
-      if (!in.read(reinterpret_cast<char*>(z.data()), std::streamsize(zs)))
+      z_.resize(static_cast<size_t>(zs));
+      if (!file_.is_open()) file_.open(path_, std::ios::binary);
+      file_.clear();
+      file_.seekg(std::streamoff(chunk_data_offset_ + offset));
+      if (!file_.read(reinterpret_cast<char*>(z_.data()), std::streamsize(zs)))
         throw Error(name + " cannot be read from the file");
       t0 = std::chrono::steady_clock::now();
-      c->raw = decode_chunk_block(z.data(), z.size(), size_t(rs),
-                                  load_le<uint64_t>(&table_[e + 16]), name);
+      cpu0 = thread_cpu_seconds();
+      decode_chunk_block(z_.data(), z_.size(), size_t(rs), load_le<uint64_t>(&table_[e + 16]), name,
+                         &c->raw);
     }
     index_chunk_bricks(*world_, cg, index, header_, c->raw, &c->at, name);
     stats_.decode_seconds +=
         std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    stats_.decoded_bytes += c->raw.size();
+    stats_.decode_cpu_seconds += thread_cpu_seconds() - cpu0;
+    stats_.decoded_bytes += c->raw.size;
   } catch (const Error& err) {
     // Refused: its bricks will not come; the rest streams on.
+    recycled_ = std::move(c);
     refused_chunk_[size_t(index)] = 1;
     stats_.refused.push_back({index, err.what()});
     std::vector<uint64_t> cells;
@@ -194,7 +259,8 @@ const StreamingWorld::Chunk* StreamingWorld::chunk(uint64_t index) {
   lru_.push_front(index);
   const Chunk* out = c.get();
   cache_.emplace(index, std::make_pair(std::move(c), lru_.begin()));
-  // Least recently used chunks out, never the one just loaded.
+  // A reused buffer larger than the chunk may still leave the cache over
+  // its budget: out again, never the chunk just loaded.
   while (stats_.cache_bytes > cache_budget_ && lru_.size() > 1) {
     const uint64_t victim = lru_.back();
     lru_.pop_back();
@@ -297,7 +363,7 @@ bool StreamingWorld::upload(uint64_t cell) {
     }
   }
   // The kept voxels' colors (and normals), in bit order.
-  const uint32_t* colors = reinterpret_cast<const uint32_t*>(&c->raw[c->at[pos] + 64]);
+  const uint32_t* colors = reinterpret_cast<const uint32_t*>(&c->raw.data[c->at[pos] + 64]);
   const uint32_t* normals = colors + count;
   std::vector<uint32_t> kc, kn;
   uint32_t n = 0;
@@ -394,21 +460,22 @@ ChunkDecodeRate measure_chunk_decode(const World& w, int rounds) {
     });
   const std::vector<uint32_t>& header = w.cells();
   std::vector<uint32_t> offsets;
+  RawBuffer r;
   for (int round = 0; round < std::max(rounds, 1); ++round) {
     uint64_t bytes = 0, bricks = 0, hash = 0;
     double sec = 0;
     for (const Stored& s : stored) {
       const std::string name = "BMCK " + chunk_name(cg, s.index);
       const auto t0 = std::chrono::steady_clock::now();
-      const std::vector<uint8_t> r = decode_chunk_block(s.z.data(), s.z.size(), s.raw, s.xxh, name);
+      decode_chunk_block(s.z.data(), s.z.size(), s.raw, s.xxh, name, &r);
       index_chunk_bricks(w, cg, s.index, header, r, &offsets, name);
       sec += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-      bytes += r.size();
+      bytes += r.size;
       // Untimed: the decoded masks' hash, to compare with the source's.
       for_chunk_cells(w, cg, s.index, [&](uint64_t ci, uint32_t pos) {
         if (offsets[pos] == UINT32_MAX) return;
         ++bricks;
-        hash = XXH64(&r[offsets[pos]], 64, hash ^ ci);
+        hash = XXH64(&r.data[offsets[pos]], 64, hash ^ ci);
       });
     }
     if (round == 0 || sec < out.seconds) out.seconds = sec;

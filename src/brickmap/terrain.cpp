@@ -298,6 +298,14 @@ int64_t terrain_density(const TerrainOptions& o, int64_t x, int64_t y, int64_t z
   return p.density(p.height(x, z), x, y, z);
 }
 
+int64_t terrain_column_top(const TerrainOptions& o, int64_t x, int64_t z) {
+  const Params p(o);
+  if (!p.inside_xz(x, z)) return -1;
+  // solid_fast's bound: y kFix + kFix / 2 <= height + overhang.
+  const int64_t t = p.height(x, z) + p.overhang - kFix / 2;
+  return std::min<int64_t>(p.size[1] - 1, t < 0 ? -1 : t / kFix);
+}
+
 bool terrain_solid(const TerrainOptions& o, int64_t x, int64_t y, int64_t z) {
   return terrain_density(o, x, y, z) > 0;
 }
@@ -310,6 +318,10 @@ uint32_t terrain_color(const TerrainOptions& o, int64_t x, int64_t y, int64_t z)
 uint32_t terrain_normal(const TerrainOptions& o, int64_t x, int64_t y, int64_t z) {
   return normal_of(
       [&](int dx, int dy, int dz) { return !terrain_solid(o, x + dx, y + dy, z + dz); });
+}
+
+uint32_t neighbourhood_normal(const std::function<bool(int, int, int)>& empty) {
+  return normal_of(empty);
 }
 
 TerrainStats write_terrain(const std::filesystem::path& path, const TerrainOptions& o) {

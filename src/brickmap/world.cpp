@@ -435,6 +435,22 @@ bool World::voxel(uint32_t x, uint32_t y, uint32_t z) const {
   return test_voxel(pool_[cell_brick(c)], voxel_bit(x & 7, y & 7, z & 7));
 }
 
+void World::set_carved(uint64_t index, const VoxelMask& mask) {
+  if (index >= cells_.size()) throw Error("brickmap: carved cell index out of range");
+  if (mask == VoxelMask{})
+    carved_.erase(index);
+  else
+    carved_[index] = mask;
+}
+
+bool World::carved_voxel(uint32_t x, uint32_t y, uint32_t z) const {
+  if (x >= grid_.resolution || (y >> kBrickLog2) >= dims_[1] || z >= grid_.resolution) return false;
+  const auto it = carved_.find(cell_index(x >> 3, y >> 3, z >> 3));
+  if (it == carved_.end()) return false;
+  const uint32_t bit = voxel_bit(x & 7, y & 7, z & 7);
+  return (it->second[bit >> 6] >> (bit & 63)) & 1;
+}
+
 std::vector<uint64_t> World::decode_voxels() const {
   std::vector<uint64_t> out;
   for (uint32_t k = 0; k < dims_[2]; ++k)
