@@ -8,6 +8,7 @@
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
+#include <xxhash.h>
 
 #include <algorithm>
 #include <bit>
@@ -131,6 +132,37 @@ TEST(BrickmapPersist, EditsSavedInPlaceReloadExactlyAndCheckpointFoldsTheJournal
               (void)open_world(path);
             })).find("belongs to another version of the world"),
             std::string::npos);
+}
+
+// A format-2 journal (written by the previous version) still replays; the
+// first save of this version rewrites it with format 3's head before
+// appending, so that an older voxcast refuses it instead of stopping at
+// the first record type it does not know.
+TEST(BrickmapPersist, AFormat2JournalReplaysAndIsUpgradedBeforeThisVersionAppends) {
+  testing::TempDir dir;
+  const fs::path path = dir.file("world.vxc");
+  World w = base_world();
+  save_scene(path, w, SceneInfo{"t", "conservative", 0, w.stats().voxels});
+  const std::vector<Step> steps = edit_steps(2);
+  commit_edits(path, w, edit(w, steps[0].brush, steps[0].op, steps[0].color).cells);
+  // The same journal as the previous version wrote it (its records are
+  // format 2's; only the head's magic and hash differ).
+  std::vector<uint8_t> j = bytes_of(journal_path(path));
+  ASSERT_EQ(std::string(j.begin(), j.begin() + 8), "VXBMJRN3");
+  j[7] = '2';
+  const uint64_t h = XXH64(j.data(), 24, 0);
+  std::memcpy(&j[24], &h, 8);
+  testing::write_bytes(journal_path(path), j);
+  OpenReport rep;
+  EXPECT_EQ(contents(open_world(path, nullptr, &rep)), contents(w));
+  EXPECT_EQ(rep.transactions, 1u);
+  commit_edits(path, w, edit(w, steps[1].brush, steps[1].op, steps[1].color).cells);
+  const std::vector<uint8_t> upgraded = bytes_of(journal_path(path));
+  EXPECT_EQ(std::string(upgraded.begin(), upgraded.begin() + 8), "VXBMJRN3");
+  EXPECT_TRUE(std::equal(j.begin() + 32, j.end(), upgraded.begin() + 32));  // records kept
+  EXPECT_FALSE(fs::exists(journal_path(path).string() + ".tmp"));
+  EXPECT_EQ(contents(open_world(path, nullptr, &rep)), contents(w));
+  EXPECT_EQ(rep.transactions, 2u);
 }
 
 // The journal is bound to the exact file it was written against

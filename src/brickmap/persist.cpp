@@ -482,7 +482,28 @@ uint64_t commit_edits(const std::filesystem::path& path, const World& w,
     // off before it removed the journal) is started anew.
     fresh = parsed.first_for(base, jp.string()) == parsed.txns.size() && parsed.base != base;
     txn = parsed.last_txn + 1;
-    if (!fresh && parsed.end != bytes.size()) {
+    if (!fresh && std::equal(kMagicV2, kMagicV2 + 8, bytes.begin())) {
+      // A format-2 journal gets format 3's head before records of this
+      // version (carved voxels) follow: an older voxcast would stop reading
+      // at the first record type it does not know and open the world
+      // without the edits after it; now it refuses the journal instead.
+      // Rewritten whole under a temporary name and renamed, as a new
+      // journal is created; an unacknowledged tail is left out.
+      std::vector<uint8_t> head(bytes.begin(), bytes.begin() + (kFileHead - 8));
+      std::copy(kMagic, kMagic + 8, head.begin());
+      put_le<uint64_t>(head, XXH64(head.data(), head.size(), 0));
+      std::filesystem::path tmp = jp;
+      tmp += ".tmp";
+      {
+        Fd f(tmp, O_WRONLY | O_CREAT | O_TRUNC);
+        f.write_all(head.data(), head.size());
+        f.write_all(bytes.data() + kFileHead, parsed.end - kFileHead);
+        f.sync();
+      }
+      std::filesystem::rename(tmp, jp);
+      sync_directory(jp);
+      step("journal upgraded");
+    } else if (!fresh && parsed.end != bytes.size()) {
       // An unacknowledged save cut off by a crash: not part of the world.
       Fd f(jp, O_WRONLY);
       f.truncate(parsed.end);
