@@ -499,8 +499,9 @@ int volume_info(const std::string& source, int resolution) {
   }
   const int n = giga::kBrickSide << producer->max_level();
   // The octree the producer fills: every level's voxels and what a dense
-  // copy of the finest level would take (16 bytes per voxel, BrickVoxel).
-  const double dense = double(n) * n * n * double(sizeof(giga::BrickVoxel));
+  // copy of the finest level would take in the brick pool (8 bytes per
+  // voxel, giga::PoolVoxel).
+  const double dense = double(n) * n * n * double(sizeof(giga::PoolVoxel));
   std::printf("octree      %d levels, finest %d^3 voxels (bricks of %d^3 + border)\n",
               producer->max_level() + 1, n, giga::kBrickSide);
   std::printf("dense size  %s at the finest level (the pools hold what rays ask for)\n",
