@@ -350,12 +350,19 @@ NodeRegion GigaVoxels::region_of(uint32_t node) const {
           2 * LocY::get(code) + ((c >> 1) & 1u), 2 * LocZ::get(code) + (c >> 2)};
 }
 
+// Every ray writes the same value: a relaxed store, no read-modify-write,
+// and only when the stamp differs. Rays touch the same tiles and bricks
+// over and over (every descent passes the upper tiles, every span stamps
+// its bricks); an unconditional store would dirty the line each time and,
+// with two threads, bounce it between their caches, where a load of an
+// already-stamped line stays shared.
 void GigaVoxels::touch_tile(uint32_t tile, uint32_t s) const {
-  // Every ray writes the same value: a relaxed store, no read-modify-write.
-  std::atomic_ref<uint32_t>(tile_stamp_[tile]).store(s, std::memory_order_relaxed);
+  std::atomic_ref<uint32_t> stamp(tile_stamp_[tile]);
+  if (stamp.load(std::memory_order_relaxed) != s) stamp.store(s, std::memory_order_relaxed);
 }
 void GigaVoxels::touch_brick(uint32_t brick, uint32_t s) const {
-  std::atomic_ref<uint32_t>(brick_stamp_[brick]).store(s, std::memory_order_relaxed);
+  std::atomic_ref<uint32_t> stamp(brick_stamp_[brick]);
+  if (stamp.load(std::memory_order_relaxed) != s) stamp.store(s, std::memory_order_relaxed);
 }
 
 void GigaVoxels::begin_frame(const FrameView& view) {
@@ -391,6 +398,19 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
   int n = 0;
   uint32_t fallback = kNoNode;  // the located node's deepest ancestor with data
   int fallback_level = 0;
+  // The footprint never shrinks along the ray (no depth-of-field segment
+  // before its focus): a condition of the empty-sibling jump below.
+  const bool grows = lod.size_per_t >= 0.f;
+  // All 8 nodes of tile t hold empty constants (no span, no request).
+  auto empty_tile = [this](uint32_t t) {
+    for (uint32_t n = t * 8; n < t * 8 + 8; ++n) {
+      const uint32_t dw = data_[n];
+      if (NodeDataKind::get(dw) != kDataConstant ||
+          constants_[NodeDataPayload::get(dw)].density > 0.f)
+        return false;
+    }
+    return true;
+  };
   auto locate = [&](float, const float* x, float foot) {
     // Descent by point location (§3.5.3): the child at level l + 1 is bit 0
     // of the cell floor(x 2^(l+1)), the paper's c + int(2x) unrolled.
@@ -438,12 +458,35 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
     if (fallback != kNoNode)
       while (path[fallback_level] != fallback) ++fallback_level;
     if (fallback != node && !asked) push_request(ctx, this, kRequestData, node, level);
-    // Exit of the node's box [cell, cell + 1] / 2^level.
-    const float scale = pow2f(-level);
+    // Empty space at the cone's level (most nodes a ray meets in a cloud's
+    // surroundings): when the node and its 7 siblings are all empty
+    // constants and the cone stays between the parent's voxel and theirs
+    // until the parent's exit, every sibling the ray would visit next stops
+    // at this level (the footprint only grows), emits nothing and asks for
+    // nothing, so the walk jumps to the parent's exit at once: the same
+    // spans for one locate instead of up to four (§3.5.1 skips empty space
+    // by the octree's constant nodes; this skips where the octree keeps
+    // empty leaves the producer could not prove empty at the coarser level).
+    int exit_level = level;
+    if (!asked && fallback == node && level > 0 && grows && voxel_world(level) <= foot &&
+        empty_tile(node >> 3))
+      exit_level = level - 1;
+    // Exit of the box [cell, cell + 1] / 2^level (of its parent: cell / 2).
+    const int up = level - exit_level;
+    const float scale = pow2f(-exit_level);
     float te = t1;
     for (int a = 0; a < 3; ++a) {
-      if (d[a] > 0.f) te = std::min(te, (float(cell[a] + 1) * scale - o[a]) * inv_d[a]);
-      if (d[a] < 0.f) te = std::min(te, (float(cell[a]) * scale - o[a]) * inv_d[a]);
+      const uint32_t c = cell[a] >> up;
+      if (d[a] > 0.f) te = std::min(te, (float(c + 1) * scale - o[a]) * inv_d[a]);
+      if (d[a] < 0.f) te = std::min(te, (float(c) * scale - o[a]) * inv_d[a]);
+    }
+    // ...and only if the cone does not reach the parent's voxel before it.
+    if (up > 0 && !(lod.size_at_origin + lod.size_per_t * te < voxel_world(exit_level))) {
+      te = t1;
+      for (int a = 0; a < 3; ++a) {
+        if (d[a] > 0.f) te = std::min(te, (float(cell[a] + 1) * scale * 0.5f - o[a]) * inv_d[a]);
+        if (d[a] < 0.f) te = std::min(te, (float(cell[a]) * scale * 0.5f - o[a]) * inv_d[a]);
+      }
     }
     return te;
   };
