@@ -772,7 +772,16 @@ Runner add_volume(CLI::App& app) {
       const auto t0 = std::chrono::steady_clock::now();
       const FrameStats fs = render_frame(volume, integrator, view, fo, &film);
       const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-      if (args->verbose) print_pass_stats(uint32_t(f), fs, giga_volume ? &*giga_volume : nullptr);
+      if (args->verbose) {
+        print_pass_stats(uint32_t(f), fs, giga_volume ? &*giga_volume : nullptr);
+        const VolumeIntegratorStats is = integrator.stats();
+        const double rays = double(std::max<uint64_t>(is.rays, 1));
+        std::fprintf(stderr,
+                     "frame %d: %llu rays (last pass), %.1f spans and %.1f brick samples per ray, "
+                     "%llu stopped by opacity\n",
+                     f, (unsigned long long)is.rays, double(is.spans) / rays,
+                     double(is.samples) / rays, (unsigned long long)is.early_terminations);
+      }
       if (f > 0) {
         later_seconds += s, later_rays += integrator.stats().rays;
         later_cpu += cpu_seconds() - c0;
