@@ -138,15 +138,27 @@ inline uint32_t child_bit(float* x) {
 /// so one 128-bit load holds both x neighbours of a (j, k) row and one
 /// vcvtph2ps makes them 8 floats; four loads and four lerps replace 32
 /// scalar loads and their weights.
+/// The lookup's first voxel along one axis and the weight of the next:
+/// u clamped into the stored grid, its integer part (at most M, so that
+/// i + 1 stays stored) and the fraction.
+inline int cell_weight(float u, float* f) {
+  const float c = std::clamp(u, 0.f, float(kBrickSide + 1));
+  const int i = std::min(int(c), kBrickSide);
+  *f = c - float(i);
+  return i;
+}
+
+/// trilinear() from the lookup's first voxel v and the weights f.
+inline void trilinear_at(const PoolVoxel* v, const float f[3], float scale, float acc[4]);
+
 inline void trilinear(const PoolVoxel* b, const float u[3], float scale, float acc[4]) {
   int i0[3];
   float f[3];
-  for (int a = 0; a < 3; ++a) {
-    const float c = std::clamp(u[a], 0.f, float(kBrickSide + 1));
-    i0[a] = std::min(int(c), kBrickSide);
-    f[a] = c - float(i0[a]);
-  }
-  const PoolVoxel* v = b + stored_index(i0[0], i0[1], i0[2]);
+  for (int a = 0; a < 3; ++a) i0[a] = cell_weight(u[a], &f[a]);
+  trilinear_at(b + stored_index(i0[0], i0[1], i0[2]), f, scale, acc);
+}
+
+inline void trilinear_at(const PoolVoxel* v, const float f[3], float scale, float acc[4]) {
   constexpr size_t kRow = kBrickStored, kSlice = size_t(kBrickStored) * kBrickStored;
 #if defined(__AVX2__) && defined(__FMA__) && defined(__F16C__)
   auto row = [v](size_t at) {
@@ -653,13 +665,31 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
       lk->B[a] = d[a] * scale;
     }
   };
-  auto lookup = [](const Lookup& lk, float tk, float acc[4]) {
+  // A chunk's lookups of one level in two loops: first every point's
+  // first voxel and weights (independent, branch-free arithmetic the
+  // compiler vectorizes across points), then the loads and lerps; the
+  // same operations on the same values as trilinear() per point.
+  constexpr int kMaxPoints = 64;
+  struct Cells {
+    int32_t at[kMaxPoints];  // stored_index of the first voxel
+    float f[kMaxPoints][3];  // weights of the next voxel along x, y, z
+  };
+  auto cells = [&](const Lookup& lk, const float* tp, int m, Cells* c) {
+    if (lk.brick == nullptr) return;
+    for (int k = 0; k < m; ++k) {
+      const float tk = tp[k];
+      const int i = cell_weight(lk.A[0] + lk.B[0] * tk, &c->f[k][0]);
+      const int j = cell_weight(lk.A[1] + lk.B[1] * tk, &c->f[k][1]);
+      const int l = cell_weight(lk.A[2] + lk.B[2] * tk, &c->f[k][2]);
+      c->at[k] = i + kBrickStored * (j + kBrickStored * l);
+    }
+  };
+  auto lookup = [](const Lookup& lk, const Cells& c, int k, float acc[4]) {
     if (lk.brick == nullptr) {
       std::copy(lk.value, lk.value + 4, acc);
       return;
     }
-    const float u[3] = {lk.A[0] + lk.B[0] * tk, lk.A[1] + lk.B[1] * tk, lk.A[2] + lk.B[2] * tk};
-    trilinear(lk.brick, u, lk.scale, acc);
+    trilinear_at(lk.brick + c.at[k], c.f[k], lk.scale, acc);
   };
   // Weight of the fine level per point: level L - 1 + w blends the parent
   // (1 - w) with the node (w), as sample()'s quadrilinear filter. Only the
@@ -667,8 +697,8 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
   // recyclable).
   const int L = region_of(node).level;
   const float max_level = float(producer_->max_level());
-  constexpr int kMaxPoints = 64;
   float w[kMaxPoints];
+  Cells fine_cells, coarse_cells;
   for (int k0 = 0; k0 < n; k0 += kMaxPoints) {
     const int m = std::min(kMaxPoints, n - k0);
     bool any_coarse = false, any_fine = false;
@@ -689,18 +719,18 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
         prepare(parent, &coarse);
       }
     }
-    if (any_fine) prepare(node, &fine);
+    if (any_fine) prepare(node, &fine), cells(fine, t + k0, m, &fine_cells);
+    if (any_coarse) cells(coarse, t + k0, m, &coarse_cells);
     for (int k = 0; k < m; ++k) {
       float acc[4];
-      const float tk = t[k0 + k];
       if (w[k] == 1.f) {
-        lookup(fine, tk, acc);
+        lookup(fine, fine_cells, k, acc);
       } else if (w[k] == 0.f) {
-        lookup(coarse, tk, acc);
+        lookup(coarse, coarse_cells, k, acc);
       } else {
         float a1[4];
-        lookup(fine, tk, a1);
-        lookup(coarse, tk, acc);
+        lookup(fine, fine_cells, k, a1);
+        lookup(coarse, coarse_cells, k, acc);
         for (int c = 0; c < 4; ++c) acc[c] += w[k] * (a1[c] - acc[c]);
       }
       out[k0 + k] = unpremultiply(acc, inv_size_);
