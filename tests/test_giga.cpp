@@ -261,17 +261,44 @@ TEST(Giga, ProducerBricksEqualDirectSampling) {
                 p->voxel(r.level, int64_t(r.x) * kBrickSide - 1 + i,
                          int64_t(r.y) * kBrickSide - 1 + j, int64_t(r.z) * kBrickSide - 1 + k);
             const BrickVoxel& b = rb.voxels[size_t(i + kBrickStored * (j + kBrickStored * k))];
-            ASSERT_EQ(b.density, v.density) << name << " level " << r.level;
-            ASSERT_EQ(b.r, v.color.r * v.density) << name;
-            ASSERT_EQ(b.b, v.color.b * v.density) << name;
+            // The pool holds halves (PoolVoxel): exactly the producer's
+            // value through stored_value's rounding.
+            ASSERT_EQ(b.density, stored_value(r.level, v.density)) << name << " level " << r.level;
+            ASSERT_EQ(b.r, stored_value(r.level, v.color.r * v.density)) << name;
+            ASSERT_EQ(b.b, stored_value(r.level, v.color.b * v.density)) << name;
           }
     }
   }
 }
 
+TEST(Giga, PoolVoxelsRoundToHalfPrecision) {
+  // PoolVoxel: the value per voxel side (2^-L / 8) as a binary16 rounded to
+  // nearest even. Exact where a half holds it, within 2^-11 relative
+  // elsewhere, saturated at 65504 per voxel, ties to even.
+  EXPECT_EQ(stored_value(0, 0.f), 0.f);
+  EXPECT_EQ(stored_value(0, 8.f), 8.f);            // 1 per voxel
+  EXPECT_EQ(stored_value(5, 3.f * 256.f), 768.f);  // 3 per voxel at level 5
+  EXPECT_EQ(stored_value(0, 8.f * 65504.f), 8.f * 65504.f);
+  EXPECT_EQ(stored_value(0, 8.f * 1e6f), 8.f * 65504.f);                          // saturated
+  EXPECT_EQ(stored_value(0, 8.f * (1.f + 0x1p-11f)), 8.f);                        // tie: to even
+  EXPECT_EQ(stored_value(0, 8.f * (1.f + 3 * 0x1p-11f)), 8.f * (1.f + 0x1p-9f));  // tie: up
+  EXPECT_EQ(stored_value(0, 8.f * 0x1p-24f), 8.f * 0x1p-24f);  // smallest subnormal
+  EXPECT_EQ(stored_value(0, 8.f * 0x1p-26f), 0.f);
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> mant(1.f, 2.f);
+  std::uniform_int_distribution<int> ex(-14, 14), lv(0, kMaxLevel);
+  for (int i = 0; i < 100000; ++i) {
+    const int level = lv(rng);
+    const float v = std::ldexp(mant(rng), ex(rng) + level + 3);
+    const float s = stored_value(level, v);
+    ASSERT_LE(std::fabs(s - v), std::ldexp(v, -11)) << v << " level " << level;
+  }
+}
+
 /// Trilinear interpolation of the producer's level-L voxel grid at unit-cube
 /// point q (voxel (x, y, z) centered at (x + 0.5) / (M 2^L)), written here
-/// from the producer's voxels alone.
+/// from the producer's voxels alone, each as the pool stores it
+/// (stored_value: half precision, the same in every brick that holds it).
 double trilinear_density(const Producer& p, int level, Vec3 q) {
   const double n = double(kBrickSide << level);
   double acc = 0;
@@ -285,7 +312,7 @@ double trilinear_density(const Producer& p, int level, Vec3 q) {
     for (int j = 0; j < 2; ++j)
       for (int i = 0; i < 2; ++i)
         acc += (i ? f[0] : 1 - f[0]) * (j ? f[1] : 1 - f[1]) * (k ? f[2] : 1 - f[2]) *
-               p.voxel(level, i0[0] + i, i0[1] + j, i0[2] + k).density;
+               stored_value(level, p.voxel(level, i0[0] + i, i0[1] + j, i0[2] + k).density);
   return acc;
 }
 

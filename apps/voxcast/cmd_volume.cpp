@@ -509,7 +509,7 @@ int volume_bench(const BenchArgs& a) {
   } else {
     const giga::Producer& p = *volume->source.producer;
     const int n = giga::kBrickSide << p.max_level();
-    const double dense = double(n) * n * n * double(sizeof(giga::BrickVoxel));
+    const double dense = double(n) * n * n * double(sizeof(giga::PoolVoxel));
     std::printf("volume      %s: %s, %d levels, finest %d^3 voxels (%s as dense bricks)\n",
                 printable(a.source).c_str(), p.name().c_str(), p.max_level() + 1, n,
                 format_bytes(dense).c_str());
@@ -724,8 +724,9 @@ int volume_info(const std::string& source, int resolution) {
   }
   const int n = giga::kBrickSide << producer->max_level();
   // The octree the producer fills: every level's voxels and what a dense
-  // copy of the finest level would take (16 bytes per voxel, BrickVoxel).
-  const double dense = double(n) * n * n * double(sizeof(giga::BrickVoxel));
+  // copy of the finest level would take in the brick pool (8 bytes per
+  // voxel, giga::PoolVoxel).
+  const double dense = double(n) * n * n * double(sizeof(giga::PoolVoxel));
   std::printf("octree      %d levels, finest %d^3 voxels (bricks of %d^3 + border)\n",
               producer->max_level() + 1, n, giga::kBrickSide);
   std::printf("dense size  %s at the finest level (the pools hold what rays ask for)\n",
@@ -989,7 +990,16 @@ Runner add_volume(CLI::App& app) {
       const auto t0 = std::chrono::steady_clock::now();
       const FrameStats fs = render_frame(volume, integrator, view, fo, &film);
       const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-      if (args->verbose) print_pass_stats(uint32_t(f), fs, giga_volume);
+      if (args->verbose) {
+        print_pass_stats(uint32_t(f), fs, giga_volume);
+        const VolumeIntegratorStats is = integrator.stats();
+        const double rays = double(std::max<uint64_t>(is.rays, 1));
+        std::fprintf(stderr,
+                     "frame %d: %llu rays (last pass), %.1f spans and %.1f brick samples per ray, "
+                     "%llu stopped by opacity\n",
+                     f, (unsigned long long)is.rays, double(is.spans) / rays,
+                     double(is.samples) / rays, (unsigned long long)is.early_terminations);
+      }
       if (f > 0) {
         later_seconds += s, later_rays += integrator.stats().rays;
         later_cpu += cpu_seconds() - c0;

@@ -55,19 +55,44 @@ constexpr int kBrickVoxels = kBrickStored * kBrickStored * kBrickStored;
 /// Deepest node level (localization codes hold 10 bits per axis, §3.6.6).
 constexpr int kMaxLevel = 10;
 
-/// One stored brick voxel, 16 bytes: extinction per unit-cube length and the
-/// color premultiplied by it (so that trilinear filtering of a voxel next to
-/// empty space does not darken its color; the color is (r, g, b) / density).
+/// One brick voxel as a producer makes it, 16 bytes: extinction per
+/// unit-cube length and the color premultiplied by it (so that trilinear
+/// filtering of a voxel next to empty space does not darken its color; the
+/// color is (r, g, b) / density).
 ///   byte 0: float density   byte 4: float r*density
 ///   byte 8: float g*density byte 12: float b*density
-/// Brick b of the pool is kBrickVoxels of these from voxel index
-/// b * kBrickVoxels, x fastest: stored (i, j, k) at i + 10 (j + 10 k), where
-/// stored i is voxel i - 1 of the node's M^3 grid (0 and M + 1: the border).
+/// A brick is kBrickVoxels of these, x fastest: stored (i, j, k) at
+/// i + 10 (j + 10 k), where stored i is voxel i - 1 of the node's M^3 grid
+/// (0 and M + 1: the border). The pool keeps them as PoolVoxel.
 struct BrickVoxel {
-  float density, r, g, b;  // trivial: the pool is allocated without writing it
+  float density, r, g, b;
 };
 static_assert(sizeof(BrickVoxel) == 16 && offsetof(BrickVoxel, r) == 4 &&
               offsetof(BrickVoxel, b) == 12);
+
+/// One voxel as the brick pool stores it, 8 bytes: BrickVoxel's four
+/// channels times the side of a voxel of the node's level (extinction per
+/// voxel: the optical depth across one voxel, a dimensionless number of
+/// the same range at every level), as IEEE 754 binary16 (half) floats,
+/// rounded to nearest even, saturated at the largest half (65504).
+///   byte 0: half density*v  byte 2: half r*density*v
+///   byte 4: half g*density*v byte 6: half b*density*v   (v = 2^-L / 8)
+/// Half of the 16-byte float voxel: warm frames are bound by brick loads
+/// (docs/BENCHMARKS.md, 2026-12-06), and twice the bricks fit a budget (the
+/// paper's pools trade precision for capacity the same way: §3.4 stores
+/// RGBA8 bricks in GPU textures). Relative rounding error at most 2^-11
+/// (values below 2^-14 per voxel: absolute 2^-25). The scale is a power of
+/// two, exact, and the same for a voxel in every brick that holds it as a
+/// border: neighbouring bricks' borders stay equal (seamless filtering).
+/// Same layout and order as BrickVoxel; brick b of the pool is
+/// kBrickVoxels of these from voxel index b * kBrickVoxels.
+struct PoolVoxel {
+  uint16_t density, r, g, b;  // trivial: the pool is allocated without writing it
+};
+static_assert(sizeof(PoolVoxel) == 8 && offsetof(PoolVoxel, r) == 2 && offsetof(PoolVoxel, b) == 6);
+/// What the pool gives back for channel value `value` (a BrickVoxel field)
+/// of a level-`level` voxel: the value through PoolVoxel's half rounding.
+float stored_value(int level, float value);
 
 // ---- Node pool layout (§3.4.2, Figure 3.5): two 32-bit words per node, in
 // two separate arrays (structure and data are read at different times of the
@@ -343,7 +368,7 @@ class GigaVoxels : public Structure, public VolumeQuery {
     uint32_t brick = 0;  // index in the brick pool
     uint32_t node = 0;   // the node that points to it
     NodeRegion region;
-    std::span<const BrickVoxel> voxels;
+    std::vector<BrickVoxel> voxels;  // decoded from the pool (PoolVoxel)
   };
   std::vector<ResidentBrick> resident_bricks() const;
   /// The usage lists (front = least recently used) and timestamps.
@@ -374,8 +399,12 @@ class GigaVoxels : public Structure, public VolumeQuery {
   std::vector<uint8_t> tile_depth_;
   std::vector<uint32_t> tile_parent_;  // node pointing to the tile; kNoNode when free
   std::vector<uint32_t> tile_usage_;   // LRU order of tiles 1.. (tile 0 is the root's)
-  // Brick pool.
-  std::unique_ptr<BrickVoxel[]> bricks_;
+  // Brick pool: one allocation aligned to 2 MiB huge pages (gigavoxels.cpp,
+  // allocate_brick_pool), released by PoolFree.
+  struct PoolFree {
+    void operator()(PoolVoxel* p) const noexcept;
+  };
+  std::unique_ptr<PoolVoxel[], PoolFree> bricks_;
   mutable std::vector<uint32_t> brick_stamp_;
   std::vector<uint32_t> brick_owner_;  // node holding the brick; kNoNode when free
   std::vector<uint32_t> brick_usage_;

@@ -16,8 +16,14 @@
 #include <atomic>
 #include <bit>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <map>
+#include <new>
+
+#if defined(__linux__)
+#include <sys/mman.h>
+#endif
 
 #include "voxcast/error.hpp"
 #include "voxcast/integrator.hpp"
@@ -29,13 +35,86 @@ constexpr uint32_t kNoNode = 0xFFFFFFFFu;
 // Bytes per element: a tile's 8 nodes x 2 words + stamp, code, depth,
 // parent, usage entry; a brick's voxels + stamp, owner, usage entry.
 constexpr uint64_t kTileBytes = 8 * 8 + 4 + 4 + 1 + 4 + 4;
-constexpr uint64_t kBrickBytes = uint64_t(kBrickVoxels) * sizeof(BrickVoxel) + 12;
+constexpr uint64_t kBrickBytes = uint64_t(kBrickVoxels) * sizeof(PoolVoxel) + 12;
 constexpr uint32_t kMaxPoolElements = uint32_t(1) << 26;
 
 /// 2^e, exactly (ldexp's value without its call: it sat in the descent's
 /// hot loop). e in [-126, 127].
 inline float pow2f(int e) {
   return std::bit_cast<float>(uint32_t(127 + e) << 23);
+}
+
+/// The brick pool's memory, uninitialized (rays read only bricks the
+/// producer wrote). A warm frame's samples hop between hundreds of bricks
+/// per ray (a brick and its parent at every step) spread over a pool of up
+/// to gigabytes: with 4 KiB pages nearly every brick access misses the
+/// TLB, and the profile's hottest instructions were the brick loads. The
+/// pool is aligned to 2 MiB and advised as huge pages (Linux transparent
+/// huge pages in "madvise" mode): one TLB entry then covers 256 bricks of
+/// 8 KB. Elsewhere (or when refused) ordinary pages, the same bytes.
+PoolVoxel* allocate_brick_pool(size_t voxels) {
+  constexpr size_t kHuge = size_t(2) << 20;
+  const size_t bytes = (voxels * sizeof(PoolVoxel) + kHuge - 1) / kHuge * kHuge;
+  void* p = std::aligned_alloc(kHuge, bytes);
+  if (p == nullptr) throw std::bad_alloc();
+#if defined(__linux__)
+  madvise(p, bytes, MADV_HUGEPAGE);  // advice only: failure leaves 4 KiB pages
+#endif
+  return static_cast<PoolVoxel*>(p);
+}
+
+/// binary16 of x, rounded to nearest even, saturated at +-65504 (NaN: 0).
+/// Integer arithmetic only: the same bits on every machine and ISA.
+uint16_t to_half(float x) {
+  const uint32_t bits = std::bit_cast<uint32_t>(x);
+  const uint16_t sign = uint16_t((bits >> 16) & 0x8000u);
+  const uint32_t mag = bits & 0x7FFFFFFFu;
+  if (mag > 0x7F800000u) return 0;                          // NaN
+  if (mag >= 0x477FF000u) return uint16_t(sign | 0x7BFFu);  // rounds above 65504
+  if (mag < 0x38800000u) {
+    // Below 2^-14: a subnormal half, in units of 2^-24. The float is
+    // sig 2^(exp - 150), i.e. sig 2^(exp - 126) units: one rounding right
+    // shift of the 24-bit significand.
+    const int exp = int(mag >> 23);
+    if (exp < 102) return sign;  // below 2^-25: rounds to 0
+    const uint32_t sig = (mag & 0x7FFFFFu) | 0x800000u;
+    const int shift = 126 - exp;  // 14..24: sig >> shift = units of 2^-24
+    const uint32_t q = sig >> shift, rem = sig & ((1u << shift) - 1u), half = 1u << (shift - 1);
+    return uint16_t(sign | (q + (rem > half || (rem == half && (q & 1u)))));
+  }
+  // Normal: rebias the exponent (127 - 15), keep 10 of the 23 mantissa bits
+  // and round; a carry out of the mantissa correctly bumps the exponent.
+  const uint32_t q = (mag - 0x38000000u) >> 13, rem = mag & 0x1FFFu;
+  return uint16_t(sign | (q + (rem > 0x1000u || (rem == 0x1000u && (q & 1u)))));
+}
+
+/// The float of binary16 h (exact).
+float from_half(uint16_t h) {
+  const uint32_t sign = uint32_t(h & 0x8000u) << 16, e = (h >> 10) & 0x1Fu, m = h & 0x3FFu;
+  if (e == 0) {
+    const float v = float(m) * 0x1p-24f;  // subnormal (or zero): exact
+    return sign ? -v : v;
+  }
+  if (e == 31) return std::bit_cast<float>(sign | 0x7F800000u | (m << 13));
+  return std::bit_cast<float>(sign | ((e + 112u) << 23) | (m << 13));
+}
+
+/// Pool scale of level L: the side of its voxel in unit-cube lengths,
+/// 2^-L / M (PoolVoxel), and its inverse.
+inline float voxel_side(int level) {
+  return pow2f(-level - 3);
+}
+inline float inv_voxel_side(int level) {
+  return pow2f(level + 3);
+}
+static_assert(kBrickSide == 8, "voxel_side's 2^-3 is 1 / kBrickSide");
+
+/// A producer's brick into the pool (PoolVoxel).
+void encode_brick(const BrickVoxel* in, int level, PoolVoxel* out) {
+  const float v = voxel_side(level);
+  for (int i = 0; i < kBrickVoxels; ++i)
+    out[i] = {to_half(in[i].density * v), to_half(in[i].r * v), to_half(in[i].g * v),
+              to_half(in[i].b * v)};
 }
 
 inline size_t stored_index(int i, int j, int k) {
@@ -54,41 +133,56 @@ inline uint32_t child_bit(float* x) {
 /// Trilinear lookup of a brick at stored coordinates u (stored voxel i is
 /// centered at u = i + 0.5; u is clamped into the stored grid). acc receives
 /// (density, r*density, g*density, b*density), the premultiplied layout of
-/// BrickVoxel. With AVX2: voxels i and i + 1 are adjacent (x fastest), so
-/// one 256-bit load holds both x neighbours of a (j, k) row; four loads and
-/// four lerps replace 32 scalar loads and their weights.
-inline void trilinear(const BrickVoxel* b, const float u[3], float acc[4]) {
+/// BrickVoxel, times `scale` (the level's inv_voxel_side: a power of two,
+/// exact). With F16C and AVX2: voxels i and i + 1 are adjacent (x fastest),
+/// so one 128-bit load holds both x neighbours of a (j, k) row and one
+/// vcvtph2ps makes them 8 floats; four loads and four lerps replace 32
+/// scalar loads and their weights.
+/// The lookup's first voxel along one axis and the weight of the next:
+/// u clamped into the stored grid, its integer part (at most M, so that
+/// i + 1 stays stored) and the fraction.
+inline int cell_weight(float u, float* f) {
+  const float c = std::clamp(u, 0.f, float(kBrickSide + 1));
+  const int i = std::min(int(c), kBrickSide);
+  *f = c - float(i);
+  return i;
+}
+
+/// trilinear() from the lookup's first voxel v and the weights f.
+inline void trilinear_at(const PoolVoxel* v, const float f[3], float scale, float acc[4]);
+
+inline void trilinear(const PoolVoxel* b, const float u[3], float scale, float acc[4]) {
   int i0[3];
   float f[3];
-  for (int a = 0; a < 3; ++a) {
-    const float c = std::clamp(u[a], 0.f, float(kBrickSide + 1));
-    i0[a] = std::min(int(c), kBrickSide);
-    f[a] = c - float(i0[a]);
-  }
-  const BrickVoxel* v = b + stored_index(i0[0], i0[1], i0[2]);
+  for (int a = 0; a < 3; ++a) i0[a] = cell_weight(u[a], &f[a]);
+  trilinear_at(b + stored_index(i0[0], i0[1], i0[2]), f, scale, acc);
+}
+
+inline void trilinear_at(const PoolVoxel* v, const float f[3], float scale, float acc[4]) {
   constexpr size_t kRow = kBrickStored, kSlice = size_t(kBrickStored) * kBrickStored;
-#if defined(__AVX2__) && defined(__FMA__)
-  const float* p = reinterpret_cast<const float*>(v);
-  const __m256 r00 = _mm256_loadu_ps(p), r10 = _mm256_loadu_ps(p + 4 * kRow);
-  const __m256 r01 = _mm256_loadu_ps(p + 4 * kSlice),
-               r11 = _mm256_loadu_ps(p + 4 * (kRow + kSlice));
+#if defined(__AVX2__) && defined(__FMA__) && defined(__F16C__)
+  auto row = [v](size_t at) {
+    return _mm256_cvtph_ps(_mm_loadu_si128(reinterpret_cast<const __m128i*>(v + at)));
+  };
+  const __m256 r00 = row(0), r10 = row(kRow), r01 = row(kSlice), r11 = row(kRow + kSlice);
   const __m256 fy = _mm256_set1_ps(f[1]), fz = _mm256_set1_ps(f[2]);
   // lerp(a, b, w) = a + w (b - a)
   const __m256 y0 = _mm256_fmadd_ps(fy, _mm256_sub_ps(r10, r00), r00);
   const __m256 y1 = _mm256_fmadd_ps(fy, _mm256_sub_ps(r11, r01), r01);
   const __m256 z = _mm256_fmadd_ps(fz, _mm256_sub_ps(y1, y0), y0);
   const __m128 x0 = _mm256_castps256_ps128(z), x1 = _mm256_extractf128_ps(z, 1);
-  _mm_storeu_ps(acc, _mm_fmadd_ps(_mm_set1_ps(f[0]), _mm_sub_ps(x1, x0), x0));
+  _mm_storeu_ps(
+      acc, _mm_mul_ps(_mm_fmadd_ps(_mm_set1_ps(f[0]), _mm_sub_ps(x1, x0), x0), _mm_set1_ps(scale)));
 #else
-  const BrickVoxel* c[8] = {v,          v + 1,          v + kRow,          v + kRow + 1,
-                            v + kSlice, v + kSlice + 1, v + kRow + kSlice, v + kRow + kSlice + 1};
+  const PoolVoxel* c[8] = {v,          v + 1,          v + kRow,          v + kRow + 1,
+                           v + kSlice, v + kSlice + 1, v + kRow + kSlice, v + kRow + kSlice + 1};
   for (int ch = 0; ch < 4; ++ch) {
     float w[8];
-    for (int n = 0; n < 8; ++n) w[n] = (&c[n]->density)[ch];
+    for (int n = 0; n < 8; ++n) w[n] = from_half((&c[n]->density)[ch]);
     const float y0 = w[0] + f[0] * (w[1] - w[0]), y1 = w[2] + f[0] * (w[3] - w[2]);
     const float y2 = w[4] + f[0] * (w[5] - w[4]), y3 = w[6] + f[0] * (w[7] - w[6]);
     const float z0 = y0 + f[1] * (y1 - y0), z1 = y2 + f[1] * (y3 - y2);
-    acc[ch] = z0 + f[2] * (z1 - z0);
+    acc[ch] = (z0 + f[2] * (z1 - z0)) * scale;
   }
 #endif
 }
@@ -166,6 +260,14 @@ size_t lru_compact(std::vector<uint32_t>* usage, const std::vector<uint32_t>& st
 
 }  // namespace
 
+void GigaVoxels::PoolFree::operator()(PoolVoxel* p) const noexcept {
+  std::free(p);
+}
+
+float stored_value(int level, float value) {
+  return from_half(to_half(value * voxel_side(level))) * inv_voxel_side(level);
+}
+
 uint32_t GigaVoxels::stamp(uint32_t frame, uint32_t pass) {
   return (((frame & 0x7FFFFFu) << 8) | std::min(pass, 255u)) + 1u;
 }
@@ -236,7 +338,7 @@ GigaVoxels::GigaVoxels(std::shared_ptr<const Producer> producer, GigaOptions opt
   tile_parent_.assign(size_t(tiles), kNoNode);
   tile_usage_.resize(size_t(tiles) - 1);
   for (uint32_t t = 1; t < tiles; ++t) tile_usage_[t - 1] = t;
-  bricks_ = std::make_unique_for_overwrite<BrickVoxel[]>(size_t(bricks) * kBrickVoxels);
+  bricks_.reset(allocate_brick_pool(size_t(bricks) * kBrickVoxels));
   brick_stamp_.assign(size_t(bricks), 0);
   brick_owner_.assign(size_t(bricks), kNoNode);
   brick_usage_.resize(size_t(bricks));
@@ -260,12 +362,19 @@ NodeRegion GigaVoxels::region_of(uint32_t node) const {
           2 * LocY::get(code) + ((c >> 1) & 1u), 2 * LocZ::get(code) + (c >> 2)};
 }
 
+// Every ray writes the same value: a relaxed store, no read-modify-write,
+// and only when the stamp differs. Rays touch the same tiles and bricks
+// over and over (every descent passes the upper tiles, every span stamps
+// its bricks); an unconditional store would dirty the line each time and,
+// with two threads, bounce it between their caches, where a load of an
+// already-stamped line stays shared.
 void GigaVoxels::touch_tile(uint32_t tile, uint32_t s) const {
-  // Every ray writes the same value: a relaxed store, no read-modify-write.
-  std::atomic_ref<uint32_t>(tile_stamp_[tile]).store(s, std::memory_order_relaxed);
+  std::atomic_ref<uint32_t> stamp(tile_stamp_[tile]);
+  if (stamp.load(std::memory_order_relaxed) != s) stamp.store(s, std::memory_order_relaxed);
 }
 void GigaVoxels::touch_brick(uint32_t brick, uint32_t s) const {
-  std::atomic_ref<uint32_t>(brick_stamp_[brick]).store(s, std::memory_order_relaxed);
+  std::atomic_ref<uint32_t> stamp(brick_stamp_[brick]);
+  if (stamp.load(std::memory_order_relaxed) != s) stamp.store(s, std::memory_order_relaxed);
 }
 
 void GigaVoxels::begin_frame(const FrameView& view) {
@@ -301,6 +410,19 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
   int n = 0;
   uint32_t fallback = kNoNode;  // the located node's deepest ancestor with data
   int fallback_level = 0;
+  // The footprint never shrinks along the ray (no depth-of-field segment
+  // before its focus): a condition of the empty-sibling jump below.
+  const bool grows = lod.size_per_t >= 0.f;
+  // All 8 nodes of tile t hold empty constants (no span, no request).
+  auto empty_tile = [this](uint32_t t) {
+    for (uint32_t n = t * 8; n < t * 8 + 8; ++n) {
+      const uint32_t dw = data_[n];
+      if (NodeDataKind::get(dw) != kDataConstant ||
+          constants_[NodeDataPayload::get(dw)].density > 0.f)
+        return false;
+    }
+    return true;
+  };
   auto locate = [&](float, const float* x, float foot) {
     // Descent by point location (§3.5.3): the child at level l + 1 is bit 0
     // of the cell floor(x 2^(l+1)), the paper's c + int(2x) unrolled.
@@ -348,12 +470,35 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
     if (fallback != kNoNode)
       while (path[fallback_level] != fallback) ++fallback_level;
     if (fallback != node && !asked) push_request(ctx, this, kRequestData, node, level);
-    // Exit of the node's box [cell, cell + 1] / 2^level.
-    const float scale = pow2f(-level);
+    // Empty space at the cone's level (most nodes a ray meets in a cloud's
+    // surroundings): when the node and its 7 siblings are all empty
+    // constants and the cone stays between the parent's voxel and theirs
+    // until the parent's exit, every sibling the ray would visit next stops
+    // at this level (the footprint only grows), emits nothing and asks for
+    // nothing, so the walk jumps to the parent's exit at once: the same
+    // spans for one locate instead of up to four (§3.5.1 skips empty space
+    // by the octree's constant nodes; this skips where the octree keeps
+    // empty leaves the producer could not prove empty at the coarser level).
+    int exit_level = level;
+    if (!asked && fallback == node && level > 0 && grows && voxel_world(level) <= foot &&
+        empty_tile(node >> 3))
+      exit_level = level - 1;
+    // Exit of the box [cell, cell + 1] / 2^level (of its parent: cell / 2).
+    const int up = level - exit_level;
+    const float scale = pow2f(-exit_level);
     float te = t1;
     for (int a = 0; a < 3; ++a) {
-      if (d[a] > 0.f) te = std::min(te, (float(cell[a] + 1) * scale - o[a]) * inv_d[a]);
-      if (d[a] < 0.f) te = std::min(te, (float(cell[a]) * scale - o[a]) * inv_d[a]);
+      const uint32_t c = cell[a] >> up;
+      if (d[a] > 0.f) te = std::min(te, (float(c + 1) * scale - o[a]) * inv_d[a]);
+      if (d[a] < 0.f) te = std::min(te, (float(c) * scale - o[a]) * inv_d[a]);
+    }
+    // ...and only if the cone does not reach the parent's voxel before it.
+    if (up > 0 && !(lod.size_at_origin + lod.size_per_t * te < voxel_world(exit_level))) {
+      te = t1;
+      for (int a = 0; a < 3; ++a) {
+        if (d[a] > 0.f) te = std::min(te, (float(cell[a] + 1) * scale * 0.5f - o[a]) * inv_d[a]);
+        if (d[a] < 0.f) te = std::min(te, (float(cell[a]) * scale * 0.5f - o[a]) * inv_d[a]);
+      }
     }
     return te;
   };
@@ -393,7 +538,7 @@ VolumeSample GigaVoxels::node_value(uint32_t node, int level, const uint32_t cel
   float u[3];
   for (int a = 0; a < 3; ++a) u[a] = (q[a] * scale - float(cell[a])) * float(kBrickSide) + 0.5f;
   float acc[4];
-  trilinear(&bricks_[size_t(payload) * kBrickVoxels], u, acc);
+  trilinear(&bricks_[size_t(payload) * kBrickVoxels], u, inv_voxel_side(level), acc);
   return unpremultiply(acc, inv_size_);
 }
 
@@ -494,9 +639,10 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
   // One level's lookup along the ray as an affine map of t: stored
   // coordinate u_a(t) = A_a + B_a t (node_value's mapping with q = o + d t).
   struct Lookup {
-    const BrickVoxel* brick = nullptr;  // null: constant `value`
-    float value[4] = {0, 0, 0, 0};      // premultiplied, unit-cube density
+    const PoolVoxel* brick = nullptr;  // null: constant `value`
+    float value[4] = {0, 0, 0, 0};     // premultiplied, unit-cube density
     float A[3], B[3];
+    float scale = 1.f;  // inv_voxel_side of the brick's level
   };
   const Vec3 o = (ray.origin - options_.origin) * inv_size_, d = ray.dir * inv_size_;
   auto prepare = [&](uint32_t nd, Lookup* lk) {
@@ -511,6 +657,7 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
     touch_brick(b, s);
     lk->brick = &bricks_[size_t(b) * kBrickVoxels];
     const NodeRegion r = region_of(nd);
+    lk->scale = inv_voxel_side(r.level);
     const float scale = pow2f(r.level) * float(kBrickSide);
     const uint32_t cell[3] = {r.x, r.y, r.z};
     for (int a = 0; a < 3; ++a) {
@@ -518,13 +665,31 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
       lk->B[a] = d[a] * scale;
     }
   };
-  auto lookup = [](const Lookup& lk, float tk, float acc[4]) {
+  // A chunk's lookups of one level in two loops: first every point's
+  // first voxel and weights (independent, branch-free arithmetic the
+  // compiler vectorizes across points), then the loads and lerps; the
+  // same operations on the same values as trilinear() per point.
+  constexpr int kMaxPoints = 64;
+  struct Cells {
+    int32_t at[kMaxPoints];  // stored_index of the first voxel
+    float f[kMaxPoints][3];  // weights of the next voxel along x, y, z
+  };
+  auto cells = [&](const Lookup& lk, const float* tp, int m, Cells* c) {
+    if (lk.brick == nullptr) return;
+    for (int k = 0; k < m; ++k) {
+      const float tk = tp[k];
+      const int i = cell_weight(lk.A[0] + lk.B[0] * tk, &c->f[k][0]);
+      const int j = cell_weight(lk.A[1] + lk.B[1] * tk, &c->f[k][1]);
+      const int l = cell_weight(lk.A[2] + lk.B[2] * tk, &c->f[k][2]);
+      c->at[k] = i + kBrickStored * (j + kBrickStored * l);
+    }
+  };
+  auto lookup = [](const Lookup& lk, const Cells& c, int k, float acc[4]) {
     if (lk.brick == nullptr) {
       std::copy(lk.value, lk.value + 4, acc);
       return;
     }
-    const float u[3] = {lk.A[0] + lk.B[0] * tk, lk.A[1] + lk.B[1] * tk, lk.A[2] + lk.B[2] * tk};
-    trilinear(lk.brick, u, acc);
+    trilinear_at(lk.brick + c.at[k], c.f[k], lk.scale, acc);
   };
   // Weight of the fine level per point: level L - 1 + w blends the parent
   // (1 - w) with the node (w), as sample()'s quadrilinear filter. Only the
@@ -532,8 +697,8 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
   // recyclable).
   const int L = region_of(node).level;
   const float max_level = float(producer_->max_level());
-  constexpr int kMaxPoints = 64;
   float w[kMaxPoints];
+  Cells fine_cells, coarse_cells;
   for (int k0 = 0; k0 < n; k0 += kMaxPoints) {
     const int m = std::min(kMaxPoints, n - k0);
     bool any_coarse = false, any_fine = false;
@@ -554,18 +719,18 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
         prepare(parent, &coarse);
       }
     }
-    if (any_fine) prepare(node, &fine);
+    if (any_fine) prepare(node, &fine), cells(fine, t + k0, m, &fine_cells);
+    if (any_coarse) cells(coarse, t + k0, m, &coarse_cells);
     for (int k = 0; k < m; ++k) {
       float acc[4];
-      const float tk = t[k0 + k];
       if (w[k] == 1.f) {
-        lookup(fine, tk, acc);
+        lookup(fine, fine_cells, k, acc);
       } else if (w[k] == 0.f) {
-        lookup(coarse, tk, acc);
+        lookup(coarse, coarse_cells, k, acc);
       } else {
         float a1[4];
-        lookup(fine, tk, a1);
-        lookup(coarse, tk, acc);
+        lookup(fine, fine_cells, k, a1);
+        lookup(coarse, coarse_cells, k, acc);
         for (int c = 0; c < 4; ++c) acc[c] += w[k] * (a1[c] - acc[c]);
       }
       out[k0 + k] = unpremultiply(acc, inv_size_);
@@ -704,8 +869,8 @@ PassOutcome GigaVoxels::end_pass(std::span<const Request> requests) {
     } else {
       if (next_brick == new_bricks) continue;  // pending: no brick left in this pass
       const uint32_t b = brick_usage_[next_brick++];
-      std::memcpy(&bricks_[size_t(b) * kBrickVoxels], &produced_voxels[i * kBrickVoxels],
-                  sizeof(BrickVoxel) * kBrickVoxels);
+      encode_brick(&produced_voxels[i * kBrickVoxels], region_of(node).level,
+                   &bricks_[size_t(b) * kBrickVoxels]);
       brick_owner_[b] = node, brick_stamp_[b] = now;
       word = NodeDataKind::put(kDataBrick) | NodeDataPayload::put(b);
       ++st.bricks_uploaded;
@@ -814,10 +979,16 @@ std::string GigaVoxels::validate() const {
 std::vector<GigaVoxels::ResidentBrick> GigaVoxels::resident_bricks() const {
   std::vector<ResidentBrick> out;
   for (uint32_t b = 0; b < brick_capacity(); ++b)
-    if (brick_owner_[b] != kNoNode)
-      out.push_back(
-          {b, brick_owner_[b], region_of(brick_owner_[b]),
-           std::span<const BrickVoxel>(&bricks_[size_t(b) * kBrickVoxels], kBrickVoxels)});
+    if (brick_owner_[b] != kNoNode) {
+      ResidentBrick rb{b, brick_owner_[b], region_of(brick_owner_[b]), {}};
+      const PoolVoxel* in = &bricks_[size_t(b) * kBrickVoxels];
+      const float s = inv_voxel_side(rb.region.level);
+      rb.voxels.resize(kBrickVoxels);
+      for (int i = 0; i < kBrickVoxels; ++i)
+        rb.voxels[size_t(i)] = {from_half(in[i].density) * s, from_half(in[i].r) * s,
+                                from_half(in[i].g) * s, from_half(in[i].b) * s};
+      out.push_back(std::move(rb));
+    }
   return out;
 }
 
