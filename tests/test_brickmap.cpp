@@ -544,6 +544,66 @@ TEST(BrickmapSkip, TheSameHitsWithAndWithoutTheBrickTest) {
   EXPECT_LT(steps_on, steps_off);
 }
 
+// The cubes inside a brick an LOD footprint may stop at, tested from the
+// brick's folded mask against the reference (the general loop's per-cube
+// occupancy test): the same hits bit for bit, with footprints that stop in
+// the pyramid, at bricks and at 2^3 and 4^3 blocks inside them.
+TEST(BrickmapSkip, TheSameLodHitsWithAndWithoutTheBlockMasks) {
+  struct Restore {
+    ~Restore() { brickmap::detail::brick_block_masks = true; }
+  } restore;
+  std::vector<VoxelSet> sets;
+  const std::pair<int, size_t> placed[] = {{5, 6000}, {7, 30000}, {8, 0}, {8, 60000}};
+  int k = 0;
+  for (const auto& [levels, count] : placed)
+    sets.push_back(testing::make_placed_case(levels, count, 500 + k, k)), ++k;
+  const Mesh mesh = load_mesh(testing::test_mesh("spot.obj"));
+  sets.push_back(voxelize(mesh, GridTransform::fit(mesh.bounds(), 256), {}));
+  uint64_t rays = 0, hits = 0, coarse = 0, steps_ref = 0, steps_fast = 0;
+  for (size_t i = 0; i < sets.size(); ++i) {
+    const VoxelSet& set = sets[i];
+    const BrickmapStructure s(std::make_shared<World>(build_world(set)));
+    const GridTransform& g = set.grid;
+    const float vs = float(g.voxel_size);
+    const LodFootprint lods[] = {{0.f, vs * 0.01f},
+                                 {vs * 2.5f, vs * 0.004f},
+                                 {vs * 5.f, 0.f},
+                                 {0.f, vs * 0.05f},
+                                 {vs * 1.2f, vs * 0.02f}};
+    testing::OctreeRayGen gen(91 + i, g.levels);
+    for (int n = 0; n < 15000; ++n) {
+      Vec3 p, d;
+      gen.next(&p, &d);
+      const Ray ray{g.origin + (p - Vec3{1, 1, 1}) * float(g.side()), d, INFINITY};
+      const LodFootprint& lod = lods[n % 5];
+      SurfaceHit want{}, got{};
+      TraceContext c1, c2;
+      c1.counting = c2.counting = true;
+      brickmap::detail::brick_block_masks = false;
+      const bool hit = s.trace(ray, lod, c1, &want);
+      brickmap::detail::brick_block_masks = true;
+      ASSERT_EQ(s.trace(ray, lod, c2, &got), hit) << "set " << i << " ray " << n;
+      steps_ref += c1.counters.iterations, steps_fast += c2.counters.iterations;
+      ++rays;
+      if (!hit) continue;
+      ++hits, coarse += want.level < int(g.levels);
+      ASSERT_EQ(std::memcmp(&got.t, &want.t, sizeof(float)), 0)
+          << "set " << i << " ray " << n << " t " << got.t << " want " << want.t;
+      ASSERT_EQ(std::memcmp(&got.position, &want.position, sizeof(Vec3)), 0)
+          << "set " << i << " ray " << n;
+      ASSERT_EQ(got.child, want.child) << "set " << i << " ray " << n;
+      ASSERT_EQ(got.level, want.level) << "set " << i << " ray " << n;
+      ASSERT_EQ(got.voxel_ref, want.voxel_ref) << "set " << i << " ray " << n;
+    }
+  }
+  std::printf("block masks: %llu rays, %llu hits (%llu above the voxels), %llu steps\n",
+              (unsigned long long)rays, (unsigned long long)hits, (unsigned long long)coarse,
+              (unsigned long long)steps_fast);
+  EXPECT_GE(hits, rays / 5);
+  EXPECT_GE(coarse, hits / 4);
+  EXPECT_EQ(steps_fast, steps_ref);  // the same DDA steps, only the occupancy test differs
+}
+
 // ---------------------------------------------------------------------------
 // The same voxels as ESVO sees them: render both with one camera.
 

@@ -12,4 +12,11 @@ namespace voxcast::brickmap::detail {
 enum class BrickSkip { Simd, Scalar, Off };
 extern BrickSkip brick_skip_mode;
 
+/// How the walk tests the cubes inside a brick an LOD footprint may stop
+/// at: true (the default) from the brick's mask folded once per cube walk
+/// (traverse.cpp, visit_blocks), false with the general loop's per-cube
+/// occupancy test (the reference). The same hits either way; not
+/// thread-safe, as above.
+extern bool brick_block_masks;
+
 }  // namespace voxcast::brickmap::detail

@@ -29,6 +29,7 @@ namespace voxcast::brickmap {
 
 namespace detail {
 BrickSkip brick_skip_mode = BrickSkip::Simd;
+bool brick_block_masks = true;
 }  // namespace detail
 
 namespace {
@@ -501,10 +502,12 @@ struct Walker {
           stop(B, d.cell(), cell, nullptr, d.t, d.axis);
           return Step::Hit;
         }
-        // Straight to the brick's voxels when no LOD stop can come in between
-        // (visit()'s first case, without the call).
-        const Step s = child_level(B, cexit) == L
-                           ? visit_voxels(cell_brick(cell), d.cell(), d.t, d.axis, cexit)
+        // Straight to the brick's voxels when no LOD stop can come in between,
+        // else to its blocks (visit()'s cases, without the call).
+        const int bl = child_level(B, cexit);
+        const Step s = bl == L ? visit_voxels(cell_brick(cell), d.cell(), d.t, d.axis, cexit)
+                       : detail::brick_block_masks
+                           ? visit_blocks(B, bl, d.cell(), cell, d.t, d.axis)
                            : visit(B, d.cell(), cexit, cell, d.t, d.axis);
         if (s != Step::Exit) return s;
       }
@@ -581,6 +584,48 @@ struct Walker {
     }
   }
 
+  // The cubes at level cl > B (side 2^s voxels, s = L - cl <= 2) of the
+  // cube (level, pc) inside the resident brick of cell `pcell`: the cubes an
+  // LOD footprint of 1 to 8 voxels may stop at (§4.1, §5.3). visit()'s
+  // general loop asked occupied() per cube (cell load, state, brick, then a
+  // block's rows slice by slice); here the brick's 512-bit mask (§3.3) is
+  // folded once per call into one bit per cube: the OR of each slab of 2^s
+  // z slices, then of 2^s neighbours in x and y, so bit (8 y + x) 2^s of
+  // slab z says whether block (x, y, z) holds a solid voxel, as
+  // block_solid() does. The same DDA, stops and descents, so the same hits
+  // (BrickmapSkip.TheSameLodHitsWithAndWithoutTheBlockMasks).
+  Step visit_blocks(int level, int cl, Int3 pc, uint32_t pcell, float t, int axis) {
+    const Brick& b = w.brick(cell_brick(pcell));
+    const int s = L - cl;
+    const int mm = (8 >> s) - 1;  // a block's coordinate within the brick
+    uint64_t m[8];
+    for (int k = 0; k <= mm; ++k) {
+      uint64_t v = 0;
+      for (int j = 0; j < 1 << s; ++j) v |= b.mask[(k << s) + j];
+      for (int i = 0; i < s; ++i) v |= v >> (1 << i), v |= v >> (8 << i);
+      m[k] = v;
+    }
+    Dda d = begin(cl, cl - level, pc, t, axis);
+    for (;;) {
+      if constexpr (kCount) {
+        ++ctx.counters.iterations;
+        if (cl == L) ++ctx.counters.intersects;
+      }
+      const int bit = ((d.c[1] & mm) << s) * 8 + ((d.c[0] & mm) << s);
+      if ((m[d.c[2] & mm] >> bit) & 1) {
+        const float cexit = d.exit();
+        if (cl == L || lod_stop(cl, cexit)) {
+          stop(cl, d.cell(), pcell, nullptr, d.t, d.axis);
+          return Step::Hit;
+        }
+        const Step st = visit(cl, d.cell(), cexit, pcell, d.t, d.axis);
+        if (st != Step::Exit) return st;
+      }
+      const int st = advance(d, r, t1);
+      if (st > 2) return end_of(st);
+    }
+  }
+
   // Walks the children of the occupied cube (level, pc), entered at t
   // through the plane of `axis`; Exit when the ray leaves it (the caller
   // steps across its exit plane itself). `pcell`: its brickgrid cell when it
@@ -590,6 +635,7 @@ struct Walker {
     if (cl == L && level == B && B >= 0) return visit_voxels(cell_brick(pcell), pc, t, axis, exit);
     if (cl < B) return visit_nodes(level, cl, pc, t, axis);
     if (cl == B) return visit_cells(level, pc, t, axis);
+    if (B >= 0 && detail::brick_block_masks) return visit_blocks(level, cl, pc, pcell, t, axis);
     // The blocks inside a brick an LOD footprint may stop at, and grids
     // below 8^3 (B < 0): the general loop.
     Dda d = begin(cl, cl - level, pc, t, axis);
