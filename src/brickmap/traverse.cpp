@@ -618,7 +618,8 @@ struct Walker {
           stop(cl, d.cell(), pcell, nullptr, d.t, d.axis);
           return Step::Hit;
         }
-        const Step st = visit(cl, d.cell(), cexit, pcell, d.t, d.axis);
+        // visit()'s case for a cube inside a brick, without its frame.
+        const Step st = visit_blocks(cl, child_level(cl, cexit), d.cell(), pcell, d.t, d.axis);
         if (st != Step::Exit) return st;
       }
       const int st = advance(d, r, t1);
