@@ -22,6 +22,7 @@
 #include <string>
 #include <vector>
 
+#include "brickmap/brick_skip.hpp"
 #include "support/cli_runner.hpp"
 #include "support/dda_oracle.hpp"
 #include "support/esvo_testing.hpp"
@@ -470,6 +471,137 @@ TEST(BrickmapOracle, BeamStartGivesTheSameImages) {
         }
       }
   EXPECT_GT(hits, 0u);
+}
+
+// The brick test before a brick's voxel DDA (traverse.cpp, brick_slices)
+// only skips DDAs that find nothing: the SIMD test, its scalar reference and
+// no test at all give bit-identical hits (t, position, face, level, voxel) on
+// the oracle's ray mix (grid-plane origins, axis-parallel rays with signed
+// zeros, near-axis rays, origins inside voxels), on placed cases and on a
+// mesh world far from the origin, with and without an LOD footprint; and the
+// test does skip (fewer DDA steps).
+TEST(BrickmapSkip, TheSameHitsWithAndWithoutTheBrickTest) {
+  struct Restore {
+    ~Restore() { brickmap::detail::brick_skip_mode = brickmap::detail::BrickSkip::Simd; }
+  } restore;
+  std::vector<VoxelSet> sets;
+  const std::pair<int, size_t> placed[] = {{5, 6000}, {6, 0}, {7, 30000}, {8, 0}, {8, 60000}};
+  int k = 0;
+  for (const auto& [levels, count] : placed)
+    sets.push_back(testing::make_placed_case(levels, count, 300 + k, k)), ++k;
+  const Mesh mesh = load_mesh(testing::test_mesh("spot.obj"));
+  sets.push_back(voxelize(mesh, GridTransform::fit(mesh.bounds(), 256), {}));
+  uint64_t rays = 0, hits = 0, steps_off = 0, steps_on = 0;
+  for (size_t i = 0; i < sets.size(); ++i) {
+    const VoxelSet& set = sets[i];
+    const BrickmapStructure s(std::make_shared<World>(build_world(set)));
+    const GridTransform& g = set.grid;
+    testing::OctreeRayGen gen(77 + i, g.levels);
+    for (int n = 0; n < 20000; ++n) {
+      Vec3 p, d;
+      gen.next(&p, &d);
+      if (n % 8 == 7 && !set.codes.empty()) {
+        const MortonCoord c = morton_decode(set.codes[size_t(gen.pick(int(set.codes.size())))]);
+        p = Vec3{1, 1, 1} + Vec3{float(c.x) + gen.uni(0, 1), float(c.y) + gen.uni(0, 1),
+                                 float(c.z) + gen.uni(0, 1)} *
+                                float(1.0 / g.resolution);
+      }
+      const Ray ray{g.origin + (p - Vec3{1, 1, 1}) * float(g.side()), d, INFINITY};
+      const LodFootprint lod =
+          n % 3 == 0 ? LodFootprint{0.f, float(g.voxel_size) * 0.01f} : LodFootprint{};
+      SurfaceHit want{}, got{};
+      TraceContext ctx;
+      ctx.counting = true;
+      brickmap::detail::brick_skip_mode = brickmap::detail::BrickSkip::Off;
+      const bool hit = s.trace(ray, lod, ctx, &want);
+      steps_off += ctx.counters.iterations;
+      ctx.counters = {};
+      for (const brickmap::detail::BrickSkip mode :
+           {brickmap::detail::BrickSkip::Scalar, brickmap::detail::BrickSkip::Simd}) {
+        brickmap::detail::brick_skip_mode = mode;
+        TraceContext c2;
+        c2.counting = true;
+        ASSERT_EQ(s.trace(ray, lod, c2, &got), hit) << "set " << i << " ray " << n;
+        if (mode == brickmap::detail::BrickSkip::Simd) steps_on += c2.counters.iterations;
+        if (!hit) continue;
+        ASSERT_EQ(std::memcmp(&got.t, &want.t, sizeof(float)), 0)
+            << "set " << i << " ray " << n << " t " << got.t << " want " << want.t << " face "
+            << got.child << " want " << want.child << " ref " << got.voxel_ref << " want "
+            << want.voxel_ref;
+        ASSERT_EQ(std::memcmp(&got.position, &want.position, sizeof(Vec3)), 0)
+            << "set " << i << " ray " << n;
+        ASSERT_EQ(got.child, want.child);
+        ASSERT_EQ(got.level, want.level);
+        ASSERT_EQ(got.voxel_ref, want.voxel_ref) << "set " << i << " ray " << n;
+      }
+      ++rays, hits += hit;
+    }
+  }
+  std::printf("brick test: %llu rays, %llu hits, %llu steps without, %llu with\n",
+              (unsigned long long)rays, (unsigned long long)hits, (unsigned long long)steps_off,
+              (unsigned long long)steps_on);
+  EXPECT_GE(hits, rays / 5);
+  EXPECT_LT(steps_on, steps_off);
+}
+
+// The cubes inside a brick an LOD footprint may stop at, tested from the
+// brick's folded mask against the reference (the general loop's per-cube
+// occupancy test): the same hits bit for bit, with footprints that stop in
+// the pyramid, at bricks and at 2^3 and 4^3 blocks inside them.
+TEST(BrickmapSkip, TheSameLodHitsWithAndWithoutTheBlockMasks) {
+  struct Restore {
+    ~Restore() { brickmap::detail::brick_block_masks = true; }
+  } restore;
+  std::vector<VoxelSet> sets;
+  const std::pair<int, size_t> placed[] = {{5, 6000}, {7, 30000}, {8, 0}, {8, 60000}};
+  int k = 0;
+  for (const auto& [levels, count] : placed)
+    sets.push_back(testing::make_placed_case(levels, count, 500 + k, k)), ++k;
+  const Mesh mesh = load_mesh(testing::test_mesh("spot.obj"));
+  sets.push_back(voxelize(mesh, GridTransform::fit(mesh.bounds(), 256), {}));
+  uint64_t rays = 0, hits = 0, coarse = 0, steps_ref = 0, steps_fast = 0;
+  for (size_t i = 0; i < sets.size(); ++i) {
+    const VoxelSet& set = sets[i];
+    const BrickmapStructure s(std::make_shared<World>(build_world(set)));
+    const GridTransform& g = set.grid;
+    const float vs = float(g.voxel_size);
+    const LodFootprint lods[] = {{0.f, vs * 0.01f},
+                                 {vs * 2.5f, vs * 0.004f},
+                                 {vs * 5.f, 0.f},
+                                 {0.f, vs * 0.05f},
+                                 {vs * 1.2f, vs * 0.02f}};
+    testing::OctreeRayGen gen(91 + i, g.levels);
+    for (int n = 0; n < 15000; ++n) {
+      Vec3 p, d;
+      gen.next(&p, &d);
+      const Ray ray{g.origin + (p - Vec3{1, 1, 1}) * float(g.side()), d, INFINITY};
+      const LodFootprint& lod = lods[n % 5];
+      SurfaceHit want{}, got{};
+      TraceContext c1, c2;
+      c1.counting = c2.counting = true;
+      brickmap::detail::brick_block_masks = false;
+      const bool hit = s.trace(ray, lod, c1, &want);
+      brickmap::detail::brick_block_masks = true;
+      ASSERT_EQ(s.trace(ray, lod, c2, &got), hit) << "set " << i << " ray " << n;
+      steps_ref += c1.counters.iterations, steps_fast += c2.counters.iterations;
+      ++rays;
+      if (!hit) continue;
+      ++hits, coarse += want.level < int(g.levels);
+      ASSERT_EQ(std::memcmp(&got.t, &want.t, sizeof(float)), 0)
+          << "set " << i << " ray " << n << " t " << got.t << " want " << want.t;
+      ASSERT_EQ(std::memcmp(&got.position, &want.position, sizeof(Vec3)), 0)
+          << "set " << i << " ray " << n;
+      ASSERT_EQ(got.child, want.child) << "set " << i << " ray " << n;
+      ASSERT_EQ(got.level, want.level) << "set " << i << " ray " << n;
+      ASSERT_EQ(got.voxel_ref, want.voxel_ref) << "set " << i << " ray " << n;
+    }
+  }
+  std::printf("block masks: %llu rays, %llu hits (%llu above the voxels), %llu steps\n",
+              (unsigned long long)rays, (unsigned long long)hits, (unsigned long long)coarse,
+              (unsigned long long)steps_fast);
+  EXPECT_GE(hits, rays / 5);
+  EXPECT_GE(coarse, hits / 4);
+  EXPECT_EQ(steps_fast, steps_ref);  // the same DDA steps, only the occupancy test differs
 }
 
 // ---------------------------------------------------------------------------

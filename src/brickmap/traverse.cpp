@@ -16,12 +16,22 @@
 #include <atomic>
 #include <bit>
 #include <cmath>
+#if defined(__AVX2__)
+#include <immintrin.h>
+#endif
 
+#include "brickmap/brick_skip.hpp"
 #include "core/beam_frustum.hpp"
 #include "voxcast/brickmap.hpp"
 #include "voxcast/esvo.hpp"
 
 namespace voxcast::brickmap {
+
+namespace detail {
+BrickSkip brick_skip_mode = BrickSkip::Simd;
+bool brick_block_masks = true;
+}  // namespace detail
+
 namespace {
 
 // Fixed tie break (x, then y, then z) shared by every level.
@@ -85,6 +95,16 @@ struct Found {
   int c[3];   // the cube's coordinates at that level
   uint64_t ref;
 };
+
+// brick_slices()'s slack on axis a for a ray inside [0, t1]: the DDA's
+// cell at t follows from plane t values (plane_t) and its start cell from a
+// position (start_cell), each within a few ulps of |o| + |d| t (grid units)
+// of the position o + d t the box test computes; 2^-16 of that bound is
+// 128 ulps and more, and still a small fraction of a voxel in the grids
+// below 2^13 voxels the bricks are built for.
+inline float brick_slack(const GridRay& r, int a, float t1) {
+  return (std::fabs(r.o[a]) + std::fabs(r.d[a]) * t1) * 0x1p-16f + 0x1p-16f;
+}
 
 inline int face_of(const GridRay& r, int axis) {
   return axis * 2 + (r.up[axis] ? 1 : 0);
@@ -189,6 +209,10 @@ struct Walker {
   // The t a beam-started walk begins at (NaN otherwise): begin() at this t
   // finds its start cell by plane comparisons (start_cell_exact).
   float start_t = NAN;
+  // Per axis, a bound on how far (grid units) the positions computed in
+  // brick_slices() can lie from the ones the DDA's plane crossings imply
+  // (brick_slack).
+  float slack[3] = {0.f, 0.f, 0.f};
 
   // The cube side in world units: voxel_world 2^(L - level), exact in float
   // as in double (a power-of-two scale) and without a libm call per step.
@@ -292,11 +316,145 @@ struct Walker {
   // a brick with its mask at hand, brickgrid cells and pyramid nodes with
   // their index stepped instead of recomputed.
 
+  // §3.3, §4.1: a brick is one 512-bit mask, z slice k in mask[k] (bit
+  // 8 y + x). The voxels of slice k the DDA visits between t0 and te lie in
+  // the box of x and y the ray spans while its z is in [k, k + 1], each
+  // range widened by the slack (the DDA decides by plane t values, the box
+  // by positions: they differ by rounding only). Bit k is set when slice
+  // k's box meets the slice's solid bits; the DDA finds no hit in a slice
+  // whose bit is clear. A superset test, so the walk's hits do not depend
+  // on it (0xFF: every slice may hold one). The eight slices are eight float
+  // lanes (AVX2), the scalar loop is the reference (BrickmapSkip tests).
+  uint32_t brick_slices(const Brick& b, Int3 pc, float t0, float te) const {
+    float base[3];  // the ray origin relative to the brick's corner
+    for (int a = 0; a < 3; ++a) base[a] = r.o[a] - float(pc.v[a] << kBrickLog2);
+#if defined(__AVX2__)
+    if (detail::brick_skip_mode == detail::BrickSkip::Simd)
+      return brick_slices_avx2(b, base, t0, te);
+#endif
+    return detail::brick_skip_mode == detail::BrickSkip::Off ? 0xFFu
+                                                             : brick_slices_scalar(b, base, t0, te);
+  }
+
+  uint32_t brick_slices_scalar(const Brick& b, const float base[3], float t0, float te) const {
+    uint32_t slices = 0;
+    for (int k = 0; k < 8; ++k) {
+      const float ta = (float(k) - slack[2] - base[2]) * r.inv[2];
+      const float tb = (float(k) + (1.f + slack[2]) - base[2]) * r.inv[2];
+      const float lo = std::max(std::min(ta, tb), t0), hi = std::min(std::max(ta, tb), te);
+      if (!(lo <= hi)) continue;
+      int first[2], last[2];
+      for (int a = 0; a < 2; ++a) {
+        const float p0 = base[a] + r.d[a] * lo, p1 = base[a] + r.d[a] * hi;
+        const float f = std::floor(std::min(p0, p1) - slack[a]);
+        const float l = std::floor(std::max(p0, p1) + slack[a]);
+        first[a] = int(std::min(std::max(f, 0.f), 7.f));
+        last[a] = int(std::min(std::max(l, 0.f), 7.f));
+      }
+      const uint64_t row = (0xFFu << first[0]) & (0xFFu >> (7 - last[0]));
+      const uint64_t rows = (~uint64_t(0) << 8 * first[1]) & (~uint64_t(0) >> 8 * (7 - last[1]));
+      if (b.mask[k] & row * 0x0101010101010101u & rows) slices |= 1u << k;
+    }
+    return slices;
+  }
+
+#if defined(__AVX2__)
+  // brick_slices_scalar() with the slices in lanes, each 64-bit slice as
+  // its two 32-bit halves (rows 0-3, rows 4-7). Variable shifts of 32 or
+  // more give 0, which drops the rows outside a half.
+  uint32_t brick_slices_avx2(const Brick& b, const float base[3], float t0, float te) const {
+    // Lane order of the mask's deinterleaved dwords (below): slices 0 1 4 5 2 3 6 7.
+    const __m256 k = _mm256_setr_ps(0, 1, 4, 5, 2, 3, 6, 7);
+    const __m256 oz = _mm256_set1_ps(base[2]), iz = _mm256_set1_ps(r.inv[2]);
+    const __m256 ta =
+        _mm256_mul_ps(_mm256_sub_ps(_mm256_sub_ps(k, _mm256_set1_ps(slack[2])), oz), iz);
+    const __m256 tb =
+        _mm256_mul_ps(_mm256_sub_ps(_mm256_add_ps(k, _mm256_set1_ps(1.f + slack[2])), oz), iz);
+    const __m256 lo = _mm256_max_ps(_mm256_min_ps(ta, tb), _mm256_set1_ps(t0));
+    const __m256 hi = _mm256_min_ps(_mm256_max_ps(ta, tb), _mm256_set1_ps(te));
+    const __m256i valid = _mm256_castps_si256(_mm256_cmp_ps(lo, hi, _CMP_LE_OQ));
+    __m256i first[2], last[2];
+    for (int a = 0; a < 2; ++a) {
+      const __m256 o = _mm256_set1_ps(base[a]), d = _mm256_set1_ps(r.d[a]);
+      const __m256 e = _mm256_set1_ps(slack[a]);
+      const __m256 p0 = _mm256_add_ps(o, _mm256_mul_ps(d, lo));
+      const __m256 p1 = _mm256_add_ps(o, _mm256_mul_ps(d, hi));
+      const __m256 zero = _mm256_setzero_ps(), seven = _mm256_set1_ps(7.f);
+      const __m256 f = _mm256_floor_ps(_mm256_sub_ps(_mm256_min_ps(p0, p1), e));
+      const __m256 l = _mm256_floor_ps(_mm256_add_ps(_mm256_max_ps(p0, p1), e));
+      first[a] = _mm256_cvttps_epi32(_mm256_min_ps(_mm256_max_ps(f, zero), seven));
+      last[a] = _mm256_cvttps_epi32(_mm256_min_ps(_mm256_max_ps(l, zero), seven));
+    }
+    const __m256i ff = _mm256_set1_epi32(0xFF), ones = _mm256_set1_epi32(-1);
+    const __m256i seven = _mm256_set1_epi32(7), zero = _mm256_setzero_si256();
+    // Bits first..last of x, in every byte of the lane.
+    const __m256i row = _mm256_and_si256(_mm256_sllv_epi32(ff, first[0]),
+                                         _mm256_srlv_epi32(ff, _mm256_sub_epi32(seven, last[0])));
+    const __m256i spread = _mm256_setr_epi8(0, 0, 0, 0, 4, 4, 4, 4, 8, 8, 8, 8, 12, 12, 12, 12, 0,
+                                            0, 0, 0, 4, 4, 4, 4, 8, 8, 8, 8, 12, 12, 12, 12);
+    const __m256i xs = _mm256_and_si256(_mm256_shuffle_epi8(row, spread), valid);
+    // Rows first..last of y in the low half (rows 0-3) and the high half.
+    const __m256i y0 = _mm256_slli_epi32(first[1], 3), y1 = _mm256_slli_epi32(last[1], 3);
+    const __m256i c24 = _mm256_set1_epi32(24), c32 = _mm256_set1_epi32(32),
+                  c56 = _mm256_set1_epi32(56);
+    const __m256i low = _mm256_and_si256(
+        _mm256_sllv_epi32(ones, y0),
+        _mm256_srlv_epi32(ones, _mm256_max_epi32(_mm256_sub_epi32(c24, y1), zero)));
+    const __m256i high =
+        _mm256_and_si256(_mm256_sllv_epi32(ones, _mm256_max_epi32(_mm256_sub_epi32(y0, c32), zero)),
+                         _mm256_srlv_epi32(ones, _mm256_sub_epi32(c56, y1)));
+    const __m256 m0 = _mm256_loadu_ps(reinterpret_cast<const float*>(b.mask));
+    const __m256 m1 = _mm256_loadu_ps(reinterpret_cast<const float*>(b.mask + 4));
+    const __m256i mlo = _mm256_castps_si256(_mm256_shuffle_ps(m0, m1, _MM_SHUFFLE(2, 0, 2, 0)));
+    const __m256i mhi = _mm256_castps_si256(_mm256_shuffle_ps(m0, m1, _MM_SHUFFLE(3, 1, 3, 1)));
+    const __m256i hits = _mm256_and_si256(
+        xs, _mm256_or_si256(_mm256_and_si256(low, mlo), _mm256_and_si256(high, mhi)));
+    // Lane bits (slices 0 1 4 5 2 3 6 7) to slice bits.
+    const uint32_t lanes =
+        ~uint32_t(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(hits, zero)))) & 0xFFu;
+    return (lanes & 0xC3u) | (lanes & 0x0Cu) << 2 | (lanes & 0x30u) >> 2;
+  }
+#endif
+
+  // The voxel DDA `d` moved on to the state advance() reaches when it
+  // crosses into z slice `cz` ahead of it: the crossings come in (t, axis)
+  // order (argmin3's tie break; jump()'s argument), so every x and y
+  // crossing at or before that plane's t comes first. False when the ray
+  // leaves the brick or ends (t1) before.
+  bool enter_slice(Dda& d, int cz) const {
+    const float tz = plane_t(r, 2, float(cz + 1 - r.up[2]));
+    if (tz > t1) return false;
+    for (int b = 0; b < 2; ++b)
+      while (d.n[b] <= tz) {
+        d.c[b] += r.step[b];
+        if (uint32_t(d.c[b] - d.lo[b]) > d.span[b]) return false;
+        d.n[b] = plane_t(r, b, float(d.c[b] + r.up[b]));
+      }
+    d.c[2] = cz;
+    d.n[2] = plane_t(r, 2, float(cz + r.up[2]));
+    d.t = tz;
+    d.axis = 2;
+    return true;
+  }
+
   // The voxels of the resident brick `brick_index` (brickgrid cell pc) the
-  // ray crosses, from t.
-  Step visit_voxels(uint32_t brick_index, Int3 pc, float t, int axis) {
+  // ray crosses, from t to `exit` (the cell's exit t).
+  Step visit_voxels(uint32_t brick_index, Int3 pc, float t, int axis, float exit) {
     const Brick& b = w.brick(brick_index);
+    // A brick the ray crosses without touching a solid voxel is left without
+    // its DDA (the caller steps across the cell's exit plane, as after the
+    // DDA's own kExitParent; past t1 that step ends the ray, as kEndOfRay).
+    const uint32_t slices = brick_slices(b, pc, t, std::min(exit, t1));
+    if (slices == 0) return Step::Exit;
     Dda d = begin(L, kBrickLog2, pc, t, axis);
+    // The voxels the DDA visits before it enters the first slice that may
+    // hold a hit (in the ray's z order, from its start slice) are empty:
+    // go straight to that entry.
+    const int z0 = d.c[2] & 7;
+    const uint32_t ahead = r.up[2] ? slices >> z0 << z0 : slices & ((2u << z0) - 1);
+    if (ahead == 0) return Step::Exit;
+    const int k = r.up[2] ? std::countr_zero(ahead) : 31 - std::countl_zero(ahead);
+    if (k != z0 && !enter_slice(d, (pc.v[2] << kBrickLog2) + k)) return Step::Exit;
     for (;;) {
       if constexpr (kCount) ++ctx.counters.iterations, ++ctx.counters.intersects;
       const uint32_t bit =
@@ -344,10 +502,12 @@ struct Walker {
           stop(B, d.cell(), cell, nullptr, d.t, d.axis);
           return Step::Hit;
         }
-        // Straight to the brick's voxels when no LOD stop can come in between
-        // (visit()'s first case, without the call).
-        const Step s = child_level(B, cexit) == L
-                           ? visit_voxels(cell_brick(cell), d.cell(), d.t, d.axis)
+        // Straight to the brick's voxels when no LOD stop can come in between,
+        // else to its blocks (visit()'s cases, without the call).
+        const int bl = child_level(B, cexit);
+        const Step s = bl == L ? visit_voxels(cell_brick(cell), d.cell(), d.t, d.axis, cexit)
+                       : detail::brick_block_masks
+                           ? visit_blocks(B, bl, d.cell(), cell, d.t, d.axis)
                            : visit(B, d.cell(), cexit, cell, d.t, d.axis);
         if (s != Step::Exit) return s;
       }
@@ -424,15 +584,59 @@ struct Walker {
     }
   }
 
+  // The cubes at level cl > B (side 2^s voxels, s = L - cl <= 2) of the
+  // cube (level, pc) inside the resident brick of cell `pcell`: the cubes an
+  // LOD footprint of 1 to 8 voxels may stop at (§4.1, §5.3). visit()'s
+  // general loop asked occupied() per cube (cell load, state, brick, then a
+  // block's rows slice by slice); here the brick's 512-bit mask (§3.3) is
+  // folded once per call into one bit per cube: the OR of each slab of 2^s
+  // z slices, then of 2^s neighbours in x and y, so bit (8 y + x) 2^s of
+  // slab z says whether block (x, y, z) holds a solid voxel, as
+  // block_solid() does. The same DDA, stops and descents, so the same hits
+  // (BrickmapSkip.TheSameLodHitsWithAndWithoutTheBlockMasks).
+  Step visit_blocks(int level, int cl, Int3 pc, uint32_t pcell, float t, int axis) {
+    const Brick& b = w.brick(cell_brick(pcell));
+    const int s = L - cl;
+    const int mm = (8 >> s) - 1;  // a block's coordinate within the brick
+    uint64_t m[8];
+    for (int k = 0; k <= mm; ++k) {
+      uint64_t v = 0;
+      for (int j = 0; j < 1 << s; ++j) v |= b.mask[(k << s) + j];
+      for (int i = 0; i < s; ++i) v |= v >> (1 << i), v |= v >> (8 << i);
+      m[k] = v;
+    }
+    Dda d = begin(cl, cl - level, pc, t, axis);
+    for (;;) {
+      if constexpr (kCount) {
+        ++ctx.counters.iterations;
+        if (cl == L) ++ctx.counters.intersects;
+      }
+      const int bit = ((d.c[1] & mm) << s) * 8 + ((d.c[0] & mm) << s);
+      if ((m[d.c[2] & mm] >> bit) & 1) {
+        const float cexit = d.exit();
+        if (cl == L || lod_stop(cl, cexit)) {
+          stop(cl, d.cell(), pcell, nullptr, d.t, d.axis);
+          return Step::Hit;
+        }
+        // visit()'s case for a cube inside a brick, without its frame.
+        const Step st = visit_blocks(cl, child_level(cl, cexit), d.cell(), pcell, d.t, d.axis);
+        if (st != Step::Exit) return st;
+      }
+      const int st = advance(d, r, t1);
+      if (st > 2) return end_of(st);
+    }
+  }
+
   // Walks the children of the occupied cube (level, pc), entered at t
   // through the plane of `axis`; Exit when the ray leaves it (the caller
   // steps across its exit plane itself). `pcell`: its brickgrid cell when it
   // is a brick (level == max(B, 0)).
   Step visit(int level, Int3 pc, float exit, uint32_t pcell, float t, int axis) {
     const int cl = child_level(level, exit);
-    if (cl == L && level == B && B >= 0) return visit_voxels(cell_brick(pcell), pc, t, axis);
+    if (cl == L && level == B && B >= 0) return visit_voxels(cell_brick(pcell), pc, t, axis, exit);
     if (cl < B) return visit_nodes(level, cl, pc, t, axis);
     if (cl == B) return visit_cells(level, pc, t, axis);
+    if (B >= 0 && detail::brick_block_masks) return visit_blocks(level, cl, pc, pcell, t, axis);
     // The blocks inside a brick an LOD footprint may stop at, and grids
     // below 8^3 (B < 0): the general loop.
     Dda d = begin(cl, cl - level, pc, t, axis);
@@ -517,6 +721,7 @@ bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod,
   Walker<kCount, kAny> wk{
       w, r, lod, ctx, t1, g.levels, g.levels - kBrickLog2, float(g.voxel_size), lod_on, seen, f};
   wk.start_t = start_t;
+  for (int a = 0; a < 3; ++a) wk.slack[a] = brick_slack(r, a, t1);
   const Int3 root{{0, 0, 0}};
   uint32_t cell = 0;
   const PyramidNode* node = nullptr;
@@ -562,7 +767,7 @@ void BrickmapStructure::beam_start(const BeamFrustum& beam, TraceContext& ctx,
   const World& w = *world_;
   const GridTransform& g = w.grid();
   if (g.levels < kBrickLog2) return;  // a cell larger than the grid: no information
-  detail::BeamClassifier cls(beam, g);
+  ::voxcast::detail::BeamClassifier cls(beam, g);
   if (!cls.valid()) return;
   struct Item {
     int k;
@@ -583,10 +788,10 @@ void BrickmapStructure::beam_start(const BeamFrustum& beam, TraceContext& ctx,
     const float lo[3] = {1.f + float(c[0]) * side, 1.f + float(c[1]) * side,
                          1.f + float(c[2]) * side};
     switch (cls.classify(lo, side, k == 0)) {
-      case detail::BeamClassifier::kKeep:
+      case ::voxcast::detail::BeamClassifier::kKeep:
         cls.keep(lo, side);
         break;
-      case detail::BeamClassifier::kDescend:
+      case ::voxcast::detail::BeamClassifier::kDescend:
         ++cls.counters.pushes;
         stack[top++] = {k, {c[0], c[1], c[2]}};
         break;
