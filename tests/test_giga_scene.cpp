@@ -393,7 +393,7 @@ std::vector<double> bench_row(const std::string& output, const std::string& name
 }
 
 // `volume bench` on a scene file: a row per budget (each its own pools), the
-// effects rows, no peer. Two overlapping clouds at 1M (512K of pools each)
+// effects rows, no peer. Two overlapping clouds at 256K (128K of pools each)
 // need more than their pools hold for this view, so every warm frame asks
 // again; at 64M the view fits and warm frames ask nothing.
 TEST(GigaScene, BenchTimesSceneFilesPerBudgetAndEffect) {
@@ -405,10 +405,12 @@ TEST(GigaScene, BenchTimesSceneFilesPerBudgetAndEffect) {
      "transform": {"translate": [0.25, 0.1, 0.05], "scale": 0.9}}]})");
   const testing::CliResult r = run_cli_split(
       "volume bench " + scene +
-      " --size 48x32 --frames 1 --threads 1 --budget 1M,64M --effects -o " + dir.file("b.png"));
+      " --size 48x32 --frames 1 --threads 1 --budget 256K,64M --effects -o " + dir.file("b.png"));
   ASSERT_EQ(r.exit_code, 0) << r.output << r.errors;
   EXPECT_NE(r.output.find("scene of 2 objects (2 streamed)"), std::string::npos) << r.output;
-  const std::vector<double> tight = bench_row(r.output, "gigavoxels", "1M"),
+  EXPECT_NE(r.output.find("pools       256K: node pool "), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("pools       64M: node pool "), std::string::npos) << r.output;
+  const std::vector<double> tight = bench_row(r.output, "gigavoxels", "256K"),
                             roomy = bench_row(r.output, "gigavoxels", "64M");
   ASSERT_EQ(tight.size(), 8u) << r.output;
   ASSERT_EQ(roomy.size(), 8u) << r.output;

@@ -292,10 +292,26 @@ struct OpenedVolume {
       for (const auto& g : scene->streamed) out.push_back(g.get());
     return out;
   }
-  uint64_t pool_bytes() const {
+  uint64_t pool_bytes() const { return node_pool_bytes() + brick_pool_bytes(); }
+  uint64_t node_pool_bytes() const {
     uint64_t bytes = 0;
-    for (const giga::GigaVoxels* g : streamed()) bytes += g->pool_bytes();
+    for (const giga::GigaVoxels* g : streamed()) bytes += g->node_pool_bytes();
     return bytes;
+  }
+  uint64_t brick_pool_bytes() const {
+    uint64_t bytes = 0;
+    for (const giga::GigaVoxels* g : streamed()) bytes += g->brick_pool_bytes();
+    return bytes;
+  }
+  uint64_t tiles() const {
+    uint64_t n = 0;
+    for (const giga::GigaVoxels* g : streamed()) n += g->tile_capacity();
+    return n;
+  }
+  uint64_t bricks() const {
+    uint64_t n = 0;
+    for (const giga::GigaVoxels* g : streamed()) n += g->brick_capacity();
+    return n;
   }
 };
 
@@ -484,6 +500,15 @@ int volume_bench(const BenchArgs& a) {
   if (!a.peer_output.empty()) outputs.add("--peer-output", a.peer_output, {".png", ".pfm"});
 
   std::unique_ptr<OpenedVolume> volume = open_volume(a.source, a.resolution, budgets[0].second);
+  auto print_pools = [&](const std::string& budget) {
+    std::printf(
+        "pools       %s: node pool %s (%llu tiles of 8 nodes), brick pool %s (%llu bricks of %d^3 "
+        "voxels + border)\n",
+        budget.c_str(), format_bytes(double(volume->node_pool_bytes())).c_str(),
+        (unsigned long long)volume->tiles(),
+        format_bytes(double(volume->brick_pool_bytes())).c_str(),
+        (unsigned long long)volume->bricks(), giga::kBrickSide);
+  };
   if (volume->streamed().empty())
     throw UsageError("volume bench: " + printable(a.source) +
                      " is a node graph without pools (procedural:menger-recursive); bench "
@@ -548,6 +573,7 @@ int volume_bench(const BenchArgs& a) {
   std::vector<BenchRow> by_budget;
   for (size_t i = 0; i < budgets.size(); ++i) {
     if (i > 0) volume = open_volume(a.source, a.resolution, budgets[i].second);
+    print_pools(budgets[i].first);
     BenchRow r = bench_giga(*volume, io, view, a.frames);
     r.name = "gigavoxels", r.budget = budgets[i].first;
     by_budget.push_back(std::move(r));

@@ -349,8 +349,13 @@ class GigaVoxels : public Structure, public VolumeQuery {
   /// Pool capacities.
   uint32_t tile_capacity() const { return uint32_t(tile_parent_.size()); }
   uint32_t brick_capacity() const { return uint32_t(brick_owner_.size()); }
-  /// Bytes of both pools and their bookkeeping.
-  uint64_t pool_bytes() const;
+  /// Bytes of both pools and their bookkeeping: the node pool (tiles: 8
+  /// nodes of two words, localization code, depth, parent, usage and
+  /// timestamp) and the brick pool (bricks of PoolVoxel with owner, usage and
+  /// timestamp).
+  uint64_t pool_bytes() const { return node_pool_bytes() + brick_pool_bytes(); }
+  uint64_t node_pool_bytes() const;
+  uint64_t brick_pool_bytes() const;
   const Producer& producer() const { return *producer_; }
   /// end_pass statistics since begin_frame.
   const std::vector<GigaPassStats>& pass_stats() const { return passes_; }

@@ -350,8 +350,12 @@ Aabb GigaVoxels::bounds() const {
   return {options_.origin, options_.origin + s};
 }
 
-uint64_t GigaVoxels::pool_bytes() const {
-  return uint64_t(tile_capacity()) * kTileBytes + uint64_t(brick_capacity()) * kBrickBytes;
+uint64_t GigaVoxels::node_pool_bytes() const {
+  return uint64_t(tile_capacity()) * kTileBytes;
+}
+
+uint64_t GigaVoxels::brick_pool_bytes() const {
+  return uint64_t(brick_capacity()) * kBrickBytes;
 }
 
 NodeRegion GigaVoxels::region_of(uint32_t node) const {
