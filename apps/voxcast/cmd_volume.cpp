@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <functional>
 #include <initializer_list>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -292,27 +293,14 @@ struct OpenedVolume {
       for (const auto& g : scene->streamed) out.push_back(g.get());
     return out;
   }
-  uint64_t pool_bytes() const { return node_pool_bytes() + brick_pool_bytes(); }
-  uint64_t node_pool_bytes() const {
-    uint64_t bytes = 0;
-    for (const giga::GigaVoxels* g : streamed()) bytes += g->node_pool_bytes();
-    return bytes;
+  /// `f` of every streamed structure, summed (pool bytes, capacities).
+  template <class F>
+  uint64_t sum(F f) const {
+    uint64_t total = 0;
+    for (const giga::GigaVoxels* g : streamed()) total += uint64_t(std::invoke(f, *g));
+    return total;
   }
-  uint64_t brick_pool_bytes() const {
-    uint64_t bytes = 0;
-    for (const giga::GigaVoxels* g : streamed()) bytes += g->brick_pool_bytes();
-    return bytes;
-  }
-  uint64_t tiles() const {
-    uint64_t n = 0;
-    for (const giga::GigaVoxels* g : streamed()) n += g->tile_capacity();
-    return n;
-  }
-  uint64_t bricks() const {
-    uint64_t n = 0;
-    for (const giga::GigaVoxels* g : streamed()) n += g->brick_capacity();
-    return n;
-  }
+  uint64_t pool_bytes() const { return sum(&giga::GigaVoxels::pool_bytes); }
 };
 
 std::unique_ptr<OpenedVolume> open_volume(const std::string& path, int resolution,
@@ -486,13 +474,12 @@ int volume_bench(const BenchArgs& a) {
     io.light_dir = parse_vec3(a.light, "--light");
     if (!(length(io.light_dir) > 0.f)) throw UsageError("--light must not be zero");
   }
+  set_transfer(a.source, a.transfer, &io);
   VolumeIntegratorOptions dof = io;
   if (!a.dof.empty()) {
     if (!a.effects) throw UsageError("--dof: the depth-of-field row needs --effects");
     parse_dof(a.dof, &dof);
   }
-  set_transfer(a.source, a.transfer, &io);
-  dof.transfer = io.transfer;
   check_camera_options(a.camera, view.width, view.height);
   OutputSet outputs(a.source.rfind("procedural:", 0) == 0 ? std::vector<std::string>{}
                                                           : std::vector<std::string>{a.source});
@@ -501,13 +488,14 @@ int volume_bench(const BenchArgs& a) {
 
   std::unique_ptr<OpenedVolume> volume = open_volume(a.source, a.resolution, budgets[0].second);
   auto print_pools = [&](const std::string& budget) {
+    const OpenedVolume& v = *volume;
     std::printf(
-        "pools       %s: node pool %s (%llu tiles of 8 nodes), brick pool %s (%llu bricks of %d^3 "
-        "voxels + border)\n",
-        budget.c_str(), format_bytes(double(volume->node_pool_bytes())).c_str(),
-        (unsigned long long)volume->tiles(),
-        format_bytes(double(volume->brick_pool_bytes())).c_str(),
-        (unsigned long long)volume->bricks(), giga::kBrickSide);
+        "pools       %s: node pool %s (%llu tiles of 8 nodes), brick pool %s (%llu bricks of "
+        "%d^3 voxels + border)\n",
+        budget.c_str(), format_bytes(double(v.sum(&giga::GigaVoxels::node_pool_bytes))).c_str(),
+        (unsigned long long)v.sum(&giga::GigaVoxels::tile_capacity),
+        format_bytes(double(v.sum(&giga::GigaVoxels::brick_pool_bytes))).c_str(),
+        (unsigned long long)v.sum(&giga::GigaVoxels::brick_capacity), giga::kBrickSide);
   };
   if (volume->streamed().empty())
     throw UsageError("volume bench: " + printable(a.source) +
@@ -585,8 +573,7 @@ int volume_bench(const BenchArgs& a) {
   // 2. Effects at the last budget's pools (already warm for the base view).
   if (a.effects) {
     std::vector<BenchRow> rows;
-    auto add = [&](const char* name, VolumeIntegratorOptions o) {
-      o.transfer = io.transfer;
+    auto add = [&](const char* name, const VolumeIntegratorOptions& o) {
       BenchRow r = bench_giga(*volume, o, view, a.frames);
       r.name = name, r.budget = budgets.back().first;
       rows.push_back(std::move(r));
