@@ -3,24 +3,29 @@
 // replay (src/brickmap/persist.cpp).
 //
 // Structure-aware without a custom mutator. The first input byte b chooses:
-//   b % 5            what the rest of the input is: 0..3 the bytes of one
+//   b % 6            what the rest of the input is: 0..3 the bytes of one
 //                    section (META, BMGH, BMCT, BMCK) of a valid seed world,
 //                    the other sections kept intact, so the fuzzer's effort
 //                    goes into the LZ4 blocks, the chunk table and the brick
 //                    records instead of dying at a container hash; 4 the
 //                    records of the world's edit journal, after a valid
-//                    journal head, so that the records are reached;
-//   (b / 5) % 2      the seed world: a 64^3 sphere shell from the builder
+//                    journal head, so that the records are reached (the
+//                    terrain's journal holds carved records, format 3); 5 the
+//                    carved-voxel section BMCV of the seed world as saved
+//                    after its edits (the terrain's lists the cells the
+//                    remove brush carved; the sphere's world has none, and
+//                    any BMCV there must be refused);
+//   (b / 6) % 2      the seed world: a 64^3 sphere shell from the builder
 //                    (what `build --format brickmap` writes), or a terrain
 //                    whose brickgrid is cut off in y (what `generate terrain`
 //                    writes, brickmap_terrain.hpp);
-//   (b / 10) % 2     the reader: the whole world in RAM (load_world, then
+//   (b / 12) % 2     the reader: the whole world in RAM (load_world, then
 //                    the journal replayed), or the streaming reader on the
 //                    file and its journal, which reads META, the header and
 //                    the table strictly and each chunk only when a ray asks
 //                    for one of its bricks (a chunk that fails is refused on
 //                    its own, brickmap_stream.hpp);
-//   (b / 20) % 2     streaming only: colors uploaded as DXT1 blocks (§3.1.3).
+//   (b / 24) % 2     streaming only: colors uploaded as DXT1 blocks (§3.1.3).
 // An accepted world is traced (a few rays in RAM, three 16x12 frames with a
 // tiny budget when streamed, so uploads, evictions and hidden-voxel removal
 // run) and its statistics computed. A clean voxcast::Error is the expected
@@ -62,9 +67,11 @@ using namespace voxcast;
 namespace fs = std::filesystem;
 
 constexpr uint32_t kSections[4] = {fourcc("META"), fourcc("BMGH"), fourcc("BMCT"), fourcc("BMCK")};
+constexpr uint32_t kCarvedSection = fourcc("BMCV");
 
 struct SeedWorld {
   Container container;
+  Container edited;  // the world after the journal's edits, as save_scene writes it
   std::vector<uint8_t> journal_head;  // "VXBMJRN3", cells, world file id, hash (brickmap_file.hpp)
   std::vector<uint8_t> journal_records;  // what commit_edits appended after the head
 };
@@ -163,6 +170,12 @@ SeedWorld make_seed(int which) {
   s.journal_records.assign(journal.begin() + 32, journal.end());
   fs::remove(file);
   fs::remove(brickmap::journal_path(file));
+  // The edited world saved whole: the terrain's carries the BMCV section of
+  // the voxels its remove brush carved (the seeds must reach that parser).
+  if (which == 1 && w.carved().empty()) std::abort();
+  brickmap::save_scene(file, w, SceneInfo{"fuzz", "conservative", 0, 0});
+  s.edited = Container::read(file);
+  fs::remove(file);
   return s;
 }
 
@@ -220,12 +233,14 @@ void write_seeds(const char* dir) {
   int n = 0;
   for (int which = 0; which < 2; ++which) {
     const SeedWorld& s = seed_world(which);
-    for (int mode = 0; mode < 5; ++mode)
+    for (int mode = 0; mode < 6; ++mode)
       for (int reader = 0; reader < 2; ++reader)
         for (int dxt1 = 0; dxt1 < (reader ? 2 : 1); ++dxt1) {
-          std::vector<uint8_t> in = {uint8_t(mode + 5 * which + 10 * reader + 20 * dxt1)};
-          const std::vector<uint8_t>& body =
-              mode == 4 ? s.journal_records : s.container.get(kSections[mode]);
+          std::vector<uint8_t> in = {uint8_t(mode + 6 * which + 12 * reader + 24 * dxt1)};
+          // The sphere's world has no BMCV: its seed is the terrain's list.
+          const std::vector<uint8_t>& body = mode == 4   ? s.journal_records
+                                             : mode == 5 ? seed_world(1).edited.get(kCarvedSection)
+                                                         : s.container.get(kSections[mode]);
           in.insert(in.end(), body.begin(), body.end());
           write_bytes(fs::path(dir) / ("seed-" + std::to_string(in[0])), in.data(), in.size());
           ++n;
@@ -247,13 +262,15 @@ extern "C" int LLVMFuzzerInitialize(int*, char***) {
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (size == 0) return 0;
-  const int mode = data[0] % 5, which = data[0] / 5 % 2;
-  const bool streamed = data[0] / 10 % 2, dxt1 = data[0] / 20 % 2;
+  const int mode = data[0] % 6, which = data[0] / 6 % 2;
+  const bool streamed = data[0] / 12 % 2, dxt1 = data[0] / 24 % 2;
   const SeedWorld& seed = seed_world(which);
-  Container c = seed.container;
+  Container c = mode == 5 ? seed.edited : seed.container;
   std::vector<uint8_t> journal;
   if (mode < 4) {
     c.add(kSections[mode], std::vector<uint8_t>(data + 1, data + size));
+  } else if (mode == 5) {
+    c.add(kCarvedSection, std::vector<uint8_t>(data + 1, data + size));
   } else {
     journal = seed.journal_head;
     journal.insert(journal.end(), data + 1, data + size);

@@ -181,11 +181,9 @@ Carve prepare_carve(const World& w, const BrushCells& brush) {
   };
   Carve out;
   for (const auto& [cell, mask] : brush) {
-    const VoxelMask& old = [&]() -> const VoxelMask& {
-      static const VoxelMask kNone{};
-      const auto it = w.carved().find(cell);
-      return it == w.carved().end() ? kNone : it->second;
-    }();
+    // (No lambda here: clang before 16 cannot capture a structured binding.)
+    const auto carved_it = w.carved().find(cell);
+    const VoxelMask old = carved_it == w.carved().end() ? VoxelMask{} : carved_it->second;
     VoxelMask grown = old;
     const int64_t i = int64_t(cell % w.dims()[0]), j = int64_t(cell / w.dims()[0] % w.dims()[1]),
                   k = int64_t(cell / w.dims()[0] / w.dims()[1]);
