@@ -16,6 +16,7 @@
 #include <atomic>
 #include <bit>
 #include <cmath>
+#include <limits>
 #if defined(__AVX2__)
 #include <immintrin.h>
 #endif
@@ -68,6 +69,14 @@ bool to_grid(const GridTransform& g, const Ray& ray, GridRay* r) {
     r->up[a] = r->step[a] > 0;
   }
   return true;
+}
+
+// std::nextafter(x, -INFINITY) for a finite x, from the bits (no libm call
+// per beam-started ray).
+inline float next_below(float x) {
+  if (x == 0.f) return -std::numeric_limits<float>::denorm_min();
+  const uint32_t b = std::bit_cast<uint32_t>(x);
+  return std::bit_cast<float>(x > 0.f ? b - 1 : b + 1);
 }
 
 inline float plane_t(const GridRay& r, int a, float coord) {
@@ -713,7 +722,7 @@ bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod,
       r1 = std::min(r1, plane_t(r, a, r.up[a] ? region[1][a] : region[0][a]));
     }
     t1 = std::min(t1, r1);
-    const float before = std::nextafter(r0, -INFINITY);
+    const float before = next_below(r0);
     if (before > t0) t0 = before, start_t = before;
     if (!(t0 <= t1)) return false;
   }
@@ -776,38 +785,70 @@ void BrickmapStructure::beam_start(const BeamFrustum& beam, TraceContext& ctx,
   Item stack[8 * (kMaxGridLevels + 1)];  // depth-first: <= 7 pending siblings per level
   int top = 0;
   const float cell_side = float(kBrickSide) / float(g.resolution);
-  const auto filled = [&](int k, const uint32_t c[3]) {
-    if (k == 0) return c[1] < w.dims()[1] && w.cell(w.cell_index(c[0], c[1], c[2])) != 0;
-    return c[1] < w.pyramid_dim_y(k) &&
-           w.pyramid_node(k, w.pyramid_index(k, c[0], c[1], c[2])).bricks != 0;
-  };
-  // Classifies cube (k, c); pushes it when it is to be descended.
-  const auto visit = [&](int k, const uint32_t c[3]) {
-    if (!filled(k, c)) return;
-    const float side = cell_side * float(1u << k);
-    const float lo[3] = {1.f + float(c[0]) * side, 1.f + float(c[1]) * side,
-                         1.f + float(c[2]) * side};
-    switch (cls.classify(lo, side, k == 0)) {
-      case ::voxcast::detail::BeamClassifier::kKeep:
-        cls.keep(lo, side);
-        break;
-      case ::voxcast::detail::BeamClassifier::kDescend:
-        ++cls.counters.pushes;
-        stack[top++] = {k, {c[0], c[1], c[2]}};
-        break;
-      default:
-        break;
-    }
-  };
-  const uint32_t root[3] = {0, 0, 0};
-  visit(w.pyramid_levels(), root);
+  {
+    // The root (the top pyramid level: one node; a brickgrid of one cell
+    // when there is no pyramid).
+    const int k = w.pyramid_levels();
+    const bool filled = k == 0 ? w.cell(0) != 0 : w.pyramid_node(k, 0).bricks != 0;
+    const float lo[3] = {1.f, 1.f, 1.f};
+    if (filled) switch (cls.classify(lo, cell_side * float(1u << k), k == 0)) {
+        case ::voxcast::detail::BeamClassifier::kKeep:
+          cls.keep(lo, cell_side * float(1u << k));
+          break;
+        case ::voxcast::detail::BeamClassifier::kDescend:
+          ++cls.counters.pushes;
+          stack[top++] = {k, {0, 0, 0}};
+          break;
+        default:
+          break;
+      }
+  }
   while (top > 0) {
     const Item item = stack[--top];
     ++cls.counters.iterations;
-    for (uint32_t m = 0; m < 8; ++m) {
-      const uint32_t c[3] = {2 * item.c[0] + (m & 1), 2 * item.c[1] + (m >> 1 & 1),
-                             2 * item.c[2] + (m >> 2)};
-      visit(item.k - 1, c);
+    // The eight children (k - 1, 2 c + m) classified at once in float lanes
+    // (BeamClassifier::classify_children, as the tile frustum pass): a child
+    // is present when its node (or cell) is not empty; children above a
+    // cut-off brickgrid are empty and not stored. The same plane test as
+    // classify() per child (as conservative); it also skipped cubes already
+    // inside the region, but descending those adds only cubes inside it. Any
+    // conservative region gives the same hits (walk()), so the images do not
+    // depend on the cut (BrickmapOracle.BeamStartGivesTheSameImages).
+    const int k = item.k - 1;
+    const uint32_t c0[3] = {2 * item.c[0], 2 * item.c[1], 2 * item.c[2]};
+    uint32_t present = 0;
+    if (k == 0) {
+      const uint32_t dy = w.dims()[1];
+      for (uint32_t m = 0; m < 8; ++m) {
+        const uint32_t y = c0[1] + (m >> 1 & 1);
+        if (y < dy && w.cell(w.cell_index(c0[0] + (m & 1), y, c0[2] + (m >> 2))) != 0)
+          present |= 1u << m;
+      }
+    } else {
+      const uint32_t dy = w.pyramid_dim_y(k);
+      for (uint32_t m = 0; m < 8; ++m) {
+        const uint32_t y = c0[1] + (m >> 1 & 1);
+        if (y < dy &&
+            w.pyramid_node(k, w.pyramid_index(k, c0[0] + (m & 1), y, c0[2] + (m >> 2))).bricks != 0)
+          present |= 1u << m;
+      }
+    }
+    if (present == 0) continue;
+    const float side = cell_side * float(1u << item.k), hs = 0.5f * side;
+    const float lo[3] = {1.f + float(item.c[0]) * side, 1.f + float(item.c[1]) * side,
+                         1.f + float(item.c[2]) * side};
+    uint32_t keep, descend;
+    cls.classify_children(lo, hs, present, k == 0 ? present : 0u, &keep, &descend);
+    for (uint32_t m = keep; m != 0; m &= m - 1) {
+      const int c = std::countr_zero(m);
+      const float clo[3] = {lo[0] + ((c & 1) ? hs : 0.f), lo[1] + ((c & 2) ? hs : 0.f),
+                            lo[2] + ((c & 4) ? hs : 0.f)};
+      cls.keep(clo, hs);
+    }
+    cls.counters.pushes += uint64_t(std::popcount(descend));
+    for (uint32_t m = descend; m != 0; m &= m - 1) {
+      const uint32_t c = uint32_t(std::countr_zero(m));
+      stack[top++] = {k, {c0[0] + (c & 1), c0[1] + (c >> 1 & 1), c0[2] + (c >> 2)}};
     }
   }
   cls.finish(start, ctx.counting ? &ctx.counters : nullptr);
