@@ -222,6 +222,9 @@ struct Walker {
   // brick_slices() can lie from the ones the DDA's plane crossings imply
   // (brick_slack).
   float slack[3] = {0.f, 0.f, 0.f};
+  // The brickgrid's index strides per axis, and times the ray's step: the
+  // same for every cell walk of the ray (set once per ray, not per descent).
+  int64_t cell_stride[3] = {0, 0, 0}, cell_dstride[3] = {0, 0, 0};
 
   // The cube side in world units: voxel_world 2^(L - level), exact in float
   // as in double (a power-of-two scale) and without a libm call per step.
@@ -487,9 +490,8 @@ struct Walker {
     Dda d = begin(B, B - level, pc, t, axis);
     const uint32_t* cells = w.cells().data();
     const uint32_t dim_y = w.dims()[1];
-    const int64_t stride[3] = {1, int64_t(w.dims()[0]), int64_t(w.dims()[0]) * dim_y};
-    const int64_t dstride[3] = {stride[0] * r.step[0], stride[1] * r.step[1],
-                                stride[2] * r.step[2]};
+    const int64_t* stride = cell_stride;
+    const int64_t* dstride = cell_dstride;
     int64_t index = d.c[0] + stride[1] * d.c[1] + stride[2] * d.c[2];
     for (;;) {
       if constexpr (kCount) ++ctx.counters.iterations;
@@ -731,6 +733,10 @@ bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod,
       w, r, lod, ctx, t1, g.levels, g.levels - kBrickLog2, float(g.voxel_size), lod_on, seen, f};
   wk.start_t = start_t;
   for (int a = 0; a < 3; ++a) wk.slack[a] = brick_slack(r, a, t1);
+  wk.cell_stride[0] = 1;
+  wk.cell_stride[1] = int64_t(w.dims()[0]);
+  wk.cell_stride[2] = int64_t(w.dims()[0]) * w.dims()[1];
+  for (int a = 0; a < 3; ++a) wk.cell_dstride[a] = wk.cell_stride[a] * r.step[a];
   const Int3 root{{0, 0, 0}};
   uint32_t cell = 0;
   const PyramidNode* node = nullptr;
