@@ -232,7 +232,7 @@ TEST(BrickmapBuild, EditingABrickReleasesAndReusesItsStorage) {
 
 // The brickgrid's clearances against a brute force: the Chebyshev distance
 // to the nearest filled cell, capped.
-void expect_clearances_are_exact(const World& w, const std::string& when) {
+void expect_clearances_and_cell_boxes_are_exact(const World& w, const std::string& when) {
   SCOPED_TRACE(when);
   const std::array<uint32_t, 3> d = w.dims();
   std::vector<std::array<int, 3>> filled;
@@ -254,9 +254,35 @@ void expect_clearances_are_exact(const World& w, const std::string& when) {
           ADD_FAILURE() << "cell " << i << "," << j << "," << k << ": clearance " << got
                         << ", brute force " << want;
       }
+  // The box of each level-kCellBoxLevel node's non-empty cells (the walk
+  // skips a node whose box the ray misses), from the filled cells.
+  const int q = World::kCellBoxLevel;
+  ASSERT_GE(w.pyramid_levels(), q);
+  const int side = 1 << q;
+  for (uint32_t k = 0; k < w.pyramid_dim(q); ++k)
+    for (uint32_t j = 0; j < w.pyramid_dim_y(q); ++j)
+      for (uint32_t i = 0; i < w.pyramid_dim(q); ++i) {
+        const int node[3] = {int(i), int(j), int(k)};
+        uint32_t lo[3] = {7, 7, 7}, hi[3] = {0, 0, 0};
+        bool any = false;
+        for (const auto& f : filled) {
+          if (f[0] / side != node[0] || f[1] / side != node[1] || f[2] / side != node[2]) continue;
+          any = true;
+          for (int a = 0; a < 3; ++a)
+            lo[a] = std::min(lo[a], uint32_t(f[a] % side)),
+            hi[a] = std::max(hi[a], uint32_t(f[a] % side));
+        }
+        uint32_t want = 0;
+        if (any)
+          for (int a = 0; a < 3; ++a) want |= lo[a] << (3 * a) | hi[a] << (9 + 3 * a);
+        const uint32_t got = w.cell_box(w.pyramid_index(q, i, j, k));
+        if (got != want && ++wrong <= 3)
+          ADD_FAILURE() << "node " << i << "," << j << "," << k << ": cell box " << std::hex << got
+                        << ", brute force " << want << std::dec;
+      }
 }
 
-TEST(BrickmapBuild, ClearancesFollowBuildsEditsAndEvictions) {
+TEST(BrickmapBuild, ClearancesAndCellBoxesFollowBuildsEditsAndEvictions) {
   // A 256^3 grid (32^3 cells) with a brickgrid cut off at 20 cells in y:
   // sparse bricks, then single and batched edits that fill and empty cells.
   World w(testing::unit_grid(8), false, 20);
@@ -269,20 +295,20 @@ TEST(BrickmapBuild, ClearancesFollowBuildsEditsAndEvictions) {
                         uint32_t(rng() % w.dims()[2]));
   };
   for (int n = 0; n < 12; ++n) w.set_brick(random_cell(), one, colors.data(), nullptr);
-  expect_clearances_are_exact(w, "single adds");
+  expect_clearances_and_cell_boxes_are_exact(w, "single adds");
   std::vector<uint64_t> batch;
   for (int n = 0; n < 40; ++n) {
     batch.push_back(random_cell());
     w.set_brick(batch.back(), one, colors.data(), nullptr, 0, nullptr, false);
   }
   w.update_occupancy(batch);
-  expect_clearances_are_exact(w, "batched adds");
+  expect_clearances_and_cell_boxes_are_exact(w, "batched adds");
   std::vector<uint64_t> filled;
   for (uint64_t c = 0; c < w.cells().size(); ++c)
     if (w.cell(c) != 0) filled.push_back(c);
   w.set_brick(filled[0], none, nullptr, nullptr);
   w.set_not_resident(filled[1], 0xFF00FF00u);  // not resident is not empty
-  expect_clearances_are_exact(w, "a single removal and an eviction");
+  expect_clearances_and_cell_boxes_are_exact(w, "a single removal and an eviction");
   batch.clear();
   for (size_t n = 2; n < filled.size(); n += 2) {
     w.set_brick(filled[n], none, nullptr, nullptr, 0, nullptr, false);
@@ -293,7 +319,7 @@ TEST(BrickmapBuild, ClearancesFollowBuildsEditsAndEvictions) {
     w.set_brick(batch.back(), one, colors.data(), nullptr, 0, nullptr, false);
   }
   w.update_occupancy(batch);
-  expect_clearances_are_exact(w, "batched removals and adds");
+  expect_clearances_and_cell_boxes_are_exact(w, "batched removals and adds");
   // A dense block, then emptied again: every cell back to the cap.
   batch.clear();
   for (uint32_t k = 4; k < 20; ++k)
@@ -303,12 +329,12 @@ TEST(BrickmapBuild, ClearancesFollowBuildsEditsAndEvictions) {
         w.set_brick(batch.back(), one, colors.data(), nullptr, 0, nullptr, false);
       }
   w.update_occupancy(batch);
-  expect_clearances_are_exact(w, "a dense block");
+  expect_clearances_and_cell_boxes_are_exact(w, "a dense block");
   for (uint64_t c = 0; c < w.cells().size(); ++c)
     if (w.cell(c) != 0)
       w.set_brick(c, none, nullptr, nullptr, 0, nullptr, false), batch.push_back(c);
   w.update_occupancy(batch);
-  expect_clearances_are_exact(w, "all emptied");
+  expect_clearances_and_cell_boxes_are_exact(w, "all emptied");
   EXPECT_EQ(w.clearance(0), kMaxClearance);
 }
 

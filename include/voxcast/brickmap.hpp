@@ -284,6 +284,15 @@ class World {
     return pyramid_[size_t(k - 1)][size_t(index)];
   }
 
+  /// The box of the non-empty brickgrid cells of node `index` of pyramid
+  /// level kCellBoxLevel (8^3 cells): bits 3a..3a+2 the lowest cell along
+  /// axis a (0..7, relative to the node), bits 9+3a.. the highest; 0 for an
+  /// empty node (which the walk never enters). The ray walk tests it before
+  /// it walks the node's cells (traverse.cpp, visit_cells). Kept up to date
+  /// with the pyramid (update_pyramid_node).
+  static constexpr int kCellBoxLevel = 3;
+  uint32_t cell_box(uint64_t index) const { return cell_box_[size_t(index)]; }
+
   /// Empty-space distance of brickgrid cell `index` (the ray walk's skip,
   /// traverse.cpp): 0 for a non-empty cell, else the Chebyshev distance in
   /// cells to the nearest non-empty cell, capped at kMaxClearance (cells
@@ -375,6 +384,7 @@ class World {
   std::vector<uint64_t> occupancy_;
   std::vector<std::vector<PyramidNode>> pyramid_;  // levels 1 .. K
   std::vector<uint8_t> clearance_;                 // per brickgrid cell (clearance())
+  std::vector<uint32_t> cell_box_;                 // per node of level kCellBoxLevel
   BrickPool pool_;
   ColorAllocator color_alloc_;
   std::vector<uint32_t> colors_, normals_data_;

@@ -16,6 +16,7 @@
 #include <atomic>
 #include <bit>
 #include <cmath>
+#include <limits>
 #if defined(__AVX2__)
 #include <immintrin.h>
 #endif
@@ -68,6 +69,14 @@ bool to_grid(const GridTransform& g, const Ray& ray, GridRay* r) {
     r->up[a] = r->step[a] > 0;
   }
   return true;
+}
+
+// std::nextafter(x, -INFINITY) for a finite x, from the bits (no libm call
+// per beam-started ray).
+inline float next_below(float x) {
+  if (x == 0.f) return -std::numeric_limits<float>::denorm_min();
+  const uint32_t b = std::bit_cast<uint32_t>(x);
+  return std::bit_cast<float>(x > 0.f ? b - 1 : b + 1);
 }
 
 inline float plane_t(const GridRay& r, int a, float coord) {
@@ -213,6 +222,9 @@ struct Walker {
   // brick_slices() can lie from the ones the DDA's plane crossings imply
   // (brick_slack).
   float slack[3] = {0.f, 0.f, 0.f};
+  // The brickgrid's index strides per axis, and times the ray's step: the
+  // same for every cell walk of the ray (set once per ray, not per descent).
+  int64_t cell_stride[3] = {0, 0, 0}, cell_dstride[3] = {0, 0, 0};
 
   // The cube side in world units: voxel_world 2^(L - level), exact in float
   // as in double (a power-of-two scale) and without a libm call per step.
@@ -475,12 +487,20 @@ struct Walker {
 
   // The brickgrid cells (level B > 0) of the pyramid node (level, pc).
   Step visit_cells(int level, Int3 pc, float t, int axis) {
+    // Most cell walks on a terrain cross an occupied node above its
+    // non-empty cells (BENCHMARKS.md, "Brickmap beam pass in lanes"; 55-66 %
+    // of them). A walk that meets no non-empty cell stops nowhere and
+    // changes nothing (no stop, request or `seen` mark), so a ray that
+    // misses the box of the node's non-empty cells (World::cell_box),
+    // widened by the position slack (brick_slack: the DDA's cells follow
+    // from plane t values and a start position, within that of the
+    // positions here), leaves the node as the walk would, without it.
+    if (B - level == World::kCellBoxLevel && !meets_cell_box(pc, t)) return Step::Exit;
     Dda d = begin(B, B - level, pc, t, axis);
     const uint32_t* cells = w.cells().data();
     const uint32_t dim_y = w.dims()[1];
-    const int64_t stride[3] = {1, int64_t(w.dims()[0]), int64_t(w.dims()[0]) * dim_y};
-    const int64_t dstride[3] = {stride[0] * r.step[0], stride[1] * r.step[1],
-                                stride[2] * r.step[2]};
+    const int64_t* stride = cell_stride;
+    const int64_t* dstride = cell_dstride;
     int64_t index = d.c[0] + stride[1] * d.c[1] + stride[2] * d.c[2];
     for (;;) {
       if constexpr (kCount) ++ctx.counters.iterations;
@@ -516,6 +536,23 @@ struct Walker {
           clear > 1 ? jump(d, clear - 1, &index, stride) : advance(d, r, t1, &index, dstride);
       if (s > 2) return end_of(s);
     }
+  }
+
+  // Whether the ray between t and t1 may meet the box of the non-empty
+  // cells of node pc (pyramid level kCellBoxLevel), widened by the slack.
+  bool meets_cell_box(Int3 pc, float t) const {
+    const uint32_t box = w.cell_box(w.pyramid_index(World::kCellBoxLevel, uint32_t(pc.v[0]),
+                                                    uint32_t(pc.v[1]), uint32_t(pc.v[2])));
+    float t0 = t, te = t1;
+    for (int a = 0; a < 3; ++a) {
+      const int cell0 = pc.v[a] << World::kCellBoxLevel;
+      const float lo = float((cell0 + int(box >> (3 * a) & 7)) << kBrickLog2) - slack[a];
+      const float hi = float((cell0 + int(box >> (9 + 3 * a) & 7) + 1) << kBrickLog2) + slack[a];
+      const float ta = (lo - r.o[a]) * r.inv[a], tb = (hi - r.o[a]) * r.inv[a];
+      t0 = std::max(t0, std::min(ta, tb));
+      te = std::min(te, std::max(ta, tb));
+    }
+    return t0 <= te;
   }
 
   // An empty cell whose clearance says that the cube of `radius` cells
@@ -713,7 +750,7 @@ bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod,
       r1 = std::min(r1, plane_t(r, a, r.up[a] ? region[1][a] : region[0][a]));
     }
     t1 = std::min(t1, r1);
-    const float before = std::nextafter(r0, -INFINITY);
+    const float before = next_below(r0);
     if (before > t0) t0 = before, start_t = before;
     if (!(t0 <= t1)) return false;
   }
@@ -722,6 +759,10 @@ bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod,
       w, r, lod, ctx, t1, g.levels, g.levels - kBrickLog2, float(g.voxel_size), lod_on, seen, f};
   wk.start_t = start_t;
   for (int a = 0; a < 3; ++a) wk.slack[a] = brick_slack(r, a, t1);
+  wk.cell_stride[0] = 1;
+  wk.cell_stride[1] = int64_t(w.dims()[0]);
+  wk.cell_stride[2] = int64_t(w.dims()[0]) * w.dims()[1];
+  for (int a = 0; a < 3; ++a) wk.cell_dstride[a] = wk.cell_stride[a] * r.step[a];
   const Int3 root{{0, 0, 0}};
   uint32_t cell = 0;
   const PyramidNode* node = nullptr;
@@ -776,38 +817,70 @@ void BrickmapStructure::beam_start(const BeamFrustum& beam, TraceContext& ctx,
   Item stack[8 * (kMaxGridLevels + 1)];  // depth-first: <= 7 pending siblings per level
   int top = 0;
   const float cell_side = float(kBrickSide) / float(g.resolution);
-  const auto filled = [&](int k, const uint32_t c[3]) {
-    if (k == 0) return c[1] < w.dims()[1] && w.cell(w.cell_index(c[0], c[1], c[2])) != 0;
-    return c[1] < w.pyramid_dim_y(k) &&
-           w.pyramid_node(k, w.pyramid_index(k, c[0], c[1], c[2])).bricks != 0;
-  };
-  // Classifies cube (k, c); pushes it when it is to be descended.
-  const auto visit = [&](int k, const uint32_t c[3]) {
-    if (!filled(k, c)) return;
-    const float side = cell_side * float(1u << k);
-    const float lo[3] = {1.f + float(c[0]) * side, 1.f + float(c[1]) * side,
-                         1.f + float(c[2]) * side};
-    switch (cls.classify(lo, side, k == 0)) {
-      case ::voxcast::detail::BeamClassifier::kKeep:
-        cls.keep(lo, side);
-        break;
-      case ::voxcast::detail::BeamClassifier::kDescend:
-        ++cls.counters.pushes;
-        stack[top++] = {k, {c[0], c[1], c[2]}};
-        break;
-      default:
-        break;
-    }
-  };
-  const uint32_t root[3] = {0, 0, 0};
-  visit(w.pyramid_levels(), root);
+  {
+    // The root (the top pyramid level: one node; a brickgrid of one cell
+    // when there is no pyramid).
+    const int k = w.pyramid_levels();
+    const bool filled = k == 0 ? w.cell(0) != 0 : w.pyramid_node(k, 0).bricks != 0;
+    const float lo[3] = {1.f, 1.f, 1.f};
+    if (filled) switch (cls.classify(lo, cell_side * float(1u << k), k == 0)) {
+        case ::voxcast::detail::BeamClassifier::kKeep:
+          cls.keep(lo, cell_side * float(1u << k));
+          break;
+        case ::voxcast::detail::BeamClassifier::kDescend:
+          ++cls.counters.pushes;
+          stack[top++] = {k, {0, 0, 0}};
+          break;
+        default:
+          break;
+      }
+  }
   while (top > 0) {
     const Item item = stack[--top];
     ++cls.counters.iterations;
-    for (uint32_t m = 0; m < 8; ++m) {
-      const uint32_t c[3] = {2 * item.c[0] + (m & 1), 2 * item.c[1] + (m >> 1 & 1),
-                             2 * item.c[2] + (m >> 2)};
-      visit(item.k - 1, c);
+    // The eight children (k - 1, 2 c + m) classified at once in float lanes
+    // (BeamClassifier::classify_children, as the tile frustum pass): a child
+    // is present when its node (or cell) is not empty; children above a
+    // cut-off brickgrid are empty and not stored. The same plane test as
+    // classify() per child (as conservative); it also skipped cubes already
+    // inside the region, but descending those adds only cubes inside it. Any
+    // conservative region gives the same hits (walk()), so the images do not
+    // depend on the cut (BrickmapOracle.BeamStartGivesTheSameImages).
+    const int k = item.k - 1;
+    const uint32_t c0[3] = {2 * item.c[0], 2 * item.c[1], 2 * item.c[2]};
+    uint32_t present = 0;
+    if (k == 0) {
+      const uint32_t dy = w.dims()[1];
+      for (uint32_t m = 0; m < 8; ++m) {
+        const uint32_t y = c0[1] + (m >> 1 & 1);
+        if (y < dy && w.cell(w.cell_index(c0[0] + (m & 1), y, c0[2] + (m >> 2))) != 0)
+          present |= 1u << m;
+      }
+    } else {
+      const uint32_t dy = w.pyramid_dim_y(k);
+      for (uint32_t m = 0; m < 8; ++m) {
+        const uint32_t y = c0[1] + (m >> 1 & 1);
+        if (y < dy &&
+            w.pyramid_node(k, w.pyramid_index(k, c0[0] + (m & 1), y, c0[2] + (m >> 2))).bricks != 0)
+          present |= 1u << m;
+      }
+    }
+    if (present == 0) continue;
+    const float side = cell_side * float(1u << item.k), hs = 0.5f * side;
+    const float lo[3] = {1.f + float(item.c[0]) * side, 1.f + float(item.c[1]) * side,
+                         1.f + float(item.c[2]) * side};
+    uint32_t keep, descend;
+    cls.classify_children(lo, hs, present, k == 0 ? present : 0u, &keep, &descend);
+    for (uint32_t m = keep; m != 0; m &= m - 1) {
+      const int c = std::countr_zero(m);
+      const float clo[3] = {lo[0] + ((c & 1) ? hs : 0.f), lo[1] + ((c & 2) ? hs : 0.f),
+                            lo[2] + ((c & 4) ? hs : 0.f)};
+      cls.keep(clo, hs);
+    }
+    cls.counters.pushes += uint64_t(std::popcount(descend));
+    for (uint32_t m = descend; m != 0; m &= m - 1) {
+      const uint32_t c = uint32_t(std::countr_zero(m));
+      stack[top++] = {k, {c0[0] + (c & 1), c0[1] + (c >> 1 & 1), c0[2] + (c >> 2)}};
     }
   }
   cls.finish(start, ctx.counting ? &ctx.counters : nullptr);

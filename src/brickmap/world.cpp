@@ -265,6 +265,7 @@ World::World(const GridTransform& grid, bool normals, uint32_t height_cells)
   int k = 1;
   for (uint32_t d = n >> 1; d >= 1; d >>= 1, ++k)
     pyramid_.emplace_back(size_t(uint64_t(d) * pyramid_dim_y(k) * d));
+  if (pyramid_levels() >= kCellBoxLevel) cell_box_.assign(pyramid_[kCellBoxLevel - 1].size(), 0);
 }
 
 void World::set_brick(uint64_t index, const uint64_t mask[8], const uint32_t* colors,
@@ -423,6 +424,21 @@ void World::update_pyramid_node(int q, uint32_t x, uint32_t y, uint32_t z) {
   }
   PyramidNode& node = pyramid_[size_t(q - 1)][size_t(pyramid_index(q, x, y, z))];
   node.bricks = bricks;
+  if (q == kCellBoxLevel) {
+    // The box of the node's non-empty cells (cell_box()).
+    uint32_t lo[3] = {7, 7, 7}, hi[3] = {0, 0, 0};
+    for (uint32_t c = 0; c < 512 && bricks != 0; ++c) {
+      const uint32_t l[3] = {c & 7, c >> 3 & 7, c >> 6};
+      const uint32_t cy = 8 * y + l[1];
+      if (cy >= dims_[1] || cells_[size_t(cell_index(8 * x + l[0], cy, 8 * z + l[2]))] == 0)
+        continue;
+      for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], l[a]), hi[a] = std::max(hi[a], l[a]);
+    }
+    uint32_t box = 0;
+    if (bricks != 0)
+      for (int a = 0; a < 3; ++a) box |= lo[a] << (3 * a) | hi[a] << (9 + 3 * a);
+    cell_box_[size_t(pyramid_index(q, x, y, z))] = box;
+  }
   node.abgr = bricks == 0 ? 0
                           : esvo::encode_color_abgr({float(sum[0] / bricks), float(sum[1] / bricks),
                                                      float(sum[2] / bricks), 1.f});
@@ -479,6 +495,7 @@ WorldStats World::stats() const {
   s.clearance_bytes = uint64_t(clearance_.size());
   for (const std::vector<PyramidNode>& level : pyramid_)
     s.pyramid_bytes += uint64_t(level.size()) * sizeof(PyramidNode);
+  s.pyramid_bytes += uint64_t(cell_box_.size()) * sizeof(uint32_t);
   s.brick_bytes = uint64_t(pool_.extent()) * sizeof(Brick);
   s.color_bytes = dxt1_ ? uint64_t(blocks_.size()) * 8 : uint64_t(color_alloc_.extent()) * 4;
   s.normal_bytes = normals_ ? uint64_t(color_alloc_.extent()) * 4 : 0;
