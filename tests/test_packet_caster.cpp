@@ -30,10 +30,6 @@
 #include "voxcast/packet_caster.hpp"
 #include "voxcast/voxelize.hpp"
 
-namespace voxcast::detail {
-extern bool dag_brick_walk;  // src/dag/octree_nodes.hpp
-}  // namespace voxcast::detail
-
 namespace voxcast {
 namespace {
 
@@ -299,48 +295,6 @@ TEST(PacketCaster, GridVertexTiesEqualTheScalarCaster) {
   lod.size_at_origin = 2.f / 32.f;  // stops one and two levels up
   expect_same(e, rays, lod, "esvo ties lod", &hits);
   expect_same(d, rays, lod, "dag ties lod", &hits);
-}
-
-// The DAG kernels' register walk of the last three levels
-// (core/octree_brick_walk.hpp), on and off: the packets' hits equal the
-// scalar caster's, for rays through many 8^3 bricks: camera rays of spot
-// (LOD 0, and a footprint whose LOD stops fall inside the bricks for some
-// lanes, which must keep the plain loop), random rays (on grid planes,
-// along axes, grazing, short, from inside), and rays from grid vertices
-// with dyadic directions through dense random voxels, whose plane
-// crossings tie exactly (the walk's tie rules must be the loop's), and
-// random rays through them.
-TEST(PacketCaster, DagBrickWalkHitsEqualTheScalarCaster) {
-  const Scenes& sc = scenes();
-  ASSERT_FALSE(sc.dag->dag().bricks.empty());
-  const VoxelSet dense = testing::make_random_voxels(6, 60000, 5);
-  const dag::DagStructure ties(std::make_shared<const dag::SparseVoxelDag>(dag::build_dag(dense)));
-  ASSERT_FALSE(ties.dag().bricks.empty());
-  const bool was = detail::dag_brick_walk;
-  for (const bool on : {true, false}) {
-    detail::dag_brick_walk = on;
-    const std::string how = on ? " walk on" : " walk off";
-    float pixel_angle = 0;
-    const std::vector<Ray> cam = camera_rays(sc.dag->bounds(), 96, 72, &pixel_angle);
-    size_t hits = 0;
-    expect_same(*sc.dag, cam, LodFootprint{}, "dag camera" + how, &hits);
-    EXPECT_GT(hits, cam.size() / 8);
-    LodFootprint lod;
-    lod.size_per_t = 0.5f * pixel_angle;
-    expect_same(*sc.dag, cam, lod, "dag camera lod 0.5 px" + how, &hits);
-    const std::vector<Ray> rnd = random_rays(sc.grid, 20000, 23);
-    expect_same(*sc.dag, rnd, LodFootprint{}, "dag random" + how, &hits);
-    EXPECT_GT(hits, rnd.size() / 20);
-    const std::vector<Ray> tie = tie_rays(6, 20000, 29);
-    expect_same(ties, tie, LodFootprint{}, "dag ties" + how, &hits);
-    EXPECT_GT(hits, tie.size() / 8);
-    // Origins inside occupied voxels (a quarter of the cube is occupied)
-    // and on their faces: hits at the start of the span.
-    const std::vector<Ray> inside = random_rays(dense.grid, 20000, 31);
-    expect_same(ties, inside, LodFootprint{}, "dag dense random" + how, &hits);
-    EXPECT_GT(hits, inside.size() / 8);
-  }
-  detail::dag_brick_walk = was;
 }
 
 // The packet casters as a capability of the surface query (SurfacePackets,

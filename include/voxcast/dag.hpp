@@ -228,21 +228,6 @@ class SparseVoxelDag {
   };
   static constexpr uint64_t kCubeMeanMin = 32;
   std::vector<CubeMean> cube_means;  // 4/3 slots per entry (+1), or none
-
-  // Derived by finalize() when L >= 4 (never stored in files): the 8^3
-  // voxels below each level-(L-3) node, its up to eight 4^3 leaf masks, as
-  // one 512-bit brick, for the packet kernels' register walk of the last
-  // three levels (core/octree_brick_walk.hpp). Brick layout: slice[z] bit
-  // x + 8 y, brick-local unmirrored voxel coordinates (the leaf masks are in
-  // Morton order). brick_of[w - brick_base] is the brick of the node whose
-  // header is word w of level L-3 (other entries unused). 64 B per unique
-  // level-(L-3) node plus 4 B per word of that level.
-  struct alignas(64) Brick {
-    uint64_t slice[8];
-  };
-  std::vector<Brick> bricks;
-  std::vector<uint32_t> brick_of;
-  uint32_t brick_base = 0;
   /// The table's entry for the cube at `level` whose first leaf voxel is
   /// `first`, or null (a cube of <= kCubeMeanMin voxels, or `first` is not
   /// the first voxel of a cube at that level).

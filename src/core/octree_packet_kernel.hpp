@@ -26,9 +26,7 @@
 #include <array>
 #include <bit>
 #include <cstdint>
-#include <cstring>
 
-#include "core/octree_brick_walk.hpp"
 #include "core/octree_caster.hpp"
 #include "core/octree_packet_caster.hpp"
 
@@ -343,50 +341,6 @@ template <class VP, class OnHit>
       const I leaf = intersect & vp.leaf(desc, c, scale);
       push = intersect & ~leaf;
       done = lod | leaf;
-      [[maybe_unused]] U child{};  // the pushed cubes' nodes
-      if constexpr (requires { VP::kBricks; }) {
-        // A cube of 8^3 leaves: its first hit from the brick in a register
-        // (core/octree_brick_walk.hpp) instead of PUSHes into it, for lanes
-        // no LOD stop can end inside (the footprint at the cube's exit below
-        // the leaf side, with a margin for the loop's rounding; a footprint
-        // only grows along the ray). A lane without a hit there ADVANCEs
-        // past the cube as if it were empty (the loop would leave it by a POP
-        // to the same state, up to the stack-write threshold h, which only
-        // skips writes of rows already held).
-        if (L::bits(push) != 0) child = vp.descend(desc, parent, c, scale, push);
-        const I walk = push & (scale == vp.brick_scale) &
-                       (tc_max * size_coef + size_bias < sexp * (0.125f * 0.99f));
-        uint32_t wb = vp.bricks != nullptr && size_coef >= 0.f ? L::bits(walk) : 0u;
-        if (wb != 0) {
-          // The bricks first, all of them (their cache misses overlap), into
-          // L1; then the walks, lane by lane.
-          alignas(64) uint64_t occ[N][8];
-          for (uint32_t b = wb; b != 0; b &= b - 1) {
-            const int l = std::countr_zero(b);
-            std::memcpy(occ[l], vp.brick(child[l]), 64);
-          }
-          uint32_t hits = 0, left = 0;
-          for (uint32_t b = wb; b != 0; b &= b - 1) {
-            const int l = std::countr_zero(b);
-            const BrickRay br{cx[l],   cy[l],    cz[l],     bx[l],    by[l],
-                              bz[l],   px[l],    py[l],     pz[l],    sexp[l] * 0.125f,
-                              flip[l], t_min[l], tv_max[l], tc_max[l]};
-            BrickHit bh;
-            const BrickWalk r = brick_walk(occ[l], br, &bh);
-            if (r == BrickWalk::kPlain) continue;
-            left |= 1u << l;
-            if (r == BrickWalk::kMiss) continue;
-            hits |= 1u << l;
-            t_min[l] = bh.t, px[l] = bh.px, py[l] = bh.py, pz[l] = bh.pz;
-            idx[l] = bh.idx;
-            scale[l] = vp.brick_scale - 3;
-            parent[l] = VP::brick_leaf_parent(occ[l], bh.u, bh.w, bh.r);
-          }
-          const I one = L::template splat<I>(1) << lane;
-          push &= (one & int32_t(left)) == 0;
-          done |= (one & int32_t(hits)) != 0;
-        }
-      }
       // Hits: the loop state at the cube (cast_octree's epilogue runs in
       // the caller).
       for (uint32_t b = L::bits(done); b != 0; b &= b - 1) {
@@ -400,10 +354,7 @@ template <class VP, class OnHit>
         L::scatter(stack_node, at, store, parent);
         L::scatter(stack_tmax, at, store, L::as_u(t_max));
         h = push ? tc_max : h;
-        if constexpr (requires { VP::kBricks; })
-          push_lanes(push, tv_max, child);
-        else
-          push_lanes(push, tv_max, vp.descend(desc, parent, c, scale, push));
+        push_lanes(push, tv_max, vp.descend(desc, parent, c, scale, push));
         vp.forget(&desc, push);
       }
     }

@@ -146,40 +146,6 @@ void derive_cube_means(SparseVoxelDag& d) {
   }
 }
 
-// The bricks of the level-(L-3) nodes (dag.hpp, SparseVoxelDag::bricks):
-// Morton bit b of child c's leaf mask is voxel (x, y, z) with x = 4 c.x +
-// 2 b_3 + b_0, etc. (b_0, b_3: bits 0 and 3 of b, the x bits of the voxel
-// in its sub-block and of the sub-block in the 4^3 block).
-void derive_bricks(SparseVoxelDag& d) {
-  d.bricks.clear();
-  d.brick_of.clear();
-  d.brick_base = 0;
-  const int L = d.grid.levels;
-  if (L < 4) return;
-  const size_t begin = d.level_start[size_t(L - 3)], end = d.level_start[size_t(L - 2)];
-  d.brick_base = uint32_t(begin);
-  d.brick_of.assign(end - begin, 0);
-  for (size_t w = begin; w < end;) {
-    const uint32_t mask = layout::ChildMask::get(d.words[w]);
-    SparseVoxelDag::Brick b{};
-    int j = 0;
-    for (uint32_t c = 0; c < 8; ++c) {
-      if (!(mask >> c & 1u)) continue;
-      const uint64_t m = leaf_mask(&d.words[d.words[w + 1 + size_t(j++)]]);
-      for (uint64_t r = m; r != 0; r &= r - 1) {
-        const uint32_t bit = uint32_t(std::countr_zero(r));
-        const uint32_t x = (c & 1u) * 4 + (bit >> 3 & 1u) * 2 + (bit & 1u);
-        const uint32_t y = (c >> 1 & 1u) * 4 + (bit >> 4 & 1u) * 2 + (bit >> 1 & 1u);
-        const uint32_t z = (c >> 2 & 1u) * 4 + (bit >> 5 & 1u) * 2 + (bit >> 2 & 1u);
-        b.slice[z] |= uint64_t(1) << (x + 8 * y);
-      }
-    }
-    d.brick_of[w - begin] = uint32_t(d.bricks.size());
-    d.bricks.push_back(b);
-    w += 1 + size_t(j);
-  }
-}
-
 }  // namespace
 
 void SparseVoxelDag::finalize() {
@@ -314,7 +280,6 @@ void SparseVoxelDag::finalize() {
   }
   derive_attribute_prefix(*this);
   derive_cube_means(*this);
-  derive_bricks(*this);
 }
 
 void SparseVoxelDag::compress_attributes() {

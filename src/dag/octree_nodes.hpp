@@ -37,13 +37,6 @@ inline uint32_t byte_mask(uint64_t m) {
   return uint32_t(_pext_u64(m, 0x0101010101010101ull));
 }
 
-/// Whether the DAG packet kernels walk the last three levels in a register
-/// (core/octree_brick_walk.hpp; the plain lane loop otherwise, with the same
-/// hits). Default on; the environment variable VOXCAST_DAG_BRICKS=0 turns it
-/// off (benchmarks compare the two in one binary), and tests switch it. Not
-/// thread-safe: set it while no cast runs.
-extern bool dag_brick_walk;
-
 /// Node = word index of a header or leaf-mask node, or at the sub-block level
 /// the sub-block's 8-bit mask itself. `dag` must be finalized.
 struct DagNodes {
@@ -53,10 +46,7 @@ struct DagNodes {
         prefix_wide(dag.voxel_prefix_wide.data()),
         wide_words(dag.wide_words),
         leaf_scale(esvo::kMaxScale - dag.levels()),
-        mask_scale(leaf_scale + 1),
-        bricks(dag_brick_walk && !dag.bricks.empty() ? dag.bricks.data() : nullptr),
-        brick_of(dag.brick_of.data()),
-        brick_base(dag.brick_base) {}
+        mask_scale(leaf_scale + 1) {}
 
   using Source = dag::SparseVoxelDag;
   struct Desc {
@@ -135,10 +125,6 @@ struct DagNodes {
   uint32_t wide_words;
   int leaf_scale;  // scale of the leaf voxels
   int mask_scale;  // scale of the children of a leaf-mask node
-  // The level-(L-3) bricks (dag.hpp) for the packet kernels, or null (off).
-  const dag::SparseVoxelDag::Brick* bricks;
-  const uint32_t* brick_of;
-  uint32_t brick_base;
 
  private:
   static uint32_t sub_block(const Desc& d, int c) {

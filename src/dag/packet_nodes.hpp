@@ -25,23 +25,7 @@ struct DagPacketNodes {
     U lo, hi;  // the 4^3 mask of a leaf-mask node
   };
   explicit DagPacketNodes(const DagNodes& n)
-      : words(n.words),
-        leaf_scale(n.leaf_scale),
-        mask_scale(n.mask_scale),
-        brick_scale(n.leaf_scale + 3),
-        bricks(n.bricks),
-        brick_of(n.brick_of),
-        brick_base(n.brick_base) {}
-
-  /// The register walk of the last three levels (core/octree_brick_walk.hpp):
-  /// a cube at brick_scale holds 8^3 leaf voxels, and its node (a level-(L-3)
-  /// header) has a brick, when bricks is set.
-  static constexpr bool kBricks = true;
-  const uint64_t* brick(uint32_t node) const { return bricks[brick_of[node - brick_base]].slice; }
-  /// The node of the leaf level holding brick voxel (u, w, r): its sub-block's mask.
-  static uint32_t brick_leaf_parent(const uint64_t* occ, int u, int w, int r) {
-    return brick_sub_block(occ, u, w, r);
-  }
+      : words(n.words), leaf_scale(n.leaf_scale), mask_scale(n.mask_scale) {}
 
   /// DagNodes::fetch per lane: a header's child mask above the leaf-mask
   /// level, the 64-bit mask and its byte mask at it, the sub-block byte
@@ -88,10 +72,7 @@ struct DagPacketNodes {
   }
 
   const uint32_t* words;
-  int leaf_scale, mask_scale, brick_scale;
-  const dag::SparseVoxelDag::Brick* bricks;  // null: no register walk
-  const uint32_t* brick_of;
-  uint32_t brick_base;
+  int leaf_scale, mask_scale;
 };
 
 }  // namespace

@@ -9,8 +9,6 @@
 // (shadow rays) skips the index bookkeeping; the loop visits voxels front to back, so the first
 // leaf found is also the closest one.
 #include <cstdint>
-#include <cstdlib>
-#include <cstring>
 
 #include "core/octree_caster.hpp"
 #include "core/octree_packets.hpp"
@@ -18,15 +16,6 @@
 #include "dag/octree_nodes.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/error.hpp"
-
-namespace voxcast::detail {
-
-bool dag_brick_walk = [] {
-  const char* e = std::getenv("VOXCAST_DAG_BRICKS");
-  return e == nullptr || std::strcmp(e, "0") != 0;
-}();
-
-}  // namespace voxcast::detail
 
 namespace voxcast::dag {
 namespace {
