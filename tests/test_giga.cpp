@@ -271,6 +271,48 @@ TEST(Giga, ProducerBricksEqualDirectSampling) {
   }
 }
 
+// constant_below() is a proof: wherever the cloud's producer says a node is
+// empty at its level and every finer one, every voxel its subtree's bricks
+// store (the region with each level's one-voxel margin) is empty, level by
+// level down to the finest. The interval bound over the noise lattice must
+// also prove the shell around the sphere empty where the radius test alone
+// cannot (else rays descend through it: docs/BENCHMARKS.md).
+TEST(Giga, CloudEmptyBelowIsAProof) {
+  const auto p = make_procedural("cloud", 64);  // levels 0..3
+  const int max_level = p->max_level();
+  int proven = 0, beyond_radius_test = 0;
+  for (int level = 0; level <= max_level; ++level) {
+    const uint32_t n = 1u << level;
+    for (uint32_t z = 0; z < n; ++z)
+      for (uint32_t y = 0; y < n; ++y)
+        for (uint32_t x = 0; x < n; ++x) {
+          VolumeSample v{1.f, {1, 1, 1, 1}};
+          if (!p->constant_below({level, x, y, z}, &v)) continue;
+          ++proven;
+          ASSERT_EQ(v.density, 0.f);
+          // The sphere test of Cloud::constant_below (center 0.5, radius
+          // 0.4 x 1.6, the region's half diagonal with its margin).
+          const double side = std::ldexp(1.0, -level), margin = side / kBrickSide;
+          const double cx = (x + 0.5) * side - 0.5, cy = (y + 0.5) * side - 0.5,
+                       cz = (z + 0.5) * side - 0.5;
+          if (std::sqrt(cx * cx + cy * cy + cz * cz) - std::sqrt(3.0) * (0.5 * side + margin) <=
+              0.64)
+            ++beyond_radius_test;
+          for (int l = level; l <= max_level; ++l) {
+            const int64_t scale = int64_t(1) << (l - level), m = kBrickSide * scale;
+            for (int64_t k = int64_t(z) * m - 1; k <= int64_t(z + 1) * m; ++k)
+              for (int64_t j = int64_t(y) * m - 1; j <= int64_t(y + 1) * m; ++j)
+                for (int64_t i = int64_t(x) * m - 1; i <= int64_t(x + 1) * m; ++i)
+                  ASSERT_EQ(p->voxel(l, i, j, k).density, 0.f)
+                      << "node " << level << " (" << x << ", " << y << ", " << z << "), level " << l
+                      << " voxel " << i << " " << j << " " << k;
+          }
+        }
+  }
+  EXPECT_GT(proven, 0);
+  EXPECT_GT(beyond_radius_test, 0);
+}
+
 TEST(Giga, PoolVoxelsRoundToHalfPrecision) {
   // PoolVoxel: the value per voxel side (2^-L / 8) as a binary16 rounded to
   // nearest even. Exact where a half holds it, within 2^-11 relative
