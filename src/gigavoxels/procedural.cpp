@@ -50,20 +50,30 @@ uint32_t hash3(int64_t x, int64_t y, int64_t z, uint32_t seed) {
   return uint32_t(h >> 32);
 }
 
+// Value noise's pieces, shared by the noise and by the cloud's bound on it
+// (Cloud::octave_max), which must follow the same formulas.
+double lattice_value(int64_t x, int64_t y, int64_t z, uint32_t seed) {
+  return double(hash3(x, y, z, seed)) / 4294967296.0 - 0.5;
+}
+double fade(double t) {
+  return t * t * (3 - 2 * t);
+}
+// The corner values h[n] (n = i + 2 j + 4 k) blended at faded (u, v, w).
+double multilinear(const double h[8], double u, double v, double w) {
+  double acc = 0;
+  for (int n = 0; n < 8; ++n)
+    acc += ((n & 1) ? u : 1 - u) * ((n >> 1 & 1) ? v : 1 - v) * ((n >> 2) ? w : 1 - w) * h[n];
+  return acc;
+}
+
 /// Zero-mean value noise in [-0.5, 0.5) with a smooth (C1) fade.
 double value_noise(P3 p, uint32_t seed) {
   const double fx = std::floor(p.x), fy = std::floor(p.y), fz = std::floor(p.z);
   const int64_t ix = int64_t(fx), iy = int64_t(fy), iz = int64_t(fz);
-  auto fade = [](double t) { return t * t * (3 - 2 * t); };
-  const double u = fade(p.x - fx), v = fade(p.y - fy), w = fade(p.z - fz);
-  double acc = 0;
-  for (int k = 0; k < 2; ++k)
-    for (int j = 0; j < 2; ++j)
-      for (int i = 0; i < 2; ++i) {
-        const double weight = (i ? u : 1 - u) * (j ? v : 1 - v) * (k ? w : 1 - w);
-        acc += weight * (double(hash3(ix + i, iy + j, iz + k, seed)) / 4294967296.0 - 0.5);
-      }
-  return acc;
+  double h[8];
+  for (int n = 0; n < 8; ++n)
+    h[n] = lattice_value(ix + (n & 1), iy + (n >> 1 & 1), iz + (n >> 2), seed);
+  return multilinear(h, fade(p.x - fx), fade(p.y - fy), fade(p.z - fz));
 }
 
 class Cloud final : public ProceduralBase {
@@ -169,10 +179,6 @@ class Cloud final : public ProceduralBase {
       i0[a] = int64_t(std::floor(lo[a] * f)), i1[a] = int64_t(std::floor(hi[a] * f));
       cells *= i1[a] - i0[a] + 1, points *= i1[a] - i0[a] + 2;
     }
-    auto lattice = [seed](int64_t x, int64_t y, int64_t z) {
-      return double(hash3(x, y, z, seed)) / 4294967296.0 - 0.5;
-    };
-    auto fade = [](double t) { return t * t * (3 - 2 * t); };
     double m = -0.5;
     if (cells <= 64) {
       for (int64_t z = i0[2]; z <= i1[2]; ++z)
@@ -185,26 +191,21 @@ class Cloud final : public ProceduralBase {
               u[a][1] = fade(std::clamp(hi[a] * f - double(c[a]), 0.0, 1.0));
             }
             double h[8];
-            for (int n = 0; n < 8; ++n) h[n] = lattice(x + (n & 1), y + (n >> 1 & 1), z + (n >> 2));
-            for (int corner = 0; corner < 8; ++corner) {
-              const double U = u[0][corner & 1], V = u[1][corner >> 1 & 1], W = u[2][corner >> 2];
-              double v = 0;
-              for (int n = 0; n < 8; ++n)
-                v += ((n & 1) ? U : 1 - U) * ((n >> 1 & 1) ? V : 1 - V) * ((n >> 2) ? W : 1 - W) *
-                     h[n];
-              m = std::max(m, v);
-            }
+            for (int n = 0; n < 8; ++n)
+              h[n] = lattice_value(x + (n & 1), y + (n >> 1 & 1), z + (n >> 2), seed);
+            for (int corner = 0; corner < 8; ++corner)
+              m = std::max(
+                  m, multilinear(h, u[0][corner & 1], u[1][corner >> 1 & 1], u[2][corner >> 2]));
           }
       return m;
     }
     if (points > 1000) return 0.5;
     for (int64_t z = i0[2]; z <= i1[2] + 1; ++z)
       for (int64_t y = i0[1]; y <= i1[1] + 1; ++y)
-        for (int64_t x = i0[0]; x <= i1[0] + 1; ++x) m = std::max(m, lattice(x, y, z));
+        for (int64_t x = i0[0]; x <= i1[0] + 1; ++x) m = std::max(m, lattice_value(x, y, z, seed));
     return m;
   }
 
- private:
   static double shape(P3 p) {
     const double r = std::sqrt((p.x - 0.5) * (p.x - 0.5) + (p.y - 0.5) * (p.y - 0.5) +
                                (p.z - 0.5) * (p.z - 0.5)) /
