@@ -1,7 +1,9 @@
 // The packet casters (voxcast/packet_caster.hpp) against the scalar caster
 // they must reproduce bit for bit: trace_packets == trace() in every
 // SurfaceHit field and occluded_packets == occluded(), for the ESVO (plain,
-// with far pointers, with contours) and the DAG built from shipped meshes,
+// with far pointers, with contours), the DAG and the brickmap world
+// (BrickmapStructure's lane walk, src/brickmap/packet_walk_kernel.hpp)
+// built from shipped meshes, through SurfaceQuery::packets(),
 // on camera rays in 4x4 block order at LOD 0 and at a 1-pixel footprint, and
 // on random rays (outside and inside the root cube, along grid planes and
 // axes, short tmax, tiny and zero direction components, non-finite input),
@@ -22,6 +24,7 @@
 #include "support/esvo_testing.hpp"
 #include "support/packet_testing.hpp"
 #include "support/test_data.hpp"
+#include "voxcast/brickmap.hpp"
 #include "voxcast/camera.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/esvo.hpp"
@@ -40,6 +43,7 @@ struct Scenes {
   GridTransform grid;
   std::unique_ptr<esvo::EsvoStructure> esvo, esvo_far, esvo_contours;
   std::unique_ptr<dag::DagStructure> dag;
+  std::unique_ptr<brickmap::BrickmapStructure> brickmap;
 };
 
 const Scenes& scenes() {
@@ -60,6 +64,8 @@ const Scenes& scenes() {
         std::make_shared<const esvo::EsvoOctree>(esvo::build_octree(v, s.mesh, contours)));
     s.dag = std::make_unique<dag::DagStructure>(
         std::make_shared<const dag::SparseVoxelDag>(dag::build_dag(v)));
+    s.brickmap = std::make_unique<brickmap::BrickmapStructure>(
+        std::make_shared<const brickmap::World>(brickmap::build_world(v)));
     return s;
   }();
   return s;
@@ -145,8 +151,9 @@ void expect_same(const S& s, const std::vector<Ray>& rays, const LodFootprint& l
   for (const Isa isa : testing::packet_isas()) {
     std::vector<SurfaceHit> got(rays.size());
     std::vector<uint8_t> found(rays.size(), 7), occ(rays.size(), 7);
-    trace_packets(s, rays.data(), rays.size(), lod, got.data(), found.data(), isa);
-    occluded_packets(s, rays.data(), rays.size(), lod, occ.data(), isa);
+    const SurfacePackets& p = *s.packets();
+    p.trace_packets(rays.data(), rays.size(), lod, ctx, got.data(), found.data(), isa);
+    p.occluded_packets(rays.data(), rays.size(), lod, ctx, occ.data(), isa);
     size_t bad = 0;
     for (size_t i = 0; i < rays.size(); ++i) {
       const bool ok = found[i] == want_found[i] && (!found[i] || same_hit(got[i], want[i])) &&
@@ -225,7 +232,8 @@ void check_beams(const S& s, const char* name) {
     }
     EXPECT_GT(hits, rays.size() / 8) << name;
     for (const Isa isa : testing::packet_isas()) {
-      trace_packets(s, rays.data(), rays.size(), lod, got.data(), found.data(), isa, beams.data());
+      s.packets()->trace_packets(rays.data(), rays.size(), lod, ctx, got.data(), found.data(), isa,
+                                 beams.data());
       size_t bad = 0;
       for (size_t i = 0; i < rays.size(); ++i)
         bad += found[i] != want_found[i] || (found[i] && !same_hit(got[i], want[i]));
@@ -238,6 +246,7 @@ TEST(PacketCaster, BeamStartsEqualTheScalarCaster) {
   check_beams(*scenes().esvo, "esvo");
   check_beams(*scenes().esvo_contours, "esvo contours");
   check_beams(*scenes().dag, "dag");
+  check_beams(*scenes().brickmap, "brickmap");
 }
 
 TEST(PacketCaster, EsvoHitsEqualTheScalarCaster) {
@@ -256,6 +265,10 @@ TEST(PacketCaster, EsvoContoursHitsEqualTheScalarCaster) {
 
 TEST(PacketCaster, DagHitsEqualTheScalarCaster) {
   check_structure(*scenes().dag, "dag");
+}
+
+TEST(PacketCaster, BrickmapHitsEqualTheScalarCaster) {
+  check_structure(*scenes().brickmap, "brickmap");
 }
 
 // Exact ties: on the unit grid (world = octree space - 1, so no rounding in
@@ -297,13 +310,27 @@ TEST(PacketCaster, GridVertexTiesEqualTheScalarCaster) {
   expect_same(d, rays, lod, "dag ties lod", &hits);
 }
 
+// The same exact ties for the brickmap lane walk, on a grid large enough
+// for it (2^7 voxels: pyramid nodes, cells with their cell-box test, voxels).
+TEST(PacketCaster, BrickmapGridVertexTiesEqualTheScalarCaster) {
+  constexpr int kLevels = 7;
+  const VoxelSet v = testing::make_random_voxels(kLevels, 40000, 5);
+  ASSERT_EQ(v.grid.side(), 1.0);
+  const brickmap::BrickmapStructure b(
+      std::make_shared<const brickmap::World>(brickmap::build_world(v)));
+  const std::vector<Ray> rays = tie_rays(kLevels, 20000, 19);
+  size_t hits = 0;
+  expect_same(b, rays, LodFootprint{}, "brickmap ties", &hits);
+  EXPECT_GT(hits, rays.size() / 10);
+}
+
 // The packet casters as a capability of the surface query (SurfacePackets,
 // what render, bench and other structure-agnostic callers use): the same answers as
 // the scalar caster through the Structure interface alone.
 TEST(PacketCaster, OfferedThroughTheSurfaceQuery) {
   const Scenes& sc = scenes();
   float pixel_angle = 0;
-  const Structure* structures[] = {sc.esvo.get(), sc.dag.get()};
+  const Structure* structures[] = {sc.esvo.get(), sc.dag.get(), sc.brickmap.get()};
   for (const Structure* st : structures) {
     const SurfaceQuery* q = st->surface();
     ASSERT_NE(q, nullptr) << st->name();

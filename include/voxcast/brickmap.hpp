@@ -292,6 +292,7 @@ class World {
   /// with the pyramid (update_pyramid_node).
   static constexpr int kCellBoxLevel = 3;
   uint32_t cell_box(uint64_t index) const { return cell_box_[size_t(index)]; }
+  const std::vector<uint32_t>& cell_boxes() const { return cell_box_; }
 
   /// Empty-space distance of brickgrid cell `index` (the ray walk's skip,
   /// traverse.cpp): 0 for a non-empty cell, else the Chebyshev distance in
@@ -440,7 +441,11 @@ World build_world(const VoxelSet& voxels, const BuildOptions& options = {});
 /// attributes(): the stored color and normal; the crossed face's normal
 /// without stored normals and for LOD hits; a ray starting inside a voxel
 /// gets the face the ray looks at (the dominant axis of -direction).
-class BrickmapStructure final : public Structure, public SurfaceQuery {
+/// trace_packets(): trace()'s hits bit for bit; rays without an LOD
+/// footprint walk in 16 (AVX-512) or 8 (AVX2) lanes (src/brickmap/
+/// packet_walk_kernel.hpp), the others, counting contexts and worlds with a
+/// brick-use record go through trace(). occluded_packets(): occluded() per ray.
+class BrickmapStructure final : public Structure, public SurfaceQuery, public SurfacePackets {
  public:
   static constexpr uint32_t kRequestBrick = 0;
   /// `brick_seen` (may be null): per brick pool slot, the TraceContext::frame
@@ -462,6 +467,12 @@ class BrickmapStructure final : public Structure, public SurfaceQuery {
   void beam_start(const BeamFrustum& beam, TraceContext& ctx, BeamStart* start) const override;
   void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
                   Vec3* normal) const override;
+  const SurfacePackets* packets() const override { return this; }
+  void trace_packets(const Ray* rays, size_t n, const LodFootprint& lod, TraceContext& ctx,
+                     SurfaceHit* hits, uint8_t* found, Isa isa,
+                     const BeamStart* const* beams = nullptr) const override;
+  void occluded_packets(const Ray* rays, size_t n, const LodFootprint& lod, TraceContext& ctx,
+                        uint8_t* occluded, Isa isa) const override;
   const World& world() const { return *world_; }
 
  private:

@@ -22,9 +22,12 @@
 #endif
 
 #include "brickmap/brick_skip.hpp"
+#include "brickmap/packet_walk.hpp"
 #include "core/beam_frustum.hpp"
 #include "voxcast/brickmap.hpp"
+#include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
+#include "voxcast/isa.hpp"
 
 namespace voxcast::brickmap {
 
@@ -709,12 +712,15 @@ struct Walker {
   }
 };
 
-// The walk; true with `f` filled (unless kAny) on a hit within [0, tmax].
-// `region` (may be null): a beam's start region in grid units (lo, hi),
-// holding every cube the walk can stop in for this ray (beam_start).
-template <bool kCount, bool kAny = false>
-bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod, TraceContext& ctx,
-          uint32_t* seen, const float (*region)[3], Found* f) {
+// The ray's span in the grid: [t0, t1] (t1 also clipped to tmax and to a
+// beam's region), the axis of the face entered at t0, the t it leaves the
+// grid at (exit), and start_t (NaN unless the ray starts at the region).
+// False when the span is empty. walk() and the packet walk's set-up.
+struct Span {
+  float t0, t1, exit, start_t;
+  int axis;
+};
+bool clip_ray(const World& w, const GridRay& r, float tmax, const float (*region)[3], Span* s) {
   const GridTransform& g = w.grid();
   const float n = float(g.resolution);
   // Clip to the grid box [0, N]^3. The plane t values are finite (finite
@@ -754,6 +760,21 @@ bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod,
     if (before > t0) t0 = before, start_t = before;
     if (!(t0 <= t1)) return false;
   }
+  *s = {t0, t1, exit, start_t, axis};
+  return true;
+}
+
+// The walk; true with `f` filled (unless kAny) on a hit within [0, tmax].
+// `region` (may be null): a beam's start region in grid units (lo, hi),
+// holding every cube the walk can stop in for this ray (beam_start).
+template <bool kCount, bool kAny = false>
+bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod, TraceContext& ctx,
+          uint32_t* seen, const float (*region)[3], Found* f) {
+  const GridTransform& g = w.grid();
+  Span span;
+  if (!clip_ray(w, r, tmax, region, &span)) return false;
+  const float t0 = span.t0, t1 = span.t1, exit = span.exit, start_t = span.start_t;
+  const int axis = span.axis;
   const bool lod_on = lod.size_at_origin > 0.f || lod.size_per_t > 0.f;
   Walker<kCount, kAny> wk{
       w, r, lod, ctx, t1, g.levels, g.levels - kBrickLog2, float(g.voxel_size), lod_on, seen, f};
@@ -791,6 +812,28 @@ Vec3 face_normal(int face) {
   Vec3 n{0, 0, 0};
   n[face >> 1] = (face & 1) ? -1.f : 1.f;
   return n;
+}
+
+// The SurfaceHit of the walk's Found (trace(), trace_packets()).
+void fill_hit(const GridTransform& g, const Ray& ray, const Found& f, SurfaceHit* hit) {
+  // voxel_size 2^(levels - level), exact (a power-of-two scale), no libm ldexp call.
+  const double side = g.voxel_size * double(uint32_t(1) << (g.levels - f.level));
+  hit->t = f.t;
+  hit->voxel_size = float(side);
+  hit->voxel_ref = f.ref;
+  hit->child = uint32_t(f.face);
+  hit->level = f.level;
+  const Vec3 p = ray.origin + ray.dir * f.t;
+  for (int a = 0; a < 3; ++a) {
+    // Clamped into the cube [lo, hi) as the floats inside it (when the cube
+    // holds any float at all), so that the position names the hit voxel.
+    const double lo = double(g.origin[a]) + double(f.c[a]) * side;
+    const double hi = double(g.origin[a]) + std::min(double(f.c[a] + 1) * side, g.side());
+    float lo_f = float(lo), hi_f = float(hi);
+    if (double(lo_f) < lo) lo_f = std::nextafter(lo_f, INFINITY);
+    if (double(hi_f) >= hi) hi_f = std::nextafter(hi_f, -INFINITY);
+    hit->position[a] = std::max(std::min(p[a], hi_f), lo_f);  // p finite
+  }
 }
 
 }  // namespace
@@ -914,25 +957,7 @@ bool BrickmapStructure::trace(const Ray& ray, const LodFootprint& lod, TraceCont
   const bool found = ctx.counting ? walk<true>(*world_, r, ray.tmax, lod, ctx, seen, rg, &f)
                                   : walk<false>(*world_, r, ray.tmax, lod, ctx, seen, rg, &f);
   if (!found) return false;
-  const GridTransform& g = world_->grid();
-  // voxel_size 2^(levels - level), exact (a power-of-two scale), no libm ldexp call.
-  const double side = g.voxel_size * double(uint32_t(1) << (g.levels - f.level));
-  hit->t = f.t;
-  hit->voxel_size = float(side);
-  hit->voxel_ref = f.ref;
-  hit->child = uint32_t(f.face);
-  hit->level = f.level;
-  const Vec3 p = ray.origin + ray.dir * f.t;
-  for (int a = 0; a < 3; ++a) {
-    // Clamped into the cube [lo, hi) as the floats inside it (when the cube
-    // holds any float at all), so that the position names the hit voxel.
-    const double lo = double(g.origin[a]) + double(f.c[a]) * side;
-    const double hi = double(g.origin[a]) + std::min(double(f.c[a] + 1) * side, g.side());
-    float lo_f = float(lo), hi_f = float(hi);
-    if (double(lo_f) < lo) lo_f = std::nextafter(lo_f, INFINITY);
-    if (double(hi_f) >= hi) hi_f = std::nextafter(hi_f, -INFINITY);
-    hit->position[a] = std::max(std::min(p[a], hi_f), lo_f);  // p finite
-  }
+  fill_hit(world_->grid(), ray, f, hit);
   return true;
 }
 
@@ -967,6 +992,129 @@ void BrickmapStructure::attributes(const SurfaceHit& hit, TraceContext& ctx, Col
   if (color) *color = esvo::decode_color_abgr(w.color_of(b, index - b.color));
   if (normal) *normal = w.has_normals() ? esvo::decode_normal_cube(w.normals()[index]) : face;
   if (ctx.counting) ctx.counters.attribute_bytes += sizeof(Brick) + (w.has_normals() ? 8 : 4);
+}
+
+namespace {
+
+// The lane walk's view of `w` (packet_walk.hpp); false when the walk does
+// not apply: grids below 2^7 voxels (the root's children would be cells)
+// or a pyramid of another height.
+bool packet_world(const World& w, detail::PacketWorld* pw) {
+  const GridTransform& g = w.grid();
+  const int L = g.levels, B = L - kBrickLog2;
+  if (B < 4 || w.pyramid_levels() != B) return false;
+  pw->cells = w.cells().data();
+  pw->bricks = reinterpret_cast<const uint32_t*>(w.bricks().data());
+  pw->cell_box = w.cell_boxes().data();
+  for (int a = 0; a < 3; ++a) pw->dims[a] = w.dims()[a];
+  pw->L = L, pw->B = B;
+  // Walker::child_level without a footprint, from the root down.
+  pw->depths = 0;
+  for (int level = 0; level != L;) {
+    level = level < B ? B - (B - level - 1) / 3 * 3 : L;
+    if (pw->depths == detail::kPacketMaxDepth) return false;
+    const int k = pw->depths++;
+    pw->level[k] = level;
+    if (level < B) {
+      const int p = B - level;
+      pw->nodes[k] = reinterpret_cast<const uint32_t*>(&w.pyramid_node(p, 0));
+      pw->node_dim[k] = w.pyramid_dim(p), pw->node_dim_y[k] = w.pyramid_dim_y(p);
+    }
+  }
+  return true;
+}
+
+// The packet walk's rays (PacketRays), per thread, grown once.
+struct PacketBuffers {
+  static constexpr size_t kChunk = 256;
+  alignas(64) float f[15][kChunk];  // o, d, inv, slack (x, y, z each), t0, t1, start_t
+  alignas(64) int32_t axis[kChunk];
+  uint32_t id[kChunk];
+  uint8_t status[kChunk];
+  detail::PacketFound out[kChunk];
+};
+
+}  // namespace
+
+void BrickmapStructure::trace_packets(const Ray* rays, size_t n, const LodFootprint& lod,
+                                      TraceContext& ctx, SurfaceHit* hits, uint8_t* found, Isa isa,
+                                      const BeamStart* const* beams) const {
+  if (!cpu_supports(isa))
+    throw Error(std::string("brickmap trace_packets: this CPU does not support ") + isa_name(isa));
+  const World& w = *world_;
+  const GridTransform& g = w.grid();
+  const bool lod_on = lod.size_at_origin > 0.f || lod.size_per_t > 0.f;
+  detail::PacketWorld pw;
+  if (ctx.counting || seen_ != nullptr || lod_on || !packet_world(w, &pw)) {
+    for (size_t i = 0; i < n; ++i)
+      found[i] = trace(rays[i], lod, ctx, &hits[i], beams ? beams[i] : nullptr);
+    return;
+  }
+  const bool root = w.pyramid_node(w.pyramid_levels(), 0).bricks != 0;
+  thread_local std::unique_ptr<PacketBuffers> buffers;
+  if (!buffers) buffers = std::make_unique<PacketBuffers>();
+  PacketBuffers& q = *buffers;
+  detail::PacketRays pr;
+  for (int a = 0; a < 3; ++a)
+    pr.o[a] = q.f[a], pr.d[a] = q.f[3 + a], pr.inv[a] = q.f[6 + a], pr.slack[a] = q.f[9 + a];
+  float *t0 = q.f[12], *t1 = q.f[13], *start = q.f[14];
+  pr.t0 = t0, pr.t1 = t1, pr.start_t = start, pr.axis = q.axis;
+  for (size_t b0 = 0; b0 < n; b0 += PacketBuffers::kChunk) {
+    const size_t m = std::min(PacketBuffers::kChunk, n - b0);
+    int count = 0;
+    for (size_t i = b0; i < b0 + m; ++i) {
+      found[i] = 0;
+      const BeamStart* beam = beams ? beams[i] : nullptr;
+      float region[2][3];
+      const float(*rg)[3] = nullptr;
+      if (beam != nullptr && beam->valid) {
+        if (beam->empty) continue;
+        rg = grid_region(g, beam->region, region);
+      }
+      GridRay r;
+      Span s;
+      if (!root || !to_grid(g, rays[i], &r) || !clip_ray(w, r, rays[i].tmax, rg, &s)) continue;
+      for (int a = 0; a < 3; ++a) {
+        q.f[a][count] = r.o[a], q.f[3 + a][count] = r.d[a], q.f[6 + a][count] = r.inv[a];
+        q.f[9 + a][count] = brick_slack(r, a, s.t1);
+      }
+      t0[count] = s.t0, t1[count] = s.t1, start[count] = s.start_t;
+      q.axis[count] = s.axis;
+      q.id[count] = uint32_t(i);
+      ++count;
+    }
+    // Padding up to a whole packet (lanes the walk leaves idle).
+    const int padded = std::min(int(PacketBuffers::kChunk), (count + 15) & ~15);
+    for (int k = count; k < padded; ++k) {
+      for (int j = 0; j < 12; ++j) q.f[j][k] = 1.f;
+      t0[k] = t1[k] = 0.f, start[k] = NAN, q.axis[k] = 0;
+    }
+    pr.count = count;
+    std::fill(q.status, q.status + count, detail::kPacketMiss);
+    if (isa == Isa::Avx512)
+      detail::packet_walk_avx512(pw, pr, q.status, q.out);
+    else
+      detail::packet_walk_avx2(pw, pr, q.status, q.out);
+    for (int k = 0; k < count; ++k) {
+      const size_t i = q.id[k];
+      if (q.status[k] == detail::kPacketHit) {
+        const detail::PacketFound& o = q.out[k];
+        const Found f{o.t, o.face, g.levels, {o.c[0], o.c[1], o.c[2]}, o.ref};
+        fill_hit(g, rays[i], f, &hits[i]);
+        found[i] = 1;
+      } else if (q.status[k] == detail::kPacketScalar) {
+        found[i] = trace(rays[i], lod, ctx, &hits[i], beams ? beams[i] : nullptr);
+      }
+    }
+  }
+}
+
+void BrickmapStructure::occluded_packets(const Ray* rays, size_t n, const LodFootprint& lod,
+                                         TraceContext& ctx, uint8_t* occluded, Isa isa) const {
+  if (!cpu_supports(isa))
+    throw Error(std::string("brickmap occluded_packets: this CPU does not support ") +
+                isa_name(isa));
+  for (size_t i = 0; i < n; ++i) occluded[i] = this->occluded(rays[i], lod, ctx);
 }
 
 }  // namespace voxcast::brickmap

@@ -1,0 +1,57 @@
+#pragma once
+// The brickmap packet walk (BrickmapStructure::trace_packets, traverse.cpp):
+// the LOD-0 walk of traverse.cpp's Walker in 16 (AVX-512) or 8 (AVX2) lanes,
+// one ray per lane, the per-level DDAs as lane vectors. What the kernels
+// read is set up by traverse.cpp; the kernels are compiled per ISA
+// (packet_walk_avx2.cpp, packet_walk_avx512.cpp, packet_walk_kernel.hpp).
+#include <cstddef>
+#include <cstdint>
+
+namespace voxcast::brickmap::detail {
+
+inline constexpr int kPacketMaxDepth = 16;
+
+/// The world as the lane walk reads it. The walk's levels below the root
+/// (cube level 0) are fixed without an LOD footprint (Walker::child_level):
+/// depth k walks the children at cube level level[k] of a cube of
+/// level[k - 1] (0 for k = 0); the last depth is the voxels (level L).
+struct PacketWorld {
+  const uint32_t* cells = nullptr;     // brickgrid cells (World::cells)
+  const uint32_t* bricks = nullptr;    // the brick pool, 18 words per Brick
+  const uint32_t* cell_box = nullptr;  // World::cell_box per node of level kCellBoxLevel
+  uint32_t dims[3] = {};               // brickgrid cells per axis
+  int L = 0, B = 0;                    // voxel level, brickgrid level
+  int depths = 0;
+  int level[kPacketMaxDepth] = {};
+  // Depths above the brickgrid: the pyramid nodes (PyramidNode as two
+  // words, `bricks` first) and their index dims.
+  const uint32_t* nodes[kPacketMaxDepth] = {};
+  uint32_t node_dim[kPacketMaxDepth] = {}, node_dim_y[kPacketMaxDepth] = {};
+};
+
+/// The rays in grid units (traverse.cpp's GridRay), clipped as walk() clips
+/// them, structure of arrays padded to a multiple of 16 entries.
+struct PacketRays {
+  const float *o[3], *d[3], *inv[3], *slack[3];
+  const float *t0, *t1, *start_t;  // start_t: NaN unless the ray starts at a beam's region
+  const int32_t* axis;             // the entered face's axis at t0
+  int count;
+};
+
+/// A hit as traverse.cpp's Found at the voxel level.
+struct PacketFound {
+  float t;
+  int32_t face;
+  int32_t c[3];
+  uint64_t ref;
+};
+
+inline constexpr uint8_t kPacketMiss = 0, kPacketHit = 1, kPacketScalar = 2;
+
+/// status[i] for ray i < q.count: kPacketMiss, kPacketHit (out[i] filled) or
+/// kPacketScalar (a not-resident brick: the scalar walk answers the ray).
+void packet_walk_avx2(const PacketWorld& w, const PacketRays& q, uint8_t* status, PacketFound* out);
+void packet_walk_avx512(const PacketWorld& w, const PacketRays& q, uint8_t* status,
+                        PacketFound* out);
+
+}  // namespace voxcast::brickmap::detail
