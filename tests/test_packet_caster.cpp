@@ -314,14 +314,17 @@ TEST(PacketCaster, GridVertexTiesEqualTheScalarCaster) {
 // for it (2^7 voxels: pyramid nodes, cells with their cell-box test, voxels).
 TEST(PacketCaster, BrickmapGridVertexTiesEqualTheScalarCaster) {
   constexpr int kLevels = 7;
-  const VoxelSet v = testing::make_random_voxels(kLevels, 40000, 5);
-  ASSERT_EQ(v.grid.side(), 1.0);
-  const brickmap::BrickmapStructure b(
-      std::make_shared<const brickmap::World>(brickmap::build_world(v)));
   const std::vector<Ray> rays = tie_rays(kLevels, 20000, 19);
-  size_t hits = 0;
-  expect_same(b, rays, LodFootprint{}, "brickmap ties", &hits);
-  EXPECT_GT(hits, rays.size() / 10);
+  // Dense (many bricks) and sparse (empty cells with clearances: jumps).
+  for (const size_t voxels : {40000, 200}) {
+    const VoxelSet v = testing::make_random_voxels(kLevels, voxels, 5);
+    ASSERT_EQ(v.grid.side(), 1.0);
+    const brickmap::BrickmapStructure b(
+        std::make_shared<const brickmap::World>(brickmap::build_world(v)));
+    size_t hits = 0;
+    expect_same(b, rays, LodFootprint{}, "brickmap ties " + std::to_string(voxels), &hits);
+    EXPECT_GT(hits, rays.size() / 1000);
+  }
 }
 
 // The packet casters as a capability of the surface query (SurfacePackets,

@@ -19,6 +19,8 @@ struct PacketWorld {
   const uint32_t* cells = nullptr;     // brickgrid cells (World::cells)
   const uint32_t* bricks = nullptr;    // the brick pool, 18 words per Brick
   const uint32_t* cell_box = nullptr;  // World::cell_box per node of level kCellBoxLevel
+  const uint8_t* clearance = nullptr;  // World::clearances, per cell
+  int32_t clearance_last = 0;          // the last index a 4-byte read may start at (size - 4)
   uint32_t dims[3] = {};               // brickgrid cells per axis
   int L = 0, B = 0;                    // voxel level, brickgrid level
   int depths = 0;

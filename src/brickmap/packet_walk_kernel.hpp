@@ -16,8 +16,11 @@
 //            pops to the parent's DDA (the parent's c from the child's lo,
 //            its exit planes recomputed: plane_t of the same coordinates)
 //            and advances again; past t1 or out of the root the lane misses.
-// A not-resident cell ends the lane as kPacketScalar. The walk's exact skips
-// (clearance jumps, brick slices) are left out: the same hits without them.
+//   jump     an empty cell with a clearance k > 1: Walker::jump, out of the
+//            cube of radius k - 1 in one step (the crossings on the other
+//            axes taken in (t, axis) order, lane loops until none is left).
+// A not-resident cell ends the lane as kPacketScalar. The walk's brick-slice
+// skip (brick_slices) is left out: an exact skip, the same hits without it.
 // Lanes are filled 16 (8) rays at a time, a 4x4 (4x2) pixel block.
 #include <immintrin.h>
 
@@ -33,7 +36,18 @@ namespace {
 
 template <int N>
 struct WalkLanes : ::voxcast::detail::Lanes<N> {
-  using F = typename ::voxcast::detail::Lanes<N>::F;
+  using L0 = ::voxcast::detail::Lanes<N>;
+  using F = typename L0::F;
+  using I = typename L0::I;
+  using U = typename L0::U;
+  /// The 4 bytes at base + idx in the lanes of m, src elsewhere.
+  static U gather_bytes(const uint8_t* base, I idx, I m, U src) {
+    if constexpr (N == 16)
+      return (U)_mm512_mask_i32gather_epi32((__m512i)src, L0::bits(m), (__m512i)idx, base, 1);
+    else
+      return (U)_mm256_mask_i32gather_epi32((__m256i)src, (const int*)base, (__m256i)idx,
+                                            (__m256i)m, 1);
+  }
   // floor (kMode _MM_FROUND_TO_NEG_INF) or ceil (_MM_FROUND_TO_POS_INF).
   template <int kMode>
   static F round(F x) {
@@ -206,9 +220,61 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
       }
       brick = is_cell & occ ? (I)(cellv & 0xFFFFFFu) : brick;
       I adv = active & ~occ;
+      // visit_cells' jump: an empty cell of clearance k > 1 leaves the
+      // cube of radius k - 1 around it (clipped to the parent) in one step.
+      I leave_jump{};
+      const I empty = mc & (cellv == 0u);
+      if (L::bits(empty)) {
+        const I idx = c[0] + int32_t(w.dims[0]) * (c[1] + int32_t(w.dims[1]) * c[2]);
+        const I at = idx < w.clearance_last ? idx : I{} + w.clearance_last;
+        const U word = L::gather_bytes(w.clearance, at, empty, U{});
+        const I radius = (I)((word >> (U)((idx - at) * 8)) & 0xFFu) - 1;
+        const I jump = empty & (radius > 0);
+        if (L::bits(jump)) {
+          F tn[3];
+          I tc[3];
+          for (int a = 0; a < 3; ++a) {
+            const I far = c[a] + stp[a] * radius, hi = lo[a] + span[a];
+            const I mx = far < lo[a] ? lo[a] : far;
+            tc[a] = hi < mx ? hi : mx;
+            tn[a] = (__builtin_convertvector(tc[a] + up[a], F) * side - o[a]) * inv[a];
+          }
+          const I x_le_y = tn[0] <= tn[1];
+          const I a0 = x_le_y & (tn[0] <= tn[2]);
+          const I a1 = ~x_le_y & (tn[1] <= tn[2]);
+          const I ax[3] = {a0 & jump, a1 & jump, ~(a0 | a1) & jump};
+          const F tj = a0 ? tn[0] : (a1 ? tn[1] : tn[2]);
+          const I aj = a0 ? I{} : (a1 ? I{} + 1 : I{} + 2);
+          t = jump ? tj : t;
+          axis = jump ? aj : axis;
+          I cn[3];
+          for (int a = 0; a < 3; ++a) {
+            cn[a] = tc[a] + stp[a];
+            leave_jump |= ax[a] & ((U)(cn[a] - lo[a]) > (U)span[a]);
+          }
+          const I end = jump & ~leave_jump & (tj > t1);
+          const I ok = jump & ~leave_jump & ~end;
+          active &= ~end;
+          for (int b = 0; b < 3; ++b) {
+            // The cells crossed before (t, A) on the other axes.
+            for (I m = ok & ~ax[b];;) {
+              m &= (n[b] < t) | ((n[b] == t) & (aj > b));
+              if (!L::bits(m)) break;
+              c[b] = m ? c[b] + stp[b] : c[b];
+              n[b] = m ? (__builtin_convertvector(c[b] + up[b], F) * side - o[b]) * inv[b] : n[b];
+            }
+          }
+          for (int a = 0; a < 3; ++a) {
+            const I m = ok & ax[a];
+            c[a] = m ? cn[a] : c[a];
+            n[a] = m ? (__builtin_convertvector(cn[a] + up[a], F) * side - o[a]) * inv[a] : n[a];
+          }
+          adv &= ~jump;
+        }
+      }
       if (L::bits(occ)) push(occ);
       // ---- advance (and pop) the other lanes ----
-      while (L::bits(adv)) {
+      while (L::bits(adv | leave_jump)) {
         const I x_le_y = n[0] <= n[1];
         const I a0 = x_le_y & (n[0] <= n[2]);
         const I a1 = ~x_le_y & (n[1] <= n[2]);
@@ -224,6 +290,8 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
         }
         const I end = adv & ~leave & (tn > t1);
         const I ok = adv & ~leave & ~end;
+        leave |= leave_jump;
+        leave_jump = I{};
         for (int a = 0; a < 3; ++a) {
           const I m = ok & ax[a];
           if (L::bits(m))

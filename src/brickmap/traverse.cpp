@@ -1006,6 +1006,9 @@ bool packet_world(const World& w, detail::PacketWorld* pw) {
   pw->cells = w.cells().data();
   pw->bricks = reinterpret_cast<const uint32_t*>(w.bricks().data());
   pw->cell_box = w.cell_boxes().data();
+  if (w.clearances().size() < 4) return false;
+  pw->clearance = w.clearances().data();
+  pw->clearance_last = int32_t(w.clearances().size() - 4);
   for (int a = 0; a < 3; ++a) pw->dims[a] = w.dims()[a];
   pw->L = L, pw->B = B;
   // Walker::child_level without a footprint, from the root down.
