@@ -81,6 +81,10 @@ inline float next_below(float x) {
   const uint32_t b = std::bit_cast<uint32_t>(x);
   return std::bit_cast<float>(x > 0.f ? b - 1 : b + 1);
 }
+// std::nextafter(x, INFINITY) for a finite x.
+inline float next_above(float x) {
+  return -next_below(-x);
+}
 
 inline float plane_t(const GridRay& r, int a, float coord) {
   return (coord - r.o[a]) * r.inv[a];
@@ -830,8 +834,8 @@ void fill_hit(const GridTransform& g, const Ray& ray, const Found& f, SurfaceHit
     const double lo = double(g.origin[a]) + double(f.c[a]) * side;
     const double hi = double(g.origin[a]) + std::min(double(f.c[a] + 1) * side, g.side());
     float lo_f = float(lo), hi_f = float(hi);
-    if (double(lo_f) < lo) lo_f = std::nextafter(lo_f, INFINITY);
-    if (double(hi_f) >= hi) hi_f = std::nextafter(hi_f, -INFINITY);
+    if (double(lo_f) < lo) lo_f = next_above(lo_f);  // no libm call per hit
+    if (double(hi_f) >= hi) hi_f = next_below(hi_f);
     hit->position[a] = std::max(std::min(p[a], hi_f), lo_f);  // p finite
   }
 }
