@@ -864,31 +864,30 @@ void BrickmapStructure::beam_start(const BeamFrustum& beam, TraceContext& ctx,
   Item stack[8 * (kMaxGridLevels + 1)];  // depth-first: <= 7 pending siblings per level
   int top = 0;
   const float cell_side = float(kBrickSide) / float(g.resolution);
-  {
-    // The root (the top pyramid level: one node; a brickgrid of one cell
-    // when there is no pyramid).
-    const int k = w.pyramid_levels();
-    const bool filled = k == 0 ? w.cell(0) != 0 : w.pyramid_node(k, 0).bricks != 0;
-    const float lo[3] = {1.f, 1.f, 1.f};
-    if (filled) switch (cls.classify(lo, cell_side * float(1u << k), k == 0)) {
-        case ::voxcast::detail::BeamClassifier::kKeep:
-          cls.keep(lo, cell_side * float(1u << k));
-          break;
-        case ::voxcast::detail::BeamClassifier::kDescend:
-          ++cls.counters.pushes;
-          stack[top++] = {k, {0, 0, 0}};
-          break;
-        default:
-          break;
-      }
+  // Whether cube (k, x, y, z) is not empty: a brickgrid cell (k = 0) or a
+  // pyramid node; cubes above a cut-off brickgrid are empty and not stored.
+  auto filled = [&w](int k, uint32_t x, uint32_t y, uint32_t z) {
+    if (k == 0) return y < w.dims()[1] && w.cell(w.cell_index(x, y, z)) != 0;
+    return y < w.pyramid_dim_y(k) && w.pyramid_node(k, w.pyramid_index(k, x, y, z)).bricks != 0;
+  };
+  // The root: the top pyramid level's one node (a brickgrid of one cell
+  // when there is no pyramid), kept or descended as the children below.
+  const int kr = w.pyramid_levels();
+  if (filled(kr, 0, 0, 0)) {
+    const float lo[3] = {1.f, 1.f, 1.f}, side = cell_side * float(1u << kr);
+    const int c = cls.classify(lo, side, kr == 0);
+    if (c == ::voxcast::detail::BeamClassifier::kKeep) cls.keep(lo, side);
+    if (c == ::voxcast::detail::BeamClassifier::kDescend) {
+      ++cls.counters.pushes;
+      stack[top++] = {kr, {0, 0, 0}};
+    }
   }
   while (top > 0) {
     const Item item = stack[--top];
     ++cls.counters.iterations;
     // The eight children (k - 1, 2 c + m) classified at once in float lanes
     // (BeamClassifier::classify_children, as the tile frustum pass): a child
-    // is present when its node (or cell) is not empty; children above a
-    // cut-off brickgrid are empty and not stored. The same plane test as
+    // is present when it is filled(). The same plane test as
     // classify() per child (as conservative); it also skipped cubes already
     // inside the region, but descending those adds only cubes inside it. Any
     // conservative region gives the same hits (walk()), so the images do not
@@ -896,22 +895,8 @@ void BrickmapStructure::beam_start(const BeamFrustum& beam, TraceContext& ctx,
     const int k = item.k - 1;
     const uint32_t c0[3] = {2 * item.c[0], 2 * item.c[1], 2 * item.c[2]};
     uint32_t present = 0;
-    if (k == 0) {
-      const uint32_t dy = w.dims()[1];
-      for (uint32_t m = 0; m < 8; ++m) {
-        const uint32_t y = c0[1] + (m >> 1 & 1);
-        if (y < dy && w.cell(w.cell_index(c0[0] + (m & 1), y, c0[2] + (m >> 2))) != 0)
-          present |= 1u << m;
-      }
-    } else {
-      const uint32_t dy = w.pyramid_dim_y(k);
-      for (uint32_t m = 0; m < 8; ++m) {
-        const uint32_t y = c0[1] + (m >> 1 & 1);
-        if (y < dy &&
-            w.pyramid_node(k, w.pyramid_index(k, c0[0] + (m & 1), y, c0[2] + (m >> 2))).bricks != 0)
-          present |= 1u << m;
-      }
-    }
+    for (uint32_t m = 0; m < 8; ++m)
+      if (filled(k, c0[0] + (m & 1), c0[1] + (m >> 1 & 1), c0[2] + (m >> 2))) present |= 1u << m;
     if (present == 0) continue;
     const float side = cell_side * float(1u << item.k), hs = 0.5f * side;
     const float lo[3] = {1.f + float(item.c[0]) * side, 1.f + float(item.c[1]) * side,
