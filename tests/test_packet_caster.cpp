@@ -269,6 +269,18 @@ TEST(PacketCaster, DagHitsEqualTheScalarCaster) {
 
 TEST(PacketCaster, BrickmapHitsEqualTheScalarCaster) {
   check_structure(*scenes().brickmap, "brickmap");
+  // Fixed footprints of 1 to 64 voxels: LOD stops at every level kind the
+  // lanes answer (blocks inside bricks, brickgrid cells, pyramid nodes).
+  const Scenes& sc = scenes();
+  float pixel_angle = 0;
+  const std::vector<Ray> cam = camera_rays(sc.brickmap->bounds(), 48, 36, &pixel_angle);
+  for (const float voxels : {1.f, 2.f, 4.f, 8.f, 16.f, 64.f}) {
+    LodFootprint lod;
+    lod.size_at_origin = voxels * float(sc.grid.voxel_size);
+    size_t hits = 0;
+    expect_same(*sc.brickmap, cam, lod, "brickmap footprint " + std::to_string(voxels), &hits);
+    EXPECT_GT(hits, cam.size() / 8);
+  }
 }
 
 // Exact ties: on the unit grid (world = octree space - 1, so no rounding in
@@ -324,6 +336,11 @@ TEST(PacketCaster, BrickmapGridVertexTiesEqualTheScalarCaster) {
     size_t hits = 0;
     expect_same(b, rays, LodFootprint{}, "brickmap ties " + std::to_string(voxels), &hits);
     EXPECT_GT(hits, rays.size() / 1000);
+    for (const float side : {2.f, 16.f}) {  // LOD stops in bricks, at nodes
+      LodFootprint lod;
+      lod.size_at_origin = side / 128.f;
+      expect_same(b, rays, lod, "brickmap ties lod " + std::to_string(voxels), &hits);
+    }
   }
 }
 

@@ -441,10 +441,11 @@ World build_world(const VoxelSet& voxels, const BuildOptions& options = {});
 /// attributes(): the stored color and normal; the crossed face's normal
 /// without stored normals and for LOD hits; a ray starting inside a voxel
 /// gets the face the ray looks at (the dominant axis of -direction).
-/// trace_packets(): trace()'s hits bit for bit; rays without an LOD
-/// footprint walk in 16 (AVX-512) or 8 (AVX2) lanes (src/brickmap/
-/// packet_walk_kernel.hpp), the others, counting contexts and worlds with a
-/// brick-use record go through trace(). occluded_packets(): occluded() per ray.
+/// trace_packets(): trace()'s hits bit for bit, the walk in 16 (AVX-512) or
+/// 8 (AVX2) lanes (src/brickmap/packet_walk_kernel.hpp); counting contexts,
+/// worlds with a brick-use record, grids below 2^7 voxels and rays that meet
+/// a not-resident brick go through trace(). occluded_packets(): occluded()
+/// per ray.
 class BrickmapStructure final : public Structure, public SurfaceQuery, public SurfacePackets {
  public:
   static constexpr uint32_t kRequestBrick = 0;

@@ -1,6 +1,6 @@
 #pragma once
 // The brickmap packet walk (BrickmapStructure::trace_packets, traverse.cpp):
-// the LOD-0 walk of traverse.cpp's Walker in 16 (AVX-512) or 8 (AVX2) lanes,
+// the walk of traverse.cpp's Walker in 16 (AVX-512) or 8 (AVX2) lanes,
 // one ray per lane, the per-level DDAs as lane vectors. What the kernels
 // read is set up by traverse.cpp; the kernels are compiled per ISA
 // (packet_walk_avx2.cpp, packet_walk_avx512.cpp, packet_walk_kernel.hpp).
@@ -9,12 +9,9 @@
 
 namespace voxcast::brickmap::detail {
 
-inline constexpr int kPacketMaxDepth = 16;
+inline constexpr int kPacketMaxLevels = 24;
 
-/// The world as the lane walk reads it. The walk's levels below the root
-/// (cube level 0) are fixed without an LOD footprint (Walker::child_level):
-/// depth k walks the children at cube level level[k] of a cube of
-/// level[k - 1] (0 for k = 0); the last depth is the voxels (level L).
+/// The world as the lane walk reads it, and the LOD footprint.
 struct PacketWorld {
   const uint32_t* cells = nullptr;     // brickgrid cells (World::cells)
   const uint32_t* bricks = nullptr;    // the brick pool, 18 words per Brick
@@ -23,12 +20,13 @@ struct PacketWorld {
   int32_t clearance_last = 0;          // the last index a 4-byte read may start at (size - 4)
   uint32_t dims[3] = {};               // brickgrid cells per axis
   int L = 0, B = 0;                    // voxel level, brickgrid level
-  int depths = 0;
-  int level[kPacketMaxDepth] = {};
-  // Depths above the brickgrid: the pyramid nodes (PyramidNode as two
-  // words, `bricks` first) and their index dims.
-  const uint32_t* nodes[kPacketMaxDepth] = {};
-  uint32_t node_dim[kPacketMaxDepth] = {}, node_dim_y[kPacketMaxDepth] = {};
+  // Per pyramid level p (1 .. B; cube level B - p): its nodes (PyramidNode
+  // as two words, `bricks` first) and their index dims.
+  const uint32_t* nodes[kPacketMaxLevels + 1] = {};
+  uint32_t node_dim[kPacketMaxLevels + 1] = {}, node_dim_y[kPacketMaxLevels + 1] = {};
+  // Walker::lod_stop: side_world(level) <= lod_size0 + lod_per_t exit.
+  bool lod_on = false;
+  float voxel_world = 0.f, lod_size0 = 0.f, lod_per_t = 0.f;
 };
 
 /// The rays in grid units (traverse.cpp's GridRay), clipped as walk() clips
@@ -36,14 +34,16 @@ struct PacketWorld {
 struct PacketRays {
   const float *o[3], *d[3], *inv[3], *slack[3];
   const float *t0, *t1, *start_t;  // start_t: NaN unless the ray starts at a beam's region
+  const float* exit;               // the t the ray leaves the grid at (walk()'s exit)
   const int32_t* axis;             // the entered face's axis at t0
   int count;
 };
 
-/// A hit as traverse.cpp's Found at the voxel level.
+/// A hit as traverse.cpp's Found.
 struct PacketFound {
   float t;
   int32_t face;
+  int32_t level;  // cube level of the hit (L: a voxel; above: an LOD stop)
   int32_t c[3];
   uint64_t ref;
 };

@@ -1,17 +1,23 @@
 #pragma once
 // The brickmap lane walk (packet_walk.hpp), included only by the per-ISA
-// translation units. Each lane runs traverse.cpp's Walker<false, false> for
-// a footprint of 0 (no LOD stop: the levels below the root are fixed,
-// PacketWorld::level) with the branches turned into lane masks, and the
-// same float operations in the same order (-ffp-contract=off), so the same
-// planes, t values, tie breaks and start cells:
+// translation units. Each lane runs traverse.cpp's Walker<false, false>
+// with the branches turned into lane masks, and the same float operations
+// in the same order (-ffp-contract=off), so the same planes, t values, tie
+// breaks, start cells and LOD decisions. A lane's state is one DDA (the
+// children at level lv of a cube) and `chain`, a bit per level of the cubes
+// it is inside: the parent is the highest level in it, so a pop needs no
+// stack of DDAs.
 //   test     the child the lane's DDA is in: pyramid node (bricks != 0, with
-//            the cut-off in y), brickgrid cell (!= 0) or voxel bit (gathers);
-//   hit      an occupied voxel: the lane ends with its Found;
-//   push     an occupied node or resident cell: begin() of its children
-//            (start_cell, start_cell_exact where t == start_t), after the
-//            cell-box test of visit_cells (a lane that misses the box steps
-//            on instead);
+//            the cut-off in y; one masked gather per level present), brickgrid
+//            cell (!= 0), or inside a brick the bits of the voxel or (LOD)
+//            2^s block (block_solid: one mask word per z slice);
+//   stop     an occupied voxel, or an occupied cube whose side fits the
+//            footprint at its exit (lod_stop): the lane ends with its Found
+//            (a node's, the brick's or the cell's LOD color);
+//   push     an occupied node, resident cell or block: begin() of its
+//            children at child_level() (start_cell, start_cell_exact where
+//            t == start_t), after the cell-box test of visit_cells (a lane
+//            that misses the box steps on instead);
 //   advance  step_axis (argmin3's tie break); a lane leaving its parent
 //            pops to the parent's DDA (the parent's c from the child's lo,
 //            its exit planes recomputed: plane_t of the same coordinates)
@@ -19,9 +25,10 @@
 //   jump     an empty cell with a clearance k > 1: Walker::jump, out of the
 //            cube of radius k - 1 in one step (the crossings on the other
 //            axes taken in (t, axis) order, lane loops until none is left).
-// A not-resident cell ends the lane as kPacketScalar. The walk's brick-slice
-// skip (brick_slices) is left out: an exact skip, the same hits without it.
-// Lanes are filled 16 (8) rays at a time, a 4x4 (4x2) pixel block.
+// A not-resident cell (no LOD stop) ends the lane as kPacketScalar. The
+// walk's brick-slice skip (brick_slices) is left out: an exact skip, the
+// same hits without it. Lanes are filled 16 (8) rays at a time, a 4x4
+// (4x2) pixel block.
 #include <immintrin.h>
 
 #include <bit>
@@ -65,22 +72,22 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
   using I = typename L::I;
   using U = typename L::U;
   const I lane = L::iota();
-  const int D = w.depths;
-  // Per depth: the child level, the ratio to the parent level, the child's
-  // side in grid units and its 1 / side (exact powers of two), the top
-  // coordinate of its level.
-  int ratio_of[kPacketMaxDepth], top_of[kPacketMaxDepth];
-  float side_of[kPacketMaxDepth], inv_side_of[kPacketMaxDepth];
-  for (int k = 0; k < D; ++k) {
-    ratio_of[k] = w.level[k] - (k ? w.level[k - 1] : 0);
-    top_of[k] = (1 << w.level[k]) - 1;
-    side_of[k] = float(1 << (w.L - w.level[k]));
-    inv_side_of[k] = std::bit_cast<float>(uint32_t(127 - (w.L - w.level[k])) << 23);
-  }
+  const int BL = w.B, LL = w.L;
   auto load = [](const float* p) {
     F v;
     std::memcpy(&v, p, sizeof v);
     return v;
+  };
+  // 2^k and 2^-k as floats from the exponent bits (k in lanes), exact.
+  auto pow2 = [](I k) { return L::as_f((U)((k + 127) << 23)); };
+  // The highest set bit of each lane (values below 2^24: exact in float).
+  auto high_bit = [](I v) { return (I)(L::as_u(__builtin_convertvector(v, F)) >> 23) - 127; };
+  auto to_f = [](I v) { return __builtin_convertvector(v, F); };
+  // Walker::lod_stop(level, exit) in lanes: side_world(level) <= footprint.
+  auto lod_stop = [&](I level, F exit) {
+    if (!w.lod_on) return I{};
+    const F sw = w.voxel_world * pow2(LL - level);
+    return (I)(sw <= w.lod_size0 + w.lod_per_t * exit);
   };
   for (int base = 0; base < q.count; base += N) {
     I active = lane < (q.count - base);
@@ -93,38 +100,32 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
       stp[a] = up[a] * 2 - 1;
     }
     const F t1 = load(q.t1 + base), start_t = load(q.start_t + base);
+    const F exit0 = load(q.exit + base);
     F t = load(q.t0 + base);
     I axis;
     std::memcpy(&axis, q.axis + base, sizeof axis);
-    // The lane's DDA (Dda of traverse.cpp) at depth dep (-1: the root, the
-    // cube the first push starts from).
+    // The lane's DDA (Dda of traverse.cpp): children at level lv of the
+    // cube at the highest level in `chain` (a bit per level of the cubes
+    // the lane is inside, the root's bit 0 always set), the child c. Before
+    // the first push: "inside" nothing, at the root cube (level 0, c = 0).
     I c[3] = {}, lo[3] = {}, span[3] = {};
     F n[3] = {};
-    I dep = I{} - 1, lv{}, ratio{}, brick{};
-    F side{};
+    I lv{}, chain{}, brick{};
 
-    // begin() of the children at depth dep + 1 of the lane's cube c.
-    auto push = [&](I m) __attribute__((always_inline)) {
-      const I nd = dep + 1;
-      I nlv{}, nratio{}, ntop{};
-      F nside{}, ninv{};
-      for (int k = 0; k < D; ++k) {
-        const I mk = m & (nd == k);
-        if (!L::bits(mk)) continue;
-        nlv = mk ? w.level[k] : nlv, nratio = mk ? ratio_of[k] : nratio;
-        ntop = mk ? top_of[k] : ntop;
-        nside = mk ? side_of[k] : nside, ninv = mk ? inv_side_of[k] : ninv;
-      }
+    // begin() of the children at level nl of the lanes' cubes c (level lv).
+    auto push = [&](I m, I nl) __attribute__((always_inline)) {
+      const I ratio = nl - lv, ntop = ((I{} + 1) << nl) - 1;
+      const F nside = pow2(LL - nl), ninv = pow2(nl - LL);
       I nlo[3], nhi[3], nc[3];
       for (int a = 0; a < 3; ++a) {
-        nlo[a] = c[a] << nratio;
-        const I h = nlo[a] + ((I{} + 1) << nratio) - 1;
+        nlo[a] = c[a] << ratio;
+        const I h = nlo[a] + ((I{} + 1) << ratio) - 1;
         nhi[a] = ntop < h ? ntop : h;
         // start_cell: floor (or ceil - 1) of the position, clamped.
         const F p = (o[a] + d[a] * t) * ninv;
         const F f = up[a] != 0 ? L::template round<_MM_FROUND_TO_NEG_INF>(p)
                                : L::template round<_MM_FROUND_TO_POS_INF>(p) - 1.f;
-        const F flo = __builtin_convertvector(nlo[a], F), fhi = __builtin_convertvector(nhi[a], F);
+        const F flo = to_f(nlo[a]), fhi = to_f(nhi[a]);
         const F mx = f < flo ? flo : f;
         nc[a] = __builtin_convertvector(fhi < mx ? fhi : mx, I);
       }
@@ -142,53 +143,94 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
         }
       }
       for (int a = 0; a < 3; ++a) {
-        const F nn = (__builtin_convertvector(nc[a] + up[a], F) * nside - o[a]) * inv[a];
+        const F nn = (to_f(nc[a] + up[a]) * nside - o[a]) * inv[a];
         n[a] = m ? nn : n[a];
         c[a] = m ? nc[a] : c[a];
         lo[a] = m ? nlo[a] : lo[a];
         span[a] = m ? nhi[a] - nlo[a] : span[a];
       }
-      dep = m ? nd : dep, lv = m ? nlv : lv, ratio = m ? nratio : ratio;
-      side = m ? nside : side;
+      chain = m ? chain | (I{} + 1) << lv : chain;
+      lv = m ? nl : lv;
     };
-    push(active);
+    // Walker::child_level(level, exit) in lanes.
+    auto child_level = [&](I level, F exit) {
+      const I target = BL - ((BL - level - 1) * 43 >> 7) * 3;  // x / 3 for x < 64
+      const I node = target == level + 1 ? I{} - 1 : ~lod_stop(target - 1, exit);
+      const I below = lod_stop(I{} + (LL - 1), exit);
+      return level < BL ? (node ? target : level + 1) : (below ? level + 1 : I{} + LL);
+    };
+    push(active, child_level(I{}, exit0));
 
     while (L::bits(active)) {
       // ---- test the lanes' current children ----
       I occ{};
-      U cellv{};
-      for (int k = 0; k < D; ++k) {
-        if (w.level[k] >= w.B) break;
-        const I mk = active & (dep == k) & ((U)c[1] < w.node_dim_y[k]);
-        if (!L::bits(mk)) continue;
-        const I idx = c[0] + int32_t(w.node_dim[k]) * (c[1] + int32_t(w.node_dim_y[k]) * c[2]);
-        const U g = L::gather(w.nodes[k], idx * 2, mk, U{});
-        occ |= mk & (g != 0);
+      U cellv{}, color{};  // the cell; an LOD stop's color (pyramid nodes)
+      const I is_node = active & (lv < BL);
+      for (uint32_t mn = L::bits(is_node); mn != 0;) {
+        // One masked gather per pyramid level present in the lanes.
+        const int level = lv[std::countr_zero(mn)], p = BL - level;
+        const I mk = is_node & (lv == level);
+        mn &= ~L::bits(mk);
+        const I in = mk & ((U)c[1] < w.node_dim_y[p]);
+        const I idx = c[0] + int32_t(w.node_dim[p]) * (c[1] + int32_t(w.node_dim_y[p]) * c[2]);
+        const U g = L::gather(w.nodes[p], idx * 2, in, U{});
+        occ |= in & (g != 0);
+        if (w.lod_on) color = L::gather(w.nodes[p], idx * 2 + 1, in & (g != 0), color);
       }
-      const I is_cell = active & (lv == w.B);
+      const I is_cell = active & (lv == BL);
       const I mc = is_cell & ((U)c[1] < w.dims[1]);
       if (L::bits(mc)) {
         const I idx = c[0] + int32_t(w.dims[0]) * (c[1] + int32_t(w.dims[1]) * c[2]);
         cellv = L::gather(w.cells, idx, mc, U{});
         occ |= mc & (cellv != 0);
       }
-      const I is_vox = active & (lv == w.L);
-      if (L::bits(is_vox)) {
-        const I x = c[0] & 7, y = c[1] & 7, z = c[2] & 7;
-        const U word = L::gather(w.bricks, brick * 18 + z * 2 + (y >> 2), is_vox, U{});
-        const I solid = is_vox & (((word >> (U)(x + (y & 3) * 8)) & 1u) != 0);
-        for (uint32_t b = L::bits(solid); b != 0; b &= b - 1) {
+      // Inside a brick: a voxel's bit, or (LOD) a 2^s block's bits, s =
+      // L - lv, rows of one half-slice word per z slice of the block.
+      const I in_brick = active & (lv > BL);
+      I bit{};
+      if (L::bits(in_brick)) {
+        const I s = LL - lv;
+        const I x = c[0] << s & 7, y = c[1] << s & 7, z = c[2] << s & 7;
+        const I sidev = (I{} + 1) << s;
+        // The block's rows in its half word: side bits from x, side rows from y & 3.
+        const I rowrep = sidev == 4 ? I{} + 0x01010101 : (sidev == 2 ? I{} + 0x101 : I{} + 1);
+        const U plane = (U)((((I{} + 1) << sidev) - 1) * rowrep) << (U)((y & 3) * 8 + x);
+        bit = x | y << 3 | z << 6;
+        I solid{};
+        for (int dz = 0; dz < 4; ++dz) {
+          const I m = in_brick & (dz < sidev);
+          if (!L::bits(m)) break;
+          const U word = L::gather(w.bricks, brick * 18 + (z + dz) * 2 + (y >> 2), m, U{});
+          solid |= m & ((word & plane) != 0u);
+        }
+        occ |= solid;
+      }
+      const F cexit = L::min(L::min(n[0], n[1]), n[2]);
+      // LOD stops: an occupied node, cell or block whose side fits the
+      // footprint at its exit; any occupied voxel.
+      const I stop = occ & ((lv == LL) | lod_stop(lv, cexit));
+      if (L::bits(stop)) {
+        U lodc{};
+        const I resident = (I)(cellv >> 30 == 1u);
+        lodc = (stop & is_cell) ? (resident ? L::gather(w.bricks, (I)(cellv & 0xFFFFFFu) * 18 + 17,
+                                                        stop & is_cell & resident, U{})
+                                            : (cellv & 0xFFFFFFu) | 0xFF000000u)
+                                : lodc;
+        const I sub = stop & in_brick & (lv < LL);
+        if (L::bits(sub)) lodc = sub ? L::gather(w.bricks, brick * 18 + 17, sub, U{}) : lodc;
+        for (uint32_t b = L::bits(stop); b != 0; b &= b - 1) {
           const int l = std::countr_zero(b);
           const int ax = axis[l];
+          uint64_t ref;
+          if (lv[l] == LL)
+            ref = uint64_t(uint32_t(brick[l])) << 9 | uint32_t(bit[l]);
+          else
+            ref = uint64_t(1) << 63 | (lv[l] < BL ? color[l] : lodc[l]);
           status[base + l] = kPacketHit;
-          out[base + l] = {
-              t[l],
-              ax * 2 + up[ax][l],
-              {c[0][l], c[1][l], c[2][l]},
-              uint64_t(uint32_t(brick[l])) << 9 | uint32_t(x[l] | y[l] << 3 | z[l] << 6)};
+          out[base + l] = {t[l], ax * 2 + up[ax][l], lv[l], {c[0][l], c[1][l], c[2][l]}, ref};
         }
-        active &= ~solid;
-        occ &= ~is_vox;
+        active &= ~stop;
+        occ &= ~stop;
       }
       // A not-resident brick: the scalar walk answers (requests, LOD color).
       const I scalar = occ & is_cell & ((cellv >> 30) != 1u);
@@ -196,9 +238,10 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
         status[base + std::countr_zero(b)] = kPacketScalar;
       active &= ~scalar;
       occ &= ~scalar;
+      const I nl = child_level(lv, cexit);
       // visit_cells' cell-box test (World::cell_box) before the cells of a
       // node of level B - kCellBoxLevel: a lane missing the box steps on.
-      const I boxed = occ & (lv == w.B - 3) & (dep + 1 < D);
+      const I boxed = occ & (lv == BL - 3) & (nl == BL);
       if (L::bits(boxed)) {
         const I idx =
             c[0] + int32_t(w.dims[0] >> 3) * (c[1] + int32_t((w.dims[1] + 7) >> 3) * c[2]);
@@ -206,11 +249,8 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
         F t0 = t, te = t1;
         for (int a = 0; a < 3; ++a) {
           const I cell0 = c[a] << 3;
-          const F blo =
-              __builtin_convertvector((cell0 + (I)(box >> (3 * a) & 7u)) << 3, F) - slack[a];
-          const F bhi =
-              __builtin_convertvector((cell0 + (I)(box >> (9 + 3 * a) & 7u) + 1) << 3, F) +
-              slack[a];
+          const F blo = to_f((cell0 + (I)(box >> (3 * a) & 7u)) << 3) - slack[a];
+          const F bhi = to_f((cell0 + (I)(box >> (9 + 3 * a) & 7u) + 1) << 3) + slack[a];
           const F ta = (blo - o[a]) * inv[a], tb = (bhi - o[a]) * inv[a];
           const F mn = tb < ta ? tb : ta, mx = ta < tb ? tb : ta;
           t0 = t0 < mn ? mn : t0;
@@ -220,6 +260,7 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
       }
       brick = is_cell & occ ? (I)(cellv & 0xFFFFFFu) : brick;
       I adv = active & ~occ;
+      F side = pow2(LL - lv);
       // visit_cells' jump: an empty cell of clearance k > 1 leaves the
       // cube of radius k - 1 around it (clipped to the parent) in one step.
       I leave_jump{};
@@ -272,7 +313,7 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
           adv &= ~jump;
         }
       }
-      if (L::bits(occ)) push(occ);
+      if (L::bits(occ)) push(occ, nl);
       // ---- advance (and pop) the other lanes ----
       while (L::bits(adv | leave_jump)) {
         const I x_le_y = n[0] <= n[1];
@@ -298,20 +339,18 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
             n[a] = m ? (__builtin_convertvector(c[a] + up[a], F) * side - o[a]) * inv[a] : n[a];
         }
         // Past t1, or out of the root's children: a miss.
-        active &= ~(end | (leave & (dep == 0)));
-        const I pop = leave & (dep > 0);
+        // Past t1, or out of the root's children: a miss.
+        active &= ~(end | (leave & (chain == 1)));
+        const I pop = leave & (chain != 1);
         adv = pop;
         if (!L::bits(pop)) break;
-        // The parent's DDA: its child c is the one the lane's lo came from.
-        const I pd = dep - 1;
-        I plv{}, pratio{}, ptop{};
-        F pside{};
-        for (int k = 0; k < D; ++k) {
-          const I mk = pop & (pd == k);
-          if (!L::bits(mk)) continue;
-          plv = mk ? w.level[k] : plv, pratio = mk ? ratio_of[k] : pratio;
-          ptop = mk ? top_of[k] : ptop, pside = mk ? side_of[k] : pside;
-        }
+        // The parent's DDA: children at the highest level in chain, of the
+        // cube at the next one; its child c is the one the lane's lo came from.
+        const I pl = high_bit(chain);
+        const I gchain = chain & ~((I{} + 1) << pl);
+        const I gl = high_bit(gchain);
+        const I ratio = lv - pl, pratio = pl - gl, ptop = ((I{} + 1) << pl) - 1;
+        const F pside = pow2(LL - pl);
         for (int a = 0; a < 3; ++a) {
           const I pc = lo[a] >> ratio;
           const I plo = pc >> pratio << pratio;
@@ -320,9 +359,9 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
           c[a] = pop ? pc : c[a];
           lo[a] = pop ? plo : lo[a];
           span[a] = pop ? phi - plo : span[a];
-          n[a] = pop ? (__builtin_convertvector(pc + up[a], F) * pside - o[a]) * inv[a] : n[a];
+          n[a] = pop ? (to_f(pc + up[a]) * pside - o[a]) * inv[a] : n[a];
         }
-        dep = pop ? pd : dep, lv = pop ? plv : lv, ratio = pop ? pratio : ratio;
+        lv = pop ? pl : lv, chain = pop ? gchain : chain;
         side = pop ? pside : side;
       }
     }

@@ -985,41 +985,35 @@ void BrickmapStructure::attributes(const SurfaceHit& hit, TraceContext& ctx, Col
 
 namespace {
 
-// The lane walk's view of `w` (packet_walk.hpp); false when the walk does
-// not apply: grids below 2^7 voxels (the root's children would be cells)
-// or a pyramid of another height.
-bool packet_world(const World& w, detail::PacketWorld* pw) {
+// The lane walk's view of `w` and `lod` (packet_walk.hpp); false when the
+// walk does not apply: grids below 2^7 voxels (the root's children could be
+// cells) or a pyramid of another height.
+bool packet_world(const World& w, const LodFootprint& lod, detail::PacketWorld* pw) {
   const GridTransform& g = w.grid();
   const int L = g.levels, B = L - kBrickLog2;
-  if (B < 4 || w.pyramid_levels() != B) return false;
+  if (B < 4 || B > detail::kPacketMaxLevels || w.pyramid_levels() != B) return false;
+  if (w.clearances().size() < 4) return false;
   pw->cells = w.cells().data();
   pw->bricks = reinterpret_cast<const uint32_t*>(w.bricks().data());
   pw->cell_box = w.cell_boxes().data();
-  if (w.clearances().size() < 4) return false;
   pw->clearance = w.clearances().data();
   pw->clearance_last = int32_t(w.clearances().size() - 4);
   for (int a = 0; a < 3; ++a) pw->dims[a] = w.dims()[a];
   pw->L = L, pw->B = B;
-  // Walker::child_level without a footprint, from the root down.
-  pw->depths = 0;
-  for (int level = 0; level != L;) {
-    level = level < B ? B - (B - level - 1) / 3 * 3 : L;
-    if (pw->depths == detail::kPacketMaxDepth) return false;
-    const int k = pw->depths++;
-    pw->level[k] = level;
-    if (level < B) {
-      const int p = B - level;
-      pw->nodes[k] = reinterpret_cast<const uint32_t*>(&w.pyramid_node(p, 0));
-      pw->node_dim[k] = w.pyramid_dim(p), pw->node_dim_y[k] = w.pyramid_dim_y(p);
-    }
+  for (int p = 1; p <= B; ++p) {
+    pw->nodes[p] = reinterpret_cast<const uint32_t*>(&w.pyramid_node(p, 0));
+    pw->node_dim[p] = w.pyramid_dim(p), pw->node_dim_y[p] = w.pyramid_dim_y(p);
   }
+  pw->lod_on = lod.size_at_origin > 0.f || lod.size_per_t > 0.f;
+  pw->voxel_world = float(g.voxel_size);
+  pw->lod_size0 = lod.size_at_origin, pw->lod_per_t = lod.size_per_t;
   return true;
 }
 
 // The packet walk's rays (PacketRays), per thread, grown once.
 struct PacketBuffers {
   static constexpr size_t kChunk = 256;
-  alignas(64) float f[15][kChunk];  // o, d, inv, slack (x, y, z each), t0, t1, start_t
+  alignas(64) float f[16][kChunk];  // o, d, inv, slack (x, y, z each), t0, t1, start_t, exit
   alignas(64) int32_t axis[kChunk];
   uint32_t id[kChunk];
   uint8_t status[kChunk];
@@ -1035,9 +1029,8 @@ void BrickmapStructure::trace_packets(const Ray* rays, size_t n, const LodFootpr
     throw Error(std::string("brickmap trace_packets: this CPU does not support ") + isa_name(isa));
   const World& w = *world_;
   const GridTransform& g = w.grid();
-  const bool lod_on = lod.size_at_origin > 0.f || lod.size_per_t > 0.f;
   detail::PacketWorld pw;
-  if (ctx.counting || seen_ != nullptr || lod_on || !packet_world(w, &pw)) {
+  if (ctx.counting || seen_ != nullptr || !packet_world(w, lod, &pw)) {
     for (size_t i = 0; i < n; ++i)
       found[i] = trace(rays[i], lod, ctx, &hits[i], beams ? beams[i] : nullptr);
     return;
@@ -1049,8 +1042,10 @@ void BrickmapStructure::trace_packets(const Ray* rays, size_t n, const LodFootpr
   detail::PacketRays pr;
   for (int a = 0; a < 3; ++a)
     pr.o[a] = q.f[a], pr.d[a] = q.f[3 + a], pr.inv[a] = q.f[6 + a], pr.slack[a] = q.f[9 + a];
-  float *t0 = q.f[12], *t1 = q.f[13], *start = q.f[14];
-  pr.t0 = t0, pr.t1 = t1, pr.start_t = start, pr.axis = q.axis;
+  float *t0 = q.f[12], *t1 = q.f[13], *start = q.f[14], *exit = q.f[15];
+  pr.t0 = t0, pr.t1 = t1, pr.start_t = start, pr.exit = exit, pr.axis = q.axis;
+  // The root's LOD stop (walk()): a grid narrower than the footprint.
+  const float root_side = float(g.voxel_size) * float(1u << g.levels);
   for (size_t b0 = 0; b0 < n; b0 += PacketBuffers::kChunk) {
     const size_t m = std::min(PacketBuffers::kChunk, n - b0);
     int count = 0;
@@ -1066,11 +1061,15 @@ void BrickmapStructure::trace_packets(const Ray* rays, size_t n, const LodFootpr
       GridRay r;
       Span s;
       if (!root || !to_grid(g, rays[i], &r) || !clip_ray(w, r, rays[i].tmax, rg, &s)) continue;
+      if (pw.lod_on && root_side <= lod.size_at_origin + lod.size_per_t * s.exit) {
+        found[i] = trace(rays[i], lod, ctx, &hits[i], beam);
+        continue;
+      }
       for (int a = 0; a < 3; ++a) {
         q.f[a][count] = r.o[a], q.f[3 + a][count] = r.d[a], q.f[6 + a][count] = r.inv[a];
         q.f[9 + a][count] = brick_slack(r, a, s.t1);
       }
-      t0[count] = s.t0, t1[count] = s.t1, start[count] = s.start_t;
+      t0[count] = s.t0, t1[count] = s.t1, start[count] = s.start_t, exit[count] = s.exit;
       q.axis[count] = s.axis;
       q.id[count] = uint32_t(i);
       ++count;
@@ -1079,7 +1078,7 @@ void BrickmapStructure::trace_packets(const Ray* rays, size_t n, const LodFootpr
     const int padded = std::min(int(PacketBuffers::kChunk), (count + 15) & ~15);
     for (int k = count; k < padded; ++k) {
       for (int j = 0; j < 12; ++j) q.f[j][k] = 1.f;
-      t0[k] = t1[k] = 0.f, start[k] = NAN, q.axis[k] = 0;
+      t0[k] = t1[k] = exit[k] = 0.f, start[k] = NAN, q.axis[k] = 0;
     }
     pr.count = count;
     std::fill(q.status, q.status + count, detail::kPacketMiss);
@@ -1091,7 +1090,7 @@ void BrickmapStructure::trace_packets(const Ray* rays, size_t n, const LodFootpr
       const size_t i = q.id[k];
       if (q.status[k] == detail::kPacketHit) {
         const detail::PacketFound& o = q.out[k];
-        const Found f{o.t, o.face, g.levels, {o.c[0], o.c[1], o.c[2]}, o.ref};
+        const Found f{o.t, o.face, o.level, {o.c[0], o.c[1], o.c[2]}, o.ref};
         fill_hit(g, rays[i], f, &hits[i]);
         found[i] = 1;
       } else if (q.status[k] == detail::kPacketScalar) {
