@@ -506,6 +506,39 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
     }
     return te;
   };
+  // The brick rows a span's samples will read, prefetched when the span is
+  // emitted: the integrator samples the spans only after march() returns,
+  // so the misses of a ray's bricks (a warm frame visits most of the
+  // resident bricks, far beyond the caches) overlap the rest of the walk and
+  // each other instead of stalling sample_span's first loads. Points one
+  // voxel apart along the span, at the node's level and its parent's (the
+  // quadrilinear blend reads both); the 4 rows of each point's lookup.
+  // Hints only: nothing is read or stamped.
+  auto prefetch_rows = [&](uint32_t nd, float ta, float tb) {
+    const uint32_t dw = data_[nd];
+    if (NodeDataKind::get(dw) != kDataBrick) return;
+    const PoolVoxel* b = &bricks_[size_t(NodeDataPayload::get(dw)) * kBrickVoxels];
+    const NodeRegion r = region_of(nd);
+    const float sc = pow2f(r.level) * float(kBrickSide);
+    const uint32_t rc[3] = {r.x, r.y, r.z};
+    float A[3], B[3], along = 0.f;
+    for (int a = 0; a < 3; ++a) {
+      A[a] = o[a] * sc - float(rc[a]) * float(kBrickSide) + 0.5f;
+      B[a] = d[a] * sc;
+      along = std::max(along, std::abs(B[a]));
+    }
+    const int points = int(std::min(16.f, std::ceil((tb - ta) * along))) + 1;
+    const float step = points > 1 ? (tb - ta) / float(points - 1) : 0.f;
+    for (int k = 0; k < points; ++k) {
+      const float tk = ta + step * float(k);
+      float f;
+      const int i = cell_weight(A[0] + B[0] * tk, &f), j = cell_weight(A[1] + B[1] * tk, &f),
+                l = cell_weight(A[2] + B[2] * tk, &f);
+      const PoolVoxel* v = b + stored_index(i, j, l);
+      constexpr size_t kRow = kBrickStored, kSlice = size_t(kBrickStored) * kBrickStored;
+      for (size_t at : {size_t(0), kRow, kSlice, kRow + kSlice}) __builtin_prefetch(v + at, 0, 3);
+    }
+  };
   auto emit = [&](float t, float te) {
     if (fallback != kNoNode) {
       const uint32_t dw = data_[fallback];
@@ -519,6 +552,8 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
         if (v.density > 0.f) out[size_t(n++)] = span;  // empty space yields no span
       } else {
         touch_brick(NodeDataPayload::get(dw), s);
+        prefetch_rows(fallback, t, te);
+        if (fallback >= 8) prefetch_rows(tile_parent_[fallback >> 3], t, te);
         out[size_t(n++)] = span;
       }
     }
