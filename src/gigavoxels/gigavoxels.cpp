@@ -506,6 +506,39 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
     }
     return te;
   };
+  // The brick rows a span's samples will read, prefetched when the span is
+  // emitted: the integrator samples the spans only after march() returns,
+  // so the misses of a ray's bricks (a warm frame visits most of the
+  // resident bricks, far beyond the caches) overlap the rest of the walk and
+  // each other instead of stalling sample_span's first loads. Points one
+  // voxel apart along the span, at the node's level and its parent's (the
+  // quadrilinear blend reads both); the 4 rows of each point's lookup.
+  // Hints only: nothing is read or stamped.
+  auto prefetch_rows = [&](uint32_t nd, float ta, float tb) {
+    const uint32_t dw = data_[nd];
+    if (NodeDataKind::get(dw) != kDataBrick) return;
+    const PoolVoxel* b = &bricks_[size_t(NodeDataPayload::get(dw)) * kBrickVoxels];
+    const NodeRegion r = region_of(nd);
+    const float sc = pow2f(r.level) * float(kBrickSide);
+    const uint32_t rc[3] = {r.x, r.y, r.z};
+    float A[3], B[3], along = 0.f;
+    for (int a = 0; a < 3; ++a) {
+      A[a] = o[a] * sc - float(rc[a]) * float(kBrickSide) + 0.5f;
+      B[a] = d[a] * sc;
+      along = std::max(along, std::abs(B[a]));
+    }
+    const int points = int(std::min(16.f, std::ceil((tb - ta) * along))) + 1;
+    const float step = points > 1 ? (tb - ta) / float(points - 1) : 0.f;
+    for (int k = 0; k < points; ++k) {
+      const float tk = ta + step * float(k);
+      float f;
+      const int i = cell_weight(A[0] + B[0] * tk, &f), j = cell_weight(A[1] + B[1] * tk, &f),
+                l = cell_weight(A[2] + B[2] * tk, &f);
+      const PoolVoxel* v = b + stored_index(i, j, l);
+      constexpr size_t kRow = kBrickStored, kSlice = size_t(kBrickStored) * kBrickStored;
+      for (size_t at : {size_t(0), kRow, kSlice, kRow + kSlice}) __builtin_prefetch(v + at, 0, 3);
+    }
+  };
   auto emit = [&](float t, float te) {
     if (fallback != kNoNode) {
       const uint32_t dw = data_[fallback];
@@ -519,6 +552,8 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
         if (v.density > 0.f) out[size_t(n++)] = span;  // empty space yields no span
       } else {
         touch_brick(NodeDataPayload::get(dw), s);
+        prefetch_rows(fallback, t, te);
+        if (fallback >= 8) prefetch_rows(tile_parent_[fallback >> 3], t, te);
         out[size_t(n++)] = span;
       }
     }
@@ -676,17 +711,43 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
   constexpr int kMaxPoints = 64;
   struct Cells {
     int32_t at[kMaxPoints];  // stored_index of the first voxel
-    float f[kMaxPoints][3];  // weights of the next voxel along x, y, z
+    float f[3][kMaxPoints];  // weights of the next voxel along x, y, z
   };
   auto cells = [&](const Lookup& lk, const float* tp, int m, Cells* c) {
     if (lk.brick == nullptr) return;
+#if defined(__AVX2__)
+    // Eight points per step: cell_weight()'s operations lane by lane
+    // (u = A + B t unfused, clamp as std::clamp orders it, truncation, the
+    // integer part capped at M), the same values as the scalar loop below.
+    const __m256 zero = _mm256_setzero_ps(), top = _mm256_set1_ps(float(kBrickSide + 1));
+    const __m256i cap = _mm256_set1_epi32(kBrickSide),
+                  lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    for (int k = 0; k < m; k += 8) {
+      const __m256i live = _mm256_cmpgt_epi32(_mm256_set1_epi32(m - k), lanes);
+      const __m256 tk = _mm256_maskload_ps(tp + k, live);
+      __m256i idx[3];
+      for (int a = 0; a < 3; ++a) {
+        const __m256 u =
+            _mm256_add_ps(_mm256_set1_ps(lk.A[a]), _mm256_mul_ps(_mm256_set1_ps(lk.B[a]), tk));
+        const __m256 cl = _mm256_min_ps(top, _mm256_max_ps(zero, u));
+        idx[a] = _mm256_min_epi32(_mm256_cvttps_epi32(cl), cap);
+        _mm256_storeu_ps(c->f[a] + k, _mm256_sub_ps(cl, _mm256_cvtepi32_ps(idx[a])));
+      }
+      const __m256i row = _mm256_set1_epi32(kBrickStored);
+      const __m256i at = _mm256_add_epi32(
+          idx[0],
+          _mm256_mullo_epi32(row, _mm256_add_epi32(idx[1], _mm256_mullo_epi32(row, idx[2]))));
+      _mm256_storeu_si256(reinterpret_cast<__m256i*>(c->at + k), at);
+    }
+#else
     for (int k = 0; k < m; ++k) {
       const float tk = tp[k];
-      const int i = cell_weight(lk.A[0] + lk.B[0] * tk, &c->f[k][0]);
-      const int j = cell_weight(lk.A[1] + lk.B[1] * tk, &c->f[k][1]);
-      const int l = cell_weight(lk.A[2] + lk.B[2] * tk, &c->f[k][2]);
+      const int i = cell_weight(lk.A[0] + lk.B[0] * tk, &c->f[0][k]);
+      const int j = cell_weight(lk.A[1] + lk.B[1] * tk, &c->f[1][k]);
+      const int l = cell_weight(lk.A[2] + lk.B[2] * tk, &c->f[2][k]);
       c->at[k] = i + kBrickStored * (j + kBrickStored * l);
     }
+#endif
   };
   auto prefetch = [](const Lookup& lk, const Cells& c, int m) {
 #if defined(__AVX2__)
@@ -706,7 +767,8 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
       std::copy(lk.value, lk.value + 4, acc);
       return;
     }
-    trilinear_at(lk.brick + c.at[k], c.f[k], lk.scale, acc);
+    const float f[3] = {c.f[0][k], c.f[1][k], c.f[2][k]};
+    trilinear_at(lk.brick + c.at[k], f, lk.scale, acc);
   };
   // Weight of the fine level per point: level L - 1 + w blends the parent
   // (1 - w) with the node (w), as sample()'s quadrilinear filter. Only the
