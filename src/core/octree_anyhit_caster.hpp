@@ -199,9 +199,11 @@ void anyhit_packets(const OctreeWorld<P>& world, AnyHitKernel<P> kernel, int wid
       for (int p = 0; p * width < q.count; ++p) st.path_levels += uint64_t(q.path_levels[p]);
     }
     st.rays += uint64_t(q.count);
-    // Packets of one point's AO rays: refill once half the lanes are idle
-    // (measured faster for them, slower for a pixel block's rays).
-    q.refill_lanes = group > 0 && q.path_width == 0 ? width / 2 : 0;
+    // Packets of one point's AO rays: refill once a quarter of the lanes
+    // is idle (measured faster for them than at half, 1.08-1.15x on the
+    // bunny's AO rays, docs/BENCHMARKS.md "AO rays: refill at a quarter";
+    // whole packets are faster for a pixel block's rays).
+    q.refill_lanes = group > 0 && q.path_width == 0 ? width / 4 : 0;
     kernel(nodes, q, size_coef, size_bias, hit + base);
     q.count = 0, q.deep = false, q.path_width = 0;
   };
