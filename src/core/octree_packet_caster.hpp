@@ -27,6 +27,7 @@
 #include <bit>
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <string>
 #include <type_traits>
 
@@ -171,11 +172,23 @@ inline int queue_rays8(const OctreeFrame& frame, const Ray* rays, int m, uint32_
   typedef float F8 __attribute__((vector_size(32)));
   typedef int32_t I8 __attribute__((vector_size(32)));
   typedef uint32_t U8 __attribute__((vector_size(32)));
+  static_assert(sizeof(Ray) == 7 * sizeof(float));
   F8 ox, oy, oz, dx, dy, dz, tm;
-  for (int i = 0; i < 8; ++i) {
-    const Ray& r = rays[i < m ? i : m - 1];
-    ox[i] = r.origin.x, oy[i] = r.origin.y, oz[i] = r.origin.z;
-    dx[i] = r.dir.x, dy[i] = r.dir.y, dz[i] = r.dir.z, tm[i] = r.tmax;
+  if (m == 8) {  // the seven fields of eight rays: stride-7 gathers
+    const float* f = &rays[0].origin.x;
+    const __m256i at =
+        _mm256_mullo_epi32(_mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7), _mm256_set1_epi32(7));
+    auto field = [&](int k) {
+      return (F8)_mm256_i32gather_ps(f, _mm256_add_epi32(at, _mm256_set1_epi32(k)), 4);
+    };
+    ox = field(0), oy = field(1), oz = field(2);
+    dx = field(3), dy = field(4), dz = field(5), tm = field(6);
+  } else {
+    for (int i = 0; i < 8; ++i) {
+      const Ray& r = rays[i < m ? i : m - 1];
+      ox[i] = r.origin.x, oy[i] = r.origin.y, oz[i] = r.origin.z;
+      dx[i] = r.dir.x, dy[i] = r.dir.y, dz[i] = r.dir.z, tm[i] = r.tmax;
+    }
   }
   auto max = [](F8 a, F8 b) { return a > b ? a : b; };  // vmax
   auto min = [](F8 a, F8 b) { return a < b ? a : b; };  // vmin
@@ -217,6 +230,23 @@ inline int queue_rays8(const OctreeFrame& frame, const Ray* rays, int m, uint32_
   const F8 one = F8{} + 1.0f, mid = F8{} + 1.5f;
   const F8 ex = ix ? mid : one, ey = iy ? mid : one, ez = iz ? mid : one;
   int queued = 0;
+  if (m == 8 && _mm256_movemask_ps((__m256)ok) == 0xFF) {  // all eight: vector stores
+    const int k = q->count;
+    q->count += 8;
+    auto put = [&](auto* dst, auto v) { std::memcpy(dst + k, &v, sizeof(v)); };
+    put(q->cx, cx), put(q->cy, cy), put(q->cz, cz);
+    put(q->bx, bx), put(q->by, by), put(q->bz, bz);
+    put(q->t_min, t_min), put(q->t_max, t_max), put(q->h, h);
+    put(q->px, ex), put(q->py, ey), put(q->pz, ez);
+    put(q->flip, (U8)(octant ^ 7));
+    put(q->idx, (U8)idx);
+    put(q->id, I8{0, 1, 2, 3, 4, 5, 6, 7} + id0);
+    put(q->dx, dx), put(q->dy, dy), put(q->dz, dz);
+    put(q->parent, U8{} + root);
+    put(q->scale, I8{} + (kOctreeMaxScale - 1));
+    for (int i = 0; i < 8; ++i) origins[i] = {px[i], py[i], pz[i]};
+    return 8;
+  }
   for (int i = 0; i < m; ++i) {
     if (!ok[i]) continue;
     const int k = q->count++;
