@@ -21,6 +21,7 @@
 #include <random>
 
 #include "core/octree_caster.hpp"
+#include "core/octree_packet_caster.hpp"
 #include "dag/octree_nodes.hpp"
 #include "esvo/octree_nodes.hpp"
 #include "support/dda_oracle.hpp"
@@ -275,6 +276,96 @@ TEST(OctreeCaster, EsvoOccludedEqualsTrace) {
   }
   EXPECT_GT(hits, 1000);
   EXPECT_GT(misses, 1000);
+}
+
+// queue_rays8 (the any-hit driver's set-up of eight rays in vectors) queues
+// exactly what queue_ray queues, float for float: random rays, rays on the
+// root's center and face planes, axis-parallel and near-axis directions
+// (avoid_tiny_components), zero and non-finite components, empty spans
+// (rejected rays keep no slot) and partial batches.
+TEST(OctreeCaster, VectorRaySetUpEqualsQueueRay) {
+  using detail::PacketQueue;
+  GridTransform g;
+  g.origin = {-1.25f, 0.5f, 3.0f};
+  g.voxel_size = 0.01;
+  g.resolution = 256;
+  g.levels = 8;
+  const detail::OctreeFrame frame(g);
+  const float side = float(g.side());
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> u(-0.5f, 1.5f), v(-1.f, 1.f);
+  auto coord = [&](int a, int kind) {  // kind 0: random; 1: center plane; 2: face
+    const float o = g.origin[a];
+    return kind == 1 ? o + 0.5f * side : kind == 2 ? o : o + u(rng) * side;
+  };
+  std::vector<Ray> rays;
+  for (int i = 0; i < 4000; ++i) {
+    Ray r;
+    r.origin = {coord(0, i % 5 == 1), coord(1, i % 7 == 2 ? 2 : 0), coord(2, i % 3 == 0)};
+    Vec3 d{v(rng), v(rng), v(rng)};
+    switch (i % 11) {
+      case 1:
+        d.y = 0.f;
+        break;
+      case 2:
+        d = {0.f, -0.f, 1.f};
+        break;
+      case 3:
+        d.x = 1e-9f;
+        break;
+      case 4:
+        d.z = -3e-8f * d.y;
+        break;
+      case 5:
+        d = {0.f, 0.f, 0.f};
+        break;
+      case 6:
+        d.x = INFINITY;
+        break;
+      case 7:
+        r.origin.y = NAN;
+        break;
+      case 8:  // between half and all of avoid_tiny_components' threshold
+        d.x = 0.75f * 0x1p-23f * std::max(std::fabs(d.y), std::fabs(d.z));
+        break;
+      default:
+        break;
+    }
+    r.dir = d;
+    r.tmax = i % 13 == 0 ? 0.f : i % 4 == 0 ? 0.5f * side * std::fabs(v(rng)) : INFINITY;
+    rays.push_back(r);
+  }
+  static PacketQueue a, b;
+  Vec3 oa[detail::kPacketQueue], ob[detail::kPacketQueue];
+  for (size_t base = 0; base < rays.size();) {
+    const int m = 1 + int(base % 8);  // partial batches too
+    const int n = int(std::min<size_t>(size_t(m), rays.size() - base));
+    a.count = 0, b.count = 0;
+    for (int i = 0; i < n; ++i)
+      detail::queue_ray(frame, rays[base + size_t(i)], nullptr, 5u, int32_t(i), &a, &oa[a.count]);
+    const int queued = detail::queue_rays8(frame, rays.data() + base, n, 5u, 0, &b, ob);
+    ASSERT_EQ(queued, a.count);
+    ASSERT_EQ(b.count, a.count);
+    for (int k = 0; k < a.count; ++k) {
+      auto same = [](float x, float y) {
+        return std::bit_cast<uint32_t>(x) == std::bit_cast<uint32_t>(y);
+      };
+      EXPECT_EQ(a.id[k], b.id[k]);
+      EXPECT_TRUE(same(a.cx[k], b.cx[k]) && same(a.cy[k], b.cy[k]) && same(a.cz[k], b.cz[k]));
+      EXPECT_TRUE(same(a.bx[k], b.bx[k]) && same(a.by[k], b.by[k]) && same(a.bz[k], b.bz[k]));
+      EXPECT_TRUE(same(a.t_min[k], b.t_min[k]) && same(a.t_max[k], b.t_max[k]) &&
+                  same(a.h[k], b.h[k]))
+          << "ray " << base + size_t(a.id[k]);
+      EXPECT_TRUE(same(a.px[k], b.px[k]) && same(a.py[k], b.py[k]) && same(a.pz[k], b.pz[k]));
+      EXPECT_TRUE(same(a.dx[k], b.dx[k]) && same(a.dy[k], b.dy[k]) && same(a.dz[k], b.dz[k]));
+      EXPECT_EQ(a.flip[k], b.flip[k]);
+      EXPECT_EQ(a.idx[k], b.idx[k]);
+      EXPECT_EQ(a.parent[k], b.parent[k]);
+      EXPECT_EQ(a.scale[k], b.scale[k]);
+      EXPECT_TRUE(same(oa[k].x, ob[k].x) && same(oa[k].y, ob[k].y) && same(oa[k].z, ob[k].z));
+    }
+    base += size_t(n);
+  }
 }
 
 }  // namespace

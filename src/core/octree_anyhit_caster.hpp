@@ -199,9 +199,11 @@ void anyhit_packets(const OctreeWorld<P>& world, AnyHitKernel<P> kernel, int wid
       for (int p = 0; p * width < q.count; ++p) st.path_levels += uint64_t(q.path_levels[p]);
     }
     st.rays += uint64_t(q.count);
-    // Packets of one point's AO rays: refill once half the lanes are idle
-    // (measured faster for them, slower for a pixel block's rays).
-    q.refill_lanes = group > 0 && q.path_width == 0 ? width / 2 : 0;
+    // Packets of one point's AO rays: refill once a quarter of the lanes
+    // is idle (measured faster for them than at half, 1.08-1.15x on the
+    // bunny's AO rays, docs/BENCHMARKS.md "AO rays: refill at a quarter";
+    // whole packets are faster for a pixel block's rays).
+    q.refill_lanes = group > 0 && q.path_width == 0 ? width / 4 : 0;
     kernel(nodes, q, size_coef, size_bias, hit + base);
     q.count = 0, q.deep = false, q.path_width = 0;
   };
@@ -212,9 +214,27 @@ void anyhit_packets(const OctreeWorld<P>& world, AnyHitKernel<P> kernel, int wid
     const size_t m = n - base < block ? n - base : block;
     q.count = 0, q.deep = false, q.path_width = 0;
     for (size_t i = 0; i < m; ++i) hit[base + i] = 0;
-    for (size_t g0 = 0; g0 < m; g0 += g) {
-      const size_t g1 = g0 + g < m ? g0 + g : m;
-      if (group > 0 && cull_budget > 0 && lod0) {
+    // Queues rays [i0, i1) of the block, eight at a time while they fit
+    // (queue_rays8: the same floats as queue_ray, in vectors).
+    auto queue_range = [&](size_t i0, size_t i1) {
+      for (size_t i = i0; i < i1;) {
+        if (kPacketQueue - q.count >= 8) {
+          const int k = i1 - i < 8 ? int(i1 - i) : 8;
+          queue_rays8(frame, rays + base + i, k, nodes.root(), int32_t(i), &q, &origins[q.count]);
+          i += size_t(k);
+        } else {
+          queue_ray(frame, rays[base + i], nullptr, nodes.root(), int32_t(i), &q,
+                    &origins[q.count]);
+          ++i;
+        }
+        if (q.count == kPacketQueue) flush();  // a group larger than the queue
+      }
+    };
+    if (!(group > 0 && cull_budget > 0 && lod0)) {
+      queue_range(0, m);
+    } else {
+      for (size_t g0 = 0; g0 < m; g0 += g) {
+        const size_t g1 = g0 + g < m ? g0 + g : m;
         SegmentRegion reg;
         const Vec3* nrm = normals != nullptr ? &normals[(base + g0) / g] : nullptr;
         if (group_region(frame, rays + base, g0, g1, nrm, &reg)) {
@@ -224,10 +244,7 @@ void anyhit_packets(const OctreeWorld<P>& world, AnyHitKernel<P> kernel, int wid
             continue;  // every ray of the group misses: hit stays 0
           }
         }
-      }
-      for (size_t i = g0; i < g1; ++i) {
-        queue_ray(frame, rays[base + i], nullptr, nodes.root(), int32_t(i), &q, &origins[q.count]);
-        if (q.count == kPacketQueue) flush();  // a group larger than the queue
+        queue_range(g0, g1);
       }
     }
     flush();

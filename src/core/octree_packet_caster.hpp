@@ -22,9 +22,12 @@
 // root is fixed by its position, so the epilogue finds the payload by
 // descending to the hit cube with the policy's own descend() and hit_index(),
 // which add the same integers the loop would have added.
+#include <immintrin.h>
+
 #include <bit>
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <string>
 #include <type_traits>
 
@@ -155,6 +158,111 @@ inline bool queue_ray(const OctreeFrame& frame, const Ray& r, const Aabb* region
   queue_entry(q, id, ray, d, e, root);
   *origin = p;
   return true;
+}
+
+/// queue_ray on rays[0, m) (m <= 8, ids id0, id0 + 1, ...), eight at a time
+/// in the baseline ISA's 8-lane vectors: the same operations in the same
+/// order as queue_ray (the build has -ffp-contract=off, so no product is
+/// fused that queue_ray rounds), so every queued float is bit-identical.
+/// Rays queue_ray would reject (non-finite, empty span) get no slot; the
+/// others keep their order. origins[j]: the octree-space origin of the j-th
+/// queued ray. Returns the number of rays queued.
+inline int queue_rays8(const OctreeFrame& frame, const Ray* rays, int m, uint32_t root, int32_t id0,
+                       PacketQueue* q, Vec3* origins) {
+  typedef float F8 __attribute__((vector_size(32)));
+  typedef int32_t I8 __attribute__((vector_size(32)));
+  typedef uint32_t U8 __attribute__((vector_size(32)));
+  static_assert(sizeof(Ray) == 7 * sizeof(float));
+  F8 ox, oy, oz, dx, dy, dz, tm;
+  if (m == 8) {  // the seven fields of eight rays: stride-7 gathers
+    const float* f = &rays[0].origin.x;
+    const __m256i at =
+        _mm256_mullo_epi32(_mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7), _mm256_set1_epi32(7));
+    auto field = [&](int k) {
+      return (F8)_mm256_i32gather_ps(f, _mm256_add_epi32(at, _mm256_set1_epi32(k)), 4);
+    };
+    ox = field(0), oy = field(1), oz = field(2);
+    dx = field(3), dy = field(4), dz = field(5), tm = field(6);
+  } else {
+    for (int i = 0; i < 8; ++i) {
+      const Ray& r = rays[i < m ? i : m - 1];
+      ox[i] = r.origin.x, oy[i] = r.origin.y, oz[i] = r.origin.z;
+      dx[i] = r.dir.x, dy[i] = r.dir.y, dz[i] = r.dir.z, tm[i] = r.tmax;
+    }
+  }
+  auto max = [](F8 a, F8 b) { return a > b ? a : b; };  // vmax
+  auto min = [](F8 a, F8 b) { return a < b ? a : b; };  // vmin
+  auto fabs = [](F8 a) { return (F8)((U8)a & 0x7FFFFFFFu); };
+  auto finite = [](F8 a) { return ((U8)a & 0x7F800000u) != 0x7F800000u; };
+  auto fma = [](F8 a, F8 b, F8 c) { return (F8)_mm256_fmadd_ps((__m256)a, (__m256)b, (__m256)c); };
+  // OctreeFrame::point, direction.
+  const float inv = frame.inv_side;
+  const F8 px = (ox - frame.origin.x) * inv + 1.f, py = (oy - frame.origin.y) * inv + 1.f,
+           pz = (oz - frame.origin.z) * inv + 1.f;
+  dx = dx * inv, dy = dy * inv, dz = dz * inv;
+  I8 ok = finite(px) & finite(py) & finite(pz) & finite(dx) & finite(dy) & finite(dz);
+  // avoid_tiny_components.
+  F8 eps = 0x1p-23f * max(fabs(dx), max(fabs(dy), fabs(dz)));
+  eps = eps >= 0x1p-126f ? eps : F8{} + 0x1p-23f;
+  auto tiny = [&](F8 d) {
+    const F8 signed_eps = (F8)(((U8)d & 0x80000000u) | (U8)eps);
+    return fabs(d) < eps ? signed_eps : d;
+  };
+  dx = tiny(dx), dy = tiny(dy), dz = tiny(dz);
+  // MirroredRay.
+  const F8 cx = 1.0f / -fabs(dx), cy = 1.0f / -fabs(dy), cz = 1.0f / -fabs(dz);
+  F8 bx = cx * px, by = cy * py, bz = cz * pz;
+  const I8 mx = dx > 0.0f, my = dy > 0.0f, mz = dz > 0.0f;
+  bx = mx ? 3.0f * cx - bx : bx;
+  by = my ? 3.0f * cy - by : by;
+  bz = mz ? 3.0f * cz - bz : bz;
+  const I8 octant = 7 ^ (mx & 1) ^ (my & 2) ^ (mz & 4);
+  // enter_root (no region).
+  auto t = [&](float x, F8 c, F8 b) { return fma(F8{} + x, c, -b); };
+  F8 t_min = max(max(t(2.0f, cx, bx), t(2.0f, cy, by)), t(2.0f, cz, bz));
+  F8 t_max = min(min(t(1.0f, cx, bx), t(1.0f, cy, by)), t(1.0f, cz, bz));
+  const F8 h = t_max;
+  t_min = max(t_min, F8{});
+  t_max = min(t_max, tm);
+  ok &= t_min <= t_max;
+  const I8 ix = t(1.5f, cx, bx) > t_min, iy = t(1.5f, cy, by) > t_min, iz = t(1.5f, cz, bz) > t_min;
+  const I8 idx = (ix & 1) | (iy & 2) | (iz & 4);
+  const F8 one = F8{} + 1.0f, mid = F8{} + 1.5f;
+  const F8 ex = ix ? mid : one, ey = iy ? mid : one, ez = iz ? mid : one;
+  int queued = 0;
+  if (m == 8 && _mm256_movemask_ps((__m256)ok) == 0xFF) {  // all eight: vector stores
+    const int k = q->count;
+    q->count += 8;
+    auto put = [&](auto* dst, auto v) { std::memcpy(dst + k, &v, sizeof(v)); };
+    put(q->cx, cx), put(q->cy, cy), put(q->cz, cz);
+    put(q->bx, bx), put(q->by, by), put(q->bz, bz);
+    put(q->t_min, t_min), put(q->t_max, t_max), put(q->h, h);
+    put(q->px, ex), put(q->py, ey), put(q->pz, ez);
+    put(q->flip, (U8)(octant ^ 7));
+    put(q->idx, (U8)idx);
+    put(q->id, I8{0, 1, 2, 3, 4, 5, 6, 7} + id0);
+    put(q->dx, dx), put(q->dy, dy), put(q->dz, dz);
+    put(q->parent, U8{} + root);
+    put(q->scale, I8{} + (kOctreeMaxScale - 1));
+    for (int i = 0; i < 8; ++i) origins[i] = {px[i], py[i], pz[i]};
+    return 8;
+  }
+  for (int i = 0; i < m; ++i) {
+    if (!ok[i]) continue;
+    const int k = q->count++;
+    q->cx[k] = cx[i], q->cy[k] = cy[i], q->cz[k] = cz[i];
+    q->bx[k] = bx[i], q->by[k] = by[i], q->bz[k] = bz[i];
+    q->t_min[k] = t_min[i], q->t_max[k] = t_max[i], q->h[k] = h[i];
+    q->px[k] = ex[i], q->py[k] = ey[i], q->pz[k] = ez[i];
+    q->flip[k] = uint32_t(octant[i] ^ 7);
+    q->idx[k] = uint32_t(idx[i]);
+    q->id[k] = id0 + i;
+    q->dx[k] = dx[i], q->dy[k] = dy[i], q->dz[k] = dz[i];
+    q->parent[k] = root;
+    q->scale[k] = kOctreeMaxScale - 1;
+    origins[queued++] = {px[i], py[i], pz[i]};
+  }
+  return queued;
 }
 
 // ---- Deep start: packets below the root ------------------------------------

@@ -186,9 +186,9 @@ template <class VP, class OnHit>
   // gathers miss the caches independently: measured 10-25 % slower for
   // those rays (docs/BENCHMARKS.md "Packet casters", "Occlusion packets").
   // For the AO rays of one point per packet, whose lengths differ most, a
-  // refill at N/2 idle lanes measured faster (q.refill_lanes,
+  // refill at N/4 idle lanes measured faster (q.refill_lanes,
   // docs/BENCHMARKS.md "Occlusion packets: the fold and the per-ray deep
-  // start").
+  // start", "AO rays: refill at a quarter").
   const int refill_at = q.refill_lanes > 0 && q.refill_lanes < N ? q.refill_lanes : N;
   const I lane = L::iota();
 
