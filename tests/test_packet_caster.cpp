@@ -192,6 +192,26 @@ void check_structure(const S& s, const char* name) {
 }
 
 // Camera rays with the coarse pass of their 8x8 pixel block (esvo §6.2):
+// trace_packets with per-ray beams == the scalar answers `want`/`want_found`
+// (trace() with the same beams), for every packet ISA the CPU runs.
+template <class S>
+void expect_same_with_beams(const S& s, const std::vector<Ray>& rays,
+                            const std::vector<const BeamStart*>& beams, const LodFootprint& lod,
+                            const std::vector<SurfaceHit>& want,
+                            const std::vector<uint8_t>& want_found, const std::string& label) {
+  TraceContext ctx;
+  std::vector<SurfaceHit> got(rays.size());
+  std::vector<uint8_t> found(rays.size(), 7);
+  for (const Isa isa : testing::packet_isas()) {
+    s.packets()->trace_packets(rays.data(), rays.size(), lod, ctx, got.data(), found.data(), isa,
+                               beams.data());
+    size_t bad = 0;
+    for (size_t i = 0; i < rays.size(); ++i)
+      bad += found[i] != want_found[i] || (found[i] && !same_hit(got[i], want[i]));
+    EXPECT_EQ(bad, 0u) << label << ", " << isa_name(isa);
+  }
+}
+
 // trace_packets with the blocks' beams == trace() with the same beam.
 template <class S>
 void check_beams(const S& s, const char* name) {
@@ -223,22 +243,16 @@ void check_beams(const S& s, const char* name) {
       rays.push_back(cr.ray(x, y));
       beams.push_back(&starts[size_t((y / k) * (w / k) + x / k)]);
     }
-    std::vector<SurfaceHit> want(rays.size()), got(rays.size());
-    std::vector<uint8_t> want_found(rays.size()), found(rays.size());
+    std::vector<SurfaceHit> want(rays.size());
+    std::vector<uint8_t> want_found(rays.size());
     size_t hits = 0;
     for (size_t i = 0; i < rays.size(); ++i) {
       want_found[i] = s.trace(rays[i], lod, ctx, &want[i], beams[i]);
       hits += want_found[i];
     }
     EXPECT_GT(hits, rays.size() / 8) << name;
-    for (const Isa isa : testing::packet_isas()) {
-      s.packets()->trace_packets(rays.data(), rays.size(), lod, ctx, got.data(), found.data(), isa,
-                                 beams.data());
-      size_t bad = 0;
-      for (size_t i = 0; i < rays.size(); ++i)
-        bad += found[i] != want_found[i] || (found[i] && !same_hit(got[i], want[i]));
-      EXPECT_EQ(bad, 0u) << name << " beams, " << isa_name(isa) << ", lod " << lod_pixels;
-    }
+    expect_same_with_beams(s, rays, beams, lod, want, want_found,
+                           std::string(name) + " beams, lod " + std::to_string(lod_pixels));
   }
 }
 
@@ -341,6 +355,72 @@ TEST(PacketCaster, BrickmapGridVertexTiesEqualTheScalarCaster) {
       lod.size_at_origin = side / 128.f;
       expect_same(b, rays, lod, "brickmap ties lod " + std::to_string(voxels), &hits);
     }
+  }
+}
+
+// Beam regions whose faces lie on grid planes: a tie ray enters its region
+// exactly where it crosses grid planes, so the lanes' start cell there
+// (start_cell_exact) and their LOD test at the region's entry meet the
+// scalar walk's ties. Regions are cubes of 1 to 16 voxels: for a ray that
+// hits without a region, its near corner is the hit's cube, so the ray
+// enters the region where it hits; otherwise anywhere. They need not be
+// conservative: trace() and trace_packets() walk the same clipped span.
+TEST(PacketCaster, BrickmapBeamRegionTiesEqualTheScalarCaster) {
+  constexpr int kLevels = 7, kSide = 1 << kLevels;
+  const std::vector<Ray> rays = tie_rays(kLevels, 20000, 23);
+  const VoxelSet v = testing::make_random_voxels(kLevels, 40000, 7);
+  ASSERT_EQ(v.grid.side(), 1.0);
+  const brickmap::BrickmapStructure b(
+      std::make_shared<const brickmap::World>(brickmap::build_world(v)));
+  std::mt19937_64 rng(29);
+  auto pick = [&](int lo, int hi) { return std::uniform_int_distribution<int>(lo, hi)(rng); };
+  for (const float side : {0.f, 2.f, 16.f}) {  // LOD 0; stops in bricks; at nodes
+    LodFootprint lod;
+    lod.size_at_origin = side / float(kSide);
+    TraceContext ctx;
+    std::vector<BeamStart> starts(rays.size());
+    for (size_t i = 0; i < rays.size(); ++i) {
+      SurfaceHit free;
+      const bool hit = b.trace(rays[i], lod, ctx, &free);
+      const int unit = 1 << pick(0, 4), cells = kSide / unit;
+      BeamStart& st = starts[i];
+      st.valid = true;
+      for (int a = 0; a < 3; ++a) {
+        int lo = pick(0, cells - 1), hi = pick(lo + 1, cells);
+        if (hit) {  // the near face through the hit's cube (unit-aligned)
+          const int c = std::clamp(int(std::floor(free.position[a] * float(cells))), 0, cells - 1);
+          if (rays[i].dir[a] < 0.f)
+            hi = c + 1, lo = pick(0, c);
+          else
+            lo = c, hi = pick(c + 1, cells);
+        }
+        st.region.lo[a] = 1.f + float(lo * unit) / float(kSide);
+        st.region.hi[a] = 1.f + float(hi * unit) / float(kSide);
+      }
+    }
+    std::vector<const BeamStart*> beams;
+    for (const BeamStart& st : starts) beams.push_back(&st);
+    std::vector<SurfaceHit> want(rays.size());
+    std::vector<uint8_t> want_found(rays.size());
+    size_t hits = 0, at_entry = 0;
+    for (size_t i = 0; i < rays.size(); ++i) {
+      want_found[i] = b.trace(rays[i], lod, ctx, &want[i], beams[i]);
+      hits += want_found[i];
+      // Hits at the t the ray enters its region: the start cell decided them.
+      if (!want_found[i]) continue;
+      float entry = -INFINITY;
+      for (int a = 0; a < 3; ++a) {
+        const float d = rays[i].dir[a];
+        if (d == 0.f) continue;
+        const float plane = (d > 0.f ? starts[i].region.lo[a] : starts[i].region.hi[a]) - 1.f;
+        entry = std::max(entry, (plane - rays[i].origin[a]) / d);
+      }
+      at_entry += entry == want[i].t;
+    }
+    EXPECT_GT(hits, rays.size() / 10) << "lod " << side;
+    EXPECT_GT(at_entry, rays.size() / 20) << "lod " << side;
+    expect_same_with_beams(b, rays, beams, lod, want, want_found,
+                           "brickmap region ties, lod " + std::to_string(side));
   }
 }
 
