@@ -99,6 +99,9 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
       up[a] = d[a] < 0.f ? I{} : I{} + 1;  // d is never 0 (to_grid)
       stp[a] = up[a] * 2 - 1;
     }
+    // The t at which a lane leaves child cc (side sd) along axis a: the
+    // plane of its far face (plane_t of traverse.cpp, the same operations).
+    auto exit_t = [&](int a, I cc, F sd) { return (to_f(cc + up[a]) * sd - o[a]) * inv[a]; };
     const F t1 = load(q.t1 + base), start_t = load(q.start_t + base);
     const F exit0 = load(q.exit + base);
     F t = load(q.t0 + base);
@@ -143,7 +146,7 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
         }
       }
       for (int a = 0; a < 3; ++a) {
-        const F nn = (to_f(nc[a] + up[a]) * nside - o[a]) * inv[a];
+        const F nn = exit_t(a, nc[a], nside);
         n[a] = m ? nn : n[a];
         c[a] = m ? nc[a] : c[a];
         lo[a] = m ? nlo[a] : lo[a];
@@ -278,7 +281,7 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
             const I far = c[a] + stp[a] * radius, hi = lo[a] + span[a];
             const I mx = far < lo[a] ? lo[a] : far;
             tc[a] = hi < mx ? hi : mx;
-            tn[a] = (__builtin_convertvector(tc[a] + up[a], F) * side - o[a]) * inv[a];
+            tn[a] = exit_t(a, tc[a], side);
           }
           const I x_le_y = tn[0] <= tn[1];
           const I a0 = x_le_y & (tn[0] <= tn[2]);
@@ -302,13 +305,13 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
               m &= (n[b] < t) | ((n[b] == t) & (aj > b));
               if (!L::bits(m)) break;
               c[b] = m ? c[b] + stp[b] : c[b];
-              n[b] = m ? (__builtin_convertvector(c[b] + up[b], F) * side - o[b]) * inv[b] : n[b];
+              n[b] = m ? exit_t(b, c[b], side) : n[b];
             }
           }
           for (int a = 0; a < 3; ++a) {
             const I m = ok & ax[a];
             c[a] = m ? cn[a] : c[a];
-            n[a] = m ? (__builtin_convertvector(cn[a] + up[a], F) * side - o[a]) * inv[a] : n[a];
+            n[a] = m ? exit_t(a, cn[a], side) : n[a];
           }
           adv &= ~jump;
         }
@@ -335,10 +338,8 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
         leave_jump = I{};
         for (int a = 0; a < 3; ++a) {
           const I m = ok & ax[a];
-          if (L::bits(m))
-            n[a] = m ? (__builtin_convertvector(c[a] + up[a], F) * side - o[a]) * inv[a] : n[a];
+          if (L::bits(m)) n[a] = m ? exit_t(a, c[a], side) : n[a];
         }
-        // Past t1, or out of the root's children: a miss.
         // Past t1, or out of the root's children: a miss.
         active &= ~(end | (leave & (chain == 1)));
         const I pop = leave & (chain != 1);
@@ -359,7 +360,7 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
           c[a] = pop ? pc : c[a];
           lo[a] = pop ? plo : lo[a];
           span[a] = pop ? phi - plo : span[a];
-          n[a] = pop ? (to_f(pc + up[a]) * pside - o[a]) * inv[a] : n[a];
+          n[a] = pop ? exit_t(a, pc, pside) : n[a];
         }
         lv = pop ? pl : lv, chain = pop ? gchain : chain;
         side = pop ? pside : side;
