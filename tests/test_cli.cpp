@@ -134,6 +134,19 @@ TEST(Cli, BuildRenderInfoEndToEnd) {
   ASSERT_EQ(r3.exit_code, 0) << r3.output;
   EXPECT_EQ(read_text(dir.file("t.png")), read_text(dir.file("t3.png")));
   EXPECT_EQ(read_text(dir.file("d.pfm")), read_text(dir.file("d3.pfm")));
+
+  // -v adds the ray cast's process CPU time and Mrays per CPU second (the
+  // figure that a shared machine does not distort); the image is unchanged.
+  CliResult r4 = run_cli("render " + dir.file("t.vxc") + " -o " + dir.file("t4.png") +
+                         " --size 64x48 --threads 1 -v");
+  ASSERT_EQ(r4.exit_code, 0) << r4.output;
+  EXPECT_EQ(read_text(dir.file("t.png")), read_text(dir.file("t4.png")));
+  const auto cpu = r4.output.find("of which CPU");
+  ASSERT_NE(cpu, std::string::npos) << r4.output;
+  const auto per = r4.output.find(" Mrays per CPU second)", cpu);
+  ASSERT_NE(per, std::string::npos) << r4.output;
+  const double mrays = std::stod(r4.output.substr(r4.output.rfind('(', per) + 1));
+  EXPECT_GT(mrays, 0.0) << r4.output;
 }
 
 TEST(Cli, RenderRejectsBadInput) {

@@ -1,6 +1,7 @@
 #include "cli_io.hpp"
 
 #include <fcntl.h>
+#include <sys/resource.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -117,6 +118,13 @@ std::string in_quotes(const fs::path& path) {
 }
 
 // ------------------------------------------------------------ numbers
+
+double cpu_seconds() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return double(u.ru_utime.tv_sec + u.ru_stime.tv_sec) +
+         1e-6 * double(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+}
 
 const CLI::Validator& not_negative() {
   static const CLI::Validator v(

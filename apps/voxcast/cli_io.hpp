@@ -38,6 +38,10 @@ std::string in_quotes(const std::filesystem::path& path);
 /// ends, a directory is no file. Symlinks are followed.
 void require_regular_input(const std::string& path, const char* what);
 
+/// Process CPU time (user + system) in seconds: frame costs that can be read
+/// for an idle machine when the wall clock is shared.
+double cpu_seconds();
+
 /// For unsigned options: CLI11 would read "-1" as 2^N-1.
 const CLI::Validator& not_negative();
 

@@ -425,6 +425,7 @@ Runner add_render(CLI::App& app) {
       opt.want_normal = !args->normal.empty() || layers.normal;
       opt.filter = args->filter;
       RenderResult result;
+      const double cpu0 = cpu_seconds();
       {
         Progress progress("render", uint64_t(0));  // the frame loop adds the tiles
         opt.progress = &progress;
@@ -433,6 +434,14 @@ Runner add_render(CLI::App& app) {
         opt.progress = nullptr;
       }
       timer.mark("ray cast");
+      // On a shared machine the wall clock counts other jobs' time slices;
+      // the process CPU time of the frame does not (with --threads 1 it is
+      // the ray cast's own cost).
+      if (args->verbose) {
+        const double cpu = std::max(cpu_seconds() - cpu0, 1e-9);
+        std::fprintf(stderr, "  %-22s %9.1f ms (%.2f Mrays per CPU second)\n", "  of which CPU",
+                     cpu * 1e3, double(result.rays) / cpu * 1e-6);
+      }
       if (args->verbose && opt.filter)
         std::fprintf(stderr, "  %-22s %9.1f ms\n", "  of which filter",
                      result.filter_seconds * 1e3);

@@ -1,7 +1,6 @@
 // voxcast volume render SOURCE -o IMAGE: GigaVoxels volume rendering
 // (gigavoxels.hpp) of a volume file or a procedural volume, through the
 // frame loop with the volume integrator.
-#include <sys/resource.h>
 
 #include <algorithm>
 #include <cctype>
@@ -354,15 +353,6 @@ void parse_dof(const std::string& text, VolumeIntegratorOptions* io) {
   if (!ok || !std::isfinite(io->dof_aperture) || !(io->dof_aperture > 0.f) ||
       !std::isfinite(io->dof_focus) || !(io->dof_focus > 0.f))
     throw UsageError("--dof must be APERTURE,FOCUS with two positive numbers");
-}
-
-/// Process CPU time (user + system) in seconds: frame costs that can be read
-/// for an idle machine when the wall clock is shared.
-double cpu_seconds() {
-  rusage u{};
-  getrusage(RUSAGE_SELF, &u);
-  return double(u.ru_utime.tv_sec + u.ru_stime.tv_sec) +
-         1e-6 * double(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
 }
 
 double rmse(const Image& a, const Image& b) {
