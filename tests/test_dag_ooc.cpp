@@ -50,11 +50,12 @@ dag::SparseVoxelDag in_core(const Mesh& mesh, const GridTransform& grid, Voxeliz
 }
 
 dag::SparseVoxelDag out_of_core(const Mesh& mesh, const GridTransform& grid, VoxelizationMode mode,
-                                bool attributes, uint32_t cell,
-                                dag::OutOfCoreReport* rep = nullptr) {
+                                bool attributes, uint32_t cell, dag::OutOfCoreReport* rep = nullptr,
+                                bool compress = false) {
   dag::OutOfCoreOptions o;
   o.mode = mode;
   o.attributes = attributes;
+  o.compress_attributes = compress;
   o.cell_size = cell;
   o.progress = false;
   o.memory_budget = uint64_t(8) << 30;
@@ -104,6 +105,19 @@ TEST(OocDag, CompressedAttributesByteIdenticalToInCore) {
     d.compress_attributes();
     expect_same_dag(ref, d);
     EXPECT_TRUE(ref.attribute_prefix == d.attribute_prefix);
+    // Encoded cell by cell as the cells arrive (OutOfCoreOptions::
+    // compress_attributes): 16-voxel blocks straddle cells of 16^3 (most
+    // cells hold no multiple of 16 voxels), still the same blocks.
+    dag::OutOfCoreReport rep;
+    const dag::SparseVoxelDag e =
+        out_of_core(bunny(), grid, VoxelizationMode::Conservative, true, cell, &rep, true);
+    if (cell == 16) {
+      EXPECT_GT(rep.cells, 50u);
+    }
+    EXPECT_TRUE(e.colors.empty());
+    expect_same_dag(ref, e);
+    EXPECT_TRUE(ref.attribute_blocks == e.attribute_blocks);
+    EXPECT_TRUE(ref.attribute_prefix == e.attribute_prefix);
   }
 }
 

@@ -169,6 +169,13 @@ class SparseVoxelDag {
   /// and re-derives the LOD prefix sums from the decoded values. No-op
   /// without attributes or when already compressed.
   void compress_attributes();
+  /// The blocks of compress_attributes() for `count` Morton-consecutive voxels
+  /// starting at a multiple of kCompressedSlots: ceil(count / 16) blocks of
+  /// kCompressedBlockWords words to `out` (the last one partial when count is
+  /// not a multiple of 16). Encoding an array piece by piece at block
+  /// boundaries gives the bytes of encoding it whole.
+  static void encode_compressed_blocks(const uint32_t* colors, const uint32_t* normals,
+                                       size_t count, uint32_t* out);
   /// Prefix entry of word `w` (see above): the node's leaf count for a header
   /// word, the leaf count of the children before the slot for a pointer word.
   uint64_t prefix_entry(uint32_t w) const {
@@ -265,6 +272,10 @@ struct OutOfCoreOptions {
   uint64_t memory_budget = 0;  // bytes; 0 = 90% of available memory
   uint32_t cell_size = 0;      // sub-volume side, power of two >= 4; 0 = from the budget
   bool progress = true;        // progress bar with ETA on a TTY
+  // With attributes: encode them into compressed blocks (dag.hpp) cell by
+  // cell as the cells arrive, so that 1.5 B per voxel are held instead of
+  // the 8 B of the raw arrays; the same bytes as compress_attributes().
+  bool compress_attributes = false;
 };
 struct OutOfCoreReport {
   uint32_t cell_size = 0;

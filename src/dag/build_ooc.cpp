@@ -219,6 +219,7 @@ SparseVoxelDag build_dag_out_of_core(const Mesh& mesh, const GridTransform& grid
   std::vector<uint32_t> tri_list;
   std::vector<uint64_t> keys, pkeys;
   std::vector<uint32_t> ids, pids;
+  std::vector<uint32_t> pending_colors, pending_normals;  // compressed: < 16 voxels between cells
   {
     Progress progress("DAG cells", bins.size(), options.progress);
     VoxelizeOptions vo;
@@ -243,13 +244,28 @@ SparseVoxelDag build_dag_out_of_core(const Mesh& mesh, const GridTransform& grid
       max_cell_voxels = std::max<uint64_t>(max_cell_voxels, vs.codes.size());
       voxel_total += vs.codes.size();
       if (options.attributes) {
-        const size_t base = dag.colors.size();
-        dag.colors.resize(base + vs.size());
-        dag.normals.resize(base + vs.size());
+        // Raw: appended to the DAG's arrays. Compressed: to `pending`, whose
+        // whole 16-voxel blocks are encoded right away (blocks start at
+        // multiples of 16 of the global Morton order, as compress_attributes'
+        // do); fewer than 16 voxels wait for the next cell.
+        std::vector<uint32_t>& to_c = options.compress_attributes ? pending_colors : dag.colors;
+        std::vector<uint32_t>& to_n = options.compress_attributes ? pending_normals : dag.normals;
+        const size_t base = to_c.size();
+        to_c.resize(base + vs.size());
+        to_n.resize(base + vs.size());
         tbb::parallel_for(size_t(0), vs.size(), [&](size_t i) {
-          dag.colors[base + i] = esvo::encode_color_abgr(vs.colors[i]);
-          dag.normals[base + i] = esvo::encode_normal_cube(vs.normals[i]);
+          to_c[base + i] = esvo::encode_color_abgr(vs.colors[i]);
+          to_n[base + i] = esvo::encode_normal_cube(vs.normals[i]);
         });
+        if (options.compress_attributes) {
+          constexpr size_t S = SparseVoxelDag::kCompressedSlots;
+          const size_t whole = to_c.size() / S * S, at = dag.attribute_blocks.size();
+          dag.attribute_blocks.resize(at + whole / S * SparseVoxelDag::kCompressedBlockWords);
+          SparseVoxelDag::encode_compressed_blocks(to_c.data(), to_n.data(), whole,
+                                                   dag.attribute_blocks.data() + at);
+          to_c.erase(to_c.begin(), to_c.begin() + ptrdiff_t(whole));
+          to_n.erase(to_n.begin(), to_n.begin() + ptrdiff_t(whole));
+        }
       }
       // Leaf masks (level L-2), then up to the cell's root (svdag §3).
       keys.clear();
@@ -284,7 +300,10 @@ SparseVoxelDag build_dag_out_of_core(const Mesh& mesh, const GridTransform& grid
       roots_ids.push_back(ids[0]);
       reduce_s += seconds_since(t0);
       uint64_t held =
-          plan.fixed_bytes + uint64_t(dag.colors.capacity() + dag.normals.capacity()) * 4;
+          plan.fixed_bytes + uint64_t(dag.colors.capacity() + dag.normals.capacity() +
+                                      dag.attribute_blocks.capacity() + pending_colors.capacity() +
+                                      pending_normals.capacity()) *
+                                 4;
       for (const LevelTable& t : tables) held += t.bytes();
       if (held > budget)
         throw Error(
@@ -296,6 +315,15 @@ SparseVoxelDag build_dag_out_of_core(const Mesh& mesh, const GridTransform& grid
     progress.finish();
   }
   if (voxel_total == 0) throw Error("DAG build: no voxels");
+  if (!pending_colors.empty()) {  // the last, partial block
+    const size_t at = dag.attribute_blocks.size();
+    dag.attribute_blocks.resize(at + SparseVoxelDag::kCompressedBlockWords);
+    SparseVoxelDag::encode_compressed_blocks(pending_colors.data(), pending_normals.data(),
+                                             pending_colors.size(),
+                                             dag.attribute_blocks.data() + at);
+  }
+  pending_colors = {};
+  pending_normals = {};
   bins = {};
 
   // The top levels above the cells, from the cell roots (Morton order).

@@ -282,21 +282,27 @@ void SparseVoxelDag::finalize() {
   derive_cube_means(*this);
 }
 
-void SparseVoxelDag::compress_attributes() {
-  if (colors.empty()) return;
+void SparseVoxelDag::encode_compressed_blocks(const uint32_t* colors, const uint32_t* normals,
+                                              size_t count, uint32_t* out) {
   // esvo §5.5 on runs of 16 Morton-consecutive voxels; the shared ESVO
   // encoder (compress.hpp) fits each block from the raw 8-byte values.
-  const size_t V = colors.size(), blocks = (V + kCompressedSlots - 1) / kCompressedSlots;
-  std::vector<uint32_t> out(blocks * kCompressedBlockWords);
+  const size_t blocks = (count + kCompressedSlots - 1) / kCompressedSlots;
   tbb::parallel_for(size_t(0), blocks, [&](size_t k) {
     uint64_t values[kCompressedSlots];
     const size_t first = k * kCompressedSlots;
-    const size_t n = std::min<size_t>(kCompressedSlots, V - first);
+    const size_t n = std::min<size_t>(kCompressedSlots, count - first);
     for (size_t j = 0; j < n; ++j)
       values[j] = uint64_t(colors[first + j]) | uint64_t(normals[first + j]) << 32;
     esvo::detail::encode_block_from_raw(values, uint32_t((1ull << n) - 1),
                                         &out[k * kCompressedBlockWords]);
   });
+}
+
+void SparseVoxelDag::compress_attributes() {
+  if (colors.empty()) return;
+  const size_t V = colors.size(), blocks = (V + kCompressedSlots - 1) / kCompressedSlots;
+  std::vector<uint32_t> out(blocks * kCompressedBlockWords);
+  encode_compressed_blocks(colors.data(), normals.data(), V, out.data());
   attribute_blocks = std::move(out);
   colors = {};
   normals = {};

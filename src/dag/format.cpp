@@ -280,11 +280,12 @@ MeshBuild build_from_mesh(const Mesh& mesh, const GridTransform& grid, const Mes
   oo.attributes = r.attributes;
   oo.memory_budget = r.memory_budget;
   oo.cell_size = r.cell_size;
+  // esvo §5.5 blocks over the Morton-order array (dag.hpp), encoded cell by
+  // cell from the same raw values as in core, so the scene bytes stay
+  // identical and the raw arrays are never held whole.
+  oo.compress_attributes = r.options.compress_attributes;
   OutOfCoreReport rep;
   auto d = std::make_shared<SparseVoxelDag>(build_dag_out_of_core(mesh, grid, oo, &rep));
-  // esvo §5.5 blocks over the Morton-order array (dag.hpp); from the same
-  // raw values as in core, so the scene bytes stay identical.
-  if (r.options.compress_attributes && d->has_attributes()) d->compress_attributes();
   out.leaf_voxels = d->leaf_voxels;
   out.structure = std::make_unique<DagStructure>(std::move(d));
   out.out_of_core = true;
