@@ -352,6 +352,51 @@ TEST(DagLodMeans, TableHoldsEveryLargeCubeWithItsBruteForceMean) {
   EXPECT_TRUE(bare.cube_means.empty());
 }
 
+TEST(DagCompressed, RangeMeansEqualTheSlotBySlotSums) {
+  // mean_attributes over compressed blocks sums each block's palette entries
+  // once, times the slots that use them (dag.cpp compressed_sum); the means
+  // must be the very floats of summing the decoded slots one by one (the
+  // same fixed-point rounding per voxel, mean_attributes' sum-to-mean step),
+  // for ranges that start and end anywhere in a block, short (summed
+  // directly) and long (through the prefix table).
+  const SparseVoxelDag d = compressed(dag::build_dag(smooth_shell(7)));
+  ASSERT_TRUE(d.compressed_attributes());
+  const auto fixed = [](float v) {
+    const double x = double(v) * SparseVoxelDag::kAttributeSumOne;
+    return int64_t(x + (x >= 0 ? 0.5 : -0.5));
+  };
+  uint64_t seed = 7;
+  int compared = 0;
+  for (int t = 0; t < 400; ++t) {
+    seed = seed * 6364136223846793005ull + 1442695040888963407ull;
+    const uint64_t first = (seed >> 20) % (d.leaf_voxels - 1);
+    const uint64_t most = t % 2 ? 64 : 3000;
+    const uint64_t count = 1 + (seed >> 8) % std::min<uint64_t>(most, d.leaf_voxels - first);
+    int64_t s[7] = {};
+    for (uint64_t i = first; i < first + count; ++i) {
+      Color c;
+      Vec3 n;
+      esvo::decode_compressed_slot(&d.attribute_blocks[size_t(i / 16) * 6], int(i % 16), &c, &n);
+      const float x[7] = {c.r, c.g, c.b, c.a, n.x, n.y, n.z};
+      for (int k = 0; k < 7; ++k) s[k] += fixed(x[k]);
+    }
+    const double scale = 1.0 / (SparseVoxelDag::kAttributeSumOne * double(count));
+    const Color want{float(double(s[0]) * scale), float(double(s[1]) * scale),
+                     float(double(s[2]) * scale), float(double(s[3]) * scale)};
+    const Vec3 sn{float(double(s[4]) * scale), float(double(s[5]) * scale),
+                  float(double(s[6]) * scale)};
+    if (!(length(sn) > 1e-6f)) continue;  // cancelled normals: the first voxel's
+    const Vec3 want_n = sn * (1.0f / length(sn));
+    Color m;
+    Vec3 mn;
+    d.mean_attributes({first, count}, &m, &mn);
+    EXPECT_TRUE(std::memcmp(&m, &want, sizeof m) == 0 && std::memcmp(&mn, &want_n, sizeof mn) == 0)
+        << "first " << first << " count " << count;
+    ++compared;
+  }
+  EXPECT_GT(compared, 300);
+}
+
 TEST(DagCompressed, DeterministicForOneAndTwoThreads) {
   const SparseVoxelDag raw = dag::build_dag(testing::make_random_voxels(8, 80000, 5));
   SparseVoxelDag one = raw, two = raw;

@@ -222,6 +222,21 @@ void encode_compressed_block(const Color* colors16, const Vec3* normals16, uint3
                              uint32_t out[6]);
 /// Decodes slot `slot` (0..15) of a compression block; total for any bits.
 void decode_compressed_slot(const uint32_t* block, int slot, Color* color, Vec3* normal);
+/// The same decoding by palette entry: slot i shows color entry
+/// compressed_color_index(block, i) (0..3) and normal entry
+/// compressed_normal_index(block, i) (0..15), and
+/// decode_compressed_color/normal of those entries are exactly
+/// decode_compressed_slot's values (one code path). Sums over many slots of
+/// one block decode each entry once.
+inline int compressed_color_index(const uint32_t* block, int slot) {
+  return int(layout::ColorIndices::get(block[1], unsigned(slot)));
+}
+inline int compressed_normal_index(const uint32_t* block, int slot) {
+  return int(layout::NormalIndices::get(block[layout::kNormalIndexWord + (slot >> 3)],
+                                        unsigned(slot & 7)));
+}
+Color decode_compressed_color(const uint32_t* block, int entry);
+Vec3 decode_compressed_normal(const uint32_t* block, int entry);
 
 /// One contour (§5.2, Figure 4): a pair of parallel planes bounding the
 /// voxel. 32-bit value, most significant bits first:

@@ -655,39 +655,42 @@ void encode_compressed_block(const Color* colors, const Vec3* normals, uint32_t 
   encode_core(x, n, used, out);
 }
 
-void decode_compressed_slot(const uint32_t* block, int slot, Color* color, Vec3* normal) {
-  if (color) {
-    const Palette p =
-        make_palette(layout::Endpoint0::get(block[0]), layout::Endpoint1::get(block[0]));
-    const int k = int(layout::ColorIndices::get(block[1], unsigned(slot)));
-    *color = decode_color_abgr(layout::ColorR::put(uint32_t(p.c[k][0])) |
-                               layout::ColorG::put(uint32_t(p.c[k][1])) |
-                               layout::ColorB::put(uint32_t(p.c[k][2])) | layout::ColorA::mask);
-  }
-  if (normal) {
-    const Vec3 bn = decode_normal_cube(block[2]);
-    const float m = std::max({std::fabs(bn.x), std::fabs(bn.y), std::fabs(bn.z)});
-    const Vec3 b = bn / m;  // back onto the cube (m >= 1/sqrt(3))
-    const uint32_t axes = block[3];
-    const uint32_t sel = layout::NormalIndices::get(block[layout::kNormalIndexWord + (slot >> 3)],
-                                                    unsigned(slot & 7));
-    static constexpr float kC[4] = {-1.f, -1.f / 3.f, 1.f / 3.f, 1.f};
-    const auto axis = [](uint32_t bits, float c) {
-      // 2^(e - 15) * c, built from the exponent bits (e in 0..15).
-      const float scale =
-          std::bit_cast<float>(uint32_t(int(layout::AxisExponent::get(bits)) - kAxisExpBias + 127)
-                               << 23) *
-          c;
-      const auto m4 = [bits](unsigned i) {
-        return float(layout::AxisMantissas::get_signed(bits, i));
-      };
-      return Vec3{m4(0) * scale, m4(1) * scale, m4(2) * scale};
+Color decode_compressed_color(const uint32_t* block, int entry) {
+  const Palette p =
+      make_palette(layout::Endpoint0::get(block[0]), layout::Endpoint1::get(block[0]));
+  const int k = entry & 3;
+  return decode_color_abgr(layout::ColorR::put(uint32_t(p.c[k][0])) |
+                           layout::ColorG::put(uint32_t(p.c[k][1])) |
+                           layout::ColorB::put(uint32_t(p.c[k][2])) | layout::ColorA::mask);
+}
+
+Vec3 decode_compressed_normal(const uint32_t* block, int entry) {
+  const Vec3 bn = decode_normal_cube(block[2]);
+  const float m = std::max({std::fabs(bn.x), std::fabs(bn.y), std::fabs(bn.z)});
+  const Vec3 b = bn / m;  // back onto the cube (m >= 1/sqrt(3))
+  const uint32_t axes = block[3];
+  const uint32_t sel = uint32_t(entry) & 15u;
+  static constexpr float kC[4] = {-1.f, -1.f / 3.f, 1.f / 3.f, 1.f};
+  const auto axis = [](uint32_t bits, float c) {
+    // 2^(e - 15) * c, built from the exponent bits (e in 0..15).
+    const float scale =
+        std::bit_cast<float>(uint32_t(int(layout::AxisExponent::get(bits)) - kAxisExpBias + 127)
+                             << 23) *
+        c;
+    const auto m4 = [bits](unsigned i) {
+      return float(layout::AxisMantissas::get_signed(bits, i));
     };
-    const Vec3 p = b + axis(layout::AxisU::get(axes), kC[layout::NormalIndexU::get(sel)]) +
-                   axis(layout::AxisV::get(axes), kC[layout::NormalIndexV::get(sel)]);
-    const float l2 = dot(p, p);
-    *normal = l2 > 1e-12f ? p / std::sqrt(l2) : bn;
-  }
+    return Vec3{m4(0) * scale, m4(1) * scale, m4(2) * scale};
+  };
+  const Vec3 p = b + axis(layout::AxisU::get(axes), kC[layout::NormalIndexU::get(sel)]) +
+                 axis(layout::AxisV::get(axes), kC[layout::NormalIndexV::get(sel)]);
+  const float l2 = dot(p, p);
+  return l2 > 1e-12f ? p / std::sqrt(l2) : bn;
+}
+
+void decode_compressed_slot(const uint32_t* block, int slot, Color* color, Vec3* normal) {
+  if (color) *color = decode_compressed_color(block, compressed_color_index(block, slot));
+  if (normal) *normal = decode_compressed_normal(block, compressed_normal_index(block, slot));
 }
 
 namespace detail {
