@@ -237,6 +237,9 @@ inline int compressed_normal_index(const uint32_t* block, int slot) {
 }
 Color decode_compressed_color(const uint32_t* block, int entry);
 Vec3 decode_compressed_normal(const uint32_t* block, int entry);
+/// decode_compressed_normal of every entry e with bit e of `entries` set, to
+/// out[e] (the block's base normal and axes decoded once).
+void decode_compressed_normals(const uint32_t* block, uint32_t entries, Vec3 out[16]);
 
 /// One contour (§5.2, Figure 4): a pair of parallel planes bounding the
 /// voxel. 32-bit value, most significant bits first:

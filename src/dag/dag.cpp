@@ -56,11 +56,14 @@ AttributeSum compressed_sum(const uint32_t* blocks, size_t first, size_t count) 
       sum[0] += colors[k] * to_fixed(c.r), sum[1] += colors[k] * to_fixed(c.g);
       sum[2] += colors[k] * to_fixed(c.b), sum[3] += colors[k] * to_fixed(c.a);
     }
-    for (int k = 0; k < 16; ++k) {
-      if (normals[k] == 0) continue;
-      const Vec3 n = esvo::decode_compressed_normal(block, k);
-      sum[4] += normals[k] * to_fixed(n.x), sum[5] += normals[k] * to_fixed(n.y);
-      sum[6] += normals[k] * to_fixed(n.z);
+    uint32_t used = 0;
+    for (int k = 0; k < 16; ++k) used |= uint32_t(normals[k] != 0) << k;
+    Vec3 n[16];
+    esvo::decode_compressed_normals(block, used, n);
+    for (uint32_t u = used; u; u &= u - 1) {
+      const int k = std::countr_zero(u);
+      sum[4] += normals[k] * to_fixed(n[k].x), sum[5] += normals[k] * to_fixed(n[k].y);
+      sum[6] += normals[k] * to_fixed(n[k].z);
     }
   }
   return sum;

@@ -664,12 +664,11 @@ Color decode_compressed_color(const uint32_t* block, int entry) {
                            layout::ColorB::put(uint32_t(p.c[k][2])) | layout::ColorA::mask);
 }
 
-Vec3 decode_compressed_normal(const uint32_t* block, int entry) {
+void decode_compressed_normals(const uint32_t* block, uint32_t entries, Vec3 out[16]) {
   const Vec3 bn = decode_normal_cube(block[2]);
   const float m = std::max({std::fabs(bn.x), std::fabs(bn.y), std::fabs(bn.z)});
   const Vec3 b = bn / m;  // back onto the cube (m >= 1/sqrt(3))
   const uint32_t axes = block[3];
-  const uint32_t sel = uint32_t(entry) & 15u;
   static constexpr float kC[4] = {-1.f, -1.f / 3.f, 1.f / 3.f, 1.f};
   const auto axis = [](uint32_t bits, float c) {
     // 2^(e - 15) * c, built from the exponent bits (e in 0..15).
@@ -682,10 +681,19 @@ Vec3 decode_compressed_normal(const uint32_t* block, int entry) {
     };
     return Vec3{m4(0) * scale, m4(1) * scale, m4(2) * scale};
   };
-  const Vec3 p = b + axis(layout::AxisU::get(axes), kC[layout::NormalIndexU::get(sel)]) +
-                 axis(layout::AxisV::get(axes), kC[layout::NormalIndexV::get(sel)]);
-  const float l2 = dot(p, p);
-  return l2 > 1e-12f ? p / std::sqrt(l2) : bn;
+  for (uint32_t e = entries & 0xFFFFu; e; e &= e - 1) {
+    const uint32_t sel = uint32_t(std::countr_zero(e));
+    const Vec3 p = b + axis(layout::AxisU::get(axes), kC[layout::NormalIndexU::get(sel)]) +
+                   axis(layout::AxisV::get(axes), kC[layout::NormalIndexV::get(sel)]);
+    const float l2 = dot(p, p);
+    out[sel] = l2 > 1e-12f ? p / std::sqrt(l2) : bn;
+  }
+}
+
+Vec3 decode_compressed_normal(const uint32_t* block, int entry) {
+  Vec3 n[16];
+  decode_compressed_normals(block, 1u << (entry & 15), n);
+  return n[entry & 15];
 }
 
 void decode_compressed_slot(const uint32_t* block, int slot, Color* color, Vec3* normal) {
