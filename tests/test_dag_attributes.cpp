@@ -323,11 +323,17 @@ TEST(DagLodMeans, TableHoldsEveryLargeCubeWithItsBruteForceMean) {
       }
     }
     size_t entries = 0;
-    for (const SparseVoxelDag::CubeMean& e : d->cube_means) entries += e.level >= 0;
+    ASSERT_EQ(d->cube_means.size(), size_t(L - 2));  // levels 0 .. L-3
+    for (const SparseVoxelDag::CubeMeanLevel& t : d->cube_means) {
+      entries += t.entries.size();
+      // Morton order per level, and about one bucket per entry (< 2 + 2).
+      for (size_t i = 1; i < t.entries.size(); ++i)
+        EXPECT_GT(t.entries[i].first, t.entries[i - 1].first + SparseVoxelDag::kCubeMeanMin);
+      EXPECT_LE(t.bucket.size(), 2 * t.entries.size() + 2);
+    }
     EXPECT_EQ(entries, large);
     EXPECT_GT(large, 100u);
     EXPECT_GT(checked, large / 2);
-    EXPECT_LE(4 * entries, 3 * d->cube_means.size());  // load <= 3/4
     // The structure shades a cached cube's hit with the table's entry.
     dag::DagStructure st(std::make_shared<SparseVoxelDag>(*d));
     const dag::VoxelRange r = d->cube_range(d->leaf_voxels / 2, L - 3);

@@ -218,42 +218,53 @@ class SparseVoxelDag {
 
   // Derived by finalize() when there are attributes (never stored in files):
   // the LOD means of every cube of more than kCubeMeanMin leaf voxels at
-  // levels 0 .. L - 3, so that a coarse hit on one of them costs one hashed
+  // levels 0 .. L - 3, so that a coarse hit on one of them costs one short
   // lookup instead of cube_range's descent and mean_attributes' sums. Finer
-  // cubes (levels L - 2 and L - 1, at most 64 voxels) skip the probe, a
-  // likely cache miss, and keep that path, as do cubes of <= kCubeMeanMin
-  // voxels. Open addressing (linear probing) on (first voxel, level), load
-  // <= 3/4, empty slots have level -1. Each entry's mean comes from the
-  // cube's exact fixed-point sum through mean_attributes' own sum-to-mean
-  // step, so the answer is the same floats either way; entries are inserted
-  // in Morton order, so the table is the same for every thread count.
+  // cubes (levels L - 2 and L - 1, at most 64 voxels) keep that path, as do
+  // cubes of <= kCubeMeanMin voxels. Per level, the entries in Morton order
+  // (ascending first voxel) and a bucket index over the first voxel's high
+  // bits: bucket[b] = the first entry whose first voxel is >= b << shift,
+  // about one bucket per entry. Neighbouring pixels hit cubes of nearby
+  // Morton ranks, so their lookups share cache lines and pages (a hashed
+  // table scattered them: at 16384³ one cache and TLB miss per hit). Each
+  // entry's mean comes from the cube's exact fixed-point sum through
+  // mean_attributes' own sum-to-mean step, so the answer is the same floats
+  // either way; the table is the same for every thread count.
   struct CubeMean {
     uint64_t first = 0;
     int32_t level = -1;
     Color color;
     Vec3 normal;
   };
+  struct CubeMeanLevel {
+    std::vector<CubeMean> entries;  // ascending first
+    std::vector<uint32_t> bucket;   // (leaf_voxels >> shift) + 2 entries
+    int shift = 0;
+  };
   static constexpr uint64_t kCubeMeanMin = 32;
-  std::vector<CubeMean> cube_means;  // 4/3 slots per entry (+1), or none
+  std::vector<CubeMeanLevel> cube_means;  // levels 0 .. L - 3, or none
+  /// Bytes of the table (entries and bucket indices).
+  uint64_t cube_mean_bytes() const {
+    uint64_t b = 0;
+    for (const CubeMeanLevel& t : cube_means)
+      b += uint64_t(t.entries.size()) * sizeof(CubeMean) + uint64_t(t.bucket.size()) * 4;
+    return b;
+  }
   /// The table's entry for the cube at `level` whose first leaf voxel is
   /// `first`, or null (a cube of <= kCubeMeanMin voxels, or `first` is not
   /// the first voxel of a cube at that level).
   const CubeMean* cached_mean(uint64_t first, int level) const {
-    const size_t n = cube_means.size();
-    if (n == 0 || level > grid.levels - 3) return nullptr;
-    for (size_t s = cube_mean_slot(first, level, n);;) {
-      const CubeMean& e = cube_means[s];
-      if (e.level < 0) return nullptr;
-      if (e.first == first && e.level == level) return &e;
-      if (++s == n) s = 0;
+    if (level < 0 || size_t(level) >= cube_means.size()) return nullptr;
+    const CubeMeanLevel& t = cube_means[size_t(level)];
+    const uint64_t b = first >> t.shift;
+    if (b + 1 >= t.bucket.size()) return nullptr;
+    // Firsts of one level are > kCubeMeanMin apart: a bucket of 2^shift
+    // ranks holds at most 2^shift / 33 + 1 entries.
+    for (uint32_t i = t.bucket[size_t(b)], e = t.bucket[size_t(b) + 1]; i < e; ++i) {
+      const CubeMean& m = t.entries[i];
+      if (m.first >= first) return m.first == first ? &m : nullptr;
     }
-  }
-  /// Home slot of (first, level) in a table of n slots (multiply-shift hash
-  /// mapped to [0, n) by a 64 x 64 -> 128-bit product).
-  static size_t cube_mean_slot(uint64_t first, int level, size_t n) {
-    uint64_t h = (first ^ uint64_t(level) << 58) * 0x9E3779B97F4A7C15ull;
-    h ^= h >> 29;
-    return size_t((unsigned __int128)h * n >> 64);
+    return nullptr;
   }
 };
 

@@ -118,29 +118,28 @@ void mean_of_sum(const SparseVoxelDag& d, const AttributeSum& sum, VoxelRange ra
 // Each cube's fixed-point sum is the sum of its children's (exact integers):
 // a child in the table contributes its own sum, any other child its voxels
 // summed directly, so every voxel under the table is decoded once. The mean
-// is mean_of_sum of that sum, as in mean_attributes. Entries are inserted in
-// walk order.
+// is mean_of_sum of that sum, as in mean_attributes. The walk is in Morton
+// order, so each level's entries arrive in ascending first voxel.
 void derive_cube_means(SparseVoxelDag& d) {
   d.cube_means.clear();
   if (!d.has_attributes()) return;
   const int L = d.grid.levels;
   if (L < 3) return;
-  std::vector<SparseVoxelDag::CubeMean> means;
-  // Returns the cube's sum; appends it to `means` if it belongs in the table.
+  std::vector<SparseVoxelDag::CubeMeanLevel> levels(size_t(L - 2));
+  // Returns the cube's sum; appends it to its level if it belongs in the table.
   auto visit = [&](auto&& self, uint32_t w, int level, uint64_t first) -> AttributeSum {
     const uint64_t count = d.prefix_entry(w);  // level <= L - 3: an interior node
+    std::vector<SparseVoxelDag::CubeMean>& out = levels[size_t(level)].entries;
+    SparseVoxelDag::CubeMean e;
+    e.first = first, e.level = level;
     if (count <= SparseVoxelDag::kCubeMeanMin || level == L - 3) {
       const AttributeSum sum = range_sum(d, size_t(first), size_t(count));
       if (count > SparseVoxelDag::kCubeMeanMin) {
-        SparseVoxelDag::CubeMean e;
-        e.first = first, e.level = level;
         mean_of_sum(d, sum, {first, count}, &e.color, &e.normal);
-        means.push_back(e);
+        out.push_back(e);
       }
       return sum;
     }
-    const size_t at = means.size();
-    means.emplace_back();  // the cube's entry precedes its children's
     AttributeSum sum{};
     const int k = std::popcount(layout::ChildMask::get(d.words[w]));
     for (int j = 0; j < k; ++j) {
@@ -149,21 +148,29 @@ void derive_cube_means(SparseVoxelDag& d) {
           self(self, d.words[p], level + 1, first + (j == 0 ? 0 : d.prefix_entry(p)));
       for (int i = 0; i < 7; ++i) sum[size_t(i)] += c[size_t(i)];
     }
-    SparseVoxelDag::CubeMean& e = means[at];
-    e.first = first, e.level = level;
     mean_of_sum(d, sum, {first, count}, &e.color, &e.normal);
+    out.push_back(e);  // the children went to deeper levels: still ascending here
     return sum;
   };
   visit(visit, 0, 0, 0);
-  if (means.empty()) return;
-  const size_t slots = means.size() + means.size() / 3 + 1;
-  d.cube_means.assign(slots, {});
-  for (const SparseVoxelDag::CubeMean& e : means) {
-    size_t s = SparseVoxelDag::cube_mean_slot(e.first, e.level, slots);
-    while (d.cube_means[s].level >= 0)
-      if (++s == slots) s = 0;
-    d.cube_means[s] = e;
+  size_t total = 0;
+  for (SparseVoxelDag::CubeMeanLevel& t : levels) {
+    const size_t n = t.entries.size();
+    total += n;
+    if (n > 0xFFFFFFFFull) corrupt("more than 2^32 LOD mean entries on one level");
+    // About one bucket per entry: 2^shift ranks per bucket, shift the floor
+    // of log2(voxels / entries).
+    const uint64_t per = d.leaf_voxels / std::max<uint64_t>(n, 1);
+    t.shift = per > 1 ? int(std::bit_width(per)) - 1 : 0;
+    const size_t buckets = size_t(d.leaf_voxels >> t.shift) + 2;
+    t.bucket.assign(buckets, 0);
+    size_t i = 0;
+    for (size_t b = 0; b < buckets; ++b) {
+      while (i < n && (t.entries[i].first >> t.shift) < b) ++i;
+      t.bucket[b] = uint32_t(i);
+    }
   }
+  if (total > 0) d.cube_means = std::move(levels);
 }
 
 }  // namespace
@@ -367,7 +374,7 @@ DagStats SparseVoxelDag::stats() const {
   st.esvo_bytes = st.svo_nodes * 8;
   st.index_bytes = uint64_t(voxel_prefix.size()) * 4 + uint64_t(voxel_prefix_wide.size()) * 8 +
                    uint64_t(attribute_prefix.size()) * sizeof(attribute_prefix[0]) +
-                   uint64_t(cube_means.size()) * sizeof(CubeMean);
+                   cube_mean_bytes();
   st.attribute_bytes = uint64_t(colors.size() + normals.size() + attribute_blocks.size()) * 4;
   st.compressed_attributes = compressed_attributes();
   st.bits_per_voxel = st.leaf_voxels ? double(st.dag_bytes) * 8.0 / double(st.leaf_voxels) : 0.0;
