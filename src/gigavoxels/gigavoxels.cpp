@@ -201,6 +201,23 @@ inline VolumeSample unpremultiply(const float acc[4], float density_scale) {
   return out;
 }
 
+/// unpremultiply() written into *out: with AVX2 the color as one 128-bit
+/// multiply and store (the same products lane by lane) instead of the
+/// scalar fields GCC packed through general registers.
+inline void unpremultiply_into(const float acc[4], float density_scale, VolumeSample* out) {
+#if defined(__AVX2__)
+  static_assert(offsetof(VolumeSample, color) == 4 && sizeof(Color) == 16);
+  out->density = acc[0] * density_scale;
+  __m128 c = _mm_setzero_ps();
+  if (acc[0] > 0.f) c = _mm_mul_ps(_mm_loadu_ps(acc), _mm_set1_ps(1.f / acc[0]));
+  // (acc1, acc2, acc3) * inv, then alpha 1.
+  c = _mm_blend_ps(_mm_shuffle_ps(c, c, _MM_SHUFFLE(0, 3, 2, 1)), _mm_set1_ps(1.f), 8);
+  _mm_storeu_ps(&out->color.r, c);
+#else
+  *out = unpremultiply(acc, density_scale);
+#endif
+}
+
 float request_priority(int level) {
   return float(kMaxLevel - level);
 }
@@ -834,7 +851,7 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
         lookup(coarse, coarse_cells, k, acc);
         for (int c = 0; c < 4; ++c) acc[c] += w[k] * (a1[c] - acc[c]);
       }
-      out[k0 + k] = unpremultiply(acc, inv_size_);
+      unpremultiply_into(acc, inv_size_, &out[k0 + k]);
     }
   }
 }
