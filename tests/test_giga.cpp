@@ -277,6 +277,25 @@ TEST(Giga, ProducerBricksEqualDirectSampling) {
 // level down to the finest. The interval bound over the noise lattice must
 // also prove the shell around the sphere empty where the radius test alone
 // cannot (else rays descend through it: docs/BENCHMARKS.md).
+TEST(Giga, EmptyBelowSummariesAreKeptAndMatchARecursiveRecount) {
+  // A converged cloud: empty constants not provable empty at their level
+  // (the fringe around the sphere) have resident empty children down to
+  // the cone's level, the summaries march jumps by. validate() recounts
+  // every summary recursively after every pass (check_after_pass); here
+  // some must exist (ExactModeWithTinyPoolRendersTheUnlimitedImage checks
+  // that pools whose summaries differ render the same images).
+  const auto cloud = make_procedural("cloud", 256);
+  GigaVoxels g(cloud, unlimited());
+  for (uint32_t f = 0; f < 3; ++f) {
+    FrameView v = view_of(32, 24, f);
+    v.camera = Camera::orbit(Aabb{{0, 0, 0}, {1, 1, 1}}, 32, 24, 40.f * float(f), 15.f, 1.3f);
+    const Rendered r = render(g, v, 500);
+    ASSERT_EQ(r.stats.passes.back().requests, 0u) << "exact mode must converge";
+    ASSERT_EQ(g.validate(), "");
+    EXPECT_GT(g.empty_below_nodes(), 0u) << "frame " << f;
+  }
+}
+
 TEST(Giga, CloudEmptyBelowIsAProof) {
   const auto p = make_procedural("cloud", 64);  // levels 0..3
   const int max_level = p->max_level();

@@ -102,15 +102,25 @@ float stored_value(int level, float value);
 // Tile 0 holds the root in its node 0 (nodes 1..7 unused) and is never
 // recycled, so a child pointer of 0 means "no children".
 
-/// Structure word: child tile pointer (30 bits) + terminal flag.
-using NodeChildTile = BitField<0, 30>;  // bytes 0..3, bits 0..29
-using NodeTerminal = BitField<30, 1>;   // bit 30: refined to the maximum
+/// Structure word: child tile pointer (26 bits: pools hold at most 2^26
+/// tiles), the empty-below summary and the terminal flag.
+using NodeChildTile = BitField<0, 26>;  // bits 0..25
+/// Empty below (kept by end_pass, 0 = none): D > the node's level L when
+/// the node has a child tile and every node of levels L + 1 .. D under it
+/// that a descent can reach is resident and an empty constant (a node there
+/// without children is terminal or at level D). A ray whose cone stops the
+/// descent between L + 1 and D all across the node's box meets only empty
+/// space there and crosses the box in one step (march).
+using NodeEmptyBelow = BitField<26, 4>;  // bits 26..29
+using NodeTerminal = BitField<30, 1>;    // bit 30: refined to the maximum
 /// Data word: kind (2 bits) + payload (30 bits): a brick index or an index
 /// into the structure's table of constant values.
 using NodeDataPayload = BitField<0, 30>;  // bits 0..29
 using NodeDataKind = BitField<30, 2>;     // bits 30..31
 enum : uint32_t { kDataNone = 0, kDataConstant = 1, kDataBrick = 2 };
-static_assert(NodeChildTile::mask == 0x3FFFFFFFu && NodeTerminal::mask == 0x40000000u);
+static_assert(NodeChildTile::mask == 0x03FFFFFFu && NodeEmptyBelow::mask == 0x3C000000u &&
+              NodeTerminal::mask == 0x40000000u);
+static_assert(NodeEmptyBelow::max >= kMaxLevel);
 static_assert(NodeDataPayload::mask == 0x3FFFFFFFu && NodeDataKind::mask == 0xC0000000u);
 
 /// Per-tile localization code (§3.6.6): the parent node's cell coordinates
@@ -376,6 +386,9 @@ class GigaVoxels : public Structure, public VolumeQuery {
     std::vector<BrickVoxel> voxels;  // decoded from the pool (PoolVoxel)
   };
   std::vector<ResidentBrick> resident_bricks() const;
+  /// Nodes whose NodeEmptyBelow summary is set (march crosses their box in
+  /// one step when the cone allows).
+  size_t empty_below_nodes() const;
   /// The usage lists (front = least recently used) and timestamps.
   const std::vector<uint32_t>& tile_usage() const { return tile_usage_; }
   const std::vector<uint32_t>& brick_usage() const { return brick_usage_; }
@@ -392,6 +405,16 @@ class GigaVoxels : public Structure, public VolumeQuery {
                           TraceContext& ctx) const;
   void touch_tile(uint32_t tile, uint32_t s) const;
   void touch_brick(uint32_t brick, uint32_t s) const;
+  /// The tiles in allocated order of depth, shallowest first (root's tile
+  /// excluded).
+  std::vector<uint32_t> tiles_by_depth() const;
+  /// Stamps `now` on the tiles under a node with an empty-below summary
+  /// whose tile this pass used: march crosses such a node's box without
+  /// descending (it touches only the node's child tile), where the descent
+  /// would have stamped the tiles it passed (§3.6.2: what the rays use stays).
+  void stamp_empty_below(const std::vector<uint32_t>& order, uint32_t now);
+  /// Recomputes every node's NodeEmptyBelow from the pool, deepest tiles first.
+  void update_empty_below(const std::vector<uint32_t>& order);
 
   std::shared_ptr<const Producer> producer_;
   GigaOptions options_;

@@ -18,6 +18,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
+#include <functional>
 #include <map>
 #include <new>
 
@@ -37,6 +38,7 @@ constexpr uint32_t kNoNode = 0xFFFFFFFFu;
 constexpr uint64_t kTileBytes = 8 * 8 + 4 + 4 + 1 + 4 + 4;
 constexpr uint64_t kBrickBytes = uint64_t(kBrickVoxels) * sizeof(PoolVoxel) + 12;
 constexpr uint32_t kMaxPoolElements = uint32_t(1) << 26;
+static_assert(kMaxPoolElements - 1 <= NodeChildTile::max);
 
 /// 2^e, exactly (ldexp's value without its call: it sat in the descent's
 /// hot loop). e in [-126, 127].
@@ -197,6 +199,23 @@ inline VolumeSample unpremultiply(const float acc[4], float density_scale) {
     out.color = {acc[1] * inv, acc[2] * inv, acc[3] * inv, 1.f};
   }
   return out;
+}
+
+/// unpremultiply() written into *out: with AVX2 the color as one 128-bit
+/// multiply and store (the same products lane by lane) instead of the
+/// scalar fields GCC packed through general registers.
+inline void unpremultiply_into(const float acc[4], float density_scale, VolumeSample* out) {
+#if defined(__AVX2__)
+  static_assert(offsetof(VolumeSample, color) == 4 && sizeof(Color) == 16);
+  out->density = acc[0] * density_scale;
+  __m128 c = _mm_setzero_ps();
+  if (acc[0] > 0.f) c = _mm_mul_ps(_mm_loadu_ps(acc), _mm_set1_ps(1.f / acc[0]));
+  // (acc1, acc2, acc3) * inv, then alpha 1.
+  c = _mm_blend_ps(_mm_shuffle_ps(c, c, _MM_SHUFFLE(0, 3, 2, 1)), _mm_set1_ps(1.f), 8);
+  _mm_storeu_ps(&out->color.r, c);
+#else
+  *out = unpremultiply(acc, density_scale);
+#endif
 }
 
 float request_priority(int level) {
@@ -427,6 +446,18 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
     }
     return true;
   };
+  // Exit of the box [cell, cell + 1] / 2^level of the node `up` levels above
+  // the path's node at `level` (cell >> up at level - up).
+  auto box_exit = [&](int level, int up) {
+    const float scale = pow2f(up - level);
+    float te = t1;
+    for (int a = 0; a < 3; ++a) {
+      const uint32_t c = cell[a] >> up;
+      if (d[a] > 0.f) te = std::min(te, (float(c + 1) * scale - o[a]) * inv_d[a]);
+      if (d[a] < 0.f) te = std::min(te, (float(c) * scale - o[a]) * inv_d[a]);
+    }
+    return te;
+  };
   auto locate = [&](float, const float* x, float foot) {
     // Descent by point location (§3.5.3): the child at level l + 1 is bit 0
     // of the cell floor(x 2^(l+1)), the paper's c + int(2x) unrolled.
@@ -462,6 +493,20 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
         break;
       }
       touch_tile(tile, s);
+      // Empty below down to a level at least as fine as the cone's, and the
+      // cone still finer than this node's voxel at the box's exit (the
+      // footprint only grows): every descent inside the box would stop
+      // between level + 1 and D on an empty constant, emit nothing and ask
+      // for nothing, so the whole box is crossed at once. The exit is the
+      // same plane the last of those descents would leave by.
+      const int below = int(NodeEmptyBelow::get(cw));
+      if (grows && below > level && voxel_world(below) <= foot) {
+        const float te = box_exit(level, 0);
+        if (lod.size_at_origin + lod.size_per_t * te < voxel_world(level)) {
+          depth = level, fallback = kNoNode;  // emit() writes nothing
+          return te;
+        }
+      }
       uint32_t c = 0;
       for (int a = 0; a < 3; ++a) {
         cell[a] = cell_at(a, level + 1);
@@ -487,23 +532,11 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
     if (!asked && fallback == node && level > 0 && grows && voxel_world(level) <= foot &&
         empty_tile(node >> 3))
       exit_level = level - 1;
-    // Exit of the box [cell, cell + 1] / 2^level (of its parent: cell / 2).
-    const int up = level - exit_level;
-    const float scale = pow2f(-exit_level);
-    float te = t1;
-    for (int a = 0; a < 3; ++a) {
-      const uint32_t c = cell[a] >> up;
-      if (d[a] > 0.f) te = std::min(te, (float(c + 1) * scale - o[a]) * inv_d[a]);
-      if (d[a] < 0.f) te = std::min(te, (float(c) * scale - o[a]) * inv_d[a]);
-    }
+    // Exit of the parent's box (cell / 2)...
+    float te = box_exit(level, level - exit_level);
     // ...and only if the cone does not reach the parent's voxel before it.
-    if (up > 0 && !(lod.size_at_origin + lod.size_per_t * te < voxel_world(exit_level))) {
-      te = t1;
-      for (int a = 0; a < 3; ++a) {
-        if (d[a] > 0.f) te = std::min(te, (float(cell[a] + 1) * scale * 0.5f - o[a]) * inv_d[a]);
-        if (d[a] < 0.f) te = std::min(te, (float(cell[a]) * scale * 0.5f - o[a]) * inv_d[a]);
-      }
-    }
+    if (exit_level < level && !(lod.size_at_origin + lod.size_per_t * te < voxel_world(exit_level)))
+      te = box_exit(level, 0);
     return te;
   };
   // The brick rows a span's samples will read, prefetched when the span is
@@ -818,17 +851,66 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
         lookup(coarse, coarse_cells, k, acc);
         for (int c = 0; c < 4; ++c) acc[c] += w[k] * (a1[c] - acc[c]);
       }
-      out[k0 + k] = unpremultiply(acc, inv_size_);
+      unpremultiply_into(acc, inv_size_, &out[k0 + k]);
     }
   }
 }
 
 // ---- Serving requests (§3.6) ----
 
+std::vector<uint32_t> GigaVoxels::tiles_by_depth() const {
+  // Counting sort on the depth (at most kMaxLevel): tile order within a depth.
+  size_t start[kMaxLevel + 2] = {};
+  for (uint32_t t = 1; t < tile_parent_.size(); ++t)
+    if (tile_parent_[t] != kNoNode) ++start[tile_depth_[t] + 1];
+  for (int l = 0; l <= kMaxLevel; ++l) start[l + 1] += start[l];
+  std::vector<uint32_t> order(start[kMaxLevel + 1]);
+  for (uint32_t t = 1; t < tile_parent_.size(); ++t)
+    if (tile_parent_[t] != kNoNode) order[start[tile_depth_[t]]++] = t;
+  return order;
+}
+
+void GigaVoxels::stamp_empty_below(const std::vector<uint32_t>& order, uint32_t now) {
+  // Shallowest first, so that a stamp propagates down the whole subtree.
+  for (uint32_t t : order) {
+    const uint32_t parent = tile_parent_[t], pt = parent >> 3;
+    if (NodeEmptyBelow::get(child_[parent]) != 0 && (pt == 0 || tile_stamp_[pt] == now))
+      tile_stamp_[t] = now;
+  }
+}
+
+void GigaVoxels::update_empty_below(const std::vector<uint32_t>& order) {
+  const int max_level = producer_->max_level();
+  for (uint32_t& w : child_) w = NodeEmptyBelow::set(w, 0);
+  // Deepest first: a tile's nodes have their own summaries when the tile's
+  // parent takes the smallest of them.
+  for (auto it = order.rbegin(); it != order.rend(); ++it) {
+    const uint32_t t = *it;
+    const int level = tile_depth_[t];
+    int deepest = kMaxLevel;  // how far all 8 nodes stay empty
+    for (uint32_t node = t * 8; node < t * 8 + 8 && deepest >= level; ++node) {
+      const uint32_t dw = data_[node], cw = child_[node];
+      if (NodeDataKind::get(dw) != kDataConstant ||
+          constants_[NodeDataPayload::get(dw)].density > 0.f) {
+        deepest = -1;  // not empty: the parent has no summary
+      } else if (!NodeTerminal::test(cw) && level < max_level) {
+        // Empty here; below, as far as its own summary reaches (a node
+        // without children: only its own level, the descent would ask).
+        deepest = std::min(deepest, std::max(level, int(NodeEmptyBelow::get(cw))));
+      }
+    }
+    if (deepest >= level) {
+      uint32_t& pw = child_[tile_parent_[t]];
+      pw = NodeEmptyBelow::set(pw, uint32_t(deepest));
+    }
+  }
+}
+
 PassOutcome GigaVoxels::end_pass(std::span<const Request> requests) {
   const uint32_t now = stamp(frame_, pass_);
   GigaPassStats st;
   std::vector<uint32_t> scratch;
+  stamp_empty_below(tiles_by_depth(), now);
   // LRU: used elements to the back, order kept (§3.6.2).
   const size_t free_tiles = lru_compact(&tile_usage_, tile_stamp_, now, &scratch);
   const size_t free_bricks = lru_compact(&brick_usage_, brick_stamp_, now, &scratch);
@@ -982,6 +1064,7 @@ PassOutcome GigaVoxels::end_pass(std::span<const Request> requests) {
   std::rotate(tile_usage_.begin(), tile_usage_.begin() + std::ptrdiff_t(next_tile),
               tile_usage_.end());
   // Freed elements not reused are at the front already (they were the oldest).
+  update_empty_below(tiles_by_depth());
 
   for (uint32_t t = 1; t < tile_parent_.size(); ++t)
     st.tiles_resident += tile_parent_[t] != kNoNode;
@@ -1056,9 +1139,45 @@ std::string GigaVoxels::validate() const {
     }
     return true;
   };
+  // The empty-below summaries, recomputed top-down by recursion (end_pass
+  // builds them bottom-up): how deep the subtree of an empty node stays
+  // empty and resident (-1: the node is not empty).
+  const int max_level = producer_->max_level();
+  std::function<int(uint32_t, int)> empty_to = [&](uint32_t node, int level) {
+    const uint32_t dw = data_[node], cw = child_[node];
+    if (NodeDataKind::get(dw) != kDataConstant ||
+        constants_[NodeDataPayload::get(dw)].density > 0.f)
+      return -1;
+    if (NodeTerminal::test(cw) || level >= max_level) return kMaxLevel;
+    const uint32_t ct = NodeChildTile::get(cw);
+    int deepest = kMaxLevel;
+    for (uint32_t c = 0; c < 8 && ct != 0; ++c)
+      deepest = std::min(deepest, empty_to(ct * 8 + c, level + 1));
+    return ct == 0 ? level : std::max(level, deepest);
+  };
+  for (uint32_t t = 0; t < tiles; ++t) {
+    if (!allocated(t)) continue;
+    for (uint32_t node = t * 8; node < (t == 0 ? 1u : t * 8 + 8); ++node) {
+      const uint32_t ct = NodeChildTile::get(child_[node]);
+      const int level = region_of(node).level;
+      int expect = ct != 0 ? kMaxLevel : 0;
+      for (uint32_t c = 0; c < 8 && ct != 0; ++c)
+        expect = std::min(expect, empty_to(ct * 8 + c, level + 1));
+      if (int(NodeEmptyBelow::get(child_[node])) != std::max(expect, 0))
+        return "node " + std::to_string(node) + ": empty-below summary " +
+               std::to_string(NodeEmptyBelow::get(child_[node])) + ", expected " +
+               std::to_string(std::max(expect, 0));
+    }
+  }
   if (!permutation(tile_usage_, 1, tiles)) return "the tile usage list is not a permutation";
   if (!permutation(brick_usage_, 0, bricks)) return "the brick usage list is not a permutation";
   return {};
+}
+
+size_t GigaVoxels::empty_below_nodes() const {
+  size_t n = 0;
+  for (uint32_t w : child_) n += NodeEmptyBelow::get(w) != 0;
+  return n;
 }
 
 std::vector<GigaVoxels::ResidentBrick> GigaVoxels::resident_bricks() const {

@@ -2,10 +2,15 @@
 // emission-absorption over VolumeQuery spans.
 #include "voxcast/volume_integrator.hpp"
 
+#if defined(__AVX2__)
+#include <immintrin.h>
+#endif
+
 #include <array>
 #include <atomic>
 #include <charconv>
 #include <cmath>
+#include <cstddef>
 #include <string_view>
 
 #include "voxcast/error.hpp"
@@ -127,7 +132,9 @@ namespace {
 
 /// The running front-to-back state of one ray.
 struct Accumulator {
-  float c[3] = {0.f, 0.f, 0.f};
+  // r, g, b (and a lane that sums w * alpha, never read): one 128-bit
+  // multiply and add per piece under AVX2, the same products and sums.
+  alignas(16) float c[4] = {0.f, 0.f, 0.f, 0.f};
   float T = 1.f;
   float depth = INFINITY;
 
@@ -137,7 +144,12 @@ struct Accumulator {
     if (!(sigma > 0.f) || !(dt > 0.f)) return;
     const float a = std::exp(-sigma * dt);
     const float w = T * (1.f - a);
+#if defined(__AVX2__)
+    static_assert(sizeof(Color) == 16 && offsetof(Color, b) == 8);
+    _mm_store_ps(c, _mm_add_ps(_mm_load_ps(c), _mm_mul_ps(_mm_set1_ps(w), _mm_loadu_ps(&color.r))));
+#else
     c[0] += w * color.r, c[1] += w * color.g, c[2] += w * color.b;
+#endif
     const float before = T;
     T *= a;
     if (std::isinf(depth) && 1.f - T >= threshold) {
