@@ -24,6 +24,9 @@ struct PacketWorld {
   // as two words, `bricks` first) and their index dims.
   const uint32_t* nodes[kPacketMaxLevels + 1] = {};
   uint32_t node_dim[kPacketMaxLevels + 1] = {}, node_dim_y[kPacketMaxLevels + 1] = {};
+  // visit_voxels' brick-slice test and slice entry (off: every brick walked
+  // voxel by voxel, as detail::brick_skip_mode Off does for the scalar walk).
+  bool slice_skip = true;
   // Walker::lod_stop: side_world(level) <= lod_size0 + lod_per_t exit.
   bool lod_on = false;
   float voxel_world = 0.f, lod_size0 = 0.f, lod_per_t = 0.f;

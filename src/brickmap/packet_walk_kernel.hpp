@@ -25,10 +25,13 @@
 //   jump     an empty cell with a clearance k > 1: Walker::jump, out of the
 //            cube of radius k - 1 in one step (the crossings on the other
 //            axes taken in (t, axis) order, lane loops until none is left).
-// A not-resident cell (no LOD stop) ends the lane as kPacketScalar. The
-// walk's brick-slice skip (brick_slices) is left out: an exact skip, the
-// same hits without it. Lanes are filled 16 (8) rays at a time, a 4x4
-// (4x2) pixel block.
+//   slices   a push into a brick's voxels: visit_voxels' brick-slice test
+//            (brick_slices, the brick's 16 half-slice words in lanes, one
+//            lane's ray at a time) and slice entry (enter_slice): a lane
+//            whose ray meets no solid voxel of the brick steps on, the
+//            others start at the first slice ahead that may hold a hit.
+// A not-resident cell (no LOD stop) ends the lane as kPacketScalar. Lanes
+// are filled 16 (8) rays at a time, a 4x4 (4x2) pixel block.
 #include <immintrin.h>
 
 #include <bit>
@@ -54,6 +57,21 @@ struct WalkLanes : ::voxcast::detail::Lanes<N> {
     else
       return (U)_mm256_mask_i32gather_epi32((__m256i)src, (const int*)base, (__m256i)idx,
                                             (__m256i)m, 1);
+  }
+  // Variable shifts per lane; a count of 32 or more gives 0 (vpsllvd,
+  // vpsrlvd), which the slice test's row masks rely on.
+  static U sllv(U v, I n) {
+    if constexpr (N == 16)
+      return (U)_mm512_maskz_sllv_epi32(
+          0xFFFF, (__m512i)v, (__m512i)n);  // maskz: no undefined source (-Wmaybe-uninitialized)
+    else
+      return (U)_mm256_sllv_epi32((__m256i)v, (__m256i)n);
+  }
+  static U srlv(U v, I n) {
+    if constexpr (N == 16)
+      return (U)_mm512_maskz_srlv_epi32(0xFFFF, (__m512i)v, (__m512i)n);
+    else
+      return (U)_mm256_srlv_epi32((__m256i)v, (__m256i)n);
   }
   // floor (kMode _MM_FROUND_TO_NEG_INF) or ceil (_MM_FROUND_TO_POS_INF).
   template <int kMode>
@@ -102,6 +120,42 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
     // The t at which a lane leaves child cc (side sd) along axis a: the
     // plane of its far face (plane_t of traverse.cpp, the same operations).
     auto exit_t = [&](int a, I cc, F sd) { return (to_f(cc + up[a]) * sd - o[a]) * inv[a]; };
+    // brick_slices (traverse.cpp) for lane l: bit k set when z slice k of
+    // brick `bi` (brickgrid cell pc) may hold a solid voxel the ray meets
+    // between t0 and te (the same boxes and slack: a superset test). The
+    // lanes take the brick's 16 half-slice words (slice j >> 1, rows 4 (j &
+    // 1) to 4 (j & 1) + 3), all of them in one pass of 16 lanes (two of 8).
+    auto brick_slices = [&](int l, uint32_t bi, const int pc[3], float t0, float te) {
+      float b3[3];  // the ray origin relative to the brick's corner
+      for (int a = 0; a < 3; ++a) b3[a] = o[a][l] - float(pc[a] << 3);
+      uint32_t hits = 0;
+      for (int pass = 0; pass < 16 / N; ++pass) {
+        const I j = lane + pass * N;
+        const F k = to_f(j >> 1);
+        const F ta = (k - slack[2][l] - b3[2]) * inv[2][l];
+        const F tb = (k + (1.f + slack[2][l]) - b3[2]) * inv[2][l];
+        const F lo = L::max(L::min(ta, tb), F{} + t0), hi = L::min(L::max(ta, tb), F{} + te);
+        I first[2], last[2];
+        for (int a = 0; a < 2; ++a) {
+          const F p0 = b3[a] + d[a][l] * lo, p1 = b3[a] + d[a][l] * hi;
+          const F f = L::template round<_MM_FROUND_TO_NEG_INF>(L::min(p0, p1) - slack[a][l]);
+          const F g = L::template round<_MM_FROUND_TO_NEG_INF>(L::max(p0, p1) + slack[a][l]);
+          first[a] = __builtin_convertvector(L::min(L::max(f, F{}), F{} + 7.f), I);
+          last[a] = __builtin_convertvector(L::min(L::max(g, F{}), F{} + 7.f), I);
+        }
+        // Bits first..last of x in every row byte; rows first..last of y
+        // within this lane's half (shifts of 32 or more give 0).
+        const U row =
+            ((U{} + 0xFFu) << (U)first[0] & (U{} + 0xFFu) >> (U)(7 - last[0])) * 0x01010101u;
+        const I half = (j & 1) * 32, y0 = first[1] * 8 - half, y1 = half + 24 - last[1] * 8;
+        const U rows =
+            L::sllv(U{} + ~0u, y0 < 0 ? I{} : y0) & L::srlv(U{} + ~0u, y1 < 0 ? I{} : y1);
+        U words;
+        std::memcpy(&words, w.bricks + size_t(bi) * 18 + pass * N, sizeof words);
+        hits |= L::bits((lo <= hi) & ((words & row & rows) != 0u)) << (pass * N);
+      }
+      return _pext_u32(hits | hits >> 1, 0x5555u);  // a slice: either of its halves
+    };
     const F t1 = load(q.t1 + base), start_t = load(q.start_t + base);
     const F exit0 = load(q.exit + base);
     F t = load(q.t0 + base);
@@ -154,6 +208,26 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
       }
       chain = m ? chain | (I{} + 1) << lv : chain;
       lv = m ? nl : lv;
+    };
+    // Walker::enter_slice for lane l (voxel children, side 1): the state the
+    // voxel DDA reaches when it crosses into z slice cz ahead of it, every x
+    // and y crossing at or before that plane's t taken first; false when the
+    // ray leaves the brick or ends before it.
+    auto enter_slice = [&](int l, int cz) {
+      const float tz = (float(cz + 1 - up[2][l]) - o[2][l]) * inv[2][l];
+      if (tz > t1[l]) return false;
+      for (int b = 0; b < 2; ++b)
+        while (n[b][l] <= tz) {
+          const int cb = c[b][l] + stp[b][l];
+          c[b][l] = cb;
+          if (uint32_t(cb - lo[b][l]) > uint32_t(span[b][l])) return false;
+          n[b][l] = (float(cb + up[b][l]) - o[b][l]) * inv[b][l];
+        }
+      c[2][l] = cz;
+      n[2][l] = (float(cz + up[2][l]) - o[2][l]) * inv[2][l];
+      t[l] = tz;
+      axis[l] = 2;
+      return true;
     };
     // Walker::child_level(level, exit) in lanes.
     auto child_level = [&](I level, F exit) {
@@ -262,6 +336,23 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
         occ &= ~(boxed & ~(t0 <= te));
       }
       brick = is_cell & occ ? (I)(cellv & 0xFFFFFFu) : brick;
+      // visit_voxels' brick-slice test: a lane whose ray meets no solid
+      // voxel in the brick it would descend into steps on instead.
+      I slices{};
+      uint32_t vox = 0;
+      if (w.slice_skip) {
+        uint32_t skip = 0;
+        vox = L::bits(occ & is_cell & (nl == LL));
+        for (uint32_t b = vox; b != 0; b &= b - 1) {
+          const int l = std::countr_zero(b);
+          const int pc[3] = {c[0][l], c[1][l], c[2][l]};
+          const float te = std::min(cexit[l], t1[l]);
+          slices[l] = int32_t(brick_slices(l, uint32_t(brick[l]), pc, t[l], te));
+          if (slices[l] == 0) skip |= 1u << l;
+        }
+        vox &= ~skip;
+        occ &= ((I{} + int32_t(skip)) >> lane & 1) - 1;  // 0 in the skipped lanes
+      }
       I adv = active & ~occ;
       F side = pow2(LL - lv);
       // visit_cells' jump: an empty cell of clearance k > 1 leaves the
@@ -317,6 +408,18 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
         }
       }
       if (L::bits(occ)) push(occ, nl);
+      // visit_voxels' slice entry: the voxels before the first slice ahead
+      // that may hold a hit are empty, so the lane goes straight to that
+      // slice's entry plane (enter_slice), or leaves the brick when there is
+      // none or the ray leaves the brick (or ends) before it.
+      for (uint32_t b = vox; b != 0; b &= b - 1) {
+        const int l = std::countr_zero(b);
+        const int z0 = c[2][l] & 7, u2 = up[2][l];
+        const uint32_t sl = uint32_t(slices[l]);
+        const uint32_t ahead = u2 ? sl >> z0 << z0 : sl & ((2u << z0) - 1);
+        const int k = ahead == 0 ? -1 : u2 ? std::countr_zero(ahead) : 31 - std::countl_zero(ahead);
+        if (k < 0 || (k != z0 && !enter_slice(l, lo[2][l] + k))) leave_jump[l] = -1;
+      }
       // ---- advance (and pop) the other lanes ----
       while (L::bits(adv | leave_jump)) {
         const I x_le_y = n[0] <= n[1];

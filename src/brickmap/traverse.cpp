@@ -1004,6 +1004,7 @@ bool packet_world(const World& w, const LodFootprint& lod, detail::PacketWorld* 
     pw->nodes[p] = reinterpret_cast<const uint32_t*>(&w.pyramid_node(p, 0));
     pw->node_dim[p] = w.pyramid_dim(p), pw->node_dim_y[p] = w.pyramid_dim_y(p);
   }
+  pw->slice_skip = detail::brick_skip_mode != detail::BrickSkip::Off;
   pw->lod_on = lod.size_at_origin > 0.f || lod.size_per_t > 0.f;
   pw->voxel_world = float(g.voxel_size);
   pw->lod_size0 = lod.size_at_origin, pw->lod_per_t = lod.size_per_t;
