@@ -833,6 +833,15 @@ void fill_hit(const GridTransform& g, const Ray& ray, const Found& f, SurfaceHit
     // holds any float at all), so that the position names the hit voxel.
     const double lo = double(g.origin[a]) + double(f.c[a]) * side;
     const double hi = double(g.origin[a]) + std::min(double(f.c[a] + 1) * side, g.side());
+    // A position already in [lo, hi) is its own clamp (it is >= the
+    // smallest float >= lo and <= the largest float < hi). Almost every
+    // hit's is, so the rounding branches below, which go either way from
+    // hit to hit (fill_hit was 10 % of the packet path's time, perf), run
+    // only for the others.
+    if (double(p[a]) >= lo && double(p[a]) < hi) {
+      hit->position[a] = p[a];
+      continue;
+    }
     float lo_f = float(lo), hi_f = float(hi);
     if (double(lo_f) < lo) lo_f = next_above(lo_f);  // no libm call per hit
     if (double(hi_f) >= hi) hi_f = next_below(hi_f);
