@@ -216,26 +216,6 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
       chain = m ? chain | (I{} + 1) << lv : chain;
       lv = m ? nl : lv;
     };
-    // Walker::enter_slice for lane l (voxel children, side 1): the state the
-    // voxel DDA reaches when it crosses into z slice cz ahead of it, every x
-    // and y crossing at or before that plane's t taken first; false when the
-    // ray leaves the brick or ends before it.
-    auto enter_slice = [&](int l, int cz) {
-      const float tz = (float(cz + 1 - up[2][l]) - o[2][l]) * inv[2][l];
-      if (tz > t1[l]) return false;
-      for (int b = 0; b < 2; ++b)
-        while (n[b][l] <= tz) {
-          const int cb = c[b][l] + stp[b][l];
-          c[b][l] = cb;
-          if (uint32_t(cb - lo[b][l]) > uint32_t(span[b][l])) return false;
-          n[b][l] = (float(cb + up[b][l]) - o[b][l]) * inv[b][l];
-        }
-      c[2][l] = cz;
-      n[2][l] = (float(cz + up[2][l]) - o[2][l]) * inv[2][l];
-      t[l] = tz;
-      axis[l] = 2;
-      return true;
-    };
     // Walker::child_level(level, exit) in lanes.
     auto child_level = [&](I level, F exit) {
       const I target = BL - ((BL - level - 1) * 43 >> 7) * 3;  // x / 3 for x < 64
@@ -417,15 +397,36 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
       if (L::bits(occ)) push(occ, nl);
       // visit_voxels' slice entry: the voxels before the first slice ahead
       // that may hold a hit are empty, so the lane goes straight to that
-      // slice's entry plane (enter_slice), or leaves the brick when there is
-      // none or the ray leaves the brick (or ends) before it.
-      for (uint32_t b = vox; b != 0; b &= b - 1) {
-        const int l = std::countr_zero(b);
-        const int z0 = c[2][l] & 7, u2 = up[2][l];
-        const uint32_t sl = uint32_t(slices[l]);
-        const uint32_t ahead = u2 ? sl >> z0 << z0 : sl & ((2u << z0) - 1);
-        const int k = ahead == 0 ? -1 : u2 ? std::countr_zero(ahead) : 31 - std::countl_zero(ahead);
-        if (k < 0 || (k != z0 && !enter_slice(l, lo[2][l] + k))) leave_jump[l] = -1;
+      // slice's entry plane, or leaves the brick when there is none or the
+      // ray leaves the brick (or ends) before it. Walker::enter_slice in
+      // lanes: the state the voxel DDA reaches when it crosses into z slice
+      // cz, every x and y crossing at or before that plane's t taken first.
+      if (vox != 0) {
+        const I vm = ((I{} + int32_t(vox)) >> lane & 1) * -1;
+        const I z0 = c[2] & 7;
+        const I ahead = up[2] != 0 ? slices >> z0 << z0 : slices & (((I{} + 2) << z0) - 1);
+        // The first slice ahead: the lowest set bit upwards, the highest downwards.
+        const I k = high_bit(up[2] != 0 ? ahead & -ahead : ahead);
+        I fail = vm & (ahead == 0);
+        I go = vm & ~fail & (k != z0);
+        const I cz = lo[2] + k;
+        const F tz = (to_f(cz + 1 - up[2]) - o[2]) * inv[2];
+        fail |= go & (tz > t1);
+        go &= ~(tz > t1);
+        for (int a = 0; a < 2; ++a)
+          for (I m = go;;) {
+            m &= n[a] <= tz;
+            if (!L::bits(m)) break;
+            c[a] = m ? c[a] + stp[a] : c[a];
+            const I out = m & ((U)(c[a] - lo[a]) > (U)span[a]);
+            fail |= out, go &= ~out, m &= ~out;
+            n[a] = m ? (to_f(c[a] + up[a]) - o[a]) * inv[a] : n[a];
+          }
+        c[2] = go ? cz : c[2];
+        n[2] = go ? (to_f(cz + up[2]) - o[2]) * inv[2] : n[2];
+        t = go ? tz : t;
+        axis = go ? I{} + 2 : axis;
+        leave_jump |= fail;
       }
       // ---- advance (and pop) the other lanes ----
       while (L::bits(adv | leave_jump)) {
