@@ -449,7 +449,7 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
         leave_jump = I{};
         for (int a = 0; a < 3; ++a) {
           const I m = ok & ax[a];
-          if (L::bits(m)) n[a] = m ? exit_t(a, c[a], side) : n[a];
+          n[a] = m ? exit_t(a, c[a], side) : n[a];  // no branch: the axis is data dependent
         }
         // Past t1, or out of the root's children: a miss.
         active &= ~(end | (leave & (chain == 1)));
