@@ -229,6 +229,12 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
       // ---- test the lanes' current children ----
       I occ{};
       U cellv{}, color{};  // the cell; an LOD stop's color (pyramid nodes)
+      // The cell box of a level-B-3 node and the clearance of a cell are
+      // gathered with the node and the cell, before it is known whether
+      // they are needed (an occupied node, an empty cell): the loop waits
+      // on gathers, and these two no longer wait on the first.
+      U box{}, clear{};
+      I cidx{}, cat{};
       const I is_node = active & (lv < BL);
       for (uint32_t mn = L::bits(is_node); mn != 0;) {
         // One masked gather per pyramid level present in the lanes.
@@ -240,12 +246,20 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
         const U g = L::gather(w.nodes[p], idx * 2, in, U{});
         occ |= in & (g != 0);
         if (w.lod_on) color = L::gather(w.nodes[p], idx * 2 + 1, in & (g != 0), color);
+        if (level == BL - 3) {
+          const I bidx =
+              c[0] + int32_t(w.dims[0] >> 3) * (c[1] + int32_t((w.dims[1] + 7) >> 3) * c[2]);
+          box = L::gather(w.cell_box, bidx, in, U{});
+        }
       }
       const I is_cell = active & (lv == BL);
       const I mc = is_cell & ((U)c[1] < w.dims[1]);
       if (L::bits(mc)) {
         const I idx = c[0] + int32_t(w.dims[0]) * (c[1] + int32_t(w.dims[1]) * c[2]);
         cellv = L::gather(w.cells, idx, mc, U{});
+        cidx = idx;
+        cat = idx < w.clearance_last ? idx : I{} + w.clearance_last;
+        clear = L::gather_bytes(w.clearance, cat, mc, U{});
         occ |= mc & (cellv != 0);
       }
       // Inside a brick: a voxel's bit, or (LOD) a 2^s block's bits, s =
@@ -307,9 +321,6 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
       // node of level B - kCellBoxLevel: a lane missing the box steps on.
       const I boxed = occ & (lv == BL - 3) & (nl == BL);
       if (L::bits(boxed)) {
-        const I idx =
-            c[0] + int32_t(w.dims[0] >> 3) * (c[1] + int32_t((w.dims[1] + 7) >> 3) * c[2]);
-        const U box = L::gather(w.cell_box, idx, boxed, U{});
         F t0 = t, te = t1;
         for (int a = 0; a < 3; ++a) {
           const I cell0 = c[a] << 3;
@@ -347,10 +358,7 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
       I leave_jump{};
       const I empty = mc & (cellv == 0u);
       if (L::bits(empty)) {
-        const I idx = c[0] + int32_t(w.dims[0]) * (c[1] + int32_t(w.dims[1]) * c[2]);
-        const I at = idx < w.clearance_last ? idx : I{} + w.clearance_last;
-        const U word = L::gather_bytes(w.clearance, at, empty, U{});
-        const I radius = (I)((word >> (U)((idx - at) * 8)) & 0xFFu) - 1;
+        const I radius = (I)((clear >> (U)((cidx - cat) * 8)) & 0xFFu) - 1;
         const I jump = empty & (radius > 0);
         if (L::bits(jump)) {
           F tn[3];
