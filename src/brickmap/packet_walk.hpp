@@ -4,6 +4,7 @@
 // one ray per lane, the per-level DDAs as lane vectors. What the kernels
 // read is set up by traverse.cpp; the kernels are compiled per ISA
 // (packet_walk_avx2.cpp, packet_walk_avx512.cpp, packet_walk_kernel.hpp).
+#include <atomic>
 #include <cstddef>
 #include <cstdint>
 
@@ -51,10 +52,16 @@ struct PacketFound {
   uint64_t ref;
 };
 
-inline constexpr uint8_t kPacketMiss = 0, kPacketHit = 1, kPacketScalar = 2;
+inline constexpr uint8_t kPacketMiss = 0, kPacketHit = 1, kPacketScalar = 2, kPacketFault = 3;
 
-/// status[i] for ray i < q.count: kPacketMiss, kPacketHit (out[i] filled) or
-/// kPacketScalar (a not-resident brick: the scalar walk answers the ray).
+/// Lanes that ended as kPacketFault since the start (trace_packets counts
+/// them; the tests expect none).
+extern std::atomic<uint64_t> packet_lane_faults;
+
+/// status[i] for ray i < q.count: kPacketMiss, kPacketHit (out[i] filled),
+/// kPacketScalar (a not-resident brick: the scalar walk answers the ray) or
+/// kPacketFault (the lane left the grid, which only a bug in the lane walk
+/// can do: the scalar walk answers the ray, the fault is counted).
 void packet_walk_avx2(const PacketWorld& w, const PacketRays& q, uint8_t* status, PacketFound* out);
 void packet_walk_avx512(const PacketWorld& w, const PacketRays& q, uint8_t* status,
                         PacketFound* out);

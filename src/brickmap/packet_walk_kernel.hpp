@@ -30,7 +30,8 @@
 //            lane's ray at a time) and slice entry (enter_slice): a lane
 //            whose ray meets no solid voxel of the brick steps on, the
 //            others start at the first slice ahead that may hold a hit.
-// A not-resident cell (no LOD stop) ends the lane as kPacketScalar. Lanes
+// A not-resident cell (no LOD stop) ends the lane as kPacketScalar, a lane
+// found outside the grid (a fault of the walk) as kPacketFault. Lanes
 // are filled 16 (8) rays at a time, a 4x4 (4x2) pixel block.
 #include <immintrin.h>
 
@@ -226,6 +227,18 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
     push(active, child_level(I{}, exit0));
 
     while (L::bits(active)) {
+      // A lane outside the grid (its cube's coordinates beyond the level's
+      // 2^lv per axis) can only come from a fault of this walk; it would
+      // read outside the arrays. It retires as kPacketFault (the caller
+      // counts it and asks trace()) instead of crashing.
+      const U top = (U)((I{} + 1) << lv);
+      const I fault = active & (((U)c[0] >= top) | ((U)c[1] >= top) | ((U)c[2] >= top));
+      if (L::bits(fault)) [[unlikely]] {
+        for (uint32_t b = L::bits(fault); b != 0; b &= b - 1)
+          status[base + std::countr_zero(b)] = kPacketFault;
+        active &= ~fault;
+        if (!L::bits(active)) break;
+      }
       // ---- test the lanes' current children ----
       I occ{};
       U cellv{}, color{};  // the cell; an LOD stop's color (pyramid nodes)

@@ -32,8 +32,9 @@
 namespace voxcast::brickmap {
 
 namespace detail {
-BrickSkip brick_skip_mode = BrickSkip::Simd;
-bool brick_block_masks = true;
+std::atomic<BrickSkip> brick_skip_mode{BrickSkip::Simd};
+std::atomic<bool> brick_block_masks{true};
+std::atomic<uint64_t> packet_lane_faults{0};
 }  // namespace detail
 
 namespace {
@@ -347,12 +348,11 @@ struct Walker {
   uint32_t brick_slices(const Brick& b, Int3 pc, float t0, float te) const {
     float base[3];  // the ray origin relative to the brick's corner
     for (int a = 0; a < 3; ++a) base[a] = r.o[a] - float(pc.v[a] << kBrickLog2);
+    const detail::BrickSkip mode = detail::brick_skip_mode.load(std::memory_order_relaxed);
 #if defined(__AVX2__)
-    if (detail::brick_skip_mode == detail::BrickSkip::Simd)
-      return brick_slices_avx2(b, base, t0, te);
+    if (mode == detail::BrickSkip::Simd) return brick_slices_avx2(b, base, t0, te);
 #endif
-    return detail::brick_skip_mode == detail::BrickSkip::Off ? 0xFFu
-                                                             : brick_slices_scalar(b, base, t0, te);
+    return mode == detail::BrickSkip::Off ? 0xFFu : brick_slices_scalar(b, base, t0, te);
   }
 
   uint32_t brick_slices_scalar(const Brick& b, const float base[3], float t0, float te) const {
@@ -533,7 +533,7 @@ struct Walker {
         // else to its blocks (visit()'s cases, without the call).
         const int bl = child_level(B, cexit);
         const Step s = bl == L ? visit_voxels(cell_brick(cell), d.cell(), d.t, d.axis, cexit)
-                       : detail::brick_block_masks
+                       : detail::brick_block_masks.load(std::memory_order_relaxed)
                            ? visit_blocks(B, bl, d.cell(), cell, d.t, d.axis)
                            : visit(B, d.cell(), cexit, cell, d.t, d.axis);
         if (s != Step::Exit) return s;
@@ -680,7 +680,8 @@ struct Walker {
     if (cl == L && level == B && B >= 0) return visit_voxels(cell_brick(pcell), pc, t, axis, exit);
     if (cl < B) return visit_nodes(level, cl, pc, t, axis);
     if (cl == B) return visit_cells(level, pc, t, axis);
-    if (B >= 0 && detail::brick_block_masks) return visit_blocks(level, cl, pc, pcell, t, axis);
+    if (B >= 0 && detail::brick_block_masks.load(std::memory_order_relaxed))
+      return visit_blocks(level, cl, pc, pcell, t, axis);
     // The blocks inside a brick an LOD footprint may stop at, and grids
     // below 8^3 (B < 0): the general loop.
     Dda d = begin(cl, cl - level, pc, t, axis);
@@ -1013,7 +1014,8 @@ bool packet_world(const World& w, const LodFootprint& lod, detail::PacketWorld* 
     pw->nodes[p] = reinterpret_cast<const uint32_t*>(&w.pyramid_node(p, 0));
     pw->node_dim[p] = w.pyramid_dim(p), pw->node_dim_y[p] = w.pyramid_dim_y(p);
   }
-  pw->slice_skip = detail::brick_skip_mode != detail::BrickSkip::Off;
+  pw->slice_skip =
+      detail::brick_skip_mode.load(std::memory_order_relaxed) != detail::BrickSkip::Off;
   pw->lod_on = lod.size_at_origin > 0.f || lod.size_per_t > 0.f;
   pw->voxel_world = float(g.voxel_size);
   pw->lod_size0 = lod.size_at_origin, pw->lod_per_t = lod.size_per_t;
@@ -1103,7 +1105,9 @@ void BrickmapStructure::trace_packets(const Ray* rays, size_t n, const LodFootpr
         const Found f{o.t, o.face, o.level, {o.c[0], o.c[1], o.c[2]}, o.ref};
         fill_hit(g, rays[i], f, &hits[i]);
         found[i] = 1;
-      } else if (q.status[k] == detail::kPacketScalar) {
+      } else if (q.status[k] >= detail::kPacketScalar) {
+        if (q.status[k] == detail::kPacketFault)
+          detail::packet_lane_faults.fetch_add(1, std::memory_order_relaxed);
         found[i] = trace(rays[i], lod, ctx, &hits[i], beams ? beams[i] : nullptr);
       }
     }
