@@ -280,6 +280,20 @@ void expect_clearances_and_cell_boxes_are_exact(const World& w, const std::strin
           ADD_FAILURE() << "node " << i << "," << j << "," << k << ": cell box " << std::hex << got
                         << ", brute force " << want << std::dec;
       }
+  // The node clearances (the lane walk's jumps over empty nodes): the
+  // capped Chebyshev distance in nodes to a node holding a filled cell.
+  for (int k = 0; k < int(w.pyramid_dim(q)); ++k)
+    for (int j = 0; j < int(w.pyramid_dim_y(q)); ++j)
+      for (int i = 0; i < int(w.pyramid_dim(q)); ++i) {
+        int want = kMaxClearance;
+        for (const auto& f : filled)
+          want = std::min(want, std::max({std::abs(f[0] / side - i), std::abs(f[1] / side - j),
+                                          std::abs(f[2] / side - k)}));
+        const int got = w.node_clearance(w.pyramid_index(q, uint32_t(i), uint32_t(j), uint32_t(k)));
+        if (got != want && ++wrong <= 3)
+          ADD_FAILURE() << "node " << i << "," << j << "," << k << ": node clearance " << got
+                        << ", brute force " << want;
+      }
 }
 
 TEST(BrickmapBuild, ClearancesAndCellBoxesFollowBuildsEditsAndEvictions) {

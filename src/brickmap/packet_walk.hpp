@@ -14,13 +14,15 @@ inline constexpr int kPacketMaxLevels = 24;
 
 /// The world as the lane walk reads it, and the LOD footprint.
 struct PacketWorld {
-  const uint32_t* cells = nullptr;     // brickgrid cells (World::cells)
-  const uint32_t* bricks = nullptr;    // the brick pool, 18 words per Brick
-  const uint32_t* cell_box = nullptr;  // World::cell_box per node of level kCellBoxLevel
-  const uint8_t* clearance = nullptr;  // World::clearances, per cell
-  int32_t clearance_last = 0;          // the last index a 4-byte read may start at (size - 4)
-  uint32_t dims[3] = {};               // brickgrid cells per axis
-  int L = 0, B = 0;                    // voxel level, brickgrid level
+  const uint32_t* cells = nullptr;          // brickgrid cells (World::cells)
+  const uint32_t* bricks = nullptr;         // the brick pool, 18 words per Brick
+  const uint32_t* cell_box = nullptr;       // World::cell_box per node of level kCellBoxLevel
+  const uint8_t* clearance = nullptr;       // World::clearances, per cell
+  int32_t clearance_last = 0;               // the last index a 4-byte read may start at (size - 4)
+  const uint8_t* node_clearance = nullptr;  // World::node_clearances, per node of level B - 3
+  int32_t node_clearance_last = 0;          // as clearance_last
+  uint32_t dims[3] = {};                    // brickgrid cells per axis
+  int L = 0, B = 0;                         // voxel level, brickgrid level
   // Per pyramid level p (1 .. B; cube level B - p): its nodes (PyramidNode
   // as two words, `bricks` first) and their index dims.
   const uint32_t* nodes[kPacketMaxLevels + 1] = {};

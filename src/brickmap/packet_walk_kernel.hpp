@@ -22,7 +22,8 @@
 //            pops to the parent's DDA (the parent's c from the child's lo,
 //            its exit planes recomputed: plane_t of the same coordinates)
 //            and advances again; past t1 or out of the root the lane misses.
-//   jump     an empty cell with a clearance k > 1: Walker::jump, out of the
+//   jump     an empty cell (or node of level B - 3: World::node_clearance)
+//            with a clearance k > 1: Walker::jump, out of the
 //            cube of radius k - 1 in one step (the crossings on the other
 //            axes taken in (t, axis) order, lane loops until none is left).
 //   slices   a push into a brick's voxels: visit_voxels' brick-slice test
@@ -242,12 +243,21 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
       // ---- test the lanes' current children ----
       I occ{};
       U cellv{}, color{};  // the cell; an LOD stop's color (pyramid nodes)
-      // The cell box of a level-B-3 node and the clearance of a cell are
-      // gathered with the node and the cell, before it is known whether
-      // they are needed (an occupied node, an empty cell): the loop waits
-      // on gathers, and these two no longer wait on the first.
-      U box{}, clear{};
-      I cidx{}, cat{};
+      // The cell box and the clearance of a node of level B - 3 and the
+      // clearance of a cell are gathered with the node and the cell, before
+      // it is known whether they are needed (an occupied node, an empty node
+      // or cell): the loop waits on gathers, and these no longer wait on
+      // the first. clr: the clearance of the lanes' child (0: none), empty:
+      // the lanes whose child is an empty cell or node of level B - 3.
+      U box{};
+      I clr{}, empty{};
+      // The byte at index idx of a clearance array in the lanes of m (a
+      // 4-byte gather from at most the array's last 4 bytes).
+      auto clearance = [&](const uint8_t* base, int32_t last, I idx, I m) {
+        const I at = idx < last ? idx : I{} + last;
+        const U word = L::gather_bytes(base, at, m, U{});
+        return m ? (I)((word >> (U)((idx - at) * 8)) & 0xFFu) : clr;
+      };
       const I is_node = active & (lv < BL);
       for (uint32_t mn = L::bits(is_node); mn != 0;) {
         // One masked gather per pyramid level present in the lanes.
@@ -259,10 +269,10 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
         const U g = L::gather(w.nodes[p], idx * 2, in, U{});
         occ |= in & (g != 0);
         if (w.lod_on) color = L::gather(w.nodes[p], idx * 2 + 1, in & (g != 0), color);
-        if (level == BL - 3) {
-          const I bidx =
-              c[0] + int32_t(w.dims[0] >> 3) * (c[1] + int32_t((w.dims[1] + 7) >> 3) * c[2]);
-          box = L::gather(w.cell_box, bidx, in, U{});
+        if (level == BL - 3) {  // World::cell_box and node_clearance share this index
+          box = L::gather(w.cell_box, idx, in, U{});
+          clr = clearance(w.node_clearance, w.node_clearance_last, idx, in);
+          empty |= in & (g == 0);
         }
       }
       const I is_cell = active & (lv == BL);
@@ -270,9 +280,8 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
       if (L::bits(mc)) {
         const I idx = c[0] + int32_t(w.dims[0]) * (c[1] + int32_t(w.dims[1]) * c[2]);
         cellv = L::gather(w.cells, idx, mc, U{});
-        cidx = idx;
-        cat = idx < w.clearance_last ? idx : I{} + w.clearance_last;
-        clear = L::gather_bytes(w.clearance, cat, mc, U{});
+        clr = clearance(w.clearance, w.clearance_last, idx, mc);
+        empty |= mc & (cellv == 0u);
         occ |= mc & (cellv != 0);
       }
       // Inside a brick: a voxel's bit, or (LOD) a 2^s block's bits, s =
@@ -367,11 +376,13 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
       I adv = active & ~occ;
       F side = pow2(LL - lv);
       // visit_cells' jump: an empty cell of clearance k > 1 leaves the
-      // cube of radius k - 1 around it (clipped to the parent) in one step.
+      // cube of radius k - 1 around it (clipped to the parent) in one step;
+      // the same for an empty node of level B - 3 with its node clearance
+      // (the scalar walk steps node by node; the crossing reached is the
+      // same, Walker::jump's argument).
       I leave_jump{};
-      const I empty = mc & (cellv == 0u);
       if (L::bits(empty)) {
-        const I radius = (I)((clear >> (U)((cidx - cat) * 8)) & 0xFFu) - 1;
+        const I radius = clr - 1;
         const I jump = empty & (radius > 0);
         if (L::bits(jump)) {
           F tn[3];

@@ -1002,12 +1002,14 @@ bool packet_world(const World& w, const LodFootprint& lod, detail::PacketWorld* 
   const GridTransform& g = w.grid();
   const int L = g.levels, B = L - kBrickLog2;
   if (B < 4 || B > detail::kPacketMaxLevels || w.pyramid_levels() != B) return false;
-  if (w.clearances().size() < 4) return false;
+  if (w.clearances().size() < 4 || w.node_clearances().size() < 4) return false;
   pw->cells = w.cells().data();
   pw->bricks = reinterpret_cast<const uint32_t*>(w.bricks().data());
   pw->cell_box = w.cell_boxes().data();
   pw->clearance = w.clearances().data();
   pw->clearance_last = int32_t(w.clearances().size() - 4);
+  pw->node_clearance = w.node_clearances().data();
+  pw->node_clearance_last = int32_t(w.node_clearances().size() - 4);
   for (int a = 0; a < 3; ++a) pw->dims[a] = w.dims()[a];
   pw->L = L, pw->B = B;
   for (int p = 1; p <= B; ++p) {

@@ -265,7 +265,10 @@ World::World(const GridTransform& grid, bool normals, uint32_t height_cells)
   int k = 1;
   for (uint32_t d = n >> 1; d >= 1; d >>= 1, ++k)
     pyramid_.emplace_back(size_t(uint64_t(d) * pyramid_dim_y(k) * d));
-  if (pyramid_levels() >= kCellBoxLevel) cell_box_.assign(pyramid_[kCellBoxLevel - 1].size(), 0);
+  if (pyramid_levels() >= kCellBoxLevel) {
+    cell_box_.assign(pyramid_[kCellBoxLevel - 1].size(), 0);
+    node_clearance_.assign(pyramid_[kCellBoxLevel - 1].size(), uint8_t(kMaxClearance));
+  }
 }
 
 void World::set_brick(uint64_t index, const uint64_t mask[8], const uint32_t* colors,
@@ -350,6 +353,21 @@ void World::update_occupancy(uint64_t index) {
     update_clearance(clearance_, dims_, filled ? c : none, filled ? none : c, cell_filled());
   }
   for (int q = 1; q <= pyramid_levels(); ++q) update_pyramid_node(q, i >> q, j >> q, k >> q);
+  if (pyramid_levels() >= kCellBoxLevel) {
+    std::vector<std::array<uint32_t, 3>> filled_now, emptied;
+    note_node_change(i >> kCellBoxLevel, j >> kCellBoxLevel, k >> kCellBoxLevel, &filled_now,
+                     &emptied);
+    update_clearance(node_clearance_, node_dims(), filled_now, emptied, node_filled());
+  }
+}
+
+void World::note_node_change(uint32_t x, uint32_t y, uint32_t z,
+                             std::vector<std::array<uint32_t, 3>>* filled_now,
+                             std::vector<std::array<uint32_t, 3>>* emptied) const {
+  const uint64_t index = pyramid_index(kCellBoxLevel, x, y, z);
+  const bool filled = pyramid_node(kCellBoxLevel, index).bricks != 0;
+  if (filled != (node_clearance_[size_t(index)] == 0))
+    (filled ? filled_now : emptied)->push_back({x, y, z});
 }
 
 void World::update_occupancy(const std::vector<uint64_t>& indices) {
@@ -381,6 +399,11 @@ void World::update_occupancy(const std::vector<uint64_t>& indices) {
   for (int q = 1; q <= pyramid_levels(); ++q) {
     unique_shifted(at, 1);
     for (const auto& c : at) update_pyramid_node(q, c[0], c[1], c[2]);
+    if (q != kCellBoxLevel) continue;
+    // The node clearances: the nodes that turned filled or empty, at once.
+    std::vector<std::array<uint32_t, 3>> nodes_filled, nodes_emptied;
+    for (const auto& c : at) note_node_change(c[0], c[1], c[2], &nodes_filled, &nodes_emptied);
+    update_clearance(node_clearance_, node_dims(), nodes_filled, nodes_emptied, node_filled());
   }
 }
 
@@ -492,7 +515,7 @@ WorldStats World::stats() const {
     if (cell_state(c) == kStateResident) s.voxels += uint64_t(brick_popcount(pool_[cell_brick(c)]));
   s.grid_bytes = uint64_t(cells_.size()) * 4;
   s.occupancy_bytes = uint64_t(occupancy_.size()) * 8;
-  s.clearance_bytes = uint64_t(clearance_.size());
+  s.clearance_bytes = uint64_t(clearance_.size() + node_clearance_.size());
   for (const std::vector<PyramidNode>& level : pyramid_)
     s.pyramid_bytes += uint64_t(level.size()) * sizeof(PyramidNode);
   s.pyramid_bytes += uint64_t(cell_box_.size()) * sizeof(uint32_t);
