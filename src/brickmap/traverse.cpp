@@ -55,9 +55,11 @@ struct GridRay {
 // for -0): such a ray cannot cross that axis's next plane inside a grid of
 // fewer than 2^23 voxels, so it stays on the side its sign picks, and the
 // arithmetic below stays finite.
-bool to_grid(const GridTransform& g, const Ray& ray, GridRay* r) {
+// inv_vs: 1 / g.voxel_size, which trace_packets() divides once per call
+// instead of once per ray (the same double).
+[[gnu::always_inline]] inline bool to_grid(const GridTransform& g, double inv_vs, const Ray& ray,
+                                           GridRay* r) {
   if (!is_finite(ray.origin) || !is_finite(ray.dir)) return false;
-  const double inv_vs = 1.0 / g.voxel_size;
   float big = 0.f;
   for (int a = 0; a < 3; ++a) {
     r->o[a] = float((double(ray.origin[a]) - g.origin[a]) * inv_vs);
@@ -73,6 +75,9 @@ bool to_grid(const GridTransform& g, const Ray& ray, GridRay* r) {
     r->up[a] = r->step[a] > 0;
   }
   return true;
+}
+bool to_grid(const GridTransform& g, const Ray& ray, GridRay* r) {
+  return to_grid(g, 1.0 / g.voxel_size, ray, r);
 }
 
 // std::nextafter(x, -INFINITY) for a finite x, from the bits (no libm call
@@ -1060,6 +1065,7 @@ void BrickmapStructure::trace_packets(const Ray* rays, size_t n, const LodFootpr
   pr.t0 = t0, pr.t1 = t1, pr.start_t = start, pr.exit = exit, pr.axis = q.axis;
   // The root's LOD stop (walk()): a grid narrower than the footprint.
   const float root_side = float(g.voxel_size) * float(1u << g.levels);
+  const double inv_vs = 1.0 / g.voxel_size;
   for (size_t b0 = 0; b0 < n; b0 += PacketBuffers::kChunk) {
     const size_t m = std::min(PacketBuffers::kChunk, n - b0);
     int count = 0;
@@ -1074,7 +1080,8 @@ void BrickmapStructure::trace_packets(const Ray* rays, size_t n, const LodFootpr
       }
       GridRay r;
       Span s;
-      if (!root || !to_grid(g, rays[i], &r) || !clip_ray(w, r, rays[i].tmax, rg, &s)) continue;
+      if (!root || !to_grid(g, inv_vs, rays[i], &r) || !clip_ray(w, r, rays[i].tmax, rg, &s))
+        continue;
       if (pw.lod_on && root_side <= lod.size_at_origin + lod.size_per_t * s.exit) {
         found[i] = trace(rays[i], lod, ctx, &hits[i], beam);
         continue;
