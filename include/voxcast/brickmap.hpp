@@ -303,14 +303,22 @@ class World {
   uint8_t clearance(uint64_t index) const { return clearance_[size_t(index)]; }
   const std::vector<uint8_t>& clearances() const { return clearance_; }
 
-  /// The same distance for the pyramid nodes of level kCellBoxLevel (8^3
-  /// cells each), in nodes: 0 for a non-empty node, else the capped
-  /// Chebyshev distance to the nearest non-empty one (nodes above a cut-off
-  /// count as empty). The lane walk (packet_walk_kernel.hpp) jumps across
-  /// the empty cube of nodes it gives, as the cell walk does with cells.
-  /// Empty without such a level (grids below 2^6 voxels). Kept up to date
-  /// with the pyramid (update_occupancy).
-  uint8_t node_clearance(uint64_t index) const { return node_clearance_[size_t(index)]; }
+  /// Empty space ahead of the pyramid node `index` of level kCellBoxLevel
+  /// (8^3 cells) for a ray of octant `octant` (bit a set: the ray moves
+  /// up along axis a): the side, in nodes, of the largest cube with its
+  /// corner at the node that reaches into that octant and holds no
+  /// non-empty node, capped at kMaxClearance (0 for a non-empty node;
+  /// nodes outside the grid or above a cut-off count as empty). A ray never
+  /// returns behind the node it is in, so the lane walk
+  /// (packet_walk_kernel.hpp) jumps across that cube as the cell walk does
+  /// across a cell's clearance cube; a one-sided cube is larger than the
+  /// centred one next to a surface the ray moves away from. 8 B per node
+  /// (node_clearances()[8 index + octant]); empty without such a level
+  /// (grids below 2^6 voxels). Kept up to date with the pyramid
+  /// (update_occupancy).
+  uint8_t node_clearance(uint64_t index, int octant) const {
+    return node_clearance_[size_t(index * 8 + uint64_t(octant))];
+  }
   const std::vector<uint8_t>& node_clearances() const { return node_clearance_; }
 
   const BrickPool& bricks() const { return pool_; }
@@ -388,6 +396,10 @@ class World {
   void note_node_change(uint32_t x, uint32_t y, uint32_t z,
                         std::vector<std::array<uint32_t, 3>>* filled_now,
                         std::vector<std::array<uint32_t, 3>>* emptied) const;
+  // node_clearance() of the nodes a change of the nodes in [lo, hi] (of
+  // level kCellBoxLevel) can reach: up to kMaxClearance behind them.
+  void update_node_clearance(const std::vector<std::array<uint32_t, 3>>& filled_now,
+                             const std::vector<std::array<uint32_t, 3>>& emptied);
   std::array<uint32_t, 3> node_dims() const {
     return {pyramid_dim(kCellBoxLevel), pyramid_dim_y(kCellBoxLevel), pyramid_dim(kCellBoxLevel)};
   }

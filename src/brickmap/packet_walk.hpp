@@ -19,7 +19,7 @@ struct PacketWorld {
   const uint32_t* cell_box = nullptr;       // World::cell_box per node of level kCellBoxLevel
   const uint8_t* clearance = nullptr;       // World::clearances, per cell
   int32_t clearance_last = 0;               // the last index a 4-byte read may start at (size - 4)
-  const uint8_t* node_clearance = nullptr;  // World::node_clearances, per node of level B - 3
+  const uint8_t* node_clearance = nullptr;  // World::node_clearances, 8 per node of level B - 3
   int32_t node_clearance_last = 0;          // as clearance_last
   uint32_t dims[3] = {};                    // brickgrid cells per axis
   int L = 0, B = 0;                         // voxel level, brickgrid level

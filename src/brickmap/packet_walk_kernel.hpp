@@ -160,6 +160,7 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
     };
     const F t1 = load(q.t1 + base), start_t = load(q.start_t + base);
     const F exit0 = load(q.exit + base);
+    const I octant = up[0] | up[1] << 1 | up[2] << 2;  // World::node_clearance's octant
     F t = load(q.t0 + base);
     I axis;
     std::memcpy(&axis, q.axis + base, sizeof axis);
@@ -271,7 +272,7 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
         if (w.lod_on) color = L::gather(w.nodes[p], idx * 2 + 1, in & (g != 0), color);
         if (level == BL - 3) {  // World::cell_box and node_clearance share this index
           box = L::gather(w.cell_box, idx, in, U{});
-          clr = clearance(w.node_clearance, w.node_clearance_last, idx, in);
+          clr = clearance(w.node_clearance, w.node_clearance_last, idx * 8 + octant, in);
           empty |= in & (g == 0);
         }
       }
