@@ -280,6 +280,36 @@ void expect_clearances_and_cell_boxes_are_exact(const World& w, const std::strin
           ADD_FAILURE() << "node " << i << "," << j << "," << k << ": cell box " << std::hex << got
                         << ", brute force " << want << std::dec;
       }
+  // The node clearances (the lane walk's jumps over empty nodes): per ray
+  // octant, the side of the largest cube of empty nodes with its corner at
+  // the node reaching into that octant (nodes outside the grid are empty).
+  const int nd[3] = {int(w.pyramid_dim(q)), int(w.pyramid_dim_y(q)), int(w.pyramid_dim(q))};
+  std::vector<uint8_t> node_full(size_t(nd[0]) * size_t(nd[1]) * size_t(nd[2]), 0);
+  for (const auto& f : filled)
+    node_full[size_t(f[0] / side + nd[0] * (f[1] / side + nd[1] * (f[2] / side)))] = 1;
+  const auto full = [&](int x, int y, int z) {
+    return x >= 0 && y >= 0 && z >= 0 && x < nd[0] && y < nd[1] && z < nd[2] &&
+           node_full[size_t(x + nd[0] * (y + nd[1] * z))] != 0;
+  };
+  for (int k = 0; k < nd[2]; ++k)
+    for (int j = 0; j < nd[1]; ++j)
+      for (int i = 0; i < nd[0]; ++i)
+        for (int oct = 0; oct < 8; ++oct) {
+          const int s[3] = {(oct & 1) ? 1 : -1, (oct & 2) ? 1 : -1, (oct & 4) ? 1 : -1};
+          int want = 0;  // grow the cube while it stays empty
+          for (bool empty = true; empty && want < kMaxClearance;) {
+            for (int dz = 0; dz <= want && empty; ++dz)
+              for (int dy = 0; dy <= want && empty; ++dy)
+                for (int dx = 0; dx <= want && empty; ++dx)
+                  empty = !full(i + s[0] * dx, j + s[1] * dy, k + s[2] * dz);
+            want += empty;
+          }
+          const int got =
+              w.node_clearance(w.pyramid_index(q, uint32_t(i), uint32_t(j), uint32_t(k)), oct);
+          if (got != want && ++wrong <= 3)
+            ADD_FAILURE() << "node " << i << "," << j << "," << k << " octant " << oct
+                          << ": node clearance " << got << ", brute force " << want;
+        }
 }
 
 TEST(BrickmapBuild, ClearancesAndCellBoxesFollowBuildsEditsAndEvictions) {

@@ -20,6 +20,7 @@
 #include <string>
 #include <vector>
 
+#include "brickmap/packet_walk.hpp"
 #include "render/beam.hpp"
 #include "support/esvo_testing.hpp"
 #include "support/packet_testing.hpp"
@@ -167,6 +168,9 @@ void expect_same(const S& s, const std::vector<Ray>& rays, const LodFootprint& l
                       << " want " << int(want_occ[i]);
     }
     EXPECT_EQ(bad, 0u) << what << " " << isa_name(isa);
+    // A brickmap lane that left the grid retires to trace() (the answer
+    // above is then the scalar one), so the fault is checked here.
+    EXPECT_EQ(brickmap::detail::packet_lane_faults.load(), 0u) << what << " " << isa_name(isa);
   }
 }
 
@@ -209,6 +213,7 @@ void expect_same_with_beams(const S& s, const std::vector<Ray>& rays,
     for (size_t i = 0; i < rays.size(); ++i)
       bad += found[i] != want_found[i] || (found[i] && !same_hit(got[i], want[i]));
     EXPECT_EQ(bad, 0u) << label << ", " << isa_name(isa);
+    EXPECT_EQ(brickmap::detail::packet_lane_faults.load(), 0u) << label << ", " << isa_name(isa);
   }
 }
 

@@ -212,7 +212,7 @@ struct WorldStats {
   uint64_t grid_bytes = 0;  // brickgrid cells (4 B each)
   uint64_t occupancy_bytes = 0;
   uint64_t pyramid_bytes = 0;    // the coarse levels above the brickgrid (8 B per node)
-  uint64_t clearance_bytes = 0;  // empty-space distances of the brickgrid cells (1 B each)
+  uint64_t clearance_bytes = 0;  // empty-space distances of the cells and level-3 nodes (1 B each)
   uint64_t brick_bytes = 0;      // brick pool extent x 72 B
   uint64_t color_bytes = 0;      // color pool extent x 4 B (size-class slack included;
                                  // DXT1: 8 B per 16 entries)
@@ -303,6 +303,24 @@ class World {
   uint8_t clearance(uint64_t index) const { return clearance_[size_t(index)]; }
   const std::vector<uint8_t>& clearances() const { return clearance_; }
 
+  /// Empty space ahead of the pyramid node `index` of level kCellBoxLevel
+  /// (8^3 cells) for a ray of octant `octant` (bit a set: the ray moves
+  /// up along axis a): the side, in nodes, of the largest cube with its
+  /// corner at the node that reaches into that octant and holds no
+  /// non-empty node, capped at kMaxClearance (0 for a non-empty node;
+  /// nodes outside the grid or above a cut-off count as empty). A ray never
+  /// returns behind the node it is in, so the lane walk
+  /// (packet_walk_kernel.hpp) jumps across that cube as the cell walk does
+  /// across a cell's clearance cube; a one-sided cube is larger than the
+  /// centred one next to a surface the ray moves away from. 8 B per node
+  /// (node_clearances()[8 index + octant]); empty without such a level
+  /// (grids below 2^6 voxels). Kept up to date with the pyramid
+  /// (update_occupancy).
+  uint8_t node_clearance(uint64_t index, int octant) const {
+    return node_clearance_[size_t(index * 8 + uint64_t(octant))];
+  }
+  const std::vector<uint8_t>& node_clearances() const { return node_clearance_; }
+
   const BrickPool& bricks() const { return pool_; }
   const Brick& brick(uint32_t index) const { return pool_[index]; }
   const std::vector<uint32_t>& colors() const { return colors_; }
@@ -372,6 +390,24 @@ class World {
  private:
   void update_occupancy_bit(uint32_t oi, uint32_t oj, uint32_t ok);
   void update_pyramid_node(int level, uint32_t x, uint32_t y, uint32_t z);
+  // The clearance of the kCellBoxLevel node holding (x, y, z) of that level
+  // after its pyramid update, if it turned filled or empty (also added to
+  // *filled_now / *emptied when given, for one batched update).
+  void note_node_change(uint32_t x, uint32_t y, uint32_t z,
+                        std::vector<std::array<uint32_t, 3>>* filled_now,
+                        std::vector<std::array<uint32_t, 3>>* emptied) const;
+  // node_clearance() of the nodes a change of the nodes in [lo, hi] (of
+  // level kCellBoxLevel) can reach: up to kMaxClearance behind them.
+  void update_node_clearance(const std::vector<std::array<uint32_t, 3>>& filled_now,
+                             const std::vector<std::array<uint32_t, 3>>& emptied);
+  std::array<uint32_t, 3> node_dims() const {
+    return {pyramid_dim(kCellBoxLevel), pyramid_dim_y(kCellBoxLevel), pyramid_dim(kCellBoxLevel)};
+  }
+  auto node_filled() const {
+    return [this](uint32_t i, uint32_t j, uint32_t k) {
+      return pyramid_node(kCellBoxLevel, pyramid_index(kCellBoxLevel, i, j, k)).bricks != 0;
+    };
+  }
   auto cell_filled() const {
     return [this](uint32_t i, uint32_t j, uint32_t k) {
       return cells_[size_t(cell_index(i, j, k))] != 0;
@@ -386,6 +422,7 @@ class World {
   std::vector<std::vector<PyramidNode>> pyramid_;  // levels 1 .. K
   std::vector<uint8_t> clearance_;                 // per brickgrid cell (clearance())
   std::vector<uint32_t> cell_box_;                 // per node of level kCellBoxLevel
+  std::vector<uint8_t> node_clearance_;            // per node of level kCellBoxLevel
   BrickPool pool_;
   ColorAllocator color_alloc_;
   std::vector<uint32_t> colors_, normals_data_;

@@ -4,6 +4,7 @@
 // one ray per lane, the per-level DDAs as lane vectors. What the kernels
 // read is set up by traverse.cpp; the kernels are compiled per ISA
 // (packet_walk_avx2.cpp, packet_walk_avx512.cpp, packet_walk_kernel.hpp).
+#include <atomic>
 #include <cstddef>
 #include <cstdint>
 
@@ -13,17 +14,22 @@ inline constexpr int kPacketMaxLevels = 24;
 
 /// The world as the lane walk reads it, and the LOD footprint.
 struct PacketWorld {
-  const uint32_t* cells = nullptr;     // brickgrid cells (World::cells)
-  const uint32_t* bricks = nullptr;    // the brick pool, 18 words per Brick
-  const uint32_t* cell_box = nullptr;  // World::cell_box per node of level kCellBoxLevel
-  const uint8_t* clearance = nullptr;  // World::clearances, per cell
-  int32_t clearance_last = 0;          // the last index a 4-byte read may start at (size - 4)
-  uint32_t dims[3] = {};               // brickgrid cells per axis
-  int L = 0, B = 0;                    // voxel level, brickgrid level
+  const uint32_t* cells = nullptr;          // brickgrid cells (World::cells)
+  const uint32_t* bricks = nullptr;         // the brick pool, 18 words per Brick
+  const uint32_t* cell_box = nullptr;       // World::cell_box per node of level kCellBoxLevel
+  const uint8_t* clearance = nullptr;       // World::clearances, per cell
+  int32_t clearance_last = 0;               // the last index a 4-byte read may start at (size - 4)
+  const uint8_t* node_clearance = nullptr;  // World::node_clearances, 8 per node of level B - 3
+  int32_t node_clearance_last = 0;          // as clearance_last
+  uint32_t dims[3] = {};                    // brickgrid cells per axis
+  int L = 0, B = 0;                         // voxel level, brickgrid level
   // Per pyramid level p (1 .. B; cube level B - p): its nodes (PyramidNode
   // as two words, `bricks` first) and their index dims.
   const uint32_t* nodes[kPacketMaxLevels + 1] = {};
   uint32_t node_dim[kPacketMaxLevels + 1] = {}, node_dim_y[kPacketMaxLevels + 1] = {};
+  // visit_voxels' brick-slice test and slice entry (off: every brick walked
+  // voxel by voxel, as detail::brick_skip_mode Off does for the scalar walk).
+  bool slice_skip = true;
   // Walker::lod_stop: side_world(level) <= lod_size0 + lod_per_t exit.
   bool lod_on = false;
   float voxel_world = 0.f, lod_size0 = 0.f, lod_per_t = 0.f;
@@ -48,10 +54,16 @@ struct PacketFound {
   uint64_t ref;
 };
 
-inline constexpr uint8_t kPacketMiss = 0, kPacketHit = 1, kPacketScalar = 2;
+inline constexpr uint8_t kPacketMiss = 0, kPacketHit = 1, kPacketScalar = 2, kPacketFault = 3;
 
-/// status[i] for ray i < q.count: kPacketMiss, kPacketHit (out[i] filled) or
-/// kPacketScalar (a not-resident brick: the scalar walk answers the ray).
+/// Lanes that ended as kPacketFault since the start (trace_packets counts
+/// them; the tests expect none).
+extern std::atomic<uint64_t> packet_lane_faults;
+
+/// status[i] for ray i < q.count: kPacketMiss, kPacketHit (out[i] filled),
+/// kPacketScalar (a not-resident brick: the scalar walk answers the ray) or
+/// kPacketFault (the lane left the grid, which only a bug in the lane walk
+/// can do: the scalar walk answers the ray, the fault is counted).
 void packet_walk_avx2(const PacketWorld& w, const PacketRays& q, uint8_t* status, PacketFound* out);
 void packet_walk_avx512(const PacketWorld& w, const PacketRays& q, uint8_t* status,
                         PacketFound* out);

@@ -22,13 +22,18 @@
 //            pops to the parent's DDA (the parent's c from the child's lo,
 //            its exit planes recomputed: plane_t of the same coordinates)
 //            and advances again; past t1 or out of the root the lane misses.
-//   jump     an empty cell with a clearance k > 1: Walker::jump, out of the
+//   jump     an empty cell (or node of level B - 3: World::node_clearance)
+//            with a clearance k > 1: Walker::jump, out of the
 //            cube of radius k - 1 in one step (the crossings on the other
 //            axes taken in (t, axis) order, lane loops until none is left).
-// A not-resident cell (no LOD stop) ends the lane as kPacketScalar. The
-// walk's brick-slice skip (brick_slices) is left out: an exact skip, the
-// same hits without it. Lanes are filled 16 (8) rays at a time, a 4x4
-// (4x2) pixel block.
+//   slices   a push into a brick's voxels: visit_voxels' brick-slice test
+//            (brick_slices, the brick's 16 half-slice words in lanes, one
+//            lane's ray at a time) and slice entry (enter_slice): a lane
+//            whose ray meets no solid voxel of the brick steps on, the
+//            others start at the first slice ahead that may hold a hit.
+// A not-resident cell (no LOD stop) ends the lane as kPacketScalar, a lane
+// found outside the grid (a fault of the walk) as kPacketFault. Lanes
+// are filled 16 (8) rays at a time, a 4x4 (4x2) pixel block.
 #include <immintrin.h>
 
 #include <bit>
@@ -54,6 +59,21 @@ struct WalkLanes : ::voxcast::detail::Lanes<N> {
     else
       return (U)_mm256_mask_i32gather_epi32((__m256i)src, (const int*)base, (__m256i)idx,
                                             (__m256i)m, 1);
+  }
+  // Variable shifts per lane; a count of 32 or more gives 0 (vpsllvd,
+  // vpsrlvd), which the slice test's row masks rely on.
+  static U sllv(U v, I n) {
+    if constexpr (N == 16)
+      return (U)_mm512_maskz_sllv_epi32(
+          0xFFFF, (__m512i)v, (__m512i)n);  // maskz: no undefined source (-Wmaybe-uninitialized)
+    else
+      return (U)_mm256_sllv_epi32((__m256i)v, (__m256i)n);
+  }
+  static U srlv(U v, I n) {
+    if constexpr (N == 16)
+      return (U)_mm512_maskz_srlv_epi32(0xFFFF, (__m512i)v, (__m512i)n);
+    else
+      return (U)_mm256_srlv_epi32((__m256i)v, (__m256i)n);
   }
   // floor (kMode _MM_FROUND_TO_NEG_INF) or ceil (_MM_FROUND_TO_POS_INF).
   template <int kMode>
@@ -102,8 +122,45 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
     // The t at which a lane leaves child cc (side sd) along axis a: the
     // plane of its far face (plane_t of traverse.cpp, the same operations).
     auto exit_t = [&](int a, I cc, F sd) { return (to_f(cc + up[a]) * sd - o[a]) * inv[a]; };
+    // brick_slices (traverse.cpp) for lane l: bit k set when z slice k of
+    // brick `bi` (brickgrid cell pc) may hold a solid voxel the ray meets
+    // between t0 and te (the same boxes and slack: a superset test). The
+    // lanes take the brick's 16 half-slice words (slice j >> 1, rows 4 (j &
+    // 1) to 4 (j & 1) + 3), all of them in one pass of 16 lanes (two of 8).
+    auto brick_slices = [&](int l, uint32_t bi, const int pc[3], float t0, float te) {
+      float b3[3];  // the ray origin relative to the brick's corner
+      for (int a = 0; a < 3; ++a) b3[a] = o[a][l] - float(pc[a] << 3);
+      uint32_t hits = 0;
+      for (int pass = 0; pass < 16 / N; ++pass) {
+        const I j = lane + pass * N;
+        const F k = to_f(j >> 1);
+        const F ta = (k - slack[2][l] - b3[2]) * inv[2][l];
+        const F tb = (k + (1.f + slack[2][l]) - b3[2]) * inv[2][l];
+        const F lo = L::max(L::min(ta, tb), F{} + t0), hi = L::min(L::max(ta, tb), F{} + te);
+        I first[2], last[2];
+        for (int a = 0; a < 2; ++a) {
+          const F p0 = b3[a] + d[a][l] * lo, p1 = b3[a] + d[a][l] * hi;
+          const F f = L::template round<_MM_FROUND_TO_NEG_INF>(L::min(p0, p1) - slack[a][l]);
+          const F g = L::template round<_MM_FROUND_TO_NEG_INF>(L::max(p0, p1) + slack[a][l]);
+          first[a] = __builtin_convertvector(L::min(L::max(f, F{}), F{} + 7.f), I);
+          last[a] = __builtin_convertvector(L::min(L::max(g, F{}), F{} + 7.f), I);
+        }
+        // Bits first..last of x in every row byte; rows first..last of y
+        // within this lane's half (shifts of 32 or more give 0).
+        const U row =
+            ((U{} + 0xFFu) << (U)first[0] & (U{} + 0xFFu) >> (U)(7 - last[0])) * 0x01010101u;
+        const I half = (j & 1) * 32, y0 = first[1] * 8 - half, y1 = half + 24 - last[1] * 8;
+        const U rows =
+            L::sllv(U{} + ~0u, y0 < 0 ? I{} : y0) & L::srlv(U{} + ~0u, y1 < 0 ? I{} : y1);
+        U words;
+        std::memcpy(&words, w.bricks + size_t(bi) * 18 + pass * N, sizeof words);
+        hits |= L::bits((lo <= hi) & ((words & row & rows) != 0u)) << (pass * N);
+      }
+      return _pext_u32(hits | hits >> 1, 0x5555u);  // a slice: either of its halves
+    };
     const F t1 = load(q.t1 + base), start_t = load(q.start_t + base);
     const F exit0 = load(q.exit + base);
+    const I octant = up[0] | up[1] << 1 | up[2] << 2;  // World::node_clearance's octant
     F t = load(q.t0 + base);
     I axis;
     std::memcpy(&axis, q.axis + base, sizeof axis);
@@ -132,17 +189,24 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
         const F mx = f < flo ? flo : f;
         nc[a] = __builtin_convertvector(fhi < mx ? fhi : mx, I);
       }
-      // start_cell_exact where the lane starts at its beam's region.
-      for (uint32_t b = L::bits(m & (t == start_t)); b != 0; b &= b - 1) {
-        const int l = std::countr_zero(b);
+      // start_cell_exact where the lane starts at its beam's region, in
+      // lanes (a loop per lane was ~8 % of the beam-started walk's time, perf):
+      // per axis forward while the child's exit plane's t is <= t, then back
+      // while its entry plane's t is > t (the same plane_t values).
+      const I exact = m & (t == start_t);
+      if (L::bits(exact)) {
         for (int a = 0; a < 3; ++a) {
-          const int s = stp[a][l], u = up[a][l];
-          const int fwd = s > 0 ? nhi[a][l] : nlo[a][l], back = s > 0 ? nlo[a][l] : nhi[a][l];
-          const float oa = o[a][l], ia = inv[a][l], sd = nside[l], tl = t[l];
-          int cc = nc[a][l];
-          while (cc != fwd && (float(cc + u) * sd - oa) * ia <= tl) cc += s;
-          while (cc != back && (float(cc + 1 - u) * sd - oa) * ia > tl) cc -= s;
-          nc[a][l] = cc;
+          const I fwd = up[a] != 0 ? nhi[a] : nlo[a], back = up[a] != 0 ? nlo[a] : nhi[a];
+          for (I k = exact;;) {
+            k &= (nc[a] != fwd) & (exit_t(a, nc[a], nside) <= t);
+            if (!L::bits(k)) break;
+            nc[a] = k ? nc[a] + stp[a] : nc[a];
+          }
+          for (I k = exact;;) {
+            k &= (nc[a] != back) & ((to_f(nc[a] + 1 - up[a]) * nside - o[a]) * inv[a] > t);
+            if (!L::bits(k)) break;
+            nc[a] = k ? nc[a] - stp[a] : nc[a];
+          }
         }
       }
       for (int a = 0; a < 3; ++a) {
@@ -165,9 +229,36 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
     push(active, child_level(I{}, exit0));
 
     while (L::bits(active)) {
+      // A lane outside the grid (its cube's coordinates beyond the level's
+      // 2^lv per axis) can only come from a fault of this walk; it would
+      // read outside the arrays. It retires as kPacketFault (the caller
+      // counts it and asks trace()) instead of crashing.
+      const U top = (U)((I{} + 1) << lv);
+      const I fault = active & (((U)c[0] >= top) | ((U)c[1] >= top) | ((U)c[2] >= top));
+      if (L::bits(fault)) [[unlikely]] {
+        for (uint32_t b = L::bits(fault); b != 0; b &= b - 1)
+          status[base + std::countr_zero(b)] = kPacketFault;
+        active &= ~fault;
+        if (!L::bits(active)) break;
+      }
       // ---- test the lanes' current children ----
       I occ{};
       U cellv{}, color{};  // the cell; an LOD stop's color (pyramid nodes)
+      // The cell box and the clearance of a node of level B - 3 and the
+      // clearance of a cell are gathered with the node and the cell, before
+      // it is known whether they are needed (an occupied node, an empty node
+      // or cell): the loop waits on gathers, and these no longer wait on
+      // the first. clr: the clearance of the lanes' child (0: none), empty:
+      // the lanes whose child is an empty cell or node of level B - 3.
+      U box{};
+      I clr{}, empty{};
+      // The byte at index idx of a clearance array in the lanes of m (a
+      // 4-byte gather from at most the array's last 4 bytes).
+      auto clearance = [&](const uint8_t* base, int32_t last, I idx, I m) {
+        const I at = idx < last ? idx : I{} + last;
+        const U word = L::gather_bytes(base, at, m, U{});
+        return m ? (I)((word >> (U)((idx - at) * 8)) & 0xFFu) : clr;
+      };
       const I is_node = active & (lv < BL);
       for (uint32_t mn = L::bits(is_node); mn != 0;) {
         // One masked gather per pyramid level present in the lanes.
@@ -179,12 +270,19 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
         const U g = L::gather(w.nodes[p], idx * 2, in, U{});
         occ |= in & (g != 0);
         if (w.lod_on) color = L::gather(w.nodes[p], idx * 2 + 1, in & (g != 0), color);
+        if (level == BL - 3) {  // World::cell_box and node_clearance share this index
+          box = L::gather(w.cell_box, idx, in, U{});
+          clr = clearance(w.node_clearance, w.node_clearance_last, idx * 8 + octant, in);
+          empty |= in & (g == 0);
+        }
       }
       const I is_cell = active & (lv == BL);
       const I mc = is_cell & ((U)c[1] < w.dims[1]);
       if (L::bits(mc)) {
         const I idx = c[0] + int32_t(w.dims[0]) * (c[1] + int32_t(w.dims[1]) * c[2]);
         cellv = L::gather(w.cells, idx, mc, U{});
+        clr = clearance(w.clearance, w.clearance_last, idx, mc);
+        empty |= mc & (cellv == 0u);
         occ |= mc & (cellv != 0);
       }
       // Inside a brick: a voxel's bit, or (LOD) a 2^s block's bits, s =
@@ -246,9 +344,6 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
       // node of level B - kCellBoxLevel: a lane missing the box steps on.
       const I boxed = occ & (lv == BL - 3) & (nl == BL);
       if (L::bits(boxed)) {
-        const I idx =
-            c[0] + int32_t(w.dims[0] >> 3) * (c[1] + int32_t((w.dims[1] + 7) >> 3) * c[2]);
-        const U box = L::gather(w.cell_box, idx, boxed, U{});
         F t0 = t, te = t1;
         for (int a = 0; a < 3; ++a) {
           const I cell0 = c[a] << 3;
@@ -262,17 +357,33 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
         occ &= ~(boxed & ~(t0 <= te));
       }
       brick = is_cell & occ ? (I)(cellv & 0xFFFFFFu) : brick;
+      // visit_voxels' brick-slice test: a lane whose ray meets no solid
+      // voxel in the brick it would descend into steps on instead.
+      I slices{};
+      uint32_t vox = 0;
+      if (w.slice_skip) {
+        uint32_t skip = 0;
+        vox = L::bits(occ & is_cell & (nl == LL));
+        for (uint32_t b = vox; b != 0; b &= b - 1) {
+          const int l = std::countr_zero(b);
+          const int pc[3] = {c[0][l], c[1][l], c[2][l]};
+          const float te = std::min(cexit[l], t1[l]);
+          slices[l] = int32_t(brick_slices(l, uint32_t(brick[l]), pc, t[l], te));
+          if (slices[l] == 0) skip |= 1u << l;
+        }
+        vox &= ~skip;
+        occ &= ((I{} + int32_t(skip)) >> lane & 1) - 1;  // 0 in the skipped lanes
+      }
       I adv = active & ~occ;
       F side = pow2(LL - lv);
       // visit_cells' jump: an empty cell of clearance k > 1 leaves the
-      // cube of radius k - 1 around it (clipped to the parent) in one step.
+      // cube of radius k - 1 around it (clipped to the parent) in one step;
+      // the same for an empty node of level B - 3 with its node clearance
+      // (the scalar walk steps node by node; the crossing reached is the
+      // same, Walker::jump's argument).
       I leave_jump{};
-      const I empty = mc & (cellv == 0u);
       if (L::bits(empty)) {
-        const I idx = c[0] + int32_t(w.dims[0]) * (c[1] + int32_t(w.dims[1]) * c[2]);
-        const I at = idx < w.clearance_last ? idx : I{} + w.clearance_last;
-        const U word = L::gather_bytes(w.clearance, at, empty, U{});
-        const I radius = (I)((word >> (U)((idx - at) * 8)) & 0xFFu) - 1;
+        const I radius = clr - 1;
         const I jump = empty & (radius > 0);
         if (L::bits(jump)) {
           F tn[3];
@@ -317,6 +428,39 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
         }
       }
       if (L::bits(occ)) push(occ, nl);
+      // visit_voxels' slice entry: the voxels before the first slice ahead
+      // that may hold a hit are empty, so the lane goes straight to that
+      // slice's entry plane, or leaves the brick when there is none or the
+      // ray leaves the brick (or ends) before it. Walker::enter_slice in
+      // lanes: the state the voxel DDA reaches when it crosses into z slice
+      // cz, every x and y crossing at or before that plane's t taken first.
+      if (vox != 0) {
+        const I vm = ((I{} + int32_t(vox)) >> lane & 1) * -1;
+        const I z0 = c[2] & 7;
+        const I ahead = up[2] != 0 ? slices >> z0 << z0 : slices & (((I{} + 2) << z0) - 1);
+        // The first slice ahead: the lowest set bit upwards, the highest downwards.
+        const I k = high_bit(up[2] != 0 ? ahead & -ahead : ahead);
+        I fail = vm & (ahead == 0);
+        I go = vm & ~fail & (k != z0);
+        const I cz = lo[2] + k;
+        const F tz = (to_f(cz + 1 - up[2]) - o[2]) * inv[2];
+        fail |= go & (tz > t1);
+        go &= ~(tz > t1);
+        for (int a = 0; a < 2; ++a)
+          for (I m = go;;) {
+            m &= n[a] <= tz;
+            if (!L::bits(m)) break;
+            c[a] = m ? c[a] + stp[a] : c[a];
+            const I out = m & ((U)(c[a] - lo[a]) > (U)span[a]);
+            fail |= out, go &= ~out, m &= ~out;
+            n[a] = m ? (to_f(c[a] + up[a]) - o[a]) * inv[a] : n[a];
+          }
+        c[2] = go ? cz : c[2];
+        n[2] = go ? (to_f(cz + up[2]) - o[2]) * inv[2] : n[2];
+        t = go ? tz : t;
+        axis = go ? I{} + 2 : axis;
+        leave_jump |= fail;
+      }
       // ---- advance (and pop) the other lanes ----
       while (L::bits(adv | leave_jump)) {
         const I x_le_y = n[0] <= n[1];
@@ -338,7 +482,7 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
         leave_jump = I{};
         for (int a = 0; a < 3; ++a) {
           const I m = ok & ax[a];
-          if (L::bits(m)) n[a] = m ? exit_t(a, c[a], side) : n[a];
+          n[a] = m ? exit_t(a, c[a], side) : n[a];  // no branch: the axis is data dependent
         }
         // Past t1, or out of the root's children: a miss.
         active &= ~(end | (leave & (chain == 1)));

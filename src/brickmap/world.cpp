@@ -265,7 +265,10 @@ World::World(const GridTransform& grid, bool normals, uint32_t height_cells)
   int k = 1;
   for (uint32_t d = n >> 1; d >= 1; d >>= 1, ++k)
     pyramid_.emplace_back(size_t(uint64_t(d) * pyramid_dim_y(k) * d));
-  if (pyramid_levels() >= kCellBoxLevel) cell_box_.assign(pyramid_[kCellBoxLevel - 1].size(), 0);
+  if (pyramid_levels() >= kCellBoxLevel) {
+    cell_box_.assign(pyramid_[kCellBoxLevel - 1].size(), 0);
+    node_clearance_.assign(pyramid_[kCellBoxLevel - 1].size() * 8, uint8_t(kMaxClearance));
+  }
 }
 
 void World::set_brick(uint64_t index, const uint64_t mask[8], const uint32_t* colors,
@@ -350,6 +353,76 @@ void World::update_occupancy(uint64_t index) {
     update_clearance(clearance_, dims_, filled ? c : none, filled ? none : c, cell_filled());
   }
   for (int q = 1; q <= pyramid_levels(); ++q) update_pyramid_node(q, i >> q, j >> q, k >> q);
+  if (pyramid_levels() >= kCellBoxLevel) {
+    std::vector<std::array<uint32_t, 3>> filled_now, emptied;
+    note_node_change(i >> kCellBoxLevel, j >> kCellBoxLevel, k >> kCellBoxLevel, &filled_now,
+                     &emptied);
+    update_node_clearance(filled_now, emptied);
+  }
+}
+
+void World::update_node_clearance(const std::vector<std::array<uint32_t, 3>>& filled_now,
+                                  const std::vector<std::array<uint32_t, 3>>& emptied) {
+  if (filled_now.empty() && emptied.empty()) return;
+  constexpr int K = kMaxClearance;
+  const std::array<uint32_t, 3> d = node_dims();
+  int lo[3] = {INT32_MAX, INT32_MAX, INT32_MAX}, hi[3] = {0, 0, 0};
+  for (const auto* list : {&filled_now, &emptied})
+    for (const auto& c : *list)
+      for (int a = 0; a < 3; ++a)
+        lo[a] = std::min(lo[a], int(c[size_t(a)])), hi[a] = std::max(hi[a], int(c[size_t(a)]));
+  const auto filled = node_filled();
+  for (int oct = 0; oct < 8; ++oct) {
+    // The largest-empty-cube recurrence: an empty node's cube is 1 + the
+    // smallest of its 7 neighbours' ahead (in the octant), so the nodes are
+    // visited from ahead to behind; only those up to K behind a change can
+    // change.
+    int from[3], to[3], step[3], s[3];
+    for (int a = 0; a < 3; ++a) {
+      s[a] = (oct >> a & 1) ? 1 : -1;
+      const int top = int(d[size_t(a)]) - 1;
+      const int b0 = s[a] > 0 ? std::max(0, lo[a] - K) : lo[a];
+      const int b1 = s[a] > 0 ? hi[a] : std::min(top, hi[a] + K);
+      from[a] = s[a] > 0 ? b1 : b0, to[a] = s[a] > 0 ? b0 : b1, step[a] = -s[a];
+    }
+    for (int z = from[2];; z += step[2]) {
+      for (int y = from[1];; y += step[1]) {
+        for (int x = from[0];; x += step[0]) {
+          int v = 0;
+          if (!filled(uint32_t(x), uint32_t(y), uint32_t(z))) {
+            int m = K;
+            for (int e = 1; e < 8; ++e) {
+              const int n[3] = {x + (e & 1) * s[0], y + (e >> 1 & 1) * s[1], z + (e >> 2) * s[2]};
+              bool inside = true;
+              for (int a = 0; a < 3; ++a) inside &= n[a] >= 0 && n[a] < int(d[size_t(a)]);
+              if (inside)
+                m = std::min(
+                    m, int(node_clearance_[size_t(pyramid_index(kCellBoxLevel, uint32_t(n[0]),
+                                                                uint32_t(n[1]), uint32_t(n[2])) *
+                                                      8 +
+                                                  uint64_t(oct))]));
+            }
+            v = std::min(K, 1 + m);
+          }
+          node_clearance_[size_t(
+              pyramid_index(kCellBoxLevel, uint32_t(x), uint32_t(y), uint32_t(z)) * 8 +
+              uint64_t(oct))] = uint8_t(v);
+          if (x == to[0]) break;
+        }
+        if (y == to[1]) break;
+      }
+      if (z == to[2]) break;
+    }
+  }
+}
+
+void World::note_node_change(uint32_t x, uint32_t y, uint32_t z,
+                             std::vector<std::array<uint32_t, 3>>* filled_now,
+                             std::vector<std::array<uint32_t, 3>>* emptied) const {
+  const uint64_t index = pyramid_index(kCellBoxLevel, x, y, z);
+  const bool filled = pyramid_node(kCellBoxLevel, index).bricks != 0;
+  if (filled != (node_clearance_[size_t(index * 8)] == 0))
+    (filled ? filled_now : emptied)->push_back({x, y, z});
 }
 
 void World::update_occupancy(const std::vector<uint64_t>& indices) {
@@ -381,6 +454,11 @@ void World::update_occupancy(const std::vector<uint64_t>& indices) {
   for (int q = 1; q <= pyramid_levels(); ++q) {
     unique_shifted(at, 1);
     for (const auto& c : at) update_pyramid_node(q, c[0], c[1], c[2]);
+    if (q != kCellBoxLevel) continue;
+    // The node clearances: the nodes that turned filled or empty, at once.
+    std::vector<std::array<uint32_t, 3>> nodes_filled, nodes_emptied;
+    for (const auto& c : at) note_node_change(c[0], c[1], c[2], &nodes_filled, &nodes_emptied);
+    update_node_clearance(nodes_filled, nodes_emptied);
   }
 }
 
@@ -492,7 +570,7 @@ WorldStats World::stats() const {
     if (cell_state(c) == kStateResident) s.voxels += uint64_t(brick_popcount(pool_[cell_brick(c)]));
   s.grid_bytes = uint64_t(cells_.size()) * 4;
   s.occupancy_bytes = uint64_t(occupancy_.size()) * 8;
-  s.clearance_bytes = uint64_t(clearance_.size());
+  s.clearance_bytes = uint64_t(clearance_.size() + node_clearance_.size());
   for (const std::vector<PyramidNode>& level : pyramid_)
     s.pyramid_bytes += uint64_t(level.size()) * sizeof(PyramidNode);
   s.pyramid_bytes += uint64_t(cell_box_.size()) * sizeof(uint32_t);
