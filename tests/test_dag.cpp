@@ -322,7 +322,7 @@ TEST(DagTraversal, StructureMatchesEsvoStructureAndOccluded) {
     EXPECT_EQ(he.position.z, hd.position.z);
     // The entered face is the one the hit point lies on (origin outside the cube).
     if (hd.t > 0) {
-      const int axis = int(hd.child >> 1);
+      const int axis = int((hd.child & 7) >> 1);  // above it: the voxel count
       const float side = hd.voxel_size;
       const float rel = (hd.position[axis] - b.lo[axis]) / side;
       const float frac = rel - std::floor(rel + 0.5f);

@@ -12,13 +12,16 @@
 #include <algorithm>
 #include <array>
 #include <bit>
+#include <cstring>
 #include <map>
 #include <memory>
 #include <random>
 #include <vector>
 
+#include "dag/octree_nodes.hpp"
 #include "support/cli_runner.hpp"
 #include "support/esvo_testing.hpp"
+#include "support/packet_testing.hpp"
 #include "voxcast/dag.hpp"
 #include "voxcast/dag_format.hpp"
 #include "voxcast/error.hpp"
@@ -345,6 +348,122 @@ TEST(DagLodAttributes, CoarseHitsShowTheMeanOfTheirVoxels) {
       EXPECT_GT(wide_ranges, 20);  // ranges that use the prefix table
     }
   }
+}
+
+// The voxel count a hit names (DagNodes::name_hit: SurfaceHit::child above
+// the entered face, from the prefix entries next to the hit's pointer) is
+// cube_range's at every level, on the scalar and the packet paths, and the
+// attributes shown from it are cube_range's means (or the mean table's), the
+// same floats, raw and compressed.
+TEST(DagLodAttributes, HitCountsAreCubeRangeCounts) {
+  using Nodes = ::voxcast::detail::DagNodes;
+  TraceContext ctx;
+  for (int L : {5, 7}) {
+    for (const bool compressed : {false, true}) {
+      SCOPED_TRACE("levels " + std::to_string(L) + (compressed ? " compressed" : " raw"));
+      const VoxelSet set =
+          L == 7 ? testing::make_sphere_shell(L) : testing::make_random_voxels(L, 9000, 5 + L);
+      auto d = std::make_shared<SparseVoxelDag>(dag::build_dag(set));
+      if (compressed) d->compress_attributes();
+      const dag::DagStructure structure(d);
+      const GridTransform& g = d->grid;
+      const float side = float(g.side());
+      std::mt19937_64 rng(17 + L);
+      std::uniform_real_distribution<double> u(0, 1);
+      std::vector<int> per_level(size_t(L + 1), 0);
+      for (int k = 0; k <= L; ++k) {
+        std::vector<Ray> rays(400);
+        for (size_t i = 0; i < rays.size(); ++i) {
+          const Vec3 target = g.origin + Vec3{float(u(rng)), float(u(rng)), float(u(rng))} * side;
+          rays[i].origin =
+              g.origin + Vec3{float(3 * u(rng) - 1), float(3 * u(rng) - 1), 2.5f} * side;
+          if (i % 3 == 1) std::swap(rays[i].origin.x, rays[i].origin.z);
+          rays[i].dir = normalize(target - rays[i].origin);
+        }
+        LodFootprint lod;
+        lod.size_per_t = float(side / float(1 << L) * std::ldexp(1.0, k) * 0.3);
+        std::vector<SurfaceHit> want(rays.size());
+        std::vector<uint8_t> found(rays.size());
+        for (size_t i = 0; i < rays.size(); ++i) {
+          found[i] = structure.trace(rays[i], lod, ctx, &want[i]);
+          if (!found[i]) continue;
+          const SurfaceHit& hit = want[i];
+          ++per_level[size_t(hit.level)];
+          const uint64_t count = Nodes::child_count(hit.child);
+          if (hit.level == L) {
+            ASSERT_EQ(count, 1u);
+            continue;
+          }
+          const dag::VoxelRange range = d->cube_range(hit.voxel_ref, hit.level);
+          ASSERT_EQ(range.first, hit.voxel_ref);
+          ASSERT_EQ(count, range.count) << "level " << hit.level;
+          Color want_c, got_c;
+          Vec3 want_n, got_n;
+          if (const SparseVoxelDag::CubeMean* m = d->cached_mean(hit.voxel_ref, hit.level)) {
+            want_c = m->color, want_n = m->normal;
+          } else {
+            d->mean_attributes(range, &want_c, &want_n);
+          }
+          structure.attributes(hit, ctx, &got_c, &got_n);
+          ASSERT_EQ(std::memcmp(&got_c, &want_c, sizeof got_c), 0) << "level " << hit.level;
+          ASSERT_EQ(std::memcmp(&got_n, &want_n, sizeof got_n), 0) << "level " << hit.level;
+        }
+        for (const Isa isa : testing::packet_isas()) {
+          std::vector<SurfaceHit> got(rays.size());
+          std::vector<uint8_t> got_found(rays.size());
+          structure.packets()->trace_packets(rays.data(), rays.size(), lod, ctx, got.data(),
+                                             got_found.data(), isa);
+          for (size_t i = 0; i < rays.size(); ++i) {
+            ASSERT_EQ(got_found[i], found[i]);
+            if (found[i]) {
+              ASSERT_TRUE(testing::same_hit(got[i], want[i])) << "ray " << i;
+            }
+          }
+        }
+      }
+      for (int l = 1; l <= L; ++l) EXPECT_GT(per_level[size_t(l)], 10) << "level " << l;
+    }
+  }
+}
+
+// The count saturates to 0 (cube_range then answers) past 2^29 - 1 voxels;
+// below, with 64-bit prefix entries at the top levels, it is cube_range's.
+TEST(DagIndex64, HitCountsWithWideEntries) {
+  using Nodes = ::voxcast::detail::DagNodes;
+  auto d = std::make_shared<SparseVoxelDag>(box_dag(kBig));
+  ASSERT_GT(d->wide_words, 0u);
+  const dag::DagStructure structure(d);
+  const GridTransform& g = d->grid;
+  const float side = float(g.side());
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> u(0, 1);
+  int counted = 0, saturated = 0;
+  TraceContext ctx;
+  for (int i = 0; i < 600; ++i) {
+    const Vec3 target =
+        g.origin + Vec3{float(u(rng) * kBig.w[0] / 4096.0), float(u(rng) * kBig.w[1] / 4096.0),
+                        float(u(rng) * kBig.w[2] / 4096.0)} *
+                       side;
+    Ray ray;
+    ray.origin = g.origin + Vec3{float(u(rng)), float(u(rng)), 2.5f} * side;
+    ray.dir = normalize(target - ray.origin);
+    LodFootprint lod;
+    lod.size_at_origin = side * float(std::ldexp(1.0, -int(1 + rng() % 10)));
+    SurfaceHit hit;
+    ASSERT_TRUE(structure.trace(ray, lod, ctx, &hit));
+    if (hit.level >= kBig.levels) continue;
+    const dag::VoxelRange range = d->cube_range(hit.voxel_ref, hit.level);
+    const uint64_t count = Nodes::child_count(hit.child);
+    if (range.count > Nodes::kHitCountMax) {
+      EXPECT_EQ(count, 0u);
+      ++saturated;
+    } else {
+      EXPECT_EQ(count, range.count) << "level " << hit.level;
+      ++counted;
+    }
+  }
+  EXPECT_GT(counted, 100);
+  EXPECT_GT(saturated, 20);
 }
 
 TEST(DagLodAttributes, RangesOfEveryLevelTileTheVoxels) {

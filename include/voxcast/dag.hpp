@@ -337,7 +337,7 @@ class DagStructure final : public OctreeStructure<DagStructure> {
   // bounds, surface, trace, transmittance, beam_start: the octree family's
   // (octree_structure.hpp), the ESVO's caster and beam walk over the DAG's
   // nodes (svdag §4). SurfaceHit::voxel_ref = Morton rank of the hit voxel
-  // (its first leaf for LOD hits), child = entered face (see CastResult::face).
+  // (its first leaf for LOD hits), child = entered face | voxel count << 3 (name_hit).
   /// The hit voxel's attributes; while ctx.counting, adds the bytes read
   /// (raw: the 32-bit color and normal words; compressed: the 24-byte block).
   void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,

@@ -47,7 +47,7 @@
 //   uint32_t children(desc, node, s, cnt), child(desc, first, c, s, cnt)
 //                              the beam walk's split of descend: children()
 //                              once per node, child() per child descended into
-//   static name_hit(cast, hit) SurfaceHit::voxel_ref and child of a hit
+//   static name_hit(source, cast, hit)  SurfaceHit::voxel_ref and child of a hit
 // `cnt` is RayCounters in the counting instantiation and NoCounters otherwise;
 // policies count through count_add(), which compiles to nothing for the latter.
 #include <bit>
@@ -624,7 +624,7 @@ struct OctreeWorld {
       if (r.stop == CastStop::kNotResident) P::report(source, r, ctx);
     }
     frame.hit_to_world(p, d, r.t, r.pos, r.scale, hit);
-    P::name_hit(r, hit);
+    P::name_hit(source, r, hit);
     return true;
   }
 

@@ -535,7 +535,7 @@ void packet_hit(const OctreeWorld<P>& world, const P& nodes, const PacketQueue& 
   if constexpr (!std::is_same_v<typename P::Index, NoIndex>)
     c.index = payload_at(nodes, c.pos, c.scale);
   frame.hit_to_world(p, d0, c.t, c.pos, c.scale, hit);
-  P::name_hit(c, hit);
+  P::name_hit(world.source, c, hit);
 }
 
 /// The OctreeWorld::trace answers for rays[0, n) (world space),

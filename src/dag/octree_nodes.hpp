@@ -112,11 +112,40 @@ struct DagNodes {
     return index + (w < wide_words ? prefix_wide[w] : prefix[w]);
   }
 
+  /// Leaf voxels in hit cube c of `node` at `scale` (the loop's parent and
+  /// slot, as hit_index takes them): one voxel; the bits of sub-block c's
+  /// byte; or, below a header, the prefix entry after child c's pointer (the
+  /// next pointer's, or after the last one the node's own count) less its own:
+  /// words next to those hit_index read, so a LOD hit needs no second descent
+  /// (SparseVoxelDag::cube_range) to know its cube.
+  static uint64_t hit_count(const Source& s, uint32_t node, int c, int scale) {
+    const int leaf_scale = esvo::kMaxScale - s.levels();
+    if (scale == leaf_scale) return 1;
+    if (scale == leaf_scale + 1) {
+      const uint64_t m = uint64_t(s.words[node]) | uint64_t(s.words[node + 1]) << 32;
+      return uint64_t(std::popcount(dag::layout::LeafMaskBytes::get(m, unsigned(c))));
+    }
+    const uint32_t mask = dag::layout::ChildMask::get(s.words[node]);
+    const uint32_t j = below(mask, c), w = node + 1 + j;
+    const uint64_t next =
+        int(j) + 1 < std::popcount(mask) ? s.prefix_entry(w + 1) : s.prefix_entry(node);
+    return next - s.prefix_entry(w);
+  }
+
+  /// SurfaceHit::child of a DAG hit: the entered face (bits 2..0, dag.hpp
+  /// CastResult::face) and the hit cube's leaf voxel count above it, 0 where
+  /// it does not fit (the count is then cube_range's).
+  static constexpr int kHitCountShift = 3;
+  static constexpr uint64_t kHitCountMax = (uint64_t(1) << (32 - kHitCountShift)) - 1;
+  static uint32_t child_face(uint32_t child) { return child & ((1u << kHitCountShift) - 1); }
+  static uint64_t child_count(uint32_t child) { return child >> kHitCountShift; }
+
   /// SurfaceHit naming: voxel_ref = Morton rank of the hit cube's first leaf
-  /// voxel, child = the entered face (dag.hpp).
-  static void name_hit(const OctreeCast<Index>& r, SurfaceHit* hit) {
+  /// voxel, child = the entered face | the cube's voxel count (above).
+  static void name_hit(const Source& s, const OctreeCast<Index>& r, SurfaceHit* hit) {
     hit->voxel_ref = r.index;
-    hit->child = uint32_t(r.face);
+    const uint64_t n = hit_count(s, r.node, r.child, r.scale);
+    hit->child = uint32_t(r.face) | uint32_t(n <= kHitCountMax ? n : 0) << kHitCountShift;
   }
 
   const uint32_t* words;

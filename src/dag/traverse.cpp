@@ -68,12 +68,19 @@ void DagStructure::attributes(const SurfaceHit& hit, TraceContext& ctx, Color* c
     // A coarse (LOD) hit shows the mean of all its leaf voxels (dag.hpp),
     // as an ESVO parent shows its children's average (esvo §5.4).
     // Cubes of more than kCubeMeanMin voxels: one lookup in the mean table.
+    // The others: the cube's voxels are the hit's first voxel and the count
+    // the traversal named (Nodes::name_hit), or cube_range's where it has none.
     if (hit.level < dag_->levels() && hit.voxel_ref < dag_->leaf_voxels) {
-      if (const SparseVoxelDag::CubeMean* m = dag_->cached_mean(hit.voxel_ref, hit.level)) {
-        *color = m->color, *normal = m->normal;
-        return;
+      const uint64_t count = Nodes::child_count(hit.child);
+      if (count == 0 || count > SparseVoxelDag::kCubeMeanMin) {
+        if (const SparseVoxelDag::CubeMean* m = dag_->cached_mean(hit.voxel_ref, hit.level)) {
+          *color = m->color, *normal = m->normal;
+          return;
+        }
       }
-      dag_->mean_attributes(dag_->cube_range(hit.voxel_ref, hit.level), color, normal);
+      dag_->mean_attributes(count != 0 ? VoxelRange{hit.voxel_ref, count}
+                                       : dag_->cube_range(hit.voxel_ref, hit.level),
+                            color, normal);
     } else {
       dag_->voxel_attributes(hit.voxel_ref, color, normal);
     }
@@ -82,8 +89,9 @@ void DagStructure::attributes(const SurfaceHit& hit, TraceContext& ctx, Color* c
   // Geometry-only DAG: gray, normal of the entered cube face.
   *color = {0.5f, 0.5f, 0.5f, 1.f};
   Vec3 n{0, 0, 0};
-  const int axis = int(hit.child >> 1) % 3;
-  n[axis] = (hit.child & 1) ? -1.f : 1.f;
+  const uint32_t face = Nodes::child_face(hit.child);
+  const int axis = int(face >> 1) % 3;
+  n[axis] = (face & 1) ? -1.f : 1.f;
   *normal = n;
 }
 

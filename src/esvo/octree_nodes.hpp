@@ -83,7 +83,7 @@ struct EsvoNodes {
 
   /// SurfaceHit naming: voxel_ref = the parent's slot, child = the slot in it
   /// (what EsvoOctree::attributes looks up).
-  static void name_hit(const OctreeCast<Index>& r, SurfaceHit* hit) {
+  static void name_hit(const Source&, const OctreeCast<Index>& r, SurfaceHit* hit) {
     hit->voxel_ref = r.node;
     hit->child = uint32_t(r.child);
   }

@@ -142,7 +142,7 @@ struct StreamedEsvoNodes {
   uint32_t child(const Desc& d, uint32_t node, int c, int, C&) const {
     return link(table, d, node, c);
   }
-  static void name_hit(const OctreeCast<Index>& r, SurfaceHit* hit) {
+  static void name_hit(const Source&, const OctreeCast<Index>& r, SurfaceHit* hit) {
     hit->voxel_ref = r.node;
     hit->child = uint32_t(r.child);
   }
