@@ -160,9 +160,10 @@ inline void trilinear(const PoolVoxel* b, const float u[3], float scale, float a
   trilinear_at(b + stored_index(i0[0], i0[1], i0[2]), f, scale, acc);
 }
 
-inline void trilinear_at(const PoolVoxel* v, const float f[3], float scale, float acc[4]) {
-  constexpr size_t kRow = kBrickStored, kSlice = size_t(kBrickStored) * kBrickStored;
 #if defined(__AVX2__) && defined(__FMA__) && defined(__F16C__)
+/// trilinear_at()'s result in a register (what it stores into acc).
+inline __m128 trilinear_v(const PoolVoxel* v, const float f[3], float scale) {
+  constexpr size_t kRow = kBrickStored, kSlice = size_t(kBrickStored) * kBrickStored;
   auto row = [v](size_t at) {
     return _mm256_cvtph_ps(_mm_loadu_si128(reinterpret_cast<const __m128i*>(v + at)));
   };
@@ -173,9 +174,15 @@ inline void trilinear_at(const PoolVoxel* v, const float f[3], float scale, floa
   const __m256 y1 = _mm256_fmadd_ps(fy, _mm256_sub_ps(r11, r01), r01);
   const __m256 z = _mm256_fmadd_ps(fz, _mm256_sub_ps(y1, y0), y0);
   const __m128 x0 = _mm256_castps256_ps128(z), x1 = _mm256_extractf128_ps(z, 1);
-  _mm_storeu_ps(
-      acc, _mm_mul_ps(_mm_fmadd_ps(_mm_set1_ps(f[0]), _mm_sub_ps(x1, x0), x0), _mm_set1_ps(scale)));
+  return _mm_mul_ps(_mm_fmadd_ps(_mm_set1_ps(f[0]), _mm_sub_ps(x1, x0), x0), _mm_set1_ps(scale));
+}
+#endif
+
+inline void trilinear_at(const PoolVoxel* v, const float f[3], float scale, float acc[4]) {
+#if defined(__AVX2__) && defined(__FMA__) && defined(__F16C__)
+  _mm_storeu_ps(acc, trilinear_v(v, f, scale));
 #else
+  constexpr size_t kRow = kBrickStored, kSlice = size_t(kBrickStored) * kBrickStored;
   const PoolVoxel* c[8] = {v,          v + 1,          v + kRow,          v + kRow + 1,
                            v + kSlice, v + kSlice + 1, v + kRow + kSlice, v + kRow + kSlice + 1};
   for (int ch = 0; ch < 4; ++ch) {
@@ -204,15 +211,22 @@ inline VolumeSample unpremultiply(const float acc[4], float density_scale) {
 /// unpremultiply() written into *out: with AVX2 the color as one 128-bit
 /// multiply and store (the same products lane by lane) instead of the
 /// scalar fields GCC packed through general registers.
-inline void unpremultiply_into(const float acc[4], float density_scale, VolumeSample* out) {
 #if defined(__AVX2__)
+inline void unpremultiply_into(__m128 acc, float density_scale, VolumeSample* out) {
   static_assert(offsetof(VolumeSample, color) == 4 && sizeof(Color) == 16);
-  out->density = acc[0] * density_scale;
+  const float a0 = _mm_cvtss_f32(acc);
+  out->density = a0 * density_scale;
   __m128 c = _mm_setzero_ps();
-  if (acc[0] > 0.f) c = _mm_mul_ps(_mm_loadu_ps(acc), _mm_set1_ps(1.f / acc[0]));
+  if (a0 > 0.f) c = _mm_mul_ps(acc, _mm_set1_ps(1.f / a0));
   // (acc1, acc2, acc3) * inv, then alpha 1.
   c = _mm_blend_ps(_mm_shuffle_ps(c, c, _MM_SHUFFLE(0, 3, 2, 1)), _mm_set1_ps(1.f), 8);
   _mm_storeu_ps(&out->color.r, c);
+}
+#endif
+
+inline void unpremultiply_into(const float acc[4], float density_scale, VolumeSample* out) {
+#if defined(__AVX2__)
+  unpremultiply_into(_mm_loadu_ps(acc), density_scale, out);
 #else
   *out = unpremultiply(acc, density_scale);
 #endif
@@ -814,11 +828,39 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
   for (int k0 = 0; k0 < n; k0 += kMaxPoints) {
     const int m = std::min(kMaxPoints, n - k0);
     bool any_coarse = false, any_fine = false;
+#if defined(__AVX2__)
+    {
+      // Eight points per step: std::clamp's max then min lane by lane
+      // (max(lo, v) is lo > v ? lo : v, min(hi, v) is hi < v ? hi : v:
+      // std::max(v, lo) and std::min(v, hi)), the same weights as the
+      // scalar loop below; the lanes past m only pad w.
+      const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.f),
+                   top = _mm256_set1_ps(max_level), below = _mm256_set1_ps(float(L - 1));
+      const __m256i lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+      __m256 coarse_lanes = zero, fine_lanes = zero;
+      for (int k = 0; k < m; k += 8) {
+        const __m256i live = _mm256_cmpgt_epi32(_mm256_set1_epi32(m - k), lanes);
+        const __m256 lv =
+            _mm256_min_ps(top, _mm256_max_ps(zero, _mm256_maskload_ps(level + k0 + k, live)));
+        const __m256 wk =
+            node != 0 ? _mm256_min_ps(one, _mm256_max_ps(zero, _mm256_sub_ps(lv, below))) : one;
+        _mm256_storeu_ps(w + k, wk);
+        const __m256 on = _mm256_castsi256_ps(live);
+        coarse_lanes =
+            _mm256_or_ps(coarse_lanes, _mm256_and_ps(on, _mm256_cmp_ps(wk, one, _CMP_LT_OQ)));
+        fine_lanes =
+            _mm256_or_ps(fine_lanes, _mm256_and_ps(on, _mm256_cmp_ps(wk, zero, _CMP_GT_OQ)));
+      }
+      any_coarse = _mm256_movemask_ps(coarse_lanes) != 0;
+      any_fine = _mm256_movemask_ps(fine_lanes) != 0;
+    }
+#else
     for (int k = 0; k < m; ++k) {
       const float lv = std::clamp(level[k0 + k], 0.f, max_level);
       w[k] = node != 0 ? std::clamp(lv - float(L - 1), 0.f, 1.f) : 1.f;
       any_coarse |= w[k]<1.f, any_fine |= w[k]> 0.f;
     }
+#endif
     Lookup fine, coarse;
     if (any_coarse) {
       const uint32_t parent = tile_parent_[node >> 3];
@@ -839,6 +881,29 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
     // lookup waiting for memory; issued together the misses overlap.
     prefetch(fine, fine_cells, m);
     prefetch(coarse, coarse_cells, m);
+#if defined(__AVX2__) && defined(__FMA__) && defined(__F16C__)
+    // The same lookups and blend in registers: lookup()'s lanes, and
+    // acc + w (a1 - acc) unfused, as the loop below.
+    auto lookup_v = [](const Lookup& lk, const Cells& c, int k) {
+      if (lk.brick == nullptr) return _mm_loadu_ps(lk.value);
+      const float f[3] = {c.f[0][k], c.f[1][k], c.f[2][k]};
+      return trilinear_v(lk.brick + c.at[k], f, lk.scale);
+    };
+    for (int k = 0; k < m; ++k) {
+      __m128 acc;
+      if (w[k] == 1.f) {
+        acc = lookup_v(fine, fine_cells, k);
+      } else if (w[k] == 0.f) {
+        acc = lookup_v(coarse, coarse_cells, k);
+      } else {
+        const __m128 a1 = lookup_v(fine, fine_cells, k);
+        acc = lookup_v(coarse, coarse_cells, k);
+        acc = _mm_add_ps(acc, _mm_mul_ps(_mm_set1_ps(w[k]), _mm_sub_ps(a1, acc)));
+      }
+      unpremultiply_into(acc, inv_size_, &out[k0 + k]);
+    }
+    (void)lookup;
+#else
     for (int k = 0; k < m; ++k) {
       float acc[4];
       if (w[k] == 1.f) {
@@ -853,6 +918,7 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
       }
       unpremultiply_into(acc, inv_size_, &out[k0 + k]);
     }
+#endif
   }
 }
 
