@@ -109,6 +109,12 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
     const F sw = w.voxel_world * pow2(LL - level);
     return (I)(sw <= w.lod_size0 + w.lod_per_t * exit);
   };
+  // The color of the pyramid node (level, c) (PyramidNode's second word).
+  auto node_color = [&](int level, int32_t x, int32_t y, int32_t z) {
+    const int p = BL - level;
+    const int32_t idx = x + int32_t(w.node_dim[p]) * (y + int32_t(w.node_dim_y[p]) * z);
+    return w.nodes[p][idx * 2 + 1];
+  };
   for (int base = 0; base < q.count; base += N) {
     I active = lane < (q.count - base);
     F o[3], d[3], inv[3], slack[3];
@@ -243,7 +249,7 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
       }
       // ---- test the lanes' current children ----
       I occ{};
-      U cellv{}, color{};  // the cell; an LOD stop's color (pyramid nodes)
+      U cellv{};  // the cell
       // The cell box and the clearance of a node of level B - 3 and the
       // clearance of a cell are gathered with the node and the cell, before
       // it is known whether they are needed (an occupied node, an empty node
@@ -269,7 +275,6 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
         const I idx = c[0] + int32_t(w.node_dim[p]) * (c[1] + int32_t(w.node_dim_y[p]) * c[2]);
         const U g = L::gather(w.nodes[p], idx * 2, in, U{});
         occ |= in & (g != 0);
-        if (w.lod_on) color = L::gather(w.nodes[p], idx * 2 + 1, in & (g != 0), color);
         if (level == BL - 3) {  // World::cell_box and node_clearance share this index
           box = L::gather(w.cell_box, idx, in, U{});
           clr = clearance(w.node_clearance, w.node_clearance_last, idx * 8 + octant, in);
@@ -325,8 +330,10 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
           uint64_t ref;
           if (lv[l] == LL)
             ref = uint64_t(uint32_t(brick[l])) << 9 | uint32_t(bit[l]);
+          else if (lv[l] < BL)  // an LOD stop at a node: its color, read here (once per ray)
+            ref = uint64_t(1) << 63 | node_color(lv[l], c[0][l], c[1][l], c[2][l]);
           else
-            ref = uint64_t(1) << 63 | (lv[l] < BL ? color[l] : lodc[l]);
+            ref = uint64_t(1) << 63 | lodc[l];
           status[base + l] = kPacketHit;
           out[base + l] = {t[l], ax * 2 + up[ax][l], lv[l], {c[0][l], c[1][l], c[2][l]}, ref};
         }
