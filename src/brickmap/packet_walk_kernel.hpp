@@ -75,6 +75,21 @@ struct WalkLanes : ::voxcast::detail::Lanes<N> {
     else
       return (U)_mm256_srlv_epi32((__m256i)v, (__m256i)n);
   }
+  /// traverse.cpp's argmin3 in lanes: the nearest of three exit plane t
+  /// with its tie break (x, then y, then z), as the axis masks, the t and
+  /// the axis index. One place for the rule the jump and the advance share.
+  struct Nearest {
+    I on[3];
+    F t;
+    I axis;
+  };
+  [[gnu::always_inline]] static Nearest nearest(const F v[3]) {
+    const I x_le_y = v[0] <= v[1];
+    const I a0 = x_le_y & (v[0] <= v[2]);
+    const I a1 = ~x_le_y & (v[1] <= v[2]);
+    return {
+        {a0, a1, ~(a0 | a1)}, a0 ? v[0] : (a1 ? v[1] : v[2]), a0 ? I{} : (a1 ? I{} + 1 : I{} + 2)};
+  }
   // floor (kMode _MM_FROUND_TO_NEG_INF) or ceil (_MM_FROUND_TO_POS_INF).
   template <int kMode>
   static F round(F x) {
@@ -401,12 +416,10 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
             tc[a] = hi < mx ? hi : mx;
             tn[a] = exit_t(a, tc[a], side);
           }
-          const I x_le_y = tn[0] <= tn[1];
-          const I a0 = x_le_y & (tn[0] <= tn[2]);
-          const I a1 = ~x_le_y & (tn[1] <= tn[2]);
-          const I ax[3] = {a0 & jump, a1 & jump, ~(a0 | a1) & jump};
-          const F tj = a0 ? tn[0] : (a1 ? tn[1] : tn[2]);
-          const I aj = a0 ? I{} : (a1 ? I{} + 1 : I{} + 2);
+          const typename L::Nearest nj = L::nearest(tn);
+          const F tj = nj.t;
+          const I aj = nj.axis;
+          const I ax[3] = {nj.on[0] & jump, nj.on[1] & jump, nj.on[2] & jump};
           t = jump ? tj : t;
           axis = jump ? aj : axis;
           I cn[3];
@@ -470,20 +483,16 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
       }
       // ---- advance (and pop) the other lanes ----
       while (L::bits(adv | leave_jump)) {
-        const I x_le_y = n[0] <= n[1];
-        const I a0 = x_le_y & (n[0] <= n[2]);
-        const I a1 = ~x_le_y & (n[1] <= n[2]);
-        const I a2 = ~(a0 | a1);
-        const F tn = a0 ? n[0] : (a1 ? n[1] : n[2]);
-        t = adv ? tn : t;
-        axis = adv ? (a0 ? I{} : (a1 ? I{} + 1 : I{} + 2)) : axis;
-        const I ax[3] = {a0 & adv, a1 & adv, a2 & adv};
+        const typename L::Nearest na = L::nearest(n);
+        t = adv ? na.t : t;
+        axis = adv ? na.axis : axis;
+        const I ax[3] = {na.on[0] & adv, na.on[1] & adv, na.on[2] & adv};
         I leave{};
         for (int a = 0; a < 3; ++a) {
           c[a] = ax[a] ? c[a] + stp[a] : c[a];
           leave |= ax[a] & ((U)(c[a] - lo[a]) > (U)span[a]);
         }
-        const I end = adv & ~leave & (tn > t1);
+        const I end = adv & ~leave & (na.t > t1);
         const I ok = adv & ~leave & ~end;
         leave |= leave_jump;
         leave_jump = I{};
