@@ -464,6 +464,7 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
         I go = vm & ~fail & (k != z0);
         const I cz = lo[2] + k;
         const F tz = (to_f(cz + 1 - up[2]) - o[2]) * inv[2];
+        const F one = F{} + 1.f;  // voxel side: exit_t's product is exact (x * 1 = x)
         fail |= go & (tz > t1);
         go &= ~(tz > t1);
         for (int a = 0; a < 2; ++a)
@@ -473,10 +474,10 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
             c[a] = m ? c[a] + stp[a] : c[a];
             const I out = m & ((U)(c[a] - lo[a]) > (U)span[a]);
             fail |= out, go &= ~out, m &= ~out;
-            n[a] = m ? (to_f(c[a] + up[a]) - o[a]) * inv[a] : n[a];
+            n[a] = m ? exit_t(a, c[a], one) : n[a];
           }
         c[2] = go ? cz : c[2];
-        n[2] = go ? (to_f(cz + up[2]) - o[2]) * inv[2] : n[2];
+        n[2] = go ? exit_t(2, cz, one) : n[2];
         t = go ? tz : t;
         axis = go ? I{} + 2 : axis;
         leave_jump |= fail;
