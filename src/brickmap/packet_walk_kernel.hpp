@@ -193,6 +193,56 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
     F n[3] = {};
     I lv{}, chain{}, brick{};
 
+    // brick_slices for the rays of two lanes at once (16 lanes only): lanes
+    // 0-7 slice k = lane of lane la's brick, lanes 8-15 of lane lb's (la ==
+    // lb: one ray), each slice's two half words tested in one lane; the same
+    // values as brick_slices per lane. Bits 0-7: la's slices, 8-15: lb's.
+    // te: per lane, the t the brick test ends at.
+    auto brick_slices_pair = [&](int la, int lb, F te) {
+      if constexpr (N == 16) {
+        const I sel = lane < 8 ? I{} + la : I{} + lb;
+        const auto pick = [&](auto v) {
+          using V = decltype(v);
+          return (V)_mm512_maskz_permutexvar_epi32(0xFFFF, (__m512i)sel, (__m512i)v);
+        };
+        const F k = to_f(lane & 7);
+        F b3[3];  // the ray origin relative to the brick's corner
+        for (int a = 0; a < 3; ++a) b3[a] = pick(o[a]) - to_f(pick(c[a]) << 3);
+        const F sz = pick(slack[2]), iz = pick(inv[2]);
+        const F ta = (k - sz - b3[2]) * iz;
+        const F tb = (k + (1.f + sz) - b3[2]) * iz;
+        const F lo = L::max(L::min(ta, tb), pick(t)), hi = L::min(L::max(ta, tb), pick(te));
+        I first[2], last[2];
+        for (int a = 0; a < 2; ++a) {
+          const F da = pick(d[a]), sa = pick(slack[a]);
+          const F p0 = b3[a] + da * lo, p1 = b3[a] + da * hi;
+          const F f = L::template round<_MM_FROUND_TO_NEG_INF>(L::min(p0, p1) - sa);
+          const F g = L::template round<_MM_FROUND_TO_NEG_INF>(L::max(p0, p1) + sa);
+          first[a] = __builtin_convertvector(L::min(L::max(f, F{}), F{} + 7.f), I);
+          last[a] = __builtin_convertvector(L::min(L::max(g, F{}), F{} + 7.f), I);
+        }
+        const U row =
+            ((U{} + 0xFFu) << (U)first[0] & (U{} + 0xFFu) >> (U)(7 - last[0])) * 0x01010101u;
+        // Rows first..last of y in the low half word (rows 0-3) and the high
+        // one (rows 4-7); shifts of 32 or more give 0.
+        const I y0 = first[1] * 8, y1 = 24 - last[1] * 8;
+        const U rows_lo =
+            L::sllv(U{} + ~0u, y0 < 0 ? I{} : y0) & L::srlv(U{} + ~0u, y1 < 0 ? I{} : y1);
+        const I z0 = y0 - 32, z1 = y1 + 32;
+        const U rows_hi =
+            L::sllv(U{} + ~0u, z0 < 0 ? I{} : z0) & L::srlv(U{} + ~0u, z1 < 0 ? I{} : z1);
+        const __m512i wa = _mm512_loadu_si512(w.bricks + size_t(uint32_t(brick[la])) * 18);
+        const __m512i wb = _mm512_loadu_si512(w.bricks + size_t(uint32_t(brick[lb])) * 18);
+        const __m512i at = (__m512i)((lane & 8) * 2 + (lane & 7) * 2);  // 16 + 2 k: wb's
+        const U wlo = (U)_mm512_permutex2var_epi32(wa, at, wb);
+        const U whi = (U)_mm512_permutex2var_epi32(wa, (__m512i)((I)at + 1), wb);
+        const U any = (wlo & row & rows_lo) | (whi & row & rows_hi);
+        return L::bits((lo <= hi) & (any != 0u));
+      } else {
+        (void)la, (void)lb, (void)te;
+        return 0u;
+      }
+    };
     // begin() of the children at level nl of the lanes' cubes c (level lv).
     auto push = [&](I m, I nl) __attribute__((always_inline)) {
       const I ratio = nl - lv, ntop = ((I{} + 1) << nl) - 1;
@@ -386,12 +436,25 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
       if (w.slice_skip) {
         uint32_t skip = 0;
         vox = L::bits(occ & is_cell & (nl == LL));
-        for (uint32_t b = vox; b != 0; b &= b - 1) {
-          const int l = std::countr_zero(b);
-          const int pc[3] = {c[0][l], c[1][l], c[2][l]};
-          const float te = std::min(cexit[l], t1[l]);
-          slices[l] = int32_t(brick_slices(l, uint32_t(brick[l]), pc, t[l], te));
-          if (slices[l] == 0) skip |= 1u << l;
+        if constexpr (N == 16) {
+          for (uint32_t b = vox; b != 0;) {
+            const int la = std::countr_zero(b);
+            b &= b - 1;
+            const int lb = b != 0 ? std::countr_zero(b) : la;
+            b &= b - 1;
+            const uint32_t h = brick_slices_pair(la, lb, L::min(cexit, t1));
+            slices[la] = int32_t(h & 0xFFu), slices[lb] = int32_t(h >> 8);
+            if ((h & 0xFFu) == 0) skip |= 1u << la;
+            if ((h >> 8) == 0) skip |= 1u << lb;
+          }
+        } else {
+          for (uint32_t b = vox; b != 0; b &= b - 1) {
+            const int l = std::countr_zero(b);
+            const int pc[3] = {c[0][l], c[1][l], c[2][l]};
+            const float te = std::min(cexit[l], t1[l]);
+            slices[l] = int32_t(brick_slices(l, uint32_t(brick[l]), pc, t[l], te));
+            if (slices[l] == 0) skip |= 1u << l;
+          }
         }
         vox &= ~skip;
         occ &= ((I{} + int32_t(skip)) >> lane & 1) - 1;  // 0 in the skipped lanes
