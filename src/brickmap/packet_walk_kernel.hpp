@@ -27,8 +27,8 @@
 //            cube of radius k - 1 in one step (the crossings on the other
 //            axes taken in (t, axis) order, lane loops until none is left).
 //   slices   a push into a brick's voxels: visit_voxels' brick-slice test
-//            (brick_slices, the brick's 16 half-slice words in lanes, one
-//            lane's ray at a time) and slice entry (enter_slice): a lane
+//            (brick_slices: a brick's 8 slices in 8 lanes, two lanes' rays
+//            per 16-lane pass) and slice entry (enter_slice): a lane
 //            whose ray meets no solid voxel of the brick steps on, the
 //            others start at the first slice ahead that may hold a hit.
 // A not-resident cell (no LOD stop) ends the lane as kPacketScalar, a lane
@@ -143,42 +143,6 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
     // The t at which a lane leaves child cc (side sd) along axis a: the
     // plane of its far face (plane_t of traverse.cpp, the same operations).
     auto exit_t = [&](int a, I cc, F sd) { return (to_f(cc + up[a]) * sd - o[a]) * inv[a]; };
-    // brick_slices (traverse.cpp) for lane l: bit k set when z slice k of
-    // brick `bi` (brickgrid cell pc) may hold a solid voxel the ray meets
-    // between t0 and te (the same boxes and slack: a superset test). The
-    // lanes take the brick's 16 half-slice words (slice j >> 1, rows 4 (j &
-    // 1) to 4 (j & 1) + 3), all of them in one pass of 16 lanes (two of 8).
-    auto brick_slices = [&](int l, uint32_t bi, const int pc[3], float t0, float te) {
-      float b3[3];  // the ray origin relative to the brick's corner
-      for (int a = 0; a < 3; ++a) b3[a] = o[a][l] - float(pc[a] << 3);
-      uint32_t hits = 0;
-      for (int pass = 0; pass < 16 / N; ++pass) {
-        const I j = lane + pass * N;
-        const F k = to_f(j >> 1);
-        const F ta = (k - slack[2][l] - b3[2]) * inv[2][l];
-        const F tb = (k + (1.f + slack[2][l]) - b3[2]) * inv[2][l];
-        const F lo = L::max(L::min(ta, tb), F{} + t0), hi = L::min(L::max(ta, tb), F{} + te);
-        I first[2], last[2];
-        for (int a = 0; a < 2; ++a) {
-          const F p0 = b3[a] + d[a][l] * lo, p1 = b3[a] + d[a][l] * hi;
-          const F f = L::template round<_MM_FROUND_TO_NEG_INF>(L::min(p0, p1) - slack[a][l]);
-          const F g = L::template round<_MM_FROUND_TO_NEG_INF>(L::max(p0, p1) + slack[a][l]);
-          first[a] = __builtin_convertvector(L::min(L::max(f, F{}), F{} + 7.f), I);
-          last[a] = __builtin_convertvector(L::min(L::max(g, F{}), F{} + 7.f), I);
-        }
-        // Bits first..last of x in every row byte; rows first..last of y
-        // within this lane's half (shifts of 32 or more give 0).
-        const U row =
-            ((U{} + 0xFFu) << (U)first[0] & (U{} + 0xFFu) >> (U)(7 - last[0])) * 0x01010101u;
-        const I half = (j & 1) * 32, y0 = first[1] * 8 - half, y1 = half + 24 - last[1] * 8;
-        const U rows =
-            L::sllv(U{} + ~0u, y0 < 0 ? I{} : y0) & L::srlv(U{} + ~0u, y1 < 0 ? I{} : y1);
-        U words;
-        std::memcpy(&words, w.bricks + size_t(bi) * 18 + pass * N, sizeof words);
-        hits |= L::bits((lo <= hi) & ((words & row & rows) != 0u)) << (pass * N);
-      }
-      return _pext_u32(hits | hits >> 1, 0x5555u);  // a slice: either of its halves
-    };
     const F t1 = load(q.t1 + base), start_t = load(q.start_t + base);
     const F exit0 = load(q.exit + base);
     const I octant = up[0] | up[1] << 1 | up[2] << 2;  // World::node_clearance's octant
@@ -193,55 +157,70 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
     F n[3] = {};
     I lv{}, chain{}, brick{};
 
-    // brick_slices for the rays of two lanes at once (16 lanes only): lanes
-    // 0-7 slice k = lane of lane la's brick, lanes 8-15 of lane lb's (la ==
-    // lb: one ray), each slice's two half words tested in one lane; the same
-    // values as brick_slices per lane. Bits 0-7: la's slices, 8-15: lb's.
-    // te: per lane, the t the brick test ends at.
-    auto brick_slices_pair = [&](int la, int lb, F te) {
-      if constexpr (N == 16) {
-        const I sel = lane < 8 ? I{} + la : I{} + lb;
-        const auto pick = [&](auto v) {
-          using V = decltype(v);
+    // brick_slices (traverse.cpp) for the rays of lanes la and lb (16
+    // lanes; 8 lanes: la's only, lb == la): bit k (la) and bit 8 + k (lb)
+    // set when z slice k of the lane's brick may hold a solid voxel the ray
+    // meets between t and te (the same boxes and slack: a superset test).
+    // Lane j takes slice j & 7 of la's brick (j < 8) or lb's, and both
+    // half words of the slice (rows 0-3 and 4-7); the ray's values come to
+    // the lanes by permutes. One pass for two rays (one for one with 8
+    // lanes), instead of a pass per ray with a lane per half word.
+    auto brick_slices = [&](int la, int lb, F te) {
+      const I sel = lane < 8 ? I{} + la : I{} + lb;
+      const auto pick = [&](auto v) {
+        using V = decltype(v);
+        if constexpr (N == 16)
           return (V)_mm512_maskz_permutexvar_epi32(0xFFFF, (__m512i)sel, (__m512i)v);
-        };
-        const F k = to_f(lane & 7);
-        F b3[3];  // the ray origin relative to the brick's corner
-        for (int a = 0; a < 3; ++a) b3[a] = pick(o[a]) - to_f(pick(c[a]) << 3);
-        const F sz = pick(slack[2]), iz = pick(inv[2]);
-        const F ta = (k - sz - b3[2]) * iz;
-        const F tb = (k + (1.f + sz) - b3[2]) * iz;
-        const F lo = L::max(L::min(ta, tb), pick(t)), hi = L::min(L::max(ta, tb), pick(te));
-        I first[2], last[2];
-        for (int a = 0; a < 2; ++a) {
-          const F da = pick(d[a]), sa = pick(slack[a]);
-          const F p0 = b3[a] + da * lo, p1 = b3[a] + da * hi;
-          const F f = L::template round<_MM_FROUND_TO_NEG_INF>(L::min(p0, p1) - sa);
-          const F g = L::template round<_MM_FROUND_TO_NEG_INF>(L::max(p0, p1) + sa);
-          first[a] = __builtin_convertvector(L::min(L::max(f, F{}), F{} + 7.f), I);
-          last[a] = __builtin_convertvector(L::min(L::max(g, F{}), F{} + 7.f), I);
-        }
-        const U row =
-            ((U{} + 0xFFu) << (U)first[0] & (U{} + 0xFFu) >> (U)(7 - last[0])) * 0x01010101u;
-        // Rows first..last of y in the low half word (rows 0-3) and the high
-        // one (rows 4-7); shifts of 32 or more give 0.
-        const I y0 = first[1] * 8, y1 = 24 - last[1] * 8;
-        const U rows_lo =
-            L::sllv(U{} + ~0u, y0 < 0 ? I{} : y0) & L::srlv(U{} + ~0u, y1 < 0 ? I{} : y1);
-        const I z0 = y0 - 32, z1 = y1 + 32;
-        const U rows_hi =
-            L::sllv(U{} + ~0u, z0 < 0 ? I{} : z0) & L::srlv(U{} + ~0u, z1 < 0 ? I{} : z1);
+        else
+          return (V)_mm256_permutevar8x32_epi32((__m256i)v, (__m256i)sel);
+      };
+      const F k = to_f(lane & 7);
+      F b3[3];  // the ray origin relative to the brick's corner
+      for (int a = 0; a < 3; ++a) b3[a] = pick(o[a]) - to_f(pick(c[a]) << 3);
+      const F sz = pick(slack[2]), iz = pick(inv[2]);
+      const F ta = (k - sz - b3[2]) * iz;
+      const F tb = (k + (1.f + sz) - b3[2]) * iz;
+      const F lo = L::max(L::min(ta, tb), pick(t)), hi = L::min(L::max(ta, tb), pick(te));
+      I first[2], last[2];
+      for (int a = 0; a < 2; ++a) {
+        const F da = pick(d[a]), sa = pick(slack[a]);
+        const F p0 = b3[a] + da * lo, p1 = b3[a] + da * hi;
+        const F f = L::template round<_MM_FROUND_TO_NEG_INF>(L::min(p0, p1) - sa);
+        const F g = L::template round<_MM_FROUND_TO_NEG_INF>(L::max(p0, p1) + sa);
+        first[a] = __builtin_convertvector(L::min(L::max(f, F{}), F{} + 7.f), I);
+        last[a] = __builtin_convertvector(L::min(L::max(g, F{}), F{} + 7.f), I);
+      }
+      // Bits first..last of x in every row byte; rows first..last of y in
+      // the low half word (rows 0-3) and the high one (rows 4-7); shifts of
+      // 32 or more give 0.
+      const U row =
+          ((U{} + 0xFFu) << (U)first[0] & (U{} + 0xFFu) >> (U)(7 - last[0])) * 0x01010101u;
+      const I y0 = first[1] * 8, y1 = 24 - last[1] * 8;
+      const U rows_lo =
+          L::sllv(U{} + ~0u, y0 < 0 ? I{} : y0) & L::srlv(U{} + ~0u, y1 < 0 ? I{} : y1);
+      const I z0 = y0 - 32, z1 = y1 + 32;
+      const U rows_hi =
+          L::sllv(U{} + ~0u, z0 < 0 ? I{} : z0) & L::srlv(U{} + ~0u, z1 < 0 ? I{} : z1);
+      // The slices' half words (slice k: words 2 k, 2 k + 1 of the brick).
+      U wlo, whi;
+      if constexpr (N == 16) {
         const __m512i wa = _mm512_loadu_si512(w.bricks + size_t(uint32_t(brick[la])) * 18);
         const __m512i wb = _mm512_loadu_si512(w.bricks + size_t(uint32_t(brick[lb])) * 18);
-        const __m512i at = (__m512i)((lane & 8) * 2 + (lane & 7) * 2);  // 16 + 2 k: wb's
-        const U wlo = (U)_mm512_permutex2var_epi32(wa, at, wb);
-        const U whi = (U)_mm512_permutex2var_epi32(wa, (__m512i)((I)at + 1), wb);
-        const U any = (wlo & row & rows_lo) | (whi & row & rows_hi);
-        return L::bits((lo <= hi) & (any != 0u));
+        const I at = (lane & 8) * 2 + (lane & 7) * 2;  // 16 + 2 k: wb's
+        wlo = (U)_mm512_permutex2var_epi32(wa, (__m512i)at, wb);
+        whi = (U)_mm512_permutex2var_epi32(wa, (__m512i)(at + 1), wb);
       } else {
-        (void)la, (void)lb, (void)te;
-        return 0u;
+        const uint32_t* wp = w.bricks + size_t(uint32_t(brick[la])) * 18;
+        const __m256i wa = _mm256_loadu_si256((const __m256i*)wp);
+        const __m256i wb = _mm256_loadu_si256((const __m256i*)(wp + 8));
+        const __m256i ev = (__m256i)((lane & 3) * 2), od = (__m256i)((lane & 3) * 2 + 1);
+        wlo = (U)_mm256_blend_epi32(_mm256_permutevar8x32_epi32(wa, ev),
+                                    _mm256_permutevar8x32_epi32(wb, ev), 0xF0);
+        whi = (U)_mm256_blend_epi32(_mm256_permutevar8x32_epi32(wa, od),
+                                    _mm256_permutevar8x32_epi32(wb, od), 0xF0);
       }
+      const U any = (wlo & row & rows_lo) | (whi & row & rows_hi);
+      return L::bits((lo <= hi) & (any != 0u));
     };
     // begin() of the children at level nl of the lanes' cubes c (level lv).
     auto push = [&](I m, I nl) __attribute__((always_inline)) {
@@ -436,25 +415,16 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
       if (w.slice_skip) {
         uint32_t skip = 0;
         vox = L::bits(occ & is_cell & (nl == LL));
-        if constexpr (N == 16) {
-          for (uint32_t b = vox; b != 0;) {
-            const int la = std::countr_zero(b);
-            b &= b - 1;
-            const int lb = b != 0 ? std::countr_zero(b) : la;
-            b &= b - 1;
-            const uint32_t h = brick_slices_pair(la, lb, L::min(cexit, t1));
-            slices[la] = int32_t(h & 0xFFu), slices[lb] = int32_t(h >> 8);
-            if ((h & 0xFFu) == 0) skip |= 1u << la;
-            if ((h >> 8) == 0) skip |= 1u << lb;
-          }
-        } else {
-          for (uint32_t b = vox; b != 0; b &= b - 1) {
-            const int l = std::countr_zero(b);
-            const int pc[3] = {c[0][l], c[1][l], c[2][l]};
-            const float te = std::min(cexit[l], t1[l]);
-            slices[l] = int32_t(brick_slices(l, uint32_t(brick[l]), pc, t[l], te));
-            if (slices[l] == 0) skip |= 1u << l;
-          }
+        const F te = L::min(cexit, t1);
+        for (uint32_t b = vox; b != 0;) {
+          const int la = std::countr_zero(b);
+          b &= b - 1;
+          int lb = la;  // 16 lanes: the next lane's ray in the same pass
+          if (N == 16 && b != 0) lb = std::countr_zero(b), b &= b - 1;
+          const uint32_t h = brick_slices(la, lb, te);
+          const uint32_t ha = h & 0xFFu, hb = N == 16 ? h >> 8 : ha;
+          slices[la] = int32_t(ha), slices[lb] = int32_t(hb);
+          skip |= (ha == 0 ? 1u << la : 0u) | (hb == 0 ? 1u << lb : 0u);
         }
         vox &= ~skip;
         occ &= ((I{} + int32_t(skip)) >> lane & 1) - 1;  // 0 in the skipped lanes
