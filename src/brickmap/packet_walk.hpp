@@ -8,6 +8,8 @@
 #include <cstddef>
 #include <cstdint>
 
+#include "voxcast/math.hpp"
+
 namespace voxcast::brickmap::detail {
 
 inline constexpr int kPacketMaxLevels = 24;
@@ -53,6 +55,24 @@ struct PacketFound {
   int32_t c[3];
   uint64_t ref;
 };
+
+/// The packet walk's ray set-up (trace_packets' per-ray loop: to_grid and
+/// clip_ray of traverse.cpp without a beam region, the same float and
+/// double operations) in lanes, AVX-512 only.
+struct PacketSetupIn {
+  const Ray* rays = nullptr;  // rays[0 .. count)
+  int count = 0;
+  double origin[3] = {}, inv_vs = 1.0;  // GridTransform::origin, 1 / voxel_size
+  float n = 0.f;                        // float(resolution)
+  bool lod_on = false;                  // trace_packets' root LOD stop test
+  float root_side = 0.f, lod_size0 = 0.f, lod_per_t = 0.f;
+};
+/// Writes the rays that enter the grid (in order) to f (o, d, inv, slack
+/// per axis, t0, t1, start_t, exit: PacketRays' arrays), axis and id (id0 +
+/// their index); the rays whose root cube is an LOD stop to scalar (id0 +
+/// index, *n_scalar of them). Returns the number written to f.
+int packet_setup_avx512(const PacketSetupIn& in, uint32_t id0, float* const f[16], int32_t* axis,
+                        uint32_t* id, uint32_t* scalar, int* n_scalar);
 
 inline constexpr uint8_t kPacketMiss = 0, kPacketHit = 1, kPacketScalar = 2, kPacketFault = 3;
 

@@ -10,4 +10,9 @@ void packet_walk_avx512(const PacketWorld& w, const PacketRays& q, uint8_t* stat
   packet_walk<16>(w, q, status, out);
 }
 
+int packet_setup_avx512(const PacketSetupIn& in, uint32_t id0, float* const f[16], int32_t* axis,
+                        uint32_t* id, uint32_t* scalar, int* n_scalar) {
+  return packet_setup<16>(in, id0, f, axis, id, scalar, n_scalar);
+}
+
 }  // namespace voxcast::brickmap::detail

@@ -563,5 +563,83 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
   }
 }
 
+template <int N>
+int packet_setup(const PacketSetupIn& in, uint32_t id0, float* const f[16], int32_t* axis_out,
+                 uint32_t* id, uint32_t* scalar, int* n_scalar) {
+  static_assert(N == 16, "compress stores: AVX-512 only");
+  using L = WalkLanes<N>;
+  using F = typename L::F;
+  using I = typename L::I;
+  using U = typename L::U;
+  typedef double D __attribute__((vector_size(N * 8)));
+  const I lane = L::iota();
+  const auto fabs_ = [](F x) { return L::as_f(L::as_u(x) & 0x7FFFFFFFu); };
+  const auto finite = [&](F x) { return (I)(fabs_(x) <= F{} + 3.40282347e38f); };  // NaN: false
+  const auto to_d = [](F x) { return __builtin_convertvector(x, D); };
+  const auto to_f = [](D x) { return __builtin_convertvector(x, F); };
+  const F inf = F{} + INFINITY;
+  const uint32_t* raw = reinterpret_cast<const uint32_t*>(in.rays);
+  static_assert(sizeof(Ray) == 7 * sizeof(float), "Ray: origin, dir, tmax");
+  int out = 0;
+  for (int b = 0; b < in.count; b += N) {
+    const I live = lane < (in.count - b);
+    const I at = (lane + b) * 7;
+    F v[7];
+    for (int k = 0; k < 7; ++k) v[k] = L::as_f(L::gather(raw, at + k, live, U{}));
+    // to_grid (traverse.cpp)
+    I ok = live;
+    for (int k = 0; k < 6; ++k) ok &= finite(v[k]);
+    F o[3], d[3], inv[3];
+    I up[3];
+    F big{};
+    for (int a = 0; a < 3; ++a) {
+      o[a] = to_f((to_d(v[a]) - in.origin[a]) * in.inv_vs);
+      d[a] = to_f(to_d(v[3 + a]) * in.inv_vs);
+      const F ad = fabs_(d[a]);
+      big = big < ad ? ad : big;
+    }
+    ok &= (big > 0.f) & finite(big);
+    const F tiny = big * 0x1p-23f;
+    for (int a = 0; a < 3; ++a) {
+      const F signed_tiny = L::as_f((L::as_u(d[a]) & 0x80000000u) | L::as_u(tiny));
+      d[a] = fabs_(d[a]) < tiny ? signed_tiny : d[a];
+      inv[a] = 1.f / d[a];
+      up[a] = (I)(L::as_u(d[a]) >> 31) == 0;
+    }
+    // clip_ray without a region
+    F t0{}, t1 = v[6] != v[6] ? inf : v[6], ex = inf;
+    I ax = I{} - 1;
+    for (int a = 0; a < 3; ++a) {
+      const F ta = ((up[a] ? F{} : F{} + in.n) - o[a]) * inv[a];
+      const F tb = ((up[a] ? F{} + in.n : F{}) - o[a]) * inv[a];
+      const I gt = ta > t0;
+      t0 = gt ? ta : t0;
+      ax = gt ? I{} + a : ax;
+      t1 = tb < t1 ? tb : t1;
+      ex = tb < ex ? tb : ex;
+    }
+    ok &= t0 <= t1;
+    const F nd[3] = {-fabs_(d[0]), -fabs_(d[1]), -fabs_(d[2])};
+    ax = ax < 0 ? L::nearest(nd).axis : ax;  // inside the box: argmin3 of -|d|
+    if (in.lod_on) {
+      const I rs = ok & (F{} + in.root_side <= in.lod_size0 + in.lod_per_t * ex);
+      for (uint32_t m = L::bits(rs); m != 0; m &= m - 1)
+        scalar[(*n_scalar)++] = id0 + uint32_t(b + std::countr_zero(m));
+      ok &= ~rs;
+    }
+    const __mmask16 k = L::bits(ok);
+    F slack[3];
+    for (int a = 0; a < 3; ++a)
+      slack[a] = (fabs_(o[a]) + fabs_(d[a]) * t1) * 0x1p-16f + 0x1p-16f;  // brick_slack
+    const F vals[16] = {o[0],   o[1],     o[2],     d[0],     d[1], d[2], inv[0],    inv[1],
+                        inv[2], slack[0], slack[1], slack[2], t0,   t1,   F{} + NAN, ex};
+    for (int j = 0; j < 16; ++j) _mm512_mask_compressstoreu_ps(f[j] + out, k, (__m512)vals[j]);
+    _mm512_mask_compressstoreu_epi32(axis_out + out, k, (__m512i)ax);
+    _mm512_mask_compressstoreu_epi32(id + out, k, (__m512i)(lane + int32_t(id0) + b));
+    out += std::popcount(uint32_t(k));
+  }
+  return out;
+}
+
 }  // namespace
 }  // namespace voxcast::brickmap::detail

@@ -1066,10 +1066,32 @@ void BrickmapStructure::trace_packets(const Ray* rays, size_t n, const LodFootpr
   // The root's LOD stop (walk()): a grid narrower than the footprint.
   const float root_side = float(g.voxel_size) * float(1u << g.levels);
   const double inv_vs = 1.0 / g.voxel_size;
+  // The set-up in lanes (packet_walk.hpp) for rays without a beam.
+  const bool lanes_setup = isa == Isa::Avx512 && beams == nullptr;
+  detail::PacketSetupIn in;
+  float* fs[16];
+  if (lanes_setup) {
+    for (int a = 0; a < 3; ++a) in.origin[a] = double(g.origin[a]);
+    in.inv_vs = inv_vs, in.n = float(g.resolution);
+    in.lod_on = pw.lod_on, in.root_side = root_side;
+    in.lod_size0 = lod.size_at_origin, in.lod_per_t = lod.size_per_t;
+    for (int j = 0; j < 16; ++j) fs[j] = q.f[j];
+  }
   for (size_t b0 = 0; b0 < n; b0 += PacketBuffers::kChunk) {
     const size_t m = std::min(PacketBuffers::kChunk, n - b0);
     int count = 0;
-    for (size_t i = b0; i < b0 + m; ++i) {
+    if (lanes_setup) {
+      std::fill(found + b0, found + b0 + m, uint8_t(0));
+      if (root) {
+        uint32_t scalar[PacketBuffers::kChunk];
+        int n_scalar = 0;
+        in.rays = rays + b0, in.count = int(m);
+        count = detail::packet_setup_avx512(in, uint32_t(b0), fs, q.axis, q.id, scalar, &n_scalar);
+        for (int k = 0; k < n_scalar; ++k)
+          found[scalar[k]] = trace(rays[scalar[k]], lod, ctx, &hits[scalar[k]], nullptr);
+      }
+    }
+    for (size_t i = b0; i < b0 + m && !lanes_setup; ++i) {
       found[i] = 0;
       const BeamStart* beam = beams ? beams[i] : nullptr;
       float region[2][3];
