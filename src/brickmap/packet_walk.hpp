@@ -57,11 +57,16 @@ struct PacketFound {
 };
 
 /// The packet walk's ray set-up (trace_packets' per-ray loop: to_grid and
-/// clip_ray of traverse.cpp without a beam region, the same float and
-/// double operations) in lanes, AVX-512 only.
+/// clip_ray of traverse.cpp, the same float and double operations) in
+/// lanes, AVX-512 only.
 struct PacketSetupIn {
   const Ray* rays = nullptr;  // rays[0 .. count)
   int count = 0;
+  /// Beam starts (null: none): ray i's entry region_of[i] of `regions`,
+  /// entries of 8 floats: the region's lo and hi (grid units, grid_region),
+  /// then a kind as uint32 bits (kRegionNone, kRegionClip, kRegionEmpty).
+  const int32_t* region_of = nullptr;
+  const float* regions = nullptr;
   double origin[3] = {}, inv_vs = 1.0;  // GridTransform::origin, 1 / voxel_size
   float n = 0.f;                        // float(resolution)
   bool lod_on = false;                  // trace_packets' root LOD stop test
@@ -71,6 +76,7 @@ struct PacketSetupIn {
 /// per axis, t0, t1, start_t, exit: PacketRays' arrays), axis and id (id0 +
 /// their index); the rays whose root cube is an LOD stop to scalar (id0 +
 /// index, *n_scalar of them). Returns the number written to f.
+inline constexpr uint32_t kRegionNone = 0, kRegionClip = 1, kRegionEmpty = 2;
 int packet_setup_avx512(const PacketSetupIn& in, uint32_t id0, float* const f[16], int32_t* axis,
                         uint32_t* id, uint32_t* scalar, int* n_scalar);
 

@@ -619,6 +619,34 @@ int packet_setup(const PacketSetupIn& in, uint32_t id0, float* const f[16], int3
       ex = tb < ex ? tb : ex;
     }
     ok &= t0 <= t1;
+    F start_t = F{} + NAN;
+    if (in.region_of != nullptr) {
+      // clip_ray's beam start: the region's entry and exit t, start just
+      // before the entry (next_below from the bits).
+      const uint32_t* rg = reinterpret_cast<const uint32_t*>(in.regions);
+      const I e =
+          (I)L::gather(reinterpret_cast<const uint32_t*>(in.region_of), lane + b, live, U{}) * 8;
+      const U kind = L::gather(rg, e + 6, live, U{});
+      ok &= (I)(kind != kRegionEmpty);
+      const I has = (I)(kind == kRegionClip);
+      F r0 = F{} - INFINITY, r1 = F{} + INFINITY;
+      for (int a = 0; a < 3; ++a) {
+        const F lo = L::as_f(L::gather(rg, e + a, has, U{}));
+        const F hi = L::as_f(L::gather(rg, e + 3 + a, has, U{}));
+        const F pa = ((up[a] ? lo : hi) - o[a]) * inv[a];
+        const F pb = ((up[a] ? hi : lo) - o[a]) * inv[a];
+        r0 = r0 < pa ? pa : r0;
+        r1 = pb < r1 ? pb : r1;
+      }
+      t1 = has & (r1 < t1) ? r1 : t1;
+      const U rb = L::as_u(r0);
+      const U nb = r0 == 0.f ? U{} + 0x80000001u : (r0 > 0.f ? rb - 1 : rb + 1);
+      const F before = L::as_f(nb);
+      const I adv = has & (before > t0);
+      t0 = adv ? before : t0;
+      start_t = adv ? before : start_t;
+      ok &= t0 <= t1;
+    }
     const F nd[3] = {-fabs_(d[0]), -fabs_(d[1]), -fabs_(d[2])};
     ax = ax < 0 ? L::nearest(nd).axis : ax;  // inside the box: argmin3 of -|d|
     if (in.lod_on) {
@@ -631,8 +659,8 @@ int packet_setup(const PacketSetupIn& in, uint32_t id0, float* const f[16], int3
     F slack[3];
     for (int a = 0; a < 3; ++a)
       slack[a] = (fabs_(o[a]) + fabs_(d[a]) * t1) * 0x1p-16f + 0x1p-16f;  // brick_slack
-    const F vals[16] = {o[0],   o[1],     o[2],     d[0],     d[1], d[2], inv[0],    inv[1],
-                        inv[2], slack[0], slack[1], slack[2], t0,   t1,   F{} + NAN, ex};
+    const F vals[16] = {o[0],   o[1],     o[2],     d[0],     d[1], d[2], inv[0],  inv[1],
+                        inv[2], slack[0], slack[1], slack[2], t0,   t1,   start_t, ex};
     for (int j = 0; j < 16; ++j) _mm512_mask_compressstoreu_ps(f[j] + out, k, (__m512)vals[j]);
     _mm512_mask_compressstoreu_epi32(axis_out + out, k, (__m512i)ax);
     _mm512_mask_compressstoreu_epi32(id + out, k, (__m512i)(lane + int32_t(id0) + b));

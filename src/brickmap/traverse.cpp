@@ -1035,6 +1035,8 @@ struct PacketBuffers {
   alignas(64) float f[16][kChunk];  // o, d, inv, slack (x, y, z each), t0, t1, start_t, exit
   alignas(64) int32_t axis[kChunk];
   uint32_t id[kChunk];
+  int32_t region_of[kChunk];  // beam regions for the set-up in lanes
+  float regions[kChunk][8];
   uint8_t status[kChunk];
   detail::PacketFound out[kChunk];
 };
@@ -1066,8 +1068,8 @@ void BrickmapStructure::trace_packets(const Ray* rays, size_t n, const LodFootpr
   // The root's LOD stop (walk()): a grid narrower than the footprint.
   const float root_side = float(g.voxel_size) * float(1u << g.levels);
   const double inv_vs = 1.0 / g.voxel_size;
-  // The set-up in lanes (packet_walk.hpp) for rays without a beam.
-  const bool lanes_setup = isa == Isa::Avx512 && beams == nullptr;
+  // The set-up in lanes (packet_walk.hpp).
+  const bool lanes_setup = isa == Isa::Avx512;
   detail::PacketSetupIn in;
   float* fs[16];
   if (lanes_setup) {
@@ -1086,9 +1088,32 @@ void BrickmapStructure::trace_packets(const Ray* rays, size_t n, const LodFootpr
         uint32_t scalar[PacketBuffers::kChunk];
         int n_scalar = 0;
         in.rays = rays + b0, in.count = int(m);
+        if (beams != nullptr) {
+          // Each beam's region once (consecutive rays share their beam).
+          const BeamStart* last = nullptr;
+          int e = -1;
+          for (size_t i = 0; i < m; ++i) {
+            const BeamStart* beam = beams[b0 + i];
+            if (beam != last || e < 0) {
+              last = beam, ++e;
+              float* r = q.regions[e];
+              uint32_t kind = detail::kRegionNone;
+              if (beam != nullptr && beam->valid) {
+                kind = beam->empty ? detail::kRegionEmpty : detail::kRegionClip;
+                float region[2][3];
+                grid_region(g, beam->region, region);
+                for (int a = 0; a < 3; ++a) r[a] = region[0][a], r[3 + a] = region[1][a];
+              }
+              r[6] = std::bit_cast<float>(kind);
+            }
+            q.region_of[i] = e;
+          }
+          in.region_of = q.region_of, in.regions = &q.regions[0][0];
+        }
         count = detail::packet_setup_avx512(in, uint32_t(b0), fs, q.axis, q.id, scalar, &n_scalar);
         for (int k = 0; k < n_scalar; ++k)
-          found[scalar[k]] = trace(rays[scalar[k]], lod, ctx, &hits[scalar[k]], nullptr);
+          found[scalar[k]] = trace(rays[scalar[k]], lod, ctx, &hits[scalar[k]],
+                                   beams ? beams[scalar[k]] : nullptr);
       }
     }
     for (size_t i = b0; i < b0 + m && !lanes_setup; ++i) {
