@@ -216,8 +216,12 @@ inline void unpremultiply_into(__m128 acc, float density_scale, VolumeSample* ou
   static_assert(offsetof(VolumeSample, color) == 4 && sizeof(Color) == 16);
   const float a0 = _mm_cvtss_f32(acc);
   out->density = a0 * density_scale;
-  __m128 c = _mm_setzero_ps();
-  if (a0 > 0.f) c = _mm_mul_ps(acc, _mm_set1_ps(1.f / a0));
+  // Without a branch (an empty sample is unpredictable along a ray): the
+  // products are kept where a0 > 0 and zeroed elsewhere, as the scalar
+  // code's test does (1 / a0 is not used there).
+  const __m128 a = _mm_set1_ps(a0);
+  const __m128 c0 = _mm_mul_ps(acc, _mm_div_ps(_mm_set1_ps(1.f), a));
+  __m128 c = _mm_and_ps(_mm_cmpgt_ps(a, _mm_setzero_ps()), c0);
   // (acc1, acc2, acc3) * inv, then alpha 1.
   c = _mm_blend_ps(_mm_shuffle_ps(c, c, _MM_SHUFFLE(0, 3, 2, 1)), _mm_set1_ps(1.f), 8);
   _mm_storeu_ps(&out->color.r, c);
