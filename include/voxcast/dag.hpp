@@ -79,6 +79,7 @@
 // The DAG occupies [1,2]^3 in octree space exactly as the ESVO does
 // (esvo §6.1); cube side 2^(s - esvo::kMaxScale) at scale s.
 #include <array>
+#include <bit>
 #include <cstdint>
 #include <memory>
 #include <vector>
@@ -218,10 +219,11 @@ class SparseVoxelDag {
 
   // Derived by finalize() when there are attributes (never stored in files):
   // the LOD means of every cube of more than kCubeMeanMin leaf voxels at
-  // levels 0 .. L - 3, so that a coarse hit on one of them costs one short
-  // lookup instead of cube_range's descent and mean_attributes' sums. Finer
-  // cubes (levels L - 2 and L - 1, at most 64 voxels) keep that path, as do
-  // cubes of <= kCubeMeanMin voxels. Per level, the entries in Morton order
+  // levels 0 .. L - 4, so that a coarse hit on one of them costs one short
+  // lookup instead of cube_range's descent and mean_attributes' sums. Level
+  // L - 3 is in `fine_means` below (every cube); finer cubes (levels L - 2
+  // and L - 1, at most 64 voxels) keep that path, as do cubes of <=
+  // kCubeMeanMin voxels. Per level, the entries in Morton order
   // (ascending first voxel) and a bucket index over the first voxel's high
   // bits: bucket[b] = the first entry whose first voxel is >= b << shift,
   // about one bucket per entry. Neighbouring pixels hit cubes of nearby
@@ -242,13 +244,45 @@ class SparseVoxelDag {
     int shift = 0;
   };
   static constexpr uint64_t kCubeMeanMin = 32;
-  std::vector<CubeMeanLevel> cube_means;  // levels 0 .. L - 3, or none
-  /// Bytes of the table (entries and bucket indices).
+  std::vector<CubeMeanLevel> cube_means;  // levels 0 .. L - 4, or none
+
+  // Derived by finalize() with the table above (never stored in files): the
+  // LOD means of every cube at level L - 3 (the 8^3 cubes, 1 .. 512 voxels;
+  // where the LOD-1 hits of a 16384^3 scene land at 2048x1536, 39 % of them
+  // on cubes of <= kCubeMeanMin voxels, which the table above leaves out). No
+  // keys: `starts` marks each cube's first voxel, one bit per leaf voxel in
+  // words of 64 with the number of cubes before the word, so a lookup is
+  // one 16-byte word (its bit and a popcount) and one 28-byte entry, both in
+  // Morton order (neighbouring pixels share their lines). The means are
+  // mean_of_sum of each cube's exact fixed-point sum: the floats of
+  // mean_attributes. 2 bits + 28 B per cube.
+  struct FineMean {
+    Color color;
+    Vec3 normal;
+  };
+  struct FineStarts {
+    uint64_t bits = 0;    // bit i: voxel 64 w + i is a cube's first voxel
+    uint64_t before = 0;  // cubes whose first voxel is before 64 w
+  };
+  std::vector<FineStarts> fine_starts;  // ceil(leaf_voxels / 64) words, or none
+  std::vector<FineMean> fine_means;     // one per L - 3 cube, ascending first voxel
+  /// The L - 3 cube whose first leaf voxel is `first`, or null.
+  const FineMean* fine_mean(uint64_t first) const {
+    const uint64_t w = first >> 6;
+    if (w >= fine_starts.size()) return nullptr;
+    const FineStarts& s = fine_starts[size_t(w)];
+    const uint64_t bit = 1ull << (first & 63);
+    if (!(s.bits & bit)) return nullptr;
+    return &fine_means[size_t(s.before + uint64_t(std::popcount(s.bits & (bit - 1))))];
+  }
+
+  /// Bytes of the tables (entries and bucket indices, fine means and starts).
   uint64_t cube_mean_bytes() const {
     uint64_t b = 0;
     for (const CubeMeanLevel& t : cube_means)
       b += uint64_t(t.entries.size()) * sizeof(CubeMean) + uint64_t(t.bucket.size()) * 4;
-    return b;
+    return b + uint64_t(fine_starts.size()) * sizeof(FineStarts) +
+           uint64_t(fine_means.size()) * sizeof(FineMean);
   }
   /// The table's entry for the cube at `level` whose first leaf voxel is
   /// `first`, or null (a cube of <= kCubeMeanMin voxels, or `first` is not

@@ -111,33 +111,44 @@ void mean_of_sum(const SparseVoxelDag& d, const AttributeSum& sum, VoxelRange ra
   }
 }
 
-// The LOD mean table (dag.hpp `cube_means`): the cubes of more than
-// kCubeMeanMin voxels at levels <= L - 3, found by a depth-first walk by
-// position (a node's subtree count is its header's prefix entry; children
-// hold fewer voxels, so the walk stops at the first cube that is too small).
-// Each cube's fixed-point sum is the sum of its children's (exact integers):
-// a child in the table contributes its own sum, any other child its voxels
-// summed directly, so every voxel under the table is decoded once. The mean
-// is mean_of_sum of that sum, as in mean_attributes. The walk is in Morton
-// order, so each level's entries arrive in ascending first voxel.
+// The LOD mean tables (dag.hpp `cube_means`, `fine_means`): the cubes of
+// more than kCubeMeanMin voxels at levels <= L - 4 and every cube at L - 3,
+// found by a depth-first walk by position (a node's subtree count is its
+// header's prefix entry). Each L - 3 cube's voxels are summed directly, every
+// coarser cube's fixed-point sum is the sum of its children's (exact
+// integers), so every voxel is decoded once. The mean is mean_of_sum of that
+// sum, as in mean_attributes. The walk is in Morton order, so each level's
+// entries arrive in ascending first voxel.
 void derive_cube_means(SparseVoxelDag& d) {
   d.cube_means.clear();
+  d.fine_starts.clear();
+  d.fine_means.clear();
   if (!d.has_attributes()) return;
   const int L = d.grid.levels;
   if (L < 3) return;
-  std::vector<SparseVoxelDag::CubeMeanLevel> levels(size_t(L - 2));
-  // Returns the cube's sum; appends it to its level if it belongs in the table.
+  const int fine_level = L - 3;
+  // The L - 3 cubes, counted first so that the entries are allocated once.
+  auto count_fine = [&](auto&& self, uint32_t w, int level) -> uint64_t {
+    if (level == fine_level) return 1;
+    const int k = std::popcount(layout::ChildMask::get(d.words[w]));
+    if (level == fine_level - 1) return uint64_t(k);
+    uint64_t n = 0;
+    for (int j = 0; j < k; ++j) n += self(self, d.words[w + 1 + uint32_t(j)], level + 1);
+    return n;
+  };
+  std::vector<SparseVoxelDag::FineMean> fine;
+  fine.reserve(size_t(count_fine(count_fine, 0, 0)));
+  std::vector<SparseVoxelDag::FineStarts> starts(size_t((d.leaf_voxels + 63) / 64));
+  std::vector<SparseVoxelDag::CubeMeanLevel> levels(static_cast<size_t>(fine_level));
+  // Returns the cube's sum; appends it to its level if it belongs in a table.
   auto visit = [&](auto&& self, uint32_t w, int level, uint64_t first) -> AttributeSum {
     const uint64_t count = d.prefix_entry(w);  // level <= L - 3: an interior node
-    std::vector<SparseVoxelDag::CubeMean>& out = levels[size_t(level)].entries;
-    SparseVoxelDag::CubeMean e;
-    e.first = first, e.level = level;
-    if (count <= SparseVoxelDag::kCubeMeanMin || level == L - 3) {
+    if (level == fine_level) {
       const AttributeSum sum = range_sum(d, size_t(first), size_t(count));
-      if (count > SparseVoxelDag::kCubeMeanMin) {
-        mean_of_sum(d, sum, {first, count}, &e.color, &e.normal);
-        out.push_back(e);
-      }
+      SparseVoxelDag::FineMean f;
+      mean_of_sum(d, sum, {first, count}, &f.color, &f.normal);
+      fine.push_back(f);
+      starts[size_t(first >> 6)].bits |= 1ull << (first & 63);
       return sum;
     }
     AttributeSum sum{};
@@ -148,8 +159,13 @@ void derive_cube_means(SparseVoxelDag& d) {
           self(self, d.words[p], level + 1, first + (j == 0 ? 0 : d.prefix_entry(p)));
       for (int i = 0; i < 7; ++i) sum[size_t(i)] += c[size_t(i)];
     }
-    mean_of_sum(d, sum, {first, count}, &e.color, &e.normal);
-    out.push_back(e);  // the children went to deeper levels: still ascending here
+    if (count > SparseVoxelDag::kCubeMeanMin) {
+      SparseVoxelDag::CubeMean e;
+      e.first = first, e.level = level;
+      mean_of_sum(d, sum, {first, count}, &e.color, &e.normal);
+      // The children went to deeper levels: still ascending here.
+      levels[size_t(level)].entries.push_back(e);
+    }
     return sum;
   };
   visit(visit, 0, 0, 0);
@@ -171,6 +187,13 @@ void derive_cube_means(SparseVoxelDag& d) {
     }
   }
   if (total > 0) d.cube_means = std::move(levels);
+  uint64_t before = 0;
+  for (SparseVoxelDag::FineStarts& w : starts) {
+    w.before = before;
+    before += uint64_t(std::popcount(w.bits));
+  }
+  d.fine_starts = std::move(starts);
+  d.fine_means = std::move(fine);
 }
 
 }  // namespace
