@@ -374,7 +374,8 @@ TEST(DagLodMeans, FineTableHoldsEveryLevelLMinus3CubeWithItsBruteForceMean) {
   const SparseVoxelDag cmp = compressed(raw);
   for (const SparseVoxelDag* d : {&raw, &cmp}) {
     const int level = d->levels() - 3;
-    ASSERT_EQ(d->fine_starts.size(), size_t((d->leaf_voxels + 63) / 64));
+    ASSERT_EQ(d->fine_starts.size(), size_t((d->leaf_voxels + 511) / 512));
+    ASSERT_EQ(d->fine_before.size(), d->fine_starts.size());
     size_t cubes = 0, small = 0, checked = 0;
     for (uint64_t v = 0; v < d->leaf_voxels;) {
       const dag::VoxelRange r = d->cube_range(v, level);
@@ -412,6 +413,7 @@ TEST(DagLodMeans, FineTableHoldsEveryLevelLMinus3CubeWithItsBruteForceMean) {
   bare.finalize();
   EXPECT_TRUE(bare.fine_means.empty());
   EXPECT_TRUE(bare.fine_starts.empty());
+  EXPECT_TRUE(bare.fine_before.empty());
 }
 
 TEST(DagCompressed, RangeMeansEqualTheSlotBySlotSums) {

@@ -250,31 +250,39 @@ class SparseVoxelDag {
   // LOD means of every cube at level L - 3 (the 8^3 cubes, 1 .. 512 voxels;
   // where the LOD-1 hits of a 16384^3 scene land at 2048x1536, 39 % of them
   // on cubes of <= kCubeMeanMin voxels, which the table above leaves out). No
-  // keys: `starts` marks each cube's first voxel, one bit per leaf voxel in
-  // words of 64 with the number of cubes before the word, so a lookup is
-  // one 16-byte word (its bit and a popcount) and one 28-byte entry, both in
-  // Morton order (neighbouring pixels share their lines). The means are
-  // mean_of_sum of each cube's exact fixed-point sum: the floats of
-  // mean_attributes. 2 bits + 28 B per cube.
+  // keys: `fine_starts` marks each cube's first voxel, one bit per leaf voxel
+  // in cache lines of 512, and `fine_before` holds the number of cubes before
+  // each line (4 B per 512 voxels, small enough to stay cached), so a lookup
+  // is one line of bits (the voxel's bit and up to 8 popcounts) and one
+  // 28-byte entry, both in Morton order (neighbouring pixels share lines).
+  // The means are mean_of_sum of each cube's exact fixed-point sum: the
+  // floats of mean_attributes. 1 bit per leaf voxel + 28 B per cube.
   struct FineMean {
     Color color;
     Vec3 normal;
   };
-  struct FineStarts {
-    uint64_t bits = 0;    // bit i: voxel 64 w + i is a cube's first voxel
-    uint64_t before = 0;  // cubes whose first voxel is before 64 w
+  struct alignas(64) FineStarts {
+    uint64_t bits[8] = {};  // bit i of word k: voxel 512 line + 64 k + i starts a cube
   };
-  std::vector<FineStarts> fine_starts;  // ceil(leaf_voxels / 64) words, or none
+  std::vector<FineStarts> fine_starts;  // ceil(leaf_voxels / 512) lines, or none
+  std::vector<uint32_t> fine_before;    // per line: the cubes that start before it
   std::vector<FineMean> fine_means;     // one per L - 3 cube, ascending first voxel
   /// The L - 3 cube whose first leaf voxel is `first`, or null.
   const FineMean* fine_mean(uint64_t first) const {
-    const uint64_t w = first >> 6;
-    if (w >= fine_starts.size()) return nullptr;
-    const FineStarts& s = fine_starts[size_t(w)];
+    const uint64_t line = first >> 9;
+    if (line >= fine_starts.size()) return nullptr;
+    const uint64_t* w = fine_starts[size_t(line)].bits;
+    const int k = int(first >> 6) & 7;
     const uint64_t bit = 1ull << (first & 63);
-    if (!(s.bits & bit)) return nullptr;
-    return &fine_means[size_t(s.before + uint64_t(std::popcount(s.bits & (bit - 1))))];
+    if (!(w[k] & bit)) return nullptr;
+    uint64_t n = fine_before[size_t(line)] + uint64_t(std::popcount(w[k] & (bit - 1)));
+    for (int j = 0; j < 8; ++j) n += j < k ? uint64_t(std::popcount(w[j])) : 0;
+    return &fine_means[size_t(n)];
   }
+
+  /// Advises the arrays rays read at random as huge pages (system.hpp
+  /// advise_huge_pages); finalize() does it once the index is derived.
+  void advise_huge_pages_for_rays() const;
 
   /// Bytes of the tables (entries and bucket indices, fine means and starts).
   uint64_t cube_mean_bytes() const {
@@ -282,7 +290,7 @@ class SparseVoxelDag {
     for (const CubeMeanLevel& t : cube_means)
       b += uint64_t(t.entries.size()) * sizeof(CubeMean) + uint64_t(t.bucket.size()) * 4;
     return b + uint64_t(fine_starts.size()) * sizeof(FineStarts) +
-           uint64_t(fine_means.size()) * sizeof(FineMean);
+           uint64_t(fine_before.size()) * 4 + uint64_t(fine_means.size()) * sizeof(FineMean);
   }
   /// The table's entry for the cube at `level` whose first leaf voxel is
   /// `first`, or null (a cube of <= kCubeMeanMin voxels, or `first` is not

@@ -14,6 +14,7 @@
 #include "dag/attribute_sum.hpp"
 #include "esvo/compress.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/system.hpp"
 
 namespace voxcast::dag {
 namespace {
@@ -122,6 +123,7 @@ void mean_of_sum(const SparseVoxelDag& d, const AttributeSum& sum, VoxelRange ra
 void derive_cube_means(SparseVoxelDag& d) {
   d.cube_means.clear();
   d.fine_starts.clear();
+  d.fine_before.clear();
   d.fine_means.clear();
   if (!d.has_attributes()) return;
   const int L = d.grid.levels;
@@ -138,7 +140,7 @@ void derive_cube_means(SparseVoxelDag& d) {
   };
   std::vector<SparseVoxelDag::FineMean> fine;
   fine.reserve(size_t(count_fine(count_fine, 0, 0)));
-  std::vector<SparseVoxelDag::FineStarts> starts(size_t((d.leaf_voxels + 63) / 64));
+  std::vector<SparseVoxelDag::FineStarts> starts(size_t((d.leaf_voxels + 511) / 512));
   std::vector<SparseVoxelDag::CubeMeanLevel> levels(static_cast<size_t>(fine_level));
   // Returns the cube's sum; appends it to its level if it belongs in a table.
   auto visit = [&](auto&& self, uint32_t w, int level, uint64_t first) -> AttributeSum {
@@ -148,7 +150,7 @@ void derive_cube_means(SparseVoxelDag& d) {
       SparseVoxelDag::FineMean f;
       mean_of_sum(d, sum, {first, count}, &f.color, &f.normal);
       fine.push_back(f);
-      starts[size_t(first >> 6)].bits |= 1ull << (first & 63);
+      starts[size_t(first >> 9)].bits[(first >> 6) & 7] |= 1ull << (first & 63);
       return sum;
     }
     AttributeSum sum{};
@@ -187,12 +189,15 @@ void derive_cube_means(SparseVoxelDag& d) {
     }
   }
   if (total > 0) d.cube_means = std::move(levels);
-  uint64_t before = 0;
-  for (SparseVoxelDag::FineStarts& w : starts) {
-    w.before = before;
-    before += uint64_t(std::popcount(w.bits));
+  if (fine.size() > 0xFFFFFFFFull) corrupt("more than 2^32 cubes on level L - 3");
+  std::vector<uint32_t> before(starts.size());
+  uint32_t n = 0;
+  for (size_t i = 0; i < starts.size(); ++i) {
+    before[i] = n;
+    for (const uint64_t w : starts[i].bits) n += uint32_t(std::popcount(w));
   }
   d.fine_starts = std::move(starts);
+  d.fine_before = std::move(before);
   d.fine_means = std::move(fine);
 }
 
@@ -330,6 +335,18 @@ void SparseVoxelDag::finalize() {
   }
   derive_attribute_prefix(*this);
   derive_cube_means(*this);
+  advise_huge_pages_for_rays();
+}
+
+// What a frame reads at random: the nodes and their prefix sums on every
+// step, a hit's attributes or LOD mean. At 16384³ these are hundreds of MiB
+// (words 204 MiB, the L - 3 means ~0.5 GiB), past the reach of 4 KiB pages.
+void SparseVoxelDag::advise_huge_pages_for_rays() const {
+  auto advise = [](const auto& v) { advise_huge_pages(v.data(), v.size() * sizeof(v[0])); };
+  advise(words), advise(voxel_prefix), advise(voxel_prefix_wide);
+  advise(colors), advise(normals), advise(attribute_blocks), advise(attribute_prefix);
+  for (const CubeMeanLevel& t : cube_means) advise(t.entries), advise(t.bucket);
+  advise(fine_starts), advise(fine_before), advise(fine_means);
 }
 
 void SparseVoxelDag::encode_compressed_blocks(const uint32_t* colors, const uint32_t* normals,
