@@ -132,6 +132,7 @@ struct DagStats {
   uint64_t svo_bytes = 0;        // pointer-less SVO, 1 byte per node (Schnabel & Klein)
   uint64_t esvo_bytes = 0;       // 8 bytes per node (ESVO descriptor + contour word)
   uint64_t index_bytes = 0;      // voxel_prefix (+ _wide) + attribute_prefix (derived at load)
+  uint64_t lod_mean_bytes = 0;   // of index_bytes: the LOD mean tables (cube_mean_bytes)
   uint64_t attribute_bytes = 0;  // colors + normals, or the compressed blocks
   bool compressed_attributes = false;  // attribute_bytes are esvo §5.5 blocks (24 B / 16 voxels)
   double bits_per_voxel = 0;           // dag_bytes * 8 / leaf_voxels

@@ -415,6 +415,7 @@ DagStats SparseVoxelDag::stats() const {
   st.index_bytes = uint64_t(voxel_prefix.size()) * 4 + uint64_t(voxel_prefix_wide.size()) * 8 +
                    uint64_t(attribute_prefix.size()) * sizeof(attribute_prefix[0]) +
                    cube_mean_bytes();
+  st.lod_mean_bytes = cube_mean_bytes();
   st.attribute_bytes = uint64_t(colors.size() + normals.size() + attribute_blocks.size()) * 4;
   st.compressed_attributes = compressed_attributes();
   st.bits_per_voxel = st.leaf_voxels ? double(st.dag_bytes) * 8.0 / double(st.leaf_voxels) : 0.0;

@@ -211,6 +211,7 @@ SceneDescription describe(const Structure& s, const DescribeStyle& style) {
                  {"svo_1byte", st.svo_bytes},
                  {"esvo_8byte", st.esvo_bytes},
                  {"voxel_index", st.index_bytes},
+                 {"lod_means", st.lod_mean_bytes},
                  {"attributes", st.attribute_bytes}};
   j["bits_per_voxel"] = st.bits_per_voxel;
   // Raw 8 B/voxel or esvo §5.5 blocks of 16 voxels in Morton order (dag.hpp).
@@ -260,6 +261,11 @@ SceneDescription describe(const Structure& s, const DescribeStyle& style) {
         style.bytes(double(st.attribute_bytes)),
         st.compressed_attributes ? "compressed esvo §5.5 blocks of 16 voxels" : "raw",
         double(st.attribute_bytes) / v, style.bytes(double(st.index_bytes)));
+  if (st.lod_mean_bytes)
+    t += fmt::sprintf(
+        "LOD means   %s of the voxel index (%.3f bits/voxel): cubes of > 32 voxels at levels "
+        "0..L-4, every cube at L-3\n",
+        style.bytes(double(st.lod_mean_bytes)), double(st.lod_mean_bytes) * 8 / v);
   if (d.wide_words)
     t += fmt::sprintf(
         "voxel index 64-bit prefix entries for the %u words of the levels whose nodes "
