@@ -281,10 +281,6 @@ class SparseVoxelDag {
     return &fine_means[size_t(n)];
   }
 
-  /// Advises the arrays rays read at random as huge pages (system.hpp
-  /// advise_huge_pages); finalize() does it once the index is derived.
-  void advise_huge_pages_for_rays() const;
-
   /// Bytes of the tables (entries and bucket indices, fine means and starts).
   uint64_t cube_mean_bytes() const {
     uint64_t b = 0;

@@ -108,10 +108,6 @@ size_t advise_huge_pages(const void* data, size_t bytes) {
   if (off || data == nullptr || end <= begin) return 0;
   void* p = reinterpret_cast<void*>(begin);
   if (madvise(p, end - begin, MADV_HUGEPAGE) != 0) return 0;
-  // MADV_COLLAPSE (Linux 6.1; glibc's header may lack it): synchronous, may
-  // fail (no free huge pages, older kernels), then only later faults use them.
-  constexpr int kCollapse = 25;
-  madvise(p, end - begin, kCollapse);
   return size_t(end - begin);
 #else
   (void)data, (void)bytes;

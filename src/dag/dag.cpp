@@ -84,7 +84,7 @@ void derive_attribute_prefix(SparseVoxelDag& d) {
   d.attribute_prefix.clear();
   if (!d.has_attributes()) return;
   const size_t blocks = size_t(d.leaf_voxels) / B;
-  d.attribute_prefix.assign(blocks + 1, {});
+  assign_huge(d.attribute_prefix, blocks + 1);
   tbb::parallel_for(size_t(0), blocks,
                     [&](size_t b) { d.attribute_prefix[b + 1] = range_sum(d, b * B, B); });
   for (size_t b = 1; b <= blocks; ++b)
@@ -129,9 +129,14 @@ void derive_cube_means(SparseVoxelDag& d) {
   const int L = d.grid.levels;
   if (L < 3) return;
   const int fine_level = L - 3;
-  // The L - 3 cubes, counted first so that the entries are allocated once.
+  // The L - 3 cubes and each coarser level's entries, counted first so that
+  // the tables are allocated once, advised as huge pages before they are
+  // written (rays read them at random).
+  std::vector<SparseVoxelDag::CubeMeanLevel> levels(static_cast<size_t>(fine_level));
+  std::vector<size_t> entries(levels.size(), 0);
   auto count_fine = [&](auto&& self, uint32_t w, int level) -> uint64_t {
     if (level == fine_level) return 1;
+    entries[size_t(level)] += d.prefix_entry(w) > SparseVoxelDag::kCubeMeanMin;
     const int k = std::popcount(layout::ChildMask::get(d.words[w]));
     if (level == fine_level - 1) return uint64_t(k);
     uint64_t n = 0;
@@ -139,9 +144,10 @@ void derive_cube_means(SparseVoxelDag& d) {
     return n;
   };
   std::vector<SparseVoxelDag::FineMean> fine;
-  fine.reserve(size_t(count_fine(count_fine, 0, 0)));
-  std::vector<SparseVoxelDag::FineStarts> starts(size_t((d.leaf_voxels + 511) / 512));
-  std::vector<SparseVoxelDag::CubeMeanLevel> levels(static_cast<size_t>(fine_level));
+  reserve_huge(fine, size_t(count_fine(count_fine, 0, 0)));
+  for (size_t l = 0; l < levels.size(); ++l) reserve_huge(levels[l].entries, entries[l]);
+  std::vector<SparseVoxelDag::FineStarts> starts;
+  assign_huge(starts, size_t((d.leaf_voxels + 511) / 512));
   // Returns the cube's sum; appends it to its level if it belongs in a table.
   auto visit = [&](auto&& self, uint32_t w, int level, uint64_t first) -> AttributeSum {
     const uint64_t count = d.prefix_entry(w);  // level <= L - 3: an interior node
@@ -181,7 +187,7 @@ void derive_cube_means(SparseVoxelDag& d) {
     const uint64_t per = d.leaf_voxels / std::max<uint64_t>(n, 1);
     t.shift = per > 1 ? int(std::bit_width(per)) - 1 : 0;
     const size_t buckets = size_t(d.leaf_voxels >> t.shift) + 2;
-    t.bucket.assign(buckets, 0);
+    assign_huge(t.bucket, buckets, 0u);
     size_t i = 0;
     for (size_t b = 0; b < buckets; ++b) {
       while (i < n && (t.entries[i].first >> t.shift) < b) ++i;
@@ -190,7 +196,8 @@ void derive_cube_means(SparseVoxelDag& d) {
   }
   if (total > 0) d.cube_means = std::move(levels);
   if (fine.size() > 0xFFFFFFFFull) corrupt("more than 2^32 cubes on level L - 3");
-  std::vector<uint32_t> before(starts.size());
+  std::vector<uint32_t> before;
+  assign_huge(before, starts.size(), 0u);
   uint32_t n = 0;
   for (size_t i = 0; i < starts.size(); ++i) {
     before[i] = n;
@@ -277,7 +284,7 @@ void SparseVoxelDag::finalize() {
   // (from the bottom) with a larger node and every level above it go to the
   // 64-bit table (dag.hpp "64-bit voxel indices"). Counts only grow upward,
   // so those levels are a prefix 0..T-1 and the words a prefix [0, wide_words).
-  voxel_prefix.assign(n, 0);
+  assign_huge(voxel_prefix, n, 0u);
   voxel_prefix_wide.clear();
   wide_words = 0;
   auto count_of = [&](uint32_t p, bool is_leaf) -> uint64_t {
@@ -298,7 +305,7 @@ void SparseVoxelDag::finalize() {
       }
       if (wide) {
         wide_words = uint32_t(end);
-        voxel_prefix_wide.assign(end, 0);
+        assign_huge(voxel_prefix_wide, end, uint64_t(0));
       }
     }
     for (size_t w = begin; w < end;) {
@@ -335,18 +342,6 @@ void SparseVoxelDag::finalize() {
   }
   derive_attribute_prefix(*this);
   derive_cube_means(*this);
-  advise_huge_pages_for_rays();
-}
-
-// What a frame reads at random: the nodes and their prefix sums on every
-// step, a hit's attributes or LOD mean. At 16384³ these are hundreds of MiB
-// (words 204 MiB, the L - 3 means ~0.5 GiB), past the reach of 4 KiB pages.
-void SparseVoxelDag::advise_huge_pages_for_rays() const {
-  auto advise = [](const auto& v) { advise_huge_pages(v.data(), v.size() * sizeof(v[0])); };
-  advise(words), advise(voxel_prefix), advise(voxel_prefix_wide);
-  advise(colors), advise(normals), advise(attribute_blocks), advise(attribute_prefix);
-  for (const CubeMeanLevel& t : cube_means) advise(t.entries), advise(t.bucket);
-  advise(fine_starts), advise(fine_before), advise(fine_means);
 }
 
 void SparseVoxelDag::encode_compressed_blocks(const uint32_t* colors, const uint32_t* normals,
@@ -368,7 +363,8 @@ void SparseVoxelDag::encode_compressed_blocks(const uint32_t* colors, const uint
 void SparseVoxelDag::compress_attributes() {
   if (colors.empty()) return;
   const size_t V = colors.size(), blocks = (V + kCompressedSlots - 1) / kCompressedSlots;
-  std::vector<uint32_t> out(blocks * kCompressedBlockWords);
+  std::vector<uint32_t> out;
+  assign_huge(out, blocks * kCompressedBlockWords, 0u);
   encode_compressed_blocks(colors.data(), normals.data(), V, out.data());
   attribute_blocks = std::move(out);
   colors = {};

@@ -29,6 +29,7 @@
 #include "voxcast/dag_format.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/format_registry.hpp"
+#include "voxcast/system.hpp"
 
 namespace voxcast {
 namespace {
@@ -41,7 +42,8 @@ constexpr uint32_t kDagCompressedAttributes = fourcc("DATC");
 // second copy of the section is held).
 std::vector<uint32_t> read_words(const ContainerReader& c, uint32_t id) {
   const uint64_t size = c.section(id).size;
-  std::vector<uint32_t> w(size_t(size / 4));
+  std::vector<uint32_t> w;  // read at random by rays: huge pages
+  assign_huge(w, size_t(size / 4));
   c.read_into(id, w.data(), size);
   return w;
 }
@@ -153,8 +155,8 @@ dag::SparseVoxelDag dag_scene_from_container(const ContainerReader& c, SceneInfo
     // Interleaved (color, normal) pairs into the two arrays, a chunk at a
     // time where chunks hold whole pairs (every file this writer makes), so
     // that the section is not held beside them.
-    dag.colors.resize(size_t(si.leaf_voxels));
-    dag.normals.resize(size_t(si.leaf_voxels));
+    assign_huge(dag.colors, size_t(si.leaf_voxels));
+    assign_huge(dag.normals, size_t(si.leaf_voxels));
     const SectionInfo& sec = c.section(kDagAttributes);
     auto split = [&](const uint8_t* pairs, size_t first, size_t n) {
       for (size_t i = 0; i < n; ++i) {
