@@ -110,7 +110,8 @@ BENCHMARK(BM_DagMeanAttributesLod3)->Arg(0)->Arg(1);
 /// ns per coarse (LOD) hit's attributes, `range(0)` levels above the leaves:
 /// range(1) = 0 the path without the mean table (cube_range's descent, then
 /// mean_attributes), 1 DagStructure::attributes (the table's lookup for cubes
-/// of more than kCubeMeanMin voxels at levels <= L-3, dag.hpp `cube_means`).
+/// of more than kCubeMeanMin voxels at levels <= L-4, dag.hpp `cube_means`,
+/// and for every cube at L-3, `fine_means`).
 void BM_DagLodHitAttributes(benchmark::State& state) {
   const SparseVoxelDag& d = bench_dag(false);
   const int level = d.levels() - int(state.range(0));

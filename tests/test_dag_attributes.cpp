@@ -7,6 +7,7 @@
 #include <tbb/global_control.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -221,6 +222,19 @@ TEST(DagCompressed, SharedMeshWithinBounds) {
   EXPECT_LT(e.normal.mean(), 1 * kDeg);
 }
 
+// r, g, b, a and the normal's x, y, z of leaf voxels `r` summed in double.
+std::array<double, 7> leaf_sums(const SparseVoxelDag& d, dag::VoxelRange r) {
+  std::array<double, 7> s{};
+  for (uint64_t i = r.first; i < r.first + r.count; ++i) {
+    Color c;
+    Vec3 n;
+    d.voxel_attributes(i, &c, &n);
+    const double v[7] = {c.r, c.g, c.b, c.a, n.x, n.y, n.z};
+    for (size_t k = 0; k < 7; ++k) s[k] += v[k];
+  }
+  return s;
+}
+
 TEST(DagCompressed, LodMeansAreMeansOfDecodedValues) {
   TraceContext ctx;
   const SparseVoxelDag raw = dag::build_dag(smooth_shell(7));
@@ -231,14 +245,7 @@ TEST(DagCompressed, LodMeansAreMeansOfDecodedValues) {
   for (int level = 0; level <= cmp.levels(); ++level) {
     for (uint64_t voxel : {uint64_t(0), V / 3, V / 2 + 7, V - 1}) {
       const dag::VoxelRange r = cmp.cube_range(voxel, level);
-      double s[7] = {};
-      for (uint64_t i = r.first; i < r.first + r.count; ++i) {
-        Color c;
-        Vec3 n;
-        cmp.voxel_attributes(i, &c, &n);
-        const double v[7] = {c.r, c.g, c.b, c.a, n.x, n.y, n.z};
-        for (int k = 0; k < 7; ++k) s[k] += v[k];
-      }
+      const std::array<double, 7> s = leaf_sums(cmp, r);
       Color c;
       Vec3 n;
       cmp.mean_attributes(r, &c, &n);
@@ -273,10 +280,36 @@ TEST(DagCompressed, LodMeansAreMeansOfDecodedValues) {
   EXPECT_EQ(n.x, mn.x);
 }
 
+// A LOD mean table entry against the mean of the cube's leaves (summed here
+// in double from voxel_attributes) and mean_attributes' floats (bit-equal).
+// Returns whether the normal was checked (the voxels' normals do not cancel).
+bool expect_brute_force_mean(const SparseVoxelDag& d, dag::VoxelRange r, const Color& color,
+                             const Vec3& normal, int level) {
+  const std::array<double, 7> s = leaf_sums(d, r);
+  const double inv = 1.0 / double(r.count);
+  EXPECT_NEAR(color.r, s[0] * inv, 1e-5) << "level " << level << " first " << r.first;
+  EXPECT_NEAR(color.g, s[1] * inv, 1e-5);
+  EXPECT_NEAR(color.b, s[2] * inv, 1e-5);
+  EXPECT_NEAR(color.a, s[3] * inv, 1e-5);
+  const double len = std::sqrt(s[4] * s[4] + s[5] * s[5] + s[6] * s[6]);
+  const bool checked = len * inv > 1e-3;
+  if (checked) {
+    EXPECT_NEAR(normal.x, s[4] / len, 1e-4) << "level " << level << " first " << r.first;
+    EXPECT_NEAR(normal.y, s[5] / len, 1e-4);
+    EXPECT_NEAR(normal.z, s[6] / len, 1e-4);
+  }
+  Color m;
+  Vec3 mn;
+  d.mean_attributes(r, &m, &mn);
+  EXPECT_TRUE(std::memcmp(&m, &color, sizeof m) == 0 && std::memcmp(&mn, &normal, sizeof mn) == 0)
+      << "level " << level << " first " << r.first;
+  return checked;
+}
+
 TEST(DagLodMeans, TableHoldsEveryLargeCubeWithItsBruteForceMean) {
   // dag.hpp `cube_means`: every cube of more than kCubeMeanMin voxels at
-  // levels 0 .. L-3, and no other, with the mean of its leaves (summed here
-  // in double from voxel_attributes) and exactly mean_attributes' floats.
+  // levels 0 .. L-4 (L-3: `fine_means`, below), and no other, with the mean of its leaves (summed
+  // here in double from voxel_attributes) and exactly mean_attributes' floats.
   const SparseVoxelDag raw = dag::build_dag(smooth_shell(7));
   const SparseVoxelDag cmp = compressed(raw);
   for (const SparseVoxelDag* d : {&raw, &cmp}) {
@@ -287,43 +320,18 @@ TEST(DagLodMeans, TableHoldsEveryLargeCubeWithItsBruteForceMean) {
         const dag::VoxelRange r = d->cube_range(v, level);
         v += r.count;
         const SparseVoxelDag::CubeMean* e = d->cached_mean(r.first, level);
-        if (level > L - 3 || r.count <= SparseVoxelDag::kCubeMeanMin) {
+        if (level > L - 4 || r.count <= SparseVoxelDag::kCubeMeanMin) {
           EXPECT_EQ(e, nullptr) << "level " << level << " first " << r.first;
           continue;
         }
         ++large;
         ASSERT_NE(e, nullptr) << "level " << level << " first " << r.first;
         EXPECT_EQ(d->cached_mean(r.first + 1, level), nullptr);  // not a cube's first voxel
-        double s[7] = {};
-        for (uint64_t i = r.first; i < r.first + r.count; ++i) {
-          Color c;
-          Vec3 n;
-          d->voxel_attributes(i, &c, &n);
-          const double x[7] = {c.r, c.g, c.b, c.a, n.x, n.y, n.z};
-          for (int k = 0; k < 7; ++k) s[k] += x[k];
-        }
-        const double inv = 1.0 / double(r.count);
-        EXPECT_NEAR(e->color.r, s[0] * inv, 1e-5) << "level " << level << " first " << r.first;
-        EXPECT_NEAR(e->color.g, s[1] * inv, 1e-5);
-        EXPECT_NEAR(e->color.b, s[2] * inv, 1e-5);
-        EXPECT_NEAR(e->color.a, s[3] * inv, 1e-5);
-        const double len = std::sqrt(s[4] * s[4] + s[5] * s[5] + s[6] * s[6]);
-        if (len * inv > 1e-3) {
-          ++checked;
-          EXPECT_NEAR(e->normal.x, s[4] / len, 1e-4) << "level " << level << " first " << r.first;
-          EXPECT_NEAR(e->normal.y, s[5] / len, 1e-4);
-          EXPECT_NEAR(e->normal.z, s[6] / len, 1e-4);
-        }
-        Color m;
-        Vec3 mn;
-        d->mean_attributes(r, &m, &mn);
-        EXPECT_TRUE(std::memcmp(&m, &e->color, sizeof m) == 0 &&
-                    std::memcmp(&mn, &e->normal, sizeof mn) == 0)
-            << "level " << level << " first " << r.first;
+        if (expect_brute_force_mean(*d, r, e->color, e->normal, level)) ++checked;
       }
     }
     size_t entries = 0;
-    ASSERT_EQ(d->cube_means.size(), size_t(L - 2));  // levels 0 .. L-3
+    ASSERT_EQ(d->cube_means.size(), size_t(L - 3));  // levels 0 .. L-4
     for (const SparseVoxelDag::CubeMeanLevel& t : d->cube_means) {
       entries += t.entries.size();
       // Morton order per level, and about one bucket per entry (< 2 + 2).
@@ -336,11 +344,11 @@ TEST(DagLodMeans, TableHoldsEveryLargeCubeWithItsBruteForceMean) {
     EXPECT_GT(checked, large / 2);
     // The structure shades a cached cube's hit with the table's entry.
     dag::DagStructure st(std::make_shared<SparseVoxelDag>(*d));
-    const dag::VoxelRange r = d->cube_range(d->leaf_voxels / 2, L - 3);
-    ASSERT_NE(d->cached_mean(r.first, L - 3), nullptr);
+    const dag::VoxelRange r = d->cube_range(d->leaf_voxels / 2, L - 4);
+    ASSERT_NE(d->cached_mean(r.first, L - 4), nullptr);
     SurfaceHit hit{};
     hit.voxel_ref = r.first;
-    hit.level = L - 3;
+    hit.level = L - 4;
     TraceContext ctx;
     Color c, m;
     Vec3 n, mn;
@@ -356,6 +364,56 @@ TEST(DagLodMeans, TableHoldsEveryLargeCubeWithItsBruteForceMean) {
   bare.colors.clear(), bare.normals.clear();
   bare.finalize();
   EXPECT_TRUE(bare.cube_means.empty());
+}
+
+TEST(DagLodMeans, FineTableHoldsEveryLevelLMinus3CubeWithItsBruteForceMean) {
+  // dag.hpp `fine_means`: every cube at level L-3 (1 .. 512 voxels), found by
+  // its first voxel and by no other, with the mean of its leaves and exactly
+  // mean_attributes' floats.
+  const SparseVoxelDag raw = dag::build_dag(smooth_shell(7));
+  const SparseVoxelDag cmp = compressed(raw);
+  for (const SparseVoxelDag* d : {&raw, &cmp}) {
+    const int level = d->levels() - 3;
+    ASSERT_EQ(d->fine_starts.size(), size_t((d->leaf_voxels + 511) / 512));
+    ASSERT_EQ(d->fine_before.size(), d->fine_starts.size());
+    size_t cubes = 0, small = 0, checked = 0;
+    for (uint64_t v = 0; v < d->leaf_voxels;) {
+      const dag::VoxelRange r = d->cube_range(v, level);
+      ASSERT_EQ(r.first, v);
+      v += r.count;
+      ++cubes;
+      small += r.count <= SparseVoxelDag::kCubeMeanMin;
+      const SparseVoxelDag::FineMean* e = d->fine_mean(r.first);
+      ASSERT_NE(e, nullptr) << "first " << r.first;
+      for (uint64_t i = r.first + 1; i < r.first + r.count; ++i)
+        EXPECT_EQ(d->fine_mean(i), nullptr) << "voxel " << i << " inside the cube at " << r.first;
+      if (expect_brute_force_mean(*d, r, e->color, e->normal, level)) ++checked;
+    }
+    EXPECT_EQ(d->fine_means.size(), cubes);
+    EXPECT_EQ(d->fine_mean(d->leaf_voxels), nullptr);
+    EXPECT_GT(cubes, 100u);
+    EXPECT_GT(small, 0u);  // the cubes the coarser table leaves out are here too
+    EXPECT_GT(checked, cubes / 2);
+    // The structure shades an L-3 hit with the table's entry.
+    dag::DagStructure st(std::make_shared<SparseVoxelDag>(*d));
+    const dag::VoxelRange r = d->cube_range(d->leaf_voxels / 2, level);
+    SurfaceHit hit{};
+    hit.voxel_ref = r.first;
+    hit.level = level;
+    TraceContext ctx;
+    Color c, m;
+    Vec3 n, mn;
+    st.attributes(hit, ctx, &c, &n);
+    d->mean_attributes(r, &m, &mn);
+    EXPECT_TRUE(std::memcmp(&c, &m, sizeof c) == 0 && std::memcmp(&n, &mn, sizeof n) == 0);
+  }
+  // Without attributes: no table.
+  SparseVoxelDag bare = raw;
+  bare.colors.clear(), bare.normals.clear();
+  bare.finalize();
+  EXPECT_TRUE(bare.fine_means.empty());
+  EXPECT_TRUE(bare.fine_starts.empty());
+  EXPECT_TRUE(bare.fine_before.empty());
 }
 
 TEST(DagCompressed, RangeMeansEqualTheSlotBySlotSums) {

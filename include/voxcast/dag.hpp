@@ -79,6 +79,7 @@
 // The DAG occupies [1,2]^3 in octree space exactly as the ESVO does
 // (esvo §6.1); cube side 2^(s - esvo::kMaxScale) at scale s.
 #include <array>
+#include <bit>
 #include <cstdint>
 #include <memory>
 #include <vector>
@@ -131,6 +132,7 @@ struct DagStats {
   uint64_t svo_bytes = 0;        // pointer-less SVO, 1 byte per node (Schnabel & Klein)
   uint64_t esvo_bytes = 0;       // 8 bytes per node (ESVO descriptor + contour word)
   uint64_t index_bytes = 0;      // voxel_prefix (+ _wide) + attribute_prefix (derived at load)
+  uint64_t lod_mean_bytes = 0;   // of index_bytes: the LOD mean tables (cube_mean_bytes)
   uint64_t attribute_bytes = 0;  // colors + normals, or the compressed blocks
   bool compressed_attributes = false;  // attribute_bytes are esvo §5.5 blocks (24 B / 16 voxels)
   double bits_per_voxel = 0;           // dag_bytes * 8 / leaf_voxels
@@ -218,10 +220,11 @@ class SparseVoxelDag {
 
   // Derived by finalize() when there are attributes (never stored in files):
   // the LOD means of every cube of more than kCubeMeanMin leaf voxels at
-  // levels 0 .. L - 3, so that a coarse hit on one of them costs one short
-  // lookup instead of cube_range's descent and mean_attributes' sums. Finer
-  // cubes (levels L - 2 and L - 1, at most 64 voxels) keep that path, as do
-  // cubes of <= kCubeMeanMin voxels. Per level, the entries in Morton order
+  // levels 0 .. L - 4, so that a coarse hit on one of them costs one short
+  // lookup instead of cube_range's descent and mean_attributes' sums. Level
+  // L - 3 is in `fine_means` below (every cube); finer cubes (levels L - 2
+  // and L - 1, at most 64 voxels) keep that path, as do cubes of <=
+  // kCubeMeanMin voxels. Per level, the entries in Morton order
   // (ascending first voxel) and a bucket index over the first voxel's high
   // bits: bucket[b] = the first entry whose first voxel is >= b << shift,
   // about one bucket per entry. Neighbouring pixels hit cubes of nearby
@@ -242,13 +245,49 @@ class SparseVoxelDag {
     int shift = 0;
   };
   static constexpr uint64_t kCubeMeanMin = 32;
-  std::vector<CubeMeanLevel> cube_means;  // levels 0 .. L - 3, or none
-  /// Bytes of the table (entries and bucket indices).
+  std::vector<CubeMeanLevel> cube_means;  // levels 0 .. L - 4, or none
+
+  // Derived by finalize() with the table above (never stored in files): the
+  // LOD means of every cube at level L - 3 (the 8^3 cubes, 1 .. 512 voxels;
+  // where the LOD-1 hits of a 16384^3 scene land at 2048x1536, 39 % of them
+  // on cubes of <= kCubeMeanMin voxels, which the table above leaves out). No
+  // keys: `fine_starts` marks each cube's first voxel, one bit per leaf voxel
+  // in cache lines of 512, and `fine_before` holds the number of cubes before
+  // each line (4 B per 512 voxels, small enough to stay cached), so a lookup
+  // is one line of bits (the voxel's bit and up to 8 popcounts) and one
+  // 28-byte entry, both in Morton order (neighbouring pixels share lines).
+  // The means are mean_of_sum of each cube's exact fixed-point sum: the
+  // floats of mean_attributes. 1 bit per leaf voxel + 28 B per cube.
+  struct FineMean {
+    Color color;
+    Vec3 normal;
+  };
+  struct alignas(64) FineStarts {
+    uint64_t bits[8] = {};  // bit i of word k: voxel 512 line + 64 k + i starts a cube
+  };
+  std::vector<FineStarts> fine_starts;  // ceil(leaf_voxels / 512) lines, or none
+  std::vector<uint32_t> fine_before;    // per line: the cubes that start before it
+  std::vector<FineMean> fine_means;     // one per L - 3 cube, ascending first voxel
+  /// The L - 3 cube whose first leaf voxel is `first`, or null.
+  const FineMean* fine_mean(uint64_t first) const {
+    const uint64_t line = first >> 9;
+    if (line >= fine_starts.size()) return nullptr;
+    const uint64_t* w = fine_starts[size_t(line)].bits;
+    const int k = int(first >> 6) & 7;
+    const uint64_t bit = 1ull << (first & 63);
+    if (!(w[k] & bit)) return nullptr;
+    uint64_t n = fine_before[size_t(line)] + uint64_t(std::popcount(w[k] & (bit - 1)));
+    for (int j = 0; j < 8; ++j) n += j < k ? uint64_t(std::popcount(w[j])) : 0;
+    return &fine_means[size_t(n)];
+  }
+
+  /// Bytes of the tables (entries and bucket indices, fine means and starts).
   uint64_t cube_mean_bytes() const {
     uint64_t b = 0;
     for (const CubeMeanLevel& t : cube_means)
       b += uint64_t(t.entries.size()) * sizeof(CubeMean) + uint64_t(t.bucket.size()) * 4;
-    return b;
+    return b + uint64_t(fine_starts.size()) * sizeof(FineStarts) +
+           uint64_t(fine_before.size()) * 4 + uint64_t(fine_means.size()) * sizeof(FineMean);
   }
   /// The table's entry for the cube at `level` whose first leaf voxel is
   /// `first`, or null (a cube of <= kCubeMeanMin voxels, or `first` is not

@@ -1,6 +1,8 @@
 #pragma once
 // Facts about the machine the process runs on.
+#include <cstddef>
 #include <cstdint>
+#include <vector>
 
 namespace voxcast {
 
@@ -14,5 +16,33 @@ uint64_t parse_byte_size(const char* text);
 /// What a stat() st_mode is, for messages: "a directory", "a FIFO (named
 /// pipe)", "a character device", ..., "a regular file".
 const char* file_type_name(uint32_t st_mode);
+/// Asks Linux to back the whole 2 MiB pages inside [data, data + bytes) with
+/// transparent huge pages (MADV_HUGEPAGE): for large arrays read at random,
+/// where 4 KiB pages miss the TLB on nearly every access. Pages not yet
+/// touched then get huge pages when first written (THP "madvise" mode), so
+/// advise before filling (reserve_huge, assign_huge); pages already touched
+/// stay small. Advice only: the same bytes either way; refused, failed or
+/// elsewhere a no-op, as when the environment sets VOXCAST_NO_HUGE_PAGES (for
+/// comparisons). Returns the bytes advised.
+size_t advise_huge_pages(const void* data, size_t bytes);
+
+/// Room for n elements in `v` (whose elements are kept), allocated and then
+/// advised as huge pages before anything is written to it: fill it with
+/// push_back/insert. Fresh storage only if the capacity was below n.
+template <class T, class A>
+void reserve_huge(std::vector<T, A>& v, size_t n) {
+  if (v.capacity() >= n) return;
+  v.reserve(n);
+  advise_huge_pages(v.data(), v.capacity() * sizeof(T));
+}
+
+/// v = n copies of `value` in fresh storage advised as huge pages before the
+/// copies are written (std::vector's own assign would touch it first).
+template <class T, class A>
+void assign_huge(std::vector<T, A>& v, size_t n, const T& value = T()) {
+  v = std::vector<T, A>();
+  reserve_huge(v, n);
+  v.assign(n, value);
+}
 
 }  // namespace voxcast

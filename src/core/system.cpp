@@ -1,6 +1,9 @@
 #include "voxcast/system.hpp"
 
 #include <sys/stat.h>
+#if defined(__linux__)
+#include <sys/mman.h>
+#endif
 
 #include <cctype>
 #include <cmath>
@@ -94,6 +97,22 @@ uint64_t parse_byte_size(const char* text) {
   double bytes = v * mul;
   if (bytes >= 1.8e19) throw Error(std::string("'") + text + "' is too large a size");
   return uint64_t(bytes);
+}
+
+size_t advise_huge_pages(const void* data, size_t bytes) {
+#if defined(__linux__) && defined(MADV_HUGEPAGE)
+  constexpr uintptr_t kHuge = uintptr_t(2) << 20;
+  static const bool off = std::getenv("VOXCAST_NO_HUGE_PAGES") != nullptr;
+  const uintptr_t begin = (reinterpret_cast<uintptr_t>(data) + kHuge - 1) / kHuge * kHuge;
+  const uintptr_t end = (reinterpret_cast<uintptr_t>(data) + bytes) / kHuge * kHuge;
+  if (off || data == nullptr || end <= begin) return 0;
+  void* p = reinterpret_cast<void*>(begin);
+  if (madvise(p, end - begin, MADV_HUGEPAGE) != 0) return 0;
+  return size_t(end - begin);
+#else
+  (void)data, (void)bytes;
+  return 0;
+#endif
 }
 
 }  // namespace voxcast

@@ -26,6 +26,7 @@
 #include "voxcast/dag.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/progress.hpp"
+#include "voxcast/system.hpp"
 
 namespace voxcast::dag {
 namespace {
@@ -176,7 +177,7 @@ SparseVoxelDag build_dag(const VoxelSet& voxels, Progress* progress) {
     if (total > 0xFFFFFFFFull) throw Error("DAG build: the DAG exceeds 2^32 words");
   }
   dag.level_start[size_t(L - 1)] = uint32_t(total);
-  dag.words.resize(size_t(total));
+  assign_huge(dag.words, size_t(total), 0u);
   for (int l = 0; l < L - 2; ++l) {
     const auto& uniq = unique_inner[size_t(l)];
     const bool children_are_leaves = l + 1 == L - 2;
@@ -203,8 +204,8 @@ SparseVoxelDag build_dag(const VoxelSet& voxels, Progress* progress) {
 
   if (progress) progress->start_phase(3, 1);  // (ends the layout)
   if (attrs) {
-    dag.colors.resize(voxels.size());
-    dag.normals.resize(voxels.size());
+    assign_huge(dag.colors, voxels.size(), 0u);
+    assign_huge(dag.normals, voxels.size(), 0u);
     tbb::parallel_for(size_t(0), voxels.size(), [&](size_t i) {
       dag.colors[i] = esvo::encode_color_abgr(voxels.colors[i]);
       dag.normals[i] = esvo::encode_normal_cube(voxels.normals[i]);

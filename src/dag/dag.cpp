@@ -14,6 +14,7 @@
 #include "dag/attribute_sum.hpp"
 #include "esvo/compress.hpp"
 #include "voxcast/error.hpp"
+#include "voxcast/system.hpp"
 
 namespace voxcast::dag {
 namespace {
@@ -83,7 +84,7 @@ void derive_attribute_prefix(SparseVoxelDag& d) {
   d.attribute_prefix.clear();
   if (!d.has_attributes()) return;
   const size_t blocks = size_t(d.leaf_voxels) / B;
-  d.attribute_prefix.assign(blocks + 1, {});
+  assign_huge(d.attribute_prefix, blocks + 1);
   tbb::parallel_for(size_t(0), blocks,
                     [&](size_t b) { d.attribute_prefix[b + 1] = range_sum(d, b * B, B); });
   for (size_t b = 1; b <= blocks; ++b)
@@ -111,33 +112,51 @@ void mean_of_sum(const SparseVoxelDag& d, const AttributeSum& sum, VoxelRange ra
   }
 }
 
-// The LOD mean table (dag.hpp `cube_means`): the cubes of more than
-// kCubeMeanMin voxels at levels <= L - 3, found by a depth-first walk by
-// position (a node's subtree count is its header's prefix entry; children
-// hold fewer voxels, so the walk stops at the first cube that is too small).
-// Each cube's fixed-point sum is the sum of its children's (exact integers):
-// a child in the table contributes its own sum, any other child its voxels
-// summed directly, so every voxel under the table is decoded once. The mean
-// is mean_of_sum of that sum, as in mean_attributes. The walk is in Morton
-// order, so each level's entries arrive in ascending first voxel.
+// The LOD mean tables (dag.hpp `cube_means`, `fine_means`): the cubes of
+// more than kCubeMeanMin voxels at levels <= L - 4 and every cube at L - 3,
+// found by a depth-first walk by position (a node's subtree count is its
+// header's prefix entry). Each L - 3 cube's voxels are summed directly, every
+// coarser cube's fixed-point sum is the sum of its children's (exact
+// integers), so every voxel is decoded once. The mean is mean_of_sum of that
+// sum, as in mean_attributes. The walk is in Morton order, so each level's
+// entries arrive in ascending first voxel.
 void derive_cube_means(SparseVoxelDag& d) {
   d.cube_means.clear();
+  d.fine_starts.clear();
+  d.fine_before.clear();
+  d.fine_means.clear();
   if (!d.has_attributes()) return;
   const int L = d.grid.levels;
   if (L < 3) return;
-  std::vector<SparseVoxelDag::CubeMeanLevel> levels(size_t(L - 2));
-  // Returns the cube's sum; appends it to its level if it belongs in the table.
+  const int fine_level = L - 3;
+  // The L - 3 cubes and each coarser level's entries, counted first so that
+  // the tables are allocated once, advised as huge pages before they are
+  // written (rays read them at random).
+  std::vector<SparseVoxelDag::CubeMeanLevel> levels(static_cast<size_t>(fine_level));
+  std::vector<size_t> entries(levels.size(), 0);
+  auto count_fine = [&](auto&& self, uint32_t w, int level) -> uint64_t {
+    if (level == fine_level) return 1;
+    entries[size_t(level)] += d.prefix_entry(w) > SparseVoxelDag::kCubeMeanMin;
+    const int k = std::popcount(layout::ChildMask::get(d.words[w]));
+    if (level == fine_level - 1) return uint64_t(k);
+    uint64_t n = 0;
+    for (int j = 0; j < k; ++j) n += self(self, d.words[w + 1 + uint32_t(j)], level + 1);
+    return n;
+  };
+  std::vector<SparseVoxelDag::FineMean> fine;
+  reserve_huge(fine, size_t(count_fine(count_fine, 0, 0)));
+  for (size_t l = 0; l < levels.size(); ++l) reserve_huge(levels[l].entries, entries[l]);
+  std::vector<SparseVoxelDag::FineStarts> starts;
+  assign_huge(starts, size_t((d.leaf_voxels + 511) / 512));
+  // Returns the cube's sum; appends it to its level if it belongs in a table.
   auto visit = [&](auto&& self, uint32_t w, int level, uint64_t first) -> AttributeSum {
     const uint64_t count = d.prefix_entry(w);  // level <= L - 3: an interior node
-    std::vector<SparseVoxelDag::CubeMean>& out = levels[size_t(level)].entries;
-    SparseVoxelDag::CubeMean e;
-    e.first = first, e.level = level;
-    if (count <= SparseVoxelDag::kCubeMeanMin || level == L - 3) {
+    if (level == fine_level) {
       const AttributeSum sum = range_sum(d, size_t(first), size_t(count));
-      if (count > SparseVoxelDag::kCubeMeanMin) {
-        mean_of_sum(d, sum, {first, count}, &e.color, &e.normal);
-        out.push_back(e);
-      }
+      SparseVoxelDag::FineMean f;
+      mean_of_sum(d, sum, {first, count}, &f.color, &f.normal);
+      fine.push_back(f);
+      starts[size_t(first >> 9)].bits[(first >> 6) & 7] |= 1ull << (first & 63);
       return sum;
     }
     AttributeSum sum{};
@@ -148,8 +167,13 @@ void derive_cube_means(SparseVoxelDag& d) {
           self(self, d.words[p], level + 1, first + (j == 0 ? 0 : d.prefix_entry(p)));
       for (int i = 0; i < 7; ++i) sum[size_t(i)] += c[size_t(i)];
     }
-    mean_of_sum(d, sum, {first, count}, &e.color, &e.normal);
-    out.push_back(e);  // the children went to deeper levels: still ascending here
+    if (count > SparseVoxelDag::kCubeMeanMin) {
+      SparseVoxelDag::CubeMean e;
+      e.first = first, e.level = level;
+      mean_of_sum(d, sum, {first, count}, &e.color, &e.normal);
+      // The children went to deeper levels: still ascending here.
+      levels[size_t(level)].entries.push_back(e);
+    }
     return sum;
   };
   visit(visit, 0, 0, 0);
@@ -163,7 +187,7 @@ void derive_cube_means(SparseVoxelDag& d) {
     const uint64_t per = d.leaf_voxels / std::max<uint64_t>(n, 1);
     t.shift = per > 1 ? int(std::bit_width(per)) - 1 : 0;
     const size_t buckets = size_t(d.leaf_voxels >> t.shift) + 2;
-    t.bucket.assign(buckets, 0);
+    assign_huge(t.bucket, buckets, 0u);
     size_t i = 0;
     for (size_t b = 0; b < buckets; ++b) {
       while (i < n && (t.entries[i].first >> t.shift) < b) ++i;
@@ -171,6 +195,17 @@ void derive_cube_means(SparseVoxelDag& d) {
     }
   }
   if (total > 0) d.cube_means = std::move(levels);
+  if (fine.size() > 0xFFFFFFFFull) corrupt("more than 2^32 cubes on level L - 3");
+  std::vector<uint32_t> before;
+  assign_huge(before, starts.size(), 0u);
+  uint32_t n = 0;
+  for (size_t i = 0; i < starts.size(); ++i) {
+    before[i] = n;
+    for (const uint64_t w : starts[i].bits) n += uint32_t(std::popcount(w));
+  }
+  d.fine_starts = std::move(starts);
+  d.fine_before = std::move(before);
+  d.fine_means = std::move(fine);
 }
 
 }  // namespace
@@ -249,7 +284,7 @@ void SparseVoxelDag::finalize() {
   // (from the bottom) with a larger node and every level above it go to the
   // 64-bit table (dag.hpp "64-bit voxel indices"). Counts only grow upward,
   // so those levels are a prefix 0..T-1 and the words a prefix [0, wide_words).
-  voxel_prefix.assign(n, 0);
+  assign_huge(voxel_prefix, n, 0u);
   voxel_prefix_wide.clear();
   wide_words = 0;
   auto count_of = [&](uint32_t p, bool is_leaf) -> uint64_t {
@@ -270,7 +305,7 @@ void SparseVoxelDag::finalize() {
       }
       if (wide) {
         wide_words = uint32_t(end);
-        voxel_prefix_wide.assign(end, 0);
+        assign_huge(voxel_prefix_wide, end, uint64_t(0));
       }
     }
     for (size_t w = begin; w < end;) {
@@ -328,7 +363,8 @@ void SparseVoxelDag::encode_compressed_blocks(const uint32_t* colors, const uint
 void SparseVoxelDag::compress_attributes() {
   if (colors.empty()) return;
   const size_t V = colors.size(), blocks = (V + kCompressedSlots - 1) / kCompressedSlots;
-  std::vector<uint32_t> out(blocks * kCompressedBlockWords);
+  std::vector<uint32_t> out;
+  assign_huge(out, blocks * kCompressedBlockWords, 0u);
   encode_compressed_blocks(colors.data(), normals.data(), V, out.data());
   attribute_blocks = std::move(out);
   colors = {};
@@ -375,6 +411,7 @@ DagStats SparseVoxelDag::stats() const {
   st.index_bytes = uint64_t(voxel_prefix.size()) * 4 + uint64_t(voxel_prefix_wide.size()) * 8 +
                    uint64_t(attribute_prefix.size()) * sizeof(attribute_prefix[0]) +
                    cube_mean_bytes();
+  st.lod_mean_bytes = cube_mean_bytes();
   st.attribute_bytes = uint64_t(colors.size() + normals.size() + attribute_blocks.size()) * 4;
   st.compressed_attributes = compressed_attributes();
   st.bits_per_voxel = st.leaf_voxels ? double(st.dag_bytes) * 8.0 / double(st.leaf_voxels) : 0.0;

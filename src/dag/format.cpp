@@ -29,6 +29,7 @@
 #include "voxcast/dag_format.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/format_registry.hpp"
+#include "voxcast/system.hpp"
 
 namespace voxcast {
 namespace {
@@ -41,7 +42,8 @@ constexpr uint32_t kDagCompressedAttributes = fourcc("DATC");
 // second copy of the section is held).
 std::vector<uint32_t> read_words(const ContainerReader& c, uint32_t id) {
   const uint64_t size = c.section(id).size;
-  std::vector<uint32_t> w(size_t(size / 4));
+  std::vector<uint32_t> w;  // read at random by rays: huge pages
+  assign_huge(w, size_t(size / 4));
   c.read_into(id, w.data(), size);
   return w;
 }
@@ -153,8 +155,8 @@ dag::SparseVoxelDag dag_scene_from_container(const ContainerReader& c, SceneInfo
     // Interleaved (color, normal) pairs into the two arrays, a chunk at a
     // time where chunks hold whole pairs (every file this writer makes), so
     // that the section is not held beside them.
-    dag.colors.resize(size_t(si.leaf_voxels));
-    dag.normals.resize(size_t(si.leaf_voxels));
+    assign_huge(dag.colors, size_t(si.leaf_voxels));
+    assign_huge(dag.normals, size_t(si.leaf_voxels));
     const SectionInfo& sec = c.section(kDagAttributes);
     auto split = [&](const uint8_t* pairs, size_t first, size_t n) {
       for (size_t i = 0; i < n; ++i) {
@@ -211,6 +213,7 @@ SceneDescription describe(const Structure& s, const DescribeStyle& style) {
                  {"svo_1byte", st.svo_bytes},
                  {"esvo_8byte", st.esvo_bytes},
                  {"voxel_index", st.index_bytes},
+                 {"lod_means", st.lod_mean_bytes},
                  {"attributes", st.attribute_bytes}};
   j["bits_per_voxel"] = st.bits_per_voxel;
   // Raw 8 B/voxel or esvo §5.5 blocks of 16 voxels in Morton order (dag.hpp).
@@ -260,6 +263,11 @@ SceneDescription describe(const Structure& s, const DescribeStyle& style) {
         style.bytes(double(st.attribute_bytes)),
         st.compressed_attributes ? "compressed esvo §5.5 blocks of 16 voxels" : "raw",
         double(st.attribute_bytes) / v, style.bytes(double(st.index_bytes)));
+  if (st.lod_mean_bytes)
+    t += fmt::sprintf(
+        "LOD means   %s of the voxel index (%.3f bits/voxel): cubes of > 32 voxels at levels "
+        "0..L-4, every cube at L-3\n",
+        style.bytes(double(st.lod_mean_bytes)), double(st.lod_mean_bytes) * 8 / v);
   if (d.wide_words)
     t += fmt::sprintf(
         "voxel index 64-bit prefix entries for the %u words of the levels whose nodes "

@@ -67,10 +67,17 @@ void DagStructure::attributes(const SurfaceHit& hit, TraceContext& ctx, Color* c
   if (dag_->has_attributes()) {
     // A coarse (LOD) hit shows the mean of all its leaf voxels (dag.hpp),
     // as an ESVO parent shows its children's average (esvo §5.4).
-    // Cubes of more than kCubeMeanMin voxels: one lookup in the mean table.
+    // Coarser cubes of more than kCubeMeanMin voxels: one lookup in the mean table.
     // The others: the cube's voxels are the hit's first voxel and the count
     // the traversal named (Nodes::name_hit), or cube_range's where it has none.
     if (hit.level < dag_->levels() && hit.voxel_ref < dag_->leaf_voxels) {
+      // The 8^3 cubes at L - 3: one starts word and one entry (dag.hpp fine_means).
+      if (hit.level == dag_->levels() - 3) {
+        if (const SparseVoxelDag::FineMean* f = dag_->fine_mean(hit.voxel_ref)) {
+          *color = f->color, *normal = f->normal;
+          return;
+        }
+      }
       const uint64_t count = Nodes::child_count(hit.child);
       if (count == 0 || count > SparseVoxelDag::kCubeMeanMin) {
         if (const SparseVoxelDag::CubeMean* m = dag_->cached_mean(hit.voxel_ref, hit.level)) {
