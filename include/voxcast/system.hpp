@@ -21,9 +21,10 @@ const char* file_type_name(uint32_t st_mode);
 /// where 4 KiB pages miss the TLB on nearly every access. Pages not yet
 /// touched then get huge pages when first written (THP "madvise" mode), so
 /// advise before filling (reserve_huge, assign_huge); pages already touched
-/// stay small. Advice only: the same bytes either way; refused, failed or
-/// elsewhere a no-op, as when the environment sets VOXCAST_NO_HUGE_PAGES (for
-/// comparisons). Returns the bytes advised.
+/// stay small. Advice only: the same bytes either way. Opt-in: a no-op unless
+/// the environment sets VOXCAST_HUGE_PAGES=1 (first-touch cost varies by
+/// machine), and refused, failed or elsewhere a no-op. Returns the bytes
+/// advised.
 size_t advise_huge_pages(const void* data, size_t bytes);
 
 /// Room for n elements in `v` (whose elements are kept), allocated and then

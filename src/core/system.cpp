@@ -11,6 +11,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <string>
+#include <string_view>
 
 #include "voxcast/error.hpp"
 
@@ -102,7 +103,11 @@ uint64_t parse_byte_size(const char* text) {
 size_t advise_huge_pages(const void* data, size_t bytes) {
 #if defined(__linux__) && defined(MADV_HUGEPAGE)
   constexpr uintptr_t kHuge = uintptr_t(2) << 20;
-  static const bool off = std::getenv("VOXCAST_NO_HUGE_PAGES") != nullptr;
+  // Opt-in: on this project's VMs the first touch of huge pages cost up to
+  // 15 s of kernel time in a 16384^3 load for ~5 % faster rays
+  // (docs/BENCHMARKS.md, "16K³ against 2K³ at LOD 1").
+  static const char* on_env = std::getenv("VOXCAST_HUGE_PAGES");
+  static const bool off = on_env == nullptr || std::string_view(on_env) != "1";
   const uintptr_t begin = (reinterpret_cast<uintptr_t>(data) + kHuge - 1) / kHuge * kHuge;
   const uintptr_t end = (reinterpret_cast<uintptr_t>(data) + bytes) / kHuge * kHuge;
   if (off || data == nullptr || end <= begin) return 0;
