@@ -149,6 +149,10 @@ class SurfaceQuery {
   /// ctx.counters.attribute_bytes while counting.
   virtual void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
                           Vec3* normal) const = 0;
+  /// Starts loading what attributes(hit) will read (a hint: no result, no
+  /// counters), so that a group of hits' attribute reads are in flight
+  /// together before the group is shaded. Default: nothing.
+  virtual void prefetch_attributes(const SurfaceHit& hit) const { (void)hit; }
 
   /// Coarse pass of the beam optimization for one beam (esvo §6.2). Default:
   /// no information. While counting, ctx.counters receives the pass's own work

@@ -100,22 +100,25 @@ uint64_t parse_byte_size(const char* text) {
   return uint64_t(bytes);
 }
 
-size_t advise_huge_pages(const void* data, size_t bytes) {
+size_t advise_huge_pages(const void* data, size_t bytes, HugePages kind) {
 #if defined(__linux__) && defined(MADV_HUGEPAGE)
   constexpr uintptr_t kHuge = uintptr_t(2) << 20;
-  // Opt-in: on this project's VMs the first touch of huge pages cost up to
-  // 15 s of kernel time in a 16384^3 load for ~5 % faster rays
-  // (docs/BENCHMARKS.md, "16K³ against 2K³ at LOD 1").
-  static const char* on_env = std::getenv("VOXCAST_HUGE_PAGES");
-  static const bool off = on_env == nullptr || std::string_view(on_env) != "1";
+  // The bulk arrays opt-in, the DAG's words opt-out (system.hpp HugePages):
+  // on this project's VMs the first touch of huge pages for all ~3 GiB of a
+  // 16384^3 scene cost up to 15 s of kernel time, the words' 204 MiB none
+  // measurable (docs/BENCHMARKS.md, "16K³ against 2K³ at LOD 1").
+  static const char* env = std::getenv("VOXCAST_HUGE_PAGES");
+  static const bool bulk = env != nullptr && std::string_view(env) == "1";
+  static const bool hot = env == nullptr || std::string_view(env) != "0";
+  const bool on = kind == HugePages::kHot ? hot : bulk;
   const uintptr_t begin = (reinterpret_cast<uintptr_t>(data) + kHuge - 1) / kHuge * kHuge;
   const uintptr_t end = (reinterpret_cast<uintptr_t>(data) + bytes) / kHuge * kHuge;
-  if (off || data == nullptr || end <= begin) return 0;
+  if (!on || data == nullptr || end <= begin) return 0;
   void* p = reinterpret_cast<void*>(begin);
   if (madvise(p, end - begin, MADV_HUGEPAGE) != 0) return 0;
   return size_t(end - begin);
 #else
-  (void)data, (void)bytes;
+  (void)data, (void)bytes, (void)kind;
   return 0;
 #endif
 }

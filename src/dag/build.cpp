@@ -177,7 +177,7 @@ SparseVoxelDag build_dag(const VoxelSet& voxels, Progress* progress) {
     if (total > 0xFFFFFFFFull) throw Error("DAG build: the DAG exceeds 2^32 words");
   }
   dag.level_start[size_t(L - 1)] = uint32_t(total);
-  assign_huge(dag.words, size_t(total), 0u);
+  assign_huge(dag.words, size_t(total), 0u, HugePages::kHot);  // every ray walks them
   for (int l = 0; l < L - 2; ++l) {
     const auto& uniq = unique_inner[size_t(l)];
     const bool children_are_leaves = l + 1 == L - 2;

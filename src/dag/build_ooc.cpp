@@ -347,7 +347,7 @@ SparseVoxelDag build_dag_out_of_core(const Mesh& mesh, const GridTransform& grid
     if (total > 0xFFFFFFFFull) throw Error("DAG build: the DAG exceeds 2^32 words");
   }
   dag.level_start[size_t(L - 1)] = uint32_t(total);
-  assign_huge(dag.words, size_t(total), 0u);
+  assign_huge(dag.words, size_t(total), 0u, HugePages::kHot);  // every ray walks them
   for (int l = 0; l <= L - 2; ++l) {
     const std::vector<uint32_t>& src = tables[size_t(l)].data();
     uint32_t* dst = dag.words.data() + dag.level_start[size_t(l)];

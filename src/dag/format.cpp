@@ -40,10 +40,10 @@ constexpr uint32_t kDagCompressedAttributes = fourcc("DATC");
 
 // A section of whole words, read straight into the array that keeps it (no
 // second copy of the section is held).
-std::vector<uint32_t> read_words(const ContainerReader& c, uint32_t id) {
+std::vector<uint32_t> read_words(const ContainerReader& c, uint32_t id, HugePages kind) {
   const uint64_t size = c.section(id).size;
   std::vector<uint32_t> w;  // read at random by rays: huge pages
-  assign_huge(w, size_t(size / 4));
+  assign_huge(w, size_t(size / 4), 0u, kind);
   c.read_into(id, w.data(), size);
   return w;
 }
@@ -127,7 +127,7 @@ dag::SparseVoxelDag dag_scene_from_container(const ContainerReader& c, SceneInfo
   if (dag_size % 4 != 0 || dag_size < 8)
     throw Error("corrupt scene: SDAG section size " + std::to_string(dag_size) +
                 " is not a whole number of words of at least one node");
-  dag.words = read_words(c, kDagSection);
+  dag.words = read_words(c, kDagSection, HugePages::kHot);  // every ray walks them
   const bool raw = attributes && !compressed;
   if (raw != c.has(kDagAttributes))
     throw Error(raw ? "corrupt scene: META says attributes but there is no DATR section"
@@ -146,7 +146,7 @@ dag::SparseVoxelDag dag_scene_from_container(const ContainerReader& c, SceneInfo
       throw Error("corrupt scene: DATC section holds " + std::to_string(size) +
                   " bytes, expected " + std::to_string(expected) + " (24 per 16 leaf voxels, " +
                   std::to_string(si.leaf_voxels) + " voxels)");
-    dag.attribute_blocks = read_words(c, kDagCompressedAttributes);
+    dag.attribute_blocks = read_words(c, kDagCompressedAttributes, HugePages::kBulk);
   } else if (attributes) {
     const uint64_t size = c.section(kDagAttributes).size;
     if (size != si.leaf_voxels * 8)

@@ -144,6 +144,14 @@ struct DagNodes {
   /// voxel, child = the entered face | the cube's voxel count (above).
   static void name_hit(const Source& s, const OctreeCast<Index>& r, SurfaceHit* hit) {
     hit->voxel_ref = r.index;
+    // An 8^3 (L - 3) hit is shaded from fine_mean(first voxel) after the
+    // rest of its rays are traced: start loading its line of start bits and
+    // its count now, so that the lookup then finds them cached.
+    const uint64_t line = r.index >> 9;
+    if (r.scale == esvo::kMaxScale - s.levels() + 3 && line < s.fine_starts.size()) {
+      _mm_prefetch(reinterpret_cast<const char*>(&s.fine_starts[size_t(line)]), _MM_HINT_T0);
+      _mm_prefetch(reinterpret_cast<const char*>(&s.fine_before[size_t(line)]), _MM_HINT_T0);
+    }
     const uint64_t n = hit_count(s, r.node, r.child, r.scale);
     hit->child = uint32_t(r.face) | uint32_t(n <= kHitCountMax ? n : 0) << kHitCountShift;
   }

@@ -8,6 +8,8 @@
 // contributes its node access and voxel indexing (dag/octree_nodes.hpp). The any-hit variant
 // (shadow rays) skips the index bookkeeping; the loop visits voxels front to back, so the first
 // leaf found is also the closest one.
+#include <immintrin.h>
+
 #include <cstdint>
 
 #include "core/octree_caster.hpp"
@@ -55,6 +57,15 @@ DagStructure::DagStructure(std::shared_ptr<const SparseVoxelDag> dag) : dag_(std
   if (dag_->words.empty() || dag_->voxel_prefix.size() != dag_->words.size())
     throw Error("DagStructure: the DAG is empty or not finalized");
   if (!(dag_->grid.side() > 0)) throw Error("DagStructure: DAG has a non-positive side");
+}
+
+void DagStructure::prefetch_attributes(const SurfaceHit& hit) const {
+  if (hit.level != dag_->levels() - 3) return;
+  if (const SparseVoxelDag::FineMean* f = dag_->fine_mean(hit.voxel_ref)) {
+    // 28 bytes: they may straddle two cache lines.
+    _mm_prefetch(reinterpret_cast<const char*>(f), _MM_HINT_T0);
+    _mm_prefetch(reinterpret_cast<const char*>(f + 1) - 1, _MM_HINT_T0);
+  }
 }
 
 void DagStructure::attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,

@@ -82,8 +82,9 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
 
   // Hits are shaded in groups of up to kShadeLanes: first every hit's
   // attributes are fetched (mostly cache misses: the values live far from
-  // the descriptors; issued back to back they overlap in the memory system
-  // instead of stalling one hit at a time), then the group's shadow rays are
+  // the descriptors; prefetched for the whole group and then read back to
+  // back, they overlap in the memory system instead of stalling one hit at
+  // a time), then the group's shadow rays are
   // traced together (effects.hpp: one packet of parallel rays under a
   // directional light), then per hit the AO rays, then the group's
   // Blinn-Phong runs in vector lanes (render/shade_kernel.hpp), and the
@@ -97,6 +98,7 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
   float group_vis[detail::kShadeLanes];
   auto shade_group = [&](const SurfaceHit* const* hits, const int* xs, const int* ys,
                          const Vec3* dirs, int m) {
+    for (int i = 0; i < m; ++i) q.prefetch_attributes(*hits[i]);
     for (int i = 0; i < m; ++i) {
       const SurfaceHit& hit = *hits[i];
       q.attributes(hit, ctx, &group_c[i], &group_n[i]);  // counts its bytes while collecting
