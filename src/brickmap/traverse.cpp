@@ -909,9 +909,22 @@ void BrickmapStructure::beam_start(const BeamFrustum& beam, TraceContext& ctx,
     // depend on the cut (BrickmapOracle.BeamStartGivesTheSameImages).
     const int k = item.k - 1;
     const uint32_t c0[3] = {2 * item.c[0], 2 * item.c[1], 2 * item.c[2]};
+    // The children's words from the first child's index by strides (1 in
+    // x, a row in y, a plane in z) instead of filled()'s index per child
+    // (the eight look-ups were a quarter of the pass, perf); the same test.
+    const bool cell_level = k == 0;
+    const uint64_t row = cell_level ? w.dims()[0] : w.pyramid_dim(k);
+    const uint32_t dim_y = cell_level ? w.dims()[1] : w.pyramid_dim_y(k);
+    const uint64_t plane = row * dim_y;
+    const uint32_t* words = cell_level ? w.cells().data() : &w.pyramid_node(k, 0).bricks;
+    const size_t step = cell_level ? 1 : sizeof(PyramidNode) / sizeof(uint32_t);
+    const uint64_t first = c0[0] + row * (c0[1] + uint64_t(dim_y) * c0[2]);
     uint32_t present = 0;
-    for (uint32_t m = 0; m < 8; ++m)
-      if (filled(k, c0[0] + (m & 1), c0[1] + (m >> 1 & 1), c0[2] + (m >> 2))) present |= 1u << m;
+    for (uint32_t m = 0; m < 8; ++m) {
+      if (c0[1] + (m >> 1 & 1) >= dim_y) continue;  // above a cut-off brickgrid: empty
+      const uint64_t at = first + (m & 1) + row * (m >> 1 & 1) + plane * (m >> 2);
+      present |= words[at * step] != 0 ? 1u << m : 0u;
+    }
     if (present == 0) continue;
     const float side = cell_side * float(1u << item.k), hs = 0.5f * side;
     const float lo[3] = {1.f + float(item.c[0]) * side, 1.f + float(item.c[1]) * side,
