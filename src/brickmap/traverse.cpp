@@ -892,7 +892,14 @@ void BrickmapStructure::coarse_pass(const BeamFrustum& beam, TraceContext& ctx, 
     start->valid = start->empty = true;  // the tile's beam, which holds this one, meets nothing
     return;
   }
-  ::voxcast::detail::BeamClassifier cls(beam, g);
+  // A tile's pass (the list its blocks start from) cuts at cubes as wide as
+  // its beam (stop fraction 1 instead of 2): done once per tile, it leaves
+  // the four block passes less to descend. Harness, packet+frustum, LOD 0 /
+  // 1 px: medium 454-457 / 473-488 -> 441-444 / 458-462 cycles per ray,
+  // distant 202-216 / 190-212 -> 196-200 / 183-186 (0.5: no better, 4: worse).
+  constexpr double kTileStopFraction = 1.0;
+  ::voxcast::detail::BeamClassifier cls(
+      beam, g, list ? kTileStopFraction : ::voxcast::detail::BeamClassifier::kStopFraction);
   if (!cls.valid()) return;
   struct Item {
     int k;
