@@ -23,13 +23,16 @@
 #include <vector>
 
 #include "brickmap/brick_skip.hpp"
+#include "render/beam.hpp"
 #include "support/cli_runner.hpp"
 #include "support/dda_oracle.hpp"
 #include "support/esvo_testing.hpp"
+#include "support/packet_testing.hpp"
 #include "support/test_data.hpp"
 #include "voxcast/brickmap.hpp"
 #include "voxcast/brickmap_file.hpp"
 #include "voxcast/brickmap_stream.hpp"
+#include "voxcast/camera.hpp"
 #include "voxcast/effects.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/esvo.hpp"
@@ -476,19 +479,33 @@ TEST(BrickmapOracle, VoxelizedMeshFirstHitsMatchTheDenseGridDda) {
 // units far from the origin, so plane ties are inexact), with LOD, with a
 // camera inside the grid, an orthographic one (parallel beams), and with
 // not-resident bricks (LOD colors).
-TEST(BrickmapOracle, BeamStartGivesTheSameImages) {
-  const Mesh mesh = load_mesh(testing::test_mesh("spot.obj"));
-  const VoxelSet set = voxelize(mesh, GridTransform::fit(mesh.bounds(), 256), {});
-  auto world = std::make_shared<World>(build_world(set));
-  const auto full = std::make_unique<BrickmapStructure>(world);
-  auto partial_world = std::make_shared<World>(*world);
+// The spot at 256^3 as a resident world and as a copy with every third
+// non-empty cell not resident (the beam start tests' two worlds).
+struct SpotWorlds {
+  Mesh mesh;
+  std::unique_ptr<BrickmapStructure> full, partial;
   uint64_t evicted = 0;
+};
+SpotWorlds spot_worlds() {
+  SpotWorlds s;
+  s.mesh = load_mesh(testing::test_mesh("spot.obj"));
+  const VoxelSet set = voxelize(s.mesh, GridTransform::fit(s.mesh.bounds(), 256), {});
+  auto world = std::make_shared<World>(build_world(set));
+  s.full = std::make_unique<BrickmapStructure>(world);
+  auto partial_world = std::make_shared<World>(*world);
   for (uint64_t c = 0; c < partial_world->cells().size(); ++c)
     if (partial_world->cell(c) != 0 && c % 3 == 0)
-      partial_world->set_not_resident(c, 0xFF2040F0u), ++evicted;
-  ASSERT_GT(evicted, 0u);
-  const auto partial = std::make_unique<BrickmapStructure>(partial_world);
-  const Aabb b = mesh.bounds();
+      partial_world->set_not_resident(c, 0xFF2040F0u), ++s.evicted;
+  s.partial = std::make_unique<BrickmapStructure>(partial_world);
+  return s;
+}
+
+TEST(BrickmapOracle, BeamStartGivesTheSameImages) {
+  const SpotWorlds spot = spot_worlds();
+  ASSERT_GT(spot.evicted, 0u);
+  const BrickmapStructure* full = spot.full.get();
+  const BrickmapStructure* partial = spot.partial.get();
+  const Aabb b = spot.mesh.bounds();
   RenderOptions o;
   o.width = 93, o.height = 71;  // partial beam blocks at the borders
   o.want_depth = o.want_normal = true;
@@ -502,7 +519,7 @@ TEST(BrickmapOracle, BeamStartGivesTheSameImages) {
       Camera::orbit(b, o.width, o.height, 90.f, 0.f), inside,
       Camera::orbit(b, o.width, o.height, 35.f, 30.f).orthographic(b, o.width, o.height)};
   uint64_t hits = 0;
-  for (const BrickmapStructure* s : {full.get(), partial.get()})
+  for (const BrickmapStructure* s : {full, partial})
     for (const Camera& cam : cameras)
       for (float lod : {0.f, 1.f, 4.f}) {
         o.camera = cam;
@@ -513,8 +530,8 @@ TEST(BrickmapOracle, BeamStartGivesTheSameImages) {
         for (int beam : {4, 8}) {
           o.beam = beam;
           const RenderResult on = render(*s, o);
-          const std::string what = std::string(s == full.get() ? "resident" : "partial") +
-                                   " beam " + std::to_string(beam) + " lod " + std::to_string(lod) +
+          const std::string what = std::string(s == full ? "resident" : "partial") + " beam " +
+                                   std::to_string(beam) + " lod " + std::to_string(lod) +
                                    " camera " + cam.to_string();
           EXPECT_EQ(on.hits, off.hits) << what;
           for (const auto& [a, c] :
@@ -527,6 +544,75 @@ TEST(BrickmapOracle, BeamStartGivesTheSameImages) {
         }
       }
   EXPECT_GT(hits, 0u);
+}
+
+// frustum_start() within a tile's start (the tile's cubes instead of the
+// root): the images of render --frustum equal the scalar path's without a
+// pass, on every ISA, LOD 0, 1 and 4, resident and partly not resident; a
+// tile's pass lists its cubes, a block's box lies inside its tile's, and a
+// block is empty exactly when the pass from the root finds it empty.
+TEST(BrickmapOracle, FrustumStartWithinTheTileGivesTheSameImages) {
+  const SpotWorlds spot = spot_worlds();
+  const BrickmapStructure* full = spot.full.get();
+  const BrickmapStructure* partial = spot.partial.get();
+  const Aabb b = spot.mesh.bounds();
+  RenderOptions o;
+  o.width = 93, o.height = 71;  // partial tiles and blocks at the borders
+  o.want_depth = o.want_normal = true;
+  const Camera cameras[] = {Camera::orbit(b, o.width, o.height, 20.f, 25.f),
+                            Camera::orbit(b, o.width, o.height, 200.f, -10.f)};
+  uint64_t hits = 0, listed = 0;
+  for (const auto& [s, name] : {std::pair{full, "resident"}, std::pair{partial, "partial"}})
+    for (const Camera& cam : cameras)
+      for (float lod : {0.f, 1.f, 4.f}) {
+        o.frustum = 0;
+        o.camera = cam, o.lod_pixels = lod;
+        o.caster = Caster::Scalar;
+        const RenderResult off = render(*s, o);
+        hits += off.hits;
+        o.caster = Caster::Packet;
+        for (const Isa isa : testing::packet_isas()) {
+          o.isa = isa;
+          for (int k : {4, 8}) {
+            o.frustum = k;
+            const RenderResult on = render(*s, o);
+            const std::string what = std::string(s == full ? "resident" : "partial") + " frustum " +
+                                     std::to_string(k) + " lod " + std::to_string(lod) + " " +
+                                     isa_name(isa);
+            EXPECT_EQ(on.hits, off.hits) << what;
+            EXPECT_TRUE(on.color.pixels == off.color.pixels) << what;
+            EXPECT_TRUE(on.depth.pixels == off.depth.pixels) << what;
+            EXPECT_TRUE(on.normal.pixels == off.normal.pixels) << what;
+          }
+        }
+        // The starts themselves: a 16x16 tile's list, its 8x8 blocks from it.
+        const CameraRays cr(cam, o.width, o.height);
+        LodFootprint fp;
+        fp.size_per_t = lod * cr.pixel_angle();
+        TraceContext ctx;
+        BeamStart tile, block, root;
+        s->frustum_start(voxcast::detail::block_beam(cr, 32, 16, 48, 32, fp), 0, ctx, &tile);
+        ASSERT_TRUE(tile.valid);
+        if (tile.empty) continue;
+        EXPECT_EQ(tile.octant, -1);
+        ASSERT_FALSE(tile.nodes.empty());
+        listed += tile.nodes.size();
+        for (const auto& [x0, y0] : {std::pair{32, 16}, std::pair{40, 24}}) {
+          const BeamFrustum beam = voxcast::detail::block_beam(cr, x0, y0, x0 + 8, y0 + 8, fp);
+          s->frustum_start(beam, 0, ctx, &block, &tile);
+          s->beam_start(beam, ctx, &root);
+          ASSERT_TRUE(block.valid && root.valid);
+          EXPECT_TRUE(block.nodes.empty());  // only a tile's pass lists
+          EXPECT_EQ(block.empty, root.empty);
+          if (block.empty) continue;
+          for (int a = 0; a < 3; ++a) {
+            EXPECT_GE(block.region.lo[a], tile.region.lo[a]);
+            EXPECT_LE(block.region.hi[a], tile.region.hi[a]);
+          }
+        }
+      }
+  EXPECT_GT(hits, 0u);
+  EXPECT_GT(listed, 0u);
 }
 
 // The brick test before a brick's voxel DDA (traverse.cpp, brick_slices)

@@ -475,6 +475,11 @@ World build_world(const VoxelSet& voxels, const BuildOptions& options = {});
 /// ray of the beam can stop in; trace() then starts just before the box's
 /// entry planes, with each level's start cell found by plane comparisons,
 /// so the hit is bit-identical to the walk from the grid's entry.
+/// frustum_start(): beam_start() that also lists the kept cubes (BeamStart::
+/// nodes, octant -1: no front-to-back order, the packet walk uses the box
+/// only); given such a `within` (a tile's, for its pixel blocks), the pass
+/// starts from its cubes instead of the root: the tile's beam holds the
+/// block's, so every cube a block ray can stop in lies in one of them.
 /// attributes(): the stored color and normal; the crossed face's normal
 /// without stored normals and for LOD hits; a ray starting inside a voxel
 /// gets the face the ray looks at (the dominant axis of -direction).
@@ -503,6 +508,8 @@ class BrickmapStructure final : public Structure, public SurfaceQuery, public Su
   float transmittance(const Ray& ray, const LodFootprint& lod, TraceContext& ctx,
                       const BeamStart* beam = nullptr) const override;
   void beam_start(const BeamFrustum& beam, TraceContext& ctx, BeamStart* start) const override;
+  void frustum_start(const BeamFrustum& beam, int octant, TraceContext& ctx, BeamStart* start,
+                     const BeamStart* within = nullptr) const override;
   void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
                   Vec3* normal) const override;
   const SurfacePackets* packets() const override { return this; }
@@ -514,6 +521,10 @@ class BrickmapStructure final : public Structure, public SurfaceQuery, public Su
   const World& world() const { return *world_; }
 
  private:
+  // beam_start() and frustum_start(): the pass from the root, or from
+  // `within`'s cubes; `list`: also record the kept cubes in start->nodes.
+  void coarse_pass(const BeamFrustum& beam, TraceContext& ctx, BeamStart* start,
+                   const BeamStart* within, bool list) const;
   std::shared_ptr<const World> world_;
   std::vector<uint32_t>* seen_;
 };

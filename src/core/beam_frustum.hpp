@@ -33,6 +33,8 @@
 // directions (render/beam.cpp), and the caster's rounded rays stay within a
 // few ulps of the octree coordinates (abs_tol) plus the direction change of
 // the 2^-23 clamp of tiny direction components (ang_tol per unit distance).
+#include <immintrin.h>
+
 #include <algorithm>
 #include <bit>
 #include <cmath>
@@ -222,17 +224,16 @@ class BeamClassifier {
                     (zero + narrow * narrow <= float(width2_) * (dx * dx + dy * dy + dz * dz));
     if (lod_coef_ > 0 || lod_bias_ > 0) {
       // sqrt bounds from above in float: the slack covers its rounding.
+      // One vector sqrt (the same correctly rounded values as 8 scalar
+      // std::sqrt calls, which were a tenth of the brickmap coarse pass at LOD 1).
       const F8 dist2 = cx * cx + cy * cy + cz * cz;
-      F8 far{};
-      for (int k = 0; k < 8; ++k) far[k] = std::sqrt(dist2[k]);
+      F8 far = (F8)_mm256_sqrt_ps((__m256)dist2);
       far += h * 1.7320508f + off_max_;
       keep_whole |= hs <= float(lod_coef_) * (far + tol) + float(lod_bias_);
     }
-    uint32_t out = 0, whole = 0;
-    for (int k = 0; k < 8; ++k) {
-      out |= outside[k] != 0 ? 1u << k : 0u;
-      whole |= keep_whole[k] != 0 ? 1u << k : 0u;
-    }
+    // The lane masks' sign bits as child bits.
+    const uint32_t out = uint32_t(_mm256_movemask_ps((__m256)outside));
+    const uint32_t whole = uint32_t(_mm256_movemask_ps((__m256)keep_whole));
     const uint32_t in = present & ~out;
     *keep = in & (leaves | whole);
     *descend = in & ~*keep;
