@@ -20,10 +20,10 @@ const char* file_type_name(uint32_t st_mode);
 /// attribute arrays (prefix sums, LOD mean tables, attribute blocks);
 /// advised only when the environment sets VOXCAST_HUGE_PAGES=1, since the
 /// first touch of their huge pages cost up to 15 s of kernel time per
-/// 16384^3 load (docs/BENCHMARKS.md, "16K³ against 2K³ at LOD 1"). kHot: a
-/// DAG's words (the geometry every ray walks, 204 MiB at 16384^3), whose
-/// huge pages measured no extra kernel time; advised unless
-/// VOXCAST_HUGE_PAGES=0.
+/// 16384^3 load (docs/BENCHMARKS.md, "16K³ against 2K³ at LOD 1"). kHot:
+/// what every ray walks: a DAG's words (204 MiB at 16384^3, whose huge
+/// pages measured no extra kernel time) and the GigaVoxels brick pool;
+/// advised unless VOXCAST_HUGE_PAGES=0.
 enum class HugePages { kBulk, kHot };
 
 /// Asks Linux to back the whole 2 MiB pages inside [data, data + bytes) with

@@ -22,12 +22,9 @@
 #include <map>
 #include <new>
 
-#if defined(__linux__)
-#include <sys/mman.h>
-#endif
-
 #include "voxcast/error.hpp"
 #include "voxcast/integrator.hpp"
+#include "voxcast/system.hpp"
 
 namespace voxcast::giga {
 namespace {
@@ -53,15 +50,15 @@ inline float pow2f(int e) {
 /// TLB, and the profile's hottest instructions were the brick loads. The
 /// pool is aligned to 2 MiB and advised as huge pages (Linux transparent
 /// huge pages in "madvise" mode): one TLB entry then covers 256 bricks of
-/// 8 KB. Elsewhere (or when refused) ordinary pages, the same bytes.
+/// 8 KB. Like a DAG's words, on unless VOXCAST_HUGE_PAGES=0 (system.hpp
+/// HugePages::kHot). Elsewhere (or when refused) ordinary pages, the same
+/// bytes.
 PoolVoxel* allocate_brick_pool(size_t voxels) {
   constexpr size_t kHuge = size_t(2) << 20;
   const size_t bytes = (voxels * sizeof(PoolVoxel) + kHuge - 1) / kHuge * kHuge;
   void* p = std::aligned_alloc(kHuge, bytes);
   if (p == nullptr) throw std::bad_alloc();
-#if defined(__linux__)
-  madvise(p, bytes, MADV_HUGEPAGE);  // advice only: failure leaves 4 KiB pages
-#endif
+  advise_huge_pages(p, bytes, HugePages::kHot);  // advice only: refused leaves 4 KiB pages
   return static_cast<PoolVoxel*>(p);
 }
 
