@@ -18,7 +18,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
-#include <functional>
+#include <limits>
 #include <map>
 #include <new>
 
@@ -1158,32 +1158,34 @@ std::string GigaVoxels::validate() const {
   for (uint32_t t = 0; t < tiles; ++t) {
     for (uint32_t c = 0; c < 8; ++c) {
       const uint32_t node = t * 8 + c;
-      const std::string where = "node " + std::to_string(node);
+      // Built only for a message: a string per node made validate() slow on
+      // pools of millions of nodes.
+      auto where = [node] { return "node " + std::to_string(node); };
       if (!allocated(t) || (t == 0 && c != 0)) {
-        if (child_[node] != 0 || data_[node] != 0) return where + " of a free tile has pointers";
+        if (child_[node] != 0 || data_[node] != 0) return where() + " of a free tile has pointers";
         continue;
       }
       const uint32_t ct = NodeChildTile::get(child_[node]);
       if (ct != 0) {
-        if (ct >= tiles || !allocated(ct)) return where + " points to a free tile";
-        if (tile_parent_[ct] != node) return where + " points to another node's tile";
-        if (tile_stamp_[ct] == 0) return where + " points to an invalidated tile";
+        if (ct >= tiles || !allocated(ct)) return where() + " points to a free tile";
+        if (tile_parent_[ct] != node) return where() + " points to another node's tile";
+        if (tile_stamp_[ct] == 0) return where() + " points to an invalidated tile";
         const NodeRegion r = region_of(node);
         const uint32_t code = tile_code_[ct];
         if (tile_depth_[ct] != r.level + 1 || LocX::get(code) != r.x || LocY::get(code) != r.y ||
             LocZ::get(code) != r.z)
-          return where + ": child tile's localization code is not the node's";
+          return where() + ": child tile's localization code is not the node's";
       }
       const uint32_t dw = data_[node];
       const uint32_t kind = NodeDataKind::get(dw), payload = NodeDataPayload::get(dw);
       if (kind == kDataBrick) {
-        if (payload >= bricks) return where + " points past the brick pool";
-        if (brick_owner_[payload] != node) return where + " points to another node's brick";
-        if (brick_stamp_[payload] == 0) return where + " points to an invalidated brick";
+        if (payload >= bricks) return where() + " points past the brick pool";
+        if (brick_owner_[payload] != node) return where() + " points to another node's brick";
+        if (brick_stamp_[payload] == 0) return where() + " points to an invalidated brick";
       } else if (kind == kDataConstant) {
-        if (payload >= constants_.size()) return where + " names a missing constant";
+        if (payload >= constants_.size()) return where() + " names a missing constant";
       } else if (kind != kDataNone) {
-        return where + " has an unknown data kind";
+        return where() + " has an unknown data kind";
       }
     }
   }
@@ -1209,18 +1211,25 @@ std::string GigaVoxels::validate() const {
   // The empty-below summaries, recomputed top-down by recursion (end_pass
   // builds them bottom-up): how deep the subtree of an empty node stays
   // empty and resident (-1: the node is not empty).
+  // Memoized per node (each node's answer is asked by its parent's check
+  // and by every ancestor's recursion: without it the checks cost the sum
+  // of all subtree sizes).
   const int max_level = producer_->max_level();
-  std::function<int(uint32_t, int)> empty_to = [&](uint32_t node, int level) {
+  constexpr int kUnknown = std::numeric_limits<int>::min();
+  std::vector<int> empty_memo(child_.size(), kUnknown);
+  auto empty_to = [&](auto&& self, uint32_t node, int level) -> int {
+    int& memo = empty_memo[node];
+    if (memo != kUnknown) return memo;
     const uint32_t dw = data_[node], cw = child_[node];
     if (NodeDataKind::get(dw) != kDataConstant ||
         constants_[NodeDataPayload::get(dw)].density > 0.f)
-      return -1;
-    if (NodeTerminal::test(cw) || level >= max_level) return kMaxLevel;
+      return memo = -1;
+    if (NodeTerminal::test(cw) || level >= max_level) return memo = kMaxLevel;
     const uint32_t ct = NodeChildTile::get(cw);
     int deepest = kMaxLevel;
     for (uint32_t c = 0; c < 8 && ct != 0; ++c)
-      deepest = std::min(deepest, empty_to(ct * 8 + c, level + 1));
-    return ct == 0 ? level : std::max(level, deepest);
+      deepest = std::min(deepest, self(self, ct * 8 + c, level + 1));
+    return memo = ct == 0 ? level : std::max(level, deepest);
   };
   for (uint32_t t = 0; t < tiles; ++t) {
     if (!allocated(t)) continue;
@@ -1229,7 +1238,7 @@ std::string GigaVoxels::validate() const {
       const int level = region_of(node).level;
       int expect = ct != 0 ? kMaxLevel : 0;
       for (uint32_t c = 0; c < 8 && ct != 0; ++c)
-        expect = std::min(expect, empty_to(ct * 8 + c, level + 1));
+        expect = std::min(expect, empty_to(empty_to, ct * 8 + c, level + 1));
       if (int(NodeEmptyBelow::get(child_[node])) != std::max(expect, 0))
         return "node " + std::to_string(node) + ": empty-below summary " +
                std::to_string(NodeEmptyBelow::get(child_[node])) + ", expected " +
