@@ -743,7 +743,9 @@ TEST(BrickmapSkip, TheSameLodHitsWithAndWithoutTheBlockMasks) {
               (unsigned long long)steps_fast);
   EXPECT_GE(hits, rays / 5);
   EXPECT_GE(coarse, hits / 4);
-  EXPECT_EQ(steps_fast, steps_ref);  // the same DDA steps, only the occupancy test differs
+  // The same DDA steps but for the 2^3 blocks of visit_pairs, whose brick
+  // test and slab entry skip some.
+  EXPECT_LT(steps_fast, steps_ref);
 }
 
 // ---------------------------------------------------------------------------

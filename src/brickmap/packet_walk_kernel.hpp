@@ -31,6 +31,8 @@
 //            per 16-lane pass) and slice entry (enter_slice): a lane
 //            whose ray meets no solid voxel of the brick steps on, the
 //            others start at the first slice ahead that may hold a hit.
+//            The same for a push into a brick's 2^3 blocks (visit_pairs:
+//            the mask dilated to whole blocks, slabs of 2 slices).
 // A not-resident cell (no LOD stop) ends the lane as kPacketScalar, a lane
 // found outside the grid (a fault of the walk) as kPacketFault. Lanes
 // are filled 16 (8) rays at a time, a 4x4 (4x2) pixel block.
@@ -165,7 +167,7 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
     // half words of the slice (rows 0-3 and 4-7); the ray's values come to
     // the lanes by permutes. One pass for two rays (one for one with 8
     // lanes), instead of a pass per ray with a lane per half word.
-    auto brick_slices = [&](int la, int lb, F te) {
+    auto brick_slices = [&](int la, int lb, F te, I dil) {
       const I sel = lane < 8 ? I{} + la : I{} + lb;
       const auto pick = [&](auto v) {
         using V = decltype(v);
@@ -218,6 +220,27 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
                                     _mm256_permutevar8x32_epi32(wb, ev), 0xF0);
         whi = (U)_mm256_blend_epi32(_mm256_permutevar8x32_epi32(wa, od),
                                     _mm256_permutevar8x32_epi32(wb, od), 0xF0);
+      }
+      // 2-voxel blocks: every voxel of an occupied block set (the pair of
+      // slices, of rows and of columns ORed), so the test is the blocks'.
+      const I dl = pick(dil);
+      if (L::bits(dl)) {
+        const I pair = lane ^ 1;
+        U zlo, zhi;
+        if constexpr (N == 16) {
+          zlo = (U)_mm512_maskz_permutexvar_epi32(0xFFFF, (__m512i)pair, (__m512i)wlo);
+          zhi = (U)_mm512_maskz_permutexvar_epi32(0xFFFF, (__m512i)pair, (__m512i)whi);
+        } else {
+          zlo = (U)_mm256_permutevar8x32_epi32((__m256i)wlo, (__m256i)pair);
+          zhi = (U)_mm256_permutevar8x32_epi32((__m256i)whi, (__m256i)pair);
+        }
+        auto dilate = [](U v) {
+          v |= (v >> 8 & 0x00FF00FFu) | (v << 8 & 0xFF00FF00u);
+          const U e = (v | v >> 1) & 0x55555555u;
+          return e | e << 1;
+        };
+        wlo = dl ? dilate(wlo | zlo) : wlo;
+        whi = dl ? dilate(whi | zhi) : whi;
       }
       const U any = (wlo & row & rows_lo) | (whi & row & rows_hi);
       return L::bits((lo <= hi) & (any != 0u));
@@ -274,7 +297,11 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
       const I target = BL - ((BL - level - 1) * 43 >> 7) * 3;  // x / 3 for x < 64
       const I node = target == level + 1 ? I{} - 1 : ~lod_stop(target - 1, exit);
       const I below = lod_stop(I{} + (LL - 1), exit);
-      return level < BL ? (node ? target : level + 1) : (below ? level + 1 : I{} + LL);
+      // From a cell: straight to the 2-voxel blocks when the 4-voxel ones
+      // cannot stop (their side exceeds the footprint at the cell's exit).
+      const I first =
+          level == BL ? (lod_stop(I{} + (BL + 1), exit) ? level + 1 : I{} + (LL - 1)) : level + 1;
+      return level < BL ? (node ? target : level + 1) : (below ? first : I{} + LL);
     };
     push(active, child_level(I{}, exit0));
 
@@ -414,14 +441,14 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
       uint32_t vox = 0;
       if (w.slice_skip) {
         uint32_t skip = 0;
-        vox = L::bits(occ & is_cell & (nl == LL));
+        vox = L::bits(occ & is_cell & (nl >= LL - 1));
         const F te = L::min(cexit, t1);
         for (uint32_t b = vox; b != 0;) {
           const int la = std::countr_zero(b);
           b &= b - 1;
           int lb = la;  // 16 lanes: the next lane's ray in the same pass
           if (N == 16 && b != 0) lb = std::countr_zero(b), b &= b - 1;
-          const uint32_t h = brick_slices(la, lb, te);
+          const uint32_t h = brick_slices(la, lb, te, nl == LL - 1);
           const uint32_t ha = h & 0xFFu, hb = N == 16 ? h >> 8 : ha;
           slices[la] = int32_t(ha), slices[lb] = int32_t(hb);
           skip |= (ha == 0 ? 1u << la : 0u) | (hb == 0 ? 1u << lb : 0u);
@@ -489,15 +516,21 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
       // cz, every x and y crossing at or before that plane's t taken first.
       if (vox != 0) {
         const I vm = ((I{} + int32_t(vox)) >> lane & 1) * -1;
-        const I z0 = c[2] & 7;
-        const I ahead = up[2] != 0 ? slices >> z0 << z0 : slices & (((I{} + 2) << z0) - 1);
+        // 2-voxel blocks (lv == L - 1): slab j of the block DDA holds slices
+        // 2 j and 2 j + 1 (the ray may meet one of the two only).
+        const I blk = lv != LL;
+        const I sl = (slices | slices >> 1) & 0x55;
+        const I slabs = blk ? (sl & 1) | (sl >> 1 & 2) | (sl >> 2 & 4) | (sl >> 3 & 8) : slices;
+        const I z0 = c[2] & (blk ? I{} + 3 : I{} + 7);
+        const I ahead = up[2] != 0 ? slabs >> z0 << z0 : slabs & (((I{} + 2) << z0) - 1);
         // The first slice ahead: the lowest set bit upwards, the highest downwards.
         const I k = high_bit(up[2] != 0 ? ahead & -ahead : ahead);
         I fail = vm & (ahead == 0);
         I go = vm & ~fail & (k != z0);
         const I cz = lo[2] + k;
-        const F tz = (to_f(cz + 1 - up[2]) - o[2]) * inv[2];
-        const F one = F{} + 1.f;  // voxel side: exit_t's product is exact (x * 1 = x)
+        // The cube side: exit_t's products with it are exact (x * 1 = x).
+        const F cside = blk ? F{} + 2.f : F{} + 1.f;
+        const F tz = (to_f(cz + 1 - up[2]) * cside - o[2]) * inv[2];
         fail |= go & (tz > t1);
         go &= ~(tz > t1);
         for (int a = 0; a < 2; ++a)
@@ -507,10 +540,10 @@ void packet_walk(const PacketWorld& w, const PacketRays& q, uint8_t* status, Pac
             c[a] = m ? c[a] + stp[a] : c[a];
             const I out = m & ((U)(c[a] - lo[a]) > (U)span[a]);
             fail |= out, go &= ~out, m &= ~out;
-            n[a] = m ? exit_t(a, c[a], one) : n[a];
+            n[a] = m ? exit_t(a, c[a], cside) : n[a];
           }
         c[2] = go ? cz : c[2];
-        n[2] = go ? exit_t(2, cz, one) : n[2];
+        n[2] = go ? exit_t(2, cz, cside) : n[2];
         t = go ? tz : t;
         axis = go ? I{} + 2 : axis;
         leave_jump |= fail;

@@ -294,13 +294,16 @@ struct Walker {
   // kPyramidStep (a node has up to 2^(3 kPyramidStep) children, which costs
   // fewer descents than one level at a time through a surface where every
   // node is occupied), then the brickgrid, then the voxels.
+  // From a brickgrid cell whose 2^3 blocks may stop but whose 4^3 ones
+  // cannot, straight to the 2^3 blocks (visit_pairs).
   static constexpr int kPyramidStep = 3;
   int child_level(int level, float exit) const {
     if (level < B) {
       const int target = B - (B - level - 1) / kPyramidStep * kPyramidStep;
       return target == level + 1 || !lod_stop(target - 1, exit) ? target : level + 1;
     }
-    return lod_stop(L - 1, exit) ? level + 1 : L;
+    if (!lod_stop(L - 1, exit)) return L;
+    return level == B && !lod_stop(B + 1, exit) ? L - 1 : level + 1;
   }
 
   // The children at level `cl` of the cube (cl - ratio_log2, pc), from the
@@ -445,17 +448,18 @@ struct Walker {
   // order (argmin3's tie break; jump()'s argument), so every x and y
   // crossing at or before that plane's t comes first. False when the ray
   // leaves the brick or ends (t1) before.
+  // (The same for the 2^3 blocks' DDA of visit_pairs, slab cz of side 2.)
   bool enter_slice(Dda& d, int cz) const {
-    const float tz = plane_t(r, 2, float(cz + 1 - r.up[2]));
+    const float tz = plane_t(r, 2, float(cz + 1 - r.up[2]) * d.side);
     if (tz > t1) return false;
     for (int b = 0; b < 2; ++b)
       while (d.n[b] <= tz) {
         d.c[b] += r.step[b];
         if (uint32_t(d.c[b] - d.lo[b]) > d.span[b]) return false;
-        d.n[b] = plane_t(r, b, float(d.c[b] + r.up[b]));
+        d.n[b] = plane_t(r, b, float(d.c[b] + r.up[b]) * d.side);
       }
     d.c[2] = cz;
-    d.n[2] = plane_t(r, 2, float(cz + r.up[2]));
+    d.n[2] = plane_t(r, 2, float(cz + r.up[2]) * d.side);
     d.t = tz;
     d.axis = 2;
     return true;
@@ -494,6 +498,52 @@ struct Walker {
       }
       const int s = advance(d, r, t1);
       if (s > 2) return end_of(s);
+    }
+  }
+
+  // The 2^3 blocks of the resident brick of cell `pcell` (cell pc) when an
+  // LOD footprint may stop at them but not at the 4^3 blocks (child_level):
+  // visit_voxels' brick test and slice entry on the brick's mask dilated to
+  // whole blocks (a block's 8 bits all set when one is), so a brick whose
+  // occupied blocks the ray misses is left at once and the blocks before
+  // the first slab (2 slices) ahead that may hold one are skipped; then
+  // visit_blocks' DDA. The same hits as the blocks walked one by one
+  // (BrickmapSkip.TheSameLodHitsWithAndWithoutTheBlockMasks).
+  Step visit_pairs(uint32_t pcell, Int3 pc, float t, int axis, float exit) {
+    const Brick& b = w.brick(cell_brick(pcell));
+    Brick blocks;
+    for (int k = 0; k < 8; k += 2) {
+      uint64_t v = b.mask[k] | b.mask[k + 1];
+      v |= (v >> 8 & 0x00FF00FF00FF00FFu) | (v << 8 & 0xFF00FF00FF00FF00u);  // row pairs
+      const uint64_t e = (v | v >> 1) & 0x5555555555555555u;                 // column pairs
+      blocks.mask[k] = blocks.mask[k + 1] = e | e << 1;
+    }
+    const uint32_t slices = brick_slices(blocks, pc, t, std::min(exit, t1));
+    if (slices == 0) return Step::Exit;
+    Dda d = begin(L - 1, 2, pc, t, axis);
+    // Slab j holds slices 2 j and 2 j + 1; the ray may meet one of them only.
+    const uint32_t pairs = (slices | slices >> 1) & 0x55u;
+    const uint32_t slabs = (pairs & 1) | (pairs >> 1 & 2) | (pairs >> 2 & 4) | (pairs >> 3 & 8);
+    const int z0 = d.c[2] & 3;
+    const uint32_t ahead = r.up[2] ? slabs >> z0 << z0 : slabs & ((2u << z0) - 1);
+    if (ahead == 0) return Step::Exit;
+    const int k = r.up[2] ? std::countr_zero(ahead) : 31 - std::countl_zero(ahead);
+    if (k != z0 && !enter_slice(d, (pc.v[2] << 2) + k)) return Step::Exit;
+    for (;;) {
+      if constexpr (kCount) ++ctx.counters.iterations;
+      // Block (x, y) of slab z: bit 2 (8 y + x) of the dilated slice 2 z.
+      const int bit = ((d.c[1] & 3) * 8 + (d.c[0] & 3)) * 2;
+      if ((blocks.mask[(d.c[2] & 3) * 2] >> bit) & 1) {
+        const float cexit = d.exit();
+        if (lod_stop(L - 1, cexit)) {
+          stop(L - 1, d.cell(), pcell, nullptr, d.t, d.axis);
+          return Step::Hit;
+        }
+        const Step st = visit_blocks(L - 1, L, d.cell(), pcell, d.t, d.axis);
+        if (st != Step::Exit) return st;
+      }
+      const int st = advance(d, r, t1);
+      if (st > 2) return end_of(st);
     }
   }
 
@@ -537,10 +587,11 @@ struct Walker {
         // Straight to the brick's voxels when no LOD stop can come in between,
         // else to its blocks (visit()'s cases, without the call).
         const int bl = child_level(B, cexit);
-        const Step s = bl == L ? visit_voxels(cell_brick(cell), d.cell(), d.t, d.axis, cexit)
-                       : detail::brick_block_masks.load(std::memory_order_relaxed)
-                           ? visit_blocks(B, bl, d.cell(), cell, d.t, d.axis)
-                           : visit(B, d.cell(), cexit, cell, d.t, d.axis);
+        const bool masks = detail::brick_block_masks.load(std::memory_order_relaxed);
+        const Step s = bl == L       ? visit_voxels(cell_brick(cell), d.cell(), d.t, d.axis, cexit)
+                       : !masks      ? visit(B, d.cell(), cexit, cell, d.t, d.axis)
+                       : bl == L - 1 ? visit_pairs(cell, d.cell(), d.t, d.axis, cexit)
+                                     : visit_blocks(B, bl, d.cell(), cell, d.t, d.axis);
         if (s != Step::Exit) return s;
       }
       const int clear = cell == 0 && uint32_t(d.c[1]) < dim_y ? w.clearance(uint64_t(index)) : 0;
