@@ -573,7 +573,7 @@ TEST(BrickmapOracle, FrustumStartWithinTheTileGivesTheSameImages) {
         o.caster = Caster::Packet;
         for (const Isa isa : testing::packet_isas()) {
           o.isa = isa;
-          for (int k : {4, 8}) {
+          for (int k : {4, 8, 16}) {  // 16: the whole tile's list
             o.frustum = k;
             const RenderResult on = render(*s, o);
             const std::string what = std::string(s == full ? "resident" : "partial") + " frustum " +

@@ -51,7 +51,8 @@ struct BenchArgs {
   uint32_t resolution = 2048;
   float lod = 1.f;
   int repeat = 5, threads = 0, beam = 8;
-  int frustum = 8;          // block size of the tile frustum rows (0 = no such rows)
+  int frustum = 16;         // block size of the tile frustum rows (0 = no such rows;
+                            // 16 and up: the 16x16 tile's list for all its rays)
   double min_coverage = 0;  // > 0: zoom the automatic camera in (crops the model)
   bool verbose = false;
   bool contours = false;
@@ -255,14 +256,8 @@ Timed trace_depth_packets(const SurfaceQuery& s, const SurfacePackets& packets,
         }
         pt.generate(cam, tile.x0, tile.y0, tile.x1, tile.y1);
         if (frustum > 0)
-          pt.coarse_pass(tile.x0, tile.y0, tile.x1, tile.y1, frustum,
-                         [&](int x0, int y0, BeamStart* start) {
-                           const int x1 = std::min(x0 + frustum, tile.x1),
-                                     y1 = std::min(y0 + frustum, tile.y1);
-                           s.frustum_start(detail::block_beam(cam, x0, y0, x1, y1, lod),
-                                           ray_octant(cam.ray((x0 + x1) / 2, (y0 + y1) / 2).dir),
-                                           ctx, start, &tile_start);
-                         });
+          pt.frustum_blocks(s, cam, lod, tile.x0, tile.y0, tile.x1, tile.y1, frustum, ctx,
+                            tile_start);
         else if (beam > 0)
           pt.coarse_pass(
               tile.x0, tile.y0, tile.x1, tile.y1, beam, [&](int x0, int y0, BeamStart* start) {
@@ -431,12 +426,7 @@ EmbreeScene::StageTicks profile_voxels(const SurfaceQuery& s, const RenderOption
           s.frustum_start(detail::block_beam(cam, tx, ty, tx1, ty1, lod),
                           ray_octant(cam.ray((tx + tx1) / 2, (ty + ty1) / 2).dir), ctx,
                           &tile_start);
-          pt.coarse_pass(tx, ty, tx1, ty1, frustum, [&](int x0, int y0, BeamStart* start) {
-            const int x1 = std::min(x0 + frustum, tx1), y1 = std::min(y0 + frustum, ty1);
-            s.frustum_start(detail::block_beam(cam, x0, y0, x1, y1, lod),
-                            ray_octant(cam.ray((x0 + x1) / 2, (y0 + y1) / 2).dir), ctx, start,
-                            &tile_start);
-          });
+          pt.frustum_blocks(s, cam, lod, tx, ty, tx1, ty1, frustum, ctx, tile_start);
         }
         packets->trace_packets(pt.rays.data(), pt.rays.size(), lod, ctx, pt.hits.data(),
                                pt.found.data(), active_isa(), pt.beam_list());
@@ -499,7 +489,8 @@ Runner add_bench(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--frustum", args->frustum,
                   "Block size of the 'packet+frustum' rows (tile frustum pass, per-block cube "
-                  "lists the packets start from; 2..64; 0 = no such rows)")
+                  "lists the packets start from; 2..64, 16 or more: the 16x16 tile's list; 0 = "
+                  "no such rows)")
       ->capture_default_str();
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)");
   cmd->add_flag("-v,--verbose", args->verbose, "Print timings per stage");
@@ -785,19 +776,23 @@ Runner add_bench(CLI::App& app) {
                                  {}});
             if (args->frustum) {
               const std::string k = std::to_string(args->frustum);
+              // Blocks of the tile's size or more: the tile's list serves them.
+              const std::string lists = args->frustum >= RenderOptions{}.tile_size
+                                            ? "the tile's list"
+                                            : k + "x" + k + " block lists";
+              primary.push_back(
+                  {caster + " packet+frustum",
+                   "trace_packets, tile frustum pass + " + lists + " (passes included), depth only",
+                   lod,
+                   false,
+                   [&q, p, rl, k = args->frustum] {
+                     Image depth;
+                     return trace_depth_packets(q, *p, rl, 0, &depth, k);
+                   },
+                   {}});
               primary.push_back({caster + " packet+frustum",
-                                 "trace_packets, tile frustum pass + " + k + "x" + k +
-                                     " block lists (passes included), depth only",
-                                 lod,
-                                 false,
-                                 [&q, p, rl, k = args->frustum] {
-                                   Image depth;
-                                   return trace_depth_packets(q, *p, rl, 0, &depth, k);
-                                 },
-                                 {}});
-              primary.push_back({caster + " packet+frustum",
-                                 "render(), packet primary rays from the tile frustum pass + " + k +
-                                     "x" + k + " block lists: attributes + Phong",
+                                 "render(), packet primary rays from the tile frustum pass + " +
+                                     lists + ": attributes + Phong",
                                  lod,
                                  true,
                                  [&m, rl, k = args->frustum] {

@@ -129,7 +129,8 @@ Runner add_render(CLI::App& app) {
   cmd->add_option("--frustum", args->frustum,
                   "Tile frustum pass: per tile the octree cubes its rays can touch (empty tiles "
                   "cost no ray), per KxK pixel block the finer cubes the packets start from "
-                  "(2..64; 0 = off; packet caster only, the image is the same)")
+                  "(2..64, K >= the tile size: the tile's cubes; 0 = off; packet caster only, "
+                  "the image is the same)")
       ->capture_default_str();
   cmd->add_option("--caster", args->caster,
                   "Primary rays: packet (4x4 pixel blocks through the packet caster where the "

@@ -30,8 +30,10 @@ struct SurfaceOptions {
   /// tile the cubes its rays can touch (a tile with none is a miss for every
   /// pixel, with no ray generated), then per K x K pixel block (2..64; 0 =
   /// off) the finer cubes within the tile's, from which the packet caster
-  /// starts each ray deep. Packet path only (the scalar path and --stats use
-  /// `beam`); takes the place of `beam` there. The hits are identical either way.
+  /// starts each ray deep (K at least the tile's sides: the tile's list for
+  /// all its rays, no second pass). Packet path only (the scalar path and
+  /// --stats use `beam`); takes the place of `beam` there. The hits are
+  /// identical either way.
   int frustum = 0;
   /// Profiling counters (esvo §8.5, Table 6) and the iteration AOV. Needs the
   /// frame's counting path (FrameOptions::counting); slower than a plain render.

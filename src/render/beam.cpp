@@ -56,4 +56,19 @@ BeamFrustum block_beam(const CameraRays& cam, int x0, int y0, int x1, int y1,
   return b;
 }
 
+void PacketTile::frustum_blocks(const SurfaceQuery& q, const CameraRays& cam,
+                                const LodFootprint& lod, int x0, int y0, int x1, int y1, int k,
+                                TraceContext& ctx, const BeamStart& tile) {
+  if (k >= x1 - x0 && k >= y1 - y0) {
+    starts.clear();
+    beams.assign(order.size(), &tile);
+    return;
+  }
+  coarse_pass(x0, y0, x1, y1, k, [&](int bx, int by, BeamStart* start) {
+    const int bx1 = std::min(bx + k, x1), by1 = std::min(by + k, y1);
+    q.frustum_start(block_beam(cam, bx, by, bx1, by1, lod),
+                    ray_octant(cam.ray((bx + bx1) / 2, (by + by1) / 2).dir), ctx, start, &tile);
+  });
+}
+
 }  // namespace voxcast::detail

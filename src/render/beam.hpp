@@ -59,6 +59,15 @@ struct PacketTile {
       beams[i] = &starts[size_t((y(i) - y0) / k * bw + (x(i) - x0) / k)];
   }
 
+  /// The tile frustum pass's blocks (render --frustum K): per K x K block
+  /// the cubes within the tile's list `tile` (SurfaceQuery::frustum_start
+  /// for the block's beam and the octant of its center ray), each ray
+  /// pointing at its block's list. A block that is the whole tile (K at
+  /// least the tile's sides) has the tile's beam: its rays take the tile's
+  /// list as it is, without a second pass. `tile` must outlive the trace.
+  void frustum_blocks(const SurfaceQuery& q, const CameraRays& cam, const LodFootprint& lod, int x0,
+                      int y0, int x1, int y1, int k, TraceContext& ctx, const BeamStart& tile);
+
   /// The per-ray beam starts for trace_packets, or null without a coarse pass.
   const BeamStart* const* beam_list() const { return beams.empty() ? nullptr : beams.data(); }
 };

@@ -246,14 +246,8 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
     pt.generate(cam, tile.x0, tile.y0, tile.x1, tile.y1);
     if (frustum_k != 0) {
       // Per K x K block: the finer cubes within the tile's (packet starts).
-      pt.coarse_pass(tile.x0, tile.y0, tile.x1, tile.y1, frustum_k,
-                     [&](int bx, int by, BeamStart* start) {
-                       const int bx1 = std::min(bx + frustum_k, tile.x1),
-                                 by1 = std::min(by + frustum_k, tile.y1);
-                       const int octant = ray_octant(cam.ray((bx + bx1) / 2, (by + by1) / 2).dir);
-                       q.frustum_start(detail::block_beam(cam, bx, by, bx1, by1, lod), octant, ctx,
-                                       start, &tile_start);
-                     });
+      pt.frustum_blocks(q, cam, lod, tile.x0, tile.y0, tile.x1, tile.y1, frustum_k, ctx,
+                        tile_start);
     } else if (beam_k != 0) {
       pt.coarse_pass(tile.x0, tile.y0, tile.x1, tile.y1, beam_k, coarse_pass);
     }
