@@ -341,6 +341,16 @@ TEST(PacketCaster, GridVertexTiesEqualTheScalarCaster) {
   expect_same(d, rays, lod, "dag ties lod", &hits);
 }
 
+// The brickmap world of make_random_voxels(7, voxels, seed): the unit grid
+// of 2^7 voxels (side 1), large enough for the lane walk (pyramid nodes,
+// cells with their cell-box test, voxels).
+std::unique_ptr<brickmap::BrickmapStructure> random_brickmap(size_t voxels, uint64_t seed) {
+  const VoxelSet v = testing::make_random_voxels(7, voxels, seed);
+  EXPECT_EQ(v.grid.side(), 1.0);
+  return std::make_unique<brickmap::BrickmapStructure>(
+      std::make_shared<const brickmap::World>(brickmap::build_world(v)));
+}
+
 // The same exact ties for the brickmap lane walk, on a grid large enough
 // for it (2^7 voxels: pyramid nodes, cells with their cell-box test, voxels).
 TEST(PacketCaster, BrickmapGridVertexTiesEqualTheScalarCaster) {
@@ -348,10 +358,8 @@ TEST(PacketCaster, BrickmapGridVertexTiesEqualTheScalarCaster) {
   const std::vector<Ray> rays = tie_rays(kLevels, 20000, 19);
   // Dense (many bricks) and sparse (empty cells with clearances: jumps).
   for (const size_t voxels : {40000, 200}) {
-    const VoxelSet v = testing::make_random_voxels(kLevels, voxels, 5);
-    ASSERT_EQ(v.grid.side(), 1.0);
-    const brickmap::BrickmapStructure b(
-        std::make_shared<const brickmap::World>(brickmap::build_world(v)));
+    const auto bm = random_brickmap(voxels, 5);
+    const brickmap::BrickmapStructure& b = *bm;
     size_t hits = 0;
     expect_same(b, rays, LodFootprint{}, "brickmap ties " + std::to_string(voxels), &hits);
     EXPECT_GT(hits, rays.size() / 1000);
@@ -373,11 +381,9 @@ TEST(PacketCaster, BrickmapGridVertexTiesEqualTheScalarCaster) {
 // `rays`: on the 2^7 grid of make_random_voxels(7, ...), whose side is 1.
 void expect_brickmap_regions_equal_the_scalar_caster(const std::vector<Ray>& rays,
                                                      const std::string& what) {
-  constexpr int kLevels = 7, kSide = 1 << kLevels;
-  const VoxelSet v = testing::make_random_voxels(kLevels, 40000, 7);
-  ASSERT_EQ(v.grid.side(), 1.0);
-  const brickmap::BrickmapStructure b(
-      std::make_shared<const brickmap::World>(brickmap::build_world(v)));
+  constexpr int kSide = 1 << 7;
+  const auto bm = random_brickmap(40000, 7);
+  const brickmap::BrickmapStructure& b = *bm;
   std::mt19937_64 rng(29);
   auto pick = [&](int lo, int hi) { return std::uniform_int_distribution<int>(lo, hi)(rng); };
   for (const float side : {0.f, 2.f, 16.f}) {  // LOD 0; stops in bricks; at nodes
@@ -439,12 +445,91 @@ TEST(PacketCaster, BrickmapBeamRegionTiesEqualTheScalarCaster) {
 // start_cell_exact's backward correction moves ~16,000 lanes here (the tie
 // rays' exact positions: ~11,000), and a walk without it fails both tests.
 // Its forward correction moves none in either (it needs another axis'
-// plane crossed exactly at the float before the region's entry), so a
-// < for its <= is still caught by no test.
+// plane crossed exactly at the float before the region's entry): the next
+// test builds such rays.
 TEST(PacketCaster, BrickmapBeamRegionsOfRandomRaysEqualTheScalarCaster) {
   const GridTransform grid = testing::make_random_voxels(7, 40000, 7).grid;
   expect_brickmap_regions_equal_the_scalar_caster(random_rays(grid, 20000, 31),
                                                   "regions of random rays");
+}
+
+// start_cell_exact's forward correction: rays whose region entry comes
+// just after they cross a voxel plane on another axis, so that the walk
+// starts (at the float before the entry) at exactly that plane's t while
+// the position there still rounds to the cell behind it. The DDA has then
+// taken that crossing (its exit plane's t is <= t, equal here), so the
+// start cell is the one ahead; a lane that compared with < instead of <=
+// would start behind it, in another voxel or through another face. Built
+// in grid units (the unit grid of 2^7 voxels: world = grid / 128 exactly;
+// regions are quantized to 2^-16 grid units by their [1, 2] frame, so the
+// entry plane is searched among those), on a dense world where the first
+// voxels decide the hit. A < for the <= of the lanes' forward loop, or of
+// the scalar walk's, changes about a third of these rays' hits.
+TEST(PacketCaster, BrickmapRegionEntryRightAfterAPlaneEqualsTheScalarCaster) {
+  constexpr float kN = float(1 << 7);
+  const auto bm = random_brickmap(1100000, 13);
+  const brickmap::BrickmapStructure& b = *bm;
+  std::mt19937_64 rng(41);
+  auto uni = [&](float lo, float hi) { return std::uniform_real_distribution<float>(lo, hi)(rng); };
+  constexpr size_t kRays = 3000;
+  std::vector<Ray> rays;
+  std::vector<BeamStart> starts;
+  while (rays.size() < kRays) {
+    float o[3], d[3], inv[3];
+    for (int k = 0; k < 3; ++k) {
+      o[k] = uni(8.f, kN - 8.f);
+      const float m = uni(0.1f, 1.f);
+      d[k] = (rng() & 1 ? m : -m) * kN;  // a world direction times 128: exact
+      inv[k] = 1.f / d[k];
+    }
+    // Every voxel plane ahead on each axis a: its crossing t (the walk's
+    // plane_t), where the position rounds back into the cell behind it...
+    for (int a = 0; a < 3 && rays.size() < kRays; ++a) {
+      const bool up = d[a] > 0.f;
+      for (float P = std::floor(o[a]) + (up ? 1.f : 0.f); P > 0.f && P < kN && rays.size() < kRays;
+           P += up ? 1.f : -1.f) {
+        const float tp = (P - o[a]) * inv[a];
+        const float p = o[a] + d[a] * tp;
+        if (!(up ? p < P : p > P)) continue;
+        // ...and another axis' region plane entered at the next float
+        // after it (the walk starts at the float before the entry: tp).
+        const float entry_t = std::nextafter(tp, INFINITY);
+        for (int j = 1; j <= 2; ++j) {
+          const int bx = (a + j) % 3;
+          const double guess = (double(o[bx]) + double(d[bx]) * double(entry_t)) * 65536.0;
+          float plane = NAN;
+          for (int q = -4; q <= 4 && plane != plane; ++q) {
+            const float c = float((std::floor(guess) + q) / 65536.0);  // 2^-16 steps: exact
+            if (c > 0.f && c < kN && (c - o[bx]) * inv[bx] == entry_t) plane = c;
+          }
+          if (plane != plane) continue;
+          BeamStart st;
+          st.valid = true;
+          for (int k = 0; k < 3; ++k) {
+            float lo = 0.f, hi = kN;  // the other axes entered before the start
+            if (k == bx) (d[bx] > 0.f ? lo : hi) = plane;
+            st.region.lo[k] = 1.f + lo / kN;
+            st.region.hi[k] = 1.f + hi / kN;
+          }
+          starts.push_back(st);
+          rays.push_back(
+              Ray{{o[0] / kN, o[1] / kN, o[2] / kN}, {d[0] / kN, d[1] / kN, d[2] / kN}, INFINITY});
+          break;
+        }
+      }
+    }
+  }
+  std::vector<const BeamStart*> beams;
+  for (const BeamStart& st : starts) beams.push_back(&st);
+  TraceContext ctx;
+  std::vector<SurfaceHit> want(rays.size());
+  std::vector<uint8_t> want_found(rays.size());
+  size_t hits = 0;
+  for (size_t i = 0; i < rays.size(); ++i)
+    hits += want_found[i] = b.trace(rays[i], LodFootprint{}, ctx, &want[i], beams[i]);
+  EXPECT_GT(hits, rays.size() / 2);
+  expect_same_with_beams(b, rays, beams, LodFootprint{}, want, want_found,
+                         "brickmap region entry right after a plane");
 }
 
 // The packet casters as a capability of the surface query (SurfacePackets,
