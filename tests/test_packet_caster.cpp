@@ -463,8 +463,9 @@ TEST(PacketCaster, BrickmapBeamRegionsOfRandomRaysEqualTheScalarCaster) {
 // in grid units (the unit grid of 2^7 voxels: world = grid / 128 exactly;
 // regions are quantized to 2^-16 grid units by their [1, 2] frame, so the
 // entry plane is searched among those), on a dense world where the first
-// voxels decide the hit. A < for the <= of the lanes' forward loop, or of
-// the scalar walk's, changes about a third of these rays' hits.
+// voxels decide the hit. A < for the <= of the forward loop (lanes or
+// scalar walk), or a >= for the > of the lanes' backward loop, changes
+// about a third of these rays' hits.
 TEST(PacketCaster, BrickmapRegionEntryRightAfterAPlaneEqualsTheScalarCaster) {
   constexpr float kN = float(1 << 7);
   const auto bm = random_brickmap(1100000, 13);
