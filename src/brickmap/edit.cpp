@@ -86,9 +86,11 @@ bool apply_voxel(BrickVoxels& v, uint32_t bit, EditOp op, uint32_t abgr, uint32_
 // world and writes its own copy), then the changed bricks stored in order
 // on this thread (the pool and the color allocator are not shared), so the
 // world is the same whatever the threads; then the occupancy, pyramid and
-// clearances once for all.
-template <class CellOf, class Change>
-EditResult change_bricks(World& w, size_t count, const CellOf& cell_of, const Change& change) {
+// clearances once for all. select(q) false: brick q would not change, so it
+// is not expanded.
+template <class CellOf, class Change, class Select>
+EditResult change_bricks(World& w, size_t count, const CellOf& cell_of, const Change& change,
+                         const Select& select) {
   constexpr size_t kBatch = 512;  // 512 expanded bricks: about 2 MiB
   std::vector<BrickVoxels> batch(std::min(kBatch, count));
   std::vector<uint64_t> changed(batch.size());
@@ -96,6 +98,8 @@ EditResult change_bricks(World& w, size_t count, const CellOf& cell_of, const Ch
   for (size_t first = 0; first < count; first += kBatch) {
     const size_t n = std::min(kBatch, count - first);
     tbb::parallel_for(size_t(0), n, [&](size_t q) {
+      changed[q] = 0;
+      if (!select(first + q)) return;
       expand(w, w.cell(cell_of(first + q)), &batch[q]);
       changed[q] = change(first + q, batch[q]);
     });
@@ -115,6 +119,10 @@ EditResult change_bricks(World& w, size_t count, const CellOf& cell_of, const Ch
   }
   w.update_occupancy(result.cells);
   return result;
+}
+template <class CellOf, class Change>
+EditResult change_bricks(World& w, size_t count, const CellOf& cell_of, const Change& change) {
+  return change_bricks(w, count, cell_of, change, [](size_t) { return true; });
 }
 
 // ---- Refilling a terrain's hollow interior (World::terrain) ----
@@ -343,9 +351,43 @@ EditResult edit(World& w, const Brush& brush, EditOp op, const Color& color) {
   const auto cell_of = [&](size_t q) {
     return w.cell_index(uint32_t(bricks[q][0]), uint32_t(bricks[q][1]), uint32_t(bricks[q][2]));
   };
-  EditResult result = change_bricks(w, bricks.size(), cell_of, [&](size_t q, BrickVoxels& v) {
-    const auto& bc = bricks[q];
+  // Paint and Remove change solid voxels only: the brush is tested at a
+  // brick's solid voxels (a surface brick holds a fraction of its 512), and
+  // a brick none of whose solid voxels lies in the brush is not expanded.
+  // The same voxels change as when every voxel of the box is tested.
+  const bool solid_only = op != EditOp::Add;
+  std::vector<VoxelMask> in_brush(solid_only ? bricks.size() : 0);
+  const auto select = [&](size_t q) {
+    if (!solid_only) return true;
+    const uint32_t cell = w.cell(cell_of(q));
+    if (cell_state(cell) != kStateResident) return false;  // no solid voxel stored
+    const Brick& b = w.brick(cell_brick(cell));
+    const int64_t b0[3] = {bricks[q][0] << kBrickLog2, bricks[q][1] << kBrickLog2,
+                           bricks[q][2] << kBrickLog2};
+    VoxelMask m{};
+    bool any = false;
+    for (uint32_t word = 0; word < 8; ++word)
+      for (uint64_t bits = b.mask[word]; bits != 0; bits &= bits - 1) {
+        const uint32_t bit = word * 64 + uint32_t(std::countr_zero(bits));
+        const int64_t x = b0[0] + (bit & 7), y = b0[1] + (bit >> 3 & 7), z = b0[2] + (bit >> 6);
+        if (x < vlo[0] || x > vhi[0] || y < vlo[1] || y > vhi[1] || z < vlo[2] || z > vhi[2] ||
+            !brush.contains(voxel_center(x, y, z)))
+          continue;
+        m[word] |= uint64_t(1) << (bit & 63);
+        any = true;
+      }
+    in_brush[q] = m;
+    return any;
+  };
+  const auto change = [&](size_t q, BrickVoxels& v) {
     uint64_t changed = 0;
+    if (solid_only) {
+      for (uint32_t word = 0; word < 8; ++word)
+        for (uint64_t bits = in_brush[q][word]; bits != 0; bits &= bits - 1)
+          changed += apply_voxel(v, word * 64 + uint32_t(std::countr_zero(bits)), op, abgr, 0);
+      return changed;
+    }
+    const auto& bc = bricks[q];
     const int64_t b0[3] = {bc[0] << kBrickLog2, bc[1] << kBrickLog2, bc[2] << kBrickLog2};
     for (int64_t z = std::max(vlo[2], b0[2]); z <= std::min(vhi[2], b0[2] + 7); ++z)
       for (int64_t y = std::max(vlo[1], b0[1]); y <= std::min(vhi[1], b0[1] + 7); ++y)
@@ -366,7 +408,8 @@ EditResult edit(World& w, const Brush& brush, EditOp op, const Color& color) {
           changed += apply_voxel(v, bit, op, abgr, nc);
         }
     return changed;
-  });
+  };
+  EditResult result = change_bricks(w, bricks.size(), cell_of, change, select);
   return carve ? apply_carve(w, *carve, std::move(result)) : result;
 }
 
