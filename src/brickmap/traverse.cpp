@@ -465,6 +465,19 @@ struct Walker {
     return true;
   }
 
+  // The DDA `d` over the 2^n slabs of a brick (z of brickgrid cell pcz; n =
+  // 3: voxels, 2: 2^3 blocks) moved to the first slab ahead whose bit in
+  // `slabs` is set (in the ray's z order, from its start slab): the cubes
+  // it would visit before are empty. False when there is none, or the ray
+  // leaves the brick or ends before it.
+  bool enter_first_slab(Dda& d, uint32_t slabs, int n, int pcz) const {
+    const int z0 = d.c[2] & ((1 << n) - 1);
+    const uint32_t ahead = r.up[2] ? slabs >> z0 << z0 : slabs & ((2u << z0) - 1);
+    if (ahead == 0) return false;
+    const int k = r.up[2] ? std::countr_zero(ahead) : 31 - std::countl_zero(ahead);
+    return k == z0 || enter_slice(d, (pcz << n) + k);
+  }
+
   // The voxels of the resident brick `brick_index` (brickgrid cell pc) the
   // ray crosses, from t to `exit` (the cell's exit t).
   Step visit_voxels(uint32_t brick_index, Int3 pc, float t, int axis, float exit) {
@@ -475,14 +488,8 @@ struct Walker {
     const uint32_t slices = brick_slices(b, pc, t, std::min(exit, t1));
     if (slices == 0) return Step::Exit;
     Dda d = begin(L, kBrickLog2, pc, t, axis);
-    // The voxels the DDA visits before it enters the first slice that may
-    // hold a hit (in the ray's z order, from its start slice) are empty:
-    // go straight to that entry.
-    const int z0 = d.c[2] & 7;
-    const uint32_t ahead = r.up[2] ? slices >> z0 << z0 : slices & ((2u << z0) - 1);
-    if (ahead == 0) return Step::Exit;
-    const int k = r.up[2] ? std::countr_zero(ahead) : 31 - std::countl_zero(ahead);
-    if (k != z0 && !enter_slice(d, (pc.v[2] << kBrickLog2) + k)) return Step::Exit;
+    // Straight to the first slice that may hold a hit.
+    if (!enter_first_slab(d, slices, kBrickLog2, pc.v[2])) return Step::Exit;
     for (;;) {
       if constexpr (kCount) ++ctx.counters.iterations, ++ctx.counters.intersects;
       const uint32_t bit =
@@ -510,13 +517,14 @@ struct Walker {
   // visit_blocks' DDA. The same hits as the blocks walked one by one
   // (BrickmapSkip.TheSameLodHitsWithAndWithoutTheBlockMasks).
   Step visit_pairs(uint32_t pcell, Int3 pc, float t, int axis, float exit) {
-    const Brick& b = w.brick(cell_brick(pcell));
+    uint64_t m[8];
+    fold_blocks(w.brick(cell_brick(pcell)), 1, m);
+    // Each block's bit (its corner's in the fold) spread to its 8 voxels.
     Brick blocks;
-    for (int k = 0; k < 8; k += 2) {
-      uint64_t v = b.mask[k] | b.mask[k + 1];
-      v |= (v >> 8 & 0x00FF00FF00FF00FFu) | (v << 8 & 0xFF00FF00FF00FF00u);  // row pairs
-      const uint64_t e = (v | v >> 1) & 0x5555555555555555u;                 // column pairs
-      blocks.mask[k] = blocks.mask[k + 1] = e | e << 1;
+    for (int k = 0; k < 4; ++k) {
+      uint64_t v = m[k] & 0x0055005500550055u;
+      v |= v << 1;
+      blocks.mask[2 * k] = blocks.mask[2 * k + 1] = v | v << 8;
     }
     const uint32_t slices = brick_slices(blocks, pc, t, std::min(exit, t1));
     if (slices == 0) return Step::Exit;
@@ -524,27 +532,8 @@ struct Walker {
     // Slab j holds slices 2 j and 2 j + 1; the ray may meet one of them only.
     const uint32_t pairs = (slices | slices >> 1) & 0x55u;
     const uint32_t slabs = (pairs & 1) | (pairs >> 1 & 2) | (pairs >> 2 & 4) | (pairs >> 3 & 8);
-    const int z0 = d.c[2] & 3;
-    const uint32_t ahead = r.up[2] ? slabs >> z0 << z0 : slabs & ((2u << z0) - 1);
-    if (ahead == 0) return Step::Exit;
-    const int k = r.up[2] ? std::countr_zero(ahead) : 31 - std::countl_zero(ahead);
-    if (k != z0 && !enter_slice(d, (pc.v[2] << 2) + k)) return Step::Exit;
-    for (;;) {
-      if constexpr (kCount) ++ctx.counters.iterations;
-      // Block (x, y) of slab z: bit 2 (8 y + x) of the dilated slice 2 z.
-      const int bit = ((d.c[1] & 3) * 8 + (d.c[0] & 3)) * 2;
-      if ((blocks.mask[(d.c[2] & 3) * 2] >> bit) & 1) {
-        const float cexit = d.exit();
-        if (lod_stop(L - 1, cexit)) {
-          stop(L - 1, d.cell(), pcell, nullptr, d.t, d.axis);
-          return Step::Hit;
-        }
-        const Step st = visit_blocks(L - 1, L, d.cell(), pcell, d.t, d.axis);
-        if (st != Step::Exit) return st;
-      }
-      const int st = advance(d, r, t1);
-      if (st > 2) return end_of(st);
-    }
+    if (!enter_first_slab(d, slabs, 2, pc.v[2])) return Step::Exit;
+    return walk_blocks(d, L - 1, m, pcell);
   }
 
   // The brickgrid cells (level B > 0) of the pyramid node (level, pc).
@@ -695,17 +684,28 @@ struct Walker {
   // block_solid() does. The same DDA, stops and descents, so the same hits
   // (BrickmapSkip.TheSameLodHitsWithAndWithoutTheBlockMasks).
   Step visit_blocks(int level, int cl, Int3 pc, uint32_t pcell, float t, int axis) {
-    const Brick& b = w.brick(cell_brick(pcell));
-    const int s = L - cl;
-    const int mm = (8 >> s) - 1;  // a block's coordinate within the brick
     uint64_t m[8];
-    for (int k = 0; k <= mm; ++k) {
+    fold_blocks(w.brick(cell_brick(pcell)), L - cl, m);
+    Dda d = begin(cl, cl - level, pc, t, axis);
+    return walk_blocks(d, cl, m, pcell);
+  }
+
+  // The brick's mask folded to blocks of 2^s voxels (s <= 2): m[k] holds slab
+  // k (2^s slices ORed), block (x, y) at bit (8 y + x) 2^s.
+  static void fold_blocks(const Brick& b, int s, uint64_t m[8]) {
+    for (int k = 0; k < 8 >> s; ++k) {
       uint64_t v = 0;
       for (int j = 0; j < 1 << s; ++j) v |= b.mask[(k << s) + j];
       for (int i = 0; i < s; ++i) v |= v >> (1 << i), v |= v >> (8 << i);
       m[k] = v;
     }
-    Dda d = begin(cl, cl - level, pc, t, axis);
+  }
+
+  // visit_blocks' DDA `d` over the level-cl cubes of the brick of cell
+  // `pcell`, its mask folded to them in m (fold_blocks).
+  Step walk_blocks(Dda& d, int cl, const uint64_t m[8], uint32_t pcell) {
+    const int s = L - cl;
+    const int mm = (8 >> s) - 1;  // a block's coordinate within the brick
     for (;;) {
       if constexpr (kCount) {
         ++ctx.counters.iterations;
