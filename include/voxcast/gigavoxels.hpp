@@ -417,6 +417,7 @@ class GigaVoxels : public Structure, public VolumeQuery {
   void update_empty_below(const std::vector<uint32_t>& order);
 
   std::shared_ptr<const Producer> producer_;
+  int max_level_ = 0;  // producer_->max_level(), read per span without a virtual call
   GigaOptions options_;
   float inv_size_;
   float voxel_world_[kMaxLevel + 1];

@@ -348,6 +348,7 @@ GigaVoxels::GigaVoxels(std::shared_ptr<const Producer> producer, GigaOptions opt
   if (!producer_) throw Error("gigavoxels: no producer");
   if (producer_->max_level() < 0 || producer_->max_level() > kMaxLevel)
     throw Error("gigavoxels: producer levels must be in 0.." + std::to_string(kMaxLevel));
+  max_level_ = producer_->max_level();
   if (!(options_.size > 0.f) || !std::isfinite(options_.size) || !is_finite(options_.origin))
     throw Error("gigavoxels: the volume's size must be a positive number");
   if (options_.max_data_per_pass == 0) throw Error("gigavoxels: max_data_per_pass must be > 0");
@@ -554,39 +555,6 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
       te = box_exit(level, 0);
     return te;
   };
-  // The brick rows a span's samples will read, prefetched when the span is
-  // emitted: the integrator samples the spans only after march() returns,
-  // so the misses of a ray's bricks (a warm frame visits most of the
-  // resident bricks, far beyond the caches) overlap the rest of the walk and
-  // each other instead of stalling sample_span's first loads. Points one
-  // voxel apart along the span, at the node's level and its parent's (the
-  // quadrilinear blend reads both); the 4 rows of each point's lookup.
-  // Hints only: nothing is read or stamped.
-  auto prefetch_rows = [&](uint32_t nd, float ta, float tb) {
-    const uint32_t dw = data_[nd];
-    if (NodeDataKind::get(dw) != kDataBrick) return;
-    const PoolVoxel* b = &bricks_[size_t(NodeDataPayload::get(dw)) * kBrickVoxels];
-    const NodeRegion r = region_of(nd);
-    const float sc = pow2f(r.level) * float(kBrickSide);
-    const uint32_t rc[3] = {r.x, r.y, r.z};
-    float A[3], B[3], along = 0.f;
-    for (int a = 0; a < 3; ++a) {
-      A[a] = o[a] * sc - float(rc[a]) * float(kBrickSide) + 0.5f;
-      B[a] = d[a] * sc;
-      along = std::max(along, std::abs(B[a]));
-    }
-    const int points = int(std::min(16.f, std::ceil((tb - ta) * along))) + 1;
-    const float step = points > 1 ? (tb - ta) / float(points - 1) : 0.f;
-    for (int k = 0; k < points; ++k) {
-      const float tk = ta + step * float(k);
-      float f;
-      const int i = cell_weight(A[0] + B[0] * tk, &f), j = cell_weight(A[1] + B[1] * tk, &f),
-                l = cell_weight(A[2] + B[2] * tk, &f);
-      const PoolVoxel* v = b + stored_index(i, j, l);
-      constexpr size_t kRow = kBrickStored, kSlice = size_t(kBrickStored) * kBrickStored;
-      for (size_t at : {size_t(0), kRow, kSlice, kRow + kSlice}) __builtin_prefetch(v + at, 0, 3);
-    }
-  };
   auto emit = [&](float t, float te) {
     if (fallback != kNoNode) {
       const uint32_t dw = data_[fallback];
@@ -600,8 +568,6 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
         if (v.density > 0.f) out[size_t(n++)] = span;  // empty space yields no span
       } else {
         touch_brick(NodeDataPayload::get(dw), s);
-        prefetch_rows(fallback, t, te);
-        if (fallback >= 8) prefetch_rows(tile_parent_[fallback >> 3], t, te);
         out[size_t(n++)] = span;
       }
     }
@@ -732,7 +698,7 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
     float scale = 1.f;  // inv_voxel_side of the brick's level
   };
   const Vec3 o = (ray.origin - options_.origin) * inv_size_, d = ray.dir * inv_size_;
-  auto prepare = [&](uint32_t nd, Lookup* lk) {
+  auto prepare = [&](uint32_t nd, const NodeRegion& r, Lookup* lk) {
     const uint32_t dw = data_[nd];
     if (NodeDataKind::get(dw) == kDataConstant) {
       const VolumeSample& v = constants_[NodeDataPayload::get(dw)];
@@ -743,7 +709,6 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
     const uint32_t b = NodeDataPayload::get(dw);
     touch_brick(b, s);
     lk->brick = &bricks_[size_t(b) * kBrickVoxels];
-    const NodeRegion r = region_of(nd);
     lk->scale = inv_voxel_side(r.level);
     const float scale = pow2f(r.level) * float(kBrickSide);
     const uint32_t cell[3] = {r.x, r.y, r.z};
@@ -822,8 +787,11 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
   // (1 - w) with the node (w), as sample()'s quadrilinear filter. Only the
   // bricks some point reads are stamped as used (an unread parent stays
   // recyclable).
-  const int L = region_of(node).level;
-  const float max_level = float(producer_->max_level());
+  // The node's region, and its parent's (the same cell halved, one level up).
+  const NodeRegion region = region_of(node);
+  const NodeRegion parent_region{region.level - 1, region.x >> 1, region.y >> 1, region.z >> 1};
+  const int L = region.level;
+  const float max_level = float(max_level_);
   float w[kMaxPoints];
   Cells fine_cells, coarse_cells;
   for (int k0 = 0; k0 < n; k0 += kMaxPoints) {
@@ -871,10 +839,10 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
         for (int k = 0; k < m; ++k) w[k] = 1.f;
         any_fine = true;
       } else {
-        prepare(parent, &coarse);
+        prepare(parent, parent_region, &coarse);
       }
     }
-    if (any_fine) prepare(node, &fine), cells(fine, t + k0, m, &fine_cells);
+    if (any_fine) prepare(node, region, &fine), cells(fine, t + k0, m, &fine_cells);
     if (any_coarse) cells(coarse, t + k0, m, &coarse_cells);
     // Every row the chunk's lookups will read, requested at once: a warm
     // frame visits most resident bricks (hundreds of MB, beyond the caches)
