@@ -16,6 +16,7 @@
 #include <tbb/global_control.h>
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -33,9 +34,13 @@
 namespace voxcast::giga {
 namespace {
 
+/// A small view whose pixel cone asks for the levels these tests were
+/// written for: the node levels 8-voxel bricks reach at one pixel (with
+/// M = 16 a level's voxels are half as wide, so half a pixel).
 FrameView view_of(int w, int h, uint32_t frame = 0) {
   FrameView v;
   v.width = w, v.height = h, v.frame = frame;
+  v.lod_pixels = 8.f / float(kBrickSide);
   v.camera = Camera::orbit(Aabb{{0, 0, 0}, {1, 1, 1}}, w, h, 30.f, 20.f);
   return v;
 }
@@ -74,7 +79,7 @@ TEST(Giga, ExactModeWithTinyPoolRendersTheUnlimitedImage) {
   // A camera circling the cloud, exact mode: the unlimited pool keeps every
   // view's bricks; the tiny one holds little more than one pass needs, so
   // it recycles as the camera moves. Every frame must be the same image.
-  const auto cloud = make_procedural("cloud", 128);
+  const auto cloud = make_procedural("cloud", 256);
   auto view = [](uint32_t f) {
     // Narrow views of different parts of the cloud.
     FrameView v = view_of(40, 32, f);
@@ -196,7 +201,7 @@ TEST(Giga, UsageListIsAnOrderPreservingPartition) {
 }
 
 TEST(Giga, RecyclingTakesTheFrontAndNeverWhatThePassUsed) {
-  const auto cloud = make_procedural("cloud", 128);
+  const auto cloud = make_procedural("cloud", 256);
   GigaOptions o = unlimited();
   o.bricks = 60, o.tiles = 400;
   GigaVoxels g(cloud, o);
@@ -247,7 +252,7 @@ TEST(Giga, RecyclingTakesTheFrontAndNeverWhatThePassUsed) {
 
 TEST(Giga, ProducerBricksEqualDirectSampling) {
   for (const char* name : {"cloud", "menger", "mandelbulb"}) {
-    const auto p = make_procedural(name, 64);
+    const auto p = make_procedural(name, 128);
     GigaVoxels g(p, unlimited());
     render(g, view_of(24, 24), 500);
     const auto bricks = g.resident_bricks();
@@ -284,7 +289,7 @@ TEST(Giga, EmptyBelowSummariesAreKeptAndMatchARecursiveRecount) {
   // every summary recursively after every pass (check_after_pass); here
   // some must exist (ExactModeWithTinyPoolRendersTheUnlimitedImage checks
   // that pools whose summaries differ render the same images).
-  const auto cloud = make_procedural("cloud", 256);
+  const auto cloud = make_procedural("cloud", 512);
   GigaVoxels g(cloud, unlimited());
   for (uint32_t f = 0; f < 3; ++f) {
     FrameView v = view_of(32, 24, f);
@@ -297,7 +302,7 @@ TEST(Giga, EmptyBelowSummariesAreKeptAndMatchARecursiveRecount) {
 }
 
 TEST(Giga, CloudEmptyBelowIsAProof) {
-  const auto p = make_procedural("cloud", 64);  // levels 0..3
+  const auto p = make_procedural("cloud", 128);  // levels 0..3 (M = 16)
   const int max_level = p->max_level();
   int proven = 0, beyond_radius_test = 0;
   for (int level = 0; level <= max_level; ++level) {
@@ -333,24 +338,26 @@ TEST(Giga, CloudEmptyBelowIsAProof) {
 }
 
 TEST(Giga, PoolVoxelsRoundToHalfPrecision) {
-  // PoolVoxel: the value per voxel side (2^-L / 8) as a binary16 rounded to
+  // PoolVoxel: the value per voxel side (2^-L / M) as a binary16 rounded to
   // nearest even. Exact where a half holds it, within 2^-11 relative
   // elsewhere, saturated at 65504 per voxel, ties to even.
+  constexpr float M = float(kBrickSide);
+  const int log2_m = std::countr_zero(unsigned(kBrickSide));
   EXPECT_EQ(stored_value(0, 0.f), 0.f);
-  EXPECT_EQ(stored_value(0, 8.f), 8.f);            // 1 per voxel
-  EXPECT_EQ(stored_value(5, 3.f * 256.f), 768.f);  // 3 per voxel at level 5
-  EXPECT_EQ(stored_value(0, 8.f * 65504.f), 8.f * 65504.f);
-  EXPECT_EQ(stored_value(0, 8.f * 1e6f), 8.f * 65504.f);                          // saturated
-  EXPECT_EQ(stored_value(0, 8.f * (1.f + 0x1p-11f)), 8.f);                        // tie: to even
-  EXPECT_EQ(stored_value(0, 8.f * (1.f + 3 * 0x1p-11f)), 8.f * (1.f + 0x1p-9f));  // tie: up
-  EXPECT_EQ(stored_value(0, 8.f * 0x1p-24f), 8.f * 0x1p-24f);  // smallest subnormal
-  EXPECT_EQ(stored_value(0, 8.f * 0x1p-26f), 0.f);
+  EXPECT_EQ(stored_value(0, M), M);                            // 1 per voxel
+  EXPECT_EQ(stored_value(5, 3.f * 32.f * M), 3.f * 32.f * M);  // 3 per voxel at level 5
+  EXPECT_EQ(stored_value(0, M * 65504.f), M * 65504.f);
+  EXPECT_EQ(stored_value(0, M * 1e6f), M * 65504.f);                          // saturated
+  EXPECT_EQ(stored_value(0, M * (1.f + 0x1p-11f)), M);                        // tie: to even
+  EXPECT_EQ(stored_value(0, M * (1.f + 3 * 0x1p-11f)), M * (1.f + 0x1p-9f));  // tie: up
+  EXPECT_EQ(stored_value(0, M * 0x1p-24f), M * 0x1p-24f);                     // smallest subnormal
+  EXPECT_EQ(stored_value(0, M * 0x1p-26f), 0.f);
   std::mt19937 rng(3);
   std::uniform_real_distribution<float> mant(1.f, 2.f);
   std::uniform_int_distribution<int> ex(-14, 14), lv(0, kMaxLevel);
   for (int i = 0; i < 100000; ++i) {
     const int level = lv(rng);
-    const float v = std::ldexp(mant(rng), ex(rng) + level + 3);
+    const float v = std::ldexp(mant(rng), ex(rng) + level + log2_m);
     const float s = stored_value(level, v);
     ASSERT_LE(std::fabs(s - v), std::ldexp(v, -11)) << v << " level " << level;
   }
@@ -409,9 +416,12 @@ TEST(Giga, QuadrilinearFilteringIsContinuousAcrossLod) {
   // Along a perspective ray the wanted level falls continuously with the
   // cone; blended samples change little per tiny step, while snapping to
   // whole levels jumps where the level changes.
+  // (Voxel sizes as in view_of's, with a one-pixel cone: the levels where
+  // the cloud's coarser octaves drop out, so snapping visibly jumps.)
   const auto p = make_procedural("cloud", 128);
   GigaVoxels g(p, unlimited());
   FrameView v = view_of(48, 48);
+  v.lod_pixels = 1.f;
   v.camera = Camera::orbit(Aabb{{0, 0, 0}, {1, 1, 1}}, 48, 48, 0.f, 0.f, 0.9f);
   render(g, v, 500);
   const CameraRays cam = v.rays();
@@ -527,17 +537,18 @@ TEST(GigaInrimage, ShippedSkullLoadsAndRoundTrips) {
 TEST(GigaInrimage, VolumeProducerFinestLevelIsTheNormalizedData) {
   // A cubic volume of 2^L M voxels with equal voxel sizes maps voxel for
   // voxel onto the finest level.
+  constexpr int n = 2 * kBrickSide;
   ScalarVolume v;
-  v.nx = v.ny = v.nz = 16;
+  v.nx = v.ny = v.nz = n;
   std::mt19937 rng(3);
   std::uniform_real_distribution<float> U(-5.f, 20.f);
-  for (int i = 0; i < 16 * 16 * 16; ++i) v.values.push_back(U(rng));
+  for (int i = 0; i < n * n * n; ++i) v.values.push_back(U(rng));
   const auto [lo, hi] = std::minmax_element(v.values.begin(), v.values.end());
   const auto p = make_volume_producer(v);
   ASSERT_EQ(p->max_level(), 1);
-  for (int z = 0; z < 16; z += 3)
-    for (int y = 0; y < 16; y += 5)
-      for (int x = 0; x < 16; ++x)
+  for (int z = 0; z < n; z += 3)
+    for (int y = 0; y < n; y += 5)
+      for (int x = 0; x < n; ++x)
         EXPECT_NEAR(p->voxel(1, x, y, z).density, (v.at(x, y, z) - *lo) / (*hi - *lo), 1e-6);
   // Level 0 averages 2x2x2.
   double sum = 0;
@@ -655,7 +666,7 @@ TEST(Giga, SpanSamplingEqualsPointSampling) {
   // them by affine maps of t; sample() locates every point by descending
   // from the root. Both must give the same medium at the same points and
   // levels, blended or not.
-  const auto p = make_procedural("cloud", 64);
+  const auto p = make_procedural("cloud", 128);
   GigaVoxels g(p, unlimited());
   const FrameView v = view_of(40, 30);
   render(g, v, 500);
@@ -807,7 +818,7 @@ double edge_energy(const Film& f) {
 TEST(Giga, DepthOfFieldBlursOutOfFocusAndKeepsTheFocusPlane) {
   // The shaded sponge has edges everywhere (its holes); the lens cone reads
   // coarser levels away from the focus plane, which softens them.
-  const auto p = make_procedural("menger", 64);
+  const auto p = make_procedural("menger", 128);
   const FrameView v = view_of(64, 48);
   auto draw = [&](float aperture, float focus) {
     GigaVoxels g(p, unlimited());
@@ -824,11 +835,13 @@ TEST(Giga, DepthOfFieldBlursOutOfFocusAndKeepsTheFocusPlane) {
   const Film pinhole = draw(0.f, 1.f);
   const float distance = length(v.camera.eye - Vec3{0.5f, 0.5f, 0.5f});
   const double sharp = edge_energy(pinhole);
+  // The lens cone in the units of the view's pixel cone (view_of).
+  const float aperture = 0.25f * v.lod_pixels;
   // Focused in front of the sponge: all of it blurs.
-  const double front = edge_energy(draw(0.25f, 0.5f * distance));
+  const double front = edge_energy(draw(aperture, 0.5f * distance));
   EXPECT_LT(front, 0.6 * sharp);
   // Focused on its center: only its front and back blur, it keeps more detail.
-  const double center = edge_energy(draw(0.25f, distance));
+  const double center = edge_energy(draw(aperture, distance));
   EXPECT_GT(center, 1.3 * front) << sharp;
   // A lens too small to widen the cone beyond the pixel's renders the pinhole image.
   const Film tiny = draw(1e-7f, distance);
@@ -848,7 +861,7 @@ TEST(Giga, SoftShadowsCostFewerSamplesThanHardOnes) {
   // The light cone widens with the light's size, so a soft shadow reads
   // coarser levels with longer steps: fewer brick samples per light cone
   // than a hard one; both darken the image.
-  const auto p = make_procedural("cloud", 64);
+  const auto p = make_procedural("cloud", 128);
   const FrameView v = view_of(32, 24);
   auto draw = [&](bool shadows, float radius, VolumeIntegratorStats* st) {
     GigaVoxels g(p, unlimited());

@@ -756,8 +756,9 @@ Runner add_volume(CLI::App& app) {
                   "Also write the distance at which opacity reaches 0.5 (.pfm; +inf elsewhere)");
   cmd->add_option("--size", args->size, "Image size WxH")->capture_default_str();
   add_camera_options(cmd, args->camera);
-  cmd->add_option("--resolution", args->resolution,
-                  "Procedural sources: voxels per axis at the finest level (power of two, 8..8192)")
+  cmd->add_option(
+         "--resolution", args->resolution,
+         "Procedural sources: voxels per axis at the finest level (power of two, 16..16384)")
       ->capture_default_str();
   cmd->add_option("--budget", args->budget, "Memory for the node and brick pools (e.g. 64M, 2G)")
       ->capture_default_str();

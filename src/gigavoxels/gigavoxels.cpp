@@ -49,8 +49,8 @@ inline float pow2f(int e) {
 /// to gigabytes: with 4 KiB pages nearly every brick access misses the
 /// TLB, and the profile's hottest instructions were the brick loads. The
 /// pool is aligned to 2 MiB and advised as huge pages (Linux transparent
-/// huge pages in "madvise" mode): one TLB entry then covers 256 bricks of
-/// 8 KB. Like a DAG's words, on unless VOXCAST_HUGE_PAGES=0 (system.hpp
+/// huge pages in "madvise" mode): one TLB entry then covers 44 bricks of
+/// 46 KB. Like a DAG's words, on unless VOXCAST_HUGE_PAGES=0 (system.hpp
 /// HugePages::kHot). Elsewhere (or when refused) ordinary pages, the same
 /// bytes.
 PoolVoxel* allocate_brick_pool(size_t voxels) {
@@ -101,12 +101,12 @@ float from_half(uint16_t h) {
 /// Pool scale of level L: the side of its voxel in unit-cube lengths,
 /// 2^-L / M (PoolVoxel), and its inverse.
 inline float voxel_side(int level) {
-  return pow2f(-level - 3);
+  return pow2f(-level - 4);
 }
 inline float inv_voxel_side(int level) {
-  return pow2f(level + 3);
+  return pow2f(level + 4);
 }
-static_assert(kBrickSide == 8, "voxel_side's 2^-3 is 1 / kBrickSide");
+static_assert(kBrickSide == 16, "voxel_side's 2^-4 is 1 / kBrickSide");
 
 /// A producer's brick into the pool (PoolVoxel).
 void encode_brick(const BrickVoxel* in, int level, PoolVoxel* out) {

@@ -338,8 +338,8 @@ class Mandelbulb final : public DistanceSolid {
 std::shared_ptr<Producer> make_procedural(const std::string& name, int resolution) {
   if (resolution < kBrickSide || resolution > (kBrickSide << kMaxLevel) ||
       (resolution & (resolution - 1)) != 0)
-    throw Error("procedural volume: --resolution must be a power of two in 8.." +
-                std::to_string(kBrickSide << kMaxLevel));
+    throw Error("procedural volume: --resolution must be a power of two in " +
+                std::to_string(kBrickSide) + ".." + std::to_string(kBrickSide << kMaxLevel));
   int level = 0;
   while ((kBrickSide << level) < resolution) ++level;
   if (name == "cloud") return std::make_shared<Cloud>(level);
