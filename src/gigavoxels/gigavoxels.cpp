@@ -100,13 +100,14 @@ float from_half(uint16_t h) {
 
 /// Pool scale of level L: the side of its voxel in unit-cube lengths,
 /// 2^-L / M (PoolVoxel), and its inverse.
+constexpr int kLog2BrickSide = std::countr_zero(unsigned(kBrickSide));
+static_assert((1 << kLog2BrickSide) == kBrickSide, "M is a power of two");
 inline float voxel_side(int level) {
-  return pow2f(-level - 4);
+  return pow2f(-level - kLog2BrickSide);
 }
 inline float inv_voxel_side(int level) {
-  return pow2f(level + 4);
+  return pow2f(level + kLog2BrickSide);
 }
-static_assert(kBrickSide == 16, "voxel_side's 2^-4 is 1 / kBrickSide");
 
 /// A producer's brick into the pool (PoolVoxel).
 void encode_brick(const BrickVoxel* in, int level, PoolVoxel* out) {
@@ -431,7 +432,7 @@ int GigaVoxels::march(const Ray& ray, float t_begin, const LodFootprint& lod, Tr
   float t0 = std::max(0.f, t_begin), t1 = ray.tmax;
   if (!detail::clip_unit_cube(o, d, &t0, &t1)) return 0;
   const uint32_t s = stamp(ctx.frame, ctx.pass);
-  const int max_level = producer_->max_level();
+  const int max_level = max_level_;
   // Each node is located from a point slightly past its entry, so that the
   // descent never picks the node the ray just left (progress is at least eps).
   const float eps =
@@ -600,7 +601,7 @@ VolumeSample GigaVoxels::sample(Vec3 p, float level, TraceContext& ctx,
   const Vec3 q = (p - options_.origin) * inv_size_;
   for (int a = 0; a < 3; ++a)
     if (!(q[a] >= 0.f && q[a] <= 1.f)) return {};
-  const int max_level = producer_->max_level();
+  const int max_level = max_level_;
   const float lv = std::clamp(level, 0.f, float(max_level));
   const int lo = int(std::floor(lv));
   const float f = lv - float(lo);
@@ -915,7 +916,7 @@ void GigaVoxels::stamp_empty_below(const std::vector<uint32_t>& order, uint32_t 
 }
 
 void GigaVoxels::update_empty_below(const std::vector<uint32_t>& order) {
-  const int max_level = producer_->max_level();
+  const int max_level = max_level_;
   for (uint32_t& w : child_) w = NodeEmptyBelow::set(w, 0);
   // Deepest first: a tile's nodes have their own summaries when the tile's
   // parent takes the smallest of them.
@@ -953,7 +954,7 @@ PassOutcome GigaVoxels::end_pass(std::span<const Request> requests) {
   st.bricks_used = brick_usage_.size() - free_bricks;
 
   // Valid requests, most urgent (coarsest) first (§3.6.1: top-down refinement).
-  const int max_level = producer_->max_level();
+  const int max_level = max_level_;
   std::vector<Request> data, subdivide;
   for (const Request& r : requests) {
     if (r.key >= child_.size()) continue;
@@ -1182,7 +1183,7 @@ std::string GigaVoxels::validate() const {
   // Memoized per node (each node's answer is asked by its parent's check
   // and by every ancestor's recursion: without it the checks cost the sum
   // of all subtree sizes).
-  const int max_level = producer_->max_level();
+  const int max_level = max_level_;
   constexpr int kUnknown = std::numeric_limits<int>::min();
   std::vector<int> empty_memo(child_.size(), kUnknown);
   auto empty_to = [&](auto&& self, uint32_t node, int level) -> int {
