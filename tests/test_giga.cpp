@@ -75,10 +75,11 @@ uint64_t total(const GigaVoxels& g, uint64_t GigaPassStats::*field) {
   return s;
 }
 
-TEST(Giga, ExactModeWithTinyPoolRendersTheUnlimitedImage) {
-  // A camera circling the cloud, exact mode: the unlimited pool keeps every
-  // view's bricks; the tiny one holds little more than one pass needs, so
-  // it recycles as the camera moves. Every frame must be the same image.
+/// A camera circling the cloud, exact mode: the unlimited pool keeps every
+/// view's bricks; the tiny one holds little more than one pass needs, so it
+/// recycles as the camera moves. Every frame must be the same image, with
+/// either voxel format (`bits` per channel).
+void exact_mode_with_tiny_pool(int bits) {
   const auto cloud = make_procedural("cloud", 256);
   auto view = [](uint32_t f) {
     // Narrow views of different parts of the cloud.
@@ -90,7 +91,9 @@ TEST(Giga, ExactModeWithTinyPoolRendersTheUnlimitedImage) {
     return v;
   };
   constexpr uint32_t kFrames = 6;
-  GigaVoxels big(cloud, unlimited());
+  GigaOptions all = unlimited();
+  all.brick_bits = bits;
+  GigaVoxels big(cloud, all);
   std::vector<Rendered> want;
   uint64_t peak = 0, pass_need = 0;
   for (uint32_t f = 0; f < kFrames; ++f) {
@@ -105,7 +108,7 @@ TEST(Giga, ExactModeWithTinyPoolRendersTheUnlimitedImage) {
   for (float a : want[0].film.alpha.pixels) covered += a > 0.3f;
   EXPECT_GT(covered, 100) << "the cloud must cover the image";
 
-  GigaOptions tiny = unlimited();
+  GigaOptions tiny = all;
   tiny.bricks = uint32_t(pass_need + 4), tiny.tiles = 200;
   ASSERT_LT(tiny.bricks * 2, peak) << "the tiny pool must be much smaller than what the views use";
   GigaVoxels small(cloud, tiny);
@@ -125,6 +128,14 @@ TEST(Giga, ExactModeWithTinyPoolRendersTheUnlimitedImage) {
       (unsigned long long)recycled_tiles);
   EXPECT_GT(recycled, 0u) << "the tiny pool must recycle bricks";
   EXPECT_GT(recycled_tiles, 0u) << "...and node tiles (with their subtrees)";
+}
+
+TEST(Giga, ExactModeWithTinyPoolRendersTheUnlimitedImage) {
+  exact_mode_with_tiny_pool(16);
+}
+
+TEST(Giga8, ExactModeWithTinyPoolRendersTheUnlimitedImage) {
+  exact_mode_with_tiny_pool(8);
 }
 
 TEST(Giga, OnePassShowsCoarserDataThenConverges) {
@@ -250,6 +261,22 @@ TEST(Giga, RecyclingTakesTheFrontAndNeverWhatThePassUsed) {
   EXPECT_GT(recycled, 0u);
 }
 
+/// The brick of region r as the producer's voxels, read one by one (the
+/// BrickVoxel layout: premultiplied, border included): the tests' oracle.
+std::vector<BrickVoxel> producer_brick(const Producer& p, const NodeRegion& r) {
+  std::vector<BrickVoxel> out(kBrickVoxels);
+  for (int k = 0; k < kBrickStored; ++k)
+    for (int j = 0; j < kBrickStored; ++j)
+      for (int i = 0; i < kBrickStored; ++i) {
+        const VolumeSample v =
+            p.voxel(r.level, int64_t(r.x) * kBrickSide - 1 + i, int64_t(r.y) * kBrickSide - 1 + j,
+                    int64_t(r.z) * kBrickSide - 1 + k);
+        out[size_t(i + kBrickStored * (j + kBrickStored * k))] = {
+            v.density, v.color.r * v.density, v.color.g * v.density, v.color.b * v.density};
+      }
+  return out;
+}
+
 TEST(Giga, ProducerBricksEqualDirectSampling) {
   for (const char* name : {"cloud", "menger", "mandelbulb"}) {
     const auto p = make_procedural(name, 128);
@@ -259,21 +286,88 @@ TEST(Giga, ProducerBricksEqualDirectSampling) {
     ASSERT_GT(bricks.size(), 10u) << name;
     for (const auto& rb : bricks) {
       const NodeRegion& r = rb.region;
-      for (int k = 0; k < kBrickStored; ++k)
-        for (int j = 0; j < kBrickStored; ++j)
-          for (int i = 0; i < kBrickStored; ++i) {
-            const VolumeSample v =
-                p->voxel(r.level, int64_t(r.x) * kBrickSide - 1 + i,
-                         int64_t(r.y) * kBrickSide - 1 + j, int64_t(r.z) * kBrickSide - 1 + k);
-            const BrickVoxel& b = rb.voxels[size_t(i + kBrickStored * (j + kBrickStored * k))];
-            // The pool holds halves (PoolVoxel): exactly the producer's
-            // value through stored_value's rounding.
-            ASSERT_EQ(b.density, stored_value(r.level, v.density)) << name << " level " << r.level;
-            ASSERT_EQ(b.r, stored_value(r.level, v.color.r * v.density)) << name;
-            ASSERT_EQ(b.b, stored_value(r.level, v.color.b * v.density)) << name;
-          }
+      const std::vector<BrickVoxel> want = producer_brick(*p, r);
+      for (size_t i = 0; i < want.size(); ++i) {
+        const BrickVoxel &b = rb.voxels[i], &v = want[i];
+        // The pool holds halves (PoolVoxel): exactly the producer's
+        // value through stored_value's rounding.
+        ASSERT_EQ(b.density, stored_value(r.level, v.density)) << name << " level " << r.level;
+        ASSERT_EQ(b.r, stored_value(r.level, v.r)) << name;
+        ASSERT_EQ(b.b, stored_value(r.level, v.b)) << name;
+      }
     }
   }
+}
+
+TEST(Giga8, ProducerBricksAreWithinHalfAStepOfTheirRange) {
+  // PoolVoxel8: channel c of a voxel is q * step[c], step[c] = the brick's
+  // largest value of c / 255 and q the nearest: within step[c] / 2 of the
+  // producer's value, zero exactly zero, each brick's largest value kept
+  // (to float rounding). The oracle: the producer's voxels, read here.
+  for (const char* name : {"cloud", "menger", "mandelbulb"}) {
+    const auto p = make_procedural(name, 128);
+    GigaOptions o = unlimited();
+    o.brick_bits = 8;
+    GigaVoxels g(p, o);
+    ASSERT_EQ(g.brick_bits(), 8);
+    render(g, view_of(24, 24), 500);
+    const auto bricks = g.resident_bricks();
+    ASSERT_GT(bricks.size(), 10u) << name;
+    int64_t inexact = 0;
+    for (const auto& rb : bricks) {
+      const NodeRegion& r = rb.region;
+      const std::vector<BrickVoxel> want = producer_brick(*p, r);
+      float top[4] = {0, 0, 0, 0};
+      for (const BrickVoxel& w : want) {
+        const float c[4] = {w.density, w.r, w.g, w.b};
+        for (int ch = 0; ch < 4; ++ch) top[ch] = std::max(top[ch], c[ch]);
+      }
+      float got_top[4] = {0, 0, 0, 0};
+      for (size_t i = 0; i < want.size(); ++i) {
+        const BrickVoxel& b = rb.voxels[i];
+        const float got[4] = {b.density, b.r, b.g, b.b};
+        const float exact[4] = {want[i].density, want[i].r, want[i].g, want[i].b};
+        for (int ch = 0; ch < 4; ++ch) {
+          const float half_step = top[ch] / 510.f;
+          ASSERT_LE(std::fabs(got[ch] - exact[ch]), half_step * 1.0001f)
+              << name << " level " << r.level << " channel " << ch;
+          if (exact[ch] == 0.f) ASSERT_EQ(got[ch], 0.f) << name;
+          inexact += got[ch] != exact[ch];
+          got_top[ch] = std::max(got_top[ch], got[ch]);
+        }
+      }
+      for (int ch = 0; ch < 4; ++ch) ASSERT_NEAR(got_top[ch], top[ch], top[ch] * 1e-6f) << name;
+    }
+    EXPECT_GT(inexact, 0) << name << ": the 8-bit pool must actually round";
+  }
+}
+
+TEST(Giga8, ImageIsCloseToTheSixteenBitImage) {
+  // The same cloud view with both voxel formats: the 8-bit pool's rounding
+  // (at most half a step of each brick's range) moves pixels by far less
+  // than an 8-bit display step on average, and never by much.
+  const auto p = make_procedural("cloud", 256);
+  Rendered img[2];
+  for (int i = 0; i < 2; ++i) {
+    GigaOptions o = unlimited();
+    o.brick_bits = i == 0 ? 16 : 8;
+    GigaVoxels g(p, o);
+    img[i] = render(g, view_of(64, 48), 500);
+    ASSERT_EQ(img[i].stats.passes.back().requests, 0u);
+  }
+  const std::vector<float>&a = img[0].film.color.pixels, &b = img[1].film.color.pixels;
+  ASSERT_EQ(a.size(), b.size());
+  double sum = 0, worst = 0, signal = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    const double d = double(a[i]) - double(b[i]);
+    sum += d * d, worst = std::max(worst, std::fabs(d)), signal = std::max(signal, double(a[i]));
+  }
+  const double rmse = std::sqrt(sum / double(a.size()));
+  std::printf("8-bit vs 16-bit pool: RMSE %.5f, max %.5f (brightest %.3f)\n", rmse, worst, signal);
+  EXPECT_GT(signal, 0.2) << "the view must show the cloud";
+  EXPECT_GT(worst, 0.0) << "the formats must differ (the 8-bit pool in use)";
+  EXPECT_LT(rmse, 1.0 / 512);
+  EXPECT_LT(worst, 4.0 / 255);
 }
 
 // constant_below() is a proof: wherever the cloud's producer says a node is
@@ -484,6 +578,21 @@ TEST(Giga, PoolSizesFollowTheBudget) {
   EXPECT_LE(g.pool_bytes(), o.budget_bytes);
   EXPECT_GT(g.pool_bytes(), o.budget_bytes * 99 / 100);
   EXPECT_EQ(g.tile_capacity(), g.brick_capacity());
+  EXPECT_EQ(g.brick_bits(), 16);
+  // 8 bits per channel: 4-byte voxels plus the brick's steps, nearly twice
+  // the bricks in the same budget.
+  GigaOptions o8 = o;
+  o8.brick_bits = 8;
+  GigaVoxels g8(p, o8);
+  EXPECT_EQ(g8.brick_bits(), 8);
+  EXPECT_LE(g8.pool_bytes(), o.budget_bytes);
+  EXPECT_GT(g8.pool_bytes(), o.budget_bytes * 99 / 100);
+  EXPECT_GT(g8.brick_capacity(), g.brick_capacity() * 19 / 10);
+  EXPECT_LT(g8.brick_capacity(), g.brick_capacity() * 2);
+  for (int bits : {0, 4, 12, 32}) {
+    o8.brick_bits = bits;
+    EXPECT_THROW(GigaVoxels(p, o8), Error) << bits;
+  }
   o.budget_bytes = 1000;
   EXPECT_THROW(GigaVoxels(p, o), Error);
   EXPECT_THROW(make_procedural("cloud", 48), Error);
@@ -661,13 +770,15 @@ TEST(GigaInrimage, CorruptedAndTruncatedFilesAreRejected) {
 
 // ---- Span sampling (the integrator's fast path) ----
 
-TEST(Giga, SpanSamplingEqualsPointSampling) {
-  // sample_span resolves a span's brick and its parent's once and samples
-  // them by affine maps of t; sample() locates every point by descending
-  // from the root. Both must give the same medium at the same points and
-  // levels, blended or not.
+/// sample_span resolves a span's brick and its parent's once and samples
+/// them by affine maps of t; sample() locates every point by descending from
+/// the root. Both must give the same medium at the same points and levels,
+/// blended or not, with either voxel format.
+void span_sampling_equals_point_sampling(int bits) {
   const auto p = make_procedural("cloud", 128);
-  GigaVoxels g(p, unlimited());
+  GigaOptions o = unlimited();
+  o.brick_bits = bits;
+  GigaVoxels g(p, o);
   const FrameView v = view_of(40, 30);
   render(g, v, 500);
   const CameraRays cam = v.rays();
@@ -710,6 +821,14 @@ TEST(Giga, SpanSamplingEqualsPointSampling) {
   EXPECT_GT(compared, 1000);
   EXPECT_GT(blended, 500);
   EXPECT_LT(worst, 1e-4) << "relative density error";
+}
+
+TEST(Giga, SpanSamplingEqualsPointSampling) {
+  span_sampling_equals_point_sampling(16);
+}
+
+TEST(Giga8, SpanSamplingEqualsPointSampling) {
+  span_sampling_equals_point_sampling(8);
 }
 
 // ---- MetaImage files ----

@@ -66,6 +66,35 @@ TEST(GigaCli, ProceduralRenderWritesImageAndPassStatistics) {
   EXPECT_EQ(depth.channels, 1);
 }
 
+TEST(GigaCli, EightBitBricksHalveTheVoxelAndRenderTheSameCloud) {
+  // --brick-bits 8: the pool says so, holds about twice the bricks of the
+  // same budget, and the image stays within a few display steps of the
+  // 16-bit pool's.
+  TempDir dir;
+  const std::string base =
+      "volume render procedural:cloud --resolution 64 --size 48x32 --budget 8M";
+  const CliResult a = run_cli_split(base + " -o " + dir.file("a.pfm"));
+  const CliResult b = run_cli_split(base + " --brick-bits 8 -o " + dir.file("b.pfm"));
+  ASSERT_EQ(a.exit_code, 0) << a.errors;
+  ASSERT_EQ(b.exit_code, 0) << b.errors;
+  auto bricks = [](const std::string& out, const char* kind) {
+    const size_t at = out.find(kind);
+    if (at == std::string::npos) return 0L;
+    const size_t start = out.rfind('(', at);
+    return std::stol(out.substr(start + 1, at - start - 1));
+  };
+  const long b16 = bricks(a.output, " 16-bit bricks"), b8 = bricks(b.output, " 8-bit bricks");
+  EXPECT_GT(b16, 0) << a.output;
+  EXPECT_GT(b8, b16 * 19 / 10) << b.output;
+  const Image ia = read_pfm(dir.file("a.pfm")), ib = read_pfm(dir.file("b.pfm"));
+  ASSERT_EQ(ia.pixels.size(), ib.pixels.size());
+  double worst = 0;
+  for (size_t i = 0; i < ia.pixels.size(); ++i)
+    worst = std::max(worst, std::fabs(double(ia.pixels[i]) - double(ib.pixels[i])));
+  EXPECT_GT(mean(ia), 0.02) << "the cloud must show";
+  EXPECT_LT(worst, 4.0 / 255);
+}
+
 TEST(GigaCli, OnePassModeShowsLessThanExactInTheFirstFrame) {
   TempDir dir;
   const std::string base = "volume render procedural:cloud --resolution 32 --size 32x32 ";
@@ -107,6 +136,8 @@ TEST(GigaCli, ErrorsAreOneLineWithConventionalExitCodes) {
       {"volume render procedural:cloud --size 0x4" + out, 2},
       {"volume render procedural:cloud --frames 0" + out, 2},
       {"volume render procedural:cloud --budget lots" + out, 2},
+      {"volume render procedural:cloud --brick-bits 12" + out, 2},
+      {"volume bench procedural:cloud --brick-bits 4", 2},
       {"volume render procedural:cloud -o " + dir.file("x.txt"), 2},
       {"volume render " + dir.file("missing.inr") + out, 1},
       {"volume", 2},

@@ -43,7 +43,7 @@ struct VolumeArgs {
   std::string source, output, depth, size = "640x480", budget = "256M", passes = "exact";
   std::string transfer, background, dof, light, path;
   CameraArgs camera;
-  int resolution = 256, frames = 1, threads = 0;
+  int resolution = 256, frames = 1, threads = 0, brick_bits = 16;
   float lod = 1.f, step = 0.5f, light_radius = 0.05f, shadow_step = 1.f, shadow_lod = 1.f;
   bool shading = false, verbose = false, shadows = false, soft_shadows = false;
   std::string info_source;
@@ -122,7 +122,7 @@ struct LoadedScene {
   std::vector<std::shared_ptr<giga::GigaVoxels>> streamed;
 };
 
-LoadedScene load_volume_scene(const std::string& path, uint64_t budget) {
+LoadedScene load_volume_scene(const std::string& path, uint64_t budget, int brick_bits) {
   using nlohmann::json;
   require_regular_input(path, "volume scene");
   const std::string where = "volume scene " + in_quotes(path);
@@ -256,6 +256,7 @@ LoadedScene load_volume_scene(const std::string& path, uint64_t budget) {
       } else {
         giga::GigaOptions go;
         go.budget_bytes = budget / uint64_t(std::max(1, streaming));
+        go.brick_bits = brick_bits;
         go.origin = s.origin, go.size = s.size;
         auto g = std::make_shared<giga::GigaVoxels>(s.producer, go);
         out.streamed.push_back(g);
@@ -302,17 +303,18 @@ struct OpenedVolume {
   uint64_t pool_bytes() const { return sum(&giga::GigaVoxels::pool_bytes); }
 };
 
-std::unique_ptr<OpenedVolume> open_volume(const std::string& path, int resolution,
-                                          uint64_t budget) {
+std::unique_ptr<OpenedVolume> open_volume(const std::string& path, int resolution, uint64_t budget,
+                                          int brick_bits) {
   auto v = std::make_unique<OpenedVolume>();
   if (is_scene_file(path)) {
-    v->scene = load_volume_scene(path, budget);
+    v->scene = load_volume_scene(path, budget, brick_bits);
     return v;
   }
   v->source = make_source(path, resolution);
   if (v->source.producer) {
     giga::GigaOptions go;
     go.budget_bytes = budget;
+    go.brick_bits = brick_bits;
     go.origin = v->source.origin, go.size = v->source.size;
     v->giga = std::make_unique<giga::GigaVoxels>(v->source.producer, go);
   }
@@ -367,7 +369,7 @@ double rmse(const Image& a, const Image& b) {
 struct BenchArgs {
   std::string source, output, peer_output, size = "640x480", budget = "256M", light, transfer, dof;
   CameraArgs camera;
-  int frames = 5, threads = 0, resolution = 256;
+  int frames = 5, threads = 0, resolution = 256, brick_bits = 16;
   float lod = 1.f, step = 0.5f, reference_step = 0.125f, shadow_step = 1.f, shadow_lod = 1.f,
         light_radius = 0.05f;
   bool effects = false;
@@ -476,16 +478,18 @@ int volume_bench(const BenchArgs& a) {
   if (!a.output.empty()) outputs.add("-o", a.output, {".png", ".pfm"});
   if (!a.peer_output.empty()) outputs.add("--peer-output", a.peer_output, {".png", ".pfm"});
 
-  std::unique_ptr<OpenedVolume> volume = open_volume(a.source, a.resolution, budgets[0].second);
+  std::unique_ptr<OpenedVolume> volume =
+      open_volume(a.source, a.resolution, budgets[0].second, a.brick_bits);
   auto print_pools = [&](const std::string& budget) {
     const OpenedVolume& v = *volume;
     std::printf(
         "pools       %s: node pool %s (%llu tiles of 8 nodes), brick pool %s (%llu bricks of "
-        "%d^3 voxels + border)\n",
+        "%d^3 voxels + border, %d bits per channel)\n",
         budget.c_str(), format_bytes(double(v.sum(&giga::GigaVoxels::node_pool_bytes))).c_str(),
         (unsigned long long)v.sum(&giga::GigaVoxels::tile_capacity),
         format_bytes(double(v.sum(&giga::GigaVoxels::brick_pool_bytes))).c_str(),
-        (unsigned long long)v.sum(&giga::GigaVoxels::brick_capacity), giga::kBrickSide);
+        (unsigned long long)v.sum(&giga::GigaVoxels::brick_capacity), giga::kBrickSide,
+        a.brick_bits);
   };
   if (volume->streamed().empty())
     throw UsageError("volume bench: " + printable(a.source) +
@@ -512,7 +516,9 @@ int volume_bench(const BenchArgs& a) {
   } else {
     const giga::Producer& p = *volume->source.producer;
     const int n = giga::kBrickSide << p.max_level();
-    const double dense = double(n) * n * n * double(sizeof(giga::PoolVoxel));
+    const double dense =
+        double(n) * n * n *
+        double(a.brick_bits == 8 ? sizeof(giga::PoolVoxel8) : sizeof(giga::PoolVoxel));
     std::printf("volume      %s: %s, %d levels, finest %d^3 voxels (%s as dense bricks)\n",
                 printable(a.source).c_str(), p.name().c_str(), p.max_level() + 1, n,
                 format_bytes(dense).c_str());
@@ -550,7 +556,7 @@ int volume_bench(const BenchArgs& a) {
   // 1. The budgets: each a fresh set of pools, filled by its warm-up frame.
   std::vector<BenchRow> by_budget;
   for (size_t i = 0; i < budgets.size(); ++i) {
-    if (i > 0) volume = open_volume(a.source, a.resolution, budgets[i].second);
+    if (i > 0) volume = open_volume(a.source, a.resolution, budgets[i].second, a.brick_bits);
     print_pools(budgets[i].first);
     BenchRow r = bench_giga(*volume, io, view, a.frames);
     r.name = "gigavoxels", r.budget = budgets[i].first;
@@ -666,7 +672,7 @@ void print_pass_stats(uint32_t frame, const FrameStats& fs, const giga::GigaVoxe
 int volume_info(const std::string& source, int resolution) {
   std::shared_ptr<giga::Producer> producer;
   if (is_scene_file(source)) {
-    const LoadedScene s = load_volume_scene(source, uint64_t(256) << 20);
+    const LoadedScene s = load_volume_scene(source, uint64_t(256) << 20, 16);
     const auto& objects = s.scene->objects();
     std::printf("source      %s (volume scene, %zu objects, %zu streamed)\n",
                 printable(source).c_str(), objects.size(), s.streamed.size());
@@ -762,6 +768,11 @@ Runner add_volume(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--budget", args->budget, "Memory for the node and brick pools (e.g. 64M, 2G)")
       ->capture_default_str();
+  cmd->add_option("--brick-bits", args->brick_bits,
+                  "Bits per channel of the brick pool: 16 (half floats) or 8 (each brick's range "
+                  "in 255 steps, the paper's RGBA8: half the memory, faster)")
+      ->check(CLI::IsMember({8, 16}))
+      ->capture_default_str();
   cmd->add_option("--passes", args->passes,
                   "exact (passes until nothing is missing) | N (at most N passes per frame; 1 = "
                   "one-pass mode, coarser data meanwhile)")
@@ -832,6 +843,12 @@ Runner add_volume(CLI::App& app) {
       ->add_option("--budget", bargs->budget,
                    "Memory for the node and brick pools; several, comma-separated (256M,1G), "
                    "give a row each")
+      ->capture_default_str();
+  bench
+      ->add_option("--brick-bits", bargs->brick_bits,
+                   "Bits per channel of the brick pool: 16 (half floats) or 8 (unorm8 of each "
+                   "brick's range)")
+      ->check(CLI::IsMember({8, 16}))
       ->capture_default_str();
   bench->add_option("--frames", bargs->frames, "Timed frames of each row after one warm-up")
       ->capture_default_str();
@@ -967,7 +984,7 @@ Runner add_volume(CLI::App& app) {
       path = view::CameraPath::load(args->path);
     }
     const std::unique_ptr<OpenedVolume> opened =
-        open_volume(args->source, args->resolution, budget);
+        open_volume(args->source, args->resolution, budget, args->brick_bits);
     Structure& volume = opened->structure();
     const giga::GigaVoxels* giga_volume = opened->giga.get();
     const Aabb bounds = volume.bounds();
@@ -1037,11 +1054,12 @@ Runner add_volume(CLI::App& app) {
                   format_bytes(double(opened->pool_bytes())).c_str(), opacity);
     } else if (giga_volume)
       std::printf(
-          "%s: %dx%d, %s (max level %d), pools %s (%u bricks, %u tiles), mean opacity %.3f\n",
+          "%s: %dx%d, %s (max level %d), pools %s (%u %d-bit bricks, %u tiles), mean opacity "
+          "%.3f\n",
           printable(args->output).c_str(), view.width, view.height,
           opened->source.producer->name().c_str(), opened->source.producer->max_level(),
           format_bytes(double(giga_volume->pool_bytes())).c_str(), giga_volume->brick_capacity(),
-          giga_volume->tile_capacity(), opacity);
+          giga_volume->brick_bits(), giga_volume->tile_capacity(), opacity);
     else
       std::printf("%s: %dx%d, recursive menger graph (depth %d), mean opacity %.3f\n",
                   printable(args->output).c_str(), view.width, view.height,

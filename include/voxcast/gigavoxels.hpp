@@ -99,6 +99,27 @@ static_assert(sizeof(PoolVoxel) == 8 && offsetof(PoolVoxel, r) == 2 && offsetof(
 /// of a level-`level` voxel: the value through PoolVoxel's half rounding.
 float stored_value(int level, float value);
 
+/// One voxel of an 8-bit brick pool (GigaOptions::brick_bits = 8), 4 bytes:
+/// BrickVoxel's four channels as unsigned 8-bit fractions of the brick's
+/// own range per channel, the RGBA8 bricks of the paper's GPU pools (§3.4).
+///   byte 0: density q  byte 1: r*density q  byte 2: g*density q  byte 3: b*density q
+/// Channel c of a voxel is q * step[c], step[c] = (the brick's largest
+/// value of channel c) / 255, a BrickSteps8 per brick kept beside the pool;
+/// q = round(value / step[c]), so the error is at most step[c] / 2. Half the
+/// bytes of PoolVoxel: twice the bricks fit a budget and a warm frame, bound
+/// by its brick loads (docs/BENCHMARKS.md), reads half the cache lines. The
+/// price: a brick's faint voxels keep only 1/255 of its brightest one's
+/// range, and a voxel held by two bricks (a border) may round differently in
+/// each (a seam of at most half the larger step). Scalar data under a steep
+/// transfer function wants the default 16-bit pool.
+struct PoolVoxel8 {
+  uint8_t density, r, g, b;
+};
+static_assert(sizeof(PoolVoxel8) == 4 && offsetof(PoolVoxel8, b) == 3);
+struct BrickSteps8 {
+  float step[4];  // density, r*density, g*density, b*density per unit q
+};
+
 // ---- Node pool layout (§3.4.2, Figure 3.5): two 32-bit words per node, in
 // two separate arrays (structure and data are read at different times of the
 // descent). Node n is child (n & 7) of tile n >> 3; its words are at byte
@@ -330,6 +351,10 @@ struct GigaOptions {
   /// Run validate() after every end_pass and throw voxcast::Error on a
   /// broken invariant (tests).
   bool check_after_pass = false;
+  /// Bits per channel of a pool voxel: 16 (PoolVoxel, binary16, the
+  /// default) or 8 (PoolVoxel8, unorm8 of each brick's range: half the
+  /// bytes, so twice the bricks per budget and faster warm frames).
+  int brick_bits = 16;
 };
 
 /// What one end_pass did.
@@ -366,11 +391,13 @@ class GigaVoxels : public Structure, public VolumeQuery {
   uint32_t brick_capacity() const { return uint32_t(brick_owner_.size()); }
   /// Bytes of both pools and their bookkeeping: the node pool (tiles: 8
   /// nodes of two words, localization code, depth, parent, usage and
-  /// timestamp) and the brick pool (bricks of PoolVoxel with owner, usage and
-  /// timestamp).
+  /// timestamp) and the brick pool (bricks of PoolVoxel or PoolVoxel8 with
+  /// owner, usage and timestamp; 8-bit pools add a BrickSteps8 per brick).
   uint64_t pool_bytes() const { return node_pool_bytes() + brick_pool_bytes(); }
   uint64_t node_pool_bytes() const;
   uint64_t brick_pool_bytes() const;
+  /// Bits per channel of the brick pool's voxels (GigaOptions::brick_bits).
+  int brick_bits() const { return voxel_bytes_ == sizeof(PoolVoxel8) ? 8 : 16; }
   const Producer& producer() const { return *producer_; }
   /// end_pass statistics since begin_frame.
   const std::vector<GigaPassStats>& pass_stats() const { return passes_; }
@@ -436,9 +463,15 @@ class GigaVoxels : public Structure, public VolumeQuery {
   // Brick pool: one allocation aligned to 2 MiB huge pages (gigavoxels.cpp,
   // allocate_brick_pool), released by PoolFree.
   struct PoolFree {
-    void operator()(PoolVoxel* p) const noexcept;
+    void operator()(unsigned char* p) const noexcept;
   };
-  std::unique_ptr<PoolVoxel[], PoolFree> bricks_;
+  std::unique_ptr<unsigned char[], PoolFree> bricks_;
+  size_t voxel_bytes_ = sizeof(PoolVoxel);  // PoolVoxel or PoolVoxel8 (brick_bits)
+  std::vector<BrickSteps8> brick_steps_;    // per brick, 8-bit pools only
+  /// Brick b's first byte.
+  const unsigned char* brick_data(uint32_t b) const {
+    return bricks_.get() + size_t(b) * kBrickVoxels * voxel_bytes_;
+  }
   mutable std::vector<uint32_t> brick_stamp_;
   std::vector<uint32_t> brick_owner_;  // node holding the brick; kNoNode when free
   std::vector<uint32_t> brick_usage_;

@@ -33,7 +33,11 @@ constexpr uint32_t kNoNode = 0xFFFFFFFFu;
 // Bytes per element: a tile's 8 nodes x 2 words + stamp, code, depth,
 // parent, usage entry; a brick's voxels + stamp, owner, usage entry.
 constexpr uint64_t kTileBytes = 8 * 8 + 4 + 4 + 1 + 4 + 4;
-constexpr uint64_t kBrickBytes = uint64_t(kBrickVoxels) * sizeof(PoolVoxel) + 12;
+// (An 8-bit pool adds its BrickSteps8.)
+constexpr uint64_t brick_bytes(int bits) {
+  return bits == 8 ? uint64_t(kBrickVoxels) * sizeof(PoolVoxel8) + 12 + sizeof(BrickSteps8)
+                   : uint64_t(kBrickVoxels) * sizeof(PoolVoxel) + 12;
+}
 constexpr uint32_t kMaxPoolElements = uint32_t(1) << 26;
 static_assert(kMaxPoolElements - 1 <= NodeChildTile::max);
 
@@ -53,13 +57,13 @@ inline float pow2f(int e) {
 /// 46 KB. Like a DAG's words, on unless VOXCAST_HUGE_PAGES=0 (system.hpp
 /// HugePages::kHot). Elsewhere (or when refused) ordinary pages, the same
 /// bytes.
-PoolVoxel* allocate_brick_pool(size_t voxels) {
+unsigned char* allocate_brick_pool(size_t pool_bytes) {
   constexpr size_t kHuge = size_t(2) << 20;
-  const size_t bytes = (voxels * sizeof(PoolVoxel) + kHuge - 1) / kHuge * kHuge;
+  const size_t bytes = (pool_bytes + kHuge - 1) / kHuge * kHuge;
   void* p = std::aligned_alloc(kHuge, bytes);
   if (p == nullptr) throw std::bad_alloc();
   advise_huge_pages(p, bytes, HugePages::kHot);  // advice only: refused leaves 4 KiB pages
-  return static_cast<PoolVoxel*>(p);
+  return static_cast<unsigned char*>(p);
 }
 
 /// binary16 of x, rounded to nearest even, saturated at +-65504 (NaN: 0).
@@ -117,6 +121,32 @@ void encode_brick(const BrickVoxel* in, int level, PoolVoxel* out) {
               to_half(in[i].b * v)};
 }
 
+/// A producer's brick into an 8-bit pool (PoolVoxel8): each channel's
+/// largest value over the brick (capped where PoolVoxel's halves saturate,
+/// 65504 per voxel side; NaN and negatives count as 0) sets its step.
+void encode_brick8(const BrickVoxel* in, int level, PoolVoxel8* out, BrickSteps8* steps) {
+  const float cap = 65504.f * inv_voxel_side(level);
+  auto channel = [](const BrickVoxel& v, int c) {
+    return c == 0 ? v.density : c == 1 ? v.r : c == 2 ? v.g : v.b;
+  };
+  float top[4] = {0.f, 0.f, 0.f, 0.f};
+  for (int i = 0; i < kBrickVoxels; ++i)
+    for (int c = 0; c < 4; ++c) top[c] = std::max(top[c], std::min(channel(in[i], c), cap));
+  float inv[4];
+  for (int c = 0; c < 4; ++c) {
+    steps->step[c] = top[c] / 255.f;
+    inv[c] = top[c] > 0.f ? 255.f / top[c] : 0.f;
+  }
+  for (int i = 0; i < kBrickVoxels; ++i) {
+    uint8_t q[4];
+    for (int c = 0; c < 4; ++c) {
+      const float x = channel(in[i], c) * inv[c];  // NaN and <= 0 -> 0, beyond the cap -> 255
+      q[c] = x > 0.f ? uint8_t(std::min(255.f, std::nearbyint(x))) : uint8_t(0);
+    }
+    out[i] = {q[0], q[1], q[2], q[3]};
+  }
+}
+
 inline size_t stored_index(int i, int j, int k) {
   return size_t(i) + size_t(kBrickStored) * (size_t(j) + size_t(kBrickStored) * size_t(k));
 }
@@ -148,22 +178,52 @@ inline int cell_weight(float u, float* f) {
   return i;
 }
 
-/// trilinear() from the lookup's first voxel v and the weights f.
-inline void trilinear_at(const PoolVoxel* v, const float f[3], float scale, float acc[4]);
+/// A pool voxel's size in bytes: PoolVoxel (16 bits per channel) or
+/// PoolVoxel8 (8).
+template <int Bits>
+constexpr size_t kVoxelBytes = Bits == 8 ? sizeof(PoolVoxel8) : sizeof(PoolVoxel);
 
-inline void trilinear(const PoolVoxel* b, const float u[3], float scale, float acc[4]) {
+/// Channel ch of the pool voxel at v, undecoded-scale (half or q).
+template <int Bits>
+inline float pool_channel(const unsigned char* v, int ch) {
+  if constexpr (Bits == 8) {
+    return float(v[ch]);
+  } else {
+    uint16_t h;
+    std::memcpy(&h, v + 2 * ch, sizeof h);
+    return from_half(h);
+  }
+}
+
+/// trilinear() from the lookup's first voxel v (a pointer into a brick of
+/// Bits-bit voxels) and the weights f; `scale` multiplies each channel
+/// (16-bit: the level's inv_voxel_side; 8-bit: the brick's steps).
+template <int Bits>
+inline void trilinear_at(const unsigned char* v, const float f[3], const float scale[4],
+                         float acc[4]);
+
+template <int Bits>
+inline void trilinear(const unsigned char* b, const float u[3], const float scale[4],
+                      float acc[4]) {
   int i0[3];
   float f[3];
   for (int a = 0; a < 3; ++a) i0[a] = cell_weight(u[a], &f[a]);
-  trilinear_at(b + stored_index(i0[0], i0[1], i0[2]), f, scale, acc);
+  trilinear_at<Bits>(b + stored_index(i0[0], i0[1], i0[2]) * kVoxelBytes<Bits>, f, scale, acc);
 }
 
 #if defined(__AVX2__) && defined(__FMA__) && defined(__F16C__)
-/// trilinear_at()'s result in a register (what it stores into acc).
-inline __m128 trilinear_v(const PoolVoxel* v, const float f[3], float scale) {
-  constexpr size_t kRow = kBrickStored, kSlice = size_t(kBrickStored) * kBrickStored;
+/// trilinear_at()'s result in a register (what it stores into acc). One
+/// row load holds both x neighbours (8 channels): 16 bytes of halves
+/// through vcvtph2ps, or 8 bytes of unorm8 widened to floats.
+template <int Bits>
+inline __m128 trilinear_v(const unsigned char* v, const float f[3], __m128 scale) {
+  constexpr size_t kRow = kBrickStored * kVoxelBytes<Bits>, kSlice = kRow * kBrickStored;
   auto row = [v](size_t at) {
-    return _mm256_cvtph_ps(_mm_loadu_si128(reinterpret_cast<const __m128i*>(v + at)));
+    if constexpr (Bits == 8)
+      return _mm256_cvtepi32_ps(
+          _mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(v + at))));
+    else
+      return _mm256_cvtph_ps(_mm_loadu_si128(reinterpret_cast<const __m128i*>(v + at)));
   };
   const __m256 r00 = row(0), r10 = row(kRow), r01 = row(kSlice), r11 = row(kRow + kSlice);
   const __m256 fy = _mm256_set1_ps(f[1]), fz = _mm256_set1_ps(f[2]);
@@ -172,24 +232,28 @@ inline __m128 trilinear_v(const PoolVoxel* v, const float f[3], float scale) {
   const __m256 y1 = _mm256_fmadd_ps(fy, _mm256_sub_ps(r11, r01), r01);
   const __m256 z = _mm256_fmadd_ps(fz, _mm256_sub_ps(y1, y0), y0);
   const __m128 x0 = _mm256_castps256_ps128(z), x1 = _mm256_extractf128_ps(z, 1);
-  return _mm_mul_ps(_mm_fmadd_ps(_mm_set1_ps(f[0]), _mm_sub_ps(x1, x0), x0), _mm_set1_ps(scale));
+  return _mm_mul_ps(_mm_fmadd_ps(_mm_set1_ps(f[0]), _mm_sub_ps(x1, x0), x0), scale);
 }
 #endif
 
-inline void trilinear_at(const PoolVoxel* v, const float f[3], float scale, float acc[4]) {
+template <int Bits>
+inline void trilinear_at(const unsigned char* v, const float f[3], const float scale[4],
+                         float acc[4]) {
 #if defined(__AVX2__) && defined(__FMA__) && defined(__F16C__)
-  _mm_storeu_ps(acc, trilinear_v(v, f, scale));
+  _mm_storeu_ps(acc, trilinear_v<Bits>(v, f, _mm_loadu_ps(scale)));
 #else
-  constexpr size_t kRow = kBrickStored, kSlice = size_t(kBrickStored) * kBrickStored;
-  const PoolVoxel* c[8] = {v,          v + 1,          v + kRow,          v + kRow + 1,
-                           v + kSlice, v + kSlice + 1, v + kRow + kSlice, v + kRow + kSlice + 1};
+  constexpr size_t kB = kVoxelBytes<Bits>;
+  constexpr size_t kRow = kBrickStored * kB, kSlice = kRow * kBrickStored;
+  const unsigned char* c[8] = {
+      v,          v + kB,          v + kRow,          v + kRow + kB,
+      v + kSlice, v + kSlice + kB, v + kRow + kSlice, v + kRow + kSlice + kB};
   for (int ch = 0; ch < 4; ++ch) {
     float w[8];
-    for (int n = 0; n < 8; ++n) w[n] = from_half((&c[n]->density)[ch]);
+    for (int n = 0; n < 8; ++n) w[n] = pool_channel<Bits>(c[n], ch);
     const float y0 = w[0] + f[0] * (w[1] - w[0]), y1 = w[2] + f[0] * (w[3] - w[2]);
     const float y2 = w[4] + f[0] * (w[5] - w[4]), y3 = w[6] + f[0] * (w[7] - w[6]);
     const float z0 = y0 + f[1] * (y1 - y0), z1 = y2 + f[1] * (y3 - y2);
-    acc[ch] = (z0 + f[2] * (z1 - z0)) * scale;
+    acc[ch] = (z0 + f[2] * (z1 - z0)) * scale[ch];
   }
 #endif
 }
@@ -295,7 +359,7 @@ size_t lru_compact(std::vector<uint32_t>* usage, const std::vector<uint32_t>& st
 
 }  // namespace
 
-void GigaVoxels::PoolFree::operator()(PoolVoxel* p) const noexcept {
+void GigaVoxels::PoolFree::operator()(unsigned char* p) const noexcept {
   std::free(p);
 }
 
@@ -353,14 +417,19 @@ GigaVoxels::GigaVoxels(std::shared_ptr<const Producer> producer, GigaOptions opt
   if (!(options_.size > 0.f) || !std::isfinite(options_.size) || !is_finite(options_.origin))
     throw Error("gigavoxels: the volume's size must be a positive number");
   if (options_.max_data_per_pass == 0) throw Error("gigavoxels: max_data_per_pass must be > 0");
+  if (options_.brick_bits != 8 && options_.brick_bits != 16)
+    throw Error("gigavoxels: brick bits must be 8 or 16, not " +
+                std::to_string(options_.brick_bits));
+  voxel_bytes_ = options_.brick_bits == 8 ? sizeof(PoolVoxel8) : sizeof(PoolVoxel);
+  const uint64_t per_brick = brick_bytes(options_.brick_bits);
   uint64_t tiles = options_.tiles, bricks = options_.bricks;
   if (tiles == 0 || bricks == 0) {
-    const uint64_t n = options_.budget_bytes / (kTileBytes + kBrickBytes);
+    const uint64_t n = options_.budget_bytes / (kTileBytes + per_brick);
     tiles = n, bricks = n;
   }
   if (tiles < 2 || bricks < 1)
     throw Error("gigavoxels: the memory budget holds no brick (at least " +
-                std::to_string(2 * kTileBytes + kBrickBytes) + " bytes)");
+                std::to_string(2 * kTileBytes + per_brick) + " bytes)");
   tiles = std::min<uint64_t>(tiles, kMaxPoolElements);
   bricks = std::min<uint64_t>(bricks, kMaxPoolElements);
   inv_size_ = 1.f / options_.size;
@@ -374,7 +443,8 @@ GigaVoxels::GigaVoxels(std::shared_ptr<const Producer> producer, GigaOptions opt
   tile_parent_.assign(size_t(tiles), kNoNode);
   tile_usage_.resize(size_t(tiles) - 1);
   for (uint32_t t = 1; t < tiles; ++t) tile_usage_[t - 1] = t;
-  bricks_.reset(allocate_brick_pool(size_t(bricks) * kBrickVoxels));
+  bricks_.reset(allocate_brick_pool(size_t(bricks) * kBrickVoxels * voxel_bytes_));
+  if (options_.brick_bits == 8) brick_steps_.resize(size_t(bricks));
   brick_stamp_.assign(size_t(bricks), 0);
   brick_owner_.assign(size_t(bricks), kNoNode);
   brick_usage_.resize(size_t(bricks));
@@ -391,7 +461,7 @@ uint64_t GigaVoxels::node_pool_bytes() const {
 }
 
 uint64_t GigaVoxels::brick_pool_bytes() const {
-  return uint64_t(brick_capacity()) * kBrickBytes;
+  return uint64_t(brick_capacity()) * brick_bytes(brick_bits());
 }
 
 NodeRegion GigaVoxels::region_of(uint32_t node) const {
@@ -592,7 +662,12 @@ VolumeSample GigaVoxels::node_value(uint32_t node, int level, const uint32_t cel
   float u[3];
   for (int a = 0; a < 3; ++a) u[a] = (q[a] * scale - float(cell[a])) * float(kBrickSide) + 0.5f;
   float acc[4];
-  trilinear(&bricks_[size_t(payload) * kBrickVoxels], u, inv_voxel_side(level), acc);
+  if (voxel_bytes_ == sizeof(PoolVoxel8)) {
+    trilinear<8>(brick_data(payload), u, brick_steps_[payload].step, acc);
+  } else {
+    const float s = inv_voxel_side(level), scale[4] = {s, s, s, s};
+    trilinear<16>(brick_data(payload), u, scale, acc);
+  }
   return unpremultiply(acc, inv_size_);
 }
 
@@ -693,11 +768,13 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
   // One level's lookup along the ray as an affine map of t: stored
   // coordinate u_a(t) = A_a + B_a t (node_value's mapping with q = o + d t).
   struct Lookup {
-    const PoolVoxel* brick = nullptr;  // null: constant `value`
-    float value[4] = {0, 0, 0, 0};     // premultiplied, unit-cube density
+    const unsigned char* brick = nullptr;  // null: constant `value`
+    float value[4] = {0, 0, 0, 0};         // premultiplied, unit-cube density
     float A[3], B[3];
-    float scale = 1.f;  // inv_voxel_side of the brick's level
+    float scale[4];  // per channel: inv_voxel_side of the level, or the brick's steps
   };
+  const bool eight = voxel_bytes_ == sizeof(PoolVoxel8);
+  const size_t vb = voxel_bytes_;
   const Vec3 o = (ray.origin - options_.origin) * inv_size_, d = ray.dir * inv_size_;
   auto prepare = [&](uint32_t nd, const NodeRegion& r, Lookup* lk) {
     const uint32_t dw = data_[nd];
@@ -709,8 +786,11 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
     }
     const uint32_t b = NodeDataPayload::get(dw);
     touch_brick(b, s);
-    lk->brick = &bricks_[size_t(b) * kBrickVoxels];
-    lk->scale = inv_voxel_side(r.level);
+    lk->brick = brick_data(b);
+    if (eight)
+      std::copy(brick_steps_[b].step, brick_steps_[b].step + 4, lk->scale);
+    else
+      std::fill(lk->scale, lk->scale + 4, inv_voxel_side(r.level));
     const float scale = pow2f(r.level) * float(kBrickSide);
     const uint32_t cell[3] = {r.x, r.y, r.z};
     for (int a = 0; a < 3; ++a) {
@@ -763,26 +843,29 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
     }
 #endif
   };
-  auto prefetch = [](const Lookup& lk, const Cells& c, int m) {
+  auto prefetch = [vb](const Lookup& lk, const Cells& c, int m) {
 #if defined(__AVX2__)
     if (lk.brick == nullptr) return;
-    constexpr size_t kRow = kBrickStored, kSlice = size_t(kBrickStored) * kBrickStored;
+    const size_t row = kBrickStored * vb, slice = row * kBrickStored;
     for (int k = 0; k < m; ++k) {
-      const PoolVoxel* v = lk.brick + c.at[k];
-      for (size_t at : {size_t(0), kRow, kSlice, kRow + kSlice})
+      const unsigned char* v = lk.brick + size_t(c.at[k]) * vb;
+      for (size_t at : {size_t(0), row, slice, row + slice})
         _mm_prefetch(reinterpret_cast<const char*>(v + at), _MM_HINT_T0);
     }
 #else
-    (void)lk, (void)c, (void)m;
+    (void)lk, (void)c, (void)m, (void)vb;
 #endif
   };
-  auto lookup = [](const Lookup& lk, const Cells& c, int k, float acc[4]) {
+  auto lookup = [eight](const Lookup& lk, const Cells& c, int k, float acc[4]) {
     if (lk.brick == nullptr) {
       std::copy(lk.value, lk.value + 4, acc);
       return;
     }
     const float f[3] = {c.f[0][k], c.f[1][k], c.f[2][k]};
-    trilinear_at(lk.brick + c.at[k], f, lk.scale, acc);
+    if (eight)
+      trilinear_at<8>(lk.brick + size_t(c.at[k]) * sizeof(PoolVoxel8), f, lk.scale, acc);
+    else
+      trilinear_at<16>(lk.brick + size_t(c.at[k]) * sizeof(PoolVoxel), f, lk.scale, acc);
   };
   // Weight of the fine level per point: level L - 1 + w blends the parent
   // (1 - w) with the node (w), as sample()'s quadrilinear filter. Only the
@@ -854,24 +937,34 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
 #if defined(__AVX2__) && defined(__FMA__) && defined(__F16C__)
     // The same lookups and blend in registers: lookup()'s lanes, and
     // acc + w (a1 - acc) unfused, as the loop below.
-    auto lookup_v = [](const Lookup& lk, const Cells& c, int k) {
-      if (lk.brick == nullptr) return _mm_loadu_ps(lk.value);
-      const float f[3] = {c.f[0][k], c.f[1][k], c.f[2][k]};
-      return trilinear_v(lk.brick + c.at[k], f, lk.scale);
-    };
-    for (int k = 0; k < m; ++k) {
-      __m128 acc;
-      if (w[k] == 1.f) {
-        acc = lookup_v(fine, fine_cells, k);
-      } else if (w[k] == 0.f) {
-        acc = lookup_v(coarse, coarse_cells, k);
-      } else {
-        const __m128 a1 = lookup_v(fine, fine_cells, k);
-        acc = lookup_v(coarse, coarse_cells, k);
-        acc = _mm_add_ps(acc, _mm_mul_ps(_mm_set1_ps(w[k]), _mm_sub_ps(a1, acc)));
+    // The loop once per voxel format (a branch per lookup would sit in the
+    // hot loop).
+    auto blend = [&](auto bits) {
+      constexpr int kBits = decltype(bits)::value;
+      auto lookup_v = [](const Lookup& lk, const Cells& c, int k) {
+        if (lk.brick == nullptr) return _mm_loadu_ps(lk.value);
+        const float f[3] = {c.f[0][k], c.f[1][k], c.f[2][k]};
+        return trilinear_v<kBits>(lk.brick + size_t(c.at[k]) * kVoxelBytes<kBits>, f,
+                                  _mm_loadu_ps(lk.scale));
+      };
+      for (int k = 0; k < m; ++k) {
+        __m128 acc;
+        if (w[k] == 1.f) {
+          acc = lookup_v(fine, fine_cells, k);
+        } else if (w[k] == 0.f) {
+          acc = lookup_v(coarse, coarse_cells, k);
+        } else {
+          const __m128 a1 = lookup_v(fine, fine_cells, k);
+          acc = lookup_v(coarse, coarse_cells, k);
+          acc = _mm_add_ps(acc, _mm_mul_ps(_mm_set1_ps(w[k]), _mm_sub_ps(a1, acc)));
+        }
+        unpremultiply_into(acc, inv_size_, &out[k0 + k]);
       }
-      unpremultiply_into(acc, inv_size_, &out[k0 + k]);
-    }
+    };
+    if (eight)
+      blend(std::integral_constant<int, 8>());
+    else
+      blend(std::integral_constant<int, 16>());
     (void)lookup;
 #else
     for (int k = 0; k < m; ++k) {
@@ -1072,8 +1165,13 @@ PassOutcome GigaVoxels::end_pass(std::span<const Request> requests) {
     } else {
       if (next_brick == new_bricks) continue;  // pending: no brick left in this pass
       const uint32_t b = brick_usage_[next_brick++];
-      encode_brick(&produced_voxels[i * kBrickVoxels], region_of(node).level,
-                   &bricks_[size_t(b) * kBrickVoxels]);
+      const BrickVoxel* in = &produced_voxels[i * kBrickVoxels];
+      unsigned char* out = bricks_.get() + size_t(b) * kBrickVoxels * voxel_bytes_;
+      if (voxel_bytes_ == sizeof(PoolVoxel8))
+        encode_brick8(in, region_of(node).level, reinterpret_cast<PoolVoxel8*>(out),
+                      &brick_steps_[b]);
+      else
+        encode_brick(in, region_of(node).level, reinterpret_cast<PoolVoxel*>(out));
       brick_owner_[b] = node, brick_stamp_[b] = now;
       word = NodeDataKind::put(kDataBrick) | NodeDataPayload::put(b);
       ++st.bricks_uploaded;
@@ -1230,12 +1328,19 @@ std::vector<GigaVoxels::ResidentBrick> GigaVoxels::resident_bricks() const {
   for (uint32_t b = 0; b < brick_capacity(); ++b)
     if (brick_owner_[b] != kNoNode) {
       ResidentBrick rb{b, brick_owner_[b], region_of(brick_owner_[b]), {}};
-      const PoolVoxel* in = &bricks_[size_t(b) * kBrickVoxels];
-      const float s = inv_voxel_side(rb.region.level);
+      const unsigned char* in = brick_data(b);
       rb.voxels.resize(kBrickVoxels);
-      for (int i = 0; i < kBrickVoxels; ++i)
-        rb.voxels[size_t(i)] = {from_half(in[i].density) * s, from_half(in[i].r) * s,
-                                from_half(in[i].g) * s, from_half(in[i].b) * s};
+      if (voxel_bytes_ == sizeof(PoolVoxel8)) {
+        const float* st = brick_steps_[b].step;
+        for (int i = 0; i < kBrickVoxels; ++i, in += sizeof(PoolVoxel8))
+          rb.voxels[size_t(i)] = {pool_channel<8>(in, 0) * st[0], pool_channel<8>(in, 1) * st[1],
+                                  pool_channel<8>(in, 2) * st[2], pool_channel<8>(in, 3) * st[3]};
+      } else {
+        const float s = inv_voxel_side(rb.region.level);
+        for (int i = 0; i < kBrickVoxels; ++i, in += sizeof(PoolVoxel))
+          rb.voxels[size_t(i)] = {pool_channel<16>(in, 0) * s, pool_channel<16>(in, 1) * s,
+                                  pool_channel<16>(in, 2) * s, pool_channel<16>(in, 3) * s};
+      }
       out.push_back(std::move(rb));
     }
   return out;
