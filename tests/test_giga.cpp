@@ -570,17 +570,17 @@ TEST(Giga, QuadrilinearFilteringIsContinuousAcrossLod) {
   EXPECT_LT(jump_blend, jump_snap / 4);
 }
 
-TEST(Giga, RenderDoesNotDependOnThreads) {
-  // Images, the requests of every pass and the pool statistics are the same
-  // with 1 and 2 threads (requests reach end_pass sorted and deduplicated,
-  // and no buffer overflows: nothing depends on the schedule).
+/// Images, the requests of every pass and the pool statistics are the same
+/// with 1 and 2 threads (requests reach end_pass sorted and deduplicated,
+/// and no buffer overflows: nothing depends on the schedule).
+void render_does_not_depend_on_threads(int bits) {
   const auto p = make_procedural("mandelbulb", 64);
   std::vector<std::vector<float>> images;
   std::vector<std::vector<uint64_t>> requests;
   for (int threads : {1, 2}) {
     tbb::global_control limit(tbb::global_control::max_allowed_parallelism, size_t(threads));
     GigaOptions o = unlimited();
-    o.bricks = 300, o.tiles = 300;
+    o.bricks = 300, o.tiles = 300, o.brick_bits = bits;
     GigaVoxels g(p, o);
     const Rendered r = render(g, view_of(64, 48), 2000, true);
     images.push_back(r.film.color.pixels);
@@ -593,6 +593,14 @@ TEST(Giga, RenderDoesNotDependOnThreads) {
   }
   EXPECT_EQ(images[0], images[1]);
   EXPECT_EQ(requests[0], requests[1]);
+}
+
+TEST(Giga, RenderDoesNotDependOnThreads) {
+  render_does_not_depend_on_threads(16);
+}
+
+TEST(Giga8, RenderDoesNotDependOnThreads) {
+  render_does_not_depend_on_threads(8);
 }
 
 TEST(Giga, PoolSizesFollowTheBudget) {
