@@ -331,7 +331,9 @@ TEST(Giga8, ProducerBricksAreWithinHalfAStepOfTheirRange) {
           const float half_step = top[ch] / 510.f;
           ASSERT_LE(std::fabs(got[ch] - exact[ch]), half_step * 1.0001f)
               << name << " level " << r.level << " channel " << ch;
-          if (exact[ch] == 0.f) ASSERT_EQ(got[ch], 0.f) << name;
+          if (exact[ch] == 0.f) {
+            ASSERT_EQ(got[ch], 0.f) << name;
+          }
           inexact += got[ch] != exact[ch];
           got_top[ch] = std::max(got_top[ch], got[ch]);
         }
