@@ -516,9 +516,7 @@ int volume_bench(const BenchArgs& a) {
   } else {
     const giga::Producer& p = *volume->source.producer;
     const int n = giga::kBrickSide << p.max_level();
-    const double dense =
-        double(n) * n * n *
-        double(a.brick_bits == 8 ? sizeof(giga::PoolVoxel8) : sizeof(giga::PoolVoxel));
+    const double dense = double(n) * n * n * double(giga::pool_voxel_bytes(a.brick_bits));
     std::printf("volume      %s: %s, %d levels, finest %d^3 voxels (%s as dense bricks)\n",
                 printable(a.source).c_str(), p.name().c_str(), p.max_level() + 1, n,
                 format_bytes(dense).c_str());

@@ -116,6 +116,10 @@ struct PoolVoxel8 {
   uint8_t density, r, g, b;
 };
 static_assert(sizeof(PoolVoxel8) == 4 && offsetof(PoolVoxel8, b) == 3);
+/// Bytes of one pool voxel at `bits` per channel (GigaOptions::brick_bits).
+constexpr size_t pool_voxel_bytes(int bits) {
+  return bits == 8 ? sizeof(PoolVoxel8) : sizeof(PoolVoxel);
+}
 struct BrickSteps8 {
   float step[4];  // density, r*density, g*density, b*density per unit q
 };
@@ -397,7 +401,7 @@ class GigaVoxels : public Structure, public VolumeQuery {
   uint64_t node_pool_bytes() const;
   uint64_t brick_pool_bytes() const;
   /// Bits per channel of the brick pool's voxels (GigaOptions::brick_bits).
-  int brick_bits() const { return voxel_bytes_ == sizeof(PoolVoxel8) ? 8 : 16; }
+  int brick_bits() const { return options_.brick_bits; }
   const Producer& producer() const { return *producer_; }
   /// end_pass statistics since begin_frame.
   const std::vector<GigaPassStats>& pass_stats() const { return passes_; }
@@ -469,7 +473,7 @@ class GigaVoxels : public Structure, public VolumeQuery {
   size_t voxel_bytes_ = sizeof(PoolVoxel);  // PoolVoxel or PoolVoxel8 (brick_bits)
   std::vector<BrickSteps8> brick_steps_;    // per brick, 8-bit pools only
   /// Brick b's first byte.
-  const unsigned char* brick_data(uint32_t b) const {
+  unsigned char* brick_data(uint32_t b) const {
     return bricks_.get() + size_t(b) * kBrickVoxels * voxel_bytes_;
   }
   mutable std::vector<uint32_t> brick_stamp_;

@@ -35,8 +35,8 @@ constexpr uint32_t kNoNode = 0xFFFFFFFFu;
 constexpr uint64_t kTileBytes = 8 * 8 + 4 + 4 + 1 + 4 + 4;
 // (An 8-bit pool adds its BrickSteps8.)
 constexpr uint64_t brick_bytes(int bits) {
-  return bits == 8 ? uint64_t(kBrickVoxels) * sizeof(PoolVoxel8) + 12 + sizeof(BrickSteps8)
-                   : uint64_t(kBrickVoxels) * sizeof(PoolVoxel) + 12;
+  return uint64_t(kBrickVoxels) * pool_voxel_bytes(bits) + 12 +
+         (bits == 8 ? sizeof(BrickSteps8) : 0);
 }
 constexpr uint32_t kMaxPoolElements = uint32_t(1) << 26;
 static_assert(kMaxPoolElements - 1 <= NodeChildTile::max);
@@ -181,7 +181,7 @@ inline int cell_weight(float u, float* f) {
 /// A pool voxel's size in bytes: PoolVoxel (16 bits per channel) or
 /// PoolVoxel8 (8).
 template <int Bits>
-constexpr size_t kVoxelBytes = Bits == 8 ? sizeof(PoolVoxel8) : sizeof(PoolVoxel);
+constexpr size_t kVoxelBytes = pool_voxel_bytes(Bits);
 
 /// Channel ch of the pool voxel at v, undecoded-scale (half or q).
 template <int Bits>
@@ -420,7 +420,7 @@ GigaVoxels::GigaVoxels(std::shared_ptr<const Producer> producer, GigaOptions opt
   if (options_.brick_bits != 8 && options_.brick_bits != 16)
     throw Error("gigavoxels: brick bits must be 8 or 16, not " +
                 std::to_string(options_.brick_bits));
-  voxel_bytes_ = options_.brick_bits == 8 ? sizeof(PoolVoxel8) : sizeof(PoolVoxel);
+  voxel_bytes_ = pool_voxel_bytes(options_.brick_bits);
   const uint64_t per_brick = brick_bytes(options_.brick_bits);
   uint64_t tiles = options_.tiles, bricks = options_.bricks;
   if (tiles == 0 || bricks == 0) {
@@ -662,7 +662,7 @@ VolumeSample GigaVoxels::node_value(uint32_t node, int level, const uint32_t cel
   float u[3];
   for (int a = 0; a < 3; ++a) u[a] = (q[a] * scale - float(cell[a])) * float(kBrickSide) + 0.5f;
   float acc[4];
-  if (voxel_bytes_ == sizeof(PoolVoxel8)) {
+  if (brick_bits() == 8) {
     trilinear<8>(brick_data(payload), u, brick_steps_[payload].step, acc);
   } else {
     const float s = inv_voxel_side(level), scale[4] = {s, s, s, s};
@@ -773,7 +773,7 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
     float A[3], B[3];
     float scale[4];  // per channel: inv_voxel_side of the level, or the brick's steps
   };
-  const bool eight = voxel_bytes_ == sizeof(PoolVoxel8);
+  const bool eight = brick_bits() == 8;
   const size_t vb = voxel_bytes_;
   const Vec3 o = (ray.origin - options_.origin) * inv_size_, d = ray.dir * inv_size_;
   auto prepare = [&](uint32_t nd, const NodeRegion& r, Lookup* lk) {
@@ -863,9 +863,9 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
     }
     const float f[3] = {c.f[0][k], c.f[1][k], c.f[2][k]};
     if (eight)
-      trilinear_at<8>(lk.brick + size_t(c.at[k]) * sizeof(PoolVoxel8), f, lk.scale, acc);
+      trilinear_at<8>(lk.brick + size_t(c.at[k]) * kVoxelBytes<8>, f, lk.scale, acc);
     else
-      trilinear_at<16>(lk.brick + size_t(c.at[k]) * sizeof(PoolVoxel), f, lk.scale, acc);
+      trilinear_at<16>(lk.brick + size_t(c.at[k]) * kVoxelBytes<16>, f, lk.scale, acc);
   };
   // Weight of the fine level per point: level L - 1 + w blends the parent
   // (1 - w) with the node (w), as sample()'s quadrilinear filter. Only the
@@ -1166,8 +1166,8 @@ PassOutcome GigaVoxels::end_pass(std::span<const Request> requests) {
       if (next_brick == new_bricks) continue;  // pending: no brick left in this pass
       const uint32_t b = brick_usage_[next_brick++];
       const BrickVoxel* in = &produced_voxels[i * kBrickVoxels];
-      unsigned char* out = bricks_.get() + size_t(b) * kBrickVoxels * voxel_bytes_;
-      if (voxel_bytes_ == sizeof(PoolVoxel8))
+      unsigned char* out = brick_data(b);
+      if (brick_bits() == 8)
         encode_brick8(in, region_of(node).level, reinterpret_cast<PoolVoxel8*>(out),
                       &brick_steps_[b]);
       else
@@ -1330,14 +1330,14 @@ std::vector<GigaVoxels::ResidentBrick> GigaVoxels::resident_bricks() const {
       ResidentBrick rb{b, brick_owner_[b], region_of(brick_owner_[b]), {}};
       const unsigned char* in = brick_data(b);
       rb.voxels.resize(kBrickVoxels);
-      if (voxel_bytes_ == sizeof(PoolVoxel8)) {
+      if (brick_bits() == 8) {
         const float* st = brick_steps_[b].step;
-        for (int i = 0; i < kBrickVoxels; ++i, in += sizeof(PoolVoxel8))
+        for (int i = 0; i < kBrickVoxels; ++i, in += kVoxelBytes<8>)
           rb.voxels[size_t(i)] = {pool_channel<8>(in, 0) * st[0], pool_channel<8>(in, 1) * st[1],
                                   pool_channel<8>(in, 2) * st[2], pool_channel<8>(in, 3) * st[3]};
       } else {
         const float s = inv_voxel_side(rb.region.level);
-        for (int i = 0; i < kBrickVoxels; ++i, in += sizeof(PoolVoxel))
+        for (int i = 0; i < kBrickVoxels; ++i, in += kVoxelBytes<16>)
           rb.voxels[size_t(i)] = {pool_channel<16>(in, 0) * s, pool_channel<16>(in, 1) * s,
                                   pool_channel<16>(in, 2) * s, pool_channel<16>(in, 3) * s};
       }
