@@ -134,6 +134,12 @@ TEST(Cli, BuildRenderInfoEndToEnd) {
   ASSERT_EQ(r3.exit_code, 0) << r3.output;
   EXPECT_EQ(read_text(dir.file("t.png")), read_text(dir.file("t3.png")));
   EXPECT_EQ(read_text(dir.file("d.pfm")), read_text(dir.file("d3.pfm")));
+  // --caster tile: each tile by one walk of the octree, the same bytes.
+  CliResult r3t = run_cli("render " + dir.file("t.vxc") + " -o " + dir.file("t3t.png") +
+                          " --size 64x48 --caster tile --depth " + dir.file("d3t.pfm"));
+  ASSERT_EQ(r3t.exit_code, 0) << r3t.output;
+  EXPECT_EQ(read_text(dir.file("t.png")), read_text(dir.file("t3t.png")));
+  EXPECT_EQ(read_text(dir.file("d.pfm")), read_text(dir.file("d3t.pfm")));
 
   // -v adds the ray cast's process CPU time and Mrays per CPU second (the
   // figure that a shared machine does not distort); the image is unchanged.

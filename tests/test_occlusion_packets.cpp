@@ -22,6 +22,7 @@
 #include <vector>
 
 #include "support/octree_rays.hpp"
+#include "support/octree_scenes.hpp"
 #include "support/packet_testing.hpp"
 #include "support/test_data.hpp"
 #include "voxcast/camera.hpp"
@@ -38,38 +39,9 @@
 namespace voxcast {
 namespace {
 
-struct Scenes {
-  Mesh mesh;
-  GridTransform grid;
-  std::unique_ptr<esvo::EsvoStructure> esvo, esvo_compressed, esvo_far, esvo_contours;
-  std::unique_ptr<dag::DagStructure> dag;
-};
-
+using Scenes = testing::OctreeScenes;
 const Scenes& scenes() {
-  static const Scenes s = [] {
-    Scenes s;
-    s.mesh = load_mesh(testing::test_mesh("spot.obj"));
-    s.grid = GridTransform::fit(s.mesh.bounds(), 256);
-    const VoxelSet v = voxelize(s.mesh, s.grid, {});
-    auto esvo = [&](const esvo::BuildOptions& o, bool with_mesh) {
-      return std::make_unique<esvo::EsvoStructure>(std::make_shared<const esvo::EsvoOctree>(
-          with_mesh ? esvo::build_octree(v, s.mesh, o) : esvo::build_octree(v, o)));
-    };
-    s.esvo = esvo({}, false);
-    esvo::BuildOptions compressed;
-    compressed.attributes = esvo::AttributeFormat::Compressed;
-    s.esvo_compressed = esvo(compressed, false);
-    esvo::BuildOptions small;  // many blocks: far pointers between them
-    small.max_block_slots = 64;
-    s.esvo_far = esvo(small, false);
-    esvo::BuildOptions contours;
-    contours.contours = true;
-    s.esvo_contours = esvo(contours, true);
-    s.dag = std::make_unique<dag::DagStructure>(
-        std::make_shared<const dag::SparseVoxelDag>(dag::build_dag(v)));
-    return s;
-  }();
-  return s;
+  return testing::spot_octree_scenes();
 }
 
 // Independent rays around the grid's cube, world space.

@@ -23,6 +23,7 @@
 #include "brickmap/packet_walk.hpp"
 #include "render/beam.hpp"
 #include "support/esvo_testing.hpp"
+#include "support/octree_scenes.hpp"
 #include "support/packet_testing.hpp"
 #include "support/test_data.hpp"
 #include "voxcast/brickmap.hpp"
@@ -39,37 +40,9 @@ namespace {
 
 using testing::same_hit;
 
-struct Scenes {
-  Mesh mesh;
-  GridTransform grid;
-  std::unique_ptr<esvo::EsvoStructure> esvo, esvo_far, esvo_contours;
-  std::unique_ptr<dag::DagStructure> dag;
-  std::unique_ptr<brickmap::BrickmapStructure> brickmap;
-};
-
+using Scenes = testing::OctreeScenes;
 const Scenes& scenes() {
-  static const Scenes s = [] {
-    Scenes s;
-    s.mesh = load_mesh(testing::test_mesh("spot.obj"));
-    s.grid = GridTransform::fit(s.mesh.bounds(), 256);
-    const VoxelSet v = voxelize(s.mesh, s.grid, {});
-    s.esvo = std::make_unique<esvo::EsvoStructure>(
-        std::make_shared<const esvo::EsvoOctree>(esvo::build_octree(v)));
-    esvo::BuildOptions small;  // many blocks: far pointers between them
-    small.max_block_slots = 64;
-    s.esvo_far = std::make_unique<esvo::EsvoStructure>(
-        std::make_shared<const esvo::EsvoOctree>(esvo::build_octree(v, small)));
-    esvo::BuildOptions contours;
-    contours.contours = true;
-    s.esvo_contours = std::make_unique<esvo::EsvoStructure>(
-        std::make_shared<const esvo::EsvoOctree>(esvo::build_octree(v, s.mesh, contours)));
-    s.dag = std::make_unique<dag::DagStructure>(
-        std::make_shared<const dag::SparseVoxelDag>(dag::build_dag(v)));
-    s.brickmap = std::make_unique<brickmap::BrickmapStructure>(
-        std::make_shared<const brickmap::World>(brickmap::build_world(v)));
-    return s;
-  }();
-  return s;
+  return testing::spot_octree_scenes();
 }
 
 // Camera rays of a w x h image in 4x4 block order, from two views.

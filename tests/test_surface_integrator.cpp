@@ -284,7 +284,13 @@ class CountingQuery final : public Structure, public SurfaceQuery, public Surfac
                         uint8_t* occluded, Isa isa) const override {
     q_.packets()->occluded_packets(rays, n, lod, ctx, occluded, isa);
   }
-  mutable std::atomic<uint64_t> scalar_rays{0}, packet_rays{0};
+  bool trace_tile(const CameraRays& cam, int x0, int y0, int x1, int y1, const LodFootprint& lod,
+                  TraceContext& ctx, SurfaceHit* hits, uint8_t* found, Isa isa) const override {
+    const bool tiled = q_.packets()->trace_tile(cam, x0, y0, x1, y1, lod, ctx, hits, found, isa);
+    if (tiled) tile_rays.fetch_add(uint64_t(x1 - x0) * uint64_t(y1 - y0));
+    return tiled;
+  }
+  mutable std::atomic<uint64_t> scalar_rays{0}, packet_rays{0}, tile_rays{0};
 
  private:
   const Structure& s_;
@@ -377,6 +383,16 @@ TEST_P(SurfaceIntegratorPackets, ImagesByteIdenticalToScalar) {
         EXPECT_TRUE(same_bytes(got.color, ref.color));
         EXPECT_TRUE(same_bytes(got.depth, ref.depth));
         EXPECT_TRUE(same_bytes(got.normal, ref.normal));
+        // The tile caster (beam and frustum do not apply to it).
+        p.caster = Caster::Tile;
+        const CountingQuery tq(*st);
+        const RenderResult tiled = render(tq, p);
+        EXPECT_EQ(tq.scalar_rays.load() + tq.packet_rays.load(), 0u);
+        EXPECT_EQ(tq.tile_rays.load(), uint64_t(o.width * o.height));
+        EXPECT_EQ(tiled.hits, ref.hits);
+        EXPECT_TRUE(same_bytes(tiled.color, ref.color));
+        EXPECT_TRUE(same_bytes(tiled.depth, ref.depth));
+        EXPECT_TRUE(same_bytes(tiled.normal, ref.normal));
       }
     }
   }

@@ -276,6 +276,28 @@ Timed trace_depth_packets(const SurfaceQuery& s, const SurfacePackets& packets,
       });
 }
 
+// trace_depth through the structure's tile caster (SurfacePackets::trace_tile):
+// one walk of the structure per 16x16 tile, rays generated inside it.
+Timed trace_depth_tiles(const SurfacePackets& packets, const RenderOptions& ro, Image* depth) {
+  return depth_frame(ro, depth,
+                     [&](const detail::Tile& tile, const CameraRays& cam, const LodFootprint& lod) {
+                       thread_local std::vector<SurfaceHit> hits;
+                       thread_local std::vector<uint8_t> found;
+                       const int w = tile.x1 - tile.x0, n = w * (tile.y1 - tile.y0);
+                       hits.resize(size_t(n)), found.resize(size_t(n));
+                       TraceContext ctx;
+                       packets.trace_tile(cam, tile.x0, tile.y0, tile.x1, tile.y1, lod, ctx,
+                                          hits.data(), found.data(), active_isa());
+                       uint64_t h = 0;
+                       for (int k = 0; k < n; ++k) {
+                         h += found[size_t(k)];
+                         *depth->at(tile.x0 + k % w, tile.y0 + k / w) =
+                             found[size_t(k)] ? hits[size_t(k)].t : INFINITY;
+                       }
+                       return h;
+                     });
+}
+
 // Any-hit answers for pre-generated rays, in the same chunks as
 // EmbreeScene::occluded_all (finest level, as the effects trace): chunk(b, e,
 // o) answers rays [b, e) into o[b, e).
@@ -749,6 +771,35 @@ Runner add_bench(CLI::App& app) {
                                  return trace_depth_packets(q, *p, rl, 0, &depth);
                                },
                                {}});
+            // The tile caster, where the structure has one (a 1-pixel probe).
+            SurfaceHit probe_hit;
+            uint8_t probe_found = 0;
+            TraceContext probe_ctx;
+            const CameraRays probe_cam(rl.camera, rl.width, rl.height);
+            if (p->trace_tile(probe_cam, 0, 0, 1, 1, pixel_lod(probe_cam, lod), probe_ctx,
+                              &probe_hit, &probe_found, active_isa())) {
+              primary.push_back(
+                  {caster + " tile",
+                   std::string("trace_tile ") + isa_name(active_isa()) + ", depth only",
+                   lod,
+                   false,
+                   [p, rl] {
+                     Image depth;
+                     return trace_depth_tiles(*p, rl, &depth);
+                   },
+                   {}});
+              primary.push_back({caster + " tile",
+                                 std::string("render(), tile caster ") + isa_name(active_isa()) +
+                                     ": attributes + Phong",
+                                 lod,
+                                 true,
+                                 [&m, rl] {
+                                   RenderOptions rp = rl;
+                                   rp.caster = Caster::Tile;
+                                   return timed(render(*m.structure, rp));
+                                 },
+                                 {}});
+            }
             // render() as it runs by default: primary rays as 4x4 pixel
             // blocks through the packet caster, then attributes and shading.
             primary.push_back({caster + " packet",
@@ -930,6 +981,10 @@ Runner add_bench(CLI::App& app) {
       if (const Timed* t = find(main_structure.caster + "+beam", true, args->lod)) {
         std::printf("voxcast+beam%8.2f Mrays/s (beam %dx%d, coarse pass included)\n", t->mrays(),
                     args->beam, args->beam);
+        best_voxcast = std::max(best_voxcast, t->mrays());
+      }
+      if (const Timed* t = find(main_structure.caster + " tile", true, args->lod)) {
+        std::printf("voxcast tile%8.2f Mrays/s (render(), tile caster)\n", t->mrays());
         best_voxcast = std::max(best_voxcast, t->mrays());
       }
       if (const Timed* t = find("voxcast contours", true, args->lod)) {

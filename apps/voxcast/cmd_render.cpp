@@ -134,8 +134,10 @@ Runner add_render(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--caster", args->caster,
                   "Primary rays: packet (4x4 pixel blocks through the packet caster where the "
-                  "structure has one) or scalar (one ray at a time); the image is the same")
-      ->check(CLI::IsMember({"packet", "scalar"}))
+                  "structure has one), tile (each tile by one walk of the octree, ESVO and DAG; "
+                  "--beam and --frustum do not apply) or scalar (one ray at a time); the image "
+                  "is the same")
+      ->check(CLI::IsMember({"packet", "tile", "scalar"}))
       ->capture_default_str();
   cmd->add_flag("--stats", args->stats,
                 "Print per-ray profiling counters (esvo paper Table 6); slower");
@@ -194,7 +196,9 @@ Runner add_render(CLI::App& app) {
     if (args->frustum != 0 && (args->frustum < 2 || args->frustum > 64))
       throw UsageError("--frustum must be 0 (off) or a block size in 2..64");
     opt.frustum = args->frustum;
-    opt.caster = args->caster == "scalar" ? Caster::Scalar : Caster::Packet;
+    opt.caster = args->caster == "scalar" ? Caster::Scalar
+                 : args->caster == "tile" ? Caster::Tile
+                                          : Caster::Packet;
     require_range("--heatmap-max", args->heatmap_max, 1e-6, 1e9);
     opt.collect_stats = args->stats || !args->heatmap.empty();
     if (!args->light.empty()) {

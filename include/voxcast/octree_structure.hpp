@@ -62,6 +62,10 @@ class OctreeStructure : public SurfaceQuery, public Structure, public SurfacePac
                      const BeamStart* const* beams = nullptr) const override;
   void occluded_packets(const Ray* rays, size_t n, const LodFootprint& lod, TraceContext& ctx,
                         uint8_t* occluded, Isa isa) const override;
+  /// The tile caster (core/octree_tile_caster.hpp): one walk of the tree per
+  /// 16 x 16 pixels, hits bit-identical to trace(); ctx is not used.
+  bool trace_tile(const CameraRays& cam, int x0, int y0, int x1, int y1, const LodFootprint& lod,
+                  TraceContext& ctx, SurfaceHit* hits, uint8_t* found, Isa isa) const override;
   /// occluded_packets for the active ISA; the scalar caster while
   /// ctx.counting (the Table 6 counters). The same values as transmittance().
   void transmittance_batch(const Ray* rays, size_t n, const LodFootprint& lod, TraceContext& ctx,

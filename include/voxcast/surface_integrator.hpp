@@ -43,9 +43,11 @@ struct SurfaceOptions {
   /// Primary rays: Packet traces each tile as 4x4 pixel blocks through the
   /// structure's packet caster (SurfaceQuery::packets()) where it has one
   /// and the frame does not count (the packet kernels have no counters);
-  /// Scalar, or a structure without packets, traces one ray at a time. The
-  /// images are byte-identical either way (tests/test_surface_integrator.cpp,
-  /// SurfaceIntegratorPackets.*).
+  /// Scalar, or a structure without packets, traces one ray at a time; Tile
+  /// traces each tile by one walk of the structure (SurfacePackets::
+  /// trace_tile; beam and frustum do not apply) where it has a tile caster,
+  /// else as Packet. The images are byte-identical in every case
+  /// (tests/test_surface_integrator.cpp, SurfaceIntegratorPackets.*).
   Caster caster = Caster::Packet;
   /// The ISA of the packet caster's and the batched shading's kernels
   /// (render/shade_kernel.hpp); unset: active_isa(). The image is the same

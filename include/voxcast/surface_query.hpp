@@ -82,8 +82,10 @@ struct SurfaceHit {
 
 /// Which caster traces a frame's primary rays (SurfaceOptions::caster,
 /// `voxcast render/bench --caster`).
-enum class Caster { Scalar, Packet };
-/// "scalar" or "packet".
+/// Tile: all rays of a tile by one walk of the structure (trace_tile) where
+/// it has a tile caster, else as Packet.
+enum class Caster { Scalar, Packet, Tile };
+/// "scalar", "packet" or "tile".
 const char* caster_name(Caster c);
 
 /// The packet capability of a surface query (SurfaceQuery::packets()): many
@@ -91,9 +93,24 @@ const char* caster_name(Caster c);
 /// Every answer is that of the scalar trace() / occluded() for the same ray,
 /// bit for bit, so a caller may use either for any ray. Neither call counts
 /// (ctx.counters): a counting caller uses the scalar methods.
+struct CameraRays;  // voxcast/camera.hpp
+
 class SurfacePackets {
  public:
   virtual ~SurfacePackets() = default;
+  /// found[k] = trace(cam.ray(x, y), lod, ctx, &hits[k]) for the pixels
+  /// [x0, x1) x [y0, y1) of `cam`, k = (y - y0) (x1 - x0) + x - x0, hits
+  /// bit-identical, by one walk of the structure per 16 x 16 pixels (the
+  /// octree structures: core/octree_tile_caster.hpp). Returns false, and
+  /// writes nothing, where the structure has no tile caster (then trace the
+  /// rays as packets).
+  virtual bool trace_tile(const CameraRays& cam, int x0, int y0, int x1, int y1,
+                          const LodFootprint& lod, TraceContext& ctx, SurfaceHit* hits,
+                          uint8_t* found, Isa isa) const {
+    (void)cam, (void)x0, (void)y0, (void)x1, (void)y1, (void)lod, (void)ctx, (void)hits;
+    (void)found, (void)isa;
+    return false;
+  }
   /// found[i] = trace(rays[i], lod, ctx, &hits[i], beams[i]) for i < n;
   /// hits[i] written where found[i]. beams (may be null, entries may be null):
   /// as trace()'s beam argument per ray. Coherent rays in order (camera rays

@@ -16,6 +16,7 @@
 #include "core/octree_anyhit_caster.hpp"
 #include "core/octree_caster.hpp"
 #include "core/octree_packet_caster.hpp"
+#include "core/octree_tile_caster.hpp"
 #include "core/packet_kernels.hpp"
 #include "voxcast/occlusion_packets.hpp"
 #include "voxcast/octree_structure.hpp"
@@ -57,6 +58,18 @@ void OctreeStructure<Self>::occluded_packets(const Ray* rays, size_t n, const Lo
   AnyHitOptions o;
   o.isa = isa;
   cast_anyhit(rays, n, lod, occluded, o, nullptr);
+}
+
+template <class Self>
+bool OctreeStructure<Self>::trace_tile(const CameraRays& cam, int x0, int y0, int x1, int y1,
+                                       const LodFootprint& lod, TraceContext&, SurfaceHit* hits,
+                                       uint8_t* found, Isa isa) const {
+  detail::require_isa(isa, "trace_tile");
+  const Self& self = static_cast<const Self&>(*this);
+  using P = typename decltype(self.world())::Nodes;
+  detail::structure_trace_tile<P>(self.world(), isa, detail::kTileKernels<P>, cam, x0, y0, x1, y1,
+                                  lod, hits, found);
+  return true;
 }
 
 template <class Self>

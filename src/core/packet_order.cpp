@@ -9,7 +9,7 @@
 namespace voxcast {
 
 const char* caster_name(Caster c) {
-  return c == Caster::Packet ? "packet" : "scalar";
+  return c == Caster::Tile ? "tile" : c == Caster::Packet ? "packet" : "scalar";
 }
 
 void block_order(int x0, int y0, int w, int h, std::vector<uint32_t>* out) {

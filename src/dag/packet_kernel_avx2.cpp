@@ -1,10 +1,12 @@
 // The DAG packet kernels, first-hit and any-hit (core/octree_packet_kernel.hpp),
 // 8 lanes: compiled with the baseline flags (x86-64-v3).
+#include "core/octree_tile_kernel.hpp"
 #include "core/packet_kernels.hpp"
 #include "dag/packet_nodes.hpp"
 
 namespace voxcast::detail {
 
 VOXCAST_DEFINE_PACKET_KERNELS(dag, avx2, DagNodes, DagPacketNodes<8>)
+VOXCAST_DEFINE_TILE_KERNEL(dag, avx2, DagNodes, 8)
 
 }  // namespace voxcast::detail

@@ -38,7 +38,7 @@ void SurfaceIntegrator::begin_frame(const Structure& structure, const FrameView&
   query_ = structure.surface();
   if (query_ == nullptr)
     throw Error("render: the " + structure.name() + " structure has no surface query");
-  packets_ = options_.caster == Caster::Packet ? query_->packets() : nullptr;
+  packets_ = options_.caster != Caster::Scalar ? query_->packets() : nullptr;
   isa_ = options_.isa ? *options_.isa : active_isa();
   if (!cpu_supports(isa_))
     throw Error(std::string("render: this CPU does not support ") + isa_name(isa_));
@@ -229,7 +229,34 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
   // starts as a coherent block. Buffers per thread, grown once.
   thread_local detail::PacketTile pt;
   thread_local BeamStart tile_start;
-  if (packets_ != nullptr && !ctx.counting) {
+  // The tile caster: the tile's hits row by row, then shaded in groups.
+  thread_local std::vector<SurfaceHit> tile_hits;
+  thread_local std::vector<uint8_t> tile_found;
+  const int tile_w = tile.x1 - tile.x0, tile_n = tile_w * (tile.y1 - tile.y0);
+  bool tiled = false;
+  if (packets_ != nullptr && !ctx.counting && options_.caster == Caster::Tile) {
+    tile_hits.resize(size_t(tile_n)), tile_found.resize(size_t(tile_n));
+    tiled = packets_->trace_tile(cam, tile.x0, tile.y0, tile.x1, tile.y1, lod, ctx,
+                                 tile_hits.data(), tile_found.data(), isa_);
+  }
+  if (tiled) {
+    const SurfaceHit* group_hit[detail::kShadeLanes];
+    Vec3 group_dir[detail::kShadeLanes];
+    int group_x[detail::kShadeLanes], group_y[detail::kShadeLanes];
+    int m = 0;
+    for (int k = 0; k < tile_n; ++k) {
+      const int x = tile.x0 + k % tile_w, y = tile.y0 + k / tile_w;
+      if (!tile_found[size_t(k)]) {
+        miss(x, y);
+        continue;
+      }
+      ++ts.hits;
+      group_hit[m] = &tile_hits[size_t(k)], group_dir[m] = cam.direction(x, y);
+      group_x[m] = x, group_y[m] = y;
+      if (++m == detail::kShadeLanes) shade_group(group_hit, group_x, group_y, group_dir, m), m = 0;
+    }
+    if (m > 0) shade_group(group_hit, group_x, group_y, group_dir, m);
+  } else if (packets_ != nullptr && !ctx.counting) {
     if (frustum_k != 0) {
       // The tile frustum pass: the tile's cubes, front to back for the
       // mirroring octant of its center ray; none = every pixel a miss.
@@ -239,7 +266,9 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
       ts.empty_tile = tile_start.valid && tile_start.empty;
     }
   }
-  if (ts.empty_tile) {
+  if (tiled) {
+    // Traced and shaded above.
+  } else if (ts.empty_tile) {
     for (int y = tile.y0; y < tile.y1; ++y)
       for (int x = tile.x0; x < tile.x1; ++x) miss(x, y);
   } else if (packets_ != nullptr && !ctx.counting) {

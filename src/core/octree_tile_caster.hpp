@@ -1,0 +1,214 @@
+#pragma once
+// The tile caster of the octree family (issue 10, primary rays): all camera
+// rays of a tile traced by one front-to-back walk of the tree, each node
+// tested against the tile's rays at once, instead of each ray walking the
+// tree by itself.
+//
+// Why. A camera ray that walks the tree alone (cast_octree, or one lane of
+// the packet kernel) pays ~20-30 loop iterations from the root to a LOD-1
+// pixel stop, and its neighbours pay the same iterations again for the same
+// nodes. Here a node is fetched once per tile; its children are tested
+// against the rays of the tile that are inside it (a row of the tile per
+// vector register); a ray that hits is taken out of every later test, so
+// whatever lies behind the visible surface is culled by whole subtrees; and
+// a ray that misses everything costs nothing below the first node it leaves.
+//
+// Order. All rays of a perspective camera start at the eye, so for every ray
+// the children of a node come in the order of the eye's side of the node's
+// three center planes: a ray crosses each plane at most once, from the eye's
+// side to the other, so the set of planes crossed only grows along the ray.
+// Visiting children by decreasing "eye-side" index (bit a set = the eye's
+// half on axis a) therefore meets every ray's cubes in its own order, and the
+// walk is depth first, so a ray's first hit is the first hit the walk finds
+// for it. An orthographic camera's rays are parallel: the direction's octant
+// gives the same order.
+//
+// Why the hits are those of cast_octree bit for bit. Its comment "Why a start
+// region gives bit-identical hits" characterizes the loop: with t(c) =
+// fma(c, coef, -bias) the rounded crossing of grid plane c, the loop places a
+// ray in cube C iff tau = max(start', t of C's entry planes) < t of C's exit
+// planes and tau <= the parent's span end, where start' and the span end are
+// the root's span narrowed by the contour slabs of C's ancestors; at C it
+// stops at a LOD stop (exit t * size_coef + size_bias >= side) at tau, else
+// narrows [tau, min(end, exit t)] by C's own contour and, if that span is not
+// empty, hits C at its start if C is a leaf or descends with that span. The
+// walk evaluates exactly these conditions per ray with the same fma on the
+// same plane coordinates (mirrored per ray as MirroredRay does: 3 - c, exact)
+// and the same contour_span, so each ray finds the cube, t and stop that
+// cast_octree returns; the epilogue is OctreeWorld::trace's.
+//
+// Without contours the span start and end are the root's, whatever lies
+// above C, so a cube that cannot be a LOD stop for any ray (its farthest
+// point is nearer than the distance where its side meets the footprint) and
+// is not a leaf needs no per-ray test: the walk hands its children the rays
+// whose pixels the cube's projected box covers (a superset), and the exact
+// test happens where a ray may stop. With contours every level is tested,
+// since an ancestor's slab narrows the span.
+//
+// Split like the packet caster (core/octree_packet_caster.hpp): the set-up
+// and epilogue here with the baseline flags, the walk in
+// core/octree_tile_kernel.hpp compiled once per ISA.
+#include <algorithm>
+#include <cstdint>
+#include <type_traits>
+#include <vector>
+
+#include "core/octree_caster.hpp"
+#include "core/octree_ray.hpp"
+#include "voxcast/camera.hpp"
+#include "voxcast/isa.hpp"
+#include "voxcast/math.hpp"
+#include "voxcast/structure.hpp"
+
+namespace voxcast::detail {
+
+/// A kernel call covers at most kTileRows x kTileCols pixels (16 x 16; the
+/// AVX2 kernel walks the left and right 8 columns as two calls).
+inline constexpr int kTileRows = 16;
+inline constexpr int kTileCols = 16;
+
+/// The rays of one tile in octree space, one row of the tile per array row.
+/// Every value is the one cast_octree computes for the ray (MirroredRay,
+/// enter_root).
+struct alignas(64) TileRays {
+  float cx[kTileRows][kTileCols], cy[kTileRows][kTileCols], cz[kTileRows][kTileCols];
+  // -bias: t(c) = fma(c, coef, nb)
+  float nbx[kTileRows][kTileCols], nby[kTileRows][kTileCols], nbz[kTileRows][kTileCols];
+  // Unmirrored directions after avoid_tiny_components (contour slabs).
+  float dx[kTileRows][kTileCols], dy[kTileRows][kTileCols], dz[kTileRows][kTileCols];
+  // The ray in the octree frame before avoid_tiny_components (the epilogue's
+  // hit_to_world): origin p and direction u.
+  float px[kTileRows][kTileCols], py[kTileRows][kTileCols], pz[kTileRows][kTileCols];
+  float ux[kTileRows][kTileCols], uy[kTileRows][kTileCols], uz[kTileRows][kTileCols];
+  // The root span of enter_root (no region).
+  float t_min[kTileRows][kTileCols], t_max[kTileRows][kTileCols];
+  // Bit l of row r: the ray's direction is positive on the axis (mirrored).
+  uint32_t mirror_x[kTileRows], mirror_y[kTileRows], mirror_z[kTileRows];
+  uint32_t live[kTileRows];  // rays that enter the root cube
+  int rows = 0, cols = 0;
+  // The walk's child order (file comment): perspective = order by the eye's
+  // side (eye, octree space), else by the direction's octant (`dir`).
+  bool perspective = true;
+  Vec3 eye{0, 0, 0}, dir{0, 0, 1};
+  // A cube's rows and columns (perspective; TileWalk::cull): the camera
+  // basis, and pixel (x0 + i, y0 + j)'s ray through X/Z = u0 + i du,
+  // Y/Z = v0 + j dv in the camera frame (X right, Y up, Z forward).
+  Vec3 right{1, 0, 0}, up{0, 1, 0}, forward{0, 0, 1};
+  float abs_right = 0, abs_up = 0, abs_forward = 0;  // |x| + |y| + |z| of each
+  float u0 = 0, du = 0, v0 = 0, dv = 0;
+  float world_side = 1;  // world units per octree unit (t is in world units)
+};
+
+/// What stopped a ray: the cube and its node (the same fields as OctreeCast;
+/// `index` = P::hit_index for a policy with a payload, else 0).
+struct TileHit {
+  uint32_t node;  // the hit cube's parent
+  int8_t child;   // the hit cube's slot in node
+  int8_t scale;
+  uint8_t stop;  // CastStop
+  float pos[3];  // unmirrored min corner
+  uint64_t index;
+};
+
+/// The kernel's output: per pixel t and the index of its TileHit (-1: miss).
+struct alignas(64) TileOut {
+  float t[kTileRows][kTileCols];
+  int32_t hit[kTileRows][kTileCols];
+  std::vector<TileHit> hits;
+};
+
+/// Walks `rays`' columns [col0, col0 + N) (N = the kernel's lanes) through
+/// `nodes` with LOD terms as cast_octree's; writes those columns of *out and
+/// appends to out->hits.
+template <class P>
+using TileKernel = void (*)(const P& nodes, const TileRays& rays, int col0, float size_coef,
+                            float size_bias, TileOut* out);
+
+template <class P>
+struct TileKernels {
+  TileKernel<P> avx2, avx512;
+};
+
+/// The fields of *r that hold for the whole tile at (x0, y0) of `cam`: the
+/// walk's order and the cull's camera frame.
+inline void tile_camera(const CameraRays& cam, const OctreeFrame& frame, int x0, int y0,
+                        TileRays* r) {
+  r->perspective = !cam.ortho;
+  r->eye = frame.point(cam.eye);
+  r->dir = frame.direction(cam.forward);
+  r->world_side = frame.side;
+  r->right = cam.right, r->up = cam.true_up, r->forward = cam.forward;
+  auto abs_sum = [](Vec3 v) { return std::fabs(v.x) + std::fabs(v.y) + std::fabs(v.z); };
+  r->abs_right = abs_sum(cam.right), r->abs_up = abs_sum(cam.true_up);
+  r->abs_forward = abs_sum(cam.forward);
+  // CameraRays::perspective_direction: forward + right sx tan aspect + up sy tan.
+  const float sx_scale = cam.tan_half * cam.aspect, sy_scale = cam.tan_half;
+  r->u0 = cam.screen_x(float(x0) + cam.sample.x) * sx_scale;
+  r->du = 2.f / float(cam.width) * sx_scale;
+  r->v0 = cam.screen_y(float(y0) + cam.sample.y) * sy_scale;
+  r->dv = -2.f / float(cam.height) * sy_scale;
+}
+
+/// Fills *r with the rays of pixels [x0, x1) x [y0, y1) (at most 16 x 16)
+/// of `cam` in the octree frame `frame`, a row of 8 or 16 pixels at a time
+/// (src/core/tile_setup_*.cpp; the same floats as the scalar set-up).
+void tile_rays_avx2(const CameraRays& cam, const OctreeFrame& frame, int x0, int y0, int x1, int y1,
+                    TileRays* r);
+void tile_rays_avx512(const CameraRays& cam, const OctreeFrame& frame, int x0, int y0, int x1,
+                      int y1, TileRays* r);
+
+/// trace() of every pixel of [x0, x1) x [y0, y1) of `cam` (any size; split
+/// into 16 x 16 kernel calls): hits[(y - y0) w + x - x0] and found likewise,
+/// bit-identical to OctreeWorld::trace(cam.ray(x, y), lod, ...) without a
+/// beam. `world`: the structure's OctreeWorld<P>.
+template <class P, class World>
+void structure_trace_tile(const World& world, Isa isa, const TileKernels<P>& kernels,
+                          const CameraRays& cam, int x0, int y0, int x1, int y1,
+                          const LodFootprint& lod, SurfaceHit* hits, uint8_t* found) {
+  using Index = typename P::Index;
+  thread_local TileRays rays;
+  thread_local TileOut out;
+  const TileKernel<P> kernel = isa == Isa::Avx512 ? kernels.avx512 : kernels.avx2;
+  const int lanes = isa == Isa::Avx512 ? 16 : 8;
+  const P nodes(world.source);
+  const OctreeFrame& frame = world.frame;
+  const float coef = frame.length(lod.size_per_t), bias = frame.length(lod.size_at_origin);
+  const int w = x1 - x0;
+  for (int ty = y0; ty < y1; ty += kTileRows)
+    for (int tx = x0; tx < x1; tx += kTileCols) {
+      const int tx1 = std::min(tx + kTileCols, x1), ty1 = std::min(ty + kTileRows, y1);
+      (isa == Isa::Avx512 ? tile_rays_avx512 : tile_rays_avx2)(cam, frame, tx, ty, tx1, ty1, &rays);
+      out.hits.clear();
+      for (int col0 = 0; col0 < rays.cols; col0 += lanes)
+        kernel(nodes, rays, col0, coef, bias, &out);
+      for (int j = 0; j < rays.rows; ++j)
+        for (int i = 0; i < rays.cols; ++i) {
+          const size_t k = size_t(ty - y0 + j) * size_t(w) + size_t(tx - x0 + i);
+          const int32_t h = out.hit[j][i];
+          found[k] = h >= 0;
+          if (h < 0) continue;
+          const TileHit& th = out.hits[size_t(h)];
+          const Vec3 p{rays.px[j][i], rays.py[j][i], rays.pz[j][i]};
+          const Vec3 d{rays.ux[j][i], rays.uy[j][i], rays.uz[j][i]};
+          OctreeCast<Index> r;
+          r.hit = true;
+          r.stop = CastStop(th.stop);
+          r.t = out.t[j][i];
+          r.pos = {th.pos[0], th.pos[1], th.pos[2]};
+          r.node = th.node;
+          r.child = th.child;
+          r.scale = th.scale;
+          if constexpr (!std::is_same_v<Index, NoIndex>) r.index = Index(th.index);
+          if constexpr (P::kEnteredFace) {
+            const Vec3 dt = avoid_tiny_components(d);
+            const MirroredRay m(p, dt);
+            // unmirror() is its own inverse: the mirrored min corner.
+            r.face = entered_face(m, dt, unmirror(m.octant_mask, r.pos, r.scale), r.scale);
+          }
+          frame.hit_to_world(p, d, r.t, r.pos, r.scale, &hits[k]);
+          P::name_hit(world.source, r, &hits[k]);
+        }
+    }
+}
+
+}  // namespace voxcast::detail

@@ -1,0 +1,481 @@
+#pragma once
+// The tile caster's walk (core/octree_tile_caster.hpp explains the order and
+// why the hits are cast_octree's). Included only by the per-ISA kernel
+// translation units (src/esvo/packet_kernel_*.cpp, src/dag/...), like
+// core/octree_packet_kernel.hpp, whose lane types it uses: N = 16 lanes
+// (AVX-512) or 8 (AVX2), one lane per pixel of a tile row, one vector per
+// row and quantity.
+//
+// The walk is depth first over positions (a DAG node shared by several
+// positions is visited once per position), children front to back. A node
+// carries the rows of the tile whose rays it holds, as one lane mask per row;
+// each present child is tested against those rays that have no hit yet, a
+// row at a time: entry and exit t from the child's planes, the placement
+// test, the LOD stop, the contour slab, then leaf hit or descent. A node
+// whose rays all have their hits ends its loop, which culls everything
+// behind the visible surface.
+#include <algorithm>
+#include <bit>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <type_traits>
+
+#include "core/octree_packet_kernel.hpp"
+#include "core/octree_tile_caster.hpp"
+
+namespace voxcast::detail {
+namespace {
+
+template <class P, int N>
+class TileWalk {
+  using L = Lanes<N>;
+  using F = typename L::F;
+  using I = typename L::I;
+  using Index = typename P::Index;
+  using Desc = typename P::Desc;
+  static constexpr bool kIndexed = !std::is_same_v<Index, NoIndex>;
+  static_assert(!P::kResidency, "the tile caster walks in-core trees");
+
+  /// Rays in vector rows: the tile (row r = pixel row r, lane l = column
+  /// col0 + l) or, below a node that holds no more than N of them, those
+  /// rays packed into row 0 (id = the pixel, row * kTileCols + column).
+  struct RaySet {
+    F cx[kTileRows], cy[kTileRows], cz[kTileRows];
+    F nbx[kTileRows], nby[kTileRows], nbz[kTileRows];
+    F dx[kTileRows], dy[kTileRows], dz[kTileRows];
+    I mirror_x[kTileRows], mirror_y[kTileRows], mirror_z[kTileRows];
+    I id[kTileRows];
+    uint32_t active[kTileRows];  // rays without a hit yet
+    // The span [t_min, t_max] of each ray in the current node at each scale
+    // (the root's at kOctreeMaxScale), as cast_octree carries it down.
+    // Without contours a ray's span in any cube it is placed in is the
+    // root's clipped to the cube's planes (core/octree_caster.hpp "Why a
+    // start region gives bit-identical hits"), so only the root's row
+    // (kOctreeMaxScale) is kept: span_level().
+    F span_lo[kOctreeMaxScale + 1][kTileRows], span_hi[kOctreeMaxScale + 1][kTileRows];
+    bool packed;
+  };
+
+ public:
+  /// The walk's ray sets (~60 KB each with 16 lanes): per thread, not on
+  /// the stack.
+  struct Storage {
+    RaySet tile, packed;
+  };
+
+  TileWalk(const P& nodes, const TileRays& rays, int col0, float size_coef, float size_bias,
+           TileOut* out, Storage* storage)
+      : nodes_(nodes),
+        rays_(rays),
+        col0_(col0),
+        size_coef_(L::template splat<F>(size_coef)),
+        size_bias_(L::template splat<F>(size_bias)),
+        contours_(may_narrow_spans(nodes)),
+        out_(out),
+        tile_(storage->tile),
+        packed_(storage->packed) {}
+
+  void run() {
+    RaySet& t = tile_;
+    t.packed = false;
+    packed_.packed = true;
+    uint32_t rows = 0, mask[kTileRows];
+    for (int r = 0; r < rays_.rows; ++r) {
+      const uint32_t live = (rays_.live[r] >> col0_) & L::kAll;
+      t.active[r] = mask[r] = live;
+      if (live != 0) rows |= 1u << r;
+      t.cx[r] = load(rays_.cx[r]), t.cy[r] = load(rays_.cy[r]), t.cz[r] = load(rays_.cz[r]);
+      t.nbx[r] = load(rays_.nbx[r]), t.nby[r] = load(rays_.nby[r]), t.nbz[r] = load(rays_.nbz[r]);
+      t.dx[r] = load(rays_.dx[r]), t.dy[r] = load(rays_.dy[r]), t.dz[r] = load(rays_.dz[r]);
+      t.mirror_x[r] = from_bits(rays_.mirror_x[r] >> col0_);
+      t.mirror_y[r] = from_bits(rays_.mirror_y[r] >> col0_);
+      t.mirror_z[r] = from_bits(rays_.mirror_z[r] >> col0_);
+      t.id[r] = L::iota() + (r * kTileCols + col0_);
+      t.span_lo[kOctreeMaxScale][r] = load(rays_.t_min[r]);
+      t.span_hi[kOctreeMaxScale][r] = load(rays_.t_max[r]);
+      for (int l = 0; l < N && col0_ + l < kTileCols; ++l) out_->hit[r][col0_ + l] = -1;
+    }
+    if (rows != 0) {
+      const float lo[3] = {1.f, 1.f, 1.f};
+      visit(t, nodes_.root(), kOctreeMaxScale - 1, lo, rows, mask, Index{});
+    }
+  }
+
+ private:
+  F load(const float (&row)[kTileCols]) const {
+    F v;
+    std::memcpy(&v, row + col0_, sizeof v);
+    return v;
+  }
+  static I from_bits(uint32_t k) {
+    const I v = L::template splat<I>(int32_t(k & L::kAll));
+    return ((v >> L::iota()) & 1) != 0;
+  }
+  /// Where the spans of the rays in a node at `scale` are kept.
+  int span_level(int scale) const { return contours_ ? scale : kOctreeMaxScale; }
+
+  /// Whether the cube of side hs at lo may be a LOD stop for some ray of a
+  /// perspective camera: its exit t is at most the distance of the cube's
+  /// farthest point from the eye (world units = octree units x side), and
+  /// the LOD test is monotone in t. A 1/1024 slack keeps rounding on the
+  /// safe side (the exact test decides).
+  bool may_be_lod_stop(const float* lo, float hs) const {
+    const TileRays& t = rays_;
+    const float h = hs * 0.5f;
+    const Vec3 q{lo[0] + h - t.eye.x, lo[1] + h - t.eye.y, lo[2] + h - t.eye.z};
+    const float far = (length(q) + h * 1.7320509f) * t.world_side * 1.0009765625f;
+    return far * size_coef_[0] + size_bias_[0] >= hs * 0.9990234375f;
+  }
+
+  /// Lanes k of src, in order, into lanes [at, at + popcount(k)) of *dst.
+  static void pack(F src, uint32_t k, int at, F* dst) {
+    if constexpr (N == 16) {
+      const __m512 c = _mm512_maskz_compress_ps(__mmask16(k), (__m512)src);
+      const uint32_t to = ((1u << std::popcount(k)) - 1) << at;
+      *dst = (F)_mm512_mask_expand_ps((__m512)*dst, __mmask16(to), c);
+    } else {
+      for (uint32_t b = k; b != 0; b &= b - 1) (*dst)[at++] = src[std::countr_zero(b)];
+    }
+  }
+  static void pack(I src, uint32_t k, int at, I* dst) {
+    F d = (F)*dst;
+    pack((F)src, k, at, &d);
+    *dst = (I)d;
+  }
+
+  /// Below a node that holds no more than N rays of the tile: those rays
+  /// (lanes `mask` of rows `rows`), with their spans at scale s + 1, into
+  /// row 0 of packed_; returns their lanes there.
+  uint32_t pack_rays(int s, uint32_t rows, const uint32_t* mask) {
+    RaySet& p = packed_;
+    int at = 0;
+    for (uint32_t b = rows; b != 0; b &= b - 1) {
+      const int r = std::countr_zero(b);
+      const uint32_t k = mask[r] & tile_.active[r];
+      if (k == 0) continue;
+      pack(tile_.cx[r], k, at, &p.cx[0]), pack(tile_.cy[r], k, at, &p.cy[0]);
+      pack(tile_.cz[r], k, at, &p.cz[0]);
+      pack(tile_.nbx[r], k, at, &p.nbx[0]), pack(tile_.nby[r], k, at, &p.nby[0]);
+      pack(tile_.nbz[r], k, at, &p.nbz[0]);
+      if (contours_) {
+        pack(tile_.dx[r], k, at, &p.dx[0]), pack(tile_.dy[r], k, at, &p.dy[0]);
+        pack(tile_.dz[r], k, at, &p.dz[0]);
+      }
+      pack(tile_.mirror_x[r], k, at, &p.mirror_x[0]);
+      pack(tile_.mirror_y[r], k, at, &p.mirror_y[0]);
+      pack(tile_.mirror_z[r], k, at, &p.mirror_z[0]);
+      pack(tile_.id[r], k, at, &p.id[0]);
+      const int level = span_level(s + 1);
+      pack(tile_.span_lo[level][r], k, at, &p.span_lo[level][0]);
+      pack(tile_.span_hi[level][r], k, at, &p.span_hi[level][0]);
+      at += std::popcount(k);
+    }
+    const uint32_t lanes = at == 32 ? ~0u : (1u << at) - 1;
+    p.active[0] = lanes;
+    return lanes;
+  }
+
+  /// Takes the rays of lanes k of row r of `rs` out of the walk with their
+  /// hit on child c of `node` at t: *rec is the TileHit of that cube and stop.
+  void record(RaySet& rs, int r, uint32_t k, F t, uint32_t node, const Desc& desc, int c, int s,
+              const float* clo, CastStop stop, const Index& index, int32_t* rec) {
+    if (*rec < 0) {
+      TileHit h;
+      h.node = node, h.child = int8_t(c), h.scale = int8_t(s), h.stop = uint8_t(stop);
+      h.pos[0] = clo[0], h.pos[1] = clo[1], h.pos[2] = clo[2];
+      if constexpr (kIndexed)
+        h.index = uint64_t(nodes_.hit_index(index, desc, node, c, s));
+      else
+        h.index = 0;
+      *rec = int32_t(out_->hits.size());
+      out_->hits.push_back(h);
+    }
+    for (uint32_t b = k; b != 0; b &= b - 1) {
+      const int l = std::countr_zero(b);
+      const int id = rs.id[r][l], row = id / kTileCols, col = id % kTileCols;
+      out_->t[row][col] = t[l];
+      out_->hit[row][col] = *rec;
+      tile_.active[row] &= ~(1u << (col - col0_));
+    }
+    if (rs.packed) rs.active[r] &= ~k;
+  }
+
+  /// The rows and lanes whose rays may pass through the cube of side hs at
+  /// lo (perspective cameras): the cube's box in the camera frame projected
+  /// to X/Z and Y/Z, widened by kMargin pixels on each side for rounding
+  /// (the exact test decides every ray it keeps; this only has to keep
+  /// every ray that may be placed in the cube).
+  /// False if the box reaches behind the eye (nothing culled).
+  static constexpr float kMargin = 0.0625f;
+  bool cull(const float* lo, float hs, uint32_t* rows, uint32_t* lanes) const {
+    const TileRays& t = rays_;
+    const float h = hs * 0.5f;
+    const Vec3 q{lo[0] + h - t.eye.x, lo[1] + h - t.eye.y, lo[2] + h - t.eye.z};
+    const float x = dot(q, t.right), y = dot(q, t.up), z = dot(q, t.forward);
+    const float ex = h * t.abs_right, ey = h * t.abs_up, ez = h * t.abs_forward;
+    const float z_near = z - ez, z_far = z + ez;
+    if (!(z_near > 1e-6f * (std::fabs(z) + ez))) return false;
+    auto range = [&](float c, float e, float base, float step, int n, uint32_t all) {
+      const float a = c - e, b = c + e;
+      const float lo_r = a / (a >= 0.f ? z_far : z_near), hi_r = b / (b >= 0.f ? z_near : z_far);
+      // Pixel index k passes at base + k step (step may be negative).
+      float k0 = (lo_r - base) / step, k1 = (hi_r - base) / step;
+      if (k0 > k1) std::swap(k0, k1);
+      if (!(k1 >= -1.f) || !(k0 <= float(n))) return 0u;
+      const int first = std::max(0, int(std::ceil(k0 - kMargin)));
+      const int last = std::min(n - 1, int(std::floor(k1 + kMargin)));
+      if (first > last) return 0u;
+      return all & (((last - first + 1 >= 32) ? ~0u : ((1u << (last - first + 1)) - 1)) << first);
+    };
+    *rows = range(y, ey, t.v0, t.dv, kTileRows, ~0u);
+    *lanes = range(x, ex, t.u0 + float(col0_) * t.du, t.du, N, L::kAll);
+    return true;
+  }
+
+  /// visit() of a packed node whose children are all stops for the rays k:
+  /// each ray's hit is the first child, front to back, it is placed in. No
+  /// branch per child and ray: the children's tests run in turn on the
+  /// rays still without a hit, and the hits are written once at the end.
+  void bottom(RaySet& rs, const Desc& desc, uint32_t node, int s, const float* lo, uint32_t k,
+              int flip, uint32_t present, const Index& index) {
+    const float hs = scale_side(s);
+    const F side = L::template splat<F>(hs);
+    const F cx = rs.cx[0], cy = rs.cy[0], cz = rs.cz[0];
+    const F nbx = rs.nbx[0], nby = rs.nby[0], nbz = rs.nbz[0];
+    const I mx = rs.mirror_x[0], my = rs.mirror_y[0], mz = rs.mirror_z[0];
+    const F t_max = rs.span_hi[span_level(s + 1)][0], t_lo = rs.span_lo[span_level(s + 1)][0];
+    I open = from_bits(k);
+    F hit_t = t_lo;
+    I hit_c = L::template splat<I>(-1), hit_lod = L::template splat<I>(0);
+    for (int m = 7; m >= 0; --m) {
+      const int c = m ^ flip;
+      if ((present >> c & 1u) == 0) continue;
+      const float x = lo[0] + ((c & 1) ? hs : 0.f), y = lo[1] + ((c & 2) ? hs : 0.f),
+                  z = lo[2] + ((c & 4) ? hs : 0.f);
+      auto at = [](I mirrored, float m_value, float u_value) {
+        return mirrored ? L::template splat<F>(m_value) : L::template splat<F>(u_value);
+      };
+      const F tx_in = L::fma(at(mx, 3.f - x, x + hs), cx, nbx);
+      const F ty_in = L::fma(at(my, 3.f - y, y + hs), cy, nby);
+      const F tz_in = L::fma(at(mz, 3.f - z, z + hs), cz, nbz);
+      const F tx_out = L::fma(at(mx, 3.f - x - hs, x), cx, nbx);
+      const F ty_out = L::fma(at(my, 3.f - y - hs, y), cy, nby);
+      const F tz_out = L::fma(at(mz, 3.f - z - hs, z), cz, nbz);
+      const F tc_max = L::min(L::min(tx_out, ty_out), tz_out);
+      const F tau = L::max(t_lo, L::max(L::max(tx_in, ty_in), tz_in));
+      const I placed = open & (tau < tc_max) & (tau <= t_max);
+      hit_t = placed ? tau : hit_t;
+      hit_c = placed ? L::template splat<I>(c) : hit_c;
+      hit_lod = placed ? (tc_max * size_coef_ + size_bias_ >= side) : hit_lod;
+      open &= ~placed;
+    }
+    const uint32_t hits = L::bits(hit_c >= 0);
+    if (hits == 0) return;
+    int32_t rec[8][2];
+    for (int c = 0; c < 8; ++c) rec[c][0] = rec[c][1] = -1;
+    for (uint32_t b = hits; b != 0; b &= b - 1) {
+      const int l = std::countr_zero(b), c = hit_c[l], lod = hit_lod[l] != 0;
+      const float clo[3] = {lo[0] + ((c & 1) ? hs : 0.f), lo[1] + ((c & 2) ? hs : 0.f),
+                            lo[2] + ((c & 4) ? hs : 0.f)};
+      record(rs, 0, 1u << l, hit_t, node, desc, c, s, clo, lod ? CastStop::kLod : CastStop::kLeaf,
+             index, &rec[c][lod]);
+    }
+  }
+
+  /// The children (scale s) of `node`, whose cube has min corner lo, for the
+  /// rays of `rs` in `mask` (rows `rows`); their spans are rs.span_*[s + 1].
+  void visit(RaySet& rs, uint32_t node, int s, const float* lo, uint32_t rows, const uint32_t* mask,
+             const Index& index) {
+    if (!rs.packed) {
+      int n = 0;
+      for (uint32_t b = rows; b != 0; b &= b - 1) {
+        const int r = std::countr_zero(b);
+        n += std::popcount(mask[r] & rs.active[r]);
+      }
+      if (n <= N) {
+        if (n == 0) return;
+        const uint32_t lanes = pack_rays(s, rows, mask);
+        visit(packed_, node, s, lo, 1u, &lanes, index);
+        return;
+      }
+    }
+    const Desc desc = nodes_.fetch(node, s, cnt_);
+    const uint32_t present = P::mask(desc);
+    const float hs = scale_side(s);
+    if constexpr (requires { nodes_.root_slot; }) {
+      const uint32_t first = nodes_.children(desc, node, s, cnt_);
+      _mm_prefetch(reinterpret_cast<const char*>(nodes_.words + size_t(first) * 2), _MM_HINT_T0);
+    }
+    // Front to back (core/octree_tile_caster.hpp "Order"): slot bit a of the
+    // first child is the eye's half on axis a.
+    int flip = 0;
+    if (rays_.perspective) {
+      if (!(rays_.eye.x >= lo[0] + hs)) flip |= 1;
+      if (!(rays_.eye.y >= lo[1] + hs)) flip |= 2;
+      if (!(rays_.eye.z >= lo[2] + hs)) flip |= 4;
+    } else {
+      if (!(rays_.dir.x < 0.f)) flip |= 1;
+      if (!(rays_.dir.y < 0.f)) flip |= 2;
+      if (!(rays_.dir.z < 0.f)) flip |= 4;
+    }
+    const F* parent_lo = rs.span_lo[span_level(s + 1)];
+    const F* parent_hi = rs.span_hi[span_level(s + 1)];
+    const F side = L::template splat<F>(hs);
+    if (rs.packed && !contours_) {
+      // Every child a stop for every ray: a LOD stop wherever the ray is
+      // placed (the test is monotone in t and tc_max > tau >= the node's
+      // span start), or a leaf.
+      const uint32_t k = mask[0] & rs.active[0];
+      if (k == 0) return;
+      bool stops = (k & ~L::bits(parent_lo[0] * size_coef_ + size_bias_ >= side)) == 0;
+      if (!stops) {
+        stops = true;
+        for (uint32_t b = present; b != 0 && stops; b &= b - 1)
+          stops = nodes_.leaf(desc, std::countr_zero(b), s);
+      }
+      if (stops) {
+        bottom(rs, desc, node, s, lo, k, flip, present, index);
+        return;
+      }
+    }
+    uint32_t child_mask[kTileRows];
+    for (int m = 7; m >= 0; --m) {
+      const int c = m ^ flip;
+      if ((present >> c & 1u) == 0) continue;
+      // The rows whose rays still look for their hit.
+      uint32_t live_rows = 0;
+      for (uint32_t b = rows; b != 0; b &= b - 1) {
+        const int r = std::countr_zero(b);
+        if ((mask[r] & rs.active[r]) != 0) live_rows |= 1u << r;
+      }
+      rows = live_rows;
+      if (rows == 0) return;
+
+      const float clo[3] = {lo[0] + ((c & 1) ? hs : 0.f), lo[1] + ((c & 2) ? hs : 0.f),
+                            lo[2] + ((c & 4) ? hs : 0.f)};
+      // Entry and exit plane coordinates as MirroredRay sees them: the
+      // mirrored cube of [lo, lo + hs] is [3 - lo - hs, 3 - lo] (exact).
+      const F in_mx = L::template splat<F>(3.f - clo[0]), in_ux = L::template splat<F>(clo[0] + hs);
+      const F in_my = L::template splat<F>(3.f - clo[1]), in_uy = L::template splat<F>(clo[1] + hs);
+      const F in_mz = L::template splat<F>(3.f - clo[2]), in_uz = L::template splat<F>(clo[2] + hs);
+      const F out_mx = L::template splat<F>(3.f - clo[0] - hs),
+              out_ux = L::template splat<F>(clo[0]);
+      const F out_my = L::template splat<F>(3.f - clo[1] - hs),
+              out_uy = L::template splat<F>(clo[1]);
+      const F out_mz = L::template splat<F>(3.f - clo[2] - hs),
+              out_uz = L::template splat<F>(clo[2]);
+      // A big node's rows: skip those its child cannot reach.
+      uint32_t test_rows = rows, test_lanes = L::kAll;
+      if (!rs.packed && rays_.perspective && (!contours_ || std::popcount(rows) > 2)) {
+        uint32_t cull_rows, cull_lanes;
+        if (cull(clo, hs, &cull_rows, &cull_lanes)) {
+          test_rows &= cull_rows, test_lanes = cull_lanes;
+          if (test_rows == 0 || test_lanes == 0) continue;
+        }
+      }
+      const bool leaf = nodes_.leaf(desc, c, s);
+      if (!rs.packed && !contours_ && rays_.perspective && !leaf && !may_be_lod_stop(clo, hs)) {
+        // No ray can stop in this child: no per-ray test; its candidates
+        // are the node's live rays its rectangle keeps, and the tests below
+        // it decide (their spans need nothing from here).
+        uint32_t child_rows = 0;
+        for (uint32_t b = test_rows; b != 0; b &= b - 1) {
+          const int r = std::countr_zero(b);
+          child_mask[r] = mask[r] & rs.active[r] & test_lanes;
+          if (child_mask[r] != 0) child_rows |= 1u << r;
+        }
+        if (child_rows != 0) {
+          Index child_index = index;
+          const uint32_t child = nodes_.descend(desc, node, c, s, child_index, cnt_);
+          visit(rs, child, s - 1, clo, child_rows, child_mask, child_index);
+        }
+        continue;
+      }
+      bool contoured = false;
+      uint32_t contour = 0;
+      if constexpr (P::kContours) {
+        if (contours_) contoured = nodes_.contour(desc, node, c, &contour);
+      }
+      uint32_t child_rows = 0;
+      int32_t rec_lod = -1, rec_leaf = -1;
+      for (uint32_t b = test_rows; b != 0; b &= b - 1) {
+        const int r = std::countr_zero(b);
+        const uint32_t k = mask[r] & rs.active[r] & test_lanes;
+        if (k == 0) continue;
+        const F cx = rs.cx[r], cy = rs.cy[r], cz = rs.cz[r];
+        const F nbx = rs.nbx[r], nby = rs.nby[r], nbz = rs.nbz[r];
+        const F tx_in = L::fma(rs.mirror_x[r] ? in_mx : in_ux, cx, nbx);
+        const F ty_in = L::fma(rs.mirror_y[r] ? in_my : in_uy, cy, nby);
+        const F tz_in = L::fma(rs.mirror_z[r] ? in_mz : in_uz, cz, nbz);
+        const F tx_out = L::fma(rs.mirror_x[r] ? out_mx : out_ux, cx, nbx);
+        const F ty_out = L::fma(rs.mirror_y[r] ? out_my : out_uy, cy, nby);
+        const F tz_out = L::fma(rs.mirror_z[r] ? out_mz : out_uz, cz, nbz);
+        const F tc_max = L::min(L::min(tx_out, ty_out), tz_out);
+        const F t_max = parent_hi[r];
+        const F tau = L::max(parent_lo[r], L::max(L::max(tx_in, ty_in), tz_in));
+        const uint32_t placed = k & L::bits((tau < tc_max) & (tau <= t_max));
+        if (placed == 0) continue;
+        // LOD termination (cast_octree): before the cube's own contour.
+        const uint32_t lod = placed & L::bits(tc_max * size_coef_ + size_bias_ >= side);
+        if (lod != 0)
+          record(rs, r, lod, tau, node, desc, c, s, clo, CastStop::kLod, index, &rec_lod);
+        uint32_t rest = placed & ~lod;
+        if (rest == 0) continue;
+        F t_min = tau, tv_max = L::min(t_max, tc_max);
+        if (contoured) {
+          const F dx = rs.dx[r], dy = rs.dy[r], dz = rs.dz[r];
+          for (uint32_t q = rest; q != 0; q &= q - 1) {
+            const int l = std::countr_zero(q);
+            float a = t_min[l], e = tv_max[l];
+            contour_span(contour, {cx[l], cy[l], cz[l]}, {dx[l], dy[l], dz[l]}, tx_out[l],
+                         ty_out[l], tz_out[l], hs, &a, &e);
+            t_min[l] = a, tv_max[l] = e;
+          }
+          rest &= L::bits(t_min <= tv_max);
+          if (rest == 0) continue;
+        }
+        if (leaf) {
+          record(rs, r, rest, t_min, node, desc, c, s, clo, CastStop::kLeaf, index, &rec_leaf);
+        } else {
+          child_mask[r] = rest;
+          if (contours_) rs.span_lo[s][r] = t_min, rs.span_hi[s][r] = tv_max;
+          child_rows |= 1u << r;
+        }
+      }
+      if (child_rows != 0) {
+        Index child_index = index;
+        const uint32_t child = nodes_.descend(desc, node, c, s, child_index, cnt_);
+        visit(rs, child, s - 1, clo, child_rows, child_mask, child_index);
+      }
+    }
+  }
+
+  const P& nodes_;
+  const TileRays& rays_;
+  const int col0_;
+  const F size_coef_, size_bias_;
+  const bool contours_;
+  TileOut* out_;
+  NoCounters cnt_;
+  RaySet& tile_;
+  RaySet& packed_;
+};
+
+template <class P, int N>
+void tile_kernel(const P& nodes, const TileRays& rays, int col0, float size_coef, float size_bias,
+                 TileOut* out) {
+  thread_local typename TileWalk<P, N>::Storage storage;
+  TileWalk<P, N> walk(nodes, rays, col0, size_coef, size_bias, out, &storage);
+  walk.run();
+}
+
+}  // namespace
+
+#define VOXCAST_DEFINE_TILE_KERNEL(name, isa, Nodes, N)                             \
+  void name##_tile_kernel_##isa(const Nodes& nodes, const TileRays& rays, int col0, \
+                                float size_coef, float size_bias, TileOut* out) {   \
+    tile_kernel<Nodes, N>(nodes, rays, col0, size_coef, size_bias, out);            \
+  }
+
+}  // namespace voxcast::detail
