@@ -303,10 +303,10 @@ class TileWalk {
     const Desc desc = nodes_.fetch(node, s, cnt_);
     const uint32_t present = P::mask(desc);
     const float hs = scale_side(s);
-    if constexpr (requires { nodes_.root_slot; }) {
-      const uint32_t first = nodes_.children(desc, node, s, cnt_);
-      _mm_prefetch(reinterpret_cast<const char*>(nodes_.words + size_t(first) * 2), _MM_HINT_T0);
-    }
+    // The next level's fetches, started now (a depth-first walk has one
+    // node in flight otherwise): the policy's optional hook.
+    if constexpr (requires { nodes_.prefetch_below(desc, node, s); })
+      nodes_.prefetch_below(desc, node, s);
     // Front to back (core/octree_tile_caster.hpp "Order"): slot bit a of the
     // first child is the eye's half on axis a.
     int flip = 0;

@@ -103,6 +103,16 @@ struct DagNodes {
     if constexpr (kIndexed) index += uint32_t(std::popcount(d.leaf64 & ((1ull << (8 * c)) - 1)));
     return sub_block(d, c);
   }
+  /// The tile caster's prefetch (core/octree_tile_kernel.hpp): above the
+  /// leaf-mask level, the words of every child node (the walk's next
+  /// fetches; the pointers are in the node's own words).
+  [[gnu::always_inline]] void prefetch_below(const Desc& d, uint32_t node, int scale) const {
+    if (scale <= mask_scale) return;
+    const int n = std::popcount(d.mask);
+    for (int i = 0; i < n; ++i)
+      _mm_prefetch(reinterpret_cast<const char*>(words + words[node + 1 + uint32_t(i)]),
+                   _MM_HINT_T0);
+  }
   /// Rank of the first leaf voxel of hit cube c.
   uint64_t hit_index(uint64_t index, const Desc& d, uint32_t node, int c, int scale) const {
     if (scale == leaf_scale) return index + below(d.mask, c);
