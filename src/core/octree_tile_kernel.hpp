@@ -324,11 +324,22 @@ class TileWalk {
     const F side = L::template splat<F>(hs);
     if (rs.packed && !contours_) {
       // Every child a stop for every ray: a LOD stop wherever the ray is
-      // placed (the test is monotone in t and tc_max > tau >= the node's
-      // span start), or a leaf.
+      // placed (the test is monotone in t, and a child's tc_max > its tau >=
+      // the node's entry t: the node's entry planes come first on every
+      // axis), or a leaf. (A ray not placed in the node is placed in none
+      // of its children.)
       const uint32_t k = mask[0] & rs.active[0];
       if (k == 0) return;
-      bool stops = (k & ~L::bits(parent_lo[0] * size_coef_ + size_bias_ >= side)) == 0;
+      const float s2 = hs + hs;  // the node's side
+      auto in = [&](const I& mirrored, float l, const F& coef, const F& nb) {
+        return L::fma(mirrored ? L::template splat<F>(3.f - l) : L::template splat<F>(l + s2), coef,
+                      nb);
+      };
+      const F entry =
+          L::max(parent_lo[0], L::max(L::max(in(rs.mirror_x[0], lo[0], rs.cx[0], rs.nbx[0]),
+                                             in(rs.mirror_y[0], lo[1], rs.cy[0], rs.nby[0])),
+                                      in(rs.mirror_z[0], lo[2], rs.cz[0], rs.nbz[0])));
+      bool stops = (k & ~L::bits(entry * size_coef_ + size_bias_ >= side)) == 0;
       if (!stops) {
         stops = true;
         for (uint32_t b = present; b != 0 && stops; b &= b - 1)
