@@ -283,6 +283,64 @@ class TileWalk {
     }
   }
 
+  /// visit() of a packed node without contours, in two passes: first every
+  /// child's test on the rays k (no branch per child; the children's block,
+  /// prefetched when the node was fetched, arrives meanwhile), then, front
+  /// to back, the hits and descents on the rays still without a hit (a
+  /// subtree visited first may have taken some).
+  void packed_children(RaySet& rs, const Desc& desc, uint32_t node, int s, const float* lo,
+                       uint32_t k, int flip, uint32_t present, const Index& index) {
+    const float hs = scale_side(s);
+    const F side = L::template splat<F>(hs);
+    const F cx = rs.cx[0], cy = rs.cy[0], cz = rs.cz[0];
+    const F nbx = rs.nbx[0], nby = rs.nby[0], nbz = rs.nbz[0];
+    const I mx = rs.mirror_x[0], my = rs.mirror_y[0], mz = rs.mirror_z[0];
+    const F t_max = rs.span_hi[kOctreeMaxScale][0], t_lo = rs.span_lo[kOctreeMaxScale][0];
+    F tau[8];
+    uint32_t placed[8], lod[8];
+    int slot[8], n = 0;
+    for (int m = 7; m >= 0; --m) {
+      const int c = m ^ flip;
+      if ((present >> c & 1u) == 0) continue;
+      const float x = lo[0] + ((c & 1) ? hs : 0.f), y = lo[1] + ((c & 2) ? hs : 0.f),
+                  z = lo[2] + ((c & 4) ? hs : 0.f);
+      auto at = [](I mirrored, float m_value, float u_value) {
+        return mirrored ? L::template splat<F>(m_value) : L::template splat<F>(u_value);
+      };
+      const F tx_in = L::fma(at(mx, 3.f - x, x + hs), cx, nbx);
+      const F ty_in = L::fma(at(my, 3.f - y, y + hs), cy, nby);
+      const F tz_in = L::fma(at(mz, 3.f - z, z + hs), cz, nbz);
+      const F tx_out = L::fma(at(mx, 3.f - x - hs, x), cx, nbx);
+      const F ty_out = L::fma(at(my, 3.f - y - hs, y), cy, nby);
+      const F tz_out = L::fma(at(mz, 3.f - z - hs, z), cz, nbz);
+      const F tc_max = L::min(L::min(tx_out, ty_out), tz_out);
+      tau[n] = L::max(t_lo, L::max(L::max(tx_in, ty_in), tz_in));
+      placed[n] = k & L::bits((tau[n] < tc_max) & (tau[n] <= t_max));
+      lod[n] = L::bits(tc_max * size_coef_ + size_bias_ >= side);
+      slot[n++] = c;
+    }
+    for (int j = 0; j < n; ++j) {
+      const uint32_t now = placed[j] & rs.active[0];
+      if (now == 0) continue;
+      const int c = slot[j];
+      const float clo[3] = {lo[0] + ((c & 1) ? hs : 0.f), lo[1] + ((c & 2) ? hs : 0.f),
+                            lo[2] + ((c & 4) ? hs : 0.f)};
+      int32_t rec_lod = -1, rec_leaf = -1;
+      const uint32_t stop = now & lod[j];
+      if (stop != 0)
+        record(rs, 0, stop, tau[j], node, desc, c, s, clo, CastStop::kLod, index, &rec_lod);
+      const uint32_t rest = now & ~stop;
+      if (rest == 0) continue;
+      if (nodes_.leaf(desc, c, s)) {
+        record(rs, 0, rest, tau[j], node, desc, c, s, clo, CastStop::kLeaf, index, &rec_leaf);
+      } else {
+        Index child_index = index;
+        const uint32_t child = nodes_.descend(desc, node, c, s, child_index, cnt_);
+        visit(rs, child, s - 1, clo, 1u, &rest, child_index);
+      }
+    }
+  }
+
   /// The children (scale s) of `node`, whose cube has min corner lo, for the
   /// rays of `rs` in `mask` (rows `rows`); their spans are rs.span_*[s + 1].
   void visit(RaySet& rs, uint32_t node, int s, const float* lo, uint32_t rows, const uint32_t* mask,
@@ -349,6 +407,8 @@ class TileWalk {
         bottom(rs, desc, node, s, lo, k, flip, present, index);
         return;
       }
+      packed_children(rs, desc, node, s, lo, k, flip, present, index);
+      return;
     }
     uint32_t child_mask[kTileRows];
     for (int m = 7; m >= 0; --m) {
