@@ -57,6 +57,40 @@ class TileWalk {
     bool packed;
   };
 
+  /// Row 0 of a packed set in registers, and a child's span on it:
+  /// tau = max(span start, entry planes), tc_max = min(exit planes), each
+  /// plane's t as MirroredRay computes it (mirrored cube [3 - x - hs, 3 - x]).
+  struct PackedRow {
+    PackedRow(const RaySet& rs, int level)
+        : cx(rs.cx[0]),
+          cy(rs.cy[0]),
+          cz(rs.cz[0]),
+          nbx(rs.nbx[0]),
+          nby(rs.nby[0]),
+          nbz(rs.nbz[0]),
+          mx(rs.mirror_x[0]),
+          my(rs.mirror_y[0]),
+          mz(rs.mirror_z[0]),
+          t_lo(rs.span_lo[level][0]),
+          t_max(rs.span_hi[level][0]) {}
+    void span(float x, float y, float z, float hs, F* tau, F* tc_max) const {
+      auto at = [](I mirrored, float m_value, float u_value) {
+        return mirrored ? L::template splat<F>(m_value) : L::template splat<F>(u_value);
+      };
+      const F tx_in = L::fma(at(mx, 3.f - x, x + hs), cx, nbx);
+      const F ty_in = L::fma(at(my, 3.f - y, y + hs), cy, nby);
+      const F tz_in = L::fma(at(mz, 3.f - z, z + hs), cz, nbz);
+      const F tx_out = L::fma(at(mx, 3.f - x - hs, x), cx, nbx);
+      const F ty_out = L::fma(at(my, 3.f - y - hs, y), cy, nby);
+      const F tz_out = L::fma(at(mz, 3.f - z - hs, z), cz, nbz);
+      *tc_max = L::min(L::min(tx_out, ty_out), tz_out);
+      *tau = L::max(t_lo, L::max(L::max(tx_in, ty_in), tz_in));
+    }
+    F cx, cy, cz, nbx, nby, nbz;
+    I mx, my, mz;
+    F t_lo, t_max;
+  };
+
  public:
   /// The walk's ray sets (~60 KB each with 16 lanes): per thread, not on
   /// the stack.
@@ -241,30 +275,17 @@ class TileWalk {
               int flip, uint32_t present, const Index& index) {
     const float hs = scale_side(s);
     const F side = L::template splat<F>(hs);
-    const F cx = rs.cx[0], cy = rs.cy[0], cz = rs.cz[0];
-    const F nbx = rs.nbx[0], nby = rs.nby[0], nbz = rs.nbz[0];
-    const I mx = rs.mirror_x[0], my = rs.mirror_y[0], mz = rs.mirror_z[0];
-    const F t_max = rs.span_hi[span_level(s + 1)][0], t_lo = rs.span_lo[span_level(s + 1)][0];
+    const PackedRow row(rs, span_level(s + 1));
     I open = from_bits(k);
-    F hit_t = t_lo;
+    F hit_t = row.t_lo;
     I hit_c = L::template splat<I>(-1), hit_lod = L::template splat<I>(0);
     for (int m = 7; m >= 0; --m) {
       const int c = m ^ flip;
       if ((present >> c & 1u) == 0) continue;
-      const float x = lo[0] + ((c & 1) ? hs : 0.f), y = lo[1] + ((c & 2) ? hs : 0.f),
-                  z = lo[2] + ((c & 4) ? hs : 0.f);
-      auto at = [](I mirrored, float m_value, float u_value) {
-        return mirrored ? L::template splat<F>(m_value) : L::template splat<F>(u_value);
-      };
-      const F tx_in = L::fma(at(mx, 3.f - x, x + hs), cx, nbx);
-      const F ty_in = L::fma(at(my, 3.f - y, y + hs), cy, nby);
-      const F tz_in = L::fma(at(mz, 3.f - z, z + hs), cz, nbz);
-      const F tx_out = L::fma(at(mx, 3.f - x - hs, x), cx, nbx);
-      const F ty_out = L::fma(at(my, 3.f - y - hs, y), cy, nby);
-      const F tz_out = L::fma(at(mz, 3.f - z - hs, z), cz, nbz);
-      const F tc_max = L::min(L::min(tx_out, ty_out), tz_out);
-      const F tau = L::max(t_lo, L::max(L::max(tx_in, ty_in), tz_in));
-      const I placed = open & (tau < tc_max) & (tau <= t_max);
+      F tau, tc_max;
+      row.span(lo[0] + ((c & 1) ? hs : 0.f), lo[1] + ((c & 2) ? hs : 0.f),
+               lo[2] + ((c & 4) ? hs : 0.f), hs, &tau, &tc_max);
+      const I placed = open & (tau < tc_max) & (tau <= row.t_max);
       hit_t = placed ? tau : hit_t;
       hit_c = placed ? L::template splat<I>(c) : hit_c;
       hit_lod = placed ? (tc_max * size_coef_ + size_bias_ >= side) : hit_lod;
@@ -292,30 +313,17 @@ class TileWalk {
                        uint32_t k, int flip, uint32_t present, const Index& index) {
     const float hs = scale_side(s);
     const F side = L::template splat<F>(hs);
-    const F cx = rs.cx[0], cy = rs.cy[0], cz = rs.cz[0];
-    const F nbx = rs.nbx[0], nby = rs.nby[0], nbz = rs.nbz[0];
-    const I mx = rs.mirror_x[0], my = rs.mirror_y[0], mz = rs.mirror_z[0];
-    const F t_max = rs.span_hi[kOctreeMaxScale][0], t_lo = rs.span_lo[kOctreeMaxScale][0];
+    const PackedRow row(rs, kOctreeMaxScale);
     F tau[8];
     uint32_t placed[8], lod[8];
     int slot[8], n = 0;
     for (int m = 7; m >= 0; --m) {
       const int c = m ^ flip;
       if ((present >> c & 1u) == 0) continue;
-      const float x = lo[0] + ((c & 1) ? hs : 0.f), y = lo[1] + ((c & 2) ? hs : 0.f),
-                  z = lo[2] + ((c & 4) ? hs : 0.f);
-      auto at = [](I mirrored, float m_value, float u_value) {
-        return mirrored ? L::template splat<F>(m_value) : L::template splat<F>(u_value);
-      };
-      const F tx_in = L::fma(at(mx, 3.f - x, x + hs), cx, nbx);
-      const F ty_in = L::fma(at(my, 3.f - y, y + hs), cy, nby);
-      const F tz_in = L::fma(at(mz, 3.f - z, z + hs), cz, nbz);
-      const F tx_out = L::fma(at(mx, 3.f - x - hs, x), cx, nbx);
-      const F ty_out = L::fma(at(my, 3.f - y - hs, y), cy, nby);
-      const F tz_out = L::fma(at(mz, 3.f - z - hs, z), cz, nbz);
-      const F tc_max = L::min(L::min(tx_out, ty_out), tz_out);
-      tau[n] = L::max(t_lo, L::max(L::max(tx_in, ty_in), tz_in));
-      placed[n] = k & L::bits((tau[n] < tc_max) & (tau[n] <= t_max));
+      F tc_max;
+      row.span(lo[0] + ((c & 1) ? hs : 0.f), lo[1] + ((c & 2) ? hs : 0.f),
+               lo[2] + ((c & 4) ? hs : 0.f), hs, &tau[n], &tc_max);
+      placed[n] = k & L::bits((tau[n] < tc_max) & (tau[n] <= row.t_max));
       lod[n] = L::bits(tc_max * size_coef_ + size_bias_ >= side);
       slot[n++] = c;
     }
