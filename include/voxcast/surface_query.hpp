@@ -104,11 +104,9 @@ class SurfacePackets {
   /// octree structures: core/octree_tile_caster.hpp). Returns false, and
   /// writes nothing, where the structure has no tile caster (then trace the
   /// rays as packets).
-  virtual bool trace_tile(const CameraRays& cam, int x0, int y0, int x1, int y1,
-                          const LodFootprint& lod, TraceContext& ctx, SurfaceHit* hits,
-                          uint8_t* found, Isa isa) const {
-    (void)cam, (void)x0, (void)y0, (void)x1, (void)y1, (void)lod, (void)ctx, (void)hits;
-    (void)found, (void)isa;
+  virtual bool trace_tile(const CameraRays& /*cam*/, int /*x0*/, int /*y0*/, int /*x1*/, int /*y1*/,
+                          const LodFootprint& /*lod*/, TraceContext& /*ctx*/, SurfaceHit* /*hits*/,
+                          uint8_t* /*found*/, Isa /*isa*/) const {
     return false;
   }
   /// found[i] = trace(rays[i], lod, ctx, &hits[i], beams[i]) for i < n;

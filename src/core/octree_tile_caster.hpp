@@ -58,6 +58,7 @@
 #include "voxcast/camera.hpp"
 #include "voxcast/isa.hpp"
 #include "voxcast/math.hpp"
+#include "voxcast/packet_caster.hpp"
 #include "voxcast/structure.hpp"
 
 namespace voxcast::detail {
@@ -87,9 +88,9 @@ struct alignas(64) TileRays {
   uint32_t live[kTileRows];  // rays that enter the root cube
   int rows = 0, cols = 0;
   // The walk's child order (file comment): perspective = order by the eye's
-  // side (eye, octree space), else by the direction's octant (`dir`).
+  // side (eye, octree space), else by the octant of `forward` (below).
   bool perspective = true;
-  Vec3 eye{0, 0, 0}, dir{0, 0, 1};
+  Vec3 eye{0, 0, 0};
   // A cube's rows and columns (perspective; TileWalk::cull): the camera
   // basis, and pixel (x0 + i, y0 + j)'s ray through X/Z = u0 + i du,
   // Y/Z = v0 + j dv in the camera frame (X right, Y up, Z forward).
@@ -135,7 +136,6 @@ inline void tile_camera(const CameraRays& cam, const OctreeFrame& frame, int x0,
                         TileRays* r) {
   r->perspective = !cam.ortho;
   r->eye = frame.point(cam.eye);
-  r->dir = frame.direction(cam.forward);
   r->world_side = frame.side;
   r->right = cam.right, r->up = cam.true_up, r->forward = cam.forward;
   auto abs_sum = [](Vec3 v) { return std::fabs(v.x) + std::fabs(v.y) + std::fabs(v.z); };
@@ -169,7 +169,7 @@ void structure_trace_tile(const World& world, Isa isa, const TileKernels<P>& ker
   thread_local TileRays rays;
   thread_local TileOut out;
   const TileKernel<P> kernel = isa == Isa::Avx512 ? kernels.avx512 : kernels.avx2;
-  const int lanes = isa == Isa::Avx512 ? 16 : 8;
+  const int lanes = packet_width(isa);
   const P nodes(world.source);
   const OctreeFrame& frame = world.frame;
   const float coef = frame.length(lod.size_per_t), bias = frame.length(lod.size_at_origin);

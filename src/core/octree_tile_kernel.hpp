@@ -215,7 +215,7 @@ class TileWalk {
       pack(tile_.span_hi[level][r], k, at, &p.span_hi[level][0]);
       at += std::popcount(k);
     }
-    const uint32_t lanes = at == 32 ? ~0u : (1u << at) - 1;
+    const uint32_t lanes = (1u << at) - 1;  // at <= N <= 16
     p.active[0] = lanes;
     return lanes;
   }
@@ -391,9 +391,9 @@ class TileWalk {
       if (!(rays_.eye.y >= lo[1] + hs)) flip |= 2;
       if (!(rays_.eye.z >= lo[2] + hs)) flip |= 4;
     } else {
-      if (!(rays_.dir.x < 0.f)) flip |= 1;
-      if (!(rays_.dir.y < 0.f)) flip |= 2;
-      if (!(rays_.dir.z < 0.f)) flip |= 4;
+      if (!(rays_.forward.x < 0.f)) flip |= 1;
+      if (!(rays_.forward.y < 0.f)) flip |= 2;
+      if (!(rays_.forward.z < 0.f)) flip |= 4;
     }
     const F* parent_lo = rs.span_lo[span_level(s + 1)];
     const F* parent_hi = rs.span_hi[span_level(s + 1)];

@@ -239,35 +239,39 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
     tiled = packets_->trace_tile(cam, tile.x0, tile.y0, tile.x1, tile.y1, lod, ctx,
                                  tile_hits.data(), tile_found.data(), isa_);
   }
+  if (!tiled && packets_ != nullptr && !ctx.counting && frustum_k != 0) {
+    // The tile frustum pass: the tile's cubes, front to back for the
+    // mirroring octant of its center ray; none = every pixel a miss.
+    const int octant = ray_octant(cam.ray((tile.x0 + tile.x1) / 2, (tile.y0 + tile.y1) / 2).dir);
+    q.frustum_start(detail::block_beam(cam, tile.x0, tile.y0, tile.x1, tile.y1, lod), octant, ctx,
+                    &tile_start);
+    ts.empty_tile = tile_start.valid && tile_start.empty;
+  }
+  // The hits of a tile or packet call in groups of kShadeLanes, in the
+  // order traced (a 4x4 block is one group where all its rays hit).
+  const SurfaceHit* group_hit[detail::kShadeLanes];
+  Vec3 group_dir[detail::kShadeLanes];
+  int group_x[detail::kShadeLanes], group_y[detail::kShadeLanes];
+  int group_m = 0;
+  auto add_hit = [&](const SurfaceHit* hit, Vec3 dir, int x, int y) {
+    ++ts.hits;
+    group_hit[group_m] = hit, group_dir[group_m] = dir;
+    group_x[group_m] = x, group_y[group_m] = y;
+    if (++group_m == detail::kShadeLanes)
+      shade_group(group_hit, group_x, group_y, group_dir, group_m), group_m = 0;
+  };
+  auto flush_hits = [&] {
+    if (group_m > 0) shade_group(group_hit, group_x, group_y, group_dir, group_m), group_m = 0;
+  };
   if (tiled) {
-    const SurfaceHit* group_hit[detail::kShadeLanes];
-    Vec3 group_dir[detail::kShadeLanes];
-    int group_x[detail::kShadeLanes], group_y[detail::kShadeLanes];
-    int m = 0;
     for (int k = 0; k < tile_n; ++k) {
       const int x = tile.x0 + k % tile_w, y = tile.y0 + k / tile_w;
-      if (!tile_found[size_t(k)]) {
+      if (tile_found[size_t(k)])
+        add_hit(&tile_hits[size_t(k)], cam.direction(x, y), x, y);
+      else
         miss(x, y);
-        continue;
-      }
-      ++ts.hits;
-      group_hit[m] = &tile_hits[size_t(k)], group_dir[m] = cam.direction(x, y);
-      group_x[m] = x, group_y[m] = y;
-      if (++m == detail::kShadeLanes) shade_group(group_hit, group_x, group_y, group_dir, m), m = 0;
     }
-    if (m > 0) shade_group(group_hit, group_x, group_y, group_dir, m);
-  } else if (packets_ != nullptr && !ctx.counting) {
-    if (frustum_k != 0) {
-      // The tile frustum pass: the tile's cubes, front to back for the
-      // mirroring octant of its center ray; none = every pixel a miss.
-      const int octant = ray_octant(cam.ray((tile.x0 + tile.x1) / 2, (tile.y0 + tile.y1) / 2).dir);
-      q.frustum_start(detail::block_beam(cam, tile.x0, tile.y0, tile.x1, tile.y1, lod), octant, ctx,
-                      &tile_start);
-      ts.empty_tile = tile_start.valid && tile_start.empty;
-    }
-  }
-  if (tiled) {
-    // Traced and shaded above.
+    flush_hits();
   } else if (ts.empty_tile) {
     for (int y = tile.y0; y < tile.y1; ++y)
       for (int x = tile.x0; x < tile.x1; ++x) miss(x, y);
@@ -283,23 +287,13 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
     const size_t n = pt.order.size();
     packets_->trace_packets(pt.rays.data(), n, lod, ctx, pt.hits.data(), pt.found.data(), isa_,
                             pt.beam_list());
-    // The hits in groups of kShadeLanes, in queue order (a 4x4 block is
-    // one group where all its rays hit).
-    const SurfaceHit* group_hit[detail::kShadeLanes];
-    Vec3 group_dir[detail::kShadeLanes];
-    int group_x[detail::kShadeLanes], group_y[detail::kShadeLanes];
-    int m = 0;
     for (size_t i = 0; i < n; ++i) {
-      if (!pt.found[i]) {
+      if (pt.found[i])
+        add_hit(&pt.hits[i], pt.rays[i].dir, pt.x(i), pt.y(i));
+      else
         miss(pt.x(i), pt.y(i));
-        continue;
-      }
-      ++ts.hits;
-      group_hit[m] = &pt.hits[i], group_dir[m] = pt.rays[i].dir;
-      group_x[m] = pt.x(i), group_y[m] = pt.y(i);
-      if (++m == detail::kShadeLanes) shade_group(group_hit, group_x, group_y, group_dir, m), m = 0;
     }
-    if (m > 0) shade_group(group_hit, group_x, group_y, group_dir, m);
+    flush_hits();
   } else if (beam_k == 0) {
     for (int y = tile.y0; y < tile.y1; ++y)
       for (int x = tile.x0; x < tile.x1; ++x) trace_pixel(x, y, nullptr);
