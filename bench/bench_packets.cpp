@@ -229,7 +229,8 @@ const AoRays& ao_rays() {
   return a;
 }
 
-// Arg 0: 0 = scalar occluded(), 1 = occluded_packets, 2 = occluded_anyhit
+// Arg 0: 0 = scalar occluded(), 1 = occluded_packets (the shadow rays by
+// parallel walks, AnyHitOptions::parallel), 2 = occluded_anyhit's lane kernel
 // from the root (AO: in point groups, AnyHitOptions::group), 3 =
 // occluded_anyhit with the per-ray deep start, 4 = the same with a cull of 24 fetches, 5 = the
 // packets' shared paths (DeepStart::Packet), 6 = the same with path_share 0.5; arg 1: 0 = AVX2, 1 =
@@ -266,6 +267,7 @@ void run_occlusion(benchmark::State& state, const S& s) {
                                      : DeepStart::Off;
         o.cull_budget = caster == 4 ? 24 : 0;
         o.path_share = caster == 6 ? 0.5f : 1.f;
+        o.parallel = false;  // the lane kernel (casters 2..6)
         occluded_anyhit(s, rays.data() + b, n, LodFootprint{}, occ.data() + b, o, &stats);
       }
     }

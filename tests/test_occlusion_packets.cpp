@@ -9,7 +9,8 @@
 // points, origins on grid planes, normals some rays violate), and on the
 // shadow and AO rays the effects generate for real shading points, for every
 // kernel ISA this CPU runs, deep start with and without the cull and every
-// ray from the root; and renders with effects through the packets are
+// ray from the root, and on runs of parallel rays through the shared walks
+// (AnyHitOptions::parallel); and renders with effects through the packets are
 // byte-identical to one ray at a time.
 #include <gtest/gtest.h>
 
@@ -165,21 +166,26 @@ AnyHitStats expect_same(const S& s, const std::vector<Ray>& rays, const LodFootp
   EXPECT_LT(occluded, rays.size()) << what;
   AnyHitStats stats;
   for (const Isa isa : testing::packet_isas()) {
-    for (const int variant : {0, 1, 2, 3}) {
+    for (const int variant : {0, 1, 2, 3, 4}) {
       static const char* const names[] = {" per-ray deep+cull", " per-ray deep", " packet paths",
-                                          " root"};
+                                          " root", " parallel walks + root"};
       static const DeepStart starts[] = {DeepStart::PerRay, DeepStart::PerRay, DeepStart::Packet,
-                                         DeepStart::Off};
+                                         DeepStart::Off, DeepStart::Off};
       AnyHitOptions o;
       o.group = group, o.normals = normals, o.deep_start = starts[variant], o.isa = isa;
       o.cull_budget = variant == 0 ? 24 : 0;
+      o.parallel = variant == 4;  // the lane kernel alone in the others
       std::vector<uint8_t> got(rays.size(), 7);
       AnyHitStats st;
       occluded_anyhit(s, rays.data(), rays.size(), lod, got.data(), o, &st);
       if (variant == 0 && isa == Isa::Avx2) stats = st;
       if (variant == 2 && isa == Isa::Avx2) stats.path_levels = st.path_levels;
+      if (variant == 4 && isa == Isa::Avx2) stats.parallel_rays = st.parallel_rays;
       if (variant >= 2) {
         EXPECT_EQ(st.deep_rays, 0u) << what;
+      }
+      if (variant < 4 || group != 0) {
+        EXPECT_EQ(st.parallel_rays, 0u) << what;
       }
       size_t bad = 0;
       for (size_t i = 0; i < rays.size(); ++i)
@@ -235,6 +241,67 @@ void check_random(const S& s, const char* name) {
   // Groups of 5 (not a divisor of the queue) without normals.
   const Groups g5 = random_groups(sc.grid, 600, 5, 13);
   expect_same(s, g5.rays, LodFootprint{}, 5, nullptr, std::string(name) + " groups of 5");
+}
+
+// Runs of parallel rays (AnyHitOptions::parallel): each run one direction
+// (random, along an axis with a signed zero, tiny components) and origins
+// spread over the cube, in a small patch (shadow rays of a surface patch),
+// on grid planes, outside the cube, some with short, zero or infinite tmax
+// and a few non-finite; runs of 1 to 600 rays, so that both the walks (at
+// least kParallelRun rays) and the lane kernel between them answer.
+std::vector<Ray> parallel_runs(const GridTransform& grid, size_t count, uint64_t seed) {
+  testing::OctreeRayRng rng(seed, 8);
+  const float side = float(grid.side());
+  std::vector<Ray> rays;
+  for (size_t k = 0; k < count; ++k) {
+    Vec3 d = rng.sphere();
+    const int kind = rng.pick(6);
+    if (kind == 0) {  // along an axis, the other components signed zeros
+      const int a = rng.pick(3);
+      d = {rng.signed_zero(), rng.signed_zero(), rng.signed_zero()};
+      d[a] = rng.pick(2) ? 1.f : -1.f;
+    } else if (kind == 1) {  // a tiny component
+      d[rng.pick(3)] = rng.uni(-1e-9f, 1e-9f);
+      d = normalize(d);
+    }
+    const int n = rng.pick(5) == 0 ? 1 + rng.pick(20) : 16 + rng.pick(600);
+    const Vec3 c{rng.uni(0.1f, 0.9f), rng.uni(0.1f, 0.9f), rng.uni(0.1f, 0.9f)};
+    const float extent = rng.pick(2) ? rng.uni(0.002f, 0.1f) : 1.f;
+    for (int i = 0; i < n; ++i) {
+      Vec3 o = extent < 1.f
+                   ? c + Vec3{rng.uni(0.f, extent), rng.uni(0.f, extent), rng.uni(0.f, extent)}
+                   : Vec3{rng.uni(-0.3f, 1.3f), rng.uni(-0.3f, 1.3f), rng.uni(-0.3f, 1.3f)};
+      if (rng.pick(5) == 0) o[rng.pick(3)] = rng.grid_line() - 1.f;
+      Ray r{grid.origin + o * side, d, INFINITY};
+      if (rng.pick(4) == 0) r.tmax = rng.uni(0.f, 0.3f) * side;
+      if (rng.pick(200) == 0) r.tmax = 0.f;
+      if (rng.pick(500) == 0) r.origin.z = rng.pick(2) ? NAN : INFINITY;
+      rays.push_back(r);
+    }
+  }
+  return rays;
+}
+
+template <class S>
+void check_parallel(const S& s, const char* name) {
+  const Scenes& sc = scenes();
+  const std::vector<Ray> rays = parallel_runs(sc.grid, 160, 33);
+  const AnyHitStats st =
+      expect_same(s, rays, LodFootprint{}, 0, nullptr, std::string(name) + " parallel");
+  // Most rays are in runs the walks take.
+  EXPECT_GT(st.parallel_rays, rays.size() * 3 / 4) << name;
+  EXPECT_LT(st.parallel_rays, rays.size()) << name;
+  LodFootprint lod;
+  lod.size_at_origin = float(sc.grid.voxel_size) * 2.f;
+  lod.size_per_t = 0.02f;
+  expect_same(s, rays, lod, 0, nullptr, std::string(name) + " parallel lod");
+}
+
+TEST(OcclusionPackets, ParallelWalksEqualScalarOccluded) {
+  check_parallel(*scenes().esvo, "esvo");
+  check_parallel(*scenes().esvo_far, "esvo far");
+  check_parallel(*scenes().esvo_contours, "esvo contours");
+  check_parallel(*scenes().dag, "dag");
 }
 
 TEST(OcclusionPackets, EsvoEqualsScalarOccluded) {
@@ -309,10 +376,13 @@ void check_effect_rays(const S& s, const char* name) {
   size_t occluded = 0;
   const AnyHitStats sh = expect_same(s, shadow.rays, LodFootprint{}, 0, nullptr,
                                      std::string(name) + " shadow", &occluded);
-  // The shadow packets start deep, and their unoccluded rays leave the start cube.
+  // The shadow packets start deep, and their unoccluded rays leave the
+  // start cube; with parallel walks on, the walks take every shadow ray (one
+  // direction, one run).
   EXPECT_GT(sh.deep_rays, sh.rays / 2) << name;
   EXPECT_GT(sh.deep_rays, occluded) << name;
   EXPECT_GT(sh.path_levels, 0u) << name;
+  EXPECT_EQ(sh.parallel_rays, shadow.rays.size()) << name;
   print_stats(std::string(name) + " shadow", sh);
   // What the effects trace them with (Structure::transmittance_batch):
   // occluded_packets, the any-hit packets.

@@ -342,7 +342,8 @@ Timed occluded_all_trace(const SurfaceQuery& s, const std::vector<Ray>& rays,
   });
 }
 
-// The packet caster's occluded_packets: each chunk as one queue.
+// The packet caster's occluded_packets: each chunk as one queue (runs of
+// parallel rays, the shadow rays, by shared walks; AnyHitOptions::parallel).
 Timed occluded_all_packets(const SurfacePackets& s, const std::vector<Ray>& rays,
                            std::vector<uint8_t>* occ) {
   return occluded_frame(rays, occ, [&](size_t b, size_t e, uint8_t* o) {
@@ -361,6 +362,7 @@ Timed occluded_all_anyhit(const AnyHitCaster& s, const std::vector<Ray>& rays,
   return occluded_frame(rays, occ, [&](size_t b, size_t e, uint8_t* o) {
     AnyHitOptions opt;
     opt.deep_start = kBenchDeepStart;
+    opt.parallel = false;  // the lane kernel: the packet rows have the parallel walks
     s(rays.data() + b, e - b, o + b, opt, nullptr);
   });
 }
@@ -1243,7 +1245,8 @@ Runner add_bench(CLI::App& app) {
                             {}});
           }
           const std::string occ_how = std::string("occluded_packets ") + isa_name(active_isa()) +
-                                      " x" + std::to_string(packet_width(active_isa()));
+                                      " x" + std::to_string(packet_width(active_isa())) +
+                                      (kind == 0 ? ", octrees: parallel walks" : "");
           for (size_t k = 0; k < structures.size(); ++k) {
             if (!structures[k].packets) continue;
             packet_row[k] = rows.size();
@@ -1273,7 +1276,7 @@ Runner add_bench(CLI::App& app) {
             if (!anyhit) continue;
             anyhit_rows.push_back({rows.size(), k});
             rows.push_back({structures[k].caster + " anyhit",
-                            any_how + ", deep start",
+                            any_how + ", deep start, lanes only",
                             false,
                             [&, anyhit, i = rows.size()] {
                               return occluded_all_anyhit(anyhit, rs, &rows[i].answers);

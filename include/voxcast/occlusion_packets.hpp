@@ -8,7 +8,9 @@
 // the root (the walk to the cube is shared by neighbouring origins: the
 // shadow rays of a pixel block, the AO rays of a point). Rays that share an origin (the AO rays of
 // one shading point) may also be culled by their ball, hemisphere and box
-// (src/core/octree_anyhit_caster.hpp has the argument). The answers are
+// (src/core/octree_anyhit_caster.hpp has the argument). Runs of rays with
+// one direction (shadow rays under a directional light) are traced together,
+// by one walk of the tree per up to 256 rays (AnyHitOptions::parallel). The answers are
 // those of occluded() bit for bit (tests/test_occlusion_packets.cpp), so the
 // scalar caster stays the reference and either may answer any ray.
 #include <cstddef>
@@ -54,17 +56,27 @@ struct AnyHitOptions {
   /// traced (0: no cull; it costs more than it saves, docs/BENCHMARKS.md
   /// "Occlusion packets").
   int cull_budget = 0;
+  /// group == 0: every run of at least kParallelRun consecutive rays with
+  /// one direction (bitwise; the shadow rays of a directional light) is
+  /// traced by shared walks of the tree, up to 256 rays a walk, children in
+  /// the direction's octant order (core/octree_tile_caster.hpp "Parallel
+  /// rays"); the other rays take the lane kernel (and deep_start).
+  bool parallel = true;
   Isa isa = active_isa();  // throws voxcast::Error if the CPU lacks it
 };
 
+/// The shortest run of parallel rays AnyHitOptions::parallel walks together.
+inline constexpr size_t kParallelRun = 16;
+
 /// What the deep start and the cull did, summed over calls.
 struct AnyHitStats {
-  uint64_t points = 0;       // ray groups offered the cull
-  uint64_t culled = 0;       // groups answered by the cull alone (no ray traced)
-  uint64_t rays = 0;         // rays traced by the kernel
-  uint64_t deep_rays = 0;    // of those, rays started below the root
-  uint64_t depth_sum = 0;    // PerRay: levels of descent skipped, summed over the rays
-  uint64_t path_levels = 0;  // Packet: levels of the packets' paths, summed over the packets
+  uint64_t points = 0;         // ray groups offered the cull
+  uint64_t culled = 0;         // groups answered by the cull alone (no ray traced)
+  uint64_t rays = 0;           // rays traced by the kernel
+  uint64_t deep_rays = 0;      // of those, rays started below the root
+  uint64_t depth_sum = 0;      // PerRay: levels of descent skipped, summed over the rays
+  uint64_t path_levels = 0;    // Packet: levels of the packets' paths, summed over the packets
+  uint64_t parallel_rays = 0;  // rays answered by parallel walks (not in `rays`)
 };
 
 /// occluded[i] = occluded(rays[i], lod) for i < n (0/1), bit-identical.

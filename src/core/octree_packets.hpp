@@ -10,6 +10,7 @@
 // that only forward here.
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <type_traits>
 
 #include "core/frustum_packets.hpp"
@@ -40,9 +41,35 @@ void OctreeStructure<Self>::cast_anyhit(const Ray* rays, size_t n, const LodFoot
                                         AnyHitStats* stats) const {
   const Self& self = static_cast<const Self&>(*this);
   using P = typename decltype(self.world())::Nodes;
-  detail::structure_anyhit<P>(self, self.world().source, o.isa, detail::kPacketKernels<P>, rays, n,
-                              lod, o.group, o.normals, o.deep_start, o.path_share, o.cull_budget,
-                              occluded, stats);
+  auto lanes = [&](size_t b, size_t e) {
+    if (e > b)
+      detail::structure_anyhit<P>(self, self.world().source, o.isa, detail::kPacketKernels<P>,
+                                  rays + b, e - b, lod, o.group, o.normals, o.deep_start,
+                                  o.path_share, o.cull_budget, occluded + b, stats);
+  };
+  if (!o.parallel || o.group != 0 || detail::beyond_gathers(self.world().source)) {
+    lanes(0, n);
+    return;
+  }
+  // Runs of parallel rays to the shared walk, the rest to the lane kernel.
+  detail::require_isa(o.isa, "any-hit packets");
+  auto same_dir = [](const Ray& a, const Ray& b) {
+    return std::memcmp(&a.dir, &b.dir, sizeof a.dir) == 0;
+  };
+  size_t rest = 0;  // rays [rest, i) wait for the lane kernel
+  for (size_t i = 0; i < n;) {
+    size_t j = i + 1;
+    while (j < n && same_dir(rays[j], rays[i])) ++j;
+    if (j - i >= kParallelRun) {
+      lanes(rest, i);
+      detail::structure_occluded_parallel<P>(self.world(), o.isa, detail::kTileKernels<P>, rays + i,
+                                             j - i, lod, occluded + i);
+      if (stats != nullptr) stats->parallel_rays += j - i;
+      rest = j;
+    }
+    i = j;
+  }
+  lanes(rest, n);
 }
 
 template <class Self>

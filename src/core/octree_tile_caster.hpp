@@ -120,10 +120,11 @@ struct alignas(64) TileOut {
 
 /// Walks `rays`' columns [col0, col0 + N) (N = the kernel's lanes) through
 /// `nodes` with LOD terms as cast_octree's; writes those columns of *out and
-/// appends to out->hits.
+/// appends to out->hits. any_hit (occlusion): only out->hit is written, 0
+/// for a ray that stops somewhere (no TileHit, no t), -1 for the others.
 template <class P>
 using TileKernel = void (*)(const P& nodes, const TileRays& rays, int col0, float size_coef,
-                            float size_bias, TileOut* out);
+                            float size_bias, bool any_hit, TileOut* out);
 
 template <class P>
 struct TileKernels {
@@ -180,7 +181,7 @@ void structure_trace_tile(const World& world, Isa isa, const TileKernels<P>& ker
       (isa == Isa::Avx512 ? tile_rays_avx512 : tile_rays_avx2)(cam, frame, tx, ty, tx1, ty1, &rays);
       out.hits.clear();
       for (int col0 = 0; col0 < rays.cols; col0 += lanes)
-        kernel(nodes, rays, col0, coef, bias, &out);
+        kernel(nodes, rays, col0, coef, bias, false, &out);
       for (int j = 0; j < rays.rows; ++j)
         for (int i = 0; i < rays.cols; ++i) {
           const size_t k = size_t(ty - y0 + j) * size_t(w) + size_t(tx - x0 + i);
@@ -209,6 +210,85 @@ void structure_trace_tile(const World& world, Isa isa, const TileKernels<P>& ker
           P::name_hit(world.source, r, &hits[k]);
         }
     }
+}
+
+}  // namespace voxcast::detail
+
+namespace voxcast::detail {
+
+// Parallel rays (issue 10 item 5: the shadow rays of a directional light).
+// Rays that share one direction meet the children of every node in the order
+// of that direction's octant, whatever their origins, as an orthographic
+// camera's rays do ("Order" above); so the tile walk, in that order and
+// without the camera's cull, traces them together: up to 256 rays a walk, 16
+// a row (in the pixel-block order of the callers, a row is the shadow rays
+// of one 4 x 4 block). Each ray's set-up is cast_octree's own (frame,
+// avoid_tiny_components, MirroredRay, enter_root with its tmax), and the
+// walk places every ray in exactly the cubes the loop places it in
+// ("Why the hits are those of cast_octree"), so a ray placed in some stop
+// (a leaf, or a LOD stop) is one the loop stops on as well, and one placed
+// in none is one the loop lets through: the answers are occluded()'s bit for
+// bit. The any-hit walk ends a ray at the first stop it meets.
+
+/// Rays a parallel walk takes at most.
+inline constexpr int kParallelWalk = kTileRows * kTileCols;
+
+/// Fills *r with rays[0, n), n <= kParallelWalk, that share one direction
+/// (bitwise): ray i in row i / 16, column i % 16; a ray whose origin or
+/// direction is not finite, or that misses the root cube within its tmax, is
+/// not live (cast_octree answers it without a step).
+inline void parallel_rays(const OctreeFrame& frame, const Ray* rays, int n, TileRays* r) {
+  r->rows = (n + kTileCols - 1) / kTileCols;
+  r->cols = n < kTileCols ? n : kTileCols;
+  r->perspective = false;
+  r->world_side = frame.side;
+  const Vec3 d = frame.direction(rays[0].dir);
+  const Vec3 dt = avoid_tiny_components(d);
+  r->forward = dt;  // the walk's order: the octant of the loop's direction
+  const bool finite_d = is_finite(d);
+  for (int j = 0; j < r->rows; ++j) {
+    uint32_t mx = 0, my = 0, mz = 0, live = 0;
+    for (int i = 0; i < kTileCols; ++i) {
+      const int k = j * kTileCols + i;
+      const Vec3 p = k < n ? frame.point(rays[k].origin) : Vec3{1.5f, 1.5f, 1.5f};
+      const MirroredRay m(p, dt);
+      CastEntry e{};
+      const bool ok = k < n && finite_d && is_finite(p) && enter_root(m, rays[k].tmax, nullptr, &e);
+      r->cx[j][i] = m.tx_coef, r->cy[j][i] = m.ty_coef, r->cz[j][i] = m.tz_coef;
+      r->nbx[j][i] = -m.tx_bias, r->nby[j][i] = -m.ty_bias, r->nbz[j][i] = -m.tz_bias;
+      r->dx[j][i] = dt.x, r->dy[j][i] = dt.y, r->dz[j][i] = dt.z;
+      r->px[j][i] = p.x, r->py[j][i] = p.y, r->pz[j][i] = p.z;
+      r->ux[j][i] = d.x, r->uy[j][i] = d.y, r->uz[j][i] = d.z;
+      r->t_min[j][i] = ok ? e.t_min : 0.f, r->t_max[j][i] = ok ? e.t_max : -1.f;
+      mx |= uint32_t(dt.x > 0.f) << i, my |= uint32_t(dt.y > 0.f) << i;
+      mz |= uint32_t(dt.z > 0.f) << i, live |= uint32_t(ok) << i;
+    }
+    r->mirror_x[j] = mx, r->mirror_y[j] = my, r->mirror_z[j] = mz, r->live[j] = live;
+  }
+}
+
+/// occluded[i] = occluded(rays[i], lod) for i < n, rays that share one
+/// direction (bitwise), by parallel walks of up to kParallelWalk rays.
+/// `world`: the structure's OctreeWorld<P> (in-core, below 2^31 words).
+template <class P, class World>
+void structure_occluded_parallel(const World& world, Isa isa, const TileKernels<P>& kernels,
+                                 const Ray* rays, size_t n, const LodFootprint& lod,
+                                 uint8_t* occluded) {
+  thread_local TileRays tile;
+  thread_local TileOut out;
+  const TileKernel<P> kernel = isa == Isa::Avx512 ? kernels.avx512 : kernels.avx2;
+  const int lanes = packet_width(isa);
+  const P nodes(world.source);
+  const float coef = world.frame.length(lod.size_per_t);
+  const float bias = world.frame.length(lod.size_at_origin);
+  for (size_t b = 0; b < n; b += size_t(kParallelWalk)) {
+    const int m = int(std::min(size_t(kParallelWalk), n - b));
+    parallel_rays(world.frame, rays + b, m, &tile);
+    for (int col0 = 0; col0 < tile.cols; col0 += lanes)
+      kernel(nodes, tile, col0, coef, bias, true, &out);
+    for (int i = 0; i < m; ++i)
+      occluded[b + size_t(i)] = out.hit[i / kTileCols][i % kTileCols] >= 0;
+  }
 }
 
 }  // namespace voxcast::detail

@@ -37,7 +37,38 @@
 namespace voxcast::detail {
 namespace {
 
-template <class P, int N>
+/// Rays in vector rows: the tile (row r = pixel row r, lane l = column
+/// col0 + l) or, below a node that holds no more than N of them, those
+/// rays packed into row 0 (id = the pixel, row * kTileCols + column).
+template <int N>
+struct TileRaySet {
+  using L = Lanes<N>;
+  using F = typename L::F;
+  using I = typename L::I;
+  F cx[kTileRows], cy[kTileRows], cz[kTileRows];
+  F nbx[kTileRows], nby[kTileRows], nbz[kTileRows];
+  F dx[kTileRows], dy[kTileRows], dz[kTileRows];
+  I mirror_x[kTileRows], mirror_y[kTileRows], mirror_z[kTileRows];
+  I id[kTileRows];
+  uint32_t active[kTileRows];  // rays without a hit yet
+  // The span [t_min, t_max] of each ray in the current node at each scale
+  // (the root's at kOctreeMaxScale), as cast_octree carries it down.
+  // Without contours a ray's span in any cube it is placed in is the
+  // root's clipped to the cube's planes (core/octree_caster.hpp "Why a
+  // start region gives bit-identical hits"), so only the root's row
+  // (kOctreeMaxScale) is kept: span_level().
+  F span_lo[kOctreeMaxScale + 1][kTileRows], span_hi[kOctreeMaxScale + 1][kTileRows];
+  bool packed;
+};
+
+/// The walk's ray sets (~60 KB each with 16 lanes): per thread, not on the
+/// stack; shared by the first-hit and any-hit walks.
+template <int N>
+struct TileStorage {
+  TileRaySet<N> tile, packed;
+};
+
+template <class P, int N, bool kAnyHit>
 class TileWalk {
   using L = Lanes<N>;
   using F = typename L::F;
@@ -47,25 +78,7 @@ class TileWalk {
   static constexpr bool kIndexed = !std::is_same_v<Index, NoIndex>;
   static_assert(!P::kResidency, "the tile caster walks in-core trees");
 
-  /// Rays in vector rows: the tile (row r = pixel row r, lane l = column
-  /// col0 + l) or, below a node that holds no more than N of them, those
-  /// rays packed into row 0 (id = the pixel, row * kTileCols + column).
-  struct RaySet {
-    F cx[kTileRows], cy[kTileRows], cz[kTileRows];
-    F nbx[kTileRows], nby[kTileRows], nbz[kTileRows];
-    F dx[kTileRows], dy[kTileRows], dz[kTileRows];
-    I mirror_x[kTileRows], mirror_y[kTileRows], mirror_z[kTileRows];
-    I id[kTileRows];
-    uint32_t active[kTileRows];  // rays without a hit yet
-    // The span [t_min, t_max] of each ray in the current node at each scale
-    // (the root's at kOctreeMaxScale), as cast_octree carries it down.
-    // Without contours a ray's span in any cube it is placed in is the
-    // root's clipped to the cube's planes (core/octree_caster.hpp "Why a
-    // start region gives bit-identical hits"), so only the root's row
-    // (kOctreeMaxScale) is kept: span_level().
-    F span_lo[kOctreeMaxScale + 1][kTileRows], span_hi[kOctreeMaxScale + 1][kTileRows];
-    bool packed;
-  };
+  using RaySet = TileRaySet<N>;
 
   /// Row 0 of a packed set in registers, and a child's span on it:
   /// tau = max(span start, entry planes), tc_max = min(exit planes), each
@@ -102,11 +115,7 @@ class TileWalk {
   };
 
  public:
-  /// The walk's ray sets (~60 KB each with 16 lanes): per thread, not on
-  /// the stack.
-  struct Storage {
-    RaySet tile, packed;
-  };
+  using Storage = TileStorage<N>;
 
   TileWalk(const P& nodes, const TileRays& rays, int col0, float size_coef, float size_bias,
            TileOut* out, Storage* storage)
@@ -224,6 +233,19 @@ class TileWalk {
   /// hit on child c of `node` at t: *rec is the TileHit of that cube and stop.
   void record(RaySet& rs, int r, uint32_t k, F t, uint32_t node, const Desc& desc, int c, int s,
               const float* clo, CastStop stop, const Index& index, int32_t* rec) {
+    if constexpr (kAnyHit) {
+      // Occlusion: only that the ray stops somewhere (any stop it is placed
+      // in answers, core/octree_tile_caster.hpp "Parallel rays").
+      (void)t, (void)node, (void)desc, (void)c, (void)s, (void)clo, (void)stop, (void)index;
+      (void)rec;
+      for (uint32_t b = k; b != 0; b &= b - 1) {
+        const int id = rs.id[r][std::countr_zero(b)], row = id / kTileCols, col = id % kTileCols;
+        out_->hit[row][col] = 0;
+        tile_.active[row] &= ~(1u << (col - col0_));
+      }
+      if (rs.packed) rs.active[r] &= ~k;
+      return;
+    }
     if (*rec < 0) {
       TileHit h;
       h.node = node, h.child = int8_t(c), h.scale = int8_t(s), h.stop = uint8_t(stop);
@@ -553,18 +575,21 @@ class TileWalk {
 
 template <class P, int N>
 void tile_kernel(const P& nodes, const TileRays& rays, int col0, float size_coef, float size_bias,
-                 TileOut* out) {
-  thread_local typename TileWalk<P, N>::Storage storage;
-  TileWalk<P, N> walk(nodes, rays, col0, size_coef, size_bias, out, &storage);
-  walk.run();
+                 bool any_hit, TileOut* out) {
+  thread_local TileStorage<N> storage;
+  if (any_hit) {
+    TileWalk<P, N, true>(nodes, rays, col0, size_coef, size_bias, out, &storage).run();
+  } else {
+    TileWalk<P, N, false>(nodes, rays, col0, size_coef, size_bias, out, &storage).run();
+  }
 }
 
 }  // namespace
 
-#define VOXCAST_DEFINE_TILE_KERNEL(name, isa, Nodes, N)                             \
-  void name##_tile_kernel_##isa(const Nodes& nodes, const TileRays& rays, int col0, \
-                                float size_coef, float size_bias, TileOut* out) {   \
-    tile_kernel<Nodes, N>(nodes, rays, col0, size_coef, size_bias, out);            \
+#define VOXCAST_DEFINE_TILE_KERNEL(name, isa, Nodes, N)                                         \
+  void name##_tile_kernel_##isa(const Nodes& nodes, const TileRays& rays, int col0,             \
+                                float size_coef, float size_bias, bool any_hit, TileOut* out) { \
+    tile_kernel<Nodes, N>(nodes, rays, col0, size_coef, size_bias, any_hit, out);               \
   }
 
 }  // namespace voxcast::detail

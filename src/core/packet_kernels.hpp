@@ -18,25 +18,25 @@ inline constexpr PacketKernels<P> kPacketKernels{};
 template <class P>
 inline constexpr TileKernels<P> kTileKernels{};
 
-#define VOXCAST_PACKET_KERNELS(name, Nodes)                                                   \
-  void name##_packet_kernel_avx2(const Nodes& nodes, const PacketQueue& q, float size_coef,   \
-                                 float size_bias, PacketOut* out);                            \
-  void name##_packet_kernel_avx512(const Nodes& nodes, const PacketQueue& q, float size_coef, \
-                                   float size_bias, PacketOut* out);                          \
-  void name##_anyhit_kernel_avx2(const Nodes& nodes, const PacketQueue& q, float size_coef,   \
-                                 float size_bias, uint8_t* hit);                              \
-  void name##_anyhit_kernel_avx512(const Nodes& nodes, const PacketQueue& q, float size_coef, \
-                                   float size_bias, uint8_t* hit);                            \
-  void name##_tile_kernel_avx2(const Nodes& nodes, const TileRays& rays, int col0,            \
-                               float size_coef, float size_bias, TileOut* out);               \
-  void name##_tile_kernel_avx512(const Nodes& nodes, const TileRays& rays, int col0,          \
-                                 float size_coef, float size_bias, TileOut* out);             \
-  template <>                                                                                 \
-  inline constexpr TileKernels<Nodes> kTileKernels<Nodes>{&name##_tile_kernel_avx2,           \
-                                                          &name##_tile_kernel_avx512};        \
-  template <>                                                                                 \
-  inline constexpr PacketKernels<Nodes> kPacketKernels<Nodes>{                                \
-      &name##_packet_kernel_avx2, &name##_packet_kernel_avx512, &name##_anyhit_kernel_avx2,   \
+#define VOXCAST_PACKET_KERNELS(name, Nodes)                                                     \
+  void name##_packet_kernel_avx2(const Nodes& nodes, const PacketQueue& q, float size_coef,     \
+                                 float size_bias, PacketOut* out);                              \
+  void name##_packet_kernel_avx512(const Nodes& nodes, const PacketQueue& q, float size_coef,   \
+                                   float size_bias, PacketOut* out);                            \
+  void name##_anyhit_kernel_avx2(const Nodes& nodes, const PacketQueue& q, float size_coef,     \
+                                 float size_bias, uint8_t* hit);                                \
+  void name##_anyhit_kernel_avx512(const Nodes& nodes, const PacketQueue& q, float size_coef,   \
+                                   float size_bias, uint8_t* hit);                              \
+  void name##_tile_kernel_avx2(const Nodes& nodes, const TileRays& rays, int col0,              \
+                               float size_coef, float size_bias, bool any_hit, TileOut* out);   \
+  void name##_tile_kernel_avx512(const Nodes& nodes, const TileRays& rays, int col0,            \
+                                 float size_coef, float size_bias, bool any_hit, TileOut* out); \
+  template <>                                                                                   \
+  inline constexpr TileKernels<Nodes> kTileKernels<Nodes>{&name##_tile_kernel_avx2,             \
+                                                          &name##_tile_kernel_avx512};          \
+  template <>                                                                                   \
+  inline constexpr PacketKernels<Nodes> kPacketKernels<Nodes>{                                  \
+      &name##_packet_kernel_avx2, &name##_packet_kernel_avx512, &name##_anyhit_kernel_avx2,     \
       &name##_anyhit_kernel_avx512};
 VOXCAST_PACKET_KERNELS(esvo, EsvoNodes)
 VOXCAST_PACKET_KERNELS(dag, DagNodes)
