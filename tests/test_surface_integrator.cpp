@@ -26,6 +26,8 @@
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_structure.hpp"
 #include "voxcast/mesh.hpp"
+#include "voxcast/occlusion_packets.hpp"
+#include "voxcast/packet_caster.hpp"
 #include "voxcast/render.hpp"
 #include "voxcast/surface_integrator.hpp"
 #include "voxcast/voxelize.hpp"
@@ -266,6 +268,13 @@ class CountingQuery final : public Structure, public SurfaceQuery, public Surfac
                       const BeamStart* beam) const override {
     return q_.transmittance(ray, lod, ctx, beam);
   }
+  void transmittance_batch(const Ray* rays, size_t n, const LodFootprint& lod, TraceContext& ctx,
+                           float* out, int group, const Vec3* normals) const override {
+    uint64_t was = largest_batch.load();
+    while (n > was && !largest_batch.compare_exchange_weak(was, n)) {
+    }
+    q_.transmittance_batch(rays, n, lod, ctx, out, group, normals);
+  }
   void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
                   Vec3* normal) const override {
     q_.attributes(hit, ctx, color, normal);
@@ -291,6 +300,7 @@ class CountingQuery final : public Structure, public SurfaceQuery, public Surfac
     return tiled;
   }
   mutable std::atomic<uint64_t> scalar_rays{0}, packet_rays{0}, tile_rays{0};
+  mutable std::atomic<uint64_t> largest_batch{0};  // of transmittance_batch
 
  private:
   const Structure& s_;
@@ -393,6 +403,57 @@ TEST_P(SurfaceIntegratorPackets, ImagesByteIdenticalToScalar) {
         EXPECT_TRUE(same_bytes(tiled.color, ref.color));
         EXPECT_TRUE(same_bytes(tiled.depth, ref.depth));
         EXPECT_TRUE(same_bytes(tiled.normal, ref.normal));
+      }
+    }
+  }
+}
+
+// Hard shadows (directional and point light) and AO through the tile and
+// packet casters against one ray at a time (scalar caster, effects packets
+// off): every AOV byte for byte; with a directional light the tile's shadow
+// rays reach the structure as one batch of more than kParallelRun rays, the
+// runs its parallel walks take (voxcast/occlusion_packets.hpp).
+TEST(SurfaceIntegratorPackets, EffectsByteIdenticalToOneRayAtATime) {
+  const PacketScenes& s = packet_scenes();
+  RenderOptions o;
+  o.width = 70, o.height = 46;
+  o.tile_size = 16;
+  o.lod_pixels = 1.f;
+  o.want_depth = o.want_normal = true;
+  o.camera = Camera::orbit(s.bounds, o.width, o.height, 30.f, -20.f);
+  o.effects.shadows = ShadowMode::Hard;
+  o.effects.ao_rays = 4;
+  const std::pair<const char*, const Structure*> structures[] = {
+      {"esvo raw", s.raw.get()}, {"esvo contours", s.contours.get()}, {"dag", s.dag.get()}};
+  for (const LightKind light : {LightKind::Directional, LightKind::Point}) {
+    o.effects.light = light;
+    o.effects.light_position = s.bounds.center() + s.bounds.extent() * 1.2f;
+    for (const auto& [name, st] : structures) {
+      SCOPED_TRACE(std::string(name) + (light == LightKind::Point ? " point" : " directional"));
+      RenderOptions one = o;
+      one.caster = Caster::Scalar;
+      one.effects.packets = false;
+      const RenderResult ref = render(*st, one);
+      size_t shadowed = 0;
+      for (float v : ref.shadow.pixels) shadowed += v == 0.f;
+      ASSERT_GT(shadowed, 20u) << "the view shows too little shadow";
+      for (const Caster caster : {Caster::Packet, Caster::Tile}) {
+        for (const Isa isa : isas()) {
+          SCOPED_TRACE(std::string(caster_name(caster)) + " " + isa_name(isa));
+          RenderOptions p = o;
+          p.caster = caster;
+          p.isa = isa;
+          const CountingQuery q(*st);
+          const RenderResult got = render(q, p);
+          EXPECT_TRUE(same_bytes(got.color, ref.color));
+          EXPECT_TRUE(same_bytes(got.depth, ref.depth));
+          EXPECT_TRUE(same_bytes(got.shadow, ref.shadow));
+          EXPECT_TRUE(same_bytes(got.ao, ref.ao));
+          EXPECT_EQ(got.effect_counters.shadow_rays, ref.effect_counters.shadow_rays);
+          if (light == LightKind::Directional) {
+            EXPECT_GT(q.largest_batch.load(), uint64_t(kParallelRun));
+          }
+        }
       }
     }
   }

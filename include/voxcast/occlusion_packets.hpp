@@ -66,7 +66,9 @@ struct AnyHitOptions {
 };
 
 /// The shortest run of parallel rays AnyHitOptions::parallel walks together.
-inline constexpr size_t kParallelRun = 16;
+/// Shorter runs take the lane kernel: a walk of 16 rays measured 0.83x the
+/// lanes (docs/BENCHMARKS.md "Parallel walks for shadow rays").
+inline constexpr size_t kParallelRun = 64;
 
 /// What the deep start and the cull did, summed over calls.
 struct AnyHitStats {

@@ -240,7 +240,7 @@ void shadow_visibility_batch(const Occluder& occ, TraceContext& ctx, const Shadi
   }
   // shadow_visibility's one ray per point, all traced in one batch: the
   // batch's answers are the single rays' (Occluder::transmittance_batch).
-  constexpr int kMax = 64;
+  constexpr int kMax = 256;  // a tile's (render/surface_integrator.cpp kShadowGroup)
   Ray rays[kMax];
   int slot[kMax];
   float vis[kMax];

@@ -89,39 +89,29 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
   // directional light), then per hit the AO rays, then the group's
   // Blinn-Phong runs in vector lanes (render/shade_kernel.hpp), and the
   // AOVs are written.
+  //
+  // With hard shadows the tile and packet paths hand groups of up to
+  // kShadowGroup hits (the tile's, in traced order): their shadow rays, all
+  // parallel under a directional light, are then one batch that the octree
+  // structures trace by shared walks (voxcast/occlusion_packets.hpp
+  // AnyHitOptions::parallel); the Blinn-Phong still runs kShadeLanes at a time.
   const detail::ShadeKernel phong = detail::shade_kernel(isa_);
   detail::ShadeBatch sb{};
-  Color group_c[detail::kShadeLanes];
-  Vec3 group_n[detail::kShadeLanes];
-  ShadingPoint group_point[detail::kShadeLanes];
-  uint32_t group_seed[detail::kShadeLanes];
-  float group_vis[detail::kShadeLanes];
-  auto shade_group = [&](const SurfaceHit* const* hits, const int* xs, const int* ys,
-                         const Vec3* dirs, int m) {
-    for (int i = 0; i < m; ++i) q.prefetch_attributes(*hits[i]);
-    for (int i = 0; i < m; ++i) {
-      const SurfaceHit& hit = *hits[i];
-      q.attributes(hit, ctx, &group_c[i], &group_n[i]);  // counts its bytes while collecting
-      // Voxel normals are averages over the surface inside the voxel and may
-      // face away from the viewer; shade the side we see.
-      if (dot(group_n[i], dirs[i]) > 0.f) group_n[i] = -group_n[i];
-      group_point[i] = ShadingPoint{hit.position, group_n[i], dirs[i], hit.voxel_size};
-      group_seed[i] = pixel_seed(xs[i], ys[i], fx.seed);
-    }
-    if (effects && fx.shadows != ShadowMode::None) {
-      // The Table 6 counters describe primary rays; secondary rays are
-      // counted by EffectCounters.
-      const bool counting = ctx.counting;
-      ctx.counting = false;
-      shadow_visibility_batch(occluder, ctx, group_point, m, fx, options_.light_dir, group_seed,
-                              &ts.effects, group_vis);
-      ctx.counting = counting;
-    }
+  constexpr int kShadowGroup = 256;
+  thread_local Color group_c[kShadowGroup];
+  thread_local Vec3 group_n[kShadowGroup];
+  thread_local ShadingPoint group_point[kShadowGroup];
+  thread_local uint32_t group_seed[kShadowGroup];
+  thread_local float group_vis[kShadowGroup];
+  // Shades hits [g, g + m) of the group (m <= kShadeLanes; hits, xs, ys and
+  // dirs start at hit g): AO, Blinn-Phong in vector lanes, the AOVs.
+  auto shade_lanes = [&](const SurfaceHit* const* hits, const int* xs, const int* ys,
+                         const Vec3* dirs, int g, int m) {
     for (int i = 0; i < m; ++i) {
       const SurfaceHit& hit = *hits[i];
       const int x = xs[i], y = ys[i];
       const Vec3 dir = dirs[i];
-      const Vec3 n = group_n[i];
+      const Vec3 n = group_n[g + i];
       Vec3 light = to_light;
       float visibility = 1.f, ao = 1.f;
       if (fx.light != LightKind::Directional) {
@@ -131,13 +121,13 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
       if (effects) {
         const bool counting = ctx.counting;
         ctx.counting = false;
-        if (fx.shadows != ShadowMode::None) *film.shadow.at(x, y) = visibility = group_vis[i];
+        if (fx.shadows != ShadowMode::None) *film.shadow.at(x, y) = visibility = group_vis[g + i];
         if (fx.ao_rays > 0)
-          *film.ao.at(x, y) = ao = ambient_occlusion(occluder, ctx, group_point[i], fx,
-                                                     fx.ao_radius, group_seed[i], &ts.effects);
+          *film.ao.at(x, y) = ao = ambient_occlusion(occluder, ctx, group_point[g + i], fx,
+                                                     fx.ao_radius, group_seed[g + i], &ts.effects);
         ctx.counting = counting;
       }
-      const Color c = group_c[i];
+      const Color c = group_c[g + i];
       sb.cr[i] = c.r, sb.cg[i] = c.g, sb.cb[i] = c.b;
       sb.nx[i] = n.x, sb.ny[i] = n.y, sb.nz[i] = n.z;
       sb.dx[i] = dir.x, sb.dy[i] = dir.y, sb.dz[i] = dir.z;
@@ -165,6 +155,35 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
         float* o = film.normal.at(x, y);
         o[0] = sb.nx[i] * 0.5f + 0.5f, o[1] = sb.ny[i] * 0.5f + 0.5f, o[2] = sb.nz[i] * 0.5f + 0.5f;
       }
+    }
+  };
+  auto shade_group = [&](const SurfaceHit* const* hits, const int* xs, const int* ys,
+                         const Vec3* dirs, int m) {
+    // Attribute reads prefetched kShadeLanes ahead (all of a small group).
+    constexpr int kAhead = detail::kShadeLanes;
+    for (int i = 0; i < m && i < kAhead; ++i) q.prefetch_attributes(*hits[i]);
+    for (int i = 0; i < m; ++i) {
+      if (i + kAhead < m) q.prefetch_attributes(*hits[i + kAhead]);
+      const SurfaceHit& hit = *hits[i];
+      q.attributes(hit, ctx, &group_c[i], &group_n[i]);  // counts its bytes while collecting
+      // Voxel normals are averages over the surface inside the voxel and may
+      // face away from the viewer; shade the side we see.
+      if (dot(group_n[i], dirs[i]) > 0.f) group_n[i] = -group_n[i];
+      group_point[i] = ShadingPoint{hit.position, group_n[i], dirs[i], hit.voxel_size};
+      group_seed[i] = pixel_seed(xs[i], ys[i], fx.seed);
+    }
+    if (effects && fx.shadows != ShadowMode::None) {
+      // The Table 6 counters describe primary rays; secondary rays are
+      // counted by EffectCounters.
+      const bool counting = ctx.counting;
+      ctx.counting = false;
+      shadow_visibility_batch(occluder, ctx, group_point, m, fx, options_.light_dir, group_seed,
+                              &ts.effects, group_vis);
+      ctx.counting = counting;
+    }
+    for (int g = 0; g < m; g += detail::kShadeLanes) {
+      const int lanes = std::min(detail::kShadeLanes, m - g);
+      shade_lanes(hits + g, xs + g, ys + g, dirs + g, g, lanes);
     }
   };
   // Scalar path: the hits of kShadeLanes rays in a row.
@@ -248,16 +267,19 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
     ts.empty_tile = tile_start.valid && tile_start.empty;
   }
   // The hits of a tile or packet call in groups of kShadeLanes, in the
-  // order traced (a 4x4 block is one group where all its rays hit).
-  const SurfaceHit* group_hit[detail::kShadeLanes];
-  Vec3 group_dir[detail::kShadeLanes];
-  int group_x[detail::kShadeLanes], group_y[detail::kShadeLanes];
+  // order traced (a 4x4 block is one group where all its rays hit); of
+  // kShadowGroup with hard shadows (above).
+  const int group_size =
+      effects && fx.shadows == ShadowMode::Hard ? kShadowGroup : detail::kShadeLanes;
+  thread_local const SurfaceHit* group_hit[kShadowGroup];
+  thread_local Vec3 group_dir[kShadowGroup];
+  thread_local int group_x[kShadowGroup], group_y[kShadowGroup];
   int group_m = 0;
   auto add_hit = [&](const SurfaceHit* hit, Vec3 dir, int x, int y) {
     ++ts.hits;
     group_hit[group_m] = hit, group_dir[group_m] = dir;
     group_x[group_m] = x, group_y[group_m] = y;
-    if (++group_m == detail::kShadeLanes)
+    if (++group_m == group_size)
       shade_group(group_hit, group_x, group_y, group_dir, group_m), group_m = 0;
   };
   auto flush_hits = [&] {
