@@ -356,13 +356,14 @@ Timed occluded_all_packets(const SurfacePackets& s, const std::vector<Ray>& rays
 // from the root).
 constexpr DeepStart kBenchDeepStart = DeepStart::Packet;
 
-// The any-hit packets with the deep start: each chunk as one call.
-Timed occluded_all_anyhit(const AnyHitCaster& s, const std::vector<Ray>& rays,
+// The any-hit packets' lane kernel (the packet rows have the parallel walks)
+// with the rays started at `start`: each chunk as one call.
+Timed occluded_all_anyhit(const AnyHitCaster& s, const std::vector<Ray>& rays, DeepStart start,
                           std::vector<uint8_t>* occ) {
   return occluded_frame(rays, occ, [&](size_t b, size_t e, uint8_t* o) {
     AnyHitOptions opt;
-    opt.deep_start = kBenchDeepStart;
-    opt.parallel = false;  // the lane kernel: the packet rows have the parallel walks
+    opt.deep_start = start;
+    opt.parallel = false;
     s(rays.data() + b, e - b, o + b, opt, nullptr);
   });
 }
@@ -1279,10 +1280,23 @@ Runner add_bench(CLI::App& app) {
                             any_how + ", deep start, lanes only",
                             false,
                             [&, anyhit, i = rows.size()] {
-                              return occluded_all_anyhit(anyhit, rs, &rows[i].answers);
+                              return occluded_all_anyhit(anyhit, rs, kBenchDeepStart,
+                                                         &rows[i].answers);
                             },
                             {},
                             {}});
+            if (kind == 0) {  // the packet rows' rays without the parallel walks
+              anyhit_rows.push_back({rows.size(), k});
+              rows.push_back({structures[k].caster + " lanes",
+                              any_how + ", root start, lanes only",
+                              false,
+                              [&, anyhit, i = rows.size()] {
+                                return occluded_all_anyhit(anyhit, rs, DeepStart::Off,
+                                                           &rows[i].answers);
+                              },
+                              {},
+                              {}});
+            }
             if (!ao_groups) continue;
             for (const int variant : {0, 1, 2}) {
               static const char* const names[] = {" ao point", " ao deep", " ao deep+cull"};
