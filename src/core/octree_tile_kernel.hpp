@@ -125,6 +125,7 @@ class TileWalk {
         size_coef_(L::template splat<F>(size_coef)),
         size_bias_(L::template splat<F>(size_bias)),
         contours_(may_narrow_spans(nodes)),
+        lod_possible_(size_coef > 0.f || size_bias > 0.f),
         out_(out),
         tile_(storage->tile),
         packed_(storage->packed) {}
@@ -458,7 +459,7 @@ class TileWalk {
       uint32_t live_rows = 0;
       for (uint32_t b = rows; b != 0; b &= b - 1) {
         const int r = std::countr_zero(b);
-        if ((mask[r] & rs.active[r]) != 0) live_rows |= 1u << r;
+        live_rows |= uint32_t((mask[r] & rs.active[r]) != 0) << r;
       }
       rows = live_rows;
       if (rows == 0) return;
@@ -476,6 +477,20 @@ class TileWalk {
               out_uy = L::template splat<F>(clo[1]);
       const F out_mz = L::template splat<F>(3.f - clo[2] - hs),
               out_uz = L::template splat<F>(clo[2]);
+      // Row r's span in the child: tau = max(span start, entry planes),
+      // tc_max = min(exit planes), t_out = the exit planes' t per axis.
+      auto row_span = [&](int r, F* tau, F* tc_max, F* t_out) {
+        const F cx = rs.cx[r], cy = rs.cy[r], cz = rs.cz[r];
+        const F nbx = rs.nbx[r], nby = rs.nby[r], nbz = rs.nbz[r];
+        const F tx_in = L::fma(rs.mirror_x[r] ? in_mx : in_ux, cx, nbx);
+        const F ty_in = L::fma(rs.mirror_y[r] ? in_my : in_uy, cy, nby);
+        const F tz_in = L::fma(rs.mirror_z[r] ? in_mz : in_uz, cz, nbz);
+        t_out[0] = L::fma(rs.mirror_x[r] ? out_mx : out_ux, cx, nbx);
+        t_out[1] = L::fma(rs.mirror_y[r] ? out_my : out_uy, cy, nby);
+        t_out[2] = L::fma(rs.mirror_z[r] ? out_mz : out_uz, cz, nbz);
+        *tc_max = L::min(L::min(t_out[0], t_out[1]), t_out[2]);
+        *tau = L::max(parent_lo[r], L::max(L::max(tx_in, ty_in), tz_in));
+      };
       // A big node's rows: skip those its child cannot reach.
       uint32_t test_rows = rows, test_lanes = L::kAll;
       if (!rs.packed && rays_.perspective && (!contours_ || std::popcount(rows) > 2)) {
@@ -510,21 +525,53 @@ class TileWalk {
       }
       uint32_t child_rows = 0;
       int32_t rec_lod = -1, rec_leaf = -1;
+      if (!contours_) {
+        // Without contours (spans are the root's: span_level): every row's test first, with no
+        // branch per row (which rays a child keeps is data the branch predictor cannot learn), then
+        // the rows with stops, then one descent: the same placements, records in the same order as
+        // the loop below.
+        uint32_t stop_rows = 0, lod_mask[kTileRows], stop_mask[kTileRows];
+        for (uint32_t b = test_rows; b != 0; b &= b - 1) {
+          const int r = std::countr_zero(b);
+          const uint32_t k = mask[r] & rs.active[r] & test_lanes;
+          F tau, tc_max, t_out[3];
+          row_span(r, &tau, &tc_max, t_out);
+          const uint32_t placed = k & L::bits((tau < tc_max) & (tau <= parent_hi[r]));
+          const uint32_t lod =
+              lod_possible_ ? placed & L::bits(tc_max * size_coef_ + size_bias_ >= side) : 0u;
+          lod_mask[r] = lod;
+          stop_mask[r] = leaf ? placed : lod;
+          child_mask[r] = leaf ? 0u : placed & ~lod;
+          stop_rows |= uint32_t(stop_mask[r] != 0) << r;
+          child_rows |= uint32_t(child_mask[r] != 0) << r;
+        }
+        for (uint32_t b = stop_rows; b != 0; b &= b - 1) {
+          const int r = std::countr_zero(b);
+          F tau{};
+          if constexpr (!kAnyHit) {  // the hit's t, as the test above computed it
+            F tc_max, t_out[3];
+            row_span(r, &tau, &tc_max, t_out);
+          }
+          if (lod_mask[r] != 0)
+            record(rs, r, lod_mask[r], tau, node, desc, c, s, clo, CastStop::kLod, index, &rec_lod);
+          const uint32_t leaves = stop_mask[r] & ~lod_mask[r];
+          if (leaves != 0)
+            record(rs, r, leaves, tau, node, desc, c, s, clo, CastStop::kLeaf, index, &rec_leaf);
+        }
+        if (child_rows != 0) {
+          Index child_index = index;
+          const uint32_t child = nodes_.descend(desc, node, c, s, child_index, cnt_);
+          visit(rs, child, s - 1, clo, child_rows, child_mask, child_index);
+        }
+        continue;
+      }
       for (uint32_t b = test_rows; b != 0; b &= b - 1) {
         const int r = std::countr_zero(b);
         const uint32_t k = mask[r] & rs.active[r] & test_lanes;
         if (k == 0) continue;
-        const F cx = rs.cx[r], cy = rs.cy[r], cz = rs.cz[r];
-        const F nbx = rs.nbx[r], nby = rs.nby[r], nbz = rs.nbz[r];
-        const F tx_in = L::fma(rs.mirror_x[r] ? in_mx : in_ux, cx, nbx);
-        const F ty_in = L::fma(rs.mirror_y[r] ? in_my : in_uy, cy, nby);
-        const F tz_in = L::fma(rs.mirror_z[r] ? in_mz : in_uz, cz, nbz);
-        const F tx_out = L::fma(rs.mirror_x[r] ? out_mx : out_ux, cx, nbx);
-        const F ty_out = L::fma(rs.mirror_y[r] ? out_my : out_uy, cy, nby);
-        const F tz_out = L::fma(rs.mirror_z[r] ? out_mz : out_uz, cz, nbz);
-        const F tc_max = L::min(L::min(tx_out, ty_out), tz_out);
+        F tau, tc_max, t_out[3];
+        row_span(r, &tau, &tc_max, t_out);
         const F t_max = parent_hi[r];
-        const F tau = L::max(parent_lo[r], L::max(L::max(tx_in, ty_in), tz_in));
         const uint32_t placed = k & L::bits((tau < tc_max) & (tau <= t_max));
         if (placed == 0) continue;
         // LOD termination (cast_octree): before the cube's own contour.
@@ -535,12 +582,13 @@ class TileWalk {
         if (rest == 0) continue;
         F t_min = tau, tv_max = L::min(t_max, tc_max);
         if (contoured) {
+          const F cx = rs.cx[r], cy = rs.cy[r], cz = rs.cz[r];
           const F dx = rs.dx[r], dy = rs.dy[r], dz = rs.dz[r];
           for (uint32_t q = rest; q != 0; q &= q - 1) {
             const int l = std::countr_zero(q);
             float a = t_min[l], e = tv_max[l];
-            contour_span(contour, {cx[l], cy[l], cz[l]}, {dx[l], dy[l], dz[l]}, tx_out[l],
-                         ty_out[l], tz_out[l], hs, &a, &e);
+            contour_span(contour, {cx[l], cy[l], cz[l]}, {dx[l], dy[l], dz[l]}, t_out[0][l],
+                         t_out[1][l], t_out[2][l], hs, &a, &e);
             t_min[l] = a, tv_max[l] = e;
           }
           rest &= L::bits(t_min <= tv_max);
@@ -567,6 +615,9 @@ class TileWalk {
   const int col0_;
   const F size_coef_, size_bias_;
   const bool contours_;
+  // Whether any cube may be a LOD stop (LodFootprint{}, LOD 0: none; the
+  // test is side <= exit t * coef + bias with side > 0).
+  const bool lod_possible_;
   TileOut* out_;
   NoCounters cnt_;
   RaySet& tile_;
