@@ -68,7 +68,8 @@ namespace voxcast::detail {
 inline constexpr int kTileRows = 16;
 inline constexpr int kTileCols = 16;
 
-/// The rays of one tile in octree space, one row of the tile per array row.
+/// The rays of one tile in octree space, one row of the tile per array row
+/// (or up to 256 rays of one direction, 16 a row: parallel_rays() below).
 /// Every value is the one cast_octree computes for the ray (MirroredRay,
 /// enter_root).
 struct alignas(64) TileRays {
@@ -211,10 +212,6 @@ void structure_trace_tile(const World& world, Isa isa, const TileKernels<P>& ker
         }
     }
 }
-
-}  // namespace voxcast::detail
-
-namespace voxcast::detail {
 
 // Parallel rays (issue 10 item 5: the shadow rays of a directional light).
 // Rays that share one direction meet the children of every node in the order

@@ -82,9 +82,9 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
 
   // Hits are shaded in groups of up to kShadeLanes: first every hit's
   // attributes are fetched (mostly cache misses: the values live far from
-  // the descriptors; prefetched for the whole group and then read back to
-  // back, they overlap in the memory system instead of stalling one hit at
-  // a time), then the group's shadow rays are
+  // the descriptors; prefetched kShadeLanes hits ahead of the reads, they
+  // overlap in the memory system instead of stalling one hit at a time),
+  // then the group's shadow rays are
   // traced together (effects.hpp: one packet of parallel rays under a
   // directional light), then per hit the AO rays, then the group's
   // Blinn-Phong runs in vector lanes (render/shade_kernel.hpp), and the
