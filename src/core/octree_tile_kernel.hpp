@@ -125,7 +125,7 @@ class TileWalk {
         size_coef_(L::template splat<F>(size_coef)),
         size_bias_(L::template splat<F>(size_bias)),
         contours_(may_narrow_spans(nodes)),
-        lod_possible_(size_coef > 0.f || size_bias > 0.f),
+        lod_possible_(!(size_coef == 0.f && size_bias <= 0.f)),
         out_(out),
         tile_(storage->tile),
         packed_(storage->packed) {}
@@ -434,11 +434,14 @@ class TileWalk {
         return L::fma(mirrored ? L::template splat<F>(3.f - l) : L::template splat<F>(l + s2), coef,
                       nb);
       };
-      const F entry =
-          L::max(parent_lo[0], L::max(L::max(in(rs.mirror_x[0], lo[0], rs.cx[0], rs.nbx[0]),
-                                             in(rs.mirror_y[0], lo[1], rs.cy[0], rs.nby[0])),
-                                      in(rs.mirror_z[0], lo[2], rs.cz[0], rs.nbz[0])));
-      bool stops = (k & ~L::bits(entry * size_coef_ + size_bias_ >= side)) == 0;
+      bool stops = false;
+      if (lod_possible_) {
+        const F entry =
+            L::max(parent_lo[0], L::max(L::max(in(rs.mirror_x[0], lo[0], rs.cx[0], rs.nbx[0]),
+                                               in(rs.mirror_y[0], lo[1], rs.cy[0], rs.nby[0])),
+                                        in(rs.mirror_z[0], lo[2], rs.cz[0], rs.nbz[0])));
+        stops = (k & ~L::bits(entry * size_coef_ + size_bias_ >= side)) == 0;
+      }
       if (!stops) {
         stops = true;
         for (uint32_t b = present; b != 0 && stops; b &= b - 1)
@@ -615,8 +618,9 @@ class TileWalk {
   const int col0_;
   const F size_coef_, size_bias_;
   const bool contours_;
-  // Whether any cube may be a LOD stop (LodFootprint{}, LOD 0: none; the
-  // test is side <= exit t * coef + bias with side > 0).
+  // False when no cube can be a LOD stop: a zero coefficient and a bias of
+  // at most 0 (LodFootprint{}, LOD 0), since the test is side <= exit t *
+  // coef + bias with side > 0; the LOD tests are then skipped.
   const bool lod_possible_;
   TileOut* out_;
   NoCounters cnt_;
