@@ -22,8 +22,13 @@
 //    (pack_rays()) and the subtree works on that one register;
 //  * a packed node whose children are all stops for its rays: bottom(),
 //    one branch-free pass; other packed nodes without contours:
-//    packed_children(), all children's tests first, then hits and descents.
-// docs/BENCHMARKS.md "Tile caster" measures each step.
+//    packed_children(), all children's tests first, then hits and descents;
+//  * an unpacked node without contours: a child's row tests all first with
+//    no branch per row, then the rows with stops, then one descent.
+// The any-hit flavour (kAnyHit: occlusion, the parallel walks of
+// core/octree_tile_caster.hpp "Parallel rays") only marks the rays that
+// stop. docs/BENCHMARKS.md "Tile caster" and "Parallel walks for shadow
+// rays" measure each step.
 #include <algorithm>
 #include <bit>
 #include <cmath>
