@@ -231,7 +231,8 @@ void structure_trace_tile(const World& world, Isa isa, const TileKernels<P>& ker
 inline constexpr int kParallelWalk = kTileRows * kTileCols;
 
 /// Fills *r with rays[0, n), n <= kParallelWalk, that share one direction
-/// (bitwise): ray i in row i / 16, column i % 16; a ray whose origin or
+/// (bitwise): ray i in row i / 16, column i % 16 (not p and u: only the
+/// first-hit epilogue reads them); a ray whose origin or
 /// direction is not finite, or that misses the root cube within its tmax, is
 /// not live (cast_octree answers it without a step).
 inline void parallel_rays(const OctreeFrame& frame, const Ray* rays, int n, TileRays* r) {
@@ -254,8 +255,6 @@ inline void parallel_rays(const OctreeFrame& frame, const Ray* rays, int n, Tile
       r->cx[j][i] = m.tx_coef, r->cy[j][i] = m.ty_coef, r->cz[j][i] = m.tz_coef;
       r->nbx[j][i] = -m.tx_bias, r->nby[j][i] = -m.ty_bias, r->nbz[j][i] = -m.tz_bias;
       r->dx[j][i] = dt.x, r->dy[j][i] = dt.y, r->dz[j][i] = dt.z;
-      r->px[j][i] = p.x, r->py[j][i] = p.y, r->pz[j][i] = p.z;
-      r->ux[j][i] = d.x, r->uy[j][i] = d.y, r->uz[j][i] = d.z;
       r->t_min[j][i] = ok ? e.t_min : 0.f, r->t_max[j][i] = ok ? e.t_max : -1.f;
       mx |= uint32_t(dt.x > 0.f) << i, my |= uint32_t(dt.y > 0.f) << i;
       mz |= uint32_t(dt.z > 0.f) << i, live |= uint32_t(ok) << i;

@@ -85,37 +85,52 @@ class TileWalk {
 
   using RaySet = TileRaySet<N>;
 
-  /// Row 0 of a packed set in registers, and a child's span on it:
-  /// tau = max(span start, entry planes), tc_max = min(exit planes), each
-  /// plane's t as MirroredRay computes it (mirrored cube [3 - x - hs, 3 - x]).
-  struct PackedRow {
-    PackedRow(const RaySet& rs, int level)
-        : cx(rs.cx[0]),
-          cy(rs.cy[0]),
-          cz(rs.cz[0]),
-          nbx(rs.nbx[0]),
-          nby(rs.nby[0]),
-          nbz(rs.nbz[0]),
-          mx(rs.mirror_x[0]),
-          my(rs.mirror_y[0]),
-          mz(rs.mirror_z[0]),
-          t_lo(rs.span_lo[level][0]),
-          t_max(rs.span_hi[level][0]) {}
-    void span(float x, float y, float z, float hs, F* tau, F* tc_max) const {
-      auto at = [](I mirrored, float m_value, float u_value) {
-        return mirrored ? L::template splat<F>(m_value) : L::template splat<F>(u_value);
-      };
-      const F tx_in = L::fma(at(mx, 3.f - x, x + hs), cx, nbx);
-      const F ty_in = L::fma(at(my, 3.f - y, y + hs), cy, nby);
-      const F tz_in = L::fma(at(mz, 3.f - z, z + hs), cz, nbz);
-      const F tx_out = L::fma(at(mx, 3.f - x - hs, x), cx, nbx);
-      const F ty_out = L::fma(at(my, 3.f - y - hs, y), cy, nby);
-      const F tz_out = L::fma(at(mz, 3.f - z - hs, z), cz, nbz);
-      *tc_max = L::min(L::min(tx_out, ty_out), tz_out);
-      *tau = L::max(t_lo, L::max(L::max(tx_in, ty_in), tz_in));
+  /// A child cube's entry and exit planes as MirroredRay sees them, per axis
+  /// for a lane whose ray is mirrored (m) or not (u): the mirrored cube of
+  /// [x, x + hs] is [3 - x - hs, 3 - x] (exact). span(): a row's tau =
+  /// max(span start, entry planes), tc_max = min(exit planes), and each
+  /// axis's exit-plane t (the contour slab's corner), each t as
+  /// MirroredRay::tx computes it.
+  struct ChildPlanes {
+    ChildPlanes(const float* clo, float hs) {
+      for (int a = 0; a < 3; ++a) {
+        in_m[a] = L::template splat<F>(3.f - clo[a]), in_u[a] = L::template splat<F>(clo[a] + hs);
+        out_m[a] = L::template splat<F>(3.f - clo[a] - hs), out_u[a] = L::template splat<F>(clo[a]);
+      }
     }
-    F cx, cy, cz, nbx, nby, nbz;
-    I mx, my, mz;
+    void span(const F* c, const F* nb, const I* mirrored, F t_lo, F* tau, F* tc_max,
+              F* t_out) const {
+      F t_in[3];
+      for (int a = 0; a < 3; ++a) {
+        t_in[a] = L::fma(mirrored[a] ? in_m[a] : in_u[a], c[a], nb[a]);
+        t_out[a] = L::fma(mirrored[a] ? out_m[a] : out_u[a], c[a], nb[a]);
+      }
+      *tc_max = L::min(L::min(t_out[0], t_out[1]), t_out[2]);
+      *tau = L::max(t_lo, L::max(L::max(t_in[0], t_in[1]), t_in[2]));
+    }
+    F in_m[3], in_u[3], out_m[3], out_u[3];
+  };
+
+  /// Row r of a ray set in registers (row 0 of a packed set) with its span
+  /// at `level`, and a child's span on it (ChildPlanes::span).
+  struct Row {
+    Row(const RaySet& rs, int level, int r)
+        : c{rs.cx[r], rs.cy[r], rs.cz[r]},
+          nb{rs.nbx[r], rs.nby[r], rs.nbz[r]},
+          mirrored{rs.mirror_x[r], rs.mirror_y[r], rs.mirror_z[r]},
+          t_lo(rs.span_lo[level][r]),
+          t_max(rs.span_hi[level][r]) {}
+    void span(const ChildPlanes& child, F* tau, F* tc_max, F* t_out) const {
+      child.span(c, nb, mirrored, t_lo, tau, tc_max, t_out);
+    }
+    /// The child of side hs at (x, y, z).
+    void span(float x, float y, float z, float hs, F* tau, F* tc_max) const {
+      const float clo[3] = {x, y, z};
+      F t_out[3];
+      span(ChildPlanes(clo, hs), tau, tc_max, t_out);
+    }
+    F c[3], nb[3];
+    I mirrored[3];
     F t_lo, t_max;
   };
 
@@ -313,7 +328,7 @@ class TileWalk {
               int flip, uint32_t present, const Index& index) {
     const float hs = scale_side(s);
     const F side = L::template splat<F>(hs);
-    const PackedRow row(rs, span_level(s + 1));
+    const Row row(rs, span_level(s + 1), 0);
     I open = from_bits(k);
     F hit_t = row.t_lo;
     I hit_c = L::template splat<I>(-1), hit_lod = L::template splat<I>(0);
@@ -351,7 +366,7 @@ class TileWalk {
                        uint32_t k, int flip, uint32_t present, const Index& index) {
     const float hs = scale_side(s);
     const F side = L::template splat<F>(hs);
-    const PackedRow row(rs, kOctreeMaxScale);
+    const Row row(rs, kOctreeMaxScale, 0);
     F tau[8];
     uint32_t placed[8], lod[8];
     int slot[8], n = 0;
@@ -434,17 +449,10 @@ class TileWalk {
       // of its children.)
       const uint32_t k = mask[0] & rs.active[0];
       if (k == 0) return;
-      const float s2 = hs + hs;  // the node's side
-      auto in = [&](const I& mirrored, float l, const F& coef, const F& nb) {
-        return L::fma(mirrored ? L::template splat<F>(3.f - l) : L::template splat<F>(l + s2), coef,
-                      nb);
-      };
       bool stops = false;
       if (lod_possible_) {
-        const F entry =
-            L::max(parent_lo[0], L::max(L::max(in(rs.mirror_x[0], lo[0], rs.cx[0], rs.nbx[0]),
-                                               in(rs.mirror_y[0], lo[1], rs.cy[0], rs.nby[0])),
-                                        in(rs.mirror_z[0], lo[2], rs.cz[0], rs.nbz[0])));
+        F entry, exit;  // the node's own span (side hs + hs)
+        Row(rs, span_level(s + 1), 0).span(lo[0], lo[1], lo[2], hs + hs, &entry, &exit);
         stops = (k & ~L::bits(entry * size_coef_ + size_bias_ >= side)) == 0;
       }
       if (!stops) {
@@ -474,30 +482,10 @@ class TileWalk {
 
       const float clo[3] = {lo[0] + ((c & 1) ? hs : 0.f), lo[1] + ((c & 2) ? hs : 0.f),
                             lo[2] + ((c & 4) ? hs : 0.f)};
-      // Entry and exit plane coordinates as MirroredRay sees them: the
-      // mirrored cube of [lo, lo + hs] is [3 - lo - hs, 3 - lo] (exact).
-      const F in_mx = L::template splat<F>(3.f - clo[0]), in_ux = L::template splat<F>(clo[0] + hs);
-      const F in_my = L::template splat<F>(3.f - clo[1]), in_uy = L::template splat<F>(clo[1] + hs);
-      const F in_mz = L::template splat<F>(3.f - clo[2]), in_uz = L::template splat<F>(clo[2] + hs);
-      const F out_mx = L::template splat<F>(3.f - clo[0] - hs),
-              out_ux = L::template splat<F>(clo[0]);
-      const F out_my = L::template splat<F>(3.f - clo[1] - hs),
-              out_uy = L::template splat<F>(clo[1]);
-      const F out_mz = L::template splat<F>(3.f - clo[2] - hs),
-              out_uz = L::template splat<F>(clo[2]);
-      // Row r's span in the child: tau = max(span start, entry planes),
-      // tc_max = min(exit planes), t_out = the exit planes' t per axis.
+      const ChildPlanes planes(clo, hs);
+      // Row r's span in the child (its span start is the node's).
       auto row_span = [&](int r, F* tau, F* tc_max, F* t_out) {
-        const F cx = rs.cx[r], cy = rs.cy[r], cz = rs.cz[r];
-        const F nbx = rs.nbx[r], nby = rs.nby[r], nbz = rs.nbz[r];
-        const F tx_in = L::fma(rs.mirror_x[r] ? in_mx : in_ux, cx, nbx);
-        const F ty_in = L::fma(rs.mirror_y[r] ? in_my : in_uy, cy, nby);
-        const F tz_in = L::fma(rs.mirror_z[r] ? in_mz : in_uz, cz, nbz);
-        t_out[0] = L::fma(rs.mirror_x[r] ? out_mx : out_ux, cx, nbx);
-        t_out[1] = L::fma(rs.mirror_y[r] ? out_my : out_uy, cy, nby);
-        t_out[2] = L::fma(rs.mirror_z[r] ? out_mz : out_uz, cz, nbz);
-        *tc_max = L::min(L::min(t_out[0], t_out[1]), t_out[2]);
-        *tau = L::max(parent_lo[r], L::max(L::max(tx_in, ty_in), tz_in));
+        Row(rs, span_level(s + 1), r).span(planes, tau, tc_max, t_out);
       };
       // A big node's rows: skip those its child cannot reach.
       uint32_t test_rows = rows, test_lanes = L::kAll;
