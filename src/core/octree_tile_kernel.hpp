@@ -254,35 +254,29 @@ class TileWalk {
   /// hit on child c of `node` at t: *rec is the TileHit of that cube and stop.
   void record(RaySet& rs, int r, uint32_t k, F t, uint32_t node, const Desc& desc, int c, int s,
               const float* clo, CastStop stop, const Index& index, int32_t* rec) {
-    if constexpr (kAnyHit) {
-      // Occlusion: only that the ray stops somewhere (any stop it is placed
-      // in answers, core/octree_tile_caster.hpp "Parallel rays").
-      (void)t, (void)node, (void)desc, (void)c, (void)s, (void)clo, (void)stop, (void)index;
-      (void)rec;
-      for (uint32_t b = k; b != 0; b &= b - 1) {
-        const int id = rs.id[r][std::countr_zero(b)], row = id / kTileCols, col = id % kTileCols;
-        out_->hit[row][col] = 0;
-        tile_.active[row] &= ~(1u << (col - col0_));
+    // Occlusion (kAnyHit) only asks whether the ray stops somewhere (any
+    // stop it is placed in answers, core/octree_tile_caster.hpp "Parallel
+    // rays"): no TileHit, no t, hit index 0.
+    int32_t hit = 0;
+    if constexpr (!kAnyHit) {
+      if (*rec < 0) {
+        TileHit h;
+        h.node = node, h.child = int8_t(c), h.scale = int8_t(s), h.stop = uint8_t(stop);
+        h.pos[0] = clo[0], h.pos[1] = clo[1], h.pos[2] = clo[2];
+        if constexpr (kIndexed)
+          h.index = uint64_t(nodes_.hit_index(index, desc, node, c, s));
+        else
+          h.index = 0;
+        *rec = int32_t(out_->hits.size());
+        out_->hits.push_back(h);
       }
-      if (rs.packed) rs.active[r] &= ~k;
-      return;
-    }
-    if (*rec < 0) {
-      TileHit h;
-      h.node = node, h.child = int8_t(c), h.scale = int8_t(s), h.stop = uint8_t(stop);
-      h.pos[0] = clo[0], h.pos[1] = clo[1], h.pos[2] = clo[2];
-      if constexpr (kIndexed)
-        h.index = uint64_t(nodes_.hit_index(index, desc, node, c, s));
-      else
-        h.index = 0;
-      *rec = int32_t(out_->hits.size());
-      out_->hits.push_back(h);
+      hit = *rec;
     }
     for (uint32_t b = k; b != 0; b &= b - 1) {
       const int l = std::countr_zero(b);
       const int id = rs.id[r][l], row = id / kTileCols, col = id % kTileCols;
-      out_->t[row][col] = t[l];
-      out_->hit[row][col] = *rec;
+      if constexpr (!kAnyHit) out_->t[row][col] = t[l];
+      out_->hit[row][col] = hit;
       tile_.active[row] &= ~(1u << (col - col0_));
     }
     if (rs.packed) rs.active[r] &= ~k;
@@ -438,7 +432,6 @@ class TileWalk {
       if (!(rays_.forward.y < 0.f)) flip |= 2;
       if (!(rays_.forward.z < 0.f)) flip |= 4;
     }
-    const F* parent_lo = rs.span_lo[span_level(s + 1)];
     const F* parent_hi = rs.span_hi[span_level(s + 1)];
     const F side = L::template splat<F>(hs);
     if (rs.packed && !contours_) {
