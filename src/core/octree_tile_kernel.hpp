@@ -17,7 +17,7 @@
 // per-ray answers:
 //  * a node with more than N rays, perspective, no contours: a child that
 //    cannot be a LOD stop and is not a leaf gets no per-ray test, only the
-//    rays its projected box covers (cull(), may_be_lod_stop());
+//    rays its projected box covers (cull_children());
 //  * a node with N rays or fewer: they are packed into row 0 of packed_
 //    (pack_rays()) and the subtree works on that one register;
 //  * a packed node whose children are all stops for its rays: bottom(),
@@ -189,19 +189,6 @@ class TileWalk {
   /// Where the spans of the rays in a node at `scale` are kept.
   int span_level(int scale) const { return contours_ ? scale : kOctreeMaxScale; }
 
-  /// Whether the cube of side hs at lo may be a LOD stop for some ray of a
-  /// perspective camera: its exit t is at most the distance of the cube's
-  /// farthest point from the eye (world units = octree units x side), and
-  /// the LOD test is monotone in t. A 1/1024 slack keeps rounding on the
-  /// safe side (the exact test decides).
-  bool may_be_lod_stop(const float* lo, float hs) const {
-    const TileRays& t = rays_;
-    const float h = hs * 0.5f;
-    const Vec3 q{lo[0] + h - t.eye.x, lo[1] + h - t.eye.y, lo[2] + h - t.eye.z};
-    const float far = (length(q) + h * 1.7320509f) * t.world_side * 1.0009765625f;
-    return far * size_coef_[0] + size_bias_[0] >= hs * 0.9990234375f;
-  }
-
   /// Lanes k of src, in order, into lanes [at, at + popcount(k)) of *dst.
   static void pack(F src, uint32_t k, int at, F* dst) {
     if constexpr (N == 16) {
@@ -282,36 +269,79 @@ class TileWalk {
     if (rs.packed) rs.active[r] &= ~k;
   }
 
-  /// The rows and lanes whose rays may pass through the cube of side hs at
-  /// lo (perspective cameras): the cube's box in the camera frame projected
-  /// to X/Z and Y/Z, widened by kMargin pixels on each side for rounding
-  /// (the exact test decides every ray it keeps; this only has to keep
-  /// every ray that may be placed in the cube).
-  /// False if the box reaches behind the eye (nothing culled).
+  /// The eight children (side hs, slot c at lo + hs per set bit of c) of an
+  /// unpacked node, for a perspective camera, in one vector pass (the
+  /// children are the lanes; a scalar pass per child was ~12 % of a frame):
+  ///  * rows[c] / lanes[c]: the rows and lanes whose rays may pass through
+  ///    child c: its box in the camera frame projected to X/Z and Y/Z,
+  ///    widened by kMargin pixels on each side for rounding (the exact test
+  ///    decides every ray it keeps; this only has to keep every ray that may
+  ///    be placed in the cube); all rows and lanes where the box reaches
+  ///    behind the eye (nothing culled);
+  ///  * bit c of *may_stop: whether child c may be a LOD stop for some ray:
+  ///    its exit t is at most the distance of the cube's farthest point from
+  ///    the eye (world units = octree units x side), and the LOD test is
+  ///    monotone in t. A 1/1024 slack keeps rounding on the safe side (the
+  ///    exact test decides).
+  /// Every lane computes what the scalar formula would for its child, with
+  /// the same operations in the same order (no contraction: -ffp-contract=off).
   static constexpr float kMargin = 0.0625f;
-  bool cull(const float* lo, float hs, uint32_t* rows, uint32_t* lanes) const {
+  using V8 = float __attribute__((vector_size(32)));
+  using I8 = int32_t __attribute__((vector_size(32)));
+  struct ChildCull {
+    uint32_t rows[8], lanes[8], may_stop = 0;
+  };
+  void cull_children(const float* lo, float hs, ChildCull* out) const {
     const TileRays& t = rays_;
     const float h = hs * 0.5f;
-    const Vec3 q{lo[0] + h - t.eye.x, lo[1] + h - t.eye.y, lo[2] + h - t.eye.z};
-    const float x = dot(q, t.right), y = dot(q, t.up), z = dot(q, t.forward);
+    const I8 slot = {0, 1, 2, 3, 4, 5, 6, 7};
+    const V8 zero = {}, side = zero + hs;
+    // The child's center minus the eye: (child lo + h) - eye, child lo =
+    // lo + (hs or +0), as the scalar code rounds it.
+    const V8 qx = (lo[0] + ((slot & 1) != 0 ? side : zero) + h) - t.eye.x;
+    const V8 qy = (lo[1] + ((slot & 2) != 0 ? side : zero) + h) - t.eye.y;
+    const V8 qz = (lo[2] + ((slot & 4) != 0 ? side : zero) + h) - t.eye.z;
+    const V8 x = qx * t.right.x + qy * t.right.y + qz * t.right.z;
+    const V8 y = qx * t.up.x + qy * t.up.y + qz * t.up.z;
+    const V8 z = qx * t.forward.x + qy * t.forward.y + qz * t.forward.z;
     const float ex = h * t.abs_right, ey = h * t.abs_up, ez = h * t.abs_forward;
-    const float z_near = z - ez, z_far = z + ez;
-    if (!(z_near > 1e-6f * (std::fabs(z) + ez))) return false;
-    auto range = [&](float c, float e, float base, float step, int n, uint32_t all) {
-      const float a = c - e, b = c + e;
-      const float lo_r = a / (a >= 0.f ? z_far : z_near), hi_r = b / (b >= 0.f ? z_near : z_far);
-      // Pixel index k passes at base + k step (step may be negative).
-      float k0 = (lo_r - base) / step, k1 = (hi_r - base) / step;
-      if (k0 > k1) std::swap(k0, k1);
-      if (!(k1 >= -1.f) || !(k0 <= float(n))) return 0u;
-      const int first = std::max(0, int(std::ceil(k0 - kMargin)));
-      const int last = std::min(n - 1, int(std::floor(k1 + kMargin)));
-      if (first > last) return 0u;
-      return all & (((last - first + 1 >= 32) ? ~0u : ((1u << (last - first + 1)) - 1)) << first);
+    const V8 z_near = z - ez, z_far = z + ez;
+    const V8 abs_z = (V8)((I8)z & 0x7fffffff);
+    const I8 in_front = z_near > 1e-6f * (abs_z + ez);
+    // Pixel index k passes at base + k step (step may be negative).
+    auto range = [&](V8 c, float e, float base, float step, int n, uint32_t all) {
+      const V8 a = c - e, b = c + e;
+      const V8 lo_r = a / (a >= 0.f ? z_far : z_near), hi_r = b / (b >= 0.f ? z_near : z_far);
+      const V8 k0 = (lo_r - base) / step, k1 = (hi_r - base) / step;
+      const I8 swap = k0 > k1;
+      const V8 first_k = swap ? k1 : k0, last_k = swap ? k0 : k1;
+      I8 none = ~(last_k >= -1.f) | ~(first_k <= float(n));
+      // max(0, ceil(k0 - kMargin)), min(n - 1, floor(k1 + kMargin)), clamped
+      // in floats (the same integers wherever the scalar conversion is defined).
+      V8 f = (V8)_mm256_ceil_ps((__m256)(first_k - kMargin));
+      V8 l = (V8)_mm256_floor_ps((__m256)(last_k + kMargin));
+      f = f > 0.f ? f : zero;
+      f = f < float(n) ? f : zero + float(n);
+      l = l < float(n - 1) ? l : zero + float(n - 1);
+      l = l > -1.f ? l : zero - 1.f;
+      const I8 first = __builtin_convertvector(f, I8), last = __builtin_convertvector(l, I8);
+      none |= first > last;
+      // n <= 16: the run's length is below 32.
+      const I8 ones = (I8{} + 1) << (last - first + 1);
+      const I8 run = (ones - 1) << first;
+      return none ? I8{} : (run & int32_t(all));
     };
-    *rows = range(y, ey, t.v0, t.dv, kTileRows, ~0u);
-    *lanes = range(x, ex, t.u0 + float(col0_) * t.du, t.du, N, L::kAll);
-    return true;
+    const I8 rows = range(y, ey, t.v0, t.dv, kTileRows, ~0u);
+    const I8 lanes = range(x, ex, t.u0 + float(col0_) * t.du, t.du, N, L::kAll);
+    for (int c = 0; c < 8; ++c) {
+      out->rows[c] = in_front[c] ? uint32_t(rows[c]) : ~0u;
+      out->lanes[c] = in_front[c] ? uint32_t(lanes[c]) : uint32_t(L::kAll);
+    }
+    // (|q| + h sqrt 3) world_side (1 + 1/1024), as length(q) rounds it.
+    const V8 len = (V8)_mm256_sqrt_ps((__m256)(qx * qx + qy * qy + qz * qz));
+    const V8 far = (len + h * 1.7320509f) * t.world_side * 1.0009765625f;
+    const I8 stop = far * size_coef_[0] + size_bias_[0] >= hs * 0.9990234375f;
+    out->may_stop = uint32_t(_mm256_movemask_ps((__m256)stop));
   }
 
   /// visit() of a packed node whose children are all stops for the rays k:
@@ -461,6 +491,10 @@ class TileWalk {
       return;
     }
     uint32_t child_mask[kTileRows];
+    // A big node's children against the tile's pixels (cull_children).
+    const bool culls = !rs.packed && rays_.perspective;
+    ChildCull cull;
+    if (culls) cull_children(lo, hs, &cull);
     for (int m = 7; m >= 0; --m) {
       const int c = m ^ flip;
       if ((present >> c & 1u) == 0) continue;
@@ -482,15 +516,12 @@ class TileWalk {
       };
       // A big node's rows: skip those its child cannot reach.
       uint32_t test_rows = rows, test_lanes = L::kAll;
-      if (!rs.packed && rays_.perspective && (!contours_ || std::popcount(rows) > 2)) {
-        uint32_t cull_rows, cull_lanes;
-        if (cull(clo, hs, &cull_rows, &cull_lanes)) {
-          test_rows &= cull_rows, test_lanes = cull_lanes;
-          if (test_rows == 0 || test_lanes == 0) continue;
-        }
+      if (culls && (!contours_ || std::popcount(rows) > 2)) {
+        test_rows &= cull.rows[c], test_lanes = cull.lanes[c];
+        if (test_rows == 0 || test_lanes == 0) continue;
       }
       const bool leaf = nodes_.leaf(desc, c, s);
-      if (!rs.packed && !contours_ && rays_.perspective && !leaf && !may_be_lod_stop(clo, hs)) {
+      if (culls && !contours_ && !leaf && (cull.may_stop >> c & 1u) == 0) {
         // No ray can stop in this child: no per-ray test; its candidates
         // are the node's live rays its rectangle keeps, and the tests below
         // it decide (their spans need nothing from here).
