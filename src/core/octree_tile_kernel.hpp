@@ -189,20 +189,11 @@ class TileWalk {
   /// Where the spans of the rays in a node at `scale` are kept.
   int span_level(int scale) const { return contours_ ? scale : kOctreeMaxScale; }
 
-  /// Lanes k of src, in order, into lanes [at, at + popcount(k)) of *dst.
-  static void pack(F src, uint32_t k, int at, F* dst) {
-    if constexpr (N == 16) {
-      const __m512 c = _mm512_maskz_compress_ps(__mmask16(k), (__m512)src);
-      const uint32_t to = ((1u << std::popcount(k)) - 1) << at;
-      *dst = (F)_mm512_mask_expand_ps((__m512)*dst, __mmask16(to), c);
-    } else {
-      for (uint32_t b = k; b != 0; b &= b - 1) (*dst)[at++] = src[std::countr_zero(b)];
-    }
-  }
-  static void pack(I src, uint32_t k, int at, I* dst) {
-    F d = (F)*dst;
-    pack((F)src, k, at, &d);
-    *dst = (I)d;
+  /// Lanes k of src, in order, into lanes [at, at + popcount(k)) of *dst
+  /// (pack_rays of the 8-lane kernel).
+  template <class V>
+  static void pack(V src, uint32_t k, int at, V* dst) {
+    for (uint32_t b = k; b != 0; b &= b - 1) (*dst)[at++] = src[std::countr_zero(b)];
   }
 
   /// Below a node that holds no more than N rays of the tile: those rays
@@ -210,27 +201,60 @@ class TileWalk {
   /// row 0 of packed_; returns their lanes there.
   uint32_t pack_rays(int s, uint32_t rows, const uint32_t* mask) {
     RaySet& p = packed_;
+    const int level = span_level(s + 1);
     int at = 0;
-    for (uint32_t b = rows; b != 0; b &= b - 1) {
-      const int r = std::countr_zero(b);
-      const uint32_t k = mask[r] & tile_.active[r];
-      if (k == 0) continue;
-      pack(tile_.cx[r], k, at, &p.cx[0]), pack(tile_.cy[r], k, at, &p.cy[0]);
-      pack(tile_.cz[r], k, at, &p.cz[0]);
-      pack(tile_.nbx[r], k, at, &p.nbx[0]), pack(tile_.nby[r], k, at, &p.nby[0]);
-      pack(tile_.nbz[r], k, at, &p.nbz[0]);
-      if (contours_) {
-        pack(tile_.dx[r], k, at, &p.dx[0]), pack(tile_.dy[r], k, at, &p.dy[0]);
-        pack(tile_.dz[r], k, at, &p.dz[0]);
+    if constexpr (N == 16) {
+      // In registers: per row one lane map (the row's lanes k to lanes
+      // [at, at + popcount(k))), then one merging permute per quantity
+      // (pack() would compress and expand each through memory). Lanes past
+      // the rays are zero.
+      F cx{}, cy{}, cz{}, nbx{}, nby{}, nbz{}, dx{}, dy{}, dz{}, lo{}, hi{};
+      I mirror_x{}, mirror_y{}, mirror_z{}, id{};
+      const __m512i lane = (__m512i)L::iota();
+      for (uint32_t b = rows; b != 0; b &= b - 1) {
+        const int r = std::countr_zero(b);
+        const uint32_t k = mask[r] & tile_.active[r];
+        if (k == 0) continue;
+        const __mmask16 to = __mmask16(((1u << std::popcount(k)) - 1) << at);
+        const __m512i from =
+            _mm512_maskz_expand_epi32(to, _mm512_maskz_compress_epi32(__mmask16(k), lane));
+        auto put = [&](auto src, auto* dst) {
+          using V = std::remove_reference_t<decltype(*dst)>;
+          *dst = (V)_mm512_mask_permutexvar_ps((__m512)*dst, to, from, (__m512)src);
+        };
+        put(tile_.cx[r], &cx), put(tile_.cy[r], &cy), put(tile_.cz[r], &cz);
+        put(tile_.nbx[r], &nbx), put(tile_.nby[r], &nby), put(tile_.nbz[r], &nbz);
+        if (contours_) put(tile_.dx[r], &dx), put(tile_.dy[r], &dy), put(tile_.dz[r], &dz);
+        put(tile_.mirror_x[r], &mirror_x), put(tile_.mirror_y[r], &mirror_y);
+        put(tile_.mirror_z[r], &mirror_z), put(tile_.id[r], &id);
+        put(tile_.span_lo[level][r], &lo), put(tile_.span_hi[level][r], &hi);
+        at += std::popcount(k);
       }
-      pack(tile_.mirror_x[r], k, at, &p.mirror_x[0]);
-      pack(tile_.mirror_y[r], k, at, &p.mirror_y[0]);
-      pack(tile_.mirror_z[r], k, at, &p.mirror_z[0]);
-      pack(tile_.id[r], k, at, &p.id[0]);
-      const int level = span_level(s + 1);
-      pack(tile_.span_lo[level][r], k, at, &p.span_lo[level][0]);
-      pack(tile_.span_hi[level][r], k, at, &p.span_hi[level][0]);
-      at += std::popcount(k);
+      p.cx[0] = cx, p.cy[0] = cy, p.cz[0] = cz, p.nbx[0] = nbx, p.nby[0] = nby, p.nbz[0] = nbz;
+      if (contours_) p.dx[0] = dx, p.dy[0] = dy, p.dz[0] = dz;
+      p.mirror_x[0] = mirror_x, p.mirror_y[0] = mirror_y, p.mirror_z[0] = mirror_z, p.id[0] = id;
+      p.span_lo[level][0] = lo, p.span_hi[level][0] = hi;
+    } else {
+      for (uint32_t b = rows; b != 0; b &= b - 1) {
+        const int r = std::countr_zero(b);
+        const uint32_t k = mask[r] & tile_.active[r];
+        if (k == 0) continue;
+        pack(tile_.cx[r], k, at, &p.cx[0]), pack(tile_.cy[r], k, at, &p.cy[0]);
+        pack(tile_.cz[r], k, at, &p.cz[0]);
+        pack(tile_.nbx[r], k, at, &p.nbx[0]), pack(tile_.nby[r], k, at, &p.nby[0]);
+        pack(tile_.nbz[r], k, at, &p.nbz[0]);
+        if (contours_) {
+          pack(tile_.dx[r], k, at, &p.dx[0]), pack(tile_.dy[r], k, at, &p.dy[0]);
+          pack(tile_.dz[r], k, at, &p.dz[0]);
+        }
+        pack(tile_.mirror_x[r], k, at, &p.mirror_x[0]);
+        pack(tile_.mirror_y[r], k, at, &p.mirror_y[0]);
+        pack(tile_.mirror_z[r], k, at, &p.mirror_z[0]);
+        pack(tile_.id[r], k, at, &p.id[0]);
+        pack(tile_.span_lo[level][r], k, at, &p.span_lo[level][0]);
+        pack(tile_.span_hi[level][r], k, at, &p.span_hi[level][0]);
+        at += std::popcount(k);
+      }
     }
     const uint32_t lanes = (1u << at) - 1;  // at <= N <= 16
     p.active[0] = lanes;
