@@ -154,7 +154,7 @@ class TileWalk {
     RaySet& t = tile_;
     t.packed = false;
     packed_.packed = true;
-    uint32_t rows = 0, mask[kTileRows];
+    uint32_t rows = 0, mask[kTileRows] = {};  // (read as one vector: all rows set)
     for (int r = 0; r < rays_.rows; ++r) {
       const uint32_t live = (rays_.live[r] >> col0_) & L::kAll;
       t.active[r] = mask[r] = live;
@@ -188,6 +188,57 @@ class TileWalk {
   }
   /// Where the spans of the rays in a node at `scale` are kept.
   int span_level(int scale) const { return contours_ ? scale : kOctreeMaxScale; }
+
+  /// An unpacked node's lane masks, one per tile row, in one vector (its
+  /// per-row bookkeeping without a loop over the rows). A 64-byte vector
+  /// also in the AVX2 kernel: the helpers take it by reference (by value it
+  /// would change the ABI there).
+  using RowMasks = uint32_t __attribute__((vector_size(4 * kTileRows)));
+  static_assert(kTileRows == 16);
+  /// *out = rows m[0..15] & a[0..15], those outside `rows` zero.
+  static void and_rows(const uint32_t* m, const uint32_t* a, uint32_t rows, RowMasks* out) {
+    RowMasks x, y;
+    std::memcpy(&x, m, sizeof x);
+    std::memcpy(&y, a, sizeof y);
+    keep_rows(rows, &x);
+    *out = x & y;
+  }
+  /// Zero in v's rows outside `rows`.
+  static void keep_rows(uint32_t rows, RowMasks* v) {
+    if constexpr (N == 16) {
+      *v = (RowMasks)_mm512_maskz_mov_epi32(__mmask16(rows), (__m512i)*v);
+    } else {
+      const RowMasks bit = {1u << 0,  1u << 1,  1u << 2,  1u << 3, 1u << 4,  1u << 5,
+                            1u << 6,  1u << 7,  1u << 8,  1u << 9, 1u << 10, 1u << 11,
+                            1u << 12, 1u << 13, 1u << 14, 1u << 15};
+      *v &= (RowMasks)((bit & rows) != 0);
+    }
+  }
+  /// Bit r: row r of v is not zero.
+  static uint32_t nonzero(const RowMasks& v) {
+    if constexpr (N == 16) {
+      return _mm512_test_epi32_mask((__m512i)v, (__m512i)v);
+    } else {
+      const auto z = v != 0;
+      __m256i a, b;
+      std::memcpy(&a, &z, sizeof a);
+      std::memcpy(&b, reinterpret_cast<const char*>(&z) + sizeof a, sizeof b);
+      return uint32_t(_mm256_movemask_ps((__m256)a)) | uint32_t(_mm256_movemask_ps((__m256)b)) << 8;
+    }
+  }
+  /// The lanes set in all rows of v.
+  static int count(const RowMasks& v) {
+    if constexpr (N == 16) {  // 16-lane masks: 16 bits a row
+      const __m256i w = _mm512_maskz_cvtepi32_epi16(0xFFFF, (__m512i)v);
+      uint64_t q[4];
+      std::memcpy(q, &w, sizeof q);
+      return std::popcount(q[0]) + std::popcount(q[1]) + std::popcount(q[2]) + std::popcount(q[3]);
+    } else {
+      int n = 0;
+      for (int r = 0; r < kTileRows; ++r) n += std::popcount(v[r]);
+      return n;
+    }
+  }
 
   /// Lanes k of src, in order, into lanes [at, at + popcount(k)) of *dst
   /// (pack_rays of the 8-lane kernel).
@@ -455,11 +506,9 @@ class TileWalk {
   void visit(RaySet& rs, uint32_t node, int s, const float* lo, uint32_t rows, const uint32_t* mask,
              const Index& index) {
     if (!rs.packed) {
-      int n = 0;
-      for (uint32_t b = rows; b != 0; b &= b - 1) {
-        const int r = std::countr_zero(b);
-        n += std::popcount(mask[r] & rs.active[r]);
-      }
+      RowMasks live;
+      and_rows(mask, rs.active, rows, &live);
+      const int n = count(live);
       if (n <= N) {
         if (n == 0) return;
         const uint32_t lanes = pack_rays(s, rows, mask);
@@ -514,7 +563,7 @@ class TileWalk {
       packed_children(rs, desc, node, s, lo, k, flip, present, index);
       return;
     }
-    uint32_t child_mask[kTileRows];
+    uint32_t child_mask[kTileRows] = {};  // (read as one vector by the child's visit)
     // A big node's children against the tile's pixels (cull_children).
     const bool culls = !rs.packed && rays_.perspective;
     ChildCull cull;
@@ -523,12 +572,15 @@ class TileWalk {
       const int c = m ^ flip;
       if ((present >> c & 1u) == 0) continue;
       // The rows whose rays still look for their hit.
-      uint32_t live_rows = 0;
-      for (uint32_t b = rows; b != 0; b &= b - 1) {
-        const int r = std::countr_zero(b);
-        live_rows |= uint32_t((mask[r] & rs.active[r]) != 0) << r;
+      // (mask holds a row per tile row for an unpacked node, only row 0 for
+      // a packed one.)
+      RowMasks live{};
+      if (rs.packed) {
+        rows = (mask[0] & rs.active[0]) != 0 ? rows : 0u;  // rows = 1
+      } else {
+        and_rows(mask, rs.active, rows, &live);
+        rows = nonzero(live);
       }
-      rows = live_rows;
       if (rows == 0) return;
 
       const float clo[3] = {lo[0] + ((c & 1) ? hs : 0.f), lo[1] + ((c & 2) ? hs : 0.f),
@@ -549,12 +601,10 @@ class TileWalk {
         // No ray can stop in this child: no per-ray test; its candidates
         // are the node's live rays its rectangle keeps, and the tests below
         // it decide (their spans need nothing from here).
-        uint32_t child_rows = 0;
-        for (uint32_t b = test_rows; b != 0; b &= b - 1) {
-          const int r = std::countr_zero(b);
-          child_mask[r] = mask[r] & rs.active[r] & test_lanes;
-          if (child_mask[r] != 0) child_rows |= 1u << r;
-        }
+        RowMasks candidates = live & test_lanes;
+        keep_rows(test_rows, &candidates);
+        std::memcpy(child_mask, &candidates, sizeof child_mask);
+        const uint32_t child_rows = nonzero(candidates);
         if (child_rows != 0) {
           Index child_index = index;
           const uint32_t child = nodes_.descend(desc, node, c, s, child_index, cnt_);
