@@ -112,7 +112,8 @@ class TileWalk {
   };
 
   /// Row r of a ray set in registers (row 0 of a packed set) with its span
-  /// at `level`, and a child's span on it (ChildPlanes::span).
+  /// at `level`, and a child's span on it (ChildPlanes::span; a packed
+  /// node's children: PackedPlanes).
   struct Row {
     Row(const RaySet& rs, int level, int r)
         : c{rs.cx[r], rs.cy[r], rs.cz[r]},
@@ -123,15 +124,44 @@ class TileWalk {
     void span(const ChildPlanes& child, F* tau, F* tc_max, F* t_out) const {
       child.span(c, nb, mirrored, t_lo, tau, tc_max, t_out);
     }
-    /// The child of side hs at (x, y, z).
-    void span(float x, float y, float z, float hs, F* tau, F* tc_max) const {
-      const float clo[3] = {x, y, z};
-      F t_out[3];
-      span(ChildPlanes(clo, hs), tau, tc_max, t_out);
-    }
     F c[3], nb[3];
     I mirrored[3];
     F t_lo, t_max;
+  };
+
+  /// A packed node's row against the planes of its cube and its children:
+  /// per axis the t of the three planes lo, lo + hs, lo + 2 hs (mirrored per
+  /// lane as MirroredRay: 3 - p; every such coordinate is exact), so that a
+  /// child's entry and exit t per axis are selections instead of two fma
+  /// per axis and child. The same fma on the same coordinates as
+  /// ChildPlanes, so the same floats; child() takes max/min in its order.
+  struct PackedPlanes {
+    PackedPlanes(const Row& row, const float* lo, float hs) {
+      for (int a = 0; a < 3; ++a) {
+        const float p[3] = {lo[a], lo[a] + hs, lo[a] + hs + hs};
+        const I m = row.mirrored[a];
+        F u[3];
+        for (int j = 0; j < 3; ++j)
+          u[j] = L::fma(m ? L::template splat<F>(3.f - p[j]) : L::template splat<F>(p[j]), row.c[a],
+                        row.nb[a]);
+        // Half b of the node on axis a: planes p[b], p[b + 1]; a mirrored
+        // lane enters at 3 - p[b].
+        in[a][0] = m ? u[0] : u[1], out[a][0] = m ? u[1] : u[0];
+        in[a][1] = m ? u[1] : u[2], out[a][1] = m ? u[2] : u[1];
+        node_in[a] = m ? u[0] : u[2];
+      }
+    }
+    /// Child c's span on the row (ChildPlanes::span).
+    void child(int c, F t_lo, F* tau, F* tc_max) const {
+      const int x = c & 1, y = c >> 1 & 1, z = c >> 2 & 1;
+      *tc_max = L::min(L::min(out[0][x], out[1][y]), out[2][z]);
+      *tau = L::max(t_lo, L::max(L::max(in[0][x], in[1][y]), in[2][z]));
+    }
+    /// The node's own entry t (Row::span of the node's cube).
+    F entry(F t_lo) const {
+      return L::max(t_lo, L::max(L::max(node_in[0], node_in[1]), node_in[2]));
+    }
+    F in[3][2], out[3][2], node_in[3];
   };
 
  public:
@@ -423,11 +453,11 @@ class TileWalk {
   /// each ray's hit is the first child, front to back, it is placed in. No
   /// branch per child and ray: the children's tests run in turn on the
   /// rays still without a hit, and the hits are written once at the end.
-  void bottom(RaySet& rs, const Desc& desc, uint32_t node, int s, const float* lo, uint32_t k,
-              int flip, uint32_t present, const Index& index) {
+  void bottom(RaySet& rs, const Row& row, const PackedPlanes& planes, const Desc& desc,
+              uint32_t node, int s, const float* lo, uint32_t k, int flip, uint32_t present,
+              const Index& index) {
     const float hs = scale_side(s);
     const F side = L::template splat<F>(hs);
-    const Row row(rs, span_level(s + 1), 0);
     I open = from_bits(k);
     F hit_t = row.t_lo;
     I hit_c = L::template splat<I>(-1), hit_lod = L::template splat<I>(0);
@@ -435,8 +465,7 @@ class TileWalk {
       const int c = m ^ flip;
       if ((present >> c & 1u) == 0) continue;
       F tau, tc_max;
-      row.span(lo[0] + ((c & 1) ? hs : 0.f), lo[1] + ((c & 2) ? hs : 0.f),
-               lo[2] + ((c & 4) ? hs : 0.f), hs, &tau, &tc_max);
+      planes.child(c, row.t_lo, &tau, &tc_max);
       const I placed = open & (tau < tc_max) & (tau <= row.t_max);
       hit_t = placed ? tau : hit_t;
       hit_c = placed ? L::template splat<I>(c) : hit_c;
@@ -461,11 +490,11 @@ class TileWalk {
   /// prefetched when the node was fetched, arrives meanwhile), then, front
   /// to back, the hits and descents on the rays still without a hit (a
   /// subtree visited first may have taken some).
-  void packed_children(RaySet& rs, const Desc& desc, uint32_t node, int s, const float* lo,
-                       uint32_t k, int flip, uint32_t present, const Index& index) {
+  void packed_children(RaySet& rs, const Row& row, const PackedPlanes& planes, const Desc& desc,
+                       uint32_t node, int s, const float* lo, uint32_t k, int flip,
+                       uint32_t present, const Index& index) {
     const float hs = scale_side(s);
     const F side = L::template splat<F>(hs);
-    const Row row(rs, kOctreeMaxScale, 0);
     F tau[8];
     uint32_t placed[8], lod[8];
     int slot[8], n = 0;
@@ -473,8 +502,7 @@ class TileWalk {
       const int c = m ^ flip;
       if ((present >> c & 1u) == 0) continue;
       F tc_max;
-      row.span(lo[0] + ((c & 1) ? hs : 0.f), lo[1] + ((c & 2) ? hs : 0.f),
-               lo[2] + ((c & 4) ? hs : 0.f), hs, &tau[n], &tc_max);
+      planes.child(c, row.t_lo, &tau[n], &tc_max);
       placed[n] = k & L::bits((tau[n] < tc_max) & (tau[n] <= row.t_max));
       lod[n] = L::bits(tc_max * size_coef_ + size_bias_ >= side);
       slot[n++] = c;
@@ -545,22 +573,21 @@ class TileWalk {
       // of its children.)
       const uint32_t k = mask[0] & rs.active[0];
       if (k == 0) return;
+      const Row row(rs, kOctreeMaxScale, 0);  // span_level() without contours
+      const PackedPlanes planes(row, lo, hs);
       bool stops = false;
-      if (lod_possible_) {
-        F entry, exit;  // the node's own span (side hs + hs)
-        Row(rs, span_level(s + 1), 0).span(lo[0], lo[1], lo[2], hs + hs, &entry, &exit);
-        stops = (k & ~L::bits(entry * size_coef_ + size_bias_ >= side)) == 0;
-      }
+      if (lod_possible_)
+        stops = (k & ~L::bits(planes.entry(row.t_lo) * size_coef_ + size_bias_ >= side)) == 0;
       if (!stops) {
         stops = true;
         for (uint32_t b = present; b != 0 && stops; b &= b - 1)
           stops = nodes_.leaf(desc, std::countr_zero(b), s);
       }
       if (stops) {
-        bottom(rs, desc, node, s, lo, k, flip, present, index);
+        bottom(rs, row, planes, desc, node, s, lo, k, flip, present, index);
         return;
       }
-      packed_children(rs, desc, node, s, lo, k, flip, present, index);
+      packed_children(rs, row, planes, desc, node, s, lo, k, flip, present, index);
       return;
     }
     uint32_t child_mask[kTileRows] = {};  // (read as one vector by the child's visit)
