@@ -20,9 +20,11 @@
 //    rays its projected box covers (cull_children());
 //  * a node with N rays or fewer: they are packed into row 0 of packed_
 //    (pack_rays()) and the subtree works on that one register;
-//  * a packed node whose children are all stops for its rays: bottom(),
-//    one branch-free pass; other packed nodes without contours:
-//    packed_children(), all children's tests first, then hits and descents;
+//  * a packed node without contours (visit_packed(), its children's t from
+//    the node's three planes per axis, PackedPlanes) whose children are all
+//    stops for its rays: bottom(), one branch-free pass; other packed nodes
+//    without contours: packed_children(), all children's tests first, then
+//    hits and descents;
 //  * an unpacked node without contours: a child's row tests all first with
 //    no branch per row, then the rows with stops, then one descent.
 // The any-hit flavour (kAnyHit: occlusion, the parallel walks of
@@ -198,7 +200,8 @@ class TileWalk {
       t.id[r] = L::iota() + (r * kTileCols + col0_);
       t.span_lo[kOctreeMaxScale][r] = load(rays_.t_min[r]);
       t.span_hi[kOctreeMaxScale][r] = load(rays_.t_max[r]);
-      for (int l = 0; l < N && col0_ + l < kTileCols; ++l) out_->hit[r][col0_ + l] = -1;
+      const I miss = L::template splat<I>(-1);  // columns [col0, col0 + N) <= kTileCols
+      std::memcpy(&out_->hit[r][col0_], &miss, sizeof miss);
     }
     if (rows != 0) {
       const float lo[3] = {1.f, 1.f, 1.f};
@@ -524,9 +527,69 @@ class TileWalk {
       } else {
         Index child_index = index;
         const uint32_t child = nodes_.descend(desc, node, c, s, child_index, cnt_);
-        visit(rs, child, s - 1, clo, 1u, &rest, child_index);
+        visit_packed(child, s - 1, clo, rest, child_index);
       }
     }
+  }
+
+  /// The next level's fetches, started when a node is fetched (a
+  /// depth-first walk has one node in flight otherwise): the policy's
+  /// optional hook.
+  void prefetch_below(const Desc& desc, uint32_t node, int s) const {
+    if constexpr (requires { nodes_.prefetch_below(desc, node, s); })
+      nodes_.prefetch_below(desc, node, s);
+  }
+  /// Front to back (core/octree_tile_caster.hpp "Order") in the node of
+  /// side 2 hs at lo: slot bit a of the first child is the eye's half on
+  /// axis a; children come in the order m ^ flip, m = 7 ... 0.
+  int child_order(const float* lo, float hs) const {
+    int flip = 0;
+    if (rays_.perspective) {
+      if (!(rays_.eye.x >= lo[0] + hs)) flip |= 1;
+      if (!(rays_.eye.y >= lo[1] + hs)) flip |= 2;
+      if (!(rays_.eye.z >= lo[2] + hs)) flip |= 4;
+    } else {
+      if (!(rays_.forward.x < 0.f)) flip |= 1;
+      if (!(rays_.forward.y < 0.f)) flip |= 2;
+      if (!(rays_.forward.z < 0.f)) flip |= 4;
+    }
+    return flip;
+  }
+
+  /// visit() of a packed node without contours (the rays of lanes `mask`
+  /// of packed_): bottom() or packed_children(). Its own function, small,
+  /// for the walk's most frequent visits (no frame of the unpacked loop).
+  void visit_packed(uint32_t node, int s, const float* lo, uint32_t mask, const Index& index) {
+    RaySet& rs = packed_;
+    const uint32_t k = mask & rs.active[0];
+    if (k == 0) return;
+    const Desc desc = nodes_.fetch(node, s, cnt_);
+    const uint32_t present = P::mask(desc);
+    const float hs = scale_side(s);
+    prefetch_below(desc, node, s);
+    const int flip = child_order(lo, hs);
+    // Every child a stop for every ray: a LOD stop wherever the ray is
+    // placed (the test is monotone in t, and a child's tc_max > its tau >=
+    // the node's entry t: the node's entry planes come first on every
+    // axis), or a leaf. (A ray not placed in the node is placed in none
+    // of its children.)
+    const Row row(rs, kOctreeMaxScale, 0);  // span_level() without contours
+    const PackedPlanes planes(row, lo, hs);
+    bool stops = false;
+    if (lod_possible_) {
+      const F side = L::template splat<F>(hs);
+      stops = (k & ~L::bits(planes.entry(row.t_lo) * size_coef_ + size_bias_ >= side)) == 0;
+    }
+    if (!stops) {
+      stops = true;
+      for (uint32_t b = present; b != 0 && stops; b &= b - 1)
+        stops = nodes_.leaf(desc, std::countr_zero(b), s);
+    }
+    if (stops) {
+      bottom(rs, row, planes, desc, node, s, lo, k, flip, present, index);
+      return;
+    }
+    packed_children(rs, row, planes, desc, node, s, lo, k, flip, present, index);
   }
 
   /// The children (scale s) of `node`, whose cube has min corner lo, for the
@@ -544,52 +607,17 @@ class TileWalk {
         return;
       }
     }
+    if (rs.packed && !contours_) {
+      visit_packed(node, s, lo, mask[0], index);
+      return;
+    }
     const Desc desc = nodes_.fetch(node, s, cnt_);
     const uint32_t present = P::mask(desc);
     const float hs = scale_side(s);
-    // The next level's fetches, started now (a depth-first walk has one
-    // node in flight otherwise): the policy's optional hook.
-    if constexpr (requires { nodes_.prefetch_below(desc, node, s); })
-      nodes_.prefetch_below(desc, node, s);
-    // Front to back (core/octree_tile_caster.hpp "Order"): slot bit a of the
-    // first child is the eye's half on axis a.
-    int flip = 0;
-    if (rays_.perspective) {
-      if (!(rays_.eye.x >= lo[0] + hs)) flip |= 1;
-      if (!(rays_.eye.y >= lo[1] + hs)) flip |= 2;
-      if (!(rays_.eye.z >= lo[2] + hs)) flip |= 4;
-    } else {
-      if (!(rays_.forward.x < 0.f)) flip |= 1;
-      if (!(rays_.forward.y < 0.f)) flip |= 2;
-      if (!(rays_.forward.z < 0.f)) flip |= 4;
-    }
+    prefetch_below(desc, node, s);
+    const int flip = child_order(lo, hs);
     const F* parent_hi = rs.span_hi[span_level(s + 1)];
     const F side = L::template splat<F>(hs);
-    if (rs.packed && !contours_) {
-      // Every child a stop for every ray: a LOD stop wherever the ray is
-      // placed (the test is monotone in t, and a child's tc_max > its tau >=
-      // the node's entry t: the node's entry planes come first on every
-      // axis), or a leaf. (A ray not placed in the node is placed in none
-      // of its children.)
-      const uint32_t k = mask[0] & rs.active[0];
-      if (k == 0) return;
-      const Row row(rs, kOctreeMaxScale, 0);  // span_level() without contours
-      const PackedPlanes planes(row, lo, hs);
-      bool stops = false;
-      if (lod_possible_)
-        stops = (k & ~L::bits(planes.entry(row.t_lo) * size_coef_ + size_bias_ >= side)) == 0;
-      if (!stops) {
-        stops = true;
-        for (uint32_t b = present; b != 0 && stops; b &= b - 1)
-          stops = nodes_.leaf(desc, std::countr_zero(b), s);
-      }
-      if (stops) {
-        bottom(rs, row, planes, desc, node, s, lo, k, flip, present, index);
-        return;
-      }
-      packed_children(rs, row, planes, desc, node, s, lo, k, flip, present, index);
-      return;
-    }
     uint32_t child_mask[kTileRows] = {};  // (read as one vector by the child's visit)
     // A big node's children against the tile's pixels (cull_children).
     const bool culls = !rs.packed && rays_.perspective;
