@@ -347,6 +347,13 @@ class EsvoOctree {
   /// Color (linear) and unit normal of the voxel in child slot `child` of the
   /// descriptor at `parent_slot`.
   void attributes(uint32_t parent_slot, int child, Color* color, Vec3* normal) const;
+  /// What attributes(parent_slot, child) reads, as cache hints in two steps
+  /// (a raw lookup is a chain: the slot's lookup entry, then the value it
+  /// points to): prefetch_attribute_entry starts the entry's read (a
+  /// compressed block's: the block), prefetch_attribute_value, called once
+  /// the entry has had time to arrive, reads it and starts the value's.
+  void prefetch_attribute_entry(uint32_t parent_slot) const;
+  void prefetch_attribute_value(uint32_t parent_slot, int child) const;
 
   /// The attachment type of block 0 (all blocks agree after validate()).
   /// Bounds-checked: safe on unvalidated words (reads Raw when unsure).

@@ -52,6 +52,11 @@ class EsvoStructure final : public OctreeStructure<EsvoStructure> {
   /// compressed: the voxel's block, §5.5).
   void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
                   Vec3* normal) const override;
+  /// Raw attributes are a lookup entry, then the value it points to:
+  /// prefetch_attribute_index starts the entry's read, prefetch_attributes
+  /// the value's (EsvoOctree::prefetch_attribute_entry / _value).
+  void prefetch_attribute_index(const SurfaceHit& hit) const override;
+  void prefetch_attributes(const SurfaceHit& hit) const override;
   std::string name() const override { return "esvo"; }
   const EsvoOctree& octree() const { return *octree_; }
 

@@ -168,6 +168,11 @@ class SurfaceQuery {
   /// counters), so that a group of hits' attribute reads are in flight
   /// together before the group is shaded. Default: nothing.
   virtual void prefetch_attributes(const SurfaceHit& hit) const { (void)hit; }
+  /// The first step of prefetch_attributes for a structure whose lookup is
+  /// a chain (an index read, then the values it points to): starts the
+  /// index's read, so that prefetch_attributes(hit), called some hits later,
+  /// finds it and starts the values'. Default: nothing.
+  virtual void prefetch_attribute_index(const SurfaceHit& hit) const { (void)hit; }
 
   /// Coarse pass of the beam optimization for one beam (esvo §6.2). Default:
   /// no information. While counting, ctx.counters receives the pass's own work

@@ -60,11 +60,33 @@ DagStructure::DagStructure(std::shared_ptr<const SparseVoxelDag> dag) : dag_(std
 }
 
 void DagStructure::prefetch_attributes(const SurfaceHit& hit) const {
-  if (hit.level != dag_->levels() - 3) return;
-  if (const SparseVoxelDag::FineMean* f = dag_->fine_mean(hit.voxel_ref)) {
-    // 28 bytes: they may straddle two cache lines.
-    _mm_prefetch(reinterpret_cast<const char*>(f), _MM_HINT_T0);
-    _mm_prefetch(reinterpret_cast<const char*>(f + 1) - 1, _MM_HINT_T0);
+  // What attributes(hit) below reads first.
+  const SparseVoxelDag& d = *dag_;
+  if (!d.has_attributes()) return;
+  auto line = [](const void* p) { _mm_prefetch(static_cast<const char*>(p), _MM_HINT_T0); };
+  const uint64_t i = hit.voxel_ref;
+  if (hit.level < d.levels() && i < d.leaf_voxels) {
+    if (hit.level == d.levels() - 3) {
+      if (const SparseVoxelDag::FineMean* f = d.fine_mean(i)) {
+        // 28 bytes: they may straddle two cache lines.
+        line(f), line(reinterpret_cast<const char*>(f + 1) - 1);
+        return;
+      }
+    }
+    // A coarser cube's mean: a table lookup (not prefetched), unless it is
+    // small enough to be summed from its voxels, which start at i.
+    const uint64_t count = Nodes::child_count(hit.child);
+    if (count == 0 || count > SparseVoxelDag::kCubeMeanMin) return;
+  } else if (i >= d.leaf_voxels) {
+    return;  // voxel_attributes' default
+  }
+  // Leaf voxel i's value, or the first of a small cube's voxels.
+  if (!d.attribute_blocks.empty()) {
+    const uint32_t* block = &d.attribute_blocks[size_t(i / SparseVoxelDag::kCompressedSlots) *
+                                                SparseVoxelDag::kCompressedBlockWords];
+    line(block), line(block + SparseVoxelDag::kCompressedBlockWords - 1);  // 24 bytes
+  } else {
+    line(&d.colors[size_t(i)]), line(&d.normals[size_t(i)]);
   }
 }
 

@@ -16,6 +16,8 @@
 //     The paper uses a similar cube-map style encoding (§5.4: 32 bits for the
 //     normal); splitting 29 bits as 14+15 keeps the worst-case angular error
 //     below ~7e-5 rad (half a quantization step on the face, see the tests).
+#include <immintrin.h>
+
 #include <array>
 #include <bit>
 #include <cmath>
@@ -128,31 +130,79 @@ Vec3 decode_normal_cube(uint32_t code) {
   return r / std::sqrt(1.f + u * u + v * v);
 }
 
-void EsvoOctree::attributes(uint32_t parent_slot, int child, Color* color, Vec3* normal) const {
-  // Page header -> info section -> color/normal attachment (esvo §5.4,
-  // Figure 8). Only valid after validate() or build_octree().
-  const uint32_t* w = words.data();
+namespace {
+
+/// Where the attributes of the children of the descriptor at parent_slot
+/// live: page header -> info section -> color/normal attachment (esvo §5.4,
+/// Figure 8), and the slot's index in its block. Only valid after
+/// validate() or build_octree(). (The page header and info section are
+/// per-block metadata that stays cached.)
+struct AttributeSlot {
+  size_t attach;  // first word of the attachment
+  size_t rel;     // the slot within its block
+  uint32_t type;  // kAttachRawColorNormal or kAttachCompressedColorNormal
+};
+AttributeSlot attribute_slot(const uint32_t* w, uint32_t parent_slot) {
   const size_t page = size_t(parent_slot & ~(kPageSlots - 1)) * 2;
   const size_t info = size_t(int64_t(page) + int32_t(w[page]));
   const size_t block_first = size_t(int64_t(info) + int32_t(w[info + 1]));
-  uint32_t type = 0;
-  const size_t attach = detail::find_color_attachment(w, info, &type);
-  const size_t rel = size_t(parent_slot) - block_first / 2;  // slot within the block
-  if (type == kAttachCompressedColorNormal) {
-    // §5.5: compression block rel >> 1, block slot (rel & 1) * 8 + child.
-    const uint32_t* block = w + attach + 2 + detail::kCompressedBlockWords * (rel >> 1);
-    decode_compressed_slot(block, int(rel & 1) * 8 + child, color, normal);
-    return;
-  }
-  // Raw (§5.4, Figure 7): lookup entry -> value.
-  const uint32_t slot_count = w[attach];
-  const uint32_t entry = w[attach + 2 + rel];
+  AttributeSlot a;
+  a.type = 0;
+  a.attach = detail::find_color_attachment(w, info, &a.type);
+  a.rel = size_t(parent_slot) - block_first / 2;
+  return a;
+}
+/// §5.5: compression block rel >> 1 holds the slot's children at
+/// (rel & 1) * 8 + child.
+const uint32_t* compressed_block(const uint32_t* w, const AttributeSlot& a) {
+  return w + a.attach + 2 + detail::kCompressedBlockWords * (a.rel >> 1);
+}
+/// Raw (§5.4, Figure 7): the slot's lookup entry, then child's value.
+const uint32_t* raw_entry(const uint32_t* w, const AttributeSlot& a) {
+  return w + a.attach + 2 + a.rel;
+}
+const uint32_t* raw_value(const uint32_t* w, const AttributeSlot& a, uint32_t entry, int child) {
+  const uint32_t slot_count = w[a.attach];
   const uint32_t index =
       layout::ValuePointer::get(entry) +
       uint32_t(std::popcount(layout::AttributeMask::get(entry) & ((1u << child) - 1)));
-  const uint32_t* value = w + attach + 2 + slot_count + size_t(index) * 2;
+  return w + a.attach + 2 + slot_count + size_t(index) * 2;
+}
+void prefetch_line(const void* p) {
+  _mm_prefetch(static_cast<const char*>(p), _MM_HINT_T0);
+}
+
+}  // namespace
+
+void EsvoOctree::attributes(uint32_t parent_slot, int child, Color* color, Vec3* normal) const {
+  const uint32_t* w = words.data();
+  const AttributeSlot a = attribute_slot(w, parent_slot);
+  if (a.type == kAttachCompressedColorNormal) {
+    decode_compressed_slot(compressed_block(w, a), int(a.rel & 1) * 8 + child, color, normal);
+    return;
+  }
+  const uint32_t* value = raw_value(w, a, *raw_entry(w, a), child);
   if (color) *color = decode_color_abgr(value[0]);
   if (normal) *normal = decode_normal_cube(value[1]);
+}
+
+void EsvoOctree::prefetch_attribute_entry(uint32_t parent_slot) const {
+  const uint32_t* w = words.data();
+  const AttributeSlot a = attribute_slot(w, parent_slot);
+  if (a.type == kAttachCompressedColorNormal) {
+    const uint32_t* block = compressed_block(w, a);  // may straddle two lines
+    prefetch_line(block);
+    prefetch_line(block + detail::kCompressedBlockWords - 1);
+  } else {
+    prefetch_line(raw_entry(w, a));
+  }
+}
+
+void EsvoOctree::prefetch_attribute_value(uint32_t parent_slot, int child) const {
+  const uint32_t* w = words.data();
+  const AttributeSlot a = attribute_slot(w, parent_slot);
+  if (a.type == kAttachCompressedColorNormal) return;       // the entry step fetched the block
+  prefetch_line(raw_value(w, a, *raw_entry(w, a), child));  // 8 bytes, 8-byte aligned
 }
 
 AttributeFormat EsvoOctree::attribute_format() const {

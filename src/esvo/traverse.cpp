@@ -67,6 +67,14 @@ void EsvoStructure::attributes(const SurfaceHit& hit, TraceContext& ctx, Color* 
   octree_->attributes(uint32_t(hit.voxel_ref), int(hit.child), color, normal);
 }
 
+void EsvoStructure::prefetch_attribute_index(const SurfaceHit& hit) const {
+  octree_->prefetch_attribute_entry(uint32_t(hit.voxel_ref));
+}
+
+void EsvoStructure::prefetch_attributes(const SurfaceHit& hit) const {
+  octree_->prefetch_attribute_value(uint32_t(hit.voxel_ref), int(hit.child));
+}
+
 }  // namespace voxcast::esvo
 
 namespace voxcast {

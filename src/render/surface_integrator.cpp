@@ -286,6 +286,12 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
     if (group_m > 0) shade_group(group_hit, group_x, group_y, group_dir, group_m), group_m = 0;
   };
   if (tiled) {
+    // The first step of every hit's attribute reads (an index, for a
+    // structure whose lookup is a chain) before any group is shaded: by the
+    // time shade_group's prefetch_attributes takes the second step, the
+    // index is in cache.
+    for (int k = 0; k < tile_n; ++k)
+      if (tile_found[size_t(k)]) q.prefetch_attribute_index(tile_hits[size_t(k)]);
     for (int k = 0; k < tile_n; ++k) {
       const int x = tile.x0 + k % tile_w, y = tile.y0 + k / tile_w;
       if (tile_found[size_t(k)])
@@ -309,6 +315,8 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
     const size_t n = pt.order.size();
     packets_->trace_packets(pt.rays.data(), n, lod, ctx, pt.hits.data(), pt.found.data(), isa_,
                             pt.beam_list());
+    for (size_t i = 0; i < n; ++i)  // as in the tile path above
+      if (pt.found[i]) q.prefetch_attribute_index(pt.hits[i]);
     for (size_t i = 0; i < n; ++i) {
       if (pt.found[i])
         add_hit(&pt.hits[i], pt.rays[i].dir, pt.x(i), pt.y(i));
