@@ -761,6 +761,41 @@ TEST_P(Conformance, LodStopsAreConsistent) {
   }
 }
 
+// The attribute prefetch hints (SurfaceQuery::prefetch_attribute_index and
+// prefetch_attributes, which the integrator calls for every hit) are hints:
+// on every kind of hit (leaf, LOD stops at every level, pixel cones) they
+// read nothing out of bounds (the ASan subset of ./run runs this case) and
+// change no answer.
+TEST_P(Conformance, AttributePrefetchHintsChangeNothing) {
+  TraceContext ctx;
+  const Built& b = structure();
+  if (!b.rejected.empty()) return;
+  const SurfaceQuery& s = *b.scene.structure->surface();
+  const int L = b.voxels.grid.levels;
+  const std::vector<Ray> rays = make_rays(L, 600, 57 + GetParam().vcase, &b.voxels, nullptr);
+  size_t hits = 0;
+  for (size_t i = 0; i < rays.size(); ++i) {
+    const int kind = int(i % 3);
+    LodFootprint lod{};
+    if (kind == 1) lod = LodFootprint{std::ldexp(1.f, -(1 + int(i / 3 % size_t(L)))), 0.f};
+    if (kind == 2) lod = LodFootprint{0.f, std::ldexp(1.f, -L) * float(1 + i % 8)};
+    SurfaceHit h;
+    if (!s.trace(rays[i], lod, ctx, &h)) continue;
+    ++hits;
+    Color c0, c1;
+    Vec3 n0, n1;
+    s.attributes(h, ctx, &c0, &n0);
+    s.prefetch_attribute_index(h);
+    s.prefetch_attributes(h);
+    s.attributes(h, ctx, &c1, &n1);
+    ASSERT_EQ(std::memcmp(&c0, &c1, sizeof c0), 0) << label() << " ray " << i;
+    ASSERT_EQ(std::memcmp(&n0, &n1, sizeof n0), 0) << label() << " ray " << i;
+  }
+  if (b.voxels.size() > 8) {
+    EXPECT_GT(hits, 0u) << label();
+  }
+}
+
 // The first `size` bytes of a scene file through the generic loader: a
 // container parsed in memory, or a file type of its own (own_file: slice
 // files) written to a file first (it is opened by path only).
