@@ -464,9 +464,8 @@ class TileWalk {
     I open = from_bits(k);
     F hit_t = row.t_lo;
     I hit_c = L::template splat<I>(-1), hit_lod = L::template splat<I>(0);
-    for (int m = 7; m >= 0; --m) {
-      const int c = m ^ flip;
-      if ((present >> c & 1u) == 0) continue;
+    for (uint32_t b = front_to_back(present, flip); b != 0; b &= b - 1) {
+      const int c = std::countr_zero(b) ^ 7 ^ flip;
       F tau, tc_max;
       planes.child(c, row.t_lo, &tau, &tc_max);
       const I placed = open & (tau < tc_max) & (tau <= row.t_max);
@@ -501,9 +500,8 @@ class TileWalk {
     F tau[8];
     uint32_t placed[8], lod[8];
     int slot[8], n = 0;
-    for (int m = 7; m >= 0; --m) {
-      const int c = m ^ flip;
-      if ((present >> c & 1u) == 0) continue;
+    for (uint32_t b = front_to_back(present, flip); b != 0; b &= b - 1) {
+      const int c = std::countr_zero(b) ^ 7 ^ flip;
       F tc_max;
       planes.child(c, row.t_lo, &tau[n], &tc_max);
       placed[n] = k & L::bits((tau[n] < tc_max) & (tau[n] <= row.t_max));
@@ -554,6 +552,19 @@ class TileWalk {
       if (!(rays_.forward.z < 0.f)) flip |= 4;
     }
     return flip;
+  }
+
+  /// The present children in the walk's order (m ^ flip for m = 7 ... 0) as
+  /// a mask to iterate from its lowest bit: bit i is child i ^ 7 ^ flip's
+  /// (bit c of `present` moved to c ^ 7 ^ flip by three fixed swaps), so a
+  /// loop visits only the present children, with no branch per slot.
+  static uint32_t front_to_back(uint32_t present, int flip) {
+    const int g = 7 ^ flip;
+    uint32_t x = present;
+    if (g & 1) x = (x & 0x55u) << 1 | (x & 0xAAu) >> 1;
+    if (g & 2) x = (x & 0x33u) << 2 | (x & 0xCCu) >> 2;
+    if (g & 4) x = (x & 0x0Fu) << 4 | (x & 0xF0u) >> 4;
+    return x;
   }
 
   /// visit() of a packed node without contours (the rays of lanes `mask`
@@ -623,9 +634,8 @@ class TileWalk {
     const bool culls = !rs.packed && rays_.perspective;
     ChildCull cull;
     if (culls) cull_children(lo, hs, &cull);
-    for (int m = 7; m >= 0; --m) {
-      const int c = m ^ flip;
-      if ((present >> c & 1u) == 0) continue;
+    for (uint32_t b = front_to_back(present, flip); b != 0; b &= b - 1) {
+      const int c = std::countr_zero(b) ^ 7 ^ flip;
       // The rows whose rays still look for their hit.
       // (mask holds a row per tile row for an unpacked node, only row 0 for
       // a packed one.)
