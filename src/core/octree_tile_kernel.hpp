@@ -186,7 +186,7 @@ class TileWalk {
     RaySet& t = tile_;
     t.packed = false;
     packed_.packed = true;
-    uint32_t rows = 0, mask[kTileRows] = {};  // (read as one vector: all rows set)
+    uint32_t rows = 0, mask[kTileRows] = {};  // (the 16-lane row helpers load all rows)
     for (int r = 0; r < rays_.rows; ++r) {
       const uint32_t live = (rays_.live[r] >> col0_) & L::kAll;
       t.active[r] = mask[r] = live;
@@ -639,7 +639,7 @@ class TileWalk {
     const int flip = child_order(lo, hs);
     const F* parent_hi = rs.span_hi[span_level(s + 1)];
     const F side = L::template splat<F>(hs);
-    uint32_t child_mask[kTileRows] = {};  // (read as one vector by the child's visit)
+    uint32_t child_mask[kTileRows] = {};  // (the 16-lane row helpers load all rows)
     // A big node's children against the tile's pixels (cull_children).
     const bool culls = !rs.packed && rays_.perspective;
     ChildCull cull;

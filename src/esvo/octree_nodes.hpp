@@ -91,9 +91,11 @@ struct EsvoNodes {
   /// once its block has arrived.) Always inlined: the kernels call it from
   /// their own ISA's translation units.
   [[gnu::always_inline]] void prefetch_below(const Desc& d, uint32_t slot, int) const {
+    const uint32_t non_leaf = esvo::detail::non_leaf_mask(d.w0);
+    if (non_leaf == 0) return;  // only leaves: no child block (its pointer means nothing)
     NoCounters none;
     const uint32_t first = children(d, slot, 0, none);
-    const uint32_t last = first + uint32_t(std::popcount(esvo::detail::non_leaf_mask(d.w0))) - 1;
+    const uint32_t last = first + uint32_t(std::popcount(non_leaf)) - 1;
     _mm_prefetch(reinterpret_cast<const char*>(words + size_t(first) * 2), _MM_HINT_T0);
     _mm_prefetch(reinterpret_cast<const char*>(words + size_t(last) * 2), _MM_HINT_T0);
   }
