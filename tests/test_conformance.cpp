@@ -761,38 +761,80 @@ TEST_P(Conformance, LodStopsAreConsistent) {
   }
 }
 
+// Hits of every kind for the attribute tests below: leaf hits, LOD stops at
+// every level and pixel cones, in turn (600 rays, seeded by `seed`).
+std::vector<SurfaceHit> mixed_hits(const SurfaceQuery& s, const VoxelSet& voxels, uint32_t seed) {
+  TraceContext ctx;
+  const int L = voxels.grid.levels;
+  const std::vector<Ray> rays = make_rays(L, 600, seed, &voxels, nullptr);
+  std::vector<SurfaceHit> hits;
+  for (size_t i = 0; i < rays.size(); ++i) {
+    LodFootprint lod{};
+    if (i % 3 == 1) lod = LodFootprint{std::ldexp(1.f, -(1 + int(i / 3 % size_t(L)))), 0.f};
+    if (i % 3 == 2) lod = LodFootprint{0.f, std::ldexp(1.f, -L) * float(1 + i % 8)};
+    SurfaceHit h;
+    if (s.trace(rays[i], lod, ctx, &h)) hits.push_back(h);
+  }
+  return hits;
+}
+
 // The attribute prefetch hints (SurfaceQuery::prefetch_attribute_index and
 // prefetch_attributes, which the integrator calls for every hit) are hints:
-// on every kind of hit (leaf, LOD stops at every level, pixel cones) they
-// read nothing out of bounds (the ASan subset of ./run runs this case) and
-// change no answer.
+// on every kind of hit they read nothing out of bounds (the ASan subset of
+// ./run runs this case) and change no answer.
 TEST_P(Conformance, AttributePrefetchHintsChangeNothing) {
   TraceContext ctx;
   const Built& b = structure();
   if (!b.rejected.empty()) return;
   const SurfaceQuery& s = *b.scene.structure->surface();
-  const int L = b.voxels.grid.levels;
-  const std::vector<Ray> rays = make_rays(L, 600, 57 + GetParam().vcase, &b.voxels, nullptr);
-  size_t hits = 0;
-  for (size_t i = 0; i < rays.size(); ++i) {
-    const int kind = int(i % 3);
-    LodFootprint lod{};
-    if (kind == 1) lod = LodFootprint{std::ldexp(1.f, -(1 + int(i / 3 % size_t(L)))), 0.f};
-    if (kind == 2) lod = LodFootprint{0.f, std::ldexp(1.f, -L) * float(1 + i % 8)};
-    SurfaceHit h;
-    if (!s.trace(rays[i], lod, ctx, &h)) continue;
-    ++hits;
+  const std::vector<SurfaceHit> hits = mixed_hits(s, b.voxels, 57 + GetParam().vcase);
+  for (size_t i = 0; i < hits.size(); ++i) {
     Color c0, c1;
     Vec3 n0, n1;
-    s.attributes(h, ctx, &c0, &n0);
-    s.prefetch_attribute_index(h);
-    s.prefetch_attributes(h);
-    s.attributes(h, ctx, &c1, &n1);
-    ASSERT_EQ(std::memcmp(&c0, &c1, sizeof c0), 0) << label() << " ray " << i;
-    ASSERT_EQ(std::memcmp(&n0, &n1, sizeof n0), 0) << label() << " ray " << i;
+    s.attributes(hits[i], ctx, &c0, &n0);
+    s.prefetch_attribute_index(hits[i]);
+    s.prefetch_attributes(hits[i]);
+    s.attributes(hits[i], ctx, &c1, &n1);
+    ASSERT_EQ(std::memcmp(&c0, &c1, sizeof c0), 0) << label() << " hit " << i;
+    ASSERT_EQ(std::memcmp(&n0, &n1, sizeof n0), 0) << label() << " hit " << i;
   }
   if (b.voxels.size() > 8) {
-    EXPECT_GT(hits, 0u) << label();
+    EXPECT_FALSE(hits.empty()) << label();
+  }
+}
+
+// attributes_batch (the integrator's call for a group of hits) answers and
+// counts what attributes() does hit by hit, for every kind of hit and for
+// groups that span a structure's internal chunks.
+TEST_P(Conformance, AttributesBatchMatchesOneAtATime) {
+  const Built& b = structure();
+  if (!b.rejected.empty()) return;
+  const SurfaceQuery& s = *b.scene.structure->surface();
+  const std::vector<SurfaceHit> hits = mixed_hits(s, b.voxels, 91 + GetParam().vcase);
+  const int n = int(hits.size());
+  std::vector<const SurfaceHit*> ptr(hits.size());
+  for (size_t i = 0; i < hits.size(); ++i) ptr[i] = &hits[i];
+  std::vector<Color> c0(hits.size()), c1(hits.size());
+  std::vector<Vec3> n0(hits.size()), n1(hits.size());
+  TraceContext one, many;
+  one.counting = many.counting = true;
+  for (int i = 0; i < n; ++i) s.attributes(hits[size_t(i)], one, &c0[size_t(i)], &n0[size_t(i)]);
+  // All at once, then in odd-sized groups (chunk edges fall elsewhere).
+  for (int group : {n, 13}) {
+    many.counters = RayCounters{};
+    for (int g = 0; g < n; g += group)
+      s.attributes_batch(ptr.data() + g, std::min(group, n - g), many, c1.data() + g,
+                         n1.data() + g);
+    for (int i = 0; i < n; ++i) {
+      ASSERT_EQ(std::memcmp(&c0[size_t(i)], &c1[size_t(i)], sizeof(Color)), 0)
+          << label() << " hit " << i << " group " << group;
+      ASSERT_EQ(std::memcmp(&n0[size_t(i)], &n1[size_t(i)], sizeof(Vec3)), 0)
+          << label() << " hit " << i << " group " << group;
+    }
+    EXPECT_EQ(many.counters.attribute_bytes, one.counters.attribute_bytes) << label();
+  }
+  if (b.voxels.size() > 8) {
+    EXPECT_GT(n, 0) << label();
   }
 }
 

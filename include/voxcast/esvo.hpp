@@ -214,6 +214,9 @@ uint32_t encode_color_abgr(const Color& linear);  // sRGB-encodes
 Color decode_color_abgr(uint32_t abgr);           // back to linear
 uint32_t encode_normal_cube(Vec3 unit_normal);
 Vec3 decode_normal_cube(uint32_t code);
+/// out[i] = decode_normal_cube(codes[i]) for i < n, the same floats (the
+/// same IEEE operations, 8 codes at a time in vector lanes).
+void decode_normal_cubes(const uint32_t* codes, size_t n, Vec3* out);
 
 /// One §5.5 compression block (6 words, layout above and in compress.cpp)
 /// from the colors (linear; alpha ignored) and normals of its 16 slots; only
@@ -347,6 +350,13 @@ class EsvoOctree {
   /// Color (linear) and unit normal of the voxel in child slot `child` of the
   /// descriptor at `parent_slot`.
   void attributes(uint32_t parent_slot, int child, Color* color, Vec3* normal) const;
+  /// attributes(parent_slots[i], children[i], &colors[i], &normals[i]) for
+  /// i < n, the same floats: with raw attachments every value of a group
+  /// is located (one page header -> info -> attachment chain per page) and
+  /// prefetched before any is read, and the normals are decoded in vector
+  /// lanes (decode_normal_cubes).
+  void attributes(const uint32_t* parent_slots, const uint8_t* children, size_t n, Color* colors,
+                  Vec3* normals) const;
   /// What attributes(parent_slot, child) reads, as cache hints in two steps
   /// (a raw lookup is a chain: the slot's lookup entry, then the value it
   /// points to): prefetch_attribute_entry starts the entry's read (a

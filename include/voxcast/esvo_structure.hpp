@@ -57,12 +57,17 @@ class EsvoStructure final : public OctreeStructure<EsvoStructure> {
   /// the value's (EsvoOctree::prefetch_attribute_entry / _value).
   void prefetch_attribute_index(const SurfaceHit& hit) const override;
   void prefetch_attributes(const SurfaceHit& hit) const override;
+  /// The hits' attributes together (EsvoOctree::attributes of many slots).
+  void attributes_batch(const SurfaceHit* const* hits, int n, TraceContext& ctx, Color* colors,
+                        Vec3* normals) const override;
   std::string name() const override { return "esvo"; }
   const EsvoOctree& octree() const { return *octree_; }
 
  private:
   friend class OctreeStructure<EsvoStructure>;
   ::voxcast::detail::OctreeWorld<::voxcast::detail::EsvoNodes> world() const;
+  /// What attributes() counts per hit (ctx.counting).
+  uint64_t attribute_bytes_per_hit() const;
 
   std::shared_ptr<const EsvoOctree> octree_;
 };

@@ -173,6 +173,20 @@ class SurfaceQuery {
   /// index's read, so that prefetch_attributes(hit), called some hits later,
   /// finds it and starts the values'. Default: nothing.
   virtual void prefetch_attribute_index(const SurfaceHit& hit) const { (void)hit; }
+  /// attributes(*hits[i], ctx, &colors[i], &normals[i]) for i < n: the same
+  /// answers and counts in one call, so that a structure can have a group's
+  /// reads in flight together and decode them in vector lanes (the
+  /// integrator shades hits in groups). Default: one attributes() per hit,
+  /// each hit's prefetch_attributes() 16 hits ahead of its read.
+  virtual void attributes_batch(const SurfaceHit* const* hits, int n, TraceContext& ctx,
+                                Color* colors, Vec3* normals) const {
+    constexpr int kAhead = 16;
+    for (int i = 0; i < n && i < kAhead; ++i) prefetch_attributes(*hits[i]);
+    for (int i = 0; i < n; ++i) {
+      if (i + kAhead < n) prefetch_attributes(*hits[i + kAhead]);
+      attributes(*hits[i], ctx, &colors[i], &normals[i]);
+    }
+  }
 
   /// Coarse pass of the beam optimization for one beam (esvo §6.2). Default:
   /// no information. While counting, ctx.counters receives the pass's own work

@@ -18,9 +18,11 @@
 //     below ~7e-5 rad (half a quantization step on the face, see the tests).
 #include <immintrin.h>
 
+#include <algorithm>
 #include <array>
 #include <bit>
 #include <cmath>
+#include <cstring>
 
 #include "esvo/compress.hpp"
 #include "esvo/layout_internal.hpp"
@@ -130,6 +132,41 @@ Vec3 decode_normal_cube(uint32_t code) {
   return r / std::sqrt(1.f + u * u + v * v);
 }
 
+void decode_normal_cubes(const uint32_t* codes, size_t n, Vec3* out) {
+  // decode_normal_cube in 8 lanes (the baseline ISA's AVX2): every lane
+  // does its operations in the same order (-ffp-contract=off; sqrt and
+  // division are correctly rounded in vector lanes as in scalar ones), and
+  // the major component, u and v land where decode_normal_cube's r[axis],
+  // r[(axis + 1) % 3] and r[(axis + 2) % 3] do.
+  using V = float __attribute__((vector_size(32)));
+  using U = uint32_t __attribute__((vector_size(32)));
+  using S = int32_t __attribute__((vector_size(32)));
+  size_t i = 0;
+  for (; i + 8 <= n; i += 8) {
+    U code;
+    std::memcpy(&code, codes + i, sizeof code);
+    U face = code >> layout::NormalFace::lo;
+    face = (S)(face > 5u) != 0 ? U{} + 4u : face;  // as decode_normal_cube
+    const U axis = face >> 1;
+    const V u =
+        __builtin_convertvector((S)((code >> layout::NormalU::lo) & layout::NormalU::max), V) *
+            (2.f / float(kUMax)) -
+        1.f;
+    const V v =
+        __builtin_convertvector((S)((code >> layout::NormalV::lo) & layout::NormalV::max), V) *
+            (2.f / float(kVMax)) -
+        1.f;
+    const V len = (V)_mm256_sqrt_ps((__m256)(1.f + u * u + v * v));
+    const V major = ((face & 1u) != 0u ? V{} - 1.f : V{} + 1.f) / len;
+    const V nu = u / len, nv = v / len;
+    const V x = axis == 0u ? major : (axis == 1u ? nv : nu);
+    const V y = axis == 0u ? nu : (axis == 1u ? major : nv);
+    const V z = axis == 0u ? nv : (axis == 1u ? nu : major);
+    for (int k = 0; k < 8; ++k) out[i + size_t(k)] = {x[k], y[k], z[k]};
+  }
+  for (; i < n; ++i) out[i] = decode_normal_cube(codes[i]);
+}
+
 namespace {
 
 /// Where the attributes of the children of the descriptor at parent_slot
@@ -142,15 +179,27 @@ struct AttributeSlot {
   size_t rel;     // the slot within its block
   uint32_t type;  // kAttachRawColorNormal or kAttachCompressedColorNormal
 };
-AttributeSlot attribute_slot(const uint32_t* w, uint32_t parent_slot) {
+/// The part of an AttributeSlot that all slots of a page share (their
+/// block's attachment), found through the page header and info section.
+struct PageAttachment {
+  size_t attach;       // first word of the attachment
+  size_t block_first;  // first word of the block
+  uint32_t type;
+  AttributeSlot slot(uint32_t parent_slot) const {
+    return {attach, size_t(parent_slot) - block_first / 2, type};
+  }
+};
+PageAttachment page_attachment(const uint32_t* w, uint32_t parent_slot) {
   const size_t page = size_t(parent_slot & ~(kPageSlots - 1)) * 2;
   const size_t info = size_t(int64_t(page) + int32_t(w[page]));
-  const size_t block_first = size_t(int64_t(info) + int32_t(w[info + 1]));
-  AttributeSlot a;
-  a.type = 0;
-  a.attach = detail::find_color_attachment(w, info, &a.type);
-  a.rel = size_t(parent_slot) - block_first / 2;
-  return a;
+  PageAttachment p;
+  p.block_first = size_t(int64_t(info) + int32_t(w[info + 1]));
+  p.type = 0;
+  p.attach = detail::find_color_attachment(w, info, &p.type);
+  return p;
+}
+AttributeSlot attribute_slot(const uint32_t* w, uint32_t parent_slot) {
+  return page_attachment(w, parent_slot).slot(parent_slot);
 }
 /// §5.5: compression block rel >> 1 holds the slot's children at
 /// (rel & 1) * 8 + child.
@@ -184,6 +233,41 @@ void EsvoOctree::attributes(uint32_t parent_slot, int child, Color* color, Vec3*
   const uint32_t* value = raw_value(w, a, *raw_entry(w, a), child);
   if (color) *color = decode_color_abgr(value[0]);
   if (normal) *normal = decode_normal_cube(value[1]);
+}
+
+void EsvoOctree::attributes(const uint32_t* parent_slots, const uint8_t* children, size_t n,
+                            Color* colors, Vec3* normals) const {
+  const uint32_t* w = words.data();
+  constexpr size_t kChunk = 64;
+  const uint32_t* values[kChunk];  // null: a compressed block's slot
+  uint32_t codes[kChunk];
+  for (size_t i0 = 0; i0 < n; i0 += kChunk) {
+    const size_t m = std::min(kChunk, n - i0);
+    // Every value located and its read started before any is used; the
+    // page chain once per page (a group's hits share few pages).
+    PageAttachment page{};
+    uint32_t page_id = 0;
+    for (size_t i = 0; i < m; ++i) {
+      const uint32_t slot = parent_slots[i0 + i];
+      if (i == 0 || (slot & ~(kPageSlots - 1)) != page_id)
+        page = page_attachment(w, slot), page_id = slot & ~(kPageSlots - 1);
+      const AttributeSlot a = page.slot(slot);
+      values[i] = nullptr;
+      if (a.type == kAttachCompressedColorNormal) continue;
+      values[i] = raw_value(w, a, *raw_entry(w, a), children[i0 + i]);
+      prefetch_line(values[i]);
+    }
+    for (size_t i = 0; i < m; ++i) {
+      codes[i] = 0;
+      if (values[i] == nullptr) continue;
+      colors[i0 + i] = decode_color_abgr(values[i][0]);
+      codes[i] = values[i][1];
+    }
+    decode_normal_cubes(codes, m, normals + i0);
+    for (size_t i = 0; i < m; ++i)  // compressed (§5.5): slot by slot
+      if (values[i] == nullptr)
+        attributes(parent_slots[i0 + i], children[i0 + i], &colors[i0 + i], &normals[i0 + i]);
+  }
 }
 
 void EsvoOctree::prefetch_attribute_entry(uint32_t parent_slot) const {

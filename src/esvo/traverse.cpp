@@ -4,6 +4,7 @@
 // (core/octree_caster.hpp); the ESVO contributes its node access
 // (esvo/octree_nodes.hpp: child descriptors with leaf masks and far pointers,
 // contours).
+#include <algorithm>
 #include <cstdint>
 
 #include "core/octree_caster.hpp"
@@ -52,6 +53,12 @@ EsvoStructure::EsvoStructure(std::shared_ptr<const EsvoOctree> octree)
   return ::voxcast::detail::OctreeWorld<Nodes>(*octree_);
 }
 
+uint64_t EsvoStructure::attribute_bytes_per_hit() const {
+  return octree_->attribute_format() == AttributeFormat::Compressed
+             ? uint64_t(detail::kCompressedBlockWords) * 4
+             : 4 + 8;
+}
+
 void EsvoStructure::attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
                                Vec3* normal) const {
   // Bytes of the attachment read per hit. Raw (§5.4, Figure 7): one 32-bit
@@ -59,12 +66,25 @@ void EsvoStructure::attributes(const SurfaceHit& hit, TraceContext& ctx, Color* 
   // block holding the voxel. (Page header and info section reads are
   // per-block metadata that stays cached; they are not counted.) Counted
   // before the fetch so that the fetch is a tail call on the plain path.
-  if (ctx.counting) {
-    ctx.counters.attribute_bytes += octree_->attribute_format() == AttributeFormat::Compressed
-                                        ? uint64_t(detail::kCompressedBlockWords) * 4
-                                        : 4 + 8;
-  }
+  if (ctx.counting) ctx.counters.attribute_bytes += attribute_bytes_per_hit();
   octree_->attributes(uint32_t(hit.voxel_ref), int(hit.child), color, normal);
+}
+
+void EsvoStructure::attributes_batch(const SurfaceHit* const* hits, int n, TraceContext& ctx,
+                                     Color* colors, Vec3* normals) const {
+  if (ctx.counting)
+    ctx.counters.attribute_bytes += uint64_t(std::max(n, 0)) * attribute_bytes_per_hit();
+  constexpr int kChunk = 64;
+  uint32_t slots[kChunk];
+  uint8_t children[kChunk];
+  for (int i0 = 0; i0 < n; i0 += kChunk) {
+    const int m = std::min(kChunk, n - i0);
+    for (int i = 0; i < m; ++i) {
+      slots[i] = uint32_t(hits[i0 + i]->voxel_ref);
+      children[i] = uint8_t(hits[i0 + i]->child);
+    }
+    octree_->attributes(slots, children, size_t(m), colors + i0, normals + i0);
+  }
 }
 
 void EsvoStructure::prefetch_attribute_index(const SurfaceHit& hit) const {

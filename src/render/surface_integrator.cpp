@@ -80,21 +80,22 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
   RayCounters outer;
   if (collect) outer = ctx.counters, ctx.counters = RayCounters{};
 
-  // Hits are shaded in groups of up to kShadeLanes: first every hit's
-  // attributes are fetched (mostly cache misses: the values live far from
-  // the descriptors; prefetched kShadeLanes hits ahead of the reads, they
-  // overlap in the memory system instead of stalling one hit at a time),
-  // then the group's shadow rays are
-  // traced together (effects.hpp: one packet of parallel rays under a
-  // directional light), then per hit the AO rays, then the group's
-  // Blinn-Phong runs in vector lanes (render/shade_kernel.hpp), and the
-  // AOVs are written.
+  // Hits are shaded in groups: first the group's attributes are fetched by
+  // one SurfaceQuery::attributes_batch (mostly cache misses: the values live
+  // far from the descriptors; read together, they overlap in the memory
+  // system instead of stalling one hit at a time), then the group's shadow
+  // rays are traced together (effects.hpp: one packet of parallel rays
+  // under a directional light), then per hit the AO rays, then the
+  // Blinn-Phong runs kShadeLanes hits at a time in vector lanes
+  // (render/shade_kernel.hpp), and the AOVs are written.
   //
-  // With hard shadows the tile and packet paths hand groups of up to
-  // kShadowGroup hits (the tile's, in traced order): their shadow rays, all
-  // parallel under a directional light, are then one batch that the octree
-  // structures trace by shared walks (voxcast/occlusion_packets.hpp
-  // AnyHitOptions::parallel); the Blinn-Phong still runs kShadeLanes at a time.
+  // The tile and packet paths hand groups of up to kShadowGroup hits (a
+  // tile's, in traced order): the more reads one attributes_batch has in
+  // flight, the less each waits (groups of 16 measured 1.05x slower shaded
+  // frames, ESVO); the shadow rays, all parallel under a directional light,
+  // are one batch that the octree structures trace by shared walks
+  // (voxcast/occlusion_packets.hpp AnyHitOptions::parallel). The scalar
+  // path shades kShadeLanes hits at a time.
   const detail::ShadeKernel phong = detail::shade_kernel(isa_);
   detail::ShadeBatch sb{};
   constexpr int kShadowGroup = 256;
@@ -159,18 +160,15 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
   };
   auto shade_group = [&](const SurfaceHit* const* hits, const int* xs, const int* ys,
                          const Vec3* dirs, int m) {
-    // Attribute reads prefetched kShadeLanes ahead (all of a small group).
-    constexpr int kAhead = detail::kShadeLanes;
-    for (int i = 0; i < m && i < kAhead; ++i) q.prefetch_attributes(*hits[i]);
+    // The group's attribute reads together (counts their bytes while collecting).
+    q.attributes_batch(hits, m, ctx, group_c, group_n);
     for (int i = 0; i < m; ++i) {
-      if (i + kAhead < m) q.prefetch_attributes(*hits[i + kAhead]);
       const SurfaceHit& hit = *hits[i];
-      q.attributes(hit, ctx, &group_c[i], &group_n[i]);  // counts its bytes while collecting
       // Voxel normals are averages over the surface inside the voxel and may
       // face away from the viewer; shade the side we see.
       if (dot(group_n[i], dirs[i]) > 0.f) group_n[i] = -group_n[i];
       group_point[i] = ShadingPoint{hit.position, group_n[i], dirs[i], hit.voxel_size};
-      group_seed[i] = pixel_seed(xs[i], ys[i], fx.seed);
+      if (effects) group_seed[i] = pixel_seed(xs[i], ys[i], fx.seed);  // (shadow and AO rays)
     }
     if (effects && fx.shadows != ShadowMode::None) {
       // The Table 6 counters describe primary rays; secondary rays are
@@ -266,11 +264,11 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
                     &tile_start);
     ts.empty_tile = tile_start.valid && tile_start.empty;
   }
-  // The hits of a tile or packet call in groups of kShadeLanes, in the
-  // order traced (a 4x4 block is one group where all its rays hit); of
-  // kShadowGroup with hard shadows (above).
-  const int group_size =
-      effects && fx.shadows == ShadowMode::Hard ? kShadowGroup : detail::kShadeLanes;
+  // The hits of a tile or packet call in groups of up to kShadowGroup (a
+  // 16 x 16 tile's hits are one group), in the order traced: one
+  // attributes_batch per group (the more reads in flight together, the
+  // less each waits), one batch of shadow rays (above).
+  const int group_size = kShadowGroup;
   thread_local const SurfaceHit* group_hit[kShadowGroup];
   thread_local Vec3 group_dir[kShadowGroup];
   thread_local int group_x[kShadowGroup], group_y[kShadowGroup];
