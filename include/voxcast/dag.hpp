@@ -381,8 +381,10 @@ class DagStructure final : public OctreeStructure<DagStructure> {
   /// (raw: the 32-bit color and normal words; compressed: the 24-byte block).
   void attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
                   Vec3* normal) const override;
-  /// An L - 3 hit's fine_means entry (its line of start bits was prefetched
-  /// when the hit was named, DagNodes::name_hit).
+  /// What attributes(hit) reads first: an L - 3 hit's fine_means entry (its
+  /// line of start bits was prefetched when the hit was named,
+  /// DagNodes::name_hit), a leaf voxel's value or a small cube's first
+  /// voxel; a mean table lookup is not prefetched.
   void prefetch_attributes(const SurfaceHit& hit) const override;
   std::string name() const override { return "dag"; }
   const SparseVoxelDag& dag() const { return *dag_; }

@@ -24,6 +24,29 @@ namespace {
 
 using Nodes = ::voxcast::detail::DagNodes;
 
+/// What attributes(hit) reads for a DAG with attributes: one decision for
+/// the read and its prefetch (prefetch_attributes), so they stay in step.
+struct AttributeRead {
+  enum class Kind {
+    kFineMean,   // an 8^3 cube at L - 3: its fine_means entry
+    kMeanTable,  // a coarser cube of more than kCubeMeanMin voxels (or no
+                 // count named): the mean table, else the voxels' mean
+    kSmallCube,  // a cube of at most kCubeMeanMin voxels: their mean
+    kVoxel,      // a leaf voxel (or an index past them: voxel_attributes)
+  } kind;
+  const SparseVoxelDag::FineMean* fine;  // kFineMean
+  uint64_t count;                        // kMeanTable, kSmallCube: the voxels named (0: none)
+};
+AttributeRead attribute_read(const SparseVoxelDag& d, const SurfaceHit& hit) {
+  using K = AttributeRead::Kind;
+  if (hit.level >= d.levels() || hit.voxel_ref >= d.leaf_voxels) return {K::kVoxel, nullptr, 0};
+  if (hit.level == d.levels() - 3)
+    if (const SparseVoxelDag::FineMean* f = d.fine_mean(hit.voxel_ref)) return {K::kFineMean, f, 0};
+  const uint64_t count = Nodes::child_count(hit.child);
+  if (count == 0 || count > SparseVoxelDag::kCubeMeanMin) return {K::kMeanTable, nullptr, count};
+  return {K::kSmallCube, nullptr, count};
+}
+
 }  // namespace
 
 // The SurfaceQuery tracing methods are the octree family's
@@ -64,22 +87,16 @@ void DagStructure::prefetch_attributes(const SurfaceHit& hit) const {
   const SparseVoxelDag& d = *dag_;
   if (!d.has_attributes()) return;
   auto line = [](const void* p) { _mm_prefetch(static_cast<const char*>(p), _MM_HINT_T0); };
-  const uint64_t i = hit.voxel_ref;
-  if (hit.level < d.levels() && i < d.leaf_voxels) {
-    if (hit.level == d.levels() - 3) {
-      if (const SparseVoxelDag::FineMean* f = d.fine_mean(i)) {
-        // 28 bytes: they may straddle two cache lines.
-        line(f), line(reinterpret_cast<const char*>(f + 1) - 1);
-        return;
-      }
-    }
-    // A coarser cube's mean: a table lookup (not prefetched), unless it is
-    // small enough to be summed from its voxels, which start at i.
-    const uint64_t count = Nodes::child_count(hit.child);
-    if (count == 0 || count > SparseVoxelDag::kCubeMeanMin) return;
-  } else if (i >= d.leaf_voxels) {
-    return;  // voxel_attributes' default
+  const AttributeRead r = attribute_read(d, hit);
+  using K = AttributeRead::Kind;
+  if (r.kind == K::kFineMean) {  // 28 bytes: they may straddle two cache lines
+    line(r.fine), line(reinterpret_cast<const char*>(r.fine + 1) - 1);
+    return;
   }
+  const uint64_t i = hit.voxel_ref;
+  // A mean table lookup is not prefetched; nor is voxel_attributes' default
+  // past the voxels.
+  if (r.kind == K::kMeanTable || i >= d.leaf_voxels) return;
   // Leaf voxel i's value, or the first of a small cube's voxels.
   if (!d.attribute_blocks.empty()) {
     const uint32_t* block = &d.attribute_blocks[size_t(i / SparseVoxelDag::kCompressedSlots) *
@@ -103,27 +120,25 @@ void DagStructure::attributes(const SurfaceHit& hit, TraceContext& ctx, Color* c
     // Coarser cubes of more than kCubeMeanMin voxels: one lookup in the mean table.
     // The others: the cube's voxels are the hit's first voxel and the count
     // the traversal named (Nodes::name_hit), or cube_range's where it has none.
-    if (hit.level < dag_->levels() && hit.voxel_ref < dag_->leaf_voxels) {
-      // The 8^3 cubes at L - 3: one starts word and one entry (dag.hpp fine_means).
-      if (hit.level == dag_->levels() - 3) {
-        if (const SparseVoxelDag::FineMean* f = dag_->fine_mean(hit.voxel_ref)) {
-          *color = f->color, *normal = f->normal;
-          return;
-        }
-      }
-      const uint64_t count = Nodes::child_count(hit.child);
-      if (count == 0 || count > SparseVoxelDag::kCubeMeanMin) {
-        if (const SparseVoxelDag::CubeMean* m = dag_->cached_mean(hit.voxel_ref, hit.level)) {
-          *color = m->color, *normal = m->normal;
-          return;
-        }
-      }
-      dag_->mean_attributes(count != 0 ? VoxelRange{hit.voxel_ref, count}
-                                       : dag_->cube_range(hit.voxel_ref, hit.level),
-                            color, normal);
-    } else {
-      dag_->voxel_attributes(hit.voxel_ref, color, normal);
+    const AttributeRead r = attribute_read(*dag_, hit);
+    using K = AttributeRead::Kind;
+    if (r.kind == K::kFineMean) {  // one starts word and one entry (dag.hpp fine_means)
+      *color = r.fine->color, *normal = r.fine->normal;
+      return;
     }
+    if (r.kind == K::kVoxel) {
+      dag_->voxel_attributes(hit.voxel_ref, color, normal);
+      return;
+    }
+    if (r.kind == K::kMeanTable) {
+      if (const SparseVoxelDag::CubeMean* m = dag_->cached_mean(hit.voxel_ref, hit.level)) {
+        *color = m->color, *normal = m->normal;
+        return;
+      }
+    }
+    dag_->mean_attributes(r.count != 0 ? VoxelRange{hit.voxel_ref, r.count}
+                                       : dag_->cube_range(hit.voxel_ref, hit.level),
+                          color, normal);
     return;
   }
   // Geometry-only DAG: gray, normal of the entered cube face.

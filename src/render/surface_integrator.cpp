@@ -285,9 +285,8 @@ void SurfaceIntegrator::render_tile(const Structure&, const FrameView&, const Ti
   };
   if (tiled) {
     // The first step of every hit's attribute reads (an index, for a
-    // structure whose lookup is a chain) before any group is shaded: by the
-    // time shade_group's prefetch_attributes takes the second step, the
-    // index is in cache.
+    // structure whose lookup is a chain) before the group is shaded: by the
+    // time shade_group's attributes_batch reads it, it is on its way.
     for (int k = 0; k < tile_n; ++k)
       if (tile_found[size_t(k)]) q.prefetch_attribute_index(tile_hits[size_t(k)]);
     for (int k = 0; k < tile_n; ++k) {
