@@ -461,6 +461,60 @@ TEST(DagCompressed, RangeMeansEqualTheSlotBySlotSums) {
   EXPECT_GT(compared, 300);
 }
 
+// mean_attributes(ranges, n, ...) (the batch a tile's LOD hits take) must
+// give each range's mean_attributes floats: random ranges of every length
+// the batch takes and longer, ranges at and past the last voxel, empty ones,
+// over raw voxels whose normal words are random (cube faces 0..7, any u/v:
+// the vector decode must match the scalar one on every code) and over
+// compressed blocks (one at a time inside the batch).
+void expect_batched_means_equal(const SparseVoxelDag& d, uint64_t seed) {
+  const uint64_t V = d.leaf_voxels;
+  std::vector<dag::VoxelRange> ranges;
+  for (int t = 0; t < 3000; ++t) {
+    seed = seed * 6364136223846793005ull + 1442695040888963407ull;
+    const uint64_t first = t % 97 == 0 ? V - 1 - (seed >> 40) % 3 : (seed >> 20) % V;
+    uint64_t count = 1 + (seed >> 8) % (t % 5 == 0 ? 300 : SparseVoxelDag::kBatchMeanVoxels);
+    if (t % 53 == 0) count = 0;
+    if (t % 211 == 0) count = V;  // past the end: as one voxel
+    ranges.push_back({t % 401 == 0 ? V + 5 : first, count});
+  }
+  std::vector<Color> colors(ranges.size());
+  std::vector<Vec3> normals(ranges.size());
+  size_t compared = 0;
+  for (size_t at = 0; at < ranges.size();) {  // calls of 1 .. 200 ranges
+    const size_t n = std::min(ranges.size() - at, size_t(1 + (at * 7919) % 200));
+    d.mean_attributes(ranges.data() + at, n, colors.data() + at, normals.data() + at);
+    for (size_t i = at; i < at + n; ++i) {
+      Color c;
+      Vec3 nrm;
+      d.mean_attributes(ranges[i], &c, &nrm);
+      EXPECT_TRUE(std::memcmp(&c, &colors[i], sizeof c) == 0 &&
+                  std::memcmp(&nrm, &normals[i], sizeof nrm) == 0)
+          << "range " << i << ": first " << ranges[i].first << " count " << ranges[i].count;
+      ++compared;
+    }
+    at += n;
+  }
+  EXPECT_EQ(compared, ranges.size());
+  d.mean_attributes(ranges.data(), 0, colors.data(), normals.data());  // nothing to do
+}
+
+TEST(DagLodMeans, BatchedMeansEqualOneAtATime) {
+  SparseVoxelDag raw = dag::build_dag(smooth_shell(7));
+  ASSERT_TRUE(raw.has_attributes());
+  ASSERT_GT(raw.leaf_voxels, 4 * SparseVoxelDag::kBatchMeanVoxels);
+  uint32_t x = 12345;
+  for (size_t i = 0; i < raw.normals.size(); ++i) {
+    x = x * 1664525u + 1013904223u;
+    if (i % 3 == 0) raw.normals[i] = x;  // every face code, u and v
+    if (i % 5 == 0) raw.colors[i] = x * 2654435761u;
+  }
+  expect_batched_means_equal(raw, 11);
+  const SparseVoxelDag cmp = compressed(dag::build_dag(smooth_shell(7)));
+  ASSERT_TRUE(cmp.compressed_attributes());
+  expect_batched_means_equal(cmp, 12);
+}
+
 TEST(DagCompressed, DeterministicForOneAndTwoThreads) {
   const SparseVoxelDag raw = dag::build_dag(testing::make_random_voxels(8, 80000, 5));
   SparseVoxelDag one = raw, two = raw;

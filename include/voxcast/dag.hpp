@@ -205,6 +205,14 @@ class SparseVoxelDag {
   /// Mean linear color and normalized mean normal of the leaf voxels in
   /// `range` (what a coarse LOD hit shows), from the blocked prefix sums below.
   void mean_attributes(VoxelRange range, Color* color, Vec3* normal) const;
+  /// mean_attributes(ranges[i], &colors[i], &normals[i]) for i < n, the same
+  /// floats: with raw attributes, the ranges of at most kBatchMeanVoxels
+  /// voxels (a LOD hit's small cube) are read together (every line of a
+  /// chunk's ranges prefetched before any is summed) and their normals
+  /// decoded in vector lanes (esvo::decode_normal_cubes); the same integer
+  /// sums, so the same means.
+  void mean_attributes(const VoxelRange* ranges, size_t n, Color* colors, Vec3* normals) const;
+  static constexpr uint64_t kBatchMeanVoxels = 64;
 
   // Derived by finalize() when there are attributes (never stored in files):
   // fixed-point sums (kAttributeSumOne = 1.0) of the linear r, g, b, a and the
@@ -386,12 +394,20 @@ class DagStructure final : public OctreeStructure<DagStructure> {
   /// DagNodes::name_hit), a leaf voxel's value or a small cube's first
   /// voxel; a mean table lookup is not prefetched.
   void prefetch_attributes(const SurfaceHit& hit) const override;
+  /// attributes() of each hit, the same answers and counts: the small cubes'
+  /// means of a group (LOD hits below L - 3) by the batched
+  /// SparseVoxelDag::mean_attributes, the others one at a time with their
+  /// reads prefetched first.
+  void attributes_batch(const SurfaceHit* const* hits, int n, TraceContext& ctx, Color* colors,
+                        Vec3* normals) const override;
   std::string name() const override { return "dag"; }
   const SparseVoxelDag& dag() const { return *dag_; }
 
  private:
   friend class OctreeStructure<DagStructure>;
   ::voxcast::detail::OctreeWorld<::voxcast::detail::DagNodes> world() const;
+  /// attributes() without the counters.
+  void read_attributes(const SurfaceHit& hit, Color* color, Vec3* normal) const;
 
   std::shared_ptr<const SparseVoxelDag> dag_;
 };

@@ -3,7 +3,6 @@
 // (svdag Table 2) and decoding. Layout in dag.hpp.
 #include "voxcast/dag.hpp"
 
-#include <immintrin.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
@@ -11,6 +10,7 @@
 #include <cmath>
 #include <string>
 
+#include "core/prefetch.hpp"
 #include "dag/attribute_sum.hpp"
 #include "esvo/compress.hpp"
 #include "voxcast/error.hpp"
@@ -591,6 +591,68 @@ void SparseVoxelDag::mean_attributes(VoxelRange range, Color* color, Vec3* norma
     for (int k = 0; k < 7; ++k) sum[size_t(k)] = pe[size_t(k)] - pa[size_t(k)];
   }
   mean_of_sum(*this, sum, range, color, normal);
+}
+
+void SparseVoxelDag::mean_attributes(const VoxelRange* ranges, size_t n, Color* colors,
+                                     Vec3* normals) const {
+  if (!has_attributes() || compressed_attributes()) {
+    for (size_t i = 0; i < n; ++i) mean_attributes(ranges[i], &colors[i], &normals[i]);
+    return;
+  }
+  // Per chunk of 64 ranges: every line they cover prefetched (a LOD hit's
+  // voxels are one short run, far from the last hit's), then their normal
+  // codes copied out and decoded 8 at a time, then each range's fixed-point
+  // sums and mean as mean_attributes computes them (attribute_sum's
+  // per-voxel integers: decode_normal_cubes gives decode_normal_cube's
+  // floats, and integer sums do not depend on the order).
+  constexpr size_t kChunk = 64, kVoxels = kChunk * kBatchMeanVoxels;
+  thread_local uint32_t codes[kVoxels];
+  thread_local Vec3 decoded[kVoxels];
+  const int64_t* ch = detail::fixed_channel_table();
+  auto batched = [&](const VoxelRange& r) {
+    return r.count > 0 && r.count <= kBatchMeanVoxels && r.first < leaf_voxels &&
+           r.count <= leaf_voxels - r.first;
+  };
+  for (size_t i0 = 0; i0 < n; i0 += kChunk) {
+    const size_t m = std::min(kChunk, n - i0);
+    const VoxelRange* rs = ranges + i0;
+    for (size_t i = 0; i < m; ++i) {
+      if (!batched(rs[i])) continue;
+      const size_t a = size_t(rs[i].first), e = a + size_t(rs[i].count);
+      for (const uint32_t* v : {this->colors.data(), this->normals.data()}) {
+        const uintptr_t last = reinterpret_cast<uintptr_t>(v + e - 1) | 63;
+        for (uintptr_t p = reinterpret_cast<uintptr_t>(v + a); p <= last; p += 64)
+          ::voxcast::detail::prefetch_line(reinterpret_cast<const char*>(p));
+      }
+    }
+    size_t at = 0;
+    for (size_t i = 0; i < m; ++i) {
+      if (!batched(rs[i])) continue;
+      std::copy_n(&this->normals[size_t(rs[i].first)], size_t(rs[i].count), codes + at);
+      at += size_t(rs[i].count);
+    }
+    esvo::decode_normal_cubes(codes, at, decoded);
+    at = 0;
+    for (size_t i = 0; i < m; ++i) {
+      if (!batched(rs[i])) {
+        mean_attributes(rs[i], &colors[i0 + i], &normals[i0 + i]);
+        continue;
+      }
+      AttributeSum sum{};
+      const size_t a = size_t(rs[i].first), count = size_t(rs[i].count);
+      for (size_t j = 0; j < count; ++j, ++at) {
+        const uint32_t abgr = this->colors[a + j];
+        sum[0] += ch[esvo::layout::ColorR::get(abgr)];
+        sum[1] += ch[esvo::layout::ColorG::get(abgr)];
+        sum[2] += ch[esvo::layout::ColorB::get(abgr)];
+        sum[3] += ch[256 + esvo::layout::ColorA::get(abgr)];
+        sum[4] += to_fixed(decoded[at].x);
+        sum[5] += to_fixed(decoded[at].y);
+        sum[6] += to_fixed(decoded[at].z);
+      }
+      mean_of_sum(*this, sum, rs[i], &colors[i0 + i], &normals[i0 + i]);
+    }
+  }
 }
 
 Aabb occupied_bounds(const SparseVoxelDag& dag, int max_level) {

@@ -8,12 +8,14 @@
 // contributes its node access and voxel indexing (dag/octree_nodes.hpp). The any-hit variant
 // (shadow rays) skips the index bookkeeping; the loop visits voxels front to back, so the first
 // leaf found is also the closest one.
-#include <immintrin.h>
 
+#include <algorithm>
 #include <cstdint>
+#include <vector>
 
 #include "core/octree_caster.hpp"
 #include "core/octree_packets.hpp"
+#include "core/prefetch.hpp"
 #include "core/tile_frustum.hpp"
 #include "dag/octree_nodes.hpp"
 #include "voxcast/dag.hpp"
@@ -45,6 +47,31 @@ AttributeRead attribute_read(const SparseVoxelDag& d, const SurfaceHit& hit) {
   const uint64_t count = Nodes::child_count(hit.child);
   if (count == 0 || count > SparseVoxelDag::kCubeMeanMin) return {K::kMeanTable, nullptr, count};
   return {K::kSmallCube, nullptr, count};
+}
+
+// What attributes(hit) reads first (prefetch_attributes, attributes_batch).
+// core/prefetch.hpp: the hints are asm statements, which GCC keeps.
+inline void prefetch_read(const SparseVoxelDag& d, const SurfaceHit& hit) {
+  using ::voxcast::detail::prefetch_line;
+  const AttributeRead r = attribute_read(d, hit);
+  using K = AttributeRead::Kind;
+  if (r.kind == K::kFineMean) {  // 28 bytes: they may straddle two cache lines
+    prefetch_line(r.fine), prefetch_line(reinterpret_cast<const char*>(r.fine + 1) - 1);
+    return;
+  }
+  const uint64_t i = hit.voxel_ref;
+  // A mean table lookup is not prefetched; nor is voxel_attributes' default
+  // past the voxels.
+  if (r.kind == K::kMeanTable || i >= d.leaf_voxels) return;
+  // Leaf voxel i's value, or the first of a small cube's voxels.
+  if (!d.attribute_blocks.empty()) {
+    const uint32_t* block = &d.attribute_blocks[size_t(i / SparseVoxelDag::kCompressedSlots) *
+                                                SparseVoxelDag::kCompressedBlockWords];
+    prefetch_line(block),
+        prefetch_line(block + SparseVoxelDag::kCompressedBlockWords - 1);  // 24 bytes
+  } else {
+    prefetch_line(&d.colors[size_t(i)]), prefetch_line(&d.normals[size_t(i)]);
+  }
 }
 
 }  // namespace
@@ -83,28 +110,7 @@ DagStructure::DagStructure(std::shared_ptr<const SparseVoxelDag> dag) : dag_(std
 }
 
 void DagStructure::prefetch_attributes(const SurfaceHit& hit) const {
-  // What attributes(hit) below reads first.
-  const SparseVoxelDag& d = *dag_;
-  if (!d.has_attributes()) return;
-  auto line = [](const void* p) { _mm_prefetch(static_cast<const char*>(p), _MM_HINT_T0); };
-  const AttributeRead r = attribute_read(d, hit);
-  using K = AttributeRead::Kind;
-  if (r.kind == K::kFineMean) {  // 28 bytes: they may straddle two cache lines
-    line(r.fine), line(reinterpret_cast<const char*>(r.fine + 1) - 1);
-    return;
-  }
-  const uint64_t i = hit.voxel_ref;
-  // A mean table lookup is not prefetched; nor is voxel_attributes' default
-  // past the voxels.
-  if (r.kind == K::kMeanTable || i >= d.leaf_voxels) return;
-  // Leaf voxel i's value, or the first of a small cube's voxels.
-  if (!d.attribute_blocks.empty()) {
-    const uint32_t* block = &d.attribute_blocks[size_t(i / SparseVoxelDag::kCompressedSlots) *
-                                                SparseVoxelDag::kCompressedBlockWords];
-    line(block), line(block + SparseVoxelDag::kCompressedBlockWords - 1);  // 24 bytes
-  } else {
-    line(&d.colors[size_t(i)]), line(&d.normals[size_t(i)]);
-  }
+  if (dag_->has_attributes()) prefetch_read(*dag_, hit);
 }
 
 void DagStructure::attributes(const SurfaceHit& hit, TraceContext& ctx, Color* color,
@@ -114,6 +120,55 @@ void DagStructure::attributes(const SurfaceHit& hit, TraceContext& ctx, Color* c
   // The index itself came with the traversal (prefix sums next to the pointers).
   if (ctx.counting && dag_->has_attributes())
     ctx.counters.attribute_bytes += dag_->compressed_attributes() ? 24 : 8;
+  read_attributes(hit, color, normal);
+}
+
+void DagStructure::attributes_batch(const SurfaceHit* const* hits, int n, TraceContext& ctx,
+                                    Color* colors, Vec3* normals) const {
+  const SparseVoxelDag& d = *dag_;
+  if (!d.has_attributes() || d.compressed_attributes()) {
+    SurfaceQuery::attributes_batch(hits, n, ctx, colors, normals);
+    return;
+  }
+  if (ctx.counting) ctx.counters.attribute_bytes += 8 * uint64_t(std::max(n, 0));
+  // The small cubes (at 1 px, nearly every LOD hit: a 2^3 or 4^3 cube)
+  // through the batched mean, 64 at a time; the other hits one at a time,
+  // each one's reads prefetched 16 hits ahead (as the default batch; a
+  // burst of prefetches for leaf hits measured slower).
+  constexpr int kChunk = 64, kAhead = 16;
+  VoxelRange ranges[kChunk];
+  int small[kChunk];
+  Color c[kChunk];
+  Vec3 nrm[kChunk];
+  thread_local std::vector<int> other;
+  other.clear();
+  using K = AttributeRead::Kind;
+  int k = 0;
+  auto flush = [&] {
+    d.mean_attributes(ranges, size_t(k), c, nrm);
+    for (int j = 0; j < k; ++j) colors[small[j]] = c[j], normals[small[j]] = nrm[j];
+    k = 0;
+  };
+  for (int i = 0; i < n; ++i) {
+    const AttributeRead r = attribute_read(d, *hits[i]);
+    if (r.kind != K::kSmallCube) {
+      other.push_back(i);
+      continue;
+    }
+    ranges[k] = {hits[i]->voxel_ref, r.count}, small[k++] = i;
+    if (k == kChunk) flush();
+  }
+  flush();
+  const int o = int(other.size());
+  for (int j = 0; j < o && j < kAhead; ++j) prefetch_read(d, *hits[other[size_t(j)]]);
+  for (int j = 0; j < o; ++j) {
+    if (j + kAhead < o) prefetch_read(d, *hits[other[size_t(j + kAhead)]]);
+    const int i = other[size_t(j)];
+    read_attributes(*hits[i], &colors[i], &normals[i]);
+  }
+}
+
+void DagStructure::read_attributes(const SurfaceHit& hit, Color* color, Vec3* normal) const {
   if (dag_->has_attributes()) {
     // A coarse (LOD) hit shows the mean of all its leaf voxels (dag.hpp),
     // as an ESVO parent shows its children's average (esvo §5.4).

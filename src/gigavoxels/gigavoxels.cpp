@@ -22,6 +22,7 @@
 #include <map>
 #include <new>
 
+#include "core/prefetch.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/integrator.hpp"
 #include "voxcast/system.hpp"
@@ -850,7 +851,7 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
     for (int k = 0; k < m; ++k) {
       const unsigned char* v = lk.brick + size_t(c.at[k]) * vb;
       for (size_t at : {size_t(0), row, slice, row + slice})
-        _mm_prefetch(reinterpret_cast<const char*>(v + at), _MM_HINT_T0);
+        ::voxcast::detail::prefetch_line(v + at);  // (core/prefetch.hpp: kept)
     }
 #else
     (void)lk, (void)c, (void)m, (void)vb;
