@@ -133,8 +133,7 @@ void DagStructure::attributes_batch(const SurfaceHit* const* hits, int n, TraceC
   if (ctx.counting) ctx.counters.attribute_bytes += 8 * uint64_t(std::max(n, 0));
   // The small cubes (at 1 px, nearly every LOD hit: a 2^3 or 4^3 cube)
   // through the batched mean, 64 at a time; the other hits one at a time,
-  // each one's reads prefetched 16 hits ahead (as the default batch; a
-  // burst of prefetches for leaf hits measured slower).
+  // each one's reads prefetched 16 hits ahead (as the default batch).
   constexpr int kChunk = 64, kAhead = 16;
   VoxelRange ranges[kChunk];
   int small[kChunk];
