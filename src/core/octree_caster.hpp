@@ -192,11 +192,21 @@ inline float scale_side(int scale) {
 /// `d` after avoid_tiny_components) entered the cube at mirrored min corner
 /// `mpos`: the axis whose entry plane (the mirrored cube's upper corner) is
 /// crossed last. Entering a cube while moving +x means its -x face.
-inline int entered_face(const MirroredRay& ray, Vec3 d, Vec3 mpos, int scale) {
+/// Here from the ray's terms, t(c) = fma(c, coef, neg_bias) per axis
+/// (MirroredRay::tx with neg_bias = -tx_bias; the tile caster keeps them
+/// per ray, core/octree_tile_caster.hpp TileRays).
+inline int entered_face(Vec3 coef, Vec3 neg_bias, Vec3 d, Vec3 mpos, int scale) {
   const float s = scale_side(scale);
-  const float ex = ray.tx(mpos.x + s), ey = ray.ty(mpos.y + s), ez = ray.tz(mpos.z + s);
+  const float ex = std::fma(mpos.x + s, coef.x, neg_bias.x);
+  const float ey = std::fma(mpos.y + s, coef.y, neg_bias.y);
+  const float ez = std::fma(mpos.z + s, coef.z, neg_bias.z);
   const int axis = (ex >= ey && ex >= ez) ? 0 : (ey >= ez ? 1 : 2);
   return axis * 2 + (d[axis] > 0.0f ? 1 : 0);
+}
+/// The same of a MirroredRay.
+inline int entered_face(const MirroredRay& ray, Vec3 d, Vec3 mpos, int scale) {
+  return entered_face({ray.tx_coef, ray.ty_coef, ray.tz_coef},
+                      {-ray.tx_bias, -ray.ty_bias, -ray.tz_bias}, d, mpos, scale);
 }
 
 /// Undoes the mirroring of a cube's min corner: the cube [x, x+s] mirrored is

@@ -202,23 +202,18 @@ void structure_trace_tile(const World& world, Isa isa, const TileKernels<P>& ker
           r.scale = th.scale;
           if constexpr (!std::is_same_v<Index, NoIndex>) r.index = Index(th.index);
           if constexpr (P::kEnteredFace) {
-            // entered_face(MirroredRay(p, dt), dt, mirrored corner, scale)
-            // from the ray's set-up values the tile keeps (coef, -bias,
-            // mirror bits, dt): the same floats without the MirroredRay's
-            // three divisions per hit.
+            // entered_face of the ray's MirroredRay from the values the
+            // tile keeps (coefficients, negated biases, mirror bits, the
+            // direction after avoid_tiny_components): the same floats
+            // without a MirroredRay's three divisions per hit.
             const int octant =
                 7 ^ int((rays.mirror_x[j] >> i & 1u) | (rays.mirror_y[j] >> i & 1u) << 1 |
                         (rays.mirror_z[j] >> i & 1u) << 2);
             // unmirror() is its own inverse: the mirrored min corner.
-            const Vec3 m = unmirror(octant, r.pos, r.scale);
-            const float s = scale_side(r.scale);
-            const float ex = std::fma(m.x + s, rays.cx[j][i], rays.nbx[j][i]);
-            const float ey = std::fma(m.y + s, rays.cy[j][i], rays.nby[j][i]);
-            const float ez = std::fma(m.z + s, rays.cz[j][i], rays.nbz[j][i]);
-            const int axis = (ex >= ey && ex >= ez) ? 0 : (ey >= ez ? 1 : 2);
-            const float da =
-                axis == 0 ? rays.dx[j][i] : (axis == 1 ? rays.dy[j][i] : rays.dz[j][i]);
-            r.face = axis * 2 + (da > 0.0f ? 1 : 0);
+            r.face = entered_face({rays.cx[j][i], rays.cy[j][i], rays.cz[j][i]},
+                                  {rays.nbx[j][i], rays.nby[j][i], rays.nbz[j][i]},
+                                  {rays.dx[j][i], rays.dy[j][i], rays.dz[j][i]},
+                                  unmirror(octant, r.pos, r.scale), r.scale);
           }
           frame.hit_to_world(p, d, r.t, r.pos, r.scale, &hits[k]);
           P::name_hit(world.source, r, &hits[k]);

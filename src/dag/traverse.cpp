@@ -56,7 +56,8 @@ inline void prefetch_read(const SparseVoxelDag& d, const SurfaceHit& hit) {
   const AttributeRead r = attribute_read(d, hit);
   using K = AttributeRead::Kind;
   if (r.kind == K::kFineMean) {  // 28 bytes: they may straddle two cache lines
-    prefetch_line(r.fine), prefetch_line(reinterpret_cast<const char*>(r.fine + 1) - 1);
+    prefetch_line(r.fine);
+    prefetch_line(reinterpret_cast<const char*>(r.fine + 1) - 1);
     return;
   }
   const uint64_t i = hit.voxel_ref;
@@ -67,10 +68,11 @@ inline void prefetch_read(const SparseVoxelDag& d, const SurfaceHit& hit) {
   if (!d.attribute_blocks.empty()) {
     const uint32_t* block = &d.attribute_blocks[size_t(i / SparseVoxelDag::kCompressedSlots) *
                                                 SparseVoxelDag::kCompressedBlockWords];
-    prefetch_line(block),
-        prefetch_line(block + SparseVoxelDag::kCompressedBlockWords - 1);  // 24 bytes
+    prefetch_line(block);  // 24 bytes: one or two lines
+    prefetch_line(block + SparseVoxelDag::kCompressedBlockWords - 1);
   } else {
-    prefetch_line(&d.colors[size_t(i)]), prefetch_line(&d.normals[size_t(i)]);
+    prefetch_line(&d.colors[size_t(i)]);
+    prefetch_line(&d.normals[size_t(i)]);
   }
 }
 
