@@ -466,7 +466,10 @@ TEST(DagCompressed, RangeMeansEqualTheSlotBySlotSums) {
 // the batch takes and longer, ranges at and past the last voxel, empty ones,
 // over raw voxels whose normal words are random (cube faces 0..7, any u/v:
 // the vector decode must match the scalar one on every code) and over
-// compressed blocks (one at a time inside the batch).
+// compressed blocks. (The batch hands compressed DAGs and ranges of more
+// than kBatchMeanVoxels voxels to the one-range call, so those compare a
+// call with itself; the derived prefix sums of the edited raw voxels are
+// stale, which only those long ranges read.)
 void expect_batched_means_equal(const SparseVoxelDag& d, uint64_t seed) {
   const uint64_t V = d.leaf_voxels;
   std::vector<dag::VoxelRange> ranges;

@@ -851,7 +851,7 @@ void GigaVoxels::sample_span(const Ray& ray, const VolumeSpan& span, const float
     for (int k = 0; k < m; ++k) {
       const unsigned char* v = lk.brick + size_t(c.at[k]) * vb;
       for (size_t at : {size_t(0), row, slice, row + slice})
-        ::voxcast::detail::prefetch_line(v + at);  // (core/prefetch.hpp: kept)
+        ::voxcast::detail::prefetch_line(v + at);  // an asm hint GCC keeps
     }
 #else
     (void)lk, (void)c, (void)m, (void)vb;
