@@ -109,6 +109,36 @@ TEST(BrickmapStream, ATinyBudgetConvergesToTheFullImageShowingLodColorsMeanwhile
   EXPECT_EQ(e.color.pixels, want.color.pixels);
 }
 
+// Grids of 1^3 to 8^3 voxels (no brickgrid level below the root: the root
+// cell is the world's one brick, a 1^3 grid's root its one voxel) stream to
+// their in-RAM image; the 1^3 world's first frame used to name a voxel of
+// a brick not yet loaded (a crash in attributes()).
+TEST(BrickmapStream, TinyWorldsStreamToTheirInRamImage) {
+  testing::TempDir dir;
+  for (int levels = 0; levels <= 3; ++levels) {
+    SCOPED_TRACE("levels " + std::to_string(levels));
+    VoxelSet v = testing::make_dense_grid(
+        levels, [](uint32_t x, uint32_t y, uint32_t z) { return (x + y + z) % 3 != 1; });
+    testing::fill_random_attributes(v, 4);
+    const fs::path path = dir.file("tiny" + std::to_string(levels) + ".vxc");
+    const World full = build_world(v);
+    save_scene(path, full, SceneInfo{"t", "c", 0, full.stats().voxels});
+    const BrickmapStructure in_ram(std::make_shared<World>(load_world(Container::read(path))));
+    RenderOptions o = view_of(full, 30.f);
+    const RenderResult want = render(in_ram, o);
+    ASSERT_GT(want.hits, 100u);
+    StreamOptions so;
+    so.uploads_per_pass = 1;
+    StreamingWorld s(path, so);
+    const RenderResult first = render(s, o);  // one pass: the LOD answer
+    EXPECT_GE(first.hits, want.hits) << "a not-resident brick answers as its whole cube";
+    RenderResult last;
+    converge(s, o, 1, &last);
+    EXPECT_EQ(last.color.pixels, want.color.pixels);
+    EXPECT_EQ(last.depth.pixels, want.depth.pixels);
+  }
+}
+
 TEST(BrickmapStream, LruBoundsHoldAndTheLeastRecentlySeenBricksAreEvicted) {
   testing::TempDir dir;
   const fs::path path = dir.file("shell.vxc");

@@ -274,7 +274,9 @@ struct Walker {
   void stop(int level, Int3 c, uint32_t cell, const PyramidNode* node, float t, int axis) {
     if constexpr (kAny) return;
     uint64_t ref;
-    if (level == L) {
+    // (A voxel only in a resident brick: a 1^3 grid's root is its voxel,
+    // and a streamed world may not have its brick yet.)
+    if (level == L && cell_state(cell) == kStateResident) {
       ref = uint64_t(cell_brick(cell)) << 9 |
             voxel_bit(uint32_t(c.v[0] & 7), uint32_t(c.v[1] & 7), uint32_t(c.v[2] & 7));
     } else if (level < B) {
@@ -850,12 +852,12 @@ bool walk(const World& w, const GridRay& r, float tmax, const LodFootprint& lod,
   const PyramidNode* node = nullptr;
   if constexpr (kCount) ++ctx.counters.iterations;
   if (!wk.occupied(0, root, &cell, &node)) return false;
-  if (g.levels == 0 || wk.lod_stop(0, exit)) {
+  if (wk.B <= 0 && cell_state(cell) != kStateResident) {
+    ctx.requests.push(BrickmapStructure::kRequestBrick, 0, 1.f / (1.f + t0));
     wk.stop(0, root, cell, node, t0, axis);
     return true;
   }
-  if (wk.B <= 0 && cell_state(cell) != kStateResident) {
-    ctx.requests.push(BrickmapStructure::kRequestBrick, 0, 1.f / (1.f + t0));
+  if (g.levels == 0 || wk.lod_stop(0, exit)) {
     wk.stop(0, root, cell, node, t0, axis);
     return true;
   }
