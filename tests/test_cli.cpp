@@ -1267,3 +1267,45 @@ TEST(CliSignals, InterruptedWritesLeaveNoOutputAndNoTemporary) {
       EXPECT_GE(caught_mid_write, 1) << "never interrupted while writing";
     }
 }
+
+// A full disk (here a file size limit, `ulimit -f`, with SIGXFSZ ignored so
+// that write() fails with EFBIG) is a runtime error: one line, exit 1, the
+// old output kept, no temporary left. OpenVDB's io::File does not check its
+// stream, so the .vdb writers used to exit 0 with a truncated file in place.
+TEST(CliOutputs, AFullDiskKeepsTheOldOutput) {
+  TempDir dir;
+  const std::string scene = dir.file("b.vxc");
+  ASSERT_EQ(run_cli("build " + kBunny + " -o " + scene + " --resolution 64").exit_code, 0);
+  const std::string out = dir.file("out");
+  const struct {
+    const char* file;
+    std::string args;
+  } jobs[] = {
+      {"c.vdb", "convert " + kBunny + " " + out + "/c.vdb --resolution 128"},
+      {"v.vdb", "volume export procedural:cloud --resolution 64 -o " + out + "/v.vdb"},
+      {"b.vxc", "build " + kBunny + " -o " + out + "/b.vxc --resolution 256"},
+      {"c.vox", "convert " + kBunny + " " + out + "/c.vox --resolution 128"},
+      {"r.exr", "render " + scene + " -o " + out + "/r.exr --size 512x512"},
+  };
+  for (const auto& job : jobs) {
+    SCOPED_TRACE(job.args);
+    std::filesystem::remove_all(out);
+    std::filesystem::create_directory(out);
+    write_text(out + "/" + job.file, "old");
+    // 20 blocks (10-20 KiB): every job's output is larger.
+    const std::string cmd = "trap '' XFSZ; ulimit -f 20; exec '" + std::string(VOXCAST_CLI_PATH) +
+                            "' " + job.args + " 2>&1 >/dev/null </dev/null";
+    FILE* p = popen(cmd.c_str(), "r");
+    ASSERT_NE(p, nullptr);
+    CliResult r;
+    char buf[4096];
+    for (size_t n; (n = fread(buf, 1, sizeof buf, p)) > 0;) r.output.append(buf, n);
+    const int status = pclose(p);
+    r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+    EXPECT_EQ(r.exit_code, 1) << r.output;
+    expect_one_line_error(r, "cannot write");
+    EXPECT_EQ(std::count(r.output.begin(), r.output.end(), '\n'), 1) << r.output;
+    EXPECT_TRUE(read_text(out + "/" + job.file) == "old") << "the old output was replaced";
+    EXPECT_EQ(dir_entries(out).size(), 1u) << "a temporary left behind";
+  }
+}

@@ -268,9 +268,28 @@ void detail::write_vdb_grids(const std::filesystem::path& path, const openvdb::G
   std::filesystem::path tmp = path;
   tmp += ".tmp";
   try {
-    openvdb::io::File file(tmp.string());
-    file.write(grids);
-    file.close();
+    // io::File::write's bytes (Archive::write, seekable: grid offsets), but
+    // through a stream we check afterwards: io::File does not, so a full
+    // disk or a file size limit gave a truncated file and no error.
+    struct CheckedArchive : openvdb::io::Archive {
+      bool write_to(std::ostream& os, const openvdb::GridPtrVec& g) const {
+        Archive::write(os, g, /*seekable=*/true);
+        os.flush();
+        return bool(os);
+      }
+    };
+    std::ofstream os(tmp, std::ios::binary | std::ios::trunc);
+    if (!os) throw Error(fmt::format("cannot write {}: {}", path.string(), std::strerror(errno)));
+    errno = 0;
+    if (!CheckedArchive().write_to(os, grids))
+      throw Error(fmt::format("cannot write {}: {}", path.string(),
+                              errno != 0 ? std::strerror(errno) : "I/O error"));
+    os.close();
+    if (!os) throw Error(fmt::format("cannot write {}: I/O error", path.string()));
+  } catch (const Error&) {
+    std::error_code ec;
+    std::filesystem::remove(tmp, ec);
+    throw;
   } catch (const std::exception& e) {
     std::error_code ec;
     std::filesystem::remove(tmp, ec);
