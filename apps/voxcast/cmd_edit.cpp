@@ -260,7 +260,7 @@ Runner add_edit(CLI::App& app) {
     if (write_whole) outputs.add("-o", args->output, {".vxc"});
     RenderOptions ro;
     if (render_frames) {
-      parse_size(args->render_size, &ro.width, &ro.height);
+      parse_size(args->render_size, &ro.width, &ro.height, "--render-size");
       outputs.add("--render", args->render, {".png"});
     }
     if (!args->batch.empty() && args->snow == 0) steps = parse_batch(args->batch);

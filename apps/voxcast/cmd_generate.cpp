@@ -32,7 +32,7 @@ struct GenerateArgs {
 // generate sky: a lat-long HDR environment map for `render --gi --env`.
 int generate_sky(const GenerateArgs& a) {
   int w = 0, h = 0;
-  parse_size(a.sky_size, &w, &h);
+  parse_size(a.sky_size, &w, &h, "--sky-size");
   Vec3 sun = normalize(Vec3{-0.4f, -1.0f, -0.6f});  // the default light direction
   if (!a.sun.empty()) {
     sun = parse_vec3(a.sun, "--sun");
@@ -55,13 +55,11 @@ int generate_sky(const GenerateArgs& a) {
 // (x, z, then the height along y, the up axis).
 int generate_terrain_world(const GenerateArgs& a) {
   brickmap::TerrainOptions o;
-  unsigned w = 0, d = 0, h = 0;
-  char x1 = 0, x2 = 0, rest = 0;
-  if (std::sscanf(a.size_text.c_str(), "%u%c%u%c%u%c", &w, &x1, &d, &x2, &h, &rest) != 5 ||
-      (x1 != 'x' && x1 != 'X') || (x2 != 'x' && x2 != 'X') || w < 16 || d < 16 || h < 16 ||
-      w > 65536 || d > 65536 || h > 65536)
+  int64_t v[3];
+  if (!parse_dims(a.size_text, 3, 16, 65536, v))
     throw UsageError("--size: '" + printable(a.size_text) +
                      "' is not WxDxH voxels (each 16 .. 65536) for a brickmap terrain");
+  const unsigned w = unsigned(v[0]), d = unsigned(v[1]), h = unsigned(v[2]);
   require_range("--threads", a.threads, 0, 4096);
   o.size[0] = w, o.size[1] = h, o.size[2] = d;
   o.seed = a.seed;
@@ -161,10 +159,11 @@ Runner add_generate(CLI::App& app) {
     if (args->kind == "terrain" && std::filesystem::path(args->output).extension() == ".vxc")
       return generate_terrain_world(*args);
     {
-      char rest = 0;
-      if (std::sscanf(args->size_text.c_str(), "%d%c", &args->size, &rest) != 1)
+      int64_t n = 0;  // (the range is checked below; only what fits an int here)
+      if (!parse_dims(args->size_text, 1, 0, INT32_MAX, &n))
         throw UsageError("--size: '" + printable(args->size_text) +
                          "' is not a vertex count (WxDxH is for a .vxc terrain)");
+      args->size = int(n);
     }
     uint64_t budget = 0;
     if (!args->memory_budget.empty()) budget = parse_memory_budget(args->memory_budget);

@@ -2,6 +2,7 @@
 #include <embree3/rtcore_config.h>
 #include <oneapi/tbb/global_control.h>
 
+#include <charconv>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -38,15 +39,31 @@ Vec3 parse_vec3(const std::string& text, const char* what) {
   return {v[0], v[1], v[2]};
 }
 
-void parse_size(const std::string& text, int* width, int* height) {
-  int w = 0, h = 0;
-  char x = 0;
-  char rest = 0;
-  if (std::sscanf(text.c_str(), "%d%c%d%c", &w, &x, &h, &rest) != 3 || (x != 'x' && x != 'X') ||
-      w < 1 || h < 1 || w > 16384 || h > 16384)
-    throw UsageError("--size: '" + printable(text) + "' is not WxH with 1 <= W, H <= 16384");
-  *width = w;
-  *height = h;
+bool parse_dims(const std::string& text, int n, int64_t lo, int64_t hi, int64_t* out) {
+  const char* p = text.data();
+  const char* const end = p + text.size();
+  for (int i = 0; i < n; ++i) {
+    if (i > 0) {
+      if (p == end || (*p != 'x' && *p != 'X')) return false;
+      ++p;
+    }
+    if (p == end || *p < '0' || *p > '9') return false;  // (from_chars would take a '-')
+    int64_t v = 0;
+    const auto [q, ec] = std::from_chars(p, end, v);
+    if (ec != std::errc() || v < lo || v > hi) return false;  // out of range: not wrapped
+    out[i] = v;
+    p = q;
+  }
+  return p == end;
+}
+
+void parse_size(const std::string& text, int* width, int* height, const char* what) {
+  int64_t v[2];
+  if (!parse_dims(text, 2, 1, 16384, v))
+    throw UsageError(std::string(what) + ": '" + printable(text) +
+                     "' is not WxH with 1 <= W, H <= 16384");
+  *width = int(v[0]);
+  *height = int(v[1]);
 }
 
 struct ThreadLimit::Impl {
@@ -75,8 +92,8 @@ int main(int argc, char** argv) {
   app.set_version_flag("--version", [] {
     return voxcast::build_description() + voxcast::io_library_versions() +
            voxcast::view::view_library_versions() +
-           "stb_image (Debian's libstb-dev header, compiled in)\nEmbree " +
-           RTC_VERSION_STRING + " (oracle: bench only)\nCLI11 " + CLI11_VERSION;
+           "stb_image (Debian's libstb-dev header, compiled in)\nEmbree " + RTC_VERSION_STRING +
+           " (oracle: bench only)\nCLI11 " + CLI11_VERSION;
   });
   app.get_formatter()->column_width(36);
   std::vector<std::pair<CLI::App*, Runner>> commands;
