@@ -418,6 +418,12 @@ TEST(CliConvention, EveryNumericOptionIsRangeChecked) {
       {"volume render procedural:cloud -o " + dir.file("v.png") + " --budget 1x", "--budget: "},
       {"volume export procedural:cloud -o " + dir.file("v.vdb") + " --resolution 0",
        "--resolution"},
+      {"volume render procedural:cloud -o " + dir.file("v.png") + " --transfer 0.5:1:nan,1,1",
+       "--transfer: "},
+      {"volume render procedural:cloud -o " + dir.file("v.png") + " --transfer 0.5:1:1,-1,1",
+       "--transfer: "},
+      {"volume render procedural:cloud -o " + dir.file("v.png") + " --background=-5,0,0",
+       "--background: "},
       {g + "terrain --persistence 2" + o, "persistence"},
       {g + "menger --memory-budget " + twice_memory + o, "--memory-budget"},
   };

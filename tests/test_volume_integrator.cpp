@@ -181,7 +181,8 @@ TEST(VolumeIntegrator, TransferFunctionClassifiesScalars) {
   EXPECT_NEAR(tf(0.25f).density, 0.5f, 1e-6);
   EXPECT_NEAR(tf(-1.f).density, 0.f, 1e-6);  // clamped to the end points
   EXPECT_NEAR(tf(7.f).color.g, 0.5f, 1e-6);
-  for (const char* bad : {"", "0:1", "0:1:1,1", "x:1:1,1,1", "0:-1:1,1,1", "1:0:0,0,0;0:1:1,1,1"})
+  for (const char* bad : {"", "0:1", "0:1:1,1", "x:1:1,1,1", "0:-1:1,1,1", "1:0:0,0,0;0:1:1,1,1",
+                          "0:1:nan,1,1", "0:1:1,inf,1", "0:1:1,1,-0.5"})
     EXPECT_THROW(TransferFunction::parse(bad), Error) << bad;
 }
 

@@ -948,6 +948,8 @@ Runner add_volume(CLI::App& app) {
     io.step_scale = args->step;
     if (!args->background.empty()) {
       const Vec3 b = parse_vec3(args->background, "--background");
+      if (!(b.x >= 0.f && b.y >= 0.f && b.z >= 0.f))
+        throw UsageError("--background: a color is three numbers >= 0");
       io.background = {b.x, b.y, b.z, 1.f};
     }
     io.shadows = args->shadows || args->soft_shadows;

@@ -24,6 +24,10 @@ TransferFunction::TransferFunction(std::vector<Point> points) : points_(std::mov
     const Point& p = points_[i];
     if (!std::isfinite(p.value) || !std::isfinite(p.density) || p.density < 0.f)
       throw Error("transfer function: values and densities must be finite, densities >= 0");
+    // Emitted radiance: finite and not negative (above 1 is an HDR emitter).
+    for (const float c : {p.color.r, p.color.g, p.color.b})
+      if (!(c >= 0.f) || !std::isfinite(c))
+        throw Error("transfer function: colors must be finite and >= 0");
     if (i > 0 && !(p.value > points_[i - 1].value))
       throw Error("transfer function: values must be strictly increasing");
   }
