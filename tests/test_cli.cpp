@@ -426,6 +426,10 @@ TEST(CliConvention, EveryNumericOptionIsRangeChecked) {
        "--background: "},
       {g + "terrain --persistence 2" + o, "persistence"},
       {g + "menger --memory-budget " + twice_memory + o, "--memory-budget"},
+      // A .vxc terrain's shape has no octaves, height or persistence.
+      {g + "terrain --size 16x16x16 --height 0.5 -o " + dir.file("g.vxc"), "--height"},
+      {g + "terrain --size 16x16x16 --octaves 3 -o " + dir.file("g.vxc"), "--octaves"},
+      {g + "terrain --size 16x16x16 --persistence 0.5 -o " + dir.file("g.vxc"), "--persistence"},
   };
   for (const Case& c : cases) {
     SCOPED_TRACE(c.args);
@@ -760,6 +764,16 @@ TEST(CliResources, MemoryBudgetsAreCheckedBeforeAllocating) {
   expect_error(run_cli_split("generate hairball --tubes 100000 --memory-budget 10M -o " +
                              s.dir.file("h.obj")),
                1, "memory budget");
+  // menger level 5: 13 M triangles; a 1024^2 x 64 brickmap terrain: its
+  // brickgrid header and the chunk columns in flight.
+  expect_error(
+      run_cli_split("generate menger --level 5 --memory-budget 64M -o " + s.dir.file("m.obj")), 1,
+      "memory budget");
+  expect_error(run_cli_split("generate terrain --size 1024x1024x64 --memory-budget 1M -o " +
+                             s.dir.file("terrain.vxc")),
+               1, "memory budget");
+  EXPECT_FALSE(std::filesystem::exists(s.dir.file("m.obj")));
+  EXPECT_FALSE(std::filesystem::exists(s.dir.file("terrain.vxc")));
   EXPECT_FALSE(std::filesystem::exists(s.dir.file("a.png")));
   EXPECT_FALSE(std::filesystem::exists(s.dir.file("a.vxc")));
   EXPECT_FALSE(std::filesystem::exists(s.dir.file("t.ply")));

@@ -2,9 +2,14 @@
 // for the voxelizer and the DAG (generate.hpp); generate terrain -o WORLD.vxc
 // --size WxDxH: a brickmap world written chunk by chunk (brickmap_terrain.hpp);
 // generate sky -o ENV.hdr: the procedural environment map of environment.hpp.
+#include <algorithm>
+#include <bit>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <thread>
+#include <vector>
 
 #include "cli_io.hpp"
 #include "commands.hpp"
@@ -27,6 +32,8 @@ struct GenerateArgs {
   double radius = 0.004, step = 0.04, height = 0.25, persistence = 0.5;
   std::string memory_budget;
   std::string sky_size = "256x128", sun;  // sky
+  // Options of the terrain mesh that a .vxc terrain has no use for.
+  std::vector<const CLI::Option*> mesh_terrain_options;
 };
 
 // generate sky: a lat-long HDR environment map for `render --gi --env`.
@@ -60,6 +67,11 @@ int generate_terrain_world(const GenerateArgs& a) {
     throw UsageError("--size: '" + printable(a.size_text) +
                      "' is not WxDxH voxels (each 16 .. 65536) for a brickmap terrain");
   const unsigned w = unsigned(v[0]), d = unsigned(v[1]), h = unsigned(v[2]);
+  for (const CLI::Option* opt : a.mesh_terrain_options)
+    if (opt->count() > 0)
+      throw UsageError(opt->get_name() +
+                       " is for a terrain mesh (.obj, .ply); a brickmap terrain (.vxc) takes "
+                       "--size, --seed and --threads");
   require_range("--threads", a.threads, 0, 4096);
   o.size[0] = w, o.size[1] = h, o.size[2] = d;
   o.seed = a.seed;
@@ -70,6 +82,27 @@ int generate_terrain_world(const GenerateArgs& a) {
     columns = uint64_t((w + 127) / 128) * ((d + 127) / 128);
   } catch (const Error& e) {
     throw UsageError(e.what());
+  }
+  {
+    // write_terrain's memory: the brickgrid header (4 B per cell) and chunk
+    // table (24 B per chunk), and per chunk column in flight (2 per worker)
+    // its solid slab (130^3 B) and its chunks' bricks (~128 B each).
+    const uint64_t n = std::bit_ceil(
+                           std::max({uint64_t(w), uint64_t(d), uint64_t(h), uint64_t(128)})) /
+                       8,
+                   ny = (h + 7) / 8, chunks = ((n + 15) / 16) * ((n + 15) / 16) * ((ny + 15) / 16);
+    const int threads =
+        a.threads > 0 ? a.threads : std::max(1, int(std::thread::hardware_concurrency()));
+    const double need = 4.0 * double(n * n * ny) + 24.0 * double(chunks) +
+                        2.0 * threads * (130.0 * 130 * 130 + 16.0 * 16 * double(ny) * 128);
+    const uint64_t budget = a.memory_budget.empty()
+                                ? uint64_t(double(available_memory_bytes()) * 0.9)
+                                : parse_memory_budget(a.memory_budget);
+    if (budget && need > double(budget))
+      throw Error("this terrain needs an estimated " + format_bytes(need) + ", more than the " +
+                  format_bytes(double(budget)) +
+                  " memory budget; use a smaller --size or fewer --threads, or raise "
+                  "--memory-budget");
   }
   OutputSet outputs({});
   outputs.add("-o", a.output, {".vxc"});
@@ -106,7 +139,12 @@ double estimated_bytes(const GenerateArgs& a, bool obj) {
     verts = double(a.size) * a.size;
     tris = 2.0 * (a.size - 1.0) * (a.size - 1.0);
   } else {
-    return 0;  // menger: at most 13 M triangles (level 5)
+    // menger (generate.hpp): 2 * 20^L + 4 * 8^L square faces, two triangles
+    // each, vertices shared (level 5: 5.5 M for 6.5 M faces).
+    if (a.level < 0 || a.level > 5) return 0;
+    const double faces = 2.0 * std::pow(20.0, a.level) + 4.0 * std::pow(8.0, a.level);
+    verts = faces;
+    tris = 2.0 * faces;
   }
   // Positions and indices, then the file: OBJ lines of up to ~40 bytes,
   // PLY 12 bytes per vertex and 13 per triangle.
@@ -144,11 +182,12 @@ Runner add_generate(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--threads", args->threads,
                   "terrain .vxc: worker threads (0 = all cores; same bytes for any count)");
-  cmd->add_option("--octaves", args->octaves, "terrain: fBm octaves")->capture_default_str();
-  cmd->add_option("--height", args->height, "terrain: height scale (extent 1)")
-      ->capture_default_str();
-  cmd->add_option("--persistence", args->persistence, "terrain: amplitude factor per octave")
-      ->capture_default_str();
+  args->mesh_terrain_options = {
+      cmd->add_option("--octaves", args->octaves, "terrain: fBm octaves")->capture_default_str(),
+      cmd->add_option("--height", args->height, "terrain: height scale (extent 1)")
+          ->capture_default_str(),
+      cmd->add_option("--persistence", args->persistence, "terrain: amplitude factor per octave")
+          ->capture_default_str()};
   cmd->add_option("--memory-budget", args->memory_budget,
                   "Refuse meshes estimated to need more (e.g. 2G; default 90% of free memory)");
   return [args]() {
