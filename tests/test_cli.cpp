@@ -757,27 +757,21 @@ TEST(CliResources, MemoryBudgetsAreCheckedBeforeAllocating) {
   expect_error(run_cli_split("build " + s.dir.file("big.obj") + " -o " + s.dir.file("a.vxc") +
                              " --resolution 1 --memory-budget 32K"),
                1, "memory budget");
-  // A generated mesh too large for the budget is refused before it is built.
-  expect_error(
-      run_cli_split("generate terrain --size 1024 --memory-budget 1M -o " + s.dir.file("t.ply")), 1,
-      "memory budget");
-  expect_error(run_cli_split("generate hairball --tubes 100000 --memory-budget 10M -o " +
-                             s.dir.file("h.obj")),
-               1, "memory budget");
-  // menger level 5: 13 M triangles; a 1024^2 x 64 brickmap terrain: its
-  // brickgrid header and the chunk columns in flight.
-  expect_error(
-      run_cli_split("generate menger --level 5 --memory-budget 64M -o " + s.dir.file("m.obj")), 1,
-      "memory budget");
-  expect_error(run_cli_split("generate terrain --size 1024x1024x64 --memory-budget 1M -o " +
-                             s.dir.file("terrain.vxc")),
-               1, "memory budget");
-  EXPECT_FALSE(std::filesystem::exists(s.dir.file("m.obj")));
-  EXPECT_FALSE(std::filesystem::exists(s.dir.file("terrain.vxc")));
+  // A generated mesh or world too large for the budget is refused before it
+  // is built (menger level 5: 13 M triangles; a 1024^2 x 64 brickmap
+  // terrain: its brickgrid header and the chunk columns in flight).
+  const std::pair<std::string, std::string> generated[] = {
+      {"t.ply", "terrain --size 1024 --memory-budget 1M"},
+      {"h.obj", "hairball --tubes 100000 --memory-budget 10M"},
+      {"m.obj", "menger --level 5 --memory-budget 64M"},
+      {"terrain.vxc", "terrain --size 1024x1024x64 --memory-budget 1M"},
+  };
+  for (const auto& [file, args] : generated) {
+    expect_error(run_cli_split("generate " + args + " -o " + s.dir.file(file)), 1, "memory budget");
+    EXPECT_FALSE(std::filesystem::exists(s.dir.file(file))) << file;
+  }
   EXPECT_FALSE(std::filesystem::exists(s.dir.file("a.png")));
   EXPECT_FALSE(std::filesystem::exists(s.dir.file("a.vxc")));
-  EXPECT_FALSE(std::filesystem::exists(s.dir.file("t.ply")));
-  EXPECT_FALSE(std::filesystem::exists(s.dir.file("h.obj")));
 }
 
 // The build estimate (printed when it exceeds the budget) depends on the
