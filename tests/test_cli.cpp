@@ -1334,3 +1334,23 @@ TEST(CliOutputs, AFullDiskKeepsTheOldOutput) {
     EXPECT_EQ(dir_entries(out).size(), 1u) << "a temporary left behind";
   }
 }
+
+// `render --path` registers one output per keyframe; each registration used
+// to compare itself with every earlier one through the file system (stat,
+// weakly_canonical), so 2,000 keyframes took ~28 s and 3,000 over a minute.
+// 4,000 tiny frames must finish well inside the 120 s limit (~3 s now).
+TEST(CliOutputs, APathOfThousandsOfKeyframesIsNotQuadratic) {
+  Scene s;
+  std::string json = "{\"voxcast_camera_path\": 1, \"keyframes\": [";
+  constexpr int kFrames = 4000;
+  for (int i = 0; i < kFrames; ++i)
+    json += std::string(i ? "," : "") + "{\"time\": " + std::to_string(i) +
+            ", \"eye\": [0.3, 0.4, 1.5], \"target\": [0.3, 0.3, 0.3]}";
+  write_text(s.dir.file("path.json"), json + "]}");
+  std::filesystem::create_directory(s.dir.file("frames"));
+  const CliResult r = run_cli_split("render " + s.scene + " -o " + s.dir.file("frames/f.png") +
+                                        " --size 8x6 -q --path " + s.dir.file("path.json"),
+                                    120);
+  ASSERT_EQ(r.exit_code, 0) << r.errors;
+  EXPECT_EQ(dir_entries(s.dir.file("frames")).size(), size_t(kFrames));
+}

@@ -11,6 +11,7 @@
 #include <csignal>
 #include <cstdio>
 #include <cstring>
+#include <set>
 #include <string>
 
 #include "commands.hpp"
@@ -318,12 +319,11 @@ void OutputSet::add(const char* option, const std::string& path,
     for (const FileId& in : inputs_)
       if (in.dev == st.st_dev && in.ino == st.st_ino)
         throw UsageError(where + " is the same file as the input " + in_quotes(in.name));
-    for (const Output& prev : outputs_) {
-      struct stat ps;
-      if (prev.target_existed && ::stat(prev.target.c_str(), &ps) == 0 && ps.st_dev == st.st_dev &&
-          ps.st_ino == st.st_ino)
-        throw UsageError(where + " and " + prev.option + " " + in_quotes(prev.path) +
-                         " are the same file");
+    const auto [at, fresh] = by_id_.try_emplace({st.st_dev, st.st_ino}, outputs_.size());
+    if (!fresh) {
+      const Output& prev = outputs_[at->second];
+      throw UsageError(where + " and " + prev.option + " " + in_quotes(prev.path) +
+                       " are the same file");
     }
     o.target_existed = true;
   } else {
@@ -336,11 +336,10 @@ void OutputSet::add(const char* option, const std::string& path,
   // ".." and symlinked directories).
   std::error_code ec;
   const fs::path key = fs::weakly_canonical(fs::absolute(o.target, ec), ec);
-  for (const Output& prev : outputs_) {
-    std::error_code pec;
-    if (fs::weakly_canonical(fs::absolute(prev.target, pec), pec) == key)
-      throw UsageError(where + " and " + prev.option + " " + in_quotes(prev.path) +
-                       " are the same file");
+  if (const auto at = by_key_.find(key.string()); at != by_key_.end()) {
+    const Output& prev = outputs_[at->second];
+    throw UsageError(where + " and " + prev.option + " " + in_quotes(prev.path) +
+                     " are the same file");
   }
   const fs::path dir = o.target.parent_path().empty() ? fs::path(".") : o.target.parent_path();
   if (::access(dir.c_str(), W_OK) != 0)
@@ -350,19 +349,21 @@ void OutputSet::add(const char* option, const std::string& path,
   // same extension (writers pick the format from it).
   o.stage = dir / ("." + o.target.filename().string() + ".voxcast-" + std::to_string(::getpid()) +
                    "-" + std::to_string(outputs_.size()) + ext);
+  by_key_.emplace(key.string(), outputs_.size());
+  by_path_.emplace(o.path, outputs_.size());  // (the same path twice has the same key)
   outputs_.push_back(std::move(o));
 }
 
 fs::path OutputSet::staging(const std::string& path) const {
-  for (const Output& o : outputs_)
-    if (o.path == path) {
-      // Registered lazily: only once a writer is about to create it. The
-      // writer's own temporary (write_file_atomic) is renamed onto it.
-      register_staged(o.stage.string());
-      register_staged(o.stage.string() + ".tmp." + std::to_string(::getpid()));
-      return o.stage;
-    }
-  throw Error("internal: output " + in_quotes(path) + " was not registered");
+  const auto at = by_path_.find(path);
+  if (at == by_path_.end())
+    throw Error("internal: output " + in_quotes(path) + " was not registered");
+  const Output& o = outputs_[at->second];
+  // Registered lazily: only once a writer is about to create it. The
+  // writer's own temporary (write_file_atomic) is renamed onto it.
+  register_staged(o.stage.string());
+  register_staged(o.stage.string() + ".tmp." + std::to_string(::getpid()));
+  return o.stage;
 }
 
 std::string OutputSet::rename_in_message(std::string message, const fs::path& stage,
@@ -418,14 +419,17 @@ void OutputSet::commit_all() {
     throw Error("cannot write " + o.option + " " + in_quotes(o.path) + ": rename failed (" +
                 std::strerror(err) + "); no output was changed");
   }
+  std::set<fs::path> dirs;
   for (const Output& o : outputs_) {
     if (!o.backup.empty()) ::unlink(o.backup.c_str());
     // A brickmap world replaced whole: the edit journal beside it was
     // written against the old file (brickmap_file.hpp); it goes too (a
     // crash before this leaves it refused, never replayed).
     brickmap::remove_journal(o.target);
-    const fs::path dir = o.target.parent_path().empty() ? fs::path(".") : o.target.parent_path();
-    // Persist the renames; a failure here does not undo them.
+    dirs.insert(o.target.parent_path().empty() ? fs::path(".") : o.target.parent_path());
+  }
+  // Persist the renames (each directory once); a failure here does not undo them.
+  for (const fs::path& dir : dirs) {
     const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
     if (dfd >= 0) {
       ::fsync(dfd);

@@ -9,8 +9,11 @@
 #include <cstdint>
 #include <filesystem>
 #include <initializer_list>
+#include <map>
 #include <string>
 #include <string_view>
+#include <unordered_map>
+#include <utility>
 #include <vector>
 
 #include "voxcast/camera.hpp"
@@ -124,6 +127,11 @@ class OutputSet {
   };
   std::vector<FileId> inputs_;
   std::vector<Output> outputs_;
+  // Indices into outputs_ (a --path render adds one output per frame: no
+  // scan of the earlier ones per add): by the path as given, by the
+  // canonical target, and by the existing target's device and inode.
+  std::unordered_map<std::string, size_t> by_path_, by_key_;
+  std::map<std::pair<dev_t, ino_t>, size_t> by_id_;
   bool committed_ = false;
 };
 
