@@ -1079,6 +1079,20 @@ TEST_P(Streamed, CorruptedSliceRefusedTheRestRenders) {
   EXPECT_EQ(lost, 0u);
   EXPECT_GT(differ, 0u);
   EXPECT_LT(differ, n / 10);
+  // Opened whole (render within its memory budget) the file is refused, and
+  // `info`, which does not load it, refuses it alike (it used to describe it).
+  EXPECT_THROW(esvo::SliceFile::open(path)->verify_hashes(), Error);
+  const std::string png = path.string() + ".png";
+  for (const std::string& cmd : {"info '" + path.string() + "'",
+                                 "render '" + path.string() + "' --size 32x24 -o '" + png + "'"}) {
+    SCOPED_TRACE(cmd);
+    const auto r = testing::run_cli(cmd);
+    EXPECT_EQ(r.exit_code, 1) << r.output;
+    EXPECT_NE(r.output.find("slice " + std::to_string(victim) + ": hash mismatch"),
+              std::string::npos)
+        << r.output;
+  }
+  EXPECT_FALSE(std::filesystem::exists(png));
 }
 
 // The file's occupied bounds (the automatic camera's box) are the in-core

@@ -258,6 +258,10 @@ class SliceFile {
   /// contours; a compressed slice is verified as stored, then decoded.
   /// Throws voxcast::Error on a read error or a hash mismatch.
   std::vector<uint32_t> read(uint32_t i) const;
+  /// Every slice read and its hash checked, one slice in memory at a time
+  /// (`info`: the damage a whole-file load refuses, without the load);
+  /// `progress` advances by the data bytes. Throws as read().
+  void verify_hashes(Progress* progress = nullptr) const;
 
   /// The octree's occupied bounds walked down to depth `max_level`, read
   /// from the slices of node levels below it (a few, small: the top of the
@@ -273,6 +277,8 @@ class SliceFile {
 
  private:
   SliceFile() = default;
+  /// Slice i's stored words (compressed ones as stored), hash checked.
+  void read_stored(uint32_t i, std::vector<uint32_t>* words) const;
   std::filesystem::path path_;
   int fd_ = -1;
   slice_layout::FileHeader header_{};

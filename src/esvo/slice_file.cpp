@@ -20,6 +20,7 @@
 #include "voxcast/error.hpp"
 #include "voxcast/esvo_slices.hpp"
 #include "voxcast/morton.hpp"
+#include "voxcast/progress.hpp"
 
 namespace voxcast::esvo {
 namespace sl = slice_layout;
@@ -438,12 +439,26 @@ GridTransform SliceFile::grid() const {
   return g;
 }
 
+void SliceFile::read_stored(uint32_t i, std::vector<uint32_t>* words) const {
+  const sl::SliceEntry& e = slices_.at(i);
+  words->resize(e.data_bytes / 4);
+  pread_all(fd_, words->data(), e.data_bytes, e.data_offset, path_);
+  if (XXH64(words->data(), e.data_bytes, 0) != e.hash)
+    throw Error(io_error(path_, "slice " + std::to_string(i) + ": hash mismatch"));
+}
+
+void SliceFile::verify_hashes(Progress* progress) const {
+  std::vector<uint32_t> words;
+  for (uint32_t i = 0; i < uint32_t(slices_.size()); ++i) {
+    read_stored(i, &words);
+    if (progress != nullptr) progress->add_units(slices_[i].data_bytes);
+  }
+}
+
 std::vector<uint32_t> SliceFile::read(uint32_t i) const {
   const sl::SliceEntry& e = slices_.at(i);
-  std::vector<uint32_t> words(e.data_bytes / 4);
-  pread_all(fd_, words.data(), e.data_bytes, e.data_offset, path_);
-  if (XXH64(words.data(), e.data_bytes, 0) != e.hash)
-    throw Error(io_error(path_, "slice " + std::to_string(i) + ": hash mismatch"));
+  std::vector<uint32_t> words;
+  read_stored(i, &words);
   if (!compressed()) return words;
   // Decoded into the raw layout (detail::decode_slice_attributes). The sizes
   // were checked at open (data_bytes); a valid-mask total other than the
