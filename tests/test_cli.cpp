@@ -88,6 +88,10 @@ TEST(Cli, BuildRejectsBadInput) {
                                 " --voxelization sloppy"));
   expect_one_line_error(
       run_cli("build " + dir.file("t.obj") + " -o " + dir.file("a.vxc") + " --voxel-size -1"));
+  // A voxel size that leaves the mesh a 1^3 grid: too small an ESVO.
+  expect_one_line_error(
+      run_cli("build " + dir.file("t.obj") + " -o " + dir.file("a.vxc") + " --voxel-size 1e30"),
+      "needs at least 2^3");
   // An absurd resolution is refused up front by the memory estimate.
   expect_one_line_error(
       run_cli("build " + dir.file("t.obj") + " -o " + dir.file("a.vxc") + " --resolution 1048576"),
@@ -329,6 +333,9 @@ TEST(CliConvention, EveryNumericOptionIsRangeChecked) {
       {b + " --resolution 0", "--resolution"},
       {b + " --resolution 3", "--resolution"},
       {b + " --resolution 2097152", "--resolution"},
+      {b + " --resolution 1", "--resolution: esvo"},  // (a brickmap of 1^3 is valid)
+      {b + " --format dag --resolution 2", "--resolution: dag"},
+      {b + " --slices --slice-size 0", "--slice-size: "},
       {b + " --voxel-size nan", "--voxel-size"},
       {b + " --voxel-size inf", "--voxel-size"},
       {b + " --voxel-size -1", "--voxel-size"},

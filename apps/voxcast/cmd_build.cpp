@@ -77,10 +77,12 @@ Runner add_build(CLI::App& app) {
                   "(.vox, .binvox, .vdb: built as it is)")
       ->required();
   cmd->add_option("-o,--output", args->output, "Output scene file (.vxc)")->required();
-  auto* res = cmd->add_option("--resolution", args->resolution,
-                              "Voxels per axis: a power of two, 1..1048576 (default 1024)")
-                  // Unsigned options would take "-1" as 2^32-1.
-                  ->check(not_negative());
+  auto* res =
+      cmd->add_option(
+             "--resolution", args->resolution,
+             "Voxels per axis: a power of two, 1..1048576 (esvo from 2, dag from 4; default 1024)")
+          // Unsigned options would take "-1" as 2^32-1.
+          ->check(not_negative());
   args->voxel_size_opt =
       cmd->add_option("--voxel-size", args->voxel_size,
                       "Largest voxel size in world units (resolution rounded up to a power of two)")
@@ -164,6 +166,9 @@ Runner add_build(CLI::App& app) {
                        names_of([](const SceneFormat&) { return true; }) + ")");
     }
     s.format = format->name;
+    if (!args->voxel_size_opt->count() && args->resolution < (1u << min_grid_levels(format->name)))
+      throw UsageError("--resolution: " + format->name + " needs at least " +
+                       std::to_string(1u << min_grid_levels(format->name)));
     const bool variable = args->max_level_opt->count() || args->geometry_error_opt->count() ||
                           args->color_error_opt->count() || args->normal_error_opt->count();
     if (variable && !args->contours) throw UsageError("--max-level and --*-error need --contours");
@@ -230,7 +235,11 @@ Runner add_build(CLI::App& app) {
     bool slice_compressed = false;
     if (args->slices) {
       check_slice_settings(s);
-      slice_bytes = parse_byte_size(args->slice_size.c_str());
+      try {
+        slice_bytes = parse_byte_size(args->slice_size.c_str());
+      } catch (const Error& e) {
+        throw UsageError(std::string("--slice-size: ") + e.what());
+      }
       // A slice file compresses its own slices (esvo_slices.hpp): an
       // in-core build to be sliced keeps raw attributes.
       slice_compressed = s.compress_attributes;
