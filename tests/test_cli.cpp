@@ -282,6 +282,8 @@ TEST(CliConvention, UsageErrorsExitTwoWithOneLineAndNoHelpDump) {
   expect_error(run_cli_split(b + " --attributes dxt"), 2, "--attributes");
   expect_error(run_cli_split(r + " --size 0x0"), 2, "--size");
   expect_error(run_cli_split(r + " --shadows soft"), 2, "--shadows");
+  // An ESVO scene is not a damaged brickmap world: --stream does not apply.
+  expect_error(run_cli_split(r + " --stream"), 2, "--stream: ");
   expect_error(run_cli_split("generate donut -o " + s.dir.file("x.obj")), 2, "donut");
   // --help is where the help text goes, on stdout, exit 0.
   CliResult help = run_cli_split("render --help");

@@ -5,8 +5,10 @@
 #include "commands.hpp"
 #include "stream_render.hpp"
 #include "voxcast/brickmap_stream.hpp"
+#include "voxcast/container.hpp"
 #include "voxcast/error.hpp"
 #include "voxcast/image.hpp"
+#include "voxcast/scene_file.hpp"
 
 namespace voxcast::cli {
 
@@ -48,6 +50,16 @@ int render_stream(const StreamArgs& a, const std::string& world, const std::stri
   OutputSet outputs({world});
   outputs.add("-o", output, {".png", ".pfm"});
   require_regular_input(world, "world");
+  // Another scene format is not a damaged world: the option does not apply.
+  std::string format;
+  try {
+    format = scene_format(ContainerReader::open(world));
+  } catch (const Error&) {
+    // (damaged, or not a container: the world's own open below says which)
+  }
+  if (!format.empty() && format != "brickmap")
+    throw UsageError("--stream: '" + printable(world) + "' is a scene of format " + format +
+                     "; --stream renders brickmap worlds (ESVO slice files stream with --budget)");
   brickmap::StreamingWorld s(world, so);
   const Aabb occupied = s.world().occupied_bounds();
   opt.max_passes = a.passes;
