@@ -1363,3 +1363,38 @@ TEST(CliOutputs, APathOfThousandsOfKeyframesIsNotQuadratic) {
   ASSERT_EQ(r.exit_code, 0) << r.errors;
   EXPECT_EQ(dir_entries(s.dir.file("frames")).size(), size_t(kFrames));
 }
+
+// `edit --batch`: an error names its line, and a huge line is not echoed
+// whole (a 1 MB line gave a 1 MB error line); `edit W --checkpoint` with no
+// edit folds the journal into the world file.
+TEST(CliEdit, BatchErrorsNameTheirLineAndCheckpointAloneFoldsTheJournal) {
+  TempDir dir;
+  const std::string world = dir.file("w.vxc");
+  ASSERT_EQ(run_cli("generate terrain --size 64x64x32 -o " + world).exit_code, 0);
+  write_text(dir.file("b1.txt"), "sphere 0,0.1,0,0.05 add\n# a comment\n\nbox 0,0,0,1,1 add\n");
+  CliResult r = run_cli_split("edit " + world + " --batch " + dir.file("b1.txt"));
+  expect_error(r, 2, "line 4: --box");
+  std::string huge = "sphere 0,0,0";
+  while (huge.size() < (1u << 20)) huge += ",1";
+  write_text(dir.file("b2.txt"), huge + " add\n");
+  r = run_cli_split("edit " + world + " --batch " + dir.file("b2.txt"));
+  expect_error(r, 2, "line 1: --sphere");
+  EXPECT_LT(r.errors.size(), 1000u);
+  // An edit in place leaves a journal; --checkpoint alone folds it in.
+  ASSERT_EQ(run_cli("edit " + world + " --sphere 0,0.1,0,0.05 --add").exit_code, 0);
+  ASSERT_TRUE(std::filesystem::exists(world + ".journal"));
+  // (What info says of the world, but for the file's size.)
+  auto facts = [&] {
+    std::string j = run_cli_split("info --json " + world).output;
+    const size_t at = j.find("\"file_bytes\"");
+    return at == std::string::npos ? j : j.erase(at, j.find('\n', at) - at);
+  };
+  const std::string before = facts();
+  r = run_cli_split("edit " + world + " --checkpoint");
+  ASSERT_EQ(r.exit_code, 0) << r.errors;
+  EXPECT_NE(r.output.find("checkpointed"), std::string::npos) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(world + ".journal"));
+  EXPECT_EQ(facts(), before) << "the same world";
+  expect_error(run_cli_split("edit " + world + " --checkpoint -o " + dir.file("x.vxc")), 2,
+               "--checkpoint");
+}

@@ -110,6 +110,7 @@ brickmap::EditOp parse_op(const std::string& word, const std::string& where) {
 //   box X0,Y0,Z0,X1,Y1,Z1  add|remove|paint [R,G,B]
 //   mesh FILE X,Y,Z SIZE  add|remove|paint [R,G,B]
 // (world units; colors sRGB in 0..1, default 0.8,0.8,0.8).
+EditStep parse_batch_line(const std::vector<std::string>& w, const std::string& where);
 std::vector<EditStep> parse_batch(const std::string& path) {
   require_regular_input(path, "batch file");
   std::ifstream in(path);
@@ -122,32 +123,42 @@ std::vector<EditStep> parse_batch(const std::string& path) {
     std::vector<std::string> w;
     for (std::string x; words >> x;) w.push_back(x);
     if (w.empty()) continue;
-    EditStep e;
-    size_t next;
-    if (w[0] == "sphere" || w[0] == "box") {
-      if (w.size() < 3 || w.size() > 4)
-        throw UsageError(where + ": expected " + w[0] + " COORDS OP [R,G,B]");
-      e.brush = w[0] == "sphere" ? parse_sphere(w[1]) : parse_box(w[1]);
-      next = 2;
-    } else if (w[0] == "mesh") {
-      if (w.size() < 5 || w.size() > 6)
-        throw UsageError(where + ": expected mesh FILE X,Y,Z SIZE OP [R,G,B]");
-      e.kind = EditStep::Kind::Mesh;
-      e.mesh = w[1];
-      const Vec3 at = parse_vec3(w[2], "mesh position");
-      e.at = {at.x, at.y, at.z};
-      e.size = parse_number(w[3], "mesh size");
-      if (!(e.size > 0)) throw UsageError(where + ": the mesh size must be > 0");
-      next = 4;
-    } else {
-      throw UsageError(where + ": '" + printable(w[0]) + "' is not sphere, box or mesh");
+    try {
+      out.push_back(parse_batch_line(w, where));
+    } catch (const UsageError& e) {
+      const std::string m = e.what();
+      throw UsageError(m.rfind(where, 0) == 0 ? m : where + ": " + m);  // each error names its line
     }
-    e.op = parse_op(w[next], where);
-    e.color = parse_srgb(next + 1 < w.size() ? w[next + 1] : "0.8,0.8,0.8", "batch color");
-    out.push_back(std::move(e));
   }
   if (out.empty()) throw UsageError("--batch " + printable(path) + " holds no edit");
   return out;
+}
+
+// One batch line's words (the grammar above parse_batch).
+EditStep parse_batch_line(const std::vector<std::string>& w, const std::string& where) {
+  EditStep e;
+  size_t next;
+  if (w[0] == "sphere" || w[0] == "box") {
+    if (w.size() < 3 || w.size() > 4)
+      throw UsageError(where + ": expected " + w[0] + " COORDS OP [R,G,B]");
+    e.brush = w[0] == "sphere" ? parse_sphere(w[1]) : parse_box(w[1]);
+    next = 2;
+  } else if (w[0] == "mesh") {
+    if (w.size() < 5 || w.size() > 6)
+      throw UsageError(where + ": expected mesh FILE X,Y,Z SIZE OP [R,G,B]");
+    e.kind = EditStep::Kind::Mesh;
+    e.mesh = w[1];
+    const Vec3 at = parse_vec3(w[2], "mesh position");
+    e.at = {at.x, at.y, at.z};
+    e.size = parse_number(w[3], "mesh size");
+    if (!(e.size > 0)) throw UsageError(where + ": the mesh size must be > 0");
+    next = 4;
+  } else {
+    throw UsageError(where + ": '" + printable(w[0]) + "' is not sphere, box or mesh");
+  }
+  e.op = parse_op(w[next], where);
+  e.color = parse_srgb(next + 1 < w.size() ? w[next + 1] : "0.8,0.8,0.8", "batch color");
+  return e;
 }
 
 // The mesh placed with its bounding-box center at `at` and its largest side
@@ -225,6 +236,12 @@ Runner add_edit(CLI::App& app) {
       if (!args->sphere.empty() || !args->box.empty() || !args->mesh.empty() || args->add ||
           args->remove || !args->paint.empty())
         throw UsageError("--batch takes its brushes and operations from the file");
+    } else if (args->checkpoint && !args->add && !args->remove && args->paint.empty() &&
+               args->sphere.empty() && args->box.empty() && args->mesh.empty()) {
+      // --checkpoint alone: no edit; the journal folded into the world file.
+      if (!args->output.empty() || !args->render.empty())
+        throw UsageError(
+            "--checkpoint without an edit folds the journal in place: no -o, --render");
     } else {
       const int ops = int(args->add) + int(args->remove) + int(!args->paint.empty());
       if (ops != 1) throw UsageError("give exactly one of --add, --remove, --paint");
@@ -343,9 +360,14 @@ Runner add_edit(CLI::App& app) {
       });
       saved = "written whole";
     } else {
-      if (!render_frames)
+      if (!render_frames && !steps.empty()) {
         journal = brickmap::commit_edits(args->input, world,
                                          std::vector<uint64_t>(cells.begin(), cells.end()));
+      } else if (!render_frames) {  // --checkpoint alone
+        const std::filesystem::path jp = brickmap::journal_path(args->input);
+        std::error_code ec;
+        journal = std::filesystem::exists(jp, ec) ? std::filesystem::file_size(jp) : 0;
+      }
       saved = "journal " + format_bytes(double(journal));
       // Replaying a journal costs about as much as reading it: fold it in
       // once it outgrows the scene file (and 16 MiB, below which a rewrite

@@ -124,7 +124,18 @@ int main(int argc, char** argv) {
   // One convention (README "Command line"): a usage error is one line and
   // exit 2, a runtime error one line and exit 1; --help prints the help.
   auto error_line = [](const std::string& message) {
-    std::fprintf(stderr, "voxcast: error: %s\n", printable(message).c_str());
+    // A message quoting a huge value (a 2 MB batch line) keeps its start and
+    // end: one line a terminal can show, cut between UTF-8 characters.
+    std::string line = printable(message);
+    constexpr size_t kHead = 400, kTail = 100;
+    if (line.size() > kHead + kTail + 40) {
+      size_t head = kHead, tail = line.size() - kTail;
+      while (head > 0 && (static_cast<unsigned char>(line[head]) & 0xC0) == 0x80) --head;
+      while (tail < line.size() && (static_cast<unsigned char>(line[tail]) & 0xC0) == 0x80) ++tail;
+      line = line.substr(0, head) + " [... " + std::to_string(tail - head) + " bytes ...] " +
+             line.substr(tail);
+    }
+    std::fprintf(stderr, "voxcast: error: %s\n", line.c_str());
   };
   try {
     app.parse(argc, argv);
