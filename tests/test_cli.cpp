@@ -394,6 +394,7 @@ TEST(CliConvention, EveryNumericOptionIsRangeChecked) {
       {r + " --camera 0,0,5,0,0,0,0,1,0,nan", "--camera"},
       {r + " --camera 0,0,5,0,0,0,0,1,0,180", "--camera"},
       {r + " --camera inf,0,5,0,0,0,0,1,0,45", "--camera"},
+      {r + " --camera 1e38,0,0,0,0,0,0,1,0,40", "--camera: eye and target too far apart"},
       {r + " --memory-budget " + twice_memory, "--memory-budget"},
       {bench + " --resolution 3", "--resolution"},
       {bench + " --size 0x0", "--size"},

@@ -159,6 +159,8 @@ void Camera::validate() const {
   }
   const Vec3 f = target - eye;
   if (!(length(f) > 0)) throw Error("camera: eye and target coincide");
+  if (!std::isfinite(length(f)))  // (normalize would give no direction at all)
+    throw Error("camera: eye and target too far apart for float arithmetic");
   if (nearly_parallel(normalize(f), up))
     throw Error("camera: up is parallel to the view direction");
 }
