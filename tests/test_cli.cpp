@@ -763,9 +763,9 @@ TEST(CliResources, MemoryBudgetsAreCheckedBeforeAllocating) {
   std::string big = tetra_obj();
   while (big.size() < 64 * 1024) big += "# padding to make the file larger than the budget\n";
   write_text(s.dir.file("big.obj"), big);
-  // (--resolution 1: the voxel estimate alone would fit.)
+  // (--resolution 2: the voxel estimate alone would fit.)
   expect_error(run_cli_split("build " + s.dir.file("big.obj") + " -o " + s.dir.file("a.vxc") +
-                             " --resolution 1 --memory-budget 32K"),
+                             " --resolution 2 --memory-budget 32K"),
                1, "memory budget");
   // A generated mesh or world too large for the budget is refused before it
   // is built (menger level 5: 13 M triangles; a 1024^2 x 64 brickmap

@@ -166,9 +166,9 @@ Runner add_build(CLI::App& app) {
                        names_of([](const SceneFormat&) { return true; }) + ")");
     }
     s.format = format->name;
-    if (!args->voxel_size_opt->count() && args->resolution < (1u << min_grid_levels(format->name)))
+    if (!args->voxel_size_opt->count() && args->resolution < (1u << format->min_levels))
       throw UsageError("--resolution: " + format->name + " needs at least " +
-                       std::to_string(1u << min_grid_levels(format->name)));
+                       std::to_string(1u << format->min_levels));
     const bool variable = args->max_level_opt->count() || args->geometry_error_opt->count() ||
                           args->color_error_opt->count() || args->normal_error_opt->count();
     if (variable && !args->contours) throw UsageError("--max-level and --*-error need --contours");

@@ -180,20 +180,15 @@ GridTransform build_grid(const BuildSettings& s, const Aabb& bounds) {
                            "coordinates cannot tell its sides apart");
     throw Error(buf);
   }
-  if (grid.levels < min_grid_levels(s.format)) {
+  if (const int least = format_of(s).min_levels; grid.levels < least) {
     char buf[200];
     std::snprintf(buf, sizeof buf,
                   "--voxel-size %g gives the mesh a %u^3 grid; %s needs at least %u^3: a smaller "
                   "--voxel-size",
-                  s.voxel_size, unsigned(grid.resolution), s.format.c_str(),
-                  1u << min_grid_levels(s.format));
+                  s.voxel_size, unsigned(grid.resolution), s.format.c_str(), 1u << least);
     throw Error(buf);
   }
   return grid;
-}
-
-int min_grid_levels(const std::string& format) {
-  return format == "dag" ? 2 : format == "esvo" ? 1 : 0;
 }
 
 namespace {

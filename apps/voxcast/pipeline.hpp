@@ -86,9 +86,6 @@ std::optional<DisplacementMap> load_displacement(const BuildSettings& settings,
 /// The voxel grid `settings` ask for around `bounds`; refuses (voxcast::Error)
 /// a grid the scene loader would refuse (GridTransform::placement_is_valid).
 GridTransform build_grid(const BuildSettings& settings, const Aabb& bounds);
-/// The fewest grid levels a scene format builds (esvo: a root with
-/// children, 2^3; dag: a leaf-mask level below its root, 4^3; others 1^3).
-int min_grid_levels(const std::string& format);
 
 /// load_build_mesh, then the build below. settings.mesh_path may also name a
 /// voxel file (.vox, .binvox, .vdb: is_voxel_input), which is built as it is

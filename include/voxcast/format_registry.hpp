@@ -120,6 +120,9 @@ struct SceneFormat {
   /// The format stores contours (FormatBuildOptions::contours: `build
   /// --contours` and the variable-depth options).
   bool contours = false;
+  /// The fewest grid levels its build takes (a grid of 2^min_levels voxels
+  /// per axis; `build --resolution` below it is a usage error).
+  int min_levels = 0;
   /// Voxels -> structure (the in-core build).
   std::function<LoadedStructure(const VoxelSet&, const FormatBuildOptions&)> build;
   /// Optional: the format's own build from the mesh (memory-bounded builds

@@ -321,6 +321,7 @@ void register_format(FormatRegistry& registry) {
   f.name = "dag";
   f.description = "sparse voxel DAG (Kämpe et al. 2013)";
   f.attributes_optional = true;
+  f.min_levels = 2;  // a leaf-mask level (4^3) below the root
   f.build = [](const VoxelSet& voxels, const FormatBuildOptions& o) -> LoadedStructure {
     SparseVoxelDag d = build_dag(voxels, o.progress);
     if (o.compress_attributes && d.has_attributes()) d.compress_attributes();

@@ -294,6 +294,7 @@ void register_format(FormatRegistry& registry) {
   f.name = "esvo";
   f.description = "ESVO octree (Laine & Karras 2010)";
   f.contours = true;
+  f.min_levels = 1;  // a root with children (2^3)
   f.build = build;
   f.build_from_mesh = build_from_mesh;
   f.bounded_mesh_build = [](const FormatBuildOptions& o) { return o.contours.enabled; };
