@@ -87,10 +87,9 @@ int generate_terrain_world(const GenerateArgs& a) {
     // write_terrain's memory: the brickgrid header (4 B per cell) and chunk
     // table (24 B per chunk), and per chunk column in flight (2 per worker)
     // its solid slab (130^3 B) and its chunks' bricks (~128 B each).
-    const uint64_t n = std::bit_ceil(
-                           std::max({uint64_t(w), uint64_t(d), uint64_t(h), uint64_t(128)})) /
-                       8,
-                   ny = (h + 7) / 8, chunks = ((n + 15) / 16) * ((n + 15) / 16) * ((ny + 15) / 16);
+    const uint64_t side = std::bit_ceil(std::max<uint64_t>({w, d, h, 128}));  // terrain_grid()
+    const uint64_t n = side / 8, ny = (h + 7) / 8;                            // brickgrid cells
+    const uint64_t chunks = ((n + 15) / 16) * ((n + 15) / 16) * ((ny + 15) / 16);
     const int threads =
         a.threads > 0 ? a.threads : std::max(1, int(std::thread::hardware_concurrency()));
     const double need = 4.0 * double(n * n * ny) + 24.0 * double(chunks) +
@@ -189,7 +188,8 @@ Runner add_generate(CLI::App& app) {
       cmd->add_option("--persistence", args->persistence, "terrain: amplitude factor per octave")
           ->capture_default_str()};
   cmd->add_option("--memory-budget", args->memory_budget,
-                  "Refuse meshes estimated to need more (e.g. 2G; default 90% of free memory)");
+                  "Refuse meshes and .vxc terrains estimated to need more (e.g. 2G; default 90% of "
+                  "free memory)");
   return [args]() {
     if (args->kind == "sky") return generate_sky(*args);
     if (args->kind != "hairball" && args->kind != "menger" && args->kind != "terrain")
