@@ -54,10 +54,10 @@ struct EditStep {
 
 std::vector<std::string> split_commas(const std::string& text) {
   std::vector<std::string> parts;
-  std::string rest = text;
-  for (size_t pos; (pos = rest.find(',')) != std::string::npos; rest = rest.substr(pos + 1))
-    parts.push_back(rest.substr(0, pos));
-  parts.push_back(rest);
+  size_t from = 0;  // (linear: a 1 MB batch line was quadratic in its copies)
+  for (size_t pos; (pos = text.find(',', from)) != std::string::npos; from = pos + 1)
+    parts.push_back(text.substr(from, pos - from));
+  parts.push_back(text.substr(from));
   return parts;
 }
 
