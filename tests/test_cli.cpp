@@ -88,10 +88,21 @@ TEST(Cli, BuildRejectsBadInput) {
                                 " --voxelization sloppy"));
   expect_one_line_error(
       run_cli("build " + dir.file("t.obj") + " -o " + dir.file("a.vxc") + " --voxel-size -1"));
-  // A voxel size that leaves the mesh a 1^3 grid: too small an ESVO.
+  // A voxel size that leaves the mesh a 1^3 grid: too small an ESVO (a
+  // 1^3 .vox is a valid voxel file, and a valid brickmap world).
   expect_one_line_error(
       run_cli("build " + dir.file("t.obj") + " -o " + dir.file("a.vxc") + " --voxel-size 1e30"),
       "needs at least 2^3");
+  ASSERT_EQ(
+      run_cli("convert " + dir.file("t.obj") + " " + dir.file("one.vox") + " --voxel-size 1e30")
+          .exit_code,
+      0);
+  expect_one_line_error(run_cli("build " + dir.file("one.vox") + " -o " + dir.file("a.vxc")),
+                        "needs at least 2^3");
+  EXPECT_EQ(
+      run_cli("build " + dir.file("one.vox") + " -o " + dir.file("one.vxc") + " --format brickmap")
+          .exit_code,
+      0);
   // An absurd resolution is refused up front by the memory estimate.
   expect_one_line_error(
       run_cli("build " + dir.file("t.obj") + " -o " + dir.file("a.vxc") + " --resolution 1048576"),

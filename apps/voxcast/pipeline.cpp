@@ -180,14 +180,6 @@ GridTransform build_grid(const BuildSettings& s, const Aabb& bounds) {
                            "coordinates cannot tell its sides apart");
     throw Error(buf);
   }
-  if (const int least = format_of(s).min_levels; grid.levels < least) {
-    char buf[200];
-    std::snprintf(buf, sizeof buf,
-                  "--voxel-size %g gives the mesh a %u^3 grid; %s needs at least %u^3: a smaller "
-                  "--voxel-size",
-                  s.voxel_size, unsigned(grid.resolution), s.format.c_str(), 1u << least);
-    throw Error(buf);
-  }
   return grid;
 }
 
@@ -202,6 +194,10 @@ BuiltScene build_from_voxel_file(const BuildSettings& s, uint64_t budget, StageT
   out.load_seconds = timer.mark("read voxels");
   out.leaf_voxels = voxels.size();
   const SceneFormat& format = format_of(s);
+  if (voxels.grid.levels < format.min_levels)
+    throw Error("'" + printable(s.mesh_path) + "' is a " + std::to_string(voxels.grid.resolution) +
+                "^3 grid; " + format.name + " needs at least " +
+                std::to_string(1u << format.min_levels) + "^3");
   if (format.attributes_optional && !s.dag_attributes)
     voxels.colors.clear(), voxels.normals.clear(), voxels.weights.clear();
   out.structure = build_with_bar(format, voxels, format_build_options(s, nullptr));
@@ -271,6 +267,15 @@ BuiltScene build_scene(const BuildSettings& s, Mesh mesh, const MeshLoadStats& m
   const GridTransform grid = build_grid(
       s, displacement ? displaced_bounds(out.mesh, *displacement, float(s.displacement_scale))
                       : out.mesh.bounds());
+  if (const int least = format_of(s).min_levels; grid.levels < least) {
+    // (Only from --voxel-size: build refuses a --resolution below it as a usage error.)
+    char buf[200];
+    std::snprintf(buf, sizeof buf,
+                  "--voxel-size %g gives the mesh a %u^3 grid; %s needs at least %u^3: a smaller "
+                  "--voxel-size",
+                  s.voxel_size, unsigned(grid.resolution), s.format.c_str(), 1u << least);
+    throw Error(buf);
+  }
   const FormatBuildOptions fo = format_build_options(s, &out.mesh);
 
   // The mesh stays in memory for the whole build.
