@@ -357,6 +357,10 @@ TEST(GigaScene, CliRendersSceneFilesAndRejectsBadOnes) {
       {R"({"objects": [{"source": "procedural:nothing"}]})", "object 0"},
       {R"({"objects": [{"source": "procedural:cloud", "transform": {"scale": 0}}]})", "singular"},
       {R"({"objects": [{"source": "procedural:cloud", "transfer": "1:2"}]})", "transfer"},
+      {R"({"objects": [{"source": "procedural:cloud", "transfer": "0.5:1:nan,1,1"}]})",
+       "colors must be finite"},
+      {R"({"objects": [{"source": "procedural:cloud", "transform": {"scale": 1e38}}]})",
+       "object 0: 'transform' entries must be within +-1e18"},
   };
   for (const Case& c : cases) {
     const std::string bad = dir.file("bad.json"), img = dir.file("bad.png");

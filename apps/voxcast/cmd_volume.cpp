@@ -231,6 +231,11 @@ LoadedScene load_volume_scene(const std::string& path, uint64_t budget, int bric
       }
     }
     if (p.source.empty()) bad("has no 'source'");
+    // Entries within +-1e18 (kMaxWorldCoordinate): the objects' world bounds
+    // and the automatic camera stay finite (a scale of 1e38 overflowed them).
+    for (const auto& row : p.transform.m)
+      for (const float x : row)
+        if (!(std::fabs(x) <= 1e18f)) bad("'transform' entries must be within +-1e18");
     parsed.push_back(std::move(p));
   }
   int streaming = 0;
