@@ -13,6 +13,7 @@
 
 #include "cli_io.hpp"
 #include "commands.hpp"
+#include "pipeline.hpp"
 #include "voxcast/brickmap_terrain.hpp"
 #include "voxcast/environment.hpp"
 #include "voxcast/error.hpp"
@@ -94,9 +95,8 @@ int generate_terrain_world(const GenerateArgs& a) {
         a.threads > 0 ? a.threads : std::max(1, int(std::thread::hardware_concurrency()));
     const double need = 4.0 * double(n * n * ny) + 24.0 * double(chunks) +
                         2.0 * threads * (130.0 * 130 * 130 + 16.0 * 16 * double(ny) * 128);
-    const uint64_t budget = a.memory_budget.empty()
-                                ? uint64_t(double(available_memory_bytes()) * 0.9)
-                                : parse_memory_budget(a.memory_budget);
+    const uint64_t budget =
+        effective_budget(a.memory_budget.empty() ? 0 : parse_memory_budget(a.memory_budget));
     if (budget && need > double(budget))
       throw Error("this terrain needs an estimated " + format_bytes(need) + ", more than the " +
                   format_bytes(double(budget)) +
@@ -213,7 +213,7 @@ Runner add_generate(CLI::App& app) {
     else
       outputs.add("-o", args->output, {".obj", ".ply"});
     {
-      if (budget == 0) budget = uint64_t(double(available_memory_bytes()) * 0.9);
+      budget = effective_budget(budget);
       const bool obj = std::filesystem::path(args->output).extension() != ".ply" &&
                        std::filesystem::path(args->output).extension() != ".PLY";
       const double need = estimated_bytes(*args, obj);
